@@ -1,0 +1,1 @@
+"""otgeo web service: FastAPI over the ``solvers`` library."""

@@ -1,0 +1,50 @@
+"""Domains own their geometry, area weights, Laplacians and prefactored heat kernels."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from solvers.domains.base import Domain
+from solvers.domains.graph import Graph
+from solvers.domains.grid import Grid
+from solvers.domains.mesh import MESH_FORMATS, MeshDiagnostics, TriangleMesh
+from solvers.domains.pointcloud import PointCloud
+from solvers.errors import DomainError
+
+DOMAIN_KINDS = ("mesh", "grid", "graph", "pointcloud")
+
+
+def load_mesh(source, file_type: str | None = None, **kwargs) -> TriangleMesh:
+    """Load a triangle mesh file (OBJ, PLY, STL, OFF, GLB/glTF); see ``TriangleMesh.from_file``."""
+    return TriangleMesh.from_file(source, file_type=file_type, **kwargs)
+
+
+def domain_from_arrays(kind: str, arrays: dict[str, np.ndarray], parameters: dict | None = None
+                       ) -> Domain:
+    """Rebuild a domain from ``Domain.to_arrays()`` and ``Domain.parameters()``."""
+    parameters = parameters or {}
+    if kind == "mesh":
+        return TriangleMesh(arrays["vertices"], arrays["faces"], **parameters)
+    if kind == "grid":
+        return Grid(arrays["shape"].tolist(), arrays["bounds"], arrays["periodic"].tolist())
+    if kind == "graph":
+        return Graph(int(arrays["n_nodes"][0]), arrays["edges"], arrays["weights"],
+                     arrays.get("positions"))
+    if kind == "pointcloud":
+        return PointCloud(arrays["points"], **parameters)
+    raise DomainError(f"unknown domain kind {kind!r}; expected one of {DOMAIN_KINDS}",
+                      field="kind")
+
+
+__all__ = [
+    "DOMAIN_KINDS",
+    "MESH_FORMATS",
+    "Domain",
+    "Graph",
+    "Grid",
+    "MeshDiagnostics",
+    "PointCloud",
+    "TriangleMesh",
+    "domain_from_arrays",
+    "load_mesh",
+]

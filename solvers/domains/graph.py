@@ -1,0 +1,122 @@
+"""Weighted undirected graphs."""
+
+from __future__ import annotations
+
+from functools import cached_property
+
+import numpy as np
+import scipy.sparse as sp
+
+from solvers.domains.base import Domain
+from solvers.errors import DomainError
+from solvers.kernels import ImplicitEulerHeatKernel
+from solvers.linalg import Backend
+
+
+class Graph(Domain):
+    r"""An undirected graph with positive edge weights and uniform node weights.
+
+    ``laplacian`` is the combinatorial :math:`L = D - W`; the heat kernel is
+    :math:`(I + tL)^{-1}`.  Parallel edges are summed; self loops are refused.
+
+    Parameters
+    ----------
+    n_nodes : number of nodes.
+    edges : (m, 2) node index pairs.
+    weights : (m,) positive edge weights (default 1).
+    positions : optional (n_nodes, d) coordinates, for display and export.
+    """
+
+    kind = "graph"
+
+    def __init__(self, n_nodes: int, edges, weights=None, positions=None):
+        super().__init__()
+        try:
+            n_nodes = int(n_nodes)
+        except (TypeError, ValueError) as exc:
+            raise DomainError("n_nodes must be an integer", field="n_nodes") from exc
+        if n_nodes < 1:
+            raise DomainError(f"a graph needs at least one node, got {n_nodes}", field="n_nodes")
+        e = np.asarray(edges)
+        if e.size == 0:
+            e = np.zeros((0, 2), dtype=np.int64)
+        if e.ndim != 2 or e.shape[1] != 2:
+            raise DomainError(f"edges must have shape (m, 2), got {e.shape}", field="edges")
+        if not np.issubdtype(e.dtype, np.integer):
+            if not np.all(np.isfinite(e)) or np.any(np.mod(e, 1) != 0):
+                raise DomainError("edge endpoints must be integers", field="edges")
+        e = e.astype(np.int64)
+        if len(e) and (e.min() < 0 or e.max() >= n_nodes):
+            raise DomainError(f"edge endpoints must lie in [0, {n_nodes - 1}]", field="edges")
+        if np.any(e[:, 0] == e[:, 1]):
+            bad = int(np.flatnonzero(e[:, 0] == e[:, 1])[0])
+            raise DomainError(f"edge {bad} is a self loop", field="edges")
+        w = np.ones(len(e)) if weights is None else np.asarray(weights, dtype=np.float64)
+        if w.shape != (len(e),):
+            raise DomainError(f"weights must have length {len(e)}, got shape {w.shape}",
+                              field="weights")
+        if not np.all(np.isfinite(w)) or np.any(w <= 0):
+            raise DomainError("edge weights must be finite and positive", field="weights")
+        if positions is not None:
+            positions = np.asarray(positions, dtype=np.float64)
+            if positions.ndim != 2 or len(positions) != n_nodes:
+                raise DomainError(f"positions must have shape ({n_nodes}, d)", field="positions")
+            if not np.all(np.isfinite(positions)):
+                raise DomainError("positions must be finite", field="positions")
+        self.n_nodes = n_nodes
+        self.edges = e
+        self.weights = w
+        self.positions = positions
+
+    @property
+    def n(self) -> int:
+        return self.n_nodes
+
+    @cached_property
+    def adjacency(self) -> sp.csr_matrix:
+        e, w = self.edges, self.weights
+        adj = sp.coo_matrix(
+            (np.concatenate([w, w]), (np.concatenate([e[:, 0], e[:, 1]]),
+                                      np.concatenate([e[:, 1], e[:, 0]]))),
+            shape=(self.n, self.n),
+        )
+        return adj.tocsr()
+
+    def _adjacency(self):
+        return self.adjacency
+
+    @cached_property
+    def areas(self) -> np.ndarray:
+        return np.full(self.n, 1.0 / self.n)
+
+    @cached_property
+    def laplacian(self) -> sp.csr_matrix:
+        adj = self.adjacency
+        return (sp.diags(np.asarray(adj.sum(axis=1)).ravel()) - adj).tocsr()
+
+    @property
+    def is_connected(self) -> bool:
+        return self.n_components == 1
+
+    def _build_heat_kernel(self, t: float, substeps: int, backend: Backend):
+        return ImplicitEulerHeatKernel(np.ones(self.n), self.laplacian, t, substeps, backend)
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        arrays = {
+            "n_nodes": np.asarray([self.n_nodes], dtype=np.int64),
+            "edges": self.edges,
+            "weights": self.weights,
+        }
+        if self.positions is not None:
+            arrays["positions"] = self.positions
+        return arrays
+
+    def summary(self) -> dict:
+        return {
+            "kind": self.kind,
+            "n": self.n,
+            "nodes": self.n,
+            "edges": int(len(self.edges)),
+            "components": self.n_components,
+            "connected": self.is_connected,
+        }

@@ -1,0 +1,435 @@
+"""Triangle meshes: loading, welding, diagnostics and differential operators."""
+
+from __future__ import annotations
+
+import io
+import os
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+import robust_laplacian
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from solvers.domains.base import Domain
+from solvers.errors import DomainError, MeshFormatError
+from solvers.kernels import ImplicitEulerHeatKernel
+from solvers.linalg import Backend
+
+MESH_FORMATS = ("obj", "ply", "stl", "off", "glb", "gltf")
+# Formats that store one vertex per (position, attribute) pair or none at all, so
+# coincident positions must be welded to recover the surface. OBJ keeps its
+# position indices (faces' first index), which already weld UV/normal seams.
+POSITION_WELD_FORMATS = ("stl", "glb", "gltf")
+
+# Relative area below which a face counts as degenerate (fraction of mean face area).
+DEGENERATE_AREA_FRACTION = 1e-12
+
+
+@dataclass
+class MeshDiagnostics:
+    """What was found (and repaired) when the mesh was loaded."""
+
+    welded_vertices: int = 0
+    removed_unreferenced_vertices: int = 0
+    removed_degenerate_faces: int = 0
+    removed_duplicate_faces: int = 0
+    nonmanifold_edges: int = 0
+    nonmanifold_vertices: int = 0
+    boundary_edges: int = 0
+    warnings: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+def _validate_arrays(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        v = np.asarray(vertices, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise DomainError(f"vertices are not numeric: {exc}", field="vertices") from exc
+    try:
+        f_raw = np.asarray(faces)
+    except (TypeError, ValueError) as exc:  # ragged lists
+        raise DomainError(f"faces are not a triangle array: {exc}", field="faces") from exc
+    if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
+        raise DomainError(f"vertices must have shape (n, 3) with n > 0, got {v.shape}",
+                          field="vertices")
+    if not np.all(np.isfinite(v)):
+        bad = int(np.argwhere(~np.isfinite(v))[0, 0])
+        raise DomainError(f"vertex {bad} has a NaN or infinite coordinate", field="vertices")
+    if f_raw.ndim != 2 or f_raw.shape[1] != 3 or len(f_raw) == 0:
+        raise DomainError(f"faces must have shape (m, 3) with m > 0 (triangles), got "
+                          f"{f_raw.shape}", field="faces")
+    if not np.issubdtype(f_raw.dtype, np.integer):
+        if not np.all(np.isfinite(f_raw)) or np.any(np.mod(f_raw, 1) != 0):
+            raise DomainError("face indices must be integers", field="faces")
+    f = f_raw.astype(np.int64)
+    if f.min() < 0 or f.max() >= len(v):
+        raise DomainError(
+            f"face indices must lie in [0, {len(v) - 1}], found range [{f.min()}, {f.max()}]",
+            field="faces",
+        )
+    return v, f
+
+
+def _clean(v: np.ndarray, f: np.ndarray, weld: bool, diag: MeshDiagnostics):
+    """Weld coincident vertices, drop degenerate/duplicate faces and unused vertices."""
+    if weld:
+        # Seams (UV / normal splits) store one surface point several times.
+        scale = max(float(np.ptp(v, axis=0).max()), 1e-300)
+        key = np.round(v / scale, 10)
+        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        diag.welded_vertices = int(len(v) - len(first))
+        v = v[first]
+        f = inverse[f]
+    repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])
+    cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    area2 = np.linalg.norm(cross, axis=1)
+    positive = area2[~repeated]
+    tiny = DEGENERATE_AREA_FRACTION * (positive.mean() if positive.size else 0.0)
+    degenerate = repeated | (area2 <= tiny)
+    diag.removed_degenerate_faces = int(degenerate.sum())
+    f = f[~degenerate]
+    if len(f) == 0:
+        raise DomainError("mesh has no non-degenerate faces", field="faces")
+    _, unique_rows = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
+    diag.removed_duplicate_faces = int(len(f) - len(unique_rows))
+    f = f[np.sort(unique_rows)]
+    used = np.zeros(len(v), dtype=bool)
+    used[f.ravel()] = True
+    diag.removed_unreferenced_vertices = int((~used).sum())
+    remap = -np.ones(len(v), dtype=np.int64)
+    remap[used] = np.arange(used.sum())
+    return v[used], remap[f]
+
+
+class TriangleMesh(Domain):
+    r"""A triangle mesh rescaled to unit total area, with its operators.
+
+    Vertices are stored at unit total surface area (``vertices``); multiply
+    lengths by ``length_scale`` (and areas by its square) to return to input
+    units.  Mass lives on vertices with lumped (barycentric) areas ``areas``
+    summing to 1.
+
+    Operators
+    ---------
+    ``cotan_laplacian``
+        weak cotangent Laplacian :math:`L_{ij} = -\tfrac12(\cot\alpha_{ij}+\cot\beta_{ij})`,
+        PSD with ``L·1 = 0``; equals :math:`G^\top \operatorname{diag}(A_f) G`.
+    ``laplacian``
+        the Laplacian used by heat kernels: the intrinsic-Delaunay ("robust")
+        Laplacian of Sharp & Crane 2020 by default, whose off-diagonals are
+        non-positive so :math:`(D_a + tL)^{-1}` is entrywise non-negative even on
+        meshes with obtuse triangles; ``laplacian="cotan"`` selects the plain one.
+    ``gradient``
+        :math:`G`, ``(3F, V)``: row ``3f + c`` is component ``c`` of the
+        (constant) gradient on face ``f`` of a piecewise-linear function.
+    ``divergence``
+        :math:`-G^\top \operatorname{diag}(A_f)`, ``(V, 3F)``: weak divergence of a
+        per-face vector field, so ``divergence @ gradient == -cotan_laplacian``.
+    """
+
+    kind = "mesh"
+
+    def __init__(
+        self,
+        vertices,
+        faces,
+        *,
+        weld: bool = False,
+        laplacian: str = "robust",
+        _diagnostics: MeshDiagnostics | None = None,
+    ):
+        super().__init__()
+        if laplacian not in ("robust", "cotan"):
+            raise DomainError(f"laplacian must be 'robust' or 'cotan', got {laplacian!r}",
+                              field="laplacian")
+        v, f = _validate_arrays(vertices, faces)
+        self.diagnostics = _diagnostics or MeshDiagnostics()
+        v, f = _clean(v, f, weld, self.diagnostics)
+        raw_area = 0.5 * np.linalg.norm(
+            np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1
+        ).sum()
+        self.length_scale = float(np.sqrt(raw_area))
+        self._input_vertices = v
+        self.vertices = v / self.length_scale
+        self.faces = f
+        self.laplacian_kind = laplacian
+        self._analyze_topology()
+
+    # -- construction -------------------------------------------------------
+    @classmethod
+    def from_file(cls, source, file_type: str | None = None, **kwargs) -> TriangleMesh:
+        """Load OBJ, PLY, STL, OFF or glTF/GLB from a path, bytes or a binary file object.
+
+        Scenes with several meshes are concatenated. Seams are welded: OBJ faces
+        keep their position indices (``v`` lines), and STL/glTF vertices are
+        merged by position; pass ``weld=`` to override the latter.
+        """
+        import trimesh
+
+        if isinstance(source, (str, os.PathLike)):
+            path = os.fspath(source)
+            file_type = file_type or os.path.splitext(path)[1].lstrip(".")
+            if not os.path.exists(path):
+                raise MeshFormatError(f"no such file: {path}", field="file")
+            with open(path, "rb") as fh:
+                data = fh.read()
+        elif isinstance(source, (bytes, bytearray)):
+            data = bytes(source)
+        else:
+            data = source.read()
+        file_type = (file_type or "").lower().lstrip(".")
+        if file_type not in MESH_FORMATS:
+            raise MeshFormatError(
+                f"unsupported mesh format {file_type!r}; expected one of {', '.join(MESH_FORMATS)}",
+                field="file",
+            )
+        if len(data) == 0:
+            raise MeshFormatError("mesh file is empty", field="file")
+        kwargs.setdefault("weld", file_type in POSITION_WELD_FORMATS)
+        options = {"maintain_order": True, "skip_materials": True} if file_type == "obj" else {}
+        try:
+            loaded = trimesh.load(
+                io.BytesIO(data), file_type=file_type, force="mesh", process=False, **options
+            )
+        except Exception as exc:  # trimesh raises many types on bad input
+            raise MeshFormatError(f"could not parse {file_type.upper()} file: {exc}",
+                                  field="file") from exc
+        vertices = np.asarray(getattr(loaded, "vertices", np.empty((0, 3))))
+        faces = np.asarray(getattr(loaded, "faces", np.empty((0, 3))))
+        if len(vertices) == 0 or len(faces) == 0:
+            raise MeshFormatError(f"{file_type.upper()} file contains no triangles", field="file")
+        return cls(vertices, faces, **kwargs)
+
+    # -- topology -----------------------------------------------------------
+    def _analyze_topology(self) -> None:
+        f = self.faces
+        nv, nf = len(self.vertices), len(f)
+        half = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        undirected = np.sort(half, axis=1)
+        edges, edge_of_half, counts = np.unique(
+            undirected, axis=0, return_inverse=True, return_counts=True
+        )
+        edge_of_half = edge_of_half.reshape(-1)
+        self.edges = edges
+        self.diagnostics.nonmanifold_edges = int((counts > 2).sum())
+        self.diagnostics.boundary_edges = int((counts == 1).sum())
+        self._boundary_edges = edges[counts == 1]
+
+        face_adj = sp.coo_matrix(
+            (np.ones(3 * nf), (np.tile(np.arange(nf), 3), edge_of_half)), shape=(nf, len(edges))
+        ).tocsr()
+        vertex_graph = sp.coo_matrix(
+            (np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(nv, nv)
+        )
+        n_comp, labels = connected_components(vertex_graph, directed=False)
+        self._components = (int(n_comp), labels)
+
+        # Non-manifold vertices: the faces around a vertex do not form one fan.
+        corner = np.arange(3 * nf).reshape(3, nf).T  # corner id of (face, local vertex)
+        pairs = []
+        interior = np.flatnonzero(counts == 2)
+        edge_faces = face_adj.T.tocsr()
+        fa = edge_faces.indices.reshape(-1)
+        starts = edge_faces.indptr
+        f1 = fa[starts[interior]]
+        f2 = fa[starts[interior] + 1]
+        for endpoint in (0, 1):
+            vert = edges[interior, endpoint]
+            c1 = corner[f1, np.argmax(f[f1] == vert[:, None], axis=1)]
+            c2 = corner[f2, np.argmax(f[f2] == vert[:, None], axis=1)]
+            pairs.append(np.stack([c1, c2], axis=1))
+        pairs = np.concatenate(pairs) if pairs else np.zeros((0, 2), dtype=np.int64)
+        corner_graph = sp.coo_matrix(
+            (np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(3 * nf, 3 * nf)
+        )
+        _, fan = connected_components(corner_graph, directed=False)
+        corner_vertex = f.T.reshape(-1)  # corner id k = local*nf + face
+        fans = np.unique(np.stack([corner_vertex, fan[np.arange(3 * nf)]], axis=1), axis=0)
+        fans_per_vertex = np.bincount(fans[:, 0], minlength=nv)
+        self.diagnostics.nonmanifold_vertices = int((fans_per_vertex > 1).sum())
+
+        # Boundary loops: connected pieces of the boundary edge graph.
+        if len(self._boundary_edges):
+            b = self._boundary_edges
+            bgraph = sp.coo_matrix((np.ones(len(b)), (b[:, 0], b[:, 1])), shape=(nv, nv))
+            _, blabels = connected_components(bgraph, directed=False)
+            on_boundary = np.unique(b.ravel())
+            loop_labels = blabels[on_boundary]
+            self._loop_vertex_sets = [
+                on_boundary[loop_labels == lab] for lab in np.unique(loop_labels)
+            ]
+        else:
+            self._loop_vertex_sets = []
+
+        # Per-component Euler characteristic and genus (chi = 2 - 2g - b).
+        comp_v = np.bincount(labels, minlength=n_comp)
+        comp_f = np.bincount(labels[f[:, 0]], minlength=n_comp)
+        comp_e = np.bincount(labels[edges[:, 0]], minlength=n_comp)
+        comp_b = np.bincount(
+            [labels[s[0]] for s in self._loop_vertex_sets], minlength=n_comp
+        ).astype(np.int64)
+        self.component_euler = comp_v - comp_e + comp_f
+        self.component_genus = (2 - self.component_euler - comp_b) // 2
+        self.component_boundary_loops = comp_b
+
+        d = self.diagnostics
+        if n_comp > 1:
+            d.warnings.append(
+                f"mesh has {n_comp} connected components: mass cannot move between them"
+            )
+        if d.nonmanifold_edges:
+            d.warnings.append(f"{d.nonmanifold_edges} non-manifold edges (more than two faces)")
+        if d.nonmanifold_vertices:
+            d.warnings.append(f"{d.nonmanifold_vertices} non-manifold vertices")
+        if d.removed_degenerate_faces:
+            d.warnings.append(f"removed {d.removed_degenerate_faces} degenerate faces")
+        if d.removed_duplicate_faces:
+            d.warnings.append(f"removed {d.removed_duplicate_faces} duplicate faces")
+
+    @property
+    def n(self) -> int:
+        return len(self.vertices)
+
+    @property
+    def n_faces(self) -> int:
+        return len(self.faces)
+
+    @property
+    def euler_characteristic(self) -> int:
+        return int(self.n - len(self.edges) + self.n_faces)
+
+    @property
+    def genus(self) -> int | None:
+        """Sum of the component genera (the genus, for one component); None if non-manifold."""
+        if not self.is_manifold:
+            return None
+        return int(self.component_genus.sum())
+
+    @property
+    def boundary_loops(self) -> list[np.ndarray]:
+        """Vertex indices of each boundary loop (one array per loop)."""
+        return list(self._loop_vertex_sets)
+
+    @property
+    def is_closed(self) -> bool:
+        return self.diagnostics.boundary_edges == 0
+
+    @property
+    def is_manifold(self) -> bool:
+        d = self.diagnostics
+        return d.nonmanifold_edges == 0 and d.nonmanifold_vertices == 0
+
+    # -- geometry -----------------------------------------------------------
+    @cached_property
+    def _face_cross(self) -> np.ndarray:
+        v, f = self.vertices, self.faces
+        return np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+
+    @cached_property
+    def face_areas(self) -> np.ndarray:
+        """(F,) triangle areas at unit total area."""
+        return 0.5 * np.linalg.norm(self._face_cross, axis=1)
+
+    @cached_property
+    def face_normals(self) -> np.ndarray:
+        """(F, 3) unit normals."""
+        return self._face_cross / (2.0 * self.face_areas[:, None])
+
+    @cached_property
+    def areas(self) -> np.ndarray:
+        """(V,) lumped (barycentric) vertex areas; they sum to 1."""
+        a = np.bincount(self.faces.ravel(), weights=np.repeat(self.face_areas / 3.0, 3),
+                        minlength=self.n)
+        return a / a.sum()
+
+    @cached_property
+    def mean_edge_length(self) -> float:
+        e = self.edges
+        return float(np.linalg.norm(self.vertices[e[:, 0]] - self.vertices[e[:, 1]], axis=1).mean())
+
+    # -- operators ----------------------------------------------------------
+    @cached_property
+    def cotan_laplacian(self) -> sp.csr_matrix:
+        v, f = self.vertices, self.faces
+        rows, cols, vals = [], [], []
+        for k in range(3):
+            i, j, o = f[:, (k + 1) % 3], f[:, (k + 2) % 3], f[:, k]
+            u, w = v[i] - v[o], v[j] - v[o]
+            cot = np.einsum("ij,ij->i", u, w) / np.linalg.norm(np.cross(u, w), axis=1)
+            rows += [i, j]
+            cols += [j, i]
+            vals += [-0.5 * cot, -0.5 * cot]
+        off = sp.coo_matrix(
+            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+            shape=(self.n, self.n),
+        ).tocsr()
+        return (off - sp.diags(np.asarray(off.sum(axis=1)).ravel())).tocsr()
+
+    @cached_property
+    def robust_laplacian(self) -> sp.csr_matrix:
+        lap, _ = robust_laplacian.mesh_laplacian(
+            np.ascontiguousarray(self.vertices), np.ascontiguousarray(self.faces)
+        )
+        return sp.csr_matrix(lap)
+
+    @property
+    def laplacian(self) -> sp.csr_matrix:
+        return self.robust_laplacian if self.laplacian_kind == "robust" else self.cotan_laplacian
+
+    @cached_property
+    def gradient(self) -> sp.csr_matrix:
+        v, f = self.vertices, self.faces
+        nf = self.n_faces
+        normals = self.face_normals
+        rows, cols, vals = [], [], []
+        for k in range(3):
+            # grad phi_k = N x (p_{k+2} - p_{k+1}) / (2A)
+            opposite = v[f[:, (k + 2) % 3]] - v[f[:, (k + 1) % 3]]
+            g = np.cross(normals, opposite) / (2.0 * self.face_areas[:, None])
+            for c in range(3):
+                rows.append(3 * np.arange(nf) + c)
+                cols.append(f[:, k])
+                vals.append(g[:, c])
+        return sp.coo_matrix(
+            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+            shape=(3 * nf, self.n),
+        ).tocsr()
+
+    @cached_property
+    def divergence(self) -> sp.csr_matrix:
+        return (-self.gradient.T @ sp.diags(np.repeat(self.face_areas, 3))).tocsr()
+
+    def _build_heat_kernel(self, t: float, substeps: int, backend: Backend):
+        return ImplicitEulerHeatKernel(self.areas, self.laplacian, t, substeps, backend)
+
+    # -- storage / reporting -----------------------------------------------
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        return {
+            "vertices": self._input_vertices,
+            "faces": self.faces,
+        }
+
+    def parameters(self) -> dict:
+        return {"laplacian": self.laplacian_kind}
+
+    def summary(self) -> dict:
+        return {
+            "kind": self.kind,
+            "n": int(self.n),
+            "vertices": int(self.n),
+            "faces": int(self.n_faces),
+            "edges": int(len(self.edges)),
+            "components": self.n_components,
+            "genus": self.genus,
+            "euler_characteristic": self.euler_characteristic,
+            "boundary_loops": len(self.boundary_loops),
+            "closed": self.is_closed,
+            "manifold": self.is_manifold,
+            "length_scale": self.length_scale,
+            "diagnostics": self.diagnostics.as_dict(),
+        }
