@@ -17,11 +17,11 @@ serve: install
 	$(VENV)/bin/otgeo serve
 
 test: install
-	$(VENV)/bin/ruff check solvers service tests bench
+	$(VENV)/bin/ruff check .
 	$(PY) -m pytest -q
 
 lint: install
-	$(VENV)/bin/ruff check solvers service tests bench
+	$(VENV)/bin/ruff check .
 
 bench: install
 	$(PY) bench/operators.py
