@@ -1,0 +1,587 @@
+r"""Exact W1 (Beckmann) on triangle meshes as second-order cone programs (thesis ch. 2).
+
+The earth mover's distance between masses :math:`m_0, m_1` on the vertices of a mesh
+is computed in Beckmann's flow form (eq. 2.3), discretized with one tangent vector
+:math:`J_t` per face and the weak (P1 finite-element) divergence:
+
+.. math::
+    W_1(m_0, m_1) = \min_J \sum_t A_t \lVert J_t\rVert
+    \quad\text{s.t.}\quad \operatorname{div} J = m_0 - m_1 ,
+
+where ``(div J)_i = -\sum_t A_t \nabla\phi_i|_t \cdot J_t`` is ``mesh.divergence @ J``.
+Its dual is the Kantorovich–Rubinstein problem (eq. 2.1)
+:math:`\max_\phi \phi^\top(m_1 - m_0)` over piecewise-linear :math:`\phi` with
+:math:`\lVert\nabla\phi|_t\rVert \le 1` on every face, returned as ``potential``.
+A piecewise-linear function with unit-bounded face gradients is 1-Lipschitz for the
+polyhedral geodesic distance, so this discrete W1 is never above the exact linear
+program with polyhedral geodesic costs; the gap is a discretization error that
+shrinks under refinement.
+
+With the substitution :math:`u_t = A_t J_t` (two coordinates in a tangent frame per
+face) the problem is an SOCP: minimize :math:`\sum_t s_t` subject to linear
+equalities and :math:`(s_t, u_t)` in the 3-dimensional Lorentz cone.  It is solved
+to interior-point accuracy with Clarabel, which makes it the ground truth for the
+iterative ADMM solver of :mod:`solvers.emd`, and lets the same machinery solve the
+convex W1 problems of §2.7:
+
+* :func:`w1_barycenter` – eq. (2.6), :math:`\min_\mu \sum_i \alpha_i W_1(\mu, \mu_i)`;
+* :func:`w1_path_planning` – eq. (2.7), a sequence of distributions from a start to
+  a goal minimizing :math:`\sum_k W_1(\mu_k, \mu_{k+1})` under per-vertex capacities,
+  forbidden vertices and per-face travel costs (obstacles).
+
+Interior-point cost grows superlinearly, so every entry point refuses problems above
+``max_vertices`` (default 5,000) mesh vertices; use :mod:`solvers.emd` beyond that.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from solvers.distributions import check_masses
+from solvers.domains.mesh import TriangleMesh
+from solvers.errors import CancelledError, InputError, UnsupportedDomainError
+
+MAX_VERTICES = 5000
+# Interior-point problems grow with (vertices x flow blocks); cap the total as well.
+MAX_FLOW_UNKNOWNS = 40000
+# Relative component-mass mismatch above which mass would have to cross components.
+_BALANCE_TOL = 1e-9
+
+
+@dataclass
+class BeckmannResult:
+    """Exact W1 between two vertex mass vectors.
+
+    ``flow`` is :math:`J` per face ``(F, 3)`` (tangent; flux density, mass per length),
+    oriented from ``mu0`` towards ``mu1``; ``potential`` ``(V,)`` is the optimal
+    Kantorovich potential, ``value == potential @ (mu1 - mu0)``, with face gradients
+    of norm at most the face weight.  ``residual`` is the max-norm violation of
+    ``div J = mu0 - mu1``; ``iterations`` are interior-point iterations.
+    """
+
+    value: float
+    flow: np.ndarray
+    potential: np.ndarray
+    iterations: int
+    residual: float
+    converged: bool
+    status: str
+    solve_time: float
+
+
+@dataclass
+class W1BarycenterResult:
+    """W1 barycenter (eq. 2.6): ``masses`` ``(V,)``, objective ``value`` and the
+    distances ``(k,)`` from the barycenter to each input, with their flows ``(k, F, 3)``."""
+
+    masses: np.ndarray
+    value: float
+    distances: np.ndarray
+    flows: np.ndarray
+    iterations: int
+    residual: float
+    converged: bool
+    status: str
+    solve_time: float
+
+
+@dataclass
+class W1PathResult:
+    """W1 path (eq. 2.7): ``masses`` ``(V, n_steps + 1)`` from start to goal, the cost
+    ``step_costs`` ``(n_steps,)`` of every step, their sum ``value`` and the step flows
+    ``(n_steps, F, 3)``."""
+
+    masses: np.ndarray
+    value: float
+    step_costs: np.ndarray
+    flows: np.ndarray
+    iterations: int
+    residual: float
+    converged: bool
+    status: str
+    solve_time: float
+    times: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+# ---------------------------------------------------------------------------
+# validation helpers
+# ---------------------------------------------------------------------------
+def _check_mesh(mesh, max_vertices: int, blocks: int = 1) -> None:
+    if not isinstance(mesh, TriangleMesh):
+        raise UnsupportedDomainError("exact W1 needs a TriangleMesh domain", field="domain")
+    if mesh.n > max_vertices:
+        raise InputError(
+            f"mesh has {mesh.n} vertices; the exact (interior-point) W1 solver is limited to "
+            f"{max_vertices}; use solvers.emd for larger meshes", field="domain")
+    if mesh.n * blocks > MAX_FLOW_UNKNOWNS:
+        raise InputError(
+            f"problem too large for the exact solver: {blocks} flows x {mesh.n} vertices "
+            f"exceeds {MAX_FLOW_UNKNOWNS}", field="domain")
+
+
+def _masses(mesh, values, field_name: str) -> np.ndarray:
+    x = check_masses(values, mesh.n, field_name)
+    return x / x.sum(axis=0)
+
+
+def _face_weights(mesh, face_weights) -> np.ndarray:
+    if face_weights is None:
+        return np.ones(mesh.n_faces)
+    w = np.asarray(face_weights, dtype=np.float64)
+    if w.shape != (mesh.n_faces,):
+        raise InputError(f"face_weights must have shape ({mesh.n_faces},), got {w.shape}",
+                         field="face_weights")
+    if np.any(np.isnan(w)) or np.any(w <= 0):
+        raise InputError("face_weights must be positive (np.inf blocks a face)",
+                         field="face_weights")
+    return w
+
+
+def _check_balance(mesh, difference: np.ndarray, field_name: str) -> None:
+    """Every connected component must receive the mass it gives."""
+    if mesh.n_components == 1:
+        return
+    per_comp = mesh.component_masses(difference)
+    scale = max(np.abs(difference).sum(), 1e-300)
+    if np.any(np.abs(per_comp) > _BALANCE_TOL * scale + 1e-12):
+        raise UnsupportedDomainError(
+            "mass would have to move between connected components of the mesh "
+            f"(component mass differences {np.round(per_comp, 6).tolist()})", field=field_name)
+
+
+# ---------------------------------------------------------------------------
+# the flow block: (s_t, u_t) per face, u_t = A_t J_t in a tangent frame
+# ---------------------------------------------------------------------------
+@dataclass
+class _FlowGeometry:
+    faces: np.ndarray  # indices of faces that carry flow (finite weight)
+    weights: np.ndarray  # (len(faces),)
+    div: sp.csr_matrix  # (V, 3*len(faces)) weak divergence in interleaved variables
+    frames: np.ndarray  # (len(faces), 2, 3) tangent frame
+
+
+def _flow_geometry(mesh: TriangleMesh, weights: np.ndarray) -> _FlowGeometry:
+    free = np.flatnonzero(np.isfinite(weights))
+    v, f = mesh.vertices, mesh.faces
+    e1 = v[f[:, 1]] - v[f[:, 0]]
+    e1 /= np.linalg.norm(e1, axis=1)[:, None]
+    e2 = np.cross(mesh.face_normals, e1)
+    nf = mesh.n_faces
+    rows = np.repeat(3 * np.arange(nf)[:, None] + np.arange(3), 2, axis=1).ravel()
+    cols = np.tile(2 * np.arange(nf)[:, None] + np.array([0, 1]), (1, 3)).ravel()
+    vals = np.stack([e1, e2], axis=2).reshape(nf, 6).ravel()
+    frame = sp.csr_matrix((vals, (rows, cols)), shape=(3 * nf, 2 * nf))
+    # mesh.divergence @ J with J = E u / A_t  ==  -(E^T G)^T u
+    div_u = (-(frame.T @ mesh.gradient).T).tocoo()
+    face_of_col, d = np.divmod(div_u.col, 2)
+    position = -np.ones(nf, dtype=np.int64)
+    position[free] = np.arange(len(free))
+    keep = position[face_of_col] >= 0
+    div = sp.csr_matrix(
+        (div_u.data[keep], (div_u.row[keep], 3 * position[face_of_col[keep]] + 1 + d[keep])),
+        shape=(mesh.n, 3 * len(free)))
+    return _FlowGeometry(free, weights[free], div, np.stack([e1, e2], axis=1)[free])
+
+
+def _flow_vectors(mesh: TriangleMesh, geo: _FlowGeometry, x_block: np.ndarray) -> np.ndarray:
+    """(F, 3) tangent J from the interleaved block ``[s, u1, u2]`` per free face."""
+    u = x_block.reshape(-1, 3)[:, 1:]
+    J = np.zeros((mesh.n_faces, 3))
+    J[geo.faces] = np.einsum("fd,fdc->fc", u, geo.frames) / mesh.face_areas[geo.faces, None]
+    return J
+
+
+class _ConicProgram:
+    """A tiny assembler for ``min q^T x  s.t.  A x + s = b, s in K`` (Clarabel's form)."""
+
+    def __init__(self):
+        self.n = 0
+        self.q: list[tuple[int, np.ndarray]] = []
+        self.blocks = {"eq": [], "nonneg": [], "soc": []}
+        self.rows = {"eq": 0, "nonneg": 0, "soc": 0}
+        self.soc_sizes: list[int] = []
+
+    def variables(self, k: int, cost=None) -> slice:
+        s = slice(self.n, self.n + k)
+        self.n += k
+        if cost is not None:
+            self.q.append((s.start, np.broadcast_to(np.asarray(cost, dtype=float), (k,))))
+        return s
+
+    def constrain(self, kind: str, terms: list[tuple[slice, sp.spmatrix]], b) -> int:
+        """Add rows ``sum_j M_j x[s_j] + slack = b`` with slack in cone ``kind``."""
+        first = self.rows[kind]
+        m = terms[0][1].shape[0]
+        self.blocks[kind].append((first, terms, np.asarray(b, dtype=float)))
+        self.rows[kind] += m
+        return first
+
+    def flow_block(self, geo: _FlowGeometry, cost_scale: float = 1.0) -> slice:
+        nf = len(geo.faces)
+        cost = np.zeros(3 * nf)
+        cost[0::3] = cost_scale * geo.weights
+        s = self.variables(3 * nf, cost)
+        self.constrain("soc", [(s, -sp.identity(3 * nf, format="csr"))], np.zeros(3 * nf))
+        self.soc_sizes += [3] * nf
+        return s
+
+    def solve(self, tol: float, max_iter: int, time_limit: float | None):
+        import clarabel
+
+        q = np.zeros(self.n)
+        for start, c in self.q:
+            q[start:start + len(c)] += c
+        rows, cols, vals, b = [], [], [], []
+        offset = 0
+        for kind in ("eq", "nonneg", "soc"):
+            for first, terms, _rhs in self.blocks[kind]:
+                for s, M in terms:
+                    M = M.tocoo()
+                    rows.append(M.row + offset + first)
+                    cols.append(M.col + s.start)
+                    vals.append(M.data)
+            kb = np.zeros(self.rows[kind])
+            for first, _, rhs in self.blocks[kind]:
+                kb[first:first + len(rhs)] = rhs
+            b.append(kb)
+            offset += self.rows[kind]
+        A = sp.csc_matrix(
+            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+            shape=(offset, self.n))
+        cones = []
+        if self.rows["eq"]:
+            cones.append(clarabel.ZeroConeT(self.rows["eq"]))
+        if self.rows["nonneg"]:
+            cones.append(clarabel.NonnegativeConeT(self.rows["nonneg"]))
+        cones += [clarabel.SecondOrderConeT(k) for k in self.soc_sizes]
+        settings = clarabel.DefaultSettings()
+        settings.verbose = False
+        settings.tol_gap_abs = tol
+        settings.tol_gap_rel = tol
+        settings.tol_feas = tol
+        settings.max_iter = int(max_iter)
+        if time_limit is not None:
+            settings.time_limit = float(time_limit)
+        P = sp.csc_matrix((self.n, self.n))
+        start = time.perf_counter()
+        solution = clarabel.DefaultSolver(P, q, A, np.concatenate(b), cones, settings).solve()
+        elapsed = time.perf_counter() - start
+        status = str(solution.status)
+        if "." in status:
+            status = status.rsplit(".", 1)[1]
+        x = np.asarray(solution.x)
+        z = np.asarray(solution.z)
+        return x, z, int(solution.iterations), status, elapsed
+
+
+def _kept_rows(mesh: TriangleMesh) -> np.ndarray:
+    """All vertices but one per component: the divergence rows are rank V - components."""
+    labels = mesh.component_labels
+    _, first = np.unique(labels, return_index=True)
+    keep = np.ones(mesh.n, dtype=bool)
+    keep[first] = False
+    return np.flatnonzero(keep)
+
+
+def _component_sum_matrix(mesh: TriangleMesh) -> sp.csr_matrix:
+    labels = mesh.component_labels
+    return sp.csr_matrix((np.ones(mesh.n), (labels, np.arange(mesh.n))),
+                         shape=(mesh.n_components, mesh.n))
+
+
+def _converged(status: str) -> bool:
+    return status in ("Solved", "AlmostSolved")
+
+
+def _check_cancel(should_cancel) -> None:
+    if should_cancel is not None and should_cancel():
+        raise CancelledError("cancelled before the conic solve started")
+
+
+# ---------------------------------------------------------------------------
+# public solvers
+# ---------------------------------------------------------------------------
+def beckmann_w1_exact(
+    mesh: TriangleMesh,
+    mu0,
+    mu1,
+    *,
+    face_weights=None,
+    tol: float = 1e-8,
+    max_iter: int = 200,
+    max_vertices: int = MAX_VERTICES,
+    time_limit: float | None = None,
+    should_cancel=None,
+) -> BeckmannResult:
+    r"""Exact discrete W1 (Beckmann problem, eq. 2.3) by second-order cone programming.
+
+    Solves :math:`\min_J \sum_t w_t A_t \lVert J_t\rVert` s.t.
+    ``mesh.divergence @ J = m0 - m1`` with one tangent vector per face.
+
+    Parameters
+    ----------
+    mesh : TriangleMesh with at most ``max_vertices`` vertices.
+    mu0, mu1 : (V,) masses (non-negative, normalized to sum 1 here).
+    face_weights : optional (F,) positive travel cost per unit length on each face
+        (the isotropic case of the anisotropic W1 of §2.7); ``np.inf`` forbids a face.
+    tol : interior-point gap and feasibility tolerance.
+
+    Returns
+    -------
+    BeckmannResult with ``value``, ``flow`` (F, 3), ``potential`` (V,).
+    """
+    _check_mesh(mesh, max_vertices)
+    m0 = _masses(mesh, mu0, "mu0")
+    m1 = _masses(mesh, mu1, "mu1")
+    if m0.ndim != 1 or m1.ndim != 1:
+        raise InputError("mu0 and mu1 must be single (V,) distributions", field="mu0")
+    return _beckmann_difference(mesh, m0 - m1, face_weights=face_weights, tol=tol,
+                                max_iter=max_iter, time_limit=time_limit,
+                                should_cancel=should_cancel)
+
+
+def _beckmann_difference(mesh, difference, *, face_weights=None, tol=1e-8, max_iter=200,
+                         time_limit=None, should_cancel=None,
+                         field_name: str = "mu1") -> BeckmannResult:
+    """Kantorovich–Rubinstein norm of a balanced signed mass vector ``m0 - m1``."""
+    _check_balance(mesh, difference, field_name)
+    weights = _face_weights(mesh, face_weights)
+    geo = _flow_geometry(mesh, weights)
+    keep = _kept_rows(mesh)
+    _check_cancel(should_cancel)
+    prog = _ConicProgram()
+    flow = prog.flow_block(geo)
+    prog.constrain("eq", [(flow, geo.div[keep])], difference[keep])
+    x, z, iterations, status, elapsed = prog.solve(tol, max_iter, time_limit)
+    if status in ("PrimalInfeasible", "AlmostPrimalInfeasible"):
+        raise UnsupportedDomainError(
+            "no flow can carry the mass: the faces allowed by face_weights disconnect the "
+            "support of mu0 from that of mu1", field="face_weights")
+    xb = x[flow]
+    potential = np.zeros(mesh.n)
+    potential[keep] = z[: len(keep)]
+    residual = float(np.abs(geo.div @ xb - difference).max())
+    value = float(weights[geo.faces] @ np.linalg.norm(xb.reshape(-1, 3)[:, 1:], axis=1))
+    return BeckmannResult(
+        value=value,
+        flow=_flow_vectors(mesh, geo, xb),
+        potential=potential,
+        iterations=iterations,
+        residual=residual,
+        converged=_converged(status),
+        status=status,
+        solve_time=elapsed,
+    )
+
+
+def kantorovich_rubinstein_norm(mesh: TriangleMesh, difference, **kwargs) -> BeckmannResult:
+    r"""Exact :math:`\lVert m_0 - m_1\rVert_{KR}` of a signed (V,) vector summing to 0.
+
+    The Beckmann problem only sees the difference of its two marginals, so it is a norm
+    on balanced signed measures; this is what volumetric distances (§2.6) need, since
+    mean value coordinates may be negative.  ``value = W1(positive part, negative part)``.
+    Keyword arguments are those of :func:`beckmann_w1_exact`.
+    """
+    d = np.asarray(difference, dtype=np.float64)
+    if d.shape != (mesh.n,) or not np.all(np.isfinite(d)):
+        raise InputError(f"difference must be a finite ({mesh.n},) vector", field="difference")
+    scale = np.abs(d).sum()
+    if abs(d.sum()) > 1e-9 * max(scale, 1.0):
+        raise InputError(f"difference must sum to zero, got {d.sum():g}", field="difference")
+    _check_mesh(mesh, kwargs.pop("max_vertices", MAX_VERTICES))
+    return _beckmann_difference(mesh, d, field_name="difference", **kwargs)
+
+
+def w1_barycenter(
+    mesh: TriangleMesh,
+    mus,
+    weights=None,
+    *,
+    face_weights=None,
+    tol: float = 1e-8,
+    max_iter: int = 200,
+    max_vertices: int = MAX_VERTICES,
+    time_limit: float | None = None,
+    should_cancel=None,
+) -> W1BarycenterResult:
+    r"""W1 barycenter (eq. 2.6): :math:`\min_{\mu\ge0,\ \sum\mu=1} \sum_i \alpha_i W_1(\mu, \mu_i)`.
+
+    One convex program in :math:`\mu` and k Beckmann flows :math:`J_i` with
+    ``div J_i = mu - mu_i``.  Like a geometric median, the W1 barycenter need not be
+    unique and tends to be sparse; with two inputs and :math:`\alpha_1 \ge \alpha_2`,
+    :math:`\mu_1` itself is optimal.
+
+    Parameters
+    ----------
+    mus : (V, k) masses, one column per input.
+    weights : (k,) non-negative weights :math:`\alpha` (normalized to sum 1), default uniform.
+    """
+    x_in = check_masses(mus, mesh.n, "mus")
+    if x_in.ndim != 2:
+        raise InputError("mus must be a (V, k) array, one column per input", field="mus")
+    M = x_in / x_in.sum(axis=0)
+    k = M.shape[1]
+    _check_mesh(mesh, max_vertices, blocks=k)
+    alpha = np.full(k, 1.0 / k) if weights is None else np.asarray(weights, dtype=np.float64)
+    if alpha.shape != (k,) or not np.all(np.isfinite(alpha)) or np.any(alpha < 0) \
+            or alpha.sum() <= 0:
+        raise InputError(f"weights must be {k} non-negative numbers, not all zero",
+                         field="weights")
+    alpha = alpha / alpha.sum()
+    for i in range(1, k):
+        _check_balance(mesh, M[:, i] - M[:, 0], "mus")
+    fw = _face_weights(mesh, face_weights)
+    geo = _flow_geometry(mesh, fw)
+    keep = _kept_rows(mesh)
+    _check_cancel(should_cancel)
+
+    prog = _ConicProgram()
+    mu = prog.variables(mesh.n)
+    restrict = sp.identity(mesh.n, format="csr")[keep]
+    flows = []
+    for i in range(k):
+        fl = prog.flow_block(geo, cost_scale=alpha[i])
+        # div J_i - mu = -mu_i   (J_i carries mu towards mu_i)
+        prog.constrain("eq", [(fl, geo.div[keep]), (mu, -restrict)], -M[keep, i])
+        flows.append(fl)
+    prog.constrain("eq", [(mu, _component_sum_matrix(mesh))], mesh.component_masses(M[:, 0]))
+    prog.constrain("nonneg", [(mu, -sp.identity(mesh.n, format="csr"))], np.zeros(mesh.n))
+    x, _, iterations, status, elapsed = prog.solve(tol, max_iter, time_limit)
+    masses = np.clip(x[mu], 0.0, None)
+    masses /= masses.sum()
+    xs = [x[fl] for fl in flows]
+    distances = np.array([
+        fw[geo.faces] @ np.linalg.norm(xb.reshape(-1, 3)[:, 1:], axis=1) for xb in xs])
+    residual = max(float(np.abs(geo.div @ xb - (x[mu] - M[:, i])).max())
+                   for i, xb in enumerate(xs))
+    return W1BarycenterResult(
+        masses=masses,
+        value=float(alpha @ distances),
+        distances=distances,
+        flows=np.stack([_flow_vectors(mesh, geo, xb) for xb in xs]),
+        iterations=iterations,
+        residual=residual,
+        converged=_converged(status),
+        status=status,
+        solve_time=elapsed,
+    )
+
+
+def w1_path_planning(
+    mesh: TriangleMesh,
+    mu_start,
+    mu_goal,
+    n_steps: int,
+    *,
+    capacity=None,
+    forbidden_vertices=None,
+    face_weights=None,
+    tol: float = 1e-8,
+    max_iter: int = 200,
+    max_vertices: int = MAX_VERTICES,
+    time_limit: float | None = None,
+    should_cancel=None,
+) -> W1PathResult:
+    r"""Path planning for a distribution (eq. 2.7) as one convex program.
+
+    .. math::
+        \min_{\mu_1..\mu_{K-1},\,J_0..J_{K-1}} \sum_{k<K} \sum_t w_t A_t \lVert J_{k,t}\rVert
+        \ \text{s.t.}\ \operatorname{div} J_k = \mu_k - \mu_{k+1},\ \mu_0 = \mu_{start},\
+        \mu_K = \mu_{goal},\ 0 \le \mu_k \le c,\ \mu_k|_{\text{forbidden}} = 0 ,
+
+    i.e. a chain of ``n_steps`` W1 moves through the space of distributions.  Without
+    constraints the value is :math:`W_1(\mu_{start}, \mu_{goal})` (triangle inequality);
+    capacities ``c`` (congestion: at most ``c_i`` mass on vertex i at any intermediate
+    time), forbidden vertices (intermediate mass may not rest there) and face weights
+    (travel cost; ``np.inf`` = obstacle face) shape the path.
+
+    Parameters
+    ----------
+    mu_start, mu_goal : (V,) masses.
+    n_steps : number of moves K >= 1 (the result holds K + 1 distributions).
+    capacity : scalar or (V,) upper bound on the intermediate masses.
+    forbidden_vertices : indices where intermediate distributions must vanish.
+    """
+    if not isinstance(n_steps, (int, np.integer)) or n_steps < 1:
+        raise InputError("n_steps must be a positive integer", field="n_steps")
+    _check_mesh(mesh, max_vertices, blocks=int(n_steps))
+    m0 = _masses(mesh, mu_start, "mu_start")
+    m1 = _masses(mesh, mu_goal, "mu_goal")
+    if m0.ndim != 1 or m1.ndim != 1:
+        raise InputError("mu_start and mu_goal must be (V,) vectors", field="mu_start")
+    _check_balance(mesh, m0 - m1, "mu_goal")
+    fw = _face_weights(mesh, face_weights)
+    upper = None
+    if capacity is not None:
+        upper = np.broadcast_to(np.asarray(capacity, dtype=np.float64), (mesh.n,)).copy()
+        if not np.all(np.isfinite(upper) | (upper == np.inf)) or np.any(upper < 0):
+            raise InputError("capacity must be non-negative", field="capacity")
+    forbidden = np.zeros(mesh.n, dtype=bool)
+    if forbidden_vertices is not None:
+        idx = np.asarray(forbidden_vertices, dtype=np.int64).ravel()
+        if idx.size and (idx.min() < 0 or idx.max() >= mesh.n):
+            raise InputError(f"forbidden_vertices must lie in [0, {mesh.n - 1}]",
+                             field="forbidden_vertices")
+        forbidden[idx] = True
+    geo = _flow_geometry(mesh, fw)
+    keep = _kept_rows(mesh)
+    restrict = sp.identity(mesh.n, format="csr")[keep]
+    eye = sp.identity(mesh.n, format="csr")
+    comp_sum = _component_sum_matrix(mesh)
+    _check_cancel(should_cancel)
+
+    prog = _ConicProgram()
+    K = int(n_steps)
+    mids = [prog.variables(mesh.n) for _ in range(K - 1)]
+    flows = [prog.flow_block(geo) for _ in range(K)]
+    for k in range(K):
+        terms = [(flows[k], geo.div[keep])]
+        rhs = np.zeros(len(keep))
+        # div J_k - mu_k + mu_{k+1} = 0, known endpoints moved to the right-hand side
+        if k == 0:
+            rhs += m0[keep]
+        else:
+            terms.append((mids[k - 1], -restrict))
+        if k == K - 1:
+            rhs -= m1[keep]
+        else:
+            terms.append((mids[k], restrict))
+        prog.constrain("eq", terms, rhs)
+    for mid in mids:
+        prog.constrain("eq", [(mid, comp_sum)], mesh.component_masses(m0))
+        prog.constrain("nonneg", [(mid, -eye)], np.zeros(mesh.n))
+        if upper is not None:
+            finite = np.flatnonzero(np.isfinite(upper))
+            prog.constrain("nonneg", [(mid, eye[finite])], upper[finite])
+        if forbidden.any():
+            prog.constrain("eq", [(mid, eye[forbidden])], np.zeros(int(forbidden.sum())))
+    x, _, iterations, status, elapsed = prog.solve(tol, max_iter, time_limit)
+    if status in ("PrimalInfeasible", "AlmostPrimalInfeasible"):
+        raise InputError(
+            "no path satisfies the constraints (capacity too small, or forbidden vertices "
+            "and obstacle faces cut the start from the goal)", field="capacity")
+    masses = np.empty((mesh.n, K + 1))
+    masses[:, 0], masses[:, K] = m0, m1
+    for k, mid in enumerate(mids):
+        masses[:, k + 1] = x[mid]
+    xs = [x[fl] for fl in flows]
+    costs = np.array([fw[geo.faces] @ np.linalg.norm(xb.reshape(-1, 3)[:, 1:], axis=1)
+                      for xb in xs])
+    residual = max(float(np.abs(geo.div @ xb - (masses[:, k] - masses[:, k + 1])).max())
+                   for k, xb in enumerate(xs))
+    return W1PathResult(
+        masses=masses,
+        value=float(costs.sum()),
+        step_costs=costs,
+        flows=np.stack([_flow_vectors(mesh, geo, xb) for xb in xs]),
+        iterations=iterations,
+        residual=residual,
+        converged=_converged(status),
+        status=status,
+        solve_time=elapsed,
+        times=np.linspace(0.0, 1.0, K + 1),
+    )
