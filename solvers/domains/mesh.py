@@ -106,6 +106,32 @@ def _clean(v: np.ndarray, f: np.ndarray, weld: bool, diag: MeshDiagnostics):
     return v[used], remap[f]
 
 
+def _as_utf8_text_if_needed(data: bytes, file_type: str) -> bytes:
+    """Text formats (OBJ, OFF, ASCII STL) as UTF-8, or a clear error for binary junk.
+
+    trimesh decodes non-UTF-8 text with the optional ``charset_normalizer`` and
+    otherwise fails with an unrelated ImportError; legacy 8-bit text is read as
+    Latin-1 here instead.
+    """
+    if file_type == "stl" and len(data) >= 84:
+        count = int.from_bytes(data[80:84], "little")
+        if len(data) == 84 + 50 * count:
+            return data  # binary STL
+    if file_type not in ("obj", "off", "stl"):
+        return data
+    try:
+        data.decode("utf-8")
+        return data
+    except UnicodeDecodeError:
+        pass
+    if b"\x00" in data:
+        detail = " (nor a binary STL matching its header)" if file_type == "stl" else ""
+        raise MeshFormatError(
+            f"{file_type.upper()} file is binary data, not text{detail}", field="file"
+        )
+    return data.decode("latin-1").encode("utf-8")
+
+
 class TriangleMesh(Domain):
     r"""A triangle mesh rescaled to unit total area, with its operators.
 
@@ -190,6 +216,7 @@ class TriangleMesh(Domain):
             )
         if len(data) == 0:
             raise MeshFormatError("mesh file is empty", field="file")
+        data = _as_utf8_text_if_needed(data, file_type)
         kwargs.setdefault("weld", file_type in POSITION_WELD_FORMATS)
         options = {"maintain_order": True, "skip_materials": True} if file_type == "obj" else {}
         try:
