@@ -328,6 +328,8 @@ def beckmann_w1_exact(
     mu0, mu1 : (V,) masses (non-negative, normalized to sum 1 here).
     face_weights : optional (F,) positive travel cost per unit length on each face
         (the isotropic case of the anisotropic W1 of §2.7); ``np.inf`` forbids a face.
+        Flow may pass from face to face through a shared vertex, so an obstacle must
+        block every face touching its vertices (``blocked[mesh.faces].any(axis=1)``).
     tol : interior-point gap and feasibility tolerance.
 
     Returns
@@ -478,7 +480,7 @@ def w1_path_planning(
     n_steps: int,
     *,
     capacity=None,
-    forbidden_vertices=None,
+    obstacle_vertices=None,
     face_weights=None,
     tol: float = 1e-8,
     max_iter: int = 200,
@@ -491,20 +493,21 @@ def w1_path_planning(
     .. math::
         \min_{\mu_1..\mu_{K-1},\,J_0..J_{K-1}} \sum_{k<K} \sum_t w_t A_t \lVert J_{k,t}\rVert
         \ \text{s.t.}\ \operatorname{div} J_k = \mu_k - \mu_{k+1},\ \mu_0 = \mu_{start},\
-        \mu_K = \mu_{goal},\ 0 \le \mu_k \le c,\ \mu_k|_{\text{forbidden}} = 0 ,
+        \mu_K = \mu_{goal},\ 0 \le \mu_k \le c,\ J_k|_{\text{obstacle faces}} = 0 ,
 
     i.e. a chain of ``n_steps`` W1 moves through the space of distributions.  Without
     constraints the value is :math:`W_1(\mu_{start}, \mu_{goal})` (triangle inequality);
     capacities ``c`` (congestion: at most ``c_i`` mass on vertex i at any intermediate
-    time), forbidden vertices (intermediate mass may not rest there) and face weights
-    (travel cost; ``np.inf`` = obstacle face) shape the path.
+    time), obstacle vertices (no mass rests on them and no flow crosses the faces that
+    touch them) and face weights (travel cost; ``np.inf`` = obstacle face) shape the path.
 
     Parameters
     ----------
     mu_start, mu_goal : (V,) masses.
     n_steps : number of moves K >= 1 (the result holds K + 1 distributions).
     capacity : scalar or (V,) upper bound on the intermediate masses.
-    forbidden_vertices : indices where intermediate distributions must vanish.
+    obstacle_vertices : vertex indices blocked for mass and flow; the start and goal
+        must carry no mass there.
     """
     if not isinstance(n_steps, (int, np.integer)) or n_steps < 1:
         raise InputError("n_steps must be a positive integer", field="n_steps")
@@ -521,12 +524,16 @@ def w1_path_planning(
         if not np.all(np.isfinite(upper) | (upper == np.inf)) or np.any(upper < 0):
             raise InputError("capacity must be non-negative", field="capacity")
     forbidden = np.zeros(mesh.n, dtype=bool)
-    if forbidden_vertices is not None:
-        idx = np.asarray(forbidden_vertices, dtype=np.int64).ravel()
+    if obstacle_vertices is not None:
+        idx = np.asarray(obstacle_vertices, dtype=np.int64).ravel()
         if idx.size and (idx.min() < 0 or idx.max() >= mesh.n):
-            raise InputError(f"forbidden_vertices must lie in [0, {mesh.n - 1}]",
-                             field="forbidden_vertices")
+            raise InputError(f"obstacle_vertices must lie in [0, {mesh.n - 1}]",
+                             field="obstacle_vertices")
         forbidden[idx] = True
+        if (m0[forbidden].sum() > 0) or (m1[forbidden].sum() > 0):
+            raise InputError("mu_start and mu_goal must carry no mass on obstacle_vertices",
+                             field="obstacle_vertices")
+        fw = np.where(forbidden[mesh.faces].any(axis=1), np.inf, fw)
     geo = _flow_geometry(mesh, fw)
     keep = _kept_rows(mesh)
     restrict = sp.identity(mesh.n, format="csr")[keep]
