@@ -195,6 +195,11 @@ def _flow_vectors(mesh: TriangleMesh, geo: _FlowGeometry, x_block: np.ndarray) -
     return J
 
 
+def _flow_cost(geo: _FlowGeometry, x_block: np.ndarray) -> float:
+    """sum_t w_t A_t |J_t| = sum_t w_t |u_t| of an interleaved flow block."""
+    return float(geo.weights @ np.linalg.norm(x_block.reshape(-1, 3)[:, 1:], axis=1))
+
+
 class _ConicProgram:
     """A tiny assembler for ``min q^T x  s.t.  A x + s = b, s in K`` (Clarabel's form)."""
 
@@ -367,7 +372,7 @@ def _beckmann_difference(mesh, difference, *, face_weights=None, tol=1e-8, max_i
     potential = np.zeros(mesh.n)
     potential[keep] = z[: len(keep)]
     residual = float(np.abs(geo.div @ xb - difference).max())
-    value = float(weights[geo.faces] @ np.linalg.norm(xb.reshape(-1, 3)[:, 1:], axis=1))
+    value = _flow_cost(geo, xb)
     return BeckmannResult(
         value=value,
         flow=_flow_vectors(mesh, geo, xb),
@@ -456,8 +461,7 @@ def w1_barycenter(
     masses = np.clip(x[mu], 0.0, None)
     masses /= masses.sum()
     xs = [x[fl] for fl in flows]
-    distances = np.array([
-        fw[geo.faces] @ np.linalg.norm(xb.reshape(-1, 3)[:, 1:], axis=1) for xb in xs])
+    distances = np.array([_flow_cost(geo, xb) for xb in xs])
     residual = max(float(np.abs(geo.div @ xb - (x[mu] - M[:, i])).max())
                    for i, xb in enumerate(xs))
     return W1BarycenterResult(
@@ -576,8 +580,7 @@ def w1_path_planning(
     for k, mid in enumerate(mids):
         masses[:, k + 1] = x[mid]
     xs = [x[fl] for fl in flows]
-    costs = np.array([fw[geo.faces] @ np.linalg.norm(xb.reshape(-1, 3)[:, 1:], axis=1)
-                      for xb in xs])
+    costs = np.array([_flow_cost(geo, xb) for xb in xs])
     residual = max(float(np.abs(geo.div @ xb - (masses[:, k] - masses[:, k + 1])).max())
                    for k, xb in enumerate(xs))
     return W1PathResult(
