@@ -25,3 +25,6 @@ lint: install
 
 bench: install
 	$(PY) bench/operators.py
+
+openapi: install
+	$(VENV)/bin/otgeo openapi

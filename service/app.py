@@ -1,13 +1,68 @@
-"""Application factory."""
+"""Application factory: ``create_app(settings)``."""
 
-from fastapi import FastAPI
+from __future__ import annotations
+
+from contextlib import asynccontextmanager
+
+from fastapi import Depends, FastAPI
+from fastapi.openapi.utils import get_openapi
+from pydantic import TypeAdapter
+
+from service import __version__
+from service.api import domains, health, jobs, operations
+from service.api.deps import require_api_key
+from service.errors import ErrorResponse, install_handlers
+from service.runtime import Runtime
+from service.schemas import DomainSpec
+from service.settings import Settings
+
+DESCRIPTION = """Optimal transport over geometric domains (meshes, grids, graphs, point clouds),
+after J. Solomon, *Transportation Techniques for Geometric Data Processing* (2015).
+
+Upload a domain, then create jobs (distances, barycenters, interpolations, pointwise distances,
+flows) on it; every job is observable, cancellable and keeps its result. Errors are
+`{"error": {"code", "message", "field"}}`."""
+
+# Routers under /v1 (API key checked when configured); add new resource routers here.
+V1_ROUTERS = [domains.router, operations.router, jobs.router]
 
 
-def create_app() -> FastAPI:
-    app = FastAPI(title="otgeo", version="0.1.0")
+def create_app(settings: Settings | None = None, *, start_background: bool = True) -> FastAPI:
+    settings = settings or Settings()
+    runtime = Runtime(settings, role="api")
 
-    @app.get("/healthz", operation_id="health")
-    def healthz() -> dict:
-        return {"status": "ok"}
+    @asynccontextmanager
+    async def lifespan(app: FastAPI):
+        if start_background:
+            runtime.start_background(publish=settings.queue == "immediate")
+        try:
+            yield
+        finally:
+            runtime.close()
 
+    app = FastAPI(title="otgeo", version=__version__, description=DESCRIPTION,
+                  lifespan=lifespan)
+    app.state.runtime = runtime
+    install_handlers(app)
+    auth = [Depends(require_api_key)]
+    for router in V1_ROUTERS:
+        app.include_router(router, dependencies=auth)
+    app.include_router(health.router)
+
+    def openapi():
+        if app.openapi_schema is None:
+            schema = get_openapi(title=app.title, version=app.version,
+                                 description=app.description, routes=app.routes)
+            components = schema.setdefault("components", {}).setdefault("schemas", {})
+            spec = TypeAdapter(DomainSpec).json_schema(
+                ref_template="#/components/schemas/{model}")
+            components.update(spec.pop("$defs", {}))
+            components["DomainSpec"] = spec
+            components["ErrorResponse"] = ErrorResponse.model_json_schema(
+                ref_template="#/components/schemas/{model}")
+            components["ErrorResponse"].pop("$defs", None)
+            app.openapi_schema = schema
+        return app.openapi_schema
+
+    app.openapi = openapi
     return app

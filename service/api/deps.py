@@ -1,0 +1,42 @@
+"""Shared dependencies: the process runtime, services and optional API-key auth."""
+
+from __future__ import annotations
+
+import hmac
+from typing import Annotated
+
+from fastapi import Depends, Request, Security
+from fastapi.security import APIKeyHeader
+
+from service.domains import DomainService
+from service.errors import Unauthorized
+from service.jobs.service import JobService
+from service.runtime import Runtime
+
+api_key_header = APIKeyHeader(name="X-API-Key", auto_error=False,
+                              description="required when the server sets OTGEO_API_KEYS")
+
+
+def get_runtime(request: Request) -> Runtime:
+    return request.app.state.runtime
+
+
+def domain_service(request: Request) -> DomainService:
+    return DomainService(get_runtime(request))
+
+
+def job_service(request: Request) -> JobService:
+    return JobService(get_runtime(request))
+
+
+def require_api_key(request: Request, key: str | None = Security(api_key_header)) -> None:
+    keys = get_runtime(request).settings.api_keys
+    if not keys:
+        return
+    if key is None or not any(hmac.compare_digest(key, k) for k in keys):
+        raise Unauthorized("missing or invalid X-API-Key header", field="X-API-Key")
+
+
+DomainSvc = Annotated[DomainService, Depends(domain_service)]
+JobSvc = Annotated[JobService, Depends(job_service)]
+RuntimeDep = Annotated[Runtime, Depends(get_runtime)]

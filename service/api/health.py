@@ -1,0 +1,85 @@
+"""/healthz and /metrics (Prometheus text format)."""
+
+from __future__ import annotations
+
+import time
+
+from fastapi import APIRouter
+from fastapi.responses import PlainTextResponse
+
+from service import __version__
+from service.api.deps import RuntimeDep
+from service.jobs.db import QUEUED, RUNNING, STATES
+from service.operations import REGISTRY
+from service.schemas import Health
+
+router = APIRouter(tags=["health"])
+
+
+@router.get("/healthz", operation_id="health", response_model=Health)
+def healthz(rt: RuntimeDep):
+    return Health(status="ok", queue=rt.settings.queue, version=__version__)
+
+
+def _labels(**kv) -> str:
+    inner = ",".join(f'{k}="{str(v)}"' for k, v in kv.items())
+    return "{" + inner + "}" if inner else ""
+
+
+@router.get("/metrics", operation_id="getMetrics", response_class=PlainTextResponse,
+            responses={200: {"content": {"text/plain": {}},
+                             "description": "Prometheus text exposition format"}})
+def metrics(rt: RuntimeDep):
+    """Cache hits/misses and sizes (this process and every live worker), queue depth and job
+    counts and durations (from the job table)."""
+    lines: list[str] = []
+
+    def metric(name: str, kind: str, help_: str, samples: list[tuple[dict, float]]):
+        lines.append(f"# HELP {name} {help_}")
+        lines.append(f"# TYPE {name} {kind}")
+        for labels, value in samples:
+            lines.append(f"{name}{_labels(**labels)} {value:g}")
+
+    caches = [({"process": f"{rt.role}:{rt.process_id}"}, rt.cache.stats())]
+    since = time.time() - rt.settings.stale_after
+    workers = rt.repo.live_workers(since)
+    for w in workers:
+        if w.id != rt.process_id:
+            caches.append(({"process": f"worker:{w.id}"}, w.cache or {}))
+    for key, name, kind, help_ in [
+        ("hits", "otgeo_cache_hits_total", "counter", "operator cache hits"),
+        ("misses", "otgeo_cache_misses_total", "counter", "operator cache misses (builds)"),
+        ("evictions", "otgeo_cache_evictions_total", "counter", "operator cache evictions"),
+        ("entries", "otgeo_cache_entries", "gauge", "domains with operators in the cache"),
+        ("bytes", "otgeo_cache_bytes", "gauge", "estimated bytes held by the cache"),
+        ("max_bytes", "otgeo_cache_max_bytes", "gauge", "cache bound in bytes"),
+    ]:
+        metric(name, kind, help_, [(lab, float(st.get(key, 0))) for lab, st in caches])
+    for key, name, help_ in [("hits", "otgeo_cache_hits_all_total", "cache hits, all "
+                              "processes"), ("misses", "otgeo_cache_misses_all_total",
+                                             "cache misses, all processes")]:
+        metric(name, "counter", help_, [({}, float(sum(st.get(key, 0) for _, st in caches)))])
+    metric("otgeo_workers_alive", "gauge", "worker processes with a recent heartbeat",
+           [({}, float(len(workers)))])
+
+    counts = rt.repo.counts()
+    by_state = {s: sum(n for (_, st), n in counts.items() if st == s) for s in STATES}
+    metric("otgeo_queue_depth", "gauge", "jobs waiting for a worker", [({}, by_state[QUEUED])])
+    metric("otgeo_jobs_running", "gauge", "jobs being run", [({}, by_state[RUNNING])])
+    pending = rt.pending_messages()
+    if pending is not None:
+        metric("otgeo_queue_messages", "gauge", "messages in the Huey queue",
+               [({}, float(pending))])
+    metric("otgeo_jobs", "gauge", "jobs in the job table by operation and state",
+           [({"operation": op, "state": st}, float(counts.get((op, st), 0)))
+            for op in REGISTRY for st in STATES])
+    durations = rt.repo.durations()
+    for idx, (suffix, kind, help_) in enumerate([
+            ("count", "counter", "finished jobs"),
+            ("sum", "counter", "total run time of finished jobs (seconds)"),
+            ("max", "gauge", "longest run time (seconds)")]):
+        metric(f"otgeo_job_duration_seconds_{suffix}", kind, help_,
+               [({"operation": op, "state": st}, v[idx]) for (op, st), v in
+                sorted(durations.items())])
+    return PlainTextResponse("\n".join(lines) + "\n",
+                             media_type="text/plain; version=0.0.4; charset=utf-8")

@@ -1,0 +1,67 @@
+"""POST /v1/domains/{domain_id}/<operation>: validate, create a job, optionally wait.
+
+One route per registered operation, each with its own request model and a stable
+operationId. (No ``from __future__ import annotations``: the request model types are
+bound per route at runtime.)"""
+
+import asyncio
+import time
+
+from fastapi import APIRouter, Query, Response
+from fastapi.concurrency import run_in_threadpool
+
+from service.api.deps import JobSvc, RuntimeDep
+from service.errors import InvalidInput, responses
+from service.jobs.db import TERMINAL
+from service.operations import REGISTRY, Operation
+from service.schemas import JobOut
+
+router = APIRouter(prefix="/v1/domains", tags=["operations"])
+
+WAIT_DESCRIPTION = ("seconds to wait for the job to finish: if it ends in time the finished job "
+                    "is returned with status 200, otherwise 202 with the job as it is")
+
+
+async def wait_for(svc, job_id: str, seconds: float):
+    """Poll the job table until the job is terminal or ``seconds`` elapsed."""
+    deadline = time.monotonic() + seconds
+    delay = 0.002
+    job = await run_in_threadpool(svc.get, job_id)
+    while job.state not in TERMINAL and time.monotonic() < deadline:
+        await asyncio.sleep(min(delay, max(deadline - time.monotonic(), 0)))
+        delay = min(delay * 1.5, 0.05)
+        job = await run_in_threadpool(svc.get, job_id)
+    return job
+
+
+def submit_job(op_name: str, domain_id: str, body, wait: float, svc, rt):
+    """Shared by every operation route (sync part)."""
+    if wait > rt.settings.wait_max:
+        raise InvalidInput(f"wait must be at most {rt.settings.wait_max:g} seconds",
+                           field="wait")
+    return svc.create(op_name, domain_id, body)
+
+
+def _make_route(op: Operation):
+    model = op.request_model
+
+    async def create_job(domain_id: str, body: model, response: Response, svc: JobSvc,
+                         rt: RuntimeDep,
+                         wait: float = Query(0.0, ge=0, description=WAIT_DESCRIPTION)):
+        job = await run_in_threadpool(submit_job, op.name, domain_id, body, wait, svc, rt)
+        if wait > 0 and job.state not in TERMINAL:
+            job = await wait_for(svc, job.id, wait)
+        response.status_code = 200 if job.state in TERMINAL else 202
+        response.headers["Location"] = f"/v1/jobs/{job.id}"
+        return JobOut.from_row(job)
+
+    create_job.__name__ = op.operation_id
+    router.add_api_route(
+        f"/{{domain_id}}/{op.name}", create_job, methods=["POST"], operation_id=op.operation_id,
+        summary=op.summary, status_code=202, response_model=JobOut,
+        responses={200: {"model": JobOut, "description": "the job finished within `wait`"},
+                   **responses(401, 404, 422)})
+
+
+for _op in REGISTRY.values():
+    _make_route(_op)

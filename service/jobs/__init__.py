@@ -1,0 +1,1 @@
+"""Job model, queue (Huey on SQLite or Redis), runner, heartbeat and reaper."""

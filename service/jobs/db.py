@@ -1,0 +1,257 @@
+"""The job table (SQLAlchemy; SQLite by default, PostgreSQL when scaled out).
+
+The table is what the API reads: state, progress, attempts, heartbeat and the
+result location.  Every state change is a conditional UPDATE, so concurrent
+workers and reapers never both win: a job is claimed by one worker, and only
+the attempt that owns it can heartbeat or finish it.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import time
+from dataclasses import dataclass
+
+from sqlalchemy import (
+    JSON,
+    Boolean,
+    Float,
+    Integer,
+    String,
+    create_engine,
+    event,
+    func,
+    select,
+    update,
+)
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, sessionmaker
+
+QUEUED, RUNNING, SUCCEEDED, FAILED, CANCELLED = (
+    "queued", "running", "succeeded", "failed", "cancelled")
+STATES = (QUEUED, RUNNING, SUCCEEDED, FAILED, CANCELLED)
+TERMINAL = (SUCCEEDED, FAILED, CANCELLED)
+
+
+class Base(DeclarativeBase):
+    pass
+
+
+class JobRow(Base):
+    __tablename__ = "jobs"
+
+    id: Mapped[str] = mapped_column(String(32), primary_key=True)
+    operation: Mapped[str] = mapped_column(String(64))
+    domain_id: Mapped[str] = mapped_column(String(64), index=True)
+    params: Mapped[dict] = mapped_column(JSON)
+    state: Mapped[str] = mapped_column(String(16), index=True)
+    iteration: Mapped[int | None] = mapped_column(Integer, nullable=True)
+    residual: Mapped[float | None] = mapped_column(Float, nullable=True)
+    error: Mapped[dict | None] = mapped_column(JSON, nullable=True)
+    attempts: Mapped[int] = mapped_column(Integer, default=0)
+    max_attempts: Mapped[int] = mapped_column(Integer, default=3)
+    cancel_requested: Mapped[bool] = mapped_column(Boolean, default=False)
+    time_limit: Mapped[float] = mapped_column(Float)
+    worker: Mapped[str | None] = mapped_column(String(128), nullable=True)
+    created_at: Mapped[float] = mapped_column(Float)
+    enqueued_at: Mapped[float | None] = mapped_column(Float, nullable=True)
+    started_at: Mapped[float | None] = mapped_column(Float, nullable=True)
+    heartbeat_at: Mapped[float | None] = mapped_column(Float, nullable=True)
+    finished_at: Mapped[float | None] = mapped_column(Float, nullable=True)
+    duration: Mapped[float | None] = mapped_column(Float, nullable=True)
+    result_location: Mapped[str | None] = mapped_column(String(256), nullable=True)
+
+
+class WorkerRow(Base):
+    """Liveness and cache statistics published by each worker process."""
+
+    __tablename__ = "workers"
+
+    id: Mapped[str] = mapped_column(String(128), primary_key=True)
+    started_at: Mapped[float] = mapped_column(Float)
+    seen_at: Mapped[float] = mapped_column(Float)
+    jobs_done: Mapped[int] = mapped_column(Integer, default=0)
+    cache: Mapped[dict] = mapped_column(JSON)
+
+
+def worker_identity() -> str:
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
+@dataclass
+class Claim:
+    attempt: int
+    job: JobRow
+
+
+def make_engine(url: str):
+    if url.startswith("sqlite"):
+        engine = create_engine(url, connect_args={"timeout": 30, "check_same_thread": False})
+
+        @event.listens_for(engine, "connect")
+        def _pragmas(dbapi_conn, _record):
+            cur = dbapi_conn.cursor()
+            cur.execute("PRAGMA journal_mode=WAL")
+            cur.execute("PRAGMA synchronous=NORMAL")
+            cur.execute("PRAGMA busy_timeout=30000")
+            cur.close()
+
+        return engine
+    return create_engine(url, pool_pre_ping=True, pool_size=5, max_overflow=10)
+
+
+class JobRepository:
+    def __init__(self, url: str):
+        self.engine = make_engine(url)
+        Base.metadata.create_all(self.engine)
+        self.Session = sessionmaker(self.engine, expire_on_commit=False)
+
+    def dispose(self) -> None:
+        self.engine.dispose()
+
+    # -- creation / reading ---------------------------------------------
+    def create(self, job: JobRow) -> JobRow:
+        with self.Session.begin() as s:
+            s.add(job)
+        return job
+
+    def get(self, job_id: str) -> JobRow | None:
+        with self.Session() as s:
+            return s.get(JobRow, job_id)
+
+    def list(self, limit: int = 100, state: str | None = None) -> list[JobRow]:
+        with self.Session() as s:
+            q = select(JobRow).order_by(JobRow.created_at.desc()).limit(limit)
+            if state:
+                q = q.where(JobRow.state == state)
+            return list(s.scalars(q))
+
+    def _update(self, where, **values) -> int:
+        with self.Session.begin() as s:
+            return s.execute(update(JobRow).where(*where).values(**values)).rowcount
+
+    # -- worker side -----------------------------------------------------
+    def claim(self, job_id: str, worker: str) -> Claim | None:
+        """Move a queued job to running for this worker; None if someone else has it."""
+        now = time.time()
+        with self.Session.begin() as s:
+            job = s.get(JobRow, job_id)
+            if job is None or job.state != QUEUED:
+                return None
+            attempt = job.attempts + 1
+            won = s.execute(
+                update(JobRow)
+                .where(JobRow.id == job_id, JobRow.state == QUEUED,
+                       JobRow.attempts == job.attempts)
+                .values(state=RUNNING, attempts=attempt, worker=worker, started_at=now,
+                        heartbeat_at=now)
+            ).rowcount
+        if not won:
+            return None
+        return Claim(attempt, self.get(job_id))
+
+    def heartbeat(self, job_id: str, attempt: int, **progress) -> tuple[bool, bool]:
+        """Refresh the heartbeat (and progress); returns (still owned, cancel requested)."""
+        owned = self._update(
+            (JobRow.id == job_id, JobRow.state == RUNNING, JobRow.attempts == attempt),
+            heartbeat_at=time.time(), **progress)
+        if not owned:
+            return False, True
+        with self.Session() as s:
+            cancel = s.scalar(select(JobRow.cancel_requested).where(JobRow.id == job_id))
+        return True, bool(cancel)
+
+    def finish(self, job_id: str, attempt: int, state: str, *, error: dict | None = None,
+               result_location: str | None = None, **progress) -> bool:
+        now = time.time()
+        job = self.get(job_id)
+        started = job.started_at if job and job.started_at else now
+        return bool(self._update(
+            (JobRow.id == job_id, JobRow.state == RUNNING, JobRow.attempts == attempt),
+            state=state, error=error, result_location=result_location, finished_at=now,
+            heartbeat_at=now, duration=now - started, **progress))
+
+    def release(self, job_id: str, attempt: int) -> bool:
+        """Give a running job back to the queue without counting the attempt."""
+        return bool(self._update(
+            (JobRow.id == job_id, JobRow.state == RUNNING, JobRow.attempts == attempt),
+            state=QUEUED, attempts=attempt - 1, worker=None, enqueued_at=time.time(),
+            heartbeat_at=None))
+
+    # -- API side --------------------------------------------------------
+    def request_cancel(self, job_id: str) -> JobRow | None:
+        """Cancel a queued job at once; flag a running one (the worker stops it)."""
+        now = time.time()
+        self._update((JobRow.id == job_id, JobRow.state == QUEUED), state=CANCELLED,
+                     cancel_requested=True, finished_at=now, duration=0.0)
+        self._update((JobRow.id == job_id, JobRow.state == RUNNING), cancel_requested=True)
+        return self.get(job_id)
+
+    # -- reaper ----------------------------------------------------------
+    def stale_running(self, before: float) -> list[JobRow]:
+        with self.Session() as s:
+            return list(s.scalars(select(JobRow).where(
+                JobRow.state == RUNNING, JobRow.heartbeat_at < before)))
+
+    def requeue(self, job: JobRow, before: float) -> bool:
+        """Put a stale running job back in the queue (if it is still stale)."""
+        return bool(self._update(
+            (JobRow.id == job.id, JobRow.state == RUNNING, JobRow.attempts == job.attempts,
+             JobRow.heartbeat_at < before),
+            state=QUEUED, worker=None, enqueued_at=time.time(), heartbeat_at=None))
+
+    def fail_stale(self, job: JobRow, before: float, error: dict) -> bool:
+        now = time.time()
+        return bool(self._update(
+            (JobRow.id == job.id, JobRow.state == RUNNING, JobRow.attempts == job.attempts,
+             JobRow.heartbeat_at < before),
+            state=FAILED, error=error, finished_at=now,
+            duration=now - (job.started_at or now)))
+
+    def stale_queued(self, before: float) -> list[JobRow]:
+        with self.Session() as s:
+            return list(s.scalars(select(JobRow).where(
+                JobRow.state == QUEUED, JobRow.enqueued_at < before)))
+
+    def touch_queued(self, job: JobRow) -> bool:
+        return bool(self._update(
+            (JobRow.id == job.id, JobRow.state == QUEUED,
+             JobRow.enqueued_at == job.enqueued_at), enqueued_at=time.time()))
+
+    # -- metrics ---------------------------------------------------------
+    def counts(self) -> dict[tuple[str, str], int]:
+        with self.Session() as s:
+            rows = s.execute(select(JobRow.operation, JobRow.state, func.count())
+                             .group_by(JobRow.operation, JobRow.state))
+            return {(op, st): int(n) for op, st, n in rows}
+
+    def durations(self) -> dict[tuple[str, str], tuple[int, float, float]]:
+        """(operation, state) -> (count, sum, max) of run durations of finished jobs."""
+        with self.Session() as s:
+            rows = s.execute(
+                select(JobRow.operation, JobRow.state, func.count(), func.sum(JobRow.duration),
+                       func.max(JobRow.duration))
+                .where(JobRow.duration.is_not(None), JobRow.state.in_(TERMINAL))
+                .group_by(JobRow.operation, JobRow.state))
+            return {(op, st): (int(n), float(total or 0.0), float(mx or 0.0))
+                    for op, st, n, total, mx in rows}
+
+    def publish_worker(self, worker: str, started_at: float, jobs_done: int,
+                       cache: dict) -> None:
+        with self.Session.begin() as s:
+            row = s.get(WorkerRow, worker)
+            if row is None:
+                s.add(WorkerRow(id=worker, started_at=started_at, seen_at=time.time(),
+                                jobs_done=jobs_done, cache=cache))
+            else:
+                row.seen_at, row.jobs_done, row.cache = time.time(), jobs_done, cache
+
+    def live_workers(self, since: float) -> list[WorkerRow]:
+        with self.Session() as s:
+            return list(s.scalars(select(WorkerRow).where(WorkerRow.seen_at >= since)))
+
+    def remove_worker(self, worker: str) -> None:
+        with self.Session.begin() as s:
+            row = s.get(WorkerRow, worker)
+            if row is not None:
+                s.delete(row)

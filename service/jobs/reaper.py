@@ -1,0 +1,68 @@
+"""Re-queues jobs whose worker died (stale heartbeat) and queue messages that got lost.
+
+Safe to run in any number of processes at once: every transition is a conditional
+update, so exactly one reaper wins each job.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+
+from service.jobs.db import JobRepository
+from service.settings import Settings
+
+log = logging.getLogger("otgeo.reaper")
+
+
+class Reaper:
+    def __init__(self, settings: Settings, repo: JobRepository, enqueue: Callable[[str], None]):
+        self.settings, self.repo, self.enqueue = settings, repo, enqueue
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def run_once(self) -> dict[str, list[str]]:
+        now = time.time()
+        requeued, failed, resent = [], [], []
+        before = now - self.settings.stale_after
+        for job in self.repo.stale_running(before):
+            if job.attempts >= (job.max_attempts or self.settings.max_attempts):
+                error = {"code": "worker_lost", "field": None,
+                         "message": f"the worker running this job stopped responding "
+                                    f"{job.attempts} time(s); giving up"}
+                if self.repo.fail_stale(job, before, error):
+                    failed.append(job.id)
+            elif self.repo.requeue(job, before):
+                requeued.append(job.id)
+                self._send(job.id)
+        for job in self.repo.stale_queued(now - self.settings.requeue_queued_after):
+            if self.repo.touch_queued(job):
+                resent.append(job.id)
+                self._send(job.id)
+        if requeued or failed or resent:
+            log.warning("reaper: requeued %s, failed %s, re-sent %s", requeued, failed, resent)
+        return {"requeued": requeued, "failed": failed, "resent": resent}
+
+    def _send(self, job_id: str) -> None:
+        try:
+            self.enqueue(job_id)
+        except Exception:  # broker down: the job stays queued and is re-sent later
+            log.exception("could not enqueue job %s", job_id)
+
+    def start(self) -> None:
+        def loop():
+            while not self._stop.wait(self.settings.reaper_interval):
+                try:
+                    self.run_once()
+                except Exception:
+                    log.exception("reaper pass failed")
+
+        self._thread = threading.Thread(target=loop, daemon=True, name="reaper")
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5)

@@ -1,0 +1,158 @@
+"""Runs one job in a worker: claim, heartbeat, progress, cancellation, time limit, result.
+
+Only the attempt that claimed the job (``attempts`` counter) may write its progress or
+final state, so a job re-queued by the reaper while its old worker was merely slow
+is finished once.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+from service.cache import OperatorCache
+from service.errors import ApiError, error_dict
+from service.jobs.db import CANCELLED, FAILED, SUCCEEDED, JobRepository, worker_identity
+from service.operations import get_operation
+from service.settings import Settings
+from service.store import Store
+from solvers.errors import CancelledError, OTGeoError
+
+log = logging.getLogger("otgeo.worker")
+
+PROGRESS_WRITE_INTERVAL = 0.25  # seconds between progress writes to the job table
+
+
+class _Heartbeat:
+    """Background thread refreshing the job's heartbeat (also during long single steps)."""
+
+    def __init__(self, repo: JobRepository, job_id: str, attempt: int, interval: float):
+        self.repo, self.job_id, self.attempt, self.interval = repo, job_id, attempt, interval
+        self.cancel = threading.Event()
+        self.lost = threading.Event()
+        self.progress: dict = {}
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._last_write = 0.0
+        self._thread = threading.Thread(target=self._loop, daemon=True,
+                                        name=f"heartbeat-{job_id}")
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+    def beat(self) -> None:
+        with self._lock:
+            progress = dict(self.progress)
+            self._last_write = time.monotonic()
+        try:
+            owned, cancel = self.repo.heartbeat(self.job_id, self.attempt, **progress)
+        except Exception:  # database briefly unavailable: try again next beat
+            log.exception("heartbeat of job %s failed", self.job_id)
+            return
+        if not owned:
+            self.lost.set()
+            self.cancel.set()
+        elif cancel:
+            self.cancel.set()
+
+    def on_progress(self, iteration: int, residual: float) -> None:
+        with self._lock:
+            self.progress = {"iteration": int(iteration),
+                             "residual": float(residual) if residual == residual else None}
+            due = time.monotonic() - self._last_write >= PROGRESS_WRITE_INTERVAL
+        if due:
+            self.beat()
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.interval):
+            self.beat()
+
+
+class JobRunner:
+    def __init__(self, settings: Settings, store: Store, repo: JobRepository,
+                 cache: OperatorCache):
+        self.settings, self.store, self.repo, self.cache = settings, store, repo, cache
+        self.worker_id = worker_identity()
+        self.jobs_done = 0
+        self.current: tuple[str, int] | None = None
+        self.on_finished = None  # optional callable() after every job (statistics)
+
+    def domain(self, domain_id: str):
+        return self.cache.get_or_build(("domain", domain_id),
+                                       lambda: self.store.load_domain(domain_id))
+
+    def run(self, job_id: str) -> None:
+        claim = self.repo.claim(job_id, self.worker_id)
+        if claim is None:
+            log.info("job %s not claimable (already taken, cancelled or finished)", job_id)
+            return
+        job, attempt = claim.job, claim.attempt
+        self.current = (job_id, attempt)
+        log.info("job %s (%s) attempt %d started", job_id, job.operation, attempt)
+        limit = min(job.time_limit or self.settings.job_time_limit,
+                    self.settings.job_time_limit)
+        deadline = time.monotonic() + limit
+        hb = _Heartbeat(self.repo, job_id, attempt, self.settings.heartbeat_interval)
+        timed_out = threading.Event()
+
+        def should_cancel() -> bool:
+            if time.monotonic() > deadline:
+                timed_out.set()
+                return True
+            return hb.cancel.is_set()
+
+        hb.start()
+        state, error, location = FAILED, None, None
+        try:
+            op = get_operation(job.operation)
+            params = op.request_model.model_validate(job.params)
+            domain = self.domain(job.domain_id)
+            output = op.run(domain, params, hb.on_progress, should_cancel)
+            if should_cancel():
+                raise CancelledError("cancelled")
+            payload = {"job_id": job_id, "operation": job.operation,
+                       "domain_id": job.domain_id, "values": output.values,
+                       "arrays": {k: {"shape": list(v.shape), "dtype": str(v.dtype)}
+                                  for k, v in output.arrays.items()},
+                       "export": output.export}
+            location = self.store.put_result(job_id, payload, output.arrays)
+            state = SUCCEEDED
+        except CancelledError:
+            if timed_out.is_set():
+                error = {"code": "time_limit_exceeded", "field": "time_limit",
+                         "message": f"job exceeded its time limit of {limit:g} s"}
+            else:
+                state = CANCELLED
+                error = {"code": "cancelled", "message": "cancelled on request", "field": None}
+        except Exception as exc:  # every failure is recorded on the job, never lost
+            if not isinstance(exc, (OTGeoError, ApiError)):
+                log.exception("job %s failed", job_id)
+            error = error_dict(exc)
+        finally:
+            hb.stop()
+            self.cache.refresh(("domain", job.domain_id))
+        progress = dict(hb.progress)
+        if not self.repo.finish(job_id, attempt, state, error=error, result_location=location,
+                                **progress):
+            log.warning("job %s attempt %d lost ownership; result discarded", job_id, attempt)
+        self.current = None
+        self.jobs_done += 1
+        log.info("job %s finished: %s", job_id, state)
+        if self.on_finished is not None:
+            try:
+                self.on_finished()
+            except Exception:
+                log.exception("after-job hook failed")
+
+    def release_current(self) -> str | None:
+        """On worker shutdown: hand the running job back to the queue (not an attempt)."""
+        current = self.current
+        if current is None:
+            return None
+        job_id, attempt = current
+        return job_id if self.repo.release(job_id, attempt) else None

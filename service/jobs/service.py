@@ -1,0 +1,93 @@
+"""Job submission and observation (what the API routers call)."""
+
+from __future__ import annotations
+
+import logging
+import time
+import uuid
+
+import numpy as np
+
+from service.errors import Conflict, NotFound
+from service.jobs.db import QUEUED, TERMINAL, JobRow
+from service.operations import get_operation
+from service.operations.base import OperationRequest, view_of_info
+from service.runtime import Runtime
+
+log = logging.getLogger("otgeo.jobs")
+
+
+class JobService:
+    def __init__(self, runtime: Runtime):
+        self.rt = runtime
+
+    def create(self, operation: str, domain_id: str, request: OperationRequest) -> JobRow:
+        """Validate against the stored domain, record the job, enqueue its id."""
+        op = get_operation(operation)
+        info = self.rt.store.domain_info(domain_id)
+        view = view_of_info(info)
+        op.check_kind(view)
+        op.validate(view, request)
+        limit = self.rt.settings.job_time_limit
+        if request.time_limit is not None:
+            limit = min(limit, request.time_limit)
+        now = time.time()
+        job = JobRow(id=uuid.uuid4().hex, operation=operation, domain_id=domain_id,
+                     params=request.model_dump(mode="json"), state=QUEUED, attempts=0,
+                     max_attempts=self.rt.settings.max_attempts, cancel_requested=False,
+                     time_limit=limit, created_at=now, enqueued_at=now)
+        self.rt.repo.create(job)
+        try:
+            self.rt.enqueue(job.id)
+        except Exception:  # broker unreachable: the job is recorded, the reaper re-sends it
+            log.exception("could not enqueue job %s; it stays queued", job.id)
+        return self.get(job.id)
+
+    def get(self, job_id: str) -> JobRow:
+        job = self.rt.repo.get(job_id)
+        if job is None:
+            raise NotFound(f"unknown job {job_id!r}", field="job_id")
+        return job
+
+    def list(self, limit: int, state: str | None) -> list[JobRow]:
+        return self.rt.repo.list(limit=limit, state=state)
+
+    def cancel(self, job_id: str) -> JobRow:
+        job = self.get(job_id)
+        if job.state in ("succeeded", "failed"):
+            raise Conflict(f"job {job_id} already {job.state}", field="job_id",
+                           code="job_finished")
+        return self.rt.repo.request_cancel(job_id)
+
+    def result(self, job_id: str, include_arrays: bool = True) -> dict:
+        job = self.get(job_id)
+        if job.state != "succeeded":
+            if job.state in TERMINAL:
+                raise Conflict(f"job {job_id} {job.state}; it has no result", field="job_id",
+                               code="job_" + job.state)
+            raise Conflict(f"job {job_id} is {job.state}; the result is not ready",
+                           field="job_id", code="job_not_finished")
+        payload = self.rt.store.get_result(job_id)
+        arrays = {}
+        if include_arrays:
+            from service.store import jsonable
+
+            arrays = {k: jsonable(v) for k, v in self.rt.store.get_result_arrays(job_id).items()}
+        return {**payload, "arrays": arrays}
+
+    def result_glb(self, job_id: str) -> bytes:
+        """The result as glTF 2.0 binary over its domain (see service.export.domain_glb)."""
+        from service.export import domain_glb
+
+        self.result(job_id, include_arrays=False)  # state checks
+        payload = self.rt.store.get_result(job_id)
+        arrays = self.rt.store.get_result_arrays(job_id)
+        export = payload.get("export") or {}
+        domain = self.rt.runner.domain(payload["domain_id"])
+        fields = {name: arrays[name] for name in export.get("fields", []) if name in arrays}
+        flow = arrays.get(export["flow"]) if export.get("flow") else None
+        return domain_glb(domain, fields=fields, flow=flow, color=export.get("color"),
+                          frames=export.get("frames"),
+                          metadata={"job_id": job_id, "operation": payload["operation"],
+                                    "values": {k: v for k, v in payload["values"].items()
+                                               if np.isscalar(v) or v is None}})

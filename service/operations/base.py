@@ -1,0 +1,228 @@
+"""What an operation is, and the distribution inputs every operation shares.
+
+A distribution is given as
+- a full vector (one value per point),
+- sparsely: ``{"indices": [...], "masses": [...]}``,
+- a bump: ``{"vertex": i, "radius": r}`` — mass ``a_j max(0, 1 - d_j / r)`` around point
+  ``i`` (``d``: Euclidean distance in the domain's stored coordinates, unit total area
+  for meshes and point clouds; hops on graphs).
+
+Values are masses by default (``"input": "density"`` for densities w.r.t. the area
+weights); they must be finite and non-negative and are normalized to total mass 1
+by the server, which reports the normalization.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+from scipy.sparse.csgraph import shortest_path
+
+from service.errors import InvalidInput, UnsupportedOperation
+from solvers.distributions import check_masses
+
+Progress = Callable[[int, float], None]
+ShouldCancel = Callable[[], bool]
+
+
+class SparseDistribution(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    indices: list[int] = Field(min_length=1, description="point indices")
+    masses: list[float] = Field(min_length=1, description="value at each listed point")
+
+
+class BumpDistribution(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    vertex: int = Field(ge=0, description="center point index")
+    radius: float = Field(gt=0, description="support radius (unit-area coordinates; hops on "
+                          "graphs)")
+
+
+Distribution = list[float] | SparseDistribution | BumpDistribution
+
+
+class OperationRequest(BaseModel):
+    """Fields shared by every operation request."""
+
+    model_config = ConfigDict(extra="forbid")
+    input: Literal["masses", "density"] = Field(
+        "masses", description="how distribution values are meant: masses per point, or "
+        "densities with respect to the domain's area weights")
+    time_limit: float | None = Field(None, gt=0, description="seconds (at most the server's "
+                                     "job_time_limit)")
+
+
+@dataclass
+class DomainView:
+    """The parts of a domain that input validation needs (from a stored DomainInfo or a
+    built Domain): sizes, area weights, component labels, coordinates, graph edges."""
+
+    kind: str
+    n: int
+    areas: np.ndarray
+    component_labels: np.ndarray
+    points: np.ndarray | None = None
+    edges: np.ndarray | None = None
+    n_faces: int | None = None
+
+    @property
+    def n_components(self) -> int:
+        return int(self.component_labels.max()) + 1 if len(self.component_labels) else 1
+
+
+@dataclass
+class OperationOutput:
+    """A result: JSON values, named arrays (stored as .npz) and how to export them.
+
+    ``export`` may hold ``fields`` (array names shown on the domain), ``flow`` (name of
+    an ``(F, 3)`` per-face field), ``frames`` (times of ``(n, T)`` fields) and ``color``.
+    """
+
+    values: dict
+    arrays: dict[str, np.ndarray] = field(default_factory=dict)
+    export: dict = field(default_factory=dict)
+
+
+@dataclass
+class Operation:
+    name: str  # URL segment, e.g. "pointwise-distances"
+    operation_id: str  # OpenAPI operationId
+    summary: str
+    request_model: type[OperationRequest]
+    run: Callable[[object, OperationRequest, Progress, ShouldCancel], OperationOutput]
+    validate: Callable[[DomainView, OperationRequest], list[dict]]
+    kinds: tuple[str, ...] = ("mesh", "grid", "graph", "pointcloud")
+
+    def check_kind(self, view: DomainView) -> None:
+        if view.kind not in self.kinds:
+            raise UnsupportedOperation(
+                f"{self.name} is not available on {view.kind} domains (only on "
+                f"{', '.join(self.kinds)})", field="domain_id")
+
+
+# -- distributions -------------------------------------------------------------
+def _bump(view: DomainView, spec: BumpDistribution, field: str) -> np.ndarray:
+    if spec.vertex >= view.n:
+        raise InvalidInput(f"{field}.vertex {spec.vertex} out of range [0, {view.n - 1}]",
+                           field=f"{field}.vertex")
+    if view.kind == "graph":
+        import scipy.sparse as sp
+
+        e = view.edges if view.edges is not None else np.zeros((0, 2), dtype=np.int64)
+        adj = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(view.n, view.n))
+        d = shortest_path(adj, directed=False, unweighted=True, indices=spec.vertex)
+    elif view.points is not None:
+        d = np.linalg.norm(view.points - view.points[spec.vertex], axis=1)
+    else:
+        raise UnsupportedOperation(f"this {view.kind} domain has no coordinates for a bump",
+                                   field=field)
+    weight = np.clip(1.0 - d / spec.radius, 0.0, None)
+    return view.areas * weight
+
+
+def resolve_distribution(view: DomainView, spec, field: str, input_kind: str = "masses"
+                         ) -> tuple[np.ndarray, dict]:
+    """Masses (n,) summing to 1 for one distribution spec, and the normalization report."""
+    if isinstance(spec, BumpDistribution):
+        values = _bump(view, spec, field)
+        input_kind = "masses"
+    elif isinstance(spec, SparseDistribution):
+        if len(spec.indices) != len(spec.masses):
+            raise InvalidInput(f"{field}.indices and {field}.masses differ in length "
+                               f"({len(spec.indices)} vs {len(spec.masses)})",
+                               field=f"{field}.masses")
+        idx = np.asarray(spec.indices, dtype=np.int64)
+        if idx.min() < 0 or idx.max() >= view.n:
+            bad = int(idx[(idx < 0) | (idx >= view.n)][0])
+            raise InvalidInput(f"{field}.indices contains {bad}, outside [0, {view.n - 1}]",
+                               field=f"{field}.indices")
+        vals = check_masses(spec.masses, len(idx), field=f"{field}.masses")
+        values = np.zeros(view.n)
+        np.add.at(values, idx, vals)
+    else:
+        values = check_masses(spec, view.n, field=field)
+        if values.ndim != 1:
+            raise InvalidInput(f"{field} must be a flat list", field=field)
+    if input_kind == "density":
+        values = values * view.areas
+    values = check_masses(values, view.n, field=field)
+    total = float(values.sum())
+    report = {"field": field, "given_total": total, "scale": 1.0 / total,
+              "normalized": bool(abs(total - 1.0) > 1e-12)}
+    return values / total, report
+
+
+def resolve_all(view: DomainView, specs: dict[str, object], input_kind: str
+                ) -> tuple[dict[str, np.ndarray], list[dict]]:
+    masses, reports = {}, []
+    for name, spec in specs.items():
+        masses[name], report = resolve_distribution(view, spec, name, input_kind)
+        reports.append(report)
+    return masses, reports
+
+
+def check_same_components(view: DomainView, masses: dict[str, np.ndarray]) -> None:
+    """On a domain with several components, transport cannot move mass between them:
+    every distribution must put the same mass on each component."""
+    if view.n_components <= 1 or len(masses) < 2:
+        return
+    names = list(masses)
+    ref = np.bincount(view.component_labels, weights=masses[names[0]],
+                      minlength=view.n_components)
+    for name in names[1:]:
+        comp = np.bincount(view.component_labels, weights=masses[name],
+                           minlength=view.n_components)
+        diff = np.abs(comp - ref)
+        if diff.max() > 1e-6:
+            k = int(np.argmax(diff))
+            raise UnsupportedOperation(
+                f"the domain has {view.n_components} connected components and mass cannot "
+                f"move between them: {name} puts {comp[k]:.6g} of its mass on component {k} "
+                f"but {names[0]} puts {ref[k]:.6g}", field=name)
+
+
+def view_of_domain(domain) -> DomainView:
+    from service.store import domain_points
+
+    return DomainView(kind=domain.kind, n=int(domain.n), areas=np.asarray(domain.areas),
+                      component_labels=np.asarray(domain.component_labels),
+                      points=domain_points(domain), edges=getattr(domain, "edges", None),
+                      n_faces=getattr(domain, "n_faces", None))
+
+
+def view_of_info(info) -> DomainView:
+    edges = info.arrays.get("edges") if info.kind == "graph" else None
+    n_faces = info.meta["summary"].get("faces")
+    return DomainView(kind=info.kind, n=info.n, areas=info.areas,
+                      component_labels=info.component_labels, points=info.points,
+                      edges=edges, n_faces=n_faces)
+
+
+def default_gamma(domain_or_view) -> float:
+    """A regularization that blurs over a few mesh edges / grid cells: (2h)^2."""
+    kind = domain_or_view.kind
+    if kind == "graph":
+        return 1.0
+    h = getattr(domain_or_view, "mean_edge_length", None)
+    if h is None and kind == "grid":
+        h = max(domain_or_view.spacing)
+    if h is None:
+        h = float(np.sqrt(1.0 / max(domain_or_view.n, 1)))  # unit area, n points
+    return float((2.0 * h) ** 2)
+
+
+def solver(module: str, name: str):
+    """Import ``solvers.<module>.<name>``, failing with a clear error while it is missing."""
+    import importlib
+
+    try:
+        mod = importlib.import_module(f"solvers.{module}")
+        return getattr(mod, name)
+    except (ImportError, AttributeError) as exc:
+        raise UnsupportedOperation(
+            f"solver solvers.{module}.{name} is not available in this build ({exc})",
+            field="operation", code="not_implemented") from exc

@@ -1,0 +1,251 @@
+"""Convolutional (entropic W2) and W1 transport operations: distances, barycenters,
+interpolations, pointwise distances and flows — thin adapters over ``solvers``."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from pydantic import Field
+
+from service.errors import InvalidInput
+from service.operations.base import (
+    Distribution,
+    DomainView,
+    Operation,
+    OperationOutput,
+    OperationRequest,
+    check_same_components,
+    default_gamma,
+    resolve_all,
+    solver,
+    view_of_domain,
+)
+
+
+class SinkhornOptions(OperationRequest):
+    gamma: float | None = Field(None, gt=0, description="entropic regularization (cost d^2, "
+                                "unit-area units); default (2h)^2 with h the mean edge length")
+    substeps: int = Field(1, ge=1, le=100, description="implicit Euler heat substeps")
+    tol: float = Field(1e-6, gt=0, lt=1)
+    max_iter: int = Field(1000, ge=1, le=100_000)
+
+
+class W1Options(OperationRequest):
+    w1_method: Literal["admm", "weiszfeld"] = "admm"
+    basis: Literal["full", "spectral"] = "full"
+    k: int | None = Field(None, ge=1, description="spectral basis size")
+    tol: float = Field(1e-4, gt=0, lt=1)
+    max_iter: int = Field(5000, ge=1, le=100_000)
+
+
+class DistanceRequest(SinkhornOptions):
+    mu0: Distribution
+    mu1: Distribution
+    method: Literal["sinkhorn", "debiased", "emd"] = Field(
+        "sinkhorn", description="sinkhorn: entropic W2 (thesis Alg. 1); debiased: Sinkhorn "
+        "divergence; emd: W1 earth mover's distance (Beckmann problem, ch. 2), meshes only")
+    w1_method: Literal["admm", "weiszfeld"] = "admm"
+    basis: Literal["full", "spectral"] = "full"
+    k: int | None = Field(None, ge=1)
+
+
+class BarycenterRequest(SinkhornOptions):
+    distributions: list[Distribution] = Field(min_length=1, max_length=64)
+    weights: list[float] | None = Field(None, description="barycentric weights (default "
+                                        "uniform); normalized to sum 1")
+    sharpen: bool = Field(False, description="entropic sharpening (thesis Alg. 3)")
+    entropy_bound: float | None = None
+    debiased: bool = False
+
+
+class InterpolationRequest(SinkhornOptions):
+    mu0: Distribution
+    mu1: Distribution
+    times: list[float] = Field(min_length=1, max_length=64)
+
+
+class PointwiseDistanceRequest(OperationRequest):
+    source: int = Field(ge=0, description="source vertex")
+    k: int = Field(0, ge=0, description="spectral basis size (0: exact)")
+
+
+class FlowRequest(W1Options):
+    mu0: Distribution
+    mu1: Distribution
+
+
+# -- helpers ------------------------------------------------------------------
+def _pair(view: DomainView, req) -> tuple[dict[str, np.ndarray], list[dict]]:
+    masses, reports = resolve_all(view, {"mu0": req.mu0, "mu1": req.mu1}, req.input)
+    check_same_components(view, masses)
+    return masses, reports
+
+
+def _validate_pair(view: DomainView, req) -> list[dict]:
+    return _pair(view, req)[1]
+
+
+def _gamma(domain, req) -> float:
+    return float(req.gamma) if req.gamma is not None else default_gamma(domain)
+
+
+def _sinkhorn_kwargs(domain, req, progress, should_cancel) -> dict:
+    return {"gamma": _gamma(domain, req), "substeps": req.substeps, "tol": req.tol,
+            "max_iter": req.max_iter, "progress": progress, "should_cancel": should_cancel}
+
+
+def _convergence(result) -> dict:
+    return {"iterations": int(result.iterations), "residual": float(result.residual),
+            "converged": bool(result.converged)}
+
+
+# -- distances ------------------------------------------------------------------
+def _validate_distance(view: DomainView, req: DistanceRequest) -> list[dict]:
+    if req.method == "emd" and view.kind != "mesh":
+        from service.errors import UnsupportedOperation
+
+        raise UnsupportedOperation("method 'emd' (W1) is available on triangle meshes only",
+                                   field="method")
+    return _validate_pair(view, req)
+
+
+def run_distance(domain, req: DistanceRequest, progress, should_cancel) -> OperationOutput:
+    masses, reports = _pair(view_of_domain(domain), req)
+    if req.method == "emd":
+        emd = solver("emd", "earth_movers_distance")
+        res = emd(domain, masses["mu0"], masses["mu1"], method=req.w1_method, basis=req.basis,
+                  k=req.k, tol=min(req.tol, 1e-2), max_iter=req.max_iter, progress=progress,
+                  should_cancel=should_cancel)
+        values = {"value": float(res.value), "method": "emd", "iterations": int(res.iterations),
+                  "residual": float(max(res.primal_residual, res.dual_residual)),
+                  "converged": bool(res.converged)}
+        arrays = {"flow": np.asarray(res.flow), "potential": np.asarray(res.potential)}
+        export = {"fields": ["potential"], "flow": "flow", "color": "potential"}
+        return OperationOutput({**values, "normalization": reports}, arrays, export)
+    wd = solver("convolutional", "wasserstein_distance")
+    kwargs = _sinkhorn_kwargs(domain, req, progress, should_cancel)
+    res = wd(domain, masses["mu0"], masses["mu1"], debiased=req.method == "debiased", **kwargs)
+    values = {"value": float(res.value), "method": req.method, "gamma": kwargs["gamma"],
+              **_convergence(res), "normalization": reports}
+    return OperationOutput(values)
+
+
+# -- barycenters --------------------------------------------------------------
+def _barycenter_inputs(view: DomainView, req: BarycenterRequest):
+    specs = {f"distributions[{i}]": d for i, d in enumerate(req.distributions)}
+    masses, reports = resolve_all(view, specs, req.input)
+    check_same_components(view, masses)
+    k = len(req.distributions)
+    if req.weights is None:
+        weights = np.full(k, 1.0 / k)
+    else:
+        weights = np.asarray(req.weights, dtype=np.float64)
+        if weights.shape != (k,):
+            raise InvalidInput(f"weights must have one value per distribution ({k}), got "
+                               f"{len(req.weights)}", field="weights")
+        if not np.all(np.isfinite(weights)) or np.any(weights < 0) or weights.sum() <= 0:
+            raise InvalidInput("weights must be finite, non-negative, with a positive sum",
+                               field="weights")
+        weights = weights / weights.sum()
+    return np.stack(list(masses.values()), axis=1), weights, reports
+
+
+def _validate_barycenter(view, req) -> list[dict]:
+    return _barycenter_inputs(view, req)[2]
+
+
+def run_barycenter(domain, req: BarycenterRequest, progress, should_cancel) -> OperationOutput:
+    mus, weights, reports = _barycenter_inputs(view_of_domain(domain), req)
+    bary = solver("convolutional", "barycenter")
+    kwargs = _sinkhorn_kwargs(domain, req, progress, should_cancel)
+    res = bary(domain, mus, weights, sharpen=req.sharpen, entropy_bound=req.entropy_bound,
+               debiased=req.debiased, **kwargs)
+    masses = np.asarray(res.masses, dtype=np.float64)
+    values = {"gamma": kwargs["gamma"], "weights": weights.tolist(), **_convergence(res),
+              "entropy": getattr(res, "entropy", None), "normalization": reports}
+    arrays = {"masses": masses, "density": masses / np.asarray(domain.areas)}
+    return OperationOutput(values, arrays, {"fields": ["masses", "density"],
+                                            "color": "density"})
+
+
+# -- interpolations -------------------------------------------------------------
+def _validate_interpolation(view, req: InterpolationRequest) -> list[dict]:
+    for i, t in enumerate(req.times):
+        if not 0.0 <= t <= 1.0:
+            raise InvalidInput(f"times[{i}] = {t} is outside [0, 1]", field=f"times[{i}]")
+    return _validate_pair(view, req)
+
+
+def run_interpolation(domain, req: InterpolationRequest, progress, should_cancel
+                      ) -> OperationOutput:
+    _validate_interpolation(view_of_domain(domain), req)
+    masses, reports = _pair(view_of_domain(domain), req)
+    interp = solver("convolutional", "displacement_interpolation")
+    kwargs = _sinkhorn_kwargs(domain, req, progress, should_cancel)
+    res = interp(domain, masses["mu0"], masses["mu1"], list(req.times), **kwargs)
+    m = np.asarray(res.masses, dtype=np.float64).reshape(domain.n, -1)
+    values = {"gamma": kwargs["gamma"], "times": list(req.times), **_convergence(res),
+              "normalization": reports}
+    arrays = {"masses": m, "density": m / np.asarray(domain.areas)[:, None]}
+    return OperationOutput(values, arrays, {"fields": ["masses", "density"],
+                                            "frames": list(req.times), "color": "density"})
+
+
+# -- W1 on meshes ---------------------------------------------------------------
+def _validate_pointwise(view, req: PointwiseDistanceRequest) -> list[dict]:
+    if req.source >= view.n:
+        raise InvalidInput(f"source {req.source} out of range [0, {view.n - 1}]",
+                           field="source")
+    return []
+
+
+def run_pointwise(domain, req: PointwiseDistanceRequest, progress, should_cancel
+                  ) -> OperationOutput:
+    _validate_pointwise(view_of_domain(domain), req)
+    pd = solver("emd", "pointwise_distances")
+    res = pd(domain, req.source, k=req.k)
+    d = np.asarray(res.distances, dtype=np.float64)
+    finite = d[np.isfinite(d)]
+    values = {"source": req.source, "k": req.k,
+              "max_distance": float(finite.max()) if finite.size else None,
+              "unreachable": int((~np.isfinite(d)).sum())}
+    return OperationOutput(values, {"distances": d}, {"fields": ["distances"],
+                                                      "color": "distances"})
+
+
+def run_flow(domain, req: FlowRequest, progress, should_cancel) -> OperationOutput:
+    masses, reports = _pair(view_of_domain(domain), req)
+    emd = solver("emd", "earth_movers_distance")
+    res = emd(domain, masses["mu0"], masses["mu1"], method=req.w1_method, basis=req.basis,
+              k=req.k, tol=req.tol, max_iter=req.max_iter, progress=progress,
+              should_cancel=should_cancel)
+    flow = np.asarray(res.flow, dtype=np.float64)
+    values = {"value": float(res.value), "iterations": int(res.iterations),
+              "primal_residual": float(res.primal_residual),
+              "dual_residual": float(res.dual_residual), "converged": bool(res.converged),
+              "max_flow": float(np.linalg.norm(flow, axis=1).max()) if len(flow) else 0.0,
+              "normalization": reports}
+    arrays = {"flow": flow, "flow_magnitude": np.linalg.norm(flow, axis=1),
+              "potential": np.asarray(res.potential, dtype=np.float64)}
+    return OperationOutput(values, arrays, {"fields": ["flow_magnitude", "potential"],
+                                            "flow": "flow", "color": "potential"})
+
+
+MESH = ("mesh",)
+OPERATIONS = [
+    Operation("distances", "createDistanceJob",
+              "Transport distance between two distributions (entropic W2, debiased, or W1)",
+              DistanceRequest, run_distance, _validate_distance),
+    Operation("barycenters", "createBarycenterJob",
+              "Wasserstein barycenter of distributions (convolutional, optional sharpening)",
+              BarycenterRequest, run_barycenter, _validate_barycenter),
+    Operation("interpolations", "createInterpolationJob",
+              "Displacement interpolation between two distributions at given times",
+              InterpolationRequest, run_interpolation, _validate_interpolation),
+    Operation("pointwise-distances", "createPointwiseDistanceJob",
+              "Distances from a source vertex to every vertex (W1 between Diracs)",
+              PointwiseDistanceRequest, run_pointwise, _validate_pointwise, MESH),
+    Operation("flows", "createFlowJob", "W1 optimal flow field J between two distributions",
+              FlowRequest, run_flow, _validate_pair, MESH),
+]

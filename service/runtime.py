@@ -1,0 +1,86 @@
+"""Everything one process of the service holds: settings, storage, job table, queue,
+operator cache, runner and reaper.  Built once per process (API or worker)."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+from service.cache import OperatorCache
+from service.jobs.db import JobRepository, worker_identity
+from service.jobs.queue import make_huey, register_task
+from service.jobs.reaper import Reaper
+from service.jobs.runner import JobRunner
+from service.settings import Settings
+from service.store import Store
+
+log = logging.getLogger("otgeo")
+
+
+class Runtime:
+    def __init__(self, settings: Settings, role: str = "api"):
+        settings.ensure_dirs()
+        self.settings = settings
+        self.role = role
+        self.started_at = time.time()
+        self.store = Store(settings.data_dir)
+        self.repo = JobRepository(settings.job_database_url)
+        self.cache = OperatorCache(settings.cache_bytes)
+        self.huey = make_huey(settings)
+        self.runner = JobRunner(settings, self.store, self.repo, self.cache)
+        self.task = register_task(self.huey, self.runner.run)
+        self.reaper = Reaper(settings, self.repo, self.enqueue)
+        self._stop = threading.Event()
+        self._presence: threading.Thread | None = None
+
+    @property
+    def process_id(self) -> str:
+        return worker_identity()
+
+    def enqueue(self, job_id: str) -> None:
+        """Send a job id to the queue (in immediate mode: run it now)."""
+        self.task(job_id)
+
+    def pending_messages(self) -> int | None:
+        if self.settings.queue == "immediate":
+            return 0
+        try:
+            return int(self.huey.pending_count())
+        except Exception:  # broker down
+            return None
+
+    # -- background threads ---------------------------------------------
+    def start_background(self, publish: bool) -> None:
+        """Start the reaper (and, in workers, publishing of cache statistics)."""
+        if self.settings.queue != "immediate":
+            self.reaper.start()
+        if publish:
+            self.runner.on_finished = self.publish
+            self._presence = threading.Thread(target=self._publish_loop, daemon=True,
+                                              name="presence")
+            self._presence.start()
+
+    def publish(self) -> None:
+        self.repo.publish_worker(self.process_id, self.started_at, self.runner.jobs_done,
+                                 self.cache.stats())
+
+    def _publish_loop(self) -> None:
+        while True:
+            try:
+                self.publish()
+            except Exception:
+                log.exception("could not publish worker statistics")
+            if self._stop.wait(self.settings.heartbeat_interval):
+                return
+
+    def close(self) -> None:
+        self._stop.set()
+        self.reaper.stop()
+        if self._presence is not None:
+            self._presence.join(timeout=5)
+            try:
+                self.repo.remove_worker(self.process_id)
+            except Exception:
+                pass
+        self.repo.dispose()

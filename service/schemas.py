@@ -1,0 +1,158 @@
+"""Pydantic request and response models of the REST API (v1)."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from service.errors import ErrorBody
+
+
+def timestamp(value: float | None) -> datetime | None:
+    return None if value is None else datetime.fromtimestamp(value, tz=UTC)
+
+
+# -- domains ----------------------------------------------------------------------
+class GridSpec(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    kind: Literal["grid"]
+    shape: list[int] = Field(min_length=1, max_length=3, description="nodes per axis")
+    bounds: list[list[float]] | None = Field(None, description="(lo, hi) per axis; "
+                                             "default [0, 1]")
+    periodic: bool | list[bool] = False
+
+
+class GraphSpec(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    kind: Literal["graph"]
+    n_nodes: int = Field(ge=1)
+    edges: list[list[int]] = Field(description="(m, 2) node index pairs")
+    weights: list[float] | None = None
+    positions: list[list[float]] | None = None
+
+
+class PointCloudSpec(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    kind: Literal["pointcloud"]
+    points: list[list[float]] = Field(description="(n, 3) coordinates")
+    n_neighbors: int = 30
+
+
+class MeshSpec(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    kind: Literal["mesh"]
+    vertices: list[list[float]] = Field(description="(n, 3) coordinates")
+    faces: list[list[int]] = Field(description="(m, 3) vertex indices")
+    laplacian: Literal["robust", "cotan"] = "robust"
+
+
+DomainSpec = Annotated[GridSpec | GraphSpec | PointCloudSpec | MeshSpec,
+                       Field(discriminator="kind")]
+
+
+class Boundary(BaseModel):
+    loops: int
+    closed: bool
+
+
+class DomainOut(BaseModel):
+    id: str = Field(description="content hash: the same upload gives the same id")
+    kind: str
+    n: int = Field(description="points carrying mass (vertices, nodes, cells)")
+    sizes: dict[str, int]
+    genus: int | None = None
+    components: int
+    boundary: Boundary | None = None
+    diagnostics: dict = Field(default_factory=dict)
+    warnings: list[str] = Field(default_factory=list)
+    parameters: dict = Field(default_factory=dict)
+    source: dict = Field(default_factory=dict)
+    summary: dict = Field(default_factory=dict)
+    created_at: datetime
+    links: dict[str, str]
+
+    @classmethod
+    def from_meta(cls, meta: dict) -> DomainOut:
+        s = meta["summary"]
+        sizes = {k: int(s[k]) for k in ("vertices", "faces", "edges", "nodes", "points")
+                 if isinstance(s.get(k), int)}
+        if "shape" in s:
+            sizes.update({f"axis{i}": int(v) for i, v in enumerate(s["shape"])})
+        boundary = None
+        if meta["kind"] == "mesh":
+            boundary = Boundary(loops=int(s.get("boundary_loops", 0)),
+                                closed=bool(s.get("closed", False)))
+        diagnostics = dict(s.get("diagnostics") or {})
+        warnings = list(diagnostics.pop("warnings", []))
+        return cls(id=meta["id"], kind=meta["kind"], n=int(s["n"]), sizes=sizes,
+                   genus=s.get("genus"), components=int(s.get("components", 1)),
+                   boundary=boundary, diagnostics=diagnostics, warnings=warnings,
+                   parameters=meta.get("parameters") or {}, source=meta.get("source") or {},
+                   summary=s, created_at=timestamp(meta.get("created_at", 0.0)),
+                   links={"self": f"/v1/domains/{meta['id']}"})
+
+
+class DomainList(BaseModel):
+    domains: list[DomainOut]
+
+
+# -- jobs -------------------------------------------------------------------------
+JobState = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+
+
+class JobProgress(BaseModel):
+    iteration: int | None = None
+    residual: float | None = None
+
+
+class JobOut(BaseModel):
+    id: str
+    operation: str
+    domain_id: str
+    state: JobState
+    progress: JobProgress
+    attempts: int
+    error: ErrorBody | None = None
+    cancel_requested: bool
+    time_limit: float
+    created_at: datetime
+    started_at: datetime | None = None
+    finished_at: datetime | None = None
+    duration_seconds: float | None = None
+    links: dict[str, str]
+
+    @classmethod
+    def from_row(cls, row) -> JobOut:
+        base = f"/v1/jobs/{row.id}"
+        return cls(
+            id=row.id, operation=row.operation, domain_id=row.domain_id, state=row.state,
+            progress=JobProgress(iteration=row.iteration, residual=row.residual),
+            attempts=row.attempts, error=ErrorBody(**row.error) if row.error else None,
+            cancel_requested=bool(row.cancel_requested), time_limit=row.time_limit,
+            created_at=timestamp(row.created_at), started_at=timestamp(row.started_at),
+            finished_at=timestamp(row.finished_at), duration_seconds=row.duration,
+            links={"self": base, "result": f"{base}/result", "result_glb": f"{base}/result.glb",
+                   "events": f"{base}/events", "domain": f"/v1/domains/{row.domain_id}"})
+
+
+class JobList(BaseModel):
+    jobs: list[JobOut]
+
+
+class JobResult(BaseModel):
+    job_id: str
+    operation: str
+    domain_id: str
+    values: dict = Field(description="scalars: value, iterations, residual, converged, "
+                         "normalization of the inputs, ...")
+    arrays: dict[str, list | None] = Field(
+        default_factory=dict, description="result arrays as nested lists (null for non-finite)")
+    export: dict = Field(default_factory=dict)
+
+
+class Health(BaseModel):
+    status: Literal["ok"]
+    queue: str
+    version: str

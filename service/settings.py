@@ -1,0 +1,62 @@
+"""Service configuration from environment variables (prefix ``OTGEO_``).
+
+Every field can be set as ``OTGEO_<NAME>`` (e.g. ``OTGEO_DATA_DIR=/srv/otgeo``,
+``OTGEO_QUEUE=redis``, ``OTGEO_API_KEYS=key1,key2``); see the README table.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import Field, field_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="OTGEO_", extra="ignore")
+
+    data_dir: Path = Field(Path("data"), description="shared storage: domains, results, "
+                           "SQLite queue and job table")
+    queue: Literal["sqlite", "redis", "immediate"] = Field(
+        "sqlite", description="job queue: Huey on SQLite (embedded), on Redis (scaled out), or "
+        "'immediate' (run jobs inside the request; tests only)")
+    queue_name: str = "otgeo"
+    redis_url: str = "redis://127.0.0.1:6379/0"
+    database_url: str | None = Field(
+        None, description="SQLAlchemy URL of the job table; default sqlite in data_dir "
+        "(use postgresql://... when scaled out)")
+    max_upload_bytes: int = Field(200 * 2**20, gt=0)
+    max_vertices: int = Field(2_000_000, gt=0, description="largest domain (points) accepted")
+    cache_bytes: int = Field(2 * 2**30, ge=0, description="per-process operator cache bound")
+    job_time_limit: float = Field(600.0, gt=0, description="seconds; checked between iterations")
+    max_attempts: int = Field(3, ge=1, description="runs of a job whose worker died, at most")
+    heartbeat_interval: float = Field(2.0, gt=0, description="seconds between heartbeats")
+    stale_after: float = Field(30.0, gt=0, description="heartbeat age after which a running "
+                               "job's worker counts as dead")
+    requeue_queued_after: float = Field(
+        300.0, gt=0, description="re-enqueue a job still queued after this many seconds "
+        "(queue message lost, e.g. broker restart); duplicates are harmless")
+    reaper_interval: float = Field(5.0, gt=0)
+    api_keys: Annotated[list[str], NoDecode] = Field(
+        default_factory=list, description="comma-separated accepted X-API-Key values; "
+        "empty = no authentication")
+    workers: int = Field(1, ge=0, description="worker processes started by `otgeo serve`")
+    blas_threads: int = Field(1, ge=1, description="BLAS/OpenMP threads per worker process")
+    worker_poll_interval: float = Field(0.05, gt=0, description="longest idle poll delay of "
+                                        "a worker on the SQLite queue (seconds)")
+    wait_max: float = Field(60.0, ge=0, description="largest accepted ?wait= (seconds)")
+
+    @field_validator("api_keys", mode="before")
+    @classmethod
+    def _split_keys(cls, value):
+        if isinstance(value, str):
+            return [k.strip() for k in value.split(",") if k.strip()]
+        return value
+
+    @property
+    def job_database_url(self) -> str:
+        return self.database_url or f"sqlite:///{(self.data_dir / 'jobs.sqlite3').resolve()}"
+
+    def ensure_dirs(self) -> None:
+        self.data_dir.mkdir(parents=True, exist_ok=True)

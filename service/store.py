@@ -1,0 +1,250 @@
+"""Content-addressed storage of domains and job results in ``data_dir``.
+
+Layout (shared by every API and worker process, possibly on several machines)::
+
+    domains/<id>.npz       Domain.to_arrays()            (what workers rebuild from)
+    domains/<id>.aux.npz   areas, component labels, points (cheap input validation)
+    domains/<id>.json      kind, parameters, summary      (written last: marks complete)
+    results/<job>.json     result payload (scalars, array descriptions)
+    results/<job>.npz      result arrays (per vertex / per face / ...)
+
+Every file is written to a temporary name and renamed into place, so readers
+never see partial files; a domain's id is ``Domain.content_hash()``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import tempfile
+import time
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from service.errors import NotFound
+from solvers.domains import Domain, domain_from_arrays
+
+_ID = re.compile(r"^[0-9a-f]{16,64}$")
+
+
+def atomic_write(path: Path, write) -> None:
+    """Write through ``write(fileobj)`` to a temporary file, then rename onto ``path``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def _write_json(path: Path, payload) -> None:
+    atomic_write(path, lambda fh: fh.write(json.dumps(payload).encode()))
+
+
+def _write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    atomic_write(path, lambda fh: np.savez(fh, **arrays))
+
+
+def _read_npz(path: Path) -> dict[str, np.ndarray]:
+    with np.load(path, allow_pickle=False) as data:
+        return {k: data[k] for k in data.files}
+
+
+def domain_points(domain: Domain) -> np.ndarray | None:
+    """Coordinates of the mass-carrying points (unit-area scale), if the domain has any."""
+    for name in ("vertices", "points", "positions"):
+        pts = getattr(domain, name, None)
+        if isinstance(pts, np.ndarray):
+            return pts
+    return None
+
+
+@dataclass
+class DomainInfo:
+    """What the API needs to validate a request without building operators."""
+
+    id: str
+    meta: dict
+    _store: Store
+
+    @property
+    def kind(self) -> str:
+        return self.meta["kind"]
+
+    @property
+    def n(self) -> int:
+        return int(self.meta["summary"]["n"])
+
+    @property
+    def n_components(self) -> int:
+        return int(self.meta["summary"].get("components", 1))
+
+    @cached_property
+    def aux(self) -> dict[str, np.ndarray]:
+        return self._store._load_npz(self._store.domain_dir / f"{self.id}.aux.npz", self.id)
+
+    @property
+    def areas(self) -> np.ndarray:
+        return self.aux["areas"]
+
+    @property
+    def component_labels(self) -> np.ndarray:
+        return self.aux["component_labels"]
+
+    @property
+    def points(self) -> np.ndarray | None:
+        return self.aux.get("points")
+
+    @cached_property
+    def arrays(self) -> dict[str, np.ndarray]:
+        return self._store.domain_arrays(self.id)
+
+
+class Store:
+    def __init__(self, data_dir: Path | str):
+        self.root = Path(data_dir)
+        self.domain_dir = self.root / "domains"
+        self.result_dir = self.root / "results"
+        self.domain_dir.mkdir(parents=True, exist_ok=True)
+        self.result_dir.mkdir(parents=True, exist_ok=True)
+
+    # -- domains --------------------------------------------------------
+    @staticmethod
+    def check_id(domain_id: str, field: str = "domain_id") -> str:
+        if not _ID.match(domain_id or ""):
+            raise NotFound(f"unknown domain {domain_id!r}", field=field)
+        return domain_id
+
+    def put_domain(self, domain: Domain, source: dict | None = None) -> tuple[dict, bool]:
+        """Store ``domain``; returns ``(meta, created)`` (created False if already stored)."""
+        domain_id = domain.content_hash()
+        existing = self._meta_path(domain_id)
+        if existing.exists():
+            try:
+                return json.loads(existing.read_text()), False
+            except (OSError, ValueError):
+                pass  # unreadable: rewrite below
+        labels = np.asarray(domain.component_labels, dtype=np.int32)
+        aux = {"areas": np.asarray(domain.areas, dtype=np.float64), "component_labels": labels}
+        pts = domain_points(domain)
+        if pts is not None:
+            aux["points"] = np.asarray(pts, dtype=np.float64)
+        summary = jsonable(domain.summary())
+        meta = {
+            "id": domain_id,
+            "kind": domain.kind,
+            "parameters": jsonable(domain.parameters()),
+            "summary": summary,
+            "source": source or {},
+            "created_at": time.time(),
+        }
+        _write_npz(self.domain_dir / f"{domain_id}.npz", domain.to_arrays())
+        _write_npz(self.domain_dir / f"{domain_id}.aux.npz", aux)
+        _write_json(self._meta_path(domain_id), meta)
+        return meta, True
+
+    def _meta_path(self, domain_id: str) -> Path:
+        return self.domain_dir / f"{domain_id}.json"
+
+    def get_domain_meta(self, domain_id: str) -> dict:
+        self.check_id(domain_id)
+        try:
+            return json.loads(self._meta_path(domain_id).read_text())
+        except FileNotFoundError:
+            raise NotFound(f"unknown domain {domain_id!r}", field="domain_id") from None
+
+    def domain_info(self, domain_id: str) -> DomainInfo:
+        return DomainInfo(domain_id, self.get_domain_meta(domain_id), self)
+
+    def _load_npz(self, path: Path, domain_id: str) -> dict[str, np.ndarray]:
+        try:
+            return _read_npz(path)
+        except FileNotFoundError:
+            raise NotFound(f"unknown domain {domain_id!r}", field="domain_id") from None
+
+    def domain_arrays(self, domain_id: str) -> dict[str, np.ndarray]:
+        self.check_id(domain_id)
+        return self._load_npz(self.domain_dir / f"{domain_id}.npz", domain_id)
+
+    def load_domain(self, domain_id: str) -> Domain:
+        """Rebuild the domain object (operators are built lazily by the domain)."""
+        meta = self.get_domain_meta(domain_id)
+        return domain_from_arrays(meta["kind"], self.domain_arrays(domain_id),
+                                  meta.get("parameters") or {})
+
+    def list_domains(self) -> list[dict]:
+        out = []
+        for path in sorted(self.domain_dir.glob("*.json")):
+            try:
+                out.append(json.loads(path.read_text()))
+            except (OSError, ValueError):
+                continue  # deleted or being replaced concurrently
+        out.sort(key=lambda m: m.get("created_at", 0))
+        return out
+
+    def delete_domain(self, domain_id: str) -> None:
+        """Remove a domain: metadata first (it disappears atomically), then its arrays.
+
+        Processes that already opened or cached the domain keep working on their copy.
+        """
+        self.check_id(domain_id)
+        try:
+            self._meta_path(domain_id).unlink()
+        except FileNotFoundError:
+            raise NotFound(f"unknown domain {domain_id!r}", field="domain_id") from None
+        for suffix in (".aux.npz", ".npz"):
+            try:
+                (self.domain_dir / f"{domain_id}{suffix}").unlink()
+            except FileNotFoundError:
+                pass
+
+    # -- results --------------------------------------------------------
+    def put_result(self, job_id: str, payload: dict, arrays: dict[str, np.ndarray]) -> str:
+        """Store a job's result (arrays first, JSON last); returns its location."""
+        if arrays:
+            _write_npz(self.result_dir / f"{job_id}.npz", arrays)
+        _write_json(self.result_dir / f"{job_id}.json", jsonable(payload))
+        return f"results/{job_id}.json"
+
+    def get_result(self, job_id: str) -> dict:
+        try:
+            return json.loads((self.result_dir / f"{job_id}.json").read_text())
+        except FileNotFoundError:
+            raise NotFound(f"no result stored for job {job_id!r}", field="job_id") from None
+
+    def get_result_arrays(self, job_id: str) -> dict[str, np.ndarray]:
+        path = self.result_dir / f"{job_id}.npz"
+        if not path.exists():
+            return {}
+        return _read_npz(path)
+
+
+def jsonable(obj):
+    """Convert numpy scalars/arrays inside ``obj`` to plain JSON types; NaN/inf -> None."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, (np.bool_, bool)):
+        return bool(obj)
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        f = float(obj)
+        return f if np.isfinite(f) else None
+    return obj
+
