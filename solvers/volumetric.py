@@ -202,7 +202,7 @@ def winding_number(mesh: TriangleMesh, points, *, units: str = "mesh") -> np.nda
 # ---------------------------------------------------------------------------
 # distances and paths
 # ---------------------------------------------------------------------------
-def _kr_distance(mesh, difference, method, tol, max_iter, max_vertices):
+def _kr_distance(mesh, difference, method, tol, max_iter, max_vertices, basis="flow"):
     """(value, potential, iterations, residual, converged) of ||difference||_KR."""
     if method == "exact":
         tol = 1e-8 if tol is None else tol
@@ -219,12 +219,12 @@ def _kr_distance(mesh, difference, method, tol, max_iter, max_vertices):
         mass = pos.sum()
         if mass <= 0:
             return 0.0, np.zeros(mesh.n), 0, 0.0, True
-        kwargs = {} if tol is None else {"tol": tol}
+        kwargs = {"basis": basis} if tol is None else {"basis": basis, "tol": tol}
         if max_iter is not None:
             kwargs["max_iter"] = max_iter
         res = earth_movers_distance(mesh, pos / mass, neg / mass, **kwargs)
         potential = getattr(res, "potential", None)
-        potential = np.zeros(mesh.n) if potential is None else mass * np.asarray(potential)
+        potential = np.zeros(mesh.n) if potential is None else np.asarray(potential)
         return (mass * float(res.value), potential, int(res.iterations),
                 float(getattr(res, "primal_residual", np.nan)), bool(res.converged))
     raise InputError(f"method must be 'exact' or 'admm', got {method!r}", field="method")
@@ -236,6 +236,7 @@ def volumetric_distance(
     y,
     *,
     method: str = "exact",
+    basis: str = "flow",
     units: str = "mesh",
     tol: float | None = None,
     max_iter: int | None = None,
@@ -246,7 +247,10 @@ def volumetric_distance(
     :math:`d(x, y) = \lVert w(x) - w(y)\rVert_{KR}` with :math:`w` the mean value
     coordinates on the closed boundary mesh.  ``method="exact"`` solves the Beckmann
     SOCP (:mod:`solvers.w1_convex`, at most ``max_vertices``); ``"admm"`` uses
-    :func:`solvers.emd.earth_movers_distance` on the positive and negative parts.
+    :func:`solvers.emd.earth_movers_distance` on the positive and negative parts, with
+    its flow ``basis`` (default ``"flow"``: all piecewise-constant flows, the same
+    discrete problem as the exact solver; ``"full"``/``"spectral"`` restrict the flows
+    and give larger values — measured +4 % on a torus).
     ``potential`` is the optimal Kantorovich potential: ``value == potential @ (w_y - w_x)``.
     """
     _check_closed_mesh(mesh)
@@ -255,7 +259,7 @@ def volumetric_distance(
         raise InputError("x and y must be single points (3,)", field="x")
     W = mean_value_coordinates(mesh, pts)
     value, potential, iterations, residual, converged = _kr_distance(
-        mesh, W[0] - W[1], method, tol, max_iter, max_vertices)
+        mesh, W[0] - W[1], method, tol, max_iter, max_vertices, basis)
     return VolumetricDistanceResult(value=value, weights_x=W[0], weights_y=W[1],
                                     potential=potential, iterations=iterations,
                                     residual=residual, converged=converged)
@@ -269,6 +273,7 @@ def volumetric_path(
     step: float | None = None,
     max_iter: int = 100,
     method: str = "exact",
+    basis: str = "flow",
     units: str = "mesh",
     tol: float | None = None,
     max_vertices: int = MAX_VERTICES,
@@ -287,6 +292,7 @@ def volumetric_path(
     ----------
     start, target : (3,) points.
     step : step length (default: the mean edge length).
+    method, basis : W1 solver, as in :func:`volumetric_distance`.
     max_iter : maximum number of steps.
     progress : callable(iteration, distance) or None.  should_cancel : callable() -> bool.
     """
@@ -310,7 +316,7 @@ def volumetric_path(
             raise CancelledError("volumetric path cancelled", field=None)
         W = mean_value_coordinates(mesh, np.vstack([x, x + offsets]))
         value, potential, _, _, _ = _kr_distance(mesh, W[0] - w_target, method, tol, None,
-                                                 max_vertices)
+                                                 max_vertices, basis)
         distances.append(value)
         if progress is not None:
             progress(iterations, value)
@@ -329,7 +335,7 @@ def volumetric_path(
     if len(distances) < len(points):
         W = mean_value_coordinates(mesh, points[-1])
         distances.append(_kr_distance(mesh, W[0] - w_target, method, tol, None,
-                                      max_vertices)[0])
+                                      max_vertices, basis)[0])
     return VolumetricPathResult(points=np.array(points), distances=np.array(distances),
                                 iterations=iterations, residual=float(distances[-1]),
                                 converged=converged)
