@@ -234,7 +234,8 @@ class _ConicProgram:
         self.soc_sizes += [3] * nf
         return s
 
-    def solve(self, tol: float, max_iter: int, time_limit: float | None):
+    def solve(self, tol: float, max_iter: int, time_limit: float | None, progress=None,
+              should_cancel=None):
         import clarabel
 
         q = np.zeros(self.n)
@@ -272,9 +273,24 @@ class _ConicProgram:
         if time_limit is not None:
             settings.time_limit = float(time_limit)
         P = sp.csc_matrix((self.n, self.n))
+        solver = clarabel.DefaultSolver(P, q, A, np.concatenate(b), cones, settings)
+        cancelled = []
+        if progress is not None or should_cancel is not None:
+            def callback(info) -> bool:
+                if progress is not None:
+                    progress(int(info.iterations),
+                             float(max(info.gap_rel, info.res_primal, info.res_dual)))
+                if should_cancel is not None and should_cancel():
+                    cancelled.append(True)
+                    return True
+                return False
+
+            solver.set_termination_callback(callback)
         start = time.perf_counter()
-        solution = clarabel.DefaultSolver(P, q, A, np.concatenate(b), cones, settings).solve()
+        solution = solver.solve()
         elapsed = time.perf_counter() - start
+        if cancelled:
+            raise CancelledError("conic solve cancelled", field="should_cancel")
         status = str(solution.status)
         if "." in status:
             status = status.rsplit(".", 1)[1]
@@ -320,6 +336,7 @@ def beckmann_w1_exact(
     max_iter: int = 200,
     max_vertices: int = MAX_VERTICES,
     time_limit: float | None = None,
+    progress=None,
     should_cancel=None,
 ) -> BeckmannResult:
     r"""Exact discrete W1 (Beckmann problem, eq. 2.3) by second-order cone programming.
@@ -336,6 +353,11 @@ def beckmann_w1_exact(
         Flow may pass from face to face through a shared vertex, so an obstacle must
         block every face touching its vertices (``blocked[mesh.faces].any(axis=1)``).
     tol : interior-point gap and feasibility tolerance.
+    max_iter, time_limit : interior-point iteration and wall-time (s) caps.
+    progress : callable(iteration, residual) after every interior-point iteration
+        (residual = max of relative gap and primal/dual residuals), or None.
+    should_cancel : callable() -> bool polled every iteration; True raises
+        ``CancelledError``.  The same keywords apply to the barycenter and path solvers.
 
     Returns
     -------
@@ -348,11 +370,11 @@ def beckmann_w1_exact(
         raise InputError("mu0 and mu1 must be single (V,) distributions", field="mu0")
     return _beckmann_difference(mesh, m0 - m1, face_weights=face_weights, tol=tol,
                                 max_iter=max_iter, time_limit=time_limit,
-                                should_cancel=should_cancel)
+                                progress=progress, should_cancel=should_cancel)
 
 
 def _beckmann_difference(mesh, difference, *, face_weights=None, tol=1e-8, max_iter=200,
-                         time_limit=None, should_cancel=None,
+                         time_limit=None, progress=None, should_cancel=None,
                          field_name: str = "mu1") -> BeckmannResult:
     """Kantorovich–Rubinstein norm of a balanced signed mass vector ``m0 - m1``."""
     _check_balance(mesh, difference, field_name)
@@ -363,7 +385,8 @@ def _beckmann_difference(mesh, difference, *, face_weights=None, tol=1e-8, max_i
     prog = _ConicProgram()
     flow = prog.flow_block(geo)
     prog.constrain("eq", [(flow, geo.div[keep])], difference[keep])
-    x, z, iterations, status, elapsed = prog.solve(tol, max_iter, time_limit)
+    x, z, iterations, status, elapsed = prog.solve(
+        tol, max_iter, time_limit, progress, should_cancel)
     if status in ("PrimalInfeasible", "AlmostPrimalInfeasible"):
         raise UnsupportedDomainError(
             "no flow can carry the mass: the faces allowed by face_weights disconnect the "
@@ -413,6 +436,7 @@ def w1_barycenter(
     max_iter: int = 200,
     max_vertices: int = MAX_VERTICES,
     time_limit: float | None = None,
+    progress=None,
     should_cancel=None,
 ) -> W1BarycenterResult:
     r"""W1 barycenter (eq. 2.6): :math:`\min_{\mu\ge0,\ \sum\mu=1} \sum_i \alpha_i W_1(\mu, \mu_i)`.
@@ -457,7 +481,8 @@ def w1_barycenter(
         flows.append(fl)
     prog.constrain("eq", [(mu, _component_sum_matrix(mesh))], mesh.component_masses(M[:, 0]))
     prog.constrain("nonneg", [(mu, -sp.identity(mesh.n, format="csr"))], np.zeros(mesh.n))
-    x, _, iterations, status, elapsed = prog.solve(tol, max_iter, time_limit)
+    x, _, iterations, status, elapsed = prog.solve(
+        tol, max_iter, time_limit, progress, should_cancel)
     masses = np.clip(x[mu], 0.0, None)
     masses /= masses.sum()
     xs = [x[fl] for fl in flows]
@@ -490,6 +515,7 @@ def w1_path_planning(
     max_iter: int = 200,
     max_vertices: int = MAX_VERTICES,
     time_limit: float | None = None,
+    progress=None,
     should_cancel=None,
 ) -> W1PathResult:
     r"""Path planning for a distribution (eq. 2.7) as one convex program.
@@ -570,7 +596,8 @@ def w1_path_planning(
             prog.constrain("nonneg", [(mid, eye[finite])], upper[finite])
         if forbidden.any():
             prog.constrain("eq", [(mid, eye[forbidden])], np.zeros(int(forbidden.sum())))
-    x, _, iterations, status, elapsed = prog.solve(tol, max_iter, time_limit)
+    x, _, iterations, status, elapsed = prog.solve(
+        tol, max_iter, time_limit, progress, should_cancel)
     if status in ("PrimalInfeasible", "AlmostPrimalInfeasible"):
         raise InputError(
             "no path satisfies the constraints (capacity too small, or forbidden vertices "

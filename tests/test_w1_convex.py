@@ -9,7 +9,7 @@ import pytest
 import trimesh
 
 from solvers.domains import TriangleMesh
-from solvers.errors import InputError, UnsupportedDomainError
+from solvers.errors import CancelledError, InputError, UnsupportedDomainError
 from solvers.w1_convex import (
     beckmann_w1_exact,
     kantorovich_rubinstein_norm,
@@ -243,3 +243,16 @@ def test_input_validation(sphere):
     m1b = np.zeros(two.n)
     m1b[3] = 1
     assert beckmann_w1_exact(two, m0, m1b).converged
+
+
+def test_progress_and_cancellation(sphere):
+    a, b = _bump(sphere, 0), _bump(sphere, 50)
+    seen = []
+    res = beckmann_w1_exact(sphere, a, b, progress=lambda k, r: seen.append((k, r)))
+    assert [k for k, _ in seen] == list(range(len(seen)))
+    assert len(seen) >= res.iterations and seen[-1][1] < 1e-6
+    calls = []
+    with pytest.raises(CancelledError):
+        w1_barycenter(sphere, np.stack([a, b], 1),
+                      should_cancel=lambda: calls.append(1) or len(calls) > 2)
+    assert len(calls) == 3
