@@ -27,6 +27,20 @@ flows) on it; every job is observable, cancellable and keeps its result. Errors 
 V1_ROUTERS = [domains.router, operations.router, jobs.router]
 
 
+def _errors_everywhere(schema: dict) -> None:
+    """Request validation errors use the one error shape too (not FastAPI's default)."""
+    ref = {"$ref": "#/components/schemas/ErrorResponse"}
+    for methods in schema.get("paths", {}).values():
+        for op in methods.values():
+            resp = op.get("responses", {}).get("422")
+            if resp is not None:
+                resp["content"] = {"application/json": {"schema": ref}}
+                if resp.get("description") == "Validation Error":
+                    resp["description"] = "invalid input (the field is named)"
+    for name in ("HTTPValidationError", "ValidationError"):
+        schema["components"]["schemas"].pop(name, None)
+
+
 def create_app(settings: Settings | None = None, *, start_background: bool = True) -> FastAPI:
     settings = settings or Settings()
     runtime = Runtime(settings, role="api")
@@ -61,6 +75,7 @@ def create_app(settings: Settings | None = None, *, start_background: bool = Tru
             components["ErrorResponse"] = ErrorResponse.model_json_schema(
                 ref_template="#/components/schemas/{model}")
             components["ErrorResponse"].pop("$defs", None)
+            _errors_everywhere(schema)
             app.openapi_schema = schema
         return app.openapi_schema
 

@@ -145,6 +145,10 @@ def cmd_serve(args) -> None:
         pool.start()
         print(f"otgeo: {settings.workers} worker process(es): "
               f"{', '.join(str(p.pid) for p in pool.procs)}", flush=True)
+    # uvicorn re-raises SIGINT/SIGTERM after a graceful shutdown, with the handlers that were
+    # installed before it started: make those no-ops so the workers are stopped below.
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda *_: None)
     try:
         from service.app import create_app
 

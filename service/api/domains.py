@@ -86,7 +86,8 @@ async def create_domain(request: Request, response: Response,
             loc = list(err["loc"])
             if loc and isinstance(raw, dict) and loc[0] == raw.get("kind"):
                 loc = loc[1:]  # drop the union tag
-            field = _field_from_loc(loc) or "body"
+            tag_error = err["type"] in ("union_tag_invalid", "union_tag_not_found")
+            field = "kind" if tag_error else (_field_from_loc(loc) or "body")
             raise InvalidInput(f"{field}: {err['msg']}", field=field) from exc
         meta, created = await run_in_threadpool(svc.from_spec, spec)
     else:

@@ -27,16 +27,18 @@ class SinkhornOptions(OperationRequest):
     gamma: float | None = Field(None, gt=0, description="entropic regularization (cost d^2, "
                                 "unit-area units); default (2h)^2 with h the mean edge length")
     substeps: int = Field(1, ge=1, le=100, description="implicit Euler heat substeps")
-    tol: float = Field(1e-6, gt=0, lt=1)
-    max_iter: int = Field(1000, ge=1, le=100_000)
+    tol: float | None = Field(None, gt=0, lt=1, description="stopping tolerance (marginal "
+                              "violation; default: the solver's)")
+    max_iter: int | None = Field(None, ge=1, le=100_000, description="default: the solver's")
 
 
 class W1Options(OperationRequest):
     w1_method: Literal["admm", "weiszfeld"] = "admm"
     basis: Literal["full", "spectral"] = "full"
     k: int | None = Field(None, ge=1, description="spectral basis size")
-    tol: float = Field(1e-4, gt=0, lt=1)
-    max_iter: int = Field(5000, ge=1, le=100_000)
+    tol: float | None = Field(None, gt=0, lt=1, description="relative primal/dual residual "
+                              "(default: the solver's)")
+    max_iter: int | None = Field(None, ge=1, le=100_000, description="default: the solver's")
 
 
 class DistanceRequest(SinkhornOptions):
@@ -90,9 +92,20 @@ def _gamma(domain, req) -> float:
     return float(req.gamma) if req.gamma is not None else default_gamma(domain)
 
 
+def _optional(req) -> dict:
+    """tol / max_iter only when given, so the solvers' own defaults apply otherwise."""
+    return {k: getattr(req, k) for k in ("tol", "max_iter") if getattr(req, k) is not None}
+
+
 def _sinkhorn_kwargs(domain, req, progress, should_cancel) -> dict:
-    return {"gamma": _gamma(domain, req), "substeps": req.substeps, "tol": req.tol,
-            "max_iter": req.max_iter, "progress": progress, "should_cancel": should_cancel}
+    return {"gamma": _gamma(domain, req), "substeps": req.substeps, **_optional(req),
+            "progress": progress, "should_cancel": should_cancel}
+
+
+def _w1(domain, masses, req, progress, should_cancel):
+    emd = solver("emd", "earth_movers_distance")
+    return emd(domain, masses["mu0"], masses["mu1"], method=req.w1_method, basis=req.basis,
+               k=req.k, progress=progress, should_cancel=should_cancel, **_optional(req))
 
 
 def _convergence(result) -> dict:
@@ -113,10 +126,7 @@ def _validate_distance(view: DomainView, req: DistanceRequest) -> list[dict]:
 def run_distance(domain, req: DistanceRequest, progress, should_cancel) -> OperationOutput:
     masses, reports = _pair(view_of_domain(domain), req)
     if req.method == "emd":
-        emd = solver("emd", "earth_movers_distance")
-        res = emd(domain, masses["mu0"], masses["mu1"], method=req.w1_method, basis=req.basis,
-                  k=req.k, tol=min(req.tol, 1e-2), max_iter=req.max_iter, progress=progress,
-                  should_cancel=should_cancel)
+        res = _w1(domain, masses, req, progress, should_cancel)
         values = {"value": float(res.value), "method": "emd", "iterations": int(res.iterations),
                   "residual": float(max(res.primal_residual, res.dual_residual)),
                   "converged": bool(res.converged)}
@@ -216,10 +226,7 @@ def run_pointwise(domain, req: PointwiseDistanceRequest, progress, should_cancel
 
 def run_flow(domain, req: FlowRequest, progress, should_cancel) -> OperationOutput:
     masses, reports = _pair(view_of_domain(domain), req)
-    emd = solver("emd", "earth_movers_distance")
-    res = emd(domain, masses["mu0"], masses["mu1"], method=req.w1_method, basis=req.basis,
-              k=req.k, tol=req.tol, max_iter=req.max_iter, progress=progress,
-              should_cancel=should_cancel)
+    res = _w1(domain, masses, req, progress, should_cancel)
     flow = np.asarray(res.flow, dtype=np.float64)
     values = {"value": float(res.value), "iterations": int(res.iterations),
               "primal_residual": float(res.primal_residual),

@@ -1,0 +1,326 @@
+"""Jobs: end to end through the queue, cancellation, time limits, reaper, persistence,
+server-sent events and metrics."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from service.jobs.db import JobRow
+from service.operations import REGISTRY
+from service.operations.base import Operation, OperationOutput, OperationRequest
+from solvers.emd import earth_movers_distance
+from solvers.errors import CancelledError
+from tests.service.conftest import assert_error, upload_mesh
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+# -- a controllable operation (registered for these tests only) ---------------------
+class LoopRequest(OperationRequest):
+    iterations: int = 10
+    sleep: float = 0.0
+
+
+def _loop(domain, req, progress, should_cancel):
+    for i in range(req.iterations):
+        if should_cancel():
+            raise CancelledError("stopped")
+        progress(i + 1, 1.0 / (i + 1))
+        time.sleep(req.sleep)
+    return OperationOutput({"iterations": req.iterations}, {"ones": np.ones(domain.n)})
+
+
+@pytest.fixture
+def loop_op():
+    op = Operation("test-loop", "createTestLoopJob", "test", LoopRequest, _loop,
+                   lambda view, req: [])
+    REGISTRY[op.name] = op
+    yield op
+    REGISTRY.pop(op.name, None)
+
+
+def _grid(client, shape=(6, 6)) -> str:
+    return client.post("/v1/domains", json={"kind": "grid", "shape": list(shape)}).json()["id"]
+
+
+def _submit(client, domain_id, **params):
+    """Create a test-loop job through the service layer (no HTTP route for test ops)."""
+    from service.jobs.service import JobService
+
+    rt = client.app.state.runtime
+    return JobService(rt).create("test-loop", domain_id, LoopRequest(**params))
+
+
+def _bump(mesh, vertex, radius):
+    d = np.linalg.norm(mesh.vertices - mesh.vertices[vertex], axis=1)
+    m = mesh.areas * np.clip(1 - d / radius, 0, None)
+    return m / m.sum()
+
+
+FLOW_BODY = {"mu0": {"vertex": 0, "radius": 0.15}, "mu1": {"vertex": 500, "radius": 0.15},
+             "tol": 1e-3}
+
+
+# -- end to end --------------------------------------------------------------------
+def test_flow_job_immediate_matches_solver(client, meshes_dir, shared_mesh):
+    mesh = shared_mesh("woody.obj")
+    mid = upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
+    r = client.post(f"/v1/domains/{mid}/flows?wait=10", json=FLOW_BODY)
+    assert r.status_code == 200, r.text
+    job = r.json()
+    assert job["state"] == "succeeded" and job["attempts"] == 1
+    assert job["progress"]["iteration"] > 0
+    result = client.get(f"/v1/jobs/{job['id']}/result").json()
+    direct = earth_movers_distance(mesh, _bump(mesh, 0, 0.15), _bump(mesh, 500, 0.15), tol=1e-3)
+    assert result["values"]["value"] == pytest.approx(direct.value, rel=1e-9)
+    assert result["values"]["converged"] is True
+    assert np.allclose(result["arrays"]["flow"], direct.flow)
+    assert len(result["arrays"]["potential"]) == mesh.n
+    report = {r["field"]: r for r in result["values"]["normalization"]}
+    assert report["mu0"]["normalized"] and report["mu0"]["scale"] > 1
+    # Without arrays, and as glTF.
+    slim = client.get(f"/v1/jobs/{job['id']}/result?arrays=false").json()
+    assert slim["arrays"] == {} and slim["values"]["value"] == result["values"]["value"]
+    glb = client.get(f"/v1/jobs/{job['id']}/result.glb")
+    assert glb.status_code == 200 and glb.content[:4] == b"glTF"
+
+
+def test_job_input_errors_name_the_field(client, meshes_dir, shared_mesh):
+    gid = _grid(client, (5, 5))
+    url = f"/v1/domains/{gid}/interpolations"
+    ok = [1.0] * 25
+    cases = [
+        ({"mu0": [1.0] * 24, "mu1": ok, "times": [0.5]}, "mu0", None),
+        ({"mu0": ok, "mu1": [1.0] * 24 + [-2.0], "times": [0.5]}, "mu1", None),
+        ({"mu0": ok, "mu1": [0.0] * 25, "times": [0.5]}, "mu1", None),
+        ({"mu0": {"indices": [3, 99], "masses": [1, 1]}, "mu1": ok, "times": [0.5]},
+         "mu0.indices", None),
+        ({"mu0": {"indices": [3, 4], "masses": [1]}, "mu1": ok, "times": [0.5]},
+         "mu0.masses", None),
+        ({"mu0": {"vertex": 25, "radius": 0.1}, "mu1": ok, "times": [0.5]}, "mu0.vertex", None),
+        ({"mu0": ok, "mu1": ok, "times": [0.5, 1.5]}, "times[1]", None),
+        ({"mu0": ok, "mu1": ok, "times": []}, "times", None),
+        ({"mu0": ok, "mu1": ok, "times": [0.5], "gamma": -1}, "gamma", None),
+        ({"mu0": ok, "mu1": ok, "times": [0.5], "bogus": 1}, "bogus", None),
+    ]
+    for body, field, code in cases:
+        assert_error(client.post(url, json=body), 422, field, code)
+    # JSON NaN (accepted by Python's parser) is caught by the mass check.
+    raw = ('{"mu0": [NaN' + ", 1" * 24 + '], "mu1": [1' + ", 1" * 24 + '], "times": [0.5]}')
+    assert_error(client.post(url, content=raw, headers={"content-type": "application/json"}),
+                 422, "mu0")
+    bary = f"/v1/domains/{gid}/barycenters"
+    assert_error(client.post(bary, json={"distributions": [ok, ok], "weights": [1.0]}), 422,
+                 "weights")
+    assert_error(client.post(bary, json={"distributions": [ok, [-1.0] + ok[1:]]}), 422,
+                 "distributions[1]")
+    # Mesh-only operations on a grid; W1 on a grid.
+    assert_error(client.post(f"/v1/domains/{gid}/pointwise-distances", json={"source": 0}),
+                 422, "domain_id", "unsupported_operation")
+    assert_error(client.post(f"/v1/domains/{gid}/distances",
+                             json={"mu0": ok, "mu1": ok, "method": "emd"}), 422, "method")
+    # Several components: mass cannot cross them.
+    suz = shared_mesh("suzanne.obj")
+    sid = upload_mesh(client, meshes_dir / "suzanne.obj").json()["id"]
+    labels = suz.component_labels
+    mu0 = np.where(labels == 0, 1.0, 0.0).tolist()
+    mu1 = np.where(labels == 1, 1.0, 0.0).tolist()
+    err = assert_error(client.post(f"/v1/domains/{sid}/distances", json={"mu0": mu0, "mu1": mu1}),
+                       422, "mu1", "unsupported_operation")
+    assert "component" in err["message"]
+    assert_error(client.post(f"/v1/domains/{sid}/pointwise-distances",
+                             json={"source": suz.n}), 422, "source")
+    assert_error(client.post(f"/v1/domains/{gid}/barycenters?wait=-1",
+                             json={"distributions": [ok]}), 422, "wait")
+
+
+# -- cancellation and time limits ----------------------------------------------------
+def test_cancel_queued_job(make_client, loop_op):
+    client = make_client(queue="sqlite")  # no consumer: jobs stay queued
+    gid = _grid(client)
+    job = _submit(client, gid, iterations=5)
+    assert client.get(f"/v1/jobs/{job.id}").json()["state"] == "queued"
+    r = client.delete(f"/v1/jobs/{job.id}")
+    assert r.status_code == 200 and r.json()["state"] == "cancelled"
+    client.app.state.runtime.runner.run(job.id)  # a worker receiving it later does nothing
+    after = client.get(f"/v1/jobs/{job.id}").json()
+    assert after["state"] == "cancelled" and after["attempts"] == 0
+    assert_error(client.get(f"/v1/jobs/{job.id}/result"), 409, "job_id", "job_cancelled")
+
+
+def test_cancel_running_job(make_client, loop_op):
+    client = make_client(queue="sqlite", heartbeat_interval=0.05)
+    rt = client.app.state.runtime
+    job = _submit(client, _grid(client), iterations=100_000, sleep=0.002)
+    worker = threading.Thread(target=rt.runner.run, args=(job.id,))
+    worker.start()
+    deadline = time.monotonic() + 10
+    while (client.get(f"/v1/jobs/{job.id}").json()["progress"]["iteration"] or 0) < 5:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    running = client.get(f"/v1/jobs/{job.id}").json()
+    assert running["state"] == "running"
+    assert_error(client.get(f"/v1/jobs/{job.id}/result"), 409, "job_id", "job_not_finished")
+    r = client.delete(f"/v1/jobs/{job.id}")
+    assert r.status_code == 200 and r.json()["cancel_requested"] is True
+    worker.join(timeout=10)
+    assert not worker.is_alive()
+    done = client.get(f"/v1/jobs/{job.id}").json()
+    assert done["state"] == "cancelled" and done["error"]["code"] == "cancelled"
+    assert done["progress"]["iteration"] < 100_000
+    again = client.delete(f"/v1/jobs/{job.id}")  # cancelling twice is harmless
+    assert again.status_code == 200 and again.json()["state"] == "cancelled"
+
+
+def test_time_limit(make_client, loop_op):
+    client = make_client()
+    job = _submit(client, _grid(client), iterations=100_000, sleep=0.002, time_limit=0.2)
+    done = client.get(f"/v1/jobs/{job.id}").json()
+    assert done["state"] == "failed"
+    assert done["error"]["code"] == "time_limit_exceeded"
+    assert done["error"]["field"] == "time_limit"
+    assert 0.2 <= done["duration_seconds"] < 5
+
+
+def test_finished_job_cannot_be_cancelled(client, loop_op):
+    job = _submit(client, _grid(client), iterations=2)
+    assert client.get(f"/v1/jobs/{job.id}").json()["state"] == "succeeded"
+    assert_error(client.delete(f"/v1/jobs/{job.id}"), 409, "job_id", "job_finished")
+
+
+# -- reaper ----------------------------------------------------------------------------
+def test_reaper_requeues_stale_jobs_then_fails(make_client, loop_op):
+    client = make_client(queue="sqlite", max_attempts=2, stale_after=1.0)
+    rt = client.app.state.runtime
+    sent = []
+    rt.reaper.enqueue = sent.append
+    job = _submit(client, _grid(client))
+    repo = rt.repo
+
+    def die_while_running(expected_attempt):
+        claim = repo.claim(job.id, "dead-worker")
+        assert claim is not None and claim.attempt == expected_attempt
+        repo._update((JobRow.id == job.id,), heartbeat_at=time.time() - 10)
+
+    die_while_running(1)
+    assert rt.reaper.run_once()["requeued"] == [job.id]
+    assert sent == [job.id]
+    assert client.get(f"/v1/jobs/{job.id}").json()["state"] == "queued"
+    assert rt.reaper.run_once() == {"requeued": [], "failed": [], "resent": []}
+    die_while_running(2)
+    assert rt.reaper.run_once()["failed"] == [job.id]
+    failed = client.get(f"/v1/jobs/{job.id}").json()
+    assert failed["state"] == "failed" and failed["error"]["code"] == "worker_lost"
+    assert failed["attempts"] == 2
+
+
+def test_fresh_heartbeat_is_not_reaped_and_release_keeps_attempts(make_client, loop_op):
+    client = make_client(queue="sqlite", stale_after=60)
+    rt = client.app.state.runtime
+    rt.reaper.enqueue = lambda job_id: None
+    job = _submit(client, _grid(client))
+    claim = rt.repo.claim(job.id, "w")
+    assert rt.repo.claim(job.id, "other") is None  # never claimed twice
+    assert rt.reaper.run_once()["requeued"] == []
+    assert rt.repo.release(job.id, claim.attempt)
+    row = rt.repo.get(job.id)
+    assert row.state == "queued" and row.attempts == 0
+    # A finish by the released attempt is refused.
+    assert not rt.repo.finish(job.id, claim.attempt, "succeeded")
+
+
+# -- persistence, events, metrics --------------------------------------------------------
+def test_jobs_and_results_survive_app_recreation(make_client, loop_op, tmp_path):
+    first = make_client(queue="sqlite")
+    gid = _grid(first)
+    job = _submit(first, gid, iterations=3)
+    first.app.state.runtime.runner.run(job.id)
+    assert first.get(f"/v1/jobs/{job.id}").json()["state"] == "succeeded"
+    second = make_client(queue="sqlite")
+    again = second.get(f"/v1/jobs/{job.id}").json()
+    assert again["state"] == "succeeded" and again["progress"]["iteration"] == 3
+    result = second.get(f"/v1/jobs/{job.id}/result").json()
+    assert result["values"] == {"iterations": 3} and result["arrays"]["ones"] == [1.0] * 36
+    assert [d["id"] for d in second.get("/v1/domains").json()["domains"]] == [gid]
+    assert [j["id"] for j in second.get("/v1/jobs").json()["jobs"]] == [job.id]
+
+
+def test_server_sent_events(client, loop_op):
+    job = _submit(client, _grid(client), iterations=4)
+    r = client.get(f"/v1/jobs/{job.id}/events")
+    assert r.status_code == 200 and r.headers["content-type"].startswith("text/event-stream")
+    blocks = [b for b in r.text.split("\n\n") if b.strip()]
+    assert blocks[0].startswith("event: progress")
+    data = json.loads(blocks[0].split("data: ", 1)[1])
+    assert data["state"] == "succeeded" and data["progress"]["iteration"] == 4
+    assert blocks[-1].startswith("event: end")
+
+
+def _metric(text: str, name: str, **labels) -> float:
+    for line in text.splitlines():
+        if line.startswith(name + "{") or line.startswith(name + " "):
+            found = dict(re.findall(r'(\w+)="([^"]*)"', line.split(" ")[0]))
+            if all(found.get(k) == v for k, v in labels.items()):
+                return float(line.rsplit(" ", 1)[1])
+    raise AssertionError(f"{name} {labels} not in metrics")
+
+
+def test_metrics_cache_and_jobs(client, meshes_dir):
+    mid = upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
+    for _ in range(2):
+        assert client.post(f"/v1/domains/{mid}/flows", json=FLOW_BODY).json()["state"] == \
+            "succeeded"
+    text = client.get("/metrics").text
+    assert _metric(text, "otgeo_cache_misses_all_total") == 1
+    assert _metric(text, "otgeo_cache_hits_all_total") == 1
+    assert _metric(text, "otgeo_cache_entries") == 1
+    assert _metric(text, "otgeo_cache_bytes") > 0
+    assert _metric(text, "otgeo_jobs", operation="flows", state="succeeded") == 2
+    assert _metric(text, "otgeo_job_duration_seconds_count", operation="flows",
+                   state="succeeded") == 2
+    assert _metric(text, "otgeo_queue_depth") == 0
+
+
+# -- a real Huey consumer in its own process ----------------------------------------------
+def test_real_worker_process(make_client, meshes_dir, tmp_path):
+    env = {k: v for k, v in os.environ.items() if not k.startswith("OTGEO_")}
+    env.update({"OTGEO_DATA_DIR": str(tmp_path), "OTGEO_HEARTBEAT_INTERVAL": "0.2",
+                "OTGEO_WORKER_POLL_INTERVAL": "0.02"})
+    log = open(tmp_path / "worker.log", "wb")  # noqa: SIM115
+    proc = subprocess.Popen([sys.executable, "-m", "service.cli", "worker"], cwd=ROOT, env=env,
+                            stdout=log, stderr=subprocess.STDOUT)
+    try:
+        client = make_client(queue="sqlite")
+        mid = upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
+        jobs = [client.post(f"/v1/domains/{mid}/flows?wait=30", json=FLOW_BODY).json()
+                for _ in range(2)]
+        assert [j["state"] for j in jobs] == ["succeeded", "succeeded"], \
+            (tmp_path / "worker.log").read_text()[-3000:]
+        assert all(j["attempts"] == 1 for j in jobs)
+        values = [client.get(f"/v1/jobs/{j['id']}/result?arrays=false").json()["values"]
+                  for j in jobs]
+        assert values[0]["value"] == values[1]["value"] > 0
+        # The worker publishes its cache statistics: one build, then a hit.
+        deadline = time.monotonic() + 10
+        while True:
+            text = client.get("/metrics").text
+            if _metric(text, "otgeo_cache_hits_all_total") >= 1 or time.monotonic() > deadline:
+                break
+            time.sleep(0.1)
+        assert _metric(text, "otgeo_workers_alive") == 1
+        assert _metric(text, "otgeo_cache_hits_all_total") == 1
+        assert _metric(text, "otgeo_cache_misses_all_total") == 1
+    finally:
+        proc.terminate()
+        assert proc.wait(timeout=15) == 0
+        log.close()
