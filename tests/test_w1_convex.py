@@ -227,6 +227,9 @@ def test_input_validation(sphere):
         beckmann_w1_exact(sphere, a, a, max_vertices=100)
     with pytest.raises(InputError):
         w1_path_planning(sphere, a, a, 0)
+    with pytest.raises(InputError) as err:  # 2 * 40 - 1 blocks x 162 vertices > 12000
+        w1_path_planning(sphere, a, a, 40)
+    assert err.value.field == "domain"
     with pytest.raises(InputError) as err:
         w1_barycenter(sphere, np.stack([a, a], 1), [1.0, -1.0])
     assert err.value.field == "weights"
