@@ -286,7 +286,10 @@ def volumetric_path(
     :math:`g_k = \nabla_x d(x, \text{target})|_{x_k} = Dw(x_k)^\top \phi_k` (envelope
     theorem: :math:`\phi_k` is the optimal Kantorovich potential, :math:`Dw` the Jacobian
     of the mean value coordinates by central differences), until the target is within
-    one step.  Each iteration solves one W1 problem.
+    one step.  Each iteration solves one W1 problem.  The volumetric distance is not an
+    interior geodesic distance, so paths may leave a non-convex solid: between opposite
+    points of a torus the descent was measured to go around the hole or through it,
+    depending on mesh resolution and step.
 
     Parameters
     ----------
