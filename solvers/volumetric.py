@@ -53,6 +53,17 @@ class VolumetricDistanceResult:
 
 
 @dataclass
+class VolumetricFieldResult:
+    """Distances (P,) from one ``source`` point to each of ``points``; ``iterations`` sums
+    the solver iterations, ``residual`` is the largest solver residual."""
+
+    distances: np.ndarray
+    iterations: int
+    residual: float
+    converged: bool
+
+
+@dataclass
 class VolumetricPathResult:
     """Gradient-descent path from ``start`` towards ``target``: ``points`` (K, 3) and the
     distances (K,) to the target along it; ``converged`` when the last step reached
@@ -265,6 +276,50 @@ def volumetric_distance(
                                     residual=residual, converged=converged)
 
 
+def volumetric_distances(
+    mesh: TriangleMesh,
+    source,
+    points,
+    *,
+    method: str = "exact",
+    basis: str = "flow",
+    units: str = "mesh",
+    tol: float | None = None,
+    max_iter: int | None = None,
+    max_vertices: int = MAX_VERTICES,
+    progress=None,
+    should_cancel=None,
+) -> VolumetricFieldResult:
+    r"""Volumetric distances :math:`d(\text{source}, y_j)` to many points (e.g. a slice grid).
+
+    One W1 problem per point (no shortcut exists for W1 between different pairs); the
+    mean value coordinates of all points are computed in one vectorized pass.
+    ``progress(j, d_j)`` is called after each point, ``should_cancel()`` before each.
+    """
+    _check_closed_mesh(mesh)
+    src = _points(mesh, source, units)
+    if len(src) != 1:
+        raise InputError("source must be a single point (3,)", field="source")
+    pts = _points(mesh, points, units)
+    w_src = mean_value_coordinates(mesh, src)[0]
+    W = mean_value_coordinates(mesh, pts)
+    out = np.empty(len(pts))
+    iterations, residual, converged = 0, 0.0, True
+    for j in range(len(pts)):
+        if should_cancel is not None and should_cancel():
+            raise CancelledError("volumetric distances cancelled", field="should_cancel")
+        value, _, its, res, ok = _kr_distance(mesh, w_src - W[j], method, tol, max_iter,
+                                              max_vertices, basis)
+        out[j] = value
+        iterations += its
+        residual = max(residual, float(res))
+        converged = converged and ok
+        if progress is not None:
+            progress(j + 1, value)
+    return VolumetricFieldResult(distances=out, iterations=iterations, residual=residual,
+                                 converged=converged)
+
+
 def volumetric_path(
     mesh: TriangleMesh,
     start,
@@ -316,7 +371,7 @@ def volumetric_path(
     converged = False
     for iterations in range(1, max_iter + 1):
         if should_cancel is not None and should_cancel():
-            raise CancelledError("volumetric path cancelled", field=None)
+            raise CancelledError("volumetric path cancelled", field="should_cancel")
         W = mean_value_coordinates(mesh, np.vstack([x, x + offsets]))
         value, potential, _, _, _ = _kr_distance(mesh, W[0] - w_target, method, tol, None,
                                                  max_vertices, basis)

@@ -7,10 +7,11 @@ import pytest
 import trimesh
 
 from solvers.domains import TriangleMesh
-from solvers.errors import InputError, UnsupportedDomainError
+from solvers.errors import CancelledError, InputError, UnsupportedDomainError
 from solvers.volumetric import (
     mean_value_coordinates,
     volumetric_distance,
+    volumetric_distances,
     volumetric_path,
     winding_number,
 )
@@ -99,6 +100,12 @@ def test_distance_metric_properties(sphere):
     off = ~np.eye(4, dtype=bool)
     assert np.all(D[off] >= E[off] * (1 - 1e-6))
     assert volumetric_distance(sphere, P[0], P[0]).value < 1e-8
+    # one-to-many agrees with the pairwise distances
+    field = volumetric_distances(sphere, P[0], P)
+    assert field.converged
+    assert np.allclose(field.distances, D[0], rtol=1e-6, atol=1e-8)
+    with pytest.raises(CancelledError):
+        volumetric_distances(sphere, P[0], P, should_cancel=lambda: True)
 
 
 def test_distance_with_negative_weights_on_a_torus(torus):
