@@ -43,7 +43,7 @@ class Settings(BaseSettings):
         "empty = no authentication")
     workers: int = Field(1, ge=0, description="worker processes started by `otgeo serve`")
     blas_threads: int = Field(1, ge=1, description="BLAS/OpenMP threads per worker process")
-    worker_poll_interval: float = Field(0.05, gt=0, description="longest idle poll delay of "
+    worker_poll_interval: float = Field(0.01, gt=0, description="longest idle poll delay of "
                                         "a worker on the SQLite queue (seconds)")
     wait_max: float = Field(60.0, ge=0, description="largest accepted ?wait= (seconds)")
 

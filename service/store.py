@@ -18,7 +18,9 @@ import json
 import os
 import re
 import tempfile
+import threading
 import time
+from collections import OrderedDict
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -31,15 +33,21 @@ from solvers.domains import Domain, domain_from_arrays
 _ID = re.compile(r"^[0-9a-f]{16,64}$")
 
 
-def atomic_write(path: Path, write) -> None:
-    """Write through ``write(fileobj)`` to a temporary file, then rename onto ``path``."""
+def atomic_write(path: Path, write, durable: bool = True) -> None:
+    """Write through ``write(fileobj)`` to a temporary file, then rename onto ``path``.
+
+    Readers see the old file or the complete new one, never a partial file, also if the
+    writing process dies. ``durable`` also fsyncs before the rename (survives a machine
+    crash, at a few milliseconds per file).
+    """
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as fh:
             write(fh)
             fh.flush()
-            os.fsync(fh.fileno())
+            if durable:
+                os.fsync(fh.fileno())
         os.replace(tmp, path)
     except BaseException:
         try:
@@ -49,12 +57,12 @@ def atomic_write(path: Path, write) -> None:
         raise
 
 
-def _write_json(path: Path, payload) -> None:
-    atomic_write(path, lambda fh: fh.write(json.dumps(payload).encode()))
+def _write_json(path: Path, payload, durable: bool = True) -> None:
+    atomic_write(path, lambda fh: fh.write(json.dumps(payload).encode()), durable)
 
 
-def _write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    atomic_write(path, lambda fh: np.savez(fh, **arrays))
+def _write_npz(path: Path, arrays: dict[str, np.ndarray], durable: bool = True) -> None:
+    atomic_write(path, lambda fh: np.savez(fh, **arrays), durable)
 
 
 def _read_npz(path: Path) -> dict[str, np.ndarray]:
@@ -113,7 +121,11 @@ class DomainInfo:
 
 
 class Store:
+    INFO_CACHE = 64  # stored domains are immutable: keep recent DomainInfo objects
+
     def __init__(self, data_dir: Path | str):
+        self._infos: OrderedDict[str, DomainInfo] = OrderedDict()
+        self._lock = threading.Lock()
         self.root = Path(data_dir)
         self.domain_dir = self.root / "domains"
         self.result_dir = self.root / "results"
@@ -166,7 +178,20 @@ class Store:
             raise NotFound(f"unknown domain {domain_id!r}", field="domain_id") from None
 
     def domain_info(self, domain_id: str) -> DomainInfo:
-        return DomainInfo(domain_id, self.get_domain_meta(domain_id), self)
+        """Validation view of a stored domain (cached; a deleted domain is never returned)."""
+        self.check_id(domain_id)
+        with self._lock:
+            info = self._infos.get(domain_id)
+        if info is not None and self._meta_path(domain_id).exists():
+            with self._lock:
+                self._infos.move_to_end(domain_id)
+            return info
+        info = DomainInfo(domain_id, self.get_domain_meta(domain_id), self)
+        with self._lock:
+            self._infos[domain_id] = info
+            while len(self._infos) > self.INFO_CACHE:
+                self._infos.popitem(last=False)
+        return info
 
     def _load_npz(self, path: Path, domain_id: str) -> dict[str, np.ndarray]:
         try:
@@ -200,6 +225,8 @@ class Store:
         Processes that already opened or cached the domain keep working on their copy.
         """
         self.check_id(domain_id)
+        with self._lock:
+            self._infos.pop(domain_id, None)
         try:
             self._meta_path(domain_id).unlink()
         except FileNotFoundError:
@@ -211,11 +238,16 @@ class Store:
                 pass
 
     # -- results --------------------------------------------------------
-    def put_result(self, job_id: str, payload: dict, arrays: dict[str, np.ndarray]) -> str:
-        """Store a job's result (arrays first, JSON last); returns its location."""
+    def put_result(self, job_id: str, payload: dict, arrays: dict[str, np.ndarray],
+                   durable: bool = False) -> str:
+        """Store a job's result (arrays first, JSON last); returns its location.
+
+        Not fsynced by default: the job table (SQLite WAL, synchronous=NORMAL) gives the same
+        guarantee — atomic across process crashes — and a result can be recomputed.
+        """
         if arrays:
-            _write_npz(self.result_dir / f"{job_id}.npz", arrays)
-        _write_json(self.result_dir / f"{job_id}.json", jsonable(payload))
+            _write_npz(self.result_dir / f"{job_id}.npz", arrays, durable)
+        _write_json(self.result_dir / f"{job_id}.json", jsonable(payload), durable)
         return f"results/{job_id}.json"
 
     def get_result(self, job_id: str) -> dict:

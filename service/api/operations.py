@@ -29,7 +29,7 @@ async def wait_for(svc, job_id: str, seconds: float):
     job = await run_in_threadpool(svc.get, job_id)
     while job.state not in TERMINAL and time.monotonic() < deadline:
         await asyncio.sleep(min(delay, max(deadline - time.monotonic(), 0)))
-        delay = min(delay * 1.5, 0.05)
+        delay = min(delay * 1.5, 0.01)
         job = await run_in_threadpool(svc.get, job_id)
     return job
 
