@@ -142,6 +142,8 @@ def _face_weights(mesh, face_weights) -> np.ndarray:
     if np.any(np.isnan(w)) or np.any(w <= 0):
         raise InputError("face_weights must be positive (np.inf blocks a face)",
                          field="face_weights")
+    if not np.any(np.isfinite(w)):
+        raise InputError("face_weights block every face", field="face_weights")
     return w
 
 
