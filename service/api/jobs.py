@@ -11,8 +11,8 @@ from fastapi.responses import StreamingResponse
 
 from service.api.deps import JobSvc
 from service.errors import ErrorResponse, responses
-from service.jobs.db import STATES, TERMINAL
-from service.schemas import JobList, JobOut, JobResult
+from service.jobs.db import TERMINAL
+from service.schemas import JobList, JobOut, JobResult, JobState
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 
@@ -22,7 +22,7 @@ EVENT_KEEPALIVE = 15.0
 
 @router.get("", operation_id="listJobs", response_model=JobList, responses=responses(401, 422))
 def list_jobs(svc: JobSvc, limit: int = Query(100, ge=1, le=1000),
-              state: str | None = Query(None, description="|".join(STATES))):
+              state: JobState | None = Query(None, description="only jobs in this state")):
     return JobList(jobs=[JobOut.from_row(j) for j in svc.list(limit, state)])
 
 
