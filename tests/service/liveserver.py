@@ -55,24 +55,33 @@ class Process:
             if sig == signal.SIGKILL:
                 self.popen.wait(timeout=10)
 
-    def stop(self, timeout: float = 10.0) -> None:
-        """SIGTERM the whole session, then SIGKILL what is left."""
+    def terminate(self) -> None:
+        """SIGTERM the whole session (graceful shutdown), without waiting."""
         if self.alive():
             try:
                 os.killpg(self.pid, signal.SIGTERM)
-                self.popen.wait(timeout=timeout)
-            except (ProcessLookupError, subprocess.TimeoutExpired):
+            except ProcessLookupError:
                 pass
+
+    def stop(self, timeout: float = 10.0) -> None:
+        """SIGTERM the whole session, then SIGKILL what is left."""
+        self.terminate()
+        try:
+            self.popen.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            pass
         try:
             os.killpg(self.pid, signal.SIGKILL)
         except ProcessLookupError:
             pass
         if self.popen.poll() is None:
             self.popen.wait(timeout=5)
-        self._log.close()
+        if not self._log.closed:
+            self._log.close()
 
     def log(self, tail: int = 4000) -> str:
-        self._log.flush()
+        if not self._log.closed:
+            self._log.flush()
         return self.log_path.read_text(errors="replace")[-tail:]
 
 
@@ -101,6 +110,18 @@ class API(Process):
 class Worker(Process):
     def __init__(self, env: dict[str, str], log_dir: Path, name: str = "worker"):
         super().__init__(name, otgeo_command() + ["worker"], env, log_dir)
+
+    def ready(self) -> bool:
+        """The worker logged that its consumer is up (``worker <id> ready``)."""
+        return " ready (queue " in self.log(10**7)
+
+
+def stop_all(processes, timeout: float = 10.0) -> None:
+    """Stop several processes in parallel: SIGTERM all, then wait for / kill each."""
+    for p in processes:
+        p.terminate()
+    for p in processes:
+        p.stop(timeout)
 
 
 def wait_for(predicate, timeout: float, interval: float = 0.05, what: str = "condition"):
