@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+from typing import Annotated
 
 from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
@@ -21,8 +22,9 @@ EVENT_KEEPALIVE = 15.0
 
 
 @router.get("", operation_id="listJobs", response_model=JobList, responses=responses(401, 422))
-def list_jobs(svc: JobSvc, limit: int = Query(100, ge=1, le=1000),
-              state: JobState | None = Query(None, description="only jobs in this state")):
+def list_jobs(svc: JobSvc, limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+              state: Annotated[JobState | None,
+                               Query(description="only jobs in this state")] = None):
     return JobList(jobs=[JobOut.from_row(j) for j in svc.list(limit, state)])
 
 

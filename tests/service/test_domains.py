@@ -121,3 +121,8 @@ def test_unknown_ids_and_routes(client):
     assert_error(client.delete("/v1/jobs/deadbeef"), 404, "job_id")
     r = client.get("/v1/nothing")
     assert r.status_code == 404 and r.json()["error"]["code"] == "not_found"
+
+
+def test_list_jobs_state_filter_is_validated(client):
+    assert client.get("/v1/jobs?state=queued").json() == {"jobs": []}
+    assert_error(client.get("/v1/jobs?state=sleeping"), 422, "state")
