@@ -63,6 +63,7 @@ class OperatorCache:
         self.hits = 0
         self.misses = 0
         self.evictions = 0
+        self.operator_builds = 0  # heat kernels (factorizations) built inside cached domains
 
     def get_or_build(self, key, build: Callable[[], object]):
         with self._lock:
@@ -123,7 +124,9 @@ class OperatorCache:
 
     def stats(self) -> dict:
         with self._lock:
+            operators = sum(len(getattr(v, "_kernels", {})) for v in self._items.values())
             return {"hits": self.hits, "misses": self.misses, "evictions": self.evictions,
-                    "entries": len(self._items), "bytes": self.bytes,
+                    "entries": len(self._items), "operators": operators,
+                    "operator_builds": self.operator_builds, "bytes": self.bytes,
                     "max_bytes": self.max_bytes}
 

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from service.errors import NotFound
+from service.export import to_jsonable as jsonable
 from solvers.domains import Domain, domain_from_arrays
 
 _ID = re.compile(r"^[0-9a-f]{16,64}$")
@@ -261,22 +262,4 @@ class Store:
         if not path.exists():
             return {}
         return _read_npz(path)
-
-
-def jsonable(obj):
-    """Convert numpy scalars/arrays inside ``obj`` to plain JSON types; NaN/inf -> None."""
-    if isinstance(obj, dict):
-        return {str(k): jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return jsonable(obj.tolist())
-    if isinstance(obj, (np.bool_, bool)):
-        return bool(obj)
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        f = float(obj)
-        return f if np.isfinite(f) else None
-    return obj
 

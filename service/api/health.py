@@ -51,6 +51,9 @@ def metrics(rt: RuntimeDep):
         ("misses", "otgeo_cache_misses_total", "counter", "operator cache misses (builds)"),
         ("evictions", "otgeo_cache_evictions_total", "counter", "operator cache evictions"),
         ("entries", "otgeo_cache_entries", "gauge", "domains with operators in the cache"),
+        ("operators", "otgeo_cache_operators", "gauge", "prefactored heat kernels in the cache"),
+        ("operator_builds", "otgeo_operator_builds_total", "counter",
+         "heat kernels built (factorizations); a warm cache stops counting"),
         ("bytes", "otgeo_cache_bytes", "gauge", "estimated bytes held by the cache"),
         ("max_bytes", "otgeo_cache_max_bytes", "gauge", "cache bound in bytes"),
     ]:

@@ -112,7 +112,11 @@ class JobRunner:
             op = get_operation(job.operation)
             params = op.request_model.model_validate(job.params)
             domain = self.domain(job.domain_id)
-            output = op.run(domain, params, hb.on_progress, should_cancel)
+            kernels = set(getattr(domain, "_kernels", {}))
+            try:
+                output = op.run(domain, params, hb.on_progress, should_cancel)
+            finally:
+                self.cache.operator_builds += len(set(getattr(domain, "_kernels", {})) - kernels)
             if should_cancel():
                 raise CancelledError("cancelled")
             payload = {"job_id": job_id, "operation": job.operation,

@@ -275,6 +275,18 @@ def _metric(text: str, name: str, **labels) -> float:
     raise AssertionError(f"{name} {labels} not in metrics")
 
 
+def test_operator_builds_counted_once_per_kernel(client):
+    gid = _grid(client, (16, 16))
+    body = {"mu0": {"vertex": 0, "radius": 0.3}, "mu1": {"vertex": 255, "radius": 0.3},
+            "gamma": 0.01}
+    for gamma in (0.01, 0.01, 0.02):
+        job = client.post(f"/v1/domains/{gid}/distances", json={**body, "gamma": gamma}).json()
+        assert job["state"] == "succeeded", job
+    text = client.get("/metrics").text
+    assert _metric(text, "otgeo_operator_builds_total") == 2  # gamma 0.01 reused, 0.02 new
+    assert _metric(text, "otgeo_cache_operators") == 2
+
+
 def test_metrics_cache_and_jobs(client, meshes_dir):
     mid = upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
     for _ in range(2):
