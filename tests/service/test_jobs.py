@@ -95,6 +95,51 @@ def test_flow_job_immediate_matches_solver(client, meshes_dir, shared_mesh):
     assert glb.status_code == 200 and glb.content[:4] == b"glTF"
 
 
+def test_barycenter_job_matches_solver(client):
+    from solvers.convolutional import barycenter
+    from solvers.domains import Grid
+
+    grid = Grid((20, 20))
+    gid = _grid(client, (20, 20))
+    rng = np.random.default_rng(1)
+    a, b = rng.random(400), rng.random(400)  # unnormalized on purpose
+    body = {"distributions": [a.tolist(), {"indices": [0, 399], "masses": [1.0, 3.0]},
+                              b.tolist()],
+            "weights": [1, 2, 1], "gamma": 0.01, "tol": 1e-7}
+    r = client.post(f"/v1/domains/{gid}/barycenters?wait=20", json=body)
+    assert r.status_code == 200 and r.json()["state"] == "succeeded", r.text
+    result = client.get(f"/v1/jobs/{r.json()['id']}/result").json()
+    sparse = np.zeros(400)
+    sparse[[0, 399]] = [0.25, 0.75]
+    mus = np.stack([a / a.sum(), sparse, b / b.sum()], axis=1)
+    direct = barycenter(grid, mus, np.array([0.25, 0.5, 0.25]), gamma=0.01, tol=1e-7)
+    assert np.allclose(result["arrays"]["masses"], direct.masses, rtol=1e-9, atol=1e-15)
+    assert sum(result["arrays"]["masses"]) == pytest.approx(1.0)
+    assert result["values"]["weights"] == [0.25, 0.5, 0.25]
+    assert result["values"]["iterations"] == direct.iterations
+    assert np.allclose(result["arrays"]["density"], direct.masses / grid.areas)
+    report = result["values"]["normalization"]
+    assert [x["field"] for x in report] == [f"distributions[{i}]" for i in range(3)]
+    assert report[1]["given_total"] == pytest.approx(4.0)
+
+
+@pytest.mark.parametrize("method", ["sinkhorn", "debiased"])
+def test_distance_job_matches_solver(client, meshes_dir, shared_mesh, method):
+    from solvers.convolutional import wasserstein_distance
+
+    mesh = shared_mesh("woody.obj")
+    mid = upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
+    body = {"mu0": {"vertex": 0, "radius": 0.15}, "mu1": {"vertex": 500, "radius": 0.15},
+            "method": method, "gamma": 0.01}
+    job = client.post(f"/v1/domains/{mid}/distances", json=body).json()
+    assert job["state"] == "succeeded", job
+    values = client.get(f"/v1/jobs/{job['id']}/result").json()["values"]
+    direct = wasserstein_distance(mesh, _bump(mesh, 0, 0.15), _bump(mesh, 500, 0.15),
+                                  gamma=0.01, debiased=method == "debiased")
+    assert values["value"] == pytest.approx(direct.value, rel=1e-9)
+    assert values["converged"] == direct.converged and values["gamma"] == 0.01
+
+
 def test_job_input_errors_name_the_field(client, meshes_dir, shared_mesh):
     gid = _grid(client, (5, 5))
     url = f"/v1/domains/{gid}/interpolations"
