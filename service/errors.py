@@ -12,6 +12,7 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel
+from sqlalchemy.exc import DBAPIError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from solvers.errors import (
@@ -79,6 +80,11 @@ class Conflict(ApiError):
 class Unauthorized(ApiError):
     status_code = 401
     code = "unauthorized"
+
+
+class ServiceUnavailable(ApiError):
+    status_code = 503
+    code = "unavailable"
 
 
 class UnsupportedMediaType(ApiError):
@@ -157,6 +163,23 @@ def install_handlers(app: FastAPI) -> None:
         err = ApiError(str(exc.detail), code=codes.get(exc.status_code, "http_error"))
         return JSONResponse(err.body(), status_code=exc.status_code,
                             headers=getattr(exc, "headers", None))
+
+    @app.exception_handler(DBAPIError)
+    async def _database(request: Request, exc: DBAPIError):
+        log.warning("job table unavailable: %s", exc)
+        err = ServiceUnavailable("the job database is unavailable; retry shortly")
+        return JSONResponse(err.body(), status_code=503, headers={"Retry-After": "2"})
+
+    @app.middleware("http")
+    async def _body_limit(request: Request, call_next):
+        declared = request.headers.get("content-length")
+        limit = request.app.state.runtime.settings.max_upload_bytes
+        if declared and declared.isdigit() and int(declared) > limit:
+            multipart = request.headers.get("content-type", "").startswith("multipart/")
+            err = PayloadTooLarge(f"request body of {declared} bytes exceeds the limit of "
+                                  f"{limit}", field="file" if multipart else "body")
+            return JSONResponse(err.body(), status_code=413)
+        return await call_next(request)
 
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception):

@@ -103,6 +103,10 @@ def test_upload_and_vertex_limits(make_client, meshes_dir):
     assert_error(upload_mesh(client, meshes_dir / "woody.obj"), 413, "file")
     assert_error(client.post("/v1/domains", json={"kind": "grid", "shape": [20, 20]}), 413,
                  "shape")
+    client = make_client(max_upload_bytes=2000)
+    gid = client.post("/v1/domains", json={"kind": "grid", "shape": [30, 30]}).json()["id"]
+    big = {"distributions": [[1.0] * 900]}
+    assert_error(client.post(f"/v1/domains/{gid}/barycenters", json=big), 413, "body")
 
 
 def test_api_keys(make_client):
