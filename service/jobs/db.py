@@ -97,6 +97,10 @@ def make_engine(url: str):
             cur.close()
 
         return engine
+    for plain in ("postgresql://", "postgres://"):
+        # SQLAlchemy 2.1 maps a plain postgresql:// URL to psycopg 3; the package ships psycopg2
+        if url.startswith(plain):
+            url = "postgresql+psycopg2://" + url[len(plain):]
     return create_engine(url, pool_pre_ping=True, pool_size=5, max_overflow=10)
 
 
