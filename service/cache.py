@@ -21,22 +21,37 @@ import scipy.sparse as sp
 FACTOR_FILL = 8.0
 
 
-def _nbytes(obj) -> int:
+def _nbytes(obj, depth: int = 3, seen: set | None = None) -> int:
+    """Bytes of the arrays and sparse matrices reachable from ``obj`` (a few levels deep:
+    attributes of operator objects, dict/list members), each counted once."""
+    seen = set() if seen is None else seen
+    if id(obj) in seen:
+        return 0
+    seen.add(id(obj))
     if isinstance(obj, np.ndarray):
         return int(obj.nbytes)
     if sp.issparse(obj):
-        m = obj.tocsr() if not hasattr(obj, "data") else obj
-        return int(m.data.nbytes + getattr(m, "indices", np.empty(0)).nbytes
-                   + getattr(m, "indptr", np.empty(0)).nbytes)
-    return 0
+        return sum(int(getattr(obj, name).nbytes) for name in ("data", "indices", "indptr",
+                                                               "row", "col")
+                   if isinstance(getattr(obj, name, None), np.ndarray))
+    if depth <= 0 or isinstance(obj, (str, bytes, int, float, bool, type(None))):
+        return 0
+    if isinstance(obj, dict):
+        children = obj.values()
+    elif isinstance(obj, (list, tuple)):
+        children = obj
+    elif hasattr(obj, "__dict__") and not isinstance(obj, type):
+        children = vars(obj).values()
+    else:
+        return 0
+    return sum(_nbytes(child, depth - 1, seen) for child in children)
 
 
 def estimate_bytes(domain) -> int:
-    """Rough memory held by a domain and the operators it has built so far."""
-    total = 0
-    for value in vars(domain).values():
-        total += _nbytes(value)
-    # cached_property values live in __dict__ and were counted above.
+    """Rough memory held by a domain and the operators it has built so far: every array
+    and sparse matrix reachable from it, plus the Cholesky fill of each factored kernel
+    (the factor itself lives in C++ and cannot be measured)."""
+    total = _nbytes(domain)
     nnz = 7 * int(domain.n)  # a triangle mesh Laplacian has about 7 nonzeros per row
     for name in ("robust_laplacian", "cotan_laplacian", "laplacian", "_laplacian"):
         lap = domain.__dict__.get(name)
@@ -46,8 +61,6 @@ def estimate_bytes(domain) -> int:
     for kernel in getattr(domain, "_kernels", {}).values():
         if hasattr(kernel, "factor"):
             total += int(FACTOR_FILL * nnz * 12)
-        for value in vars(kernel).values():
-            total += _nbytes(value)
     return total
 
 
