@@ -17,6 +17,8 @@ import pytest
 import sqlalchemy as sa
 from liveserver import API, Worker, stop_all, wait_for
 
+from service.jobs.db import make_engine
+
 REDIS_URL = "redis://127.0.0.1:6379/0"
 PG_ADMIN = dict(host="127.0.0.1", port=5432, user="postgres", dbname="postgres")
 STALE_AFTER = 1.5
@@ -51,7 +53,7 @@ class Stack:
 
     def __init__(self, env: dict[str, str], logs, db_url: str):
         self.env, self.logs = env, logs
-        self.db = sa.create_engine(db_url)
+        self.db = make_engine(db_url)
         self.workers: list[Worker] = []
         self.serial = 0
         self.api = API(self.env, self.logs, name="api-0")
@@ -144,7 +146,7 @@ def stack(tmp_path_factory):
     with admin.cursor() as cur:
         cur.execute(f'CREATE DATABASE "{dbname}"')
     data = tmp_path_factory.mktemp("scale")
-    db_url = f"postgresql+psycopg2://postgres@127.0.0.1:5432/{dbname}"
+    db_url = f"postgresql://postgres@127.0.0.1:5432/{dbname}"  # the README's form
     env = {
         "OTGEO_DATA_DIR": str(data),
         "OTGEO_QUEUE": "redis",
