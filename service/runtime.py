@@ -32,6 +32,7 @@ class Runtime:
         self.task = register_task(self.huey, self.runner.run)
         self.reaper = Reaper(settings, self.repo, self.enqueue)
         self._stop = threading.Event()
+        self._published = threading.Event()
         self._presence: threading.Thread | None = None
 
     @property
@@ -56,7 +57,7 @@ class Runtime:
         if self.settings.queue != "immediate":
             self.reaper.start()
         if publish:
-            self.runner.on_finished = self.publish
+            self.runner.on_finished = self._published.set  # publish soon, off the job path
             self._presence = threading.Thread(target=self._publish_loop, daemon=True,
                                               name="presence")
             self._presence.start()
@@ -71,11 +72,14 @@ class Runtime:
                 self.publish()
             except Exception:
                 log.exception("could not publish worker statistics")
-            if self._stop.wait(self.settings.heartbeat_interval):
+            self._published.wait(self.settings.heartbeat_interval)
+            self._published.clear()
+            if self._stop.is_set():
                 return
 
     def close(self) -> None:
         self._stop.set()
+        self._published.set()
         self.reaper.stop()
         if self._presence is not None:
             self._presence.join(timeout=5)

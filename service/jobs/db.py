@@ -152,7 +152,9 @@ class JobRepository:
             ).rowcount
         if not won:
             return None
-        return Claim(attempt, self.get(job_id))
+        job.state, job.attempts, job.worker = RUNNING, attempt, worker
+        job.started_at = job.heartbeat_at = now
+        return Claim(attempt, job)
 
     def heartbeat(self, job_id: str, attempt: int, **progress) -> tuple[bool, bool]:
         """Refresh the heartbeat (and progress); returns (still owned, cancel requested)."""
@@ -166,10 +168,13 @@ class JobRepository:
         return True, bool(cancel)
 
     def finish(self, job_id: str, attempt: int, state: str, *, error: dict | None = None,
-               result_location: str | None = None, **progress) -> bool:
+               result_location: str | None = None, started_at: float | None = None,
+               **progress) -> bool:
         now = time.time()
-        job = self.get(job_id)
-        started = job.started_at if job and job.started_at else now
+        if started_at is None:
+            job = self.get(job_id)
+            started_at = job.started_at if job and job.started_at else now
+        started = started_at
         return bool(self._update(
             (JobRow.id == job_id, JobRow.state == RUNNING, JobRow.attempts == attempt),
             state=state, error=error, result_location=result_location, finished_at=now,

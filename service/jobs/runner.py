@@ -142,7 +142,7 @@ class JobRunner:
             self.cache.refresh(("domain", job.domain_id))
         progress = dict(hb.progress)
         if not self.repo.finish(job_id, attempt, state, error=error, result_location=location,
-                                **progress):
+                                started_at=job.started_at, **progress):
             log.warning("job %s attempt %d lost ownership; result discarded", job_id, attempt)
         self.current = None
         self.jobs_done += 1
