@@ -481,20 +481,23 @@ def _grid_faces(shape: tuple[int, int]) -> np.ndarray:
 
 
 def domain_glb(domain, *, fields: Mapping | None = None, flow=None, color: str | None = None,
-               frames: Sequence | None = None, metadata: Mapping | None = None) -> bytes:
+               frames: Sequence | None = None, metadata: Mapping | None = None,
+               per_face: Sequence[str] = ()) -> bytes:
     """GLB of result ``fields`` on a domain (the service's ``result.glb``).
 
     ``fields`` maps names to per-point arrays ``(n,)`` / ``(n, c)`` (or
     ``(n, T)`` with ``frames``); on a mesh, arrays of length ``F`` (faces)
-    are per-face fields. Meshes keep their input units. Graphs need
-    ``positions``; otherwise :class:`UnsupportedDomainError`.
+    are per-face fields, as are the names in ``per_face`` (needed only when
+    ``F == V``). Meshes keep their input units. Graphs need ``positions``;
+    otherwise :class:`UnsupportedDomainError`.
     """
     kind = getattr(domain, "kind", None)
     fields = dict(fields or {})
     common = {"color": color, "frames": frames, "metadata": metadata}
     if kind == "mesh":
         n_v, n_f = domain.n, domain.n_faces
-        vertex_fields = {k: a for k, a in fields.items() if len(np.asarray(a)) == n_v}
+        vertex_fields = {k: a for k, a in fields.items()
+                         if k not in per_face and len(np.asarray(a)) == n_v}
         face_fields = {k: a for k, a in fields.items()
                        if k not in vertex_fields and len(np.asarray(a)) == n_f}
         bad = set(fields) - set(vertex_fields) - set(face_fields)

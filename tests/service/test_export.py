@@ -21,7 +21,7 @@ from service.export import (
     points_glb,
     to_jsonable,
 )
-from solvers import Graph, Grid, PointCloud
+from solvers import Graph, Grid, PointCloud, TriangleMesh
 from solvers.errors import InputError, UnsupportedDomainError
 
 _NP = {5126: np.float32, 5125: np.uint32}
@@ -263,6 +263,21 @@ def test_other_domains():
     with pytest.raises(InputError) as err:
         points_glb(pts, vertex_fields={"density": np.ones(39)})
     assert err.value.field == "density"
+
+
+def test_per_face_names_resolve_equal_counts():
+    # a tetrahedron: V == F == 4
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    mesh = TriangleMesh(v, f)
+    assert mesh.n == mesh.n_faces == 4
+    values = np.arange(4.0)
+    doc, binary = check_container(domain_glb(mesh, fields={"a": values, "b": values},
+                                             per_face=["b"]))
+    a = attrs(doc, binary)
+    assert len(a["POSITION"]) == 12  # de-indexed because "b" is per face
+    np.testing.assert_array_equal(a["_B"], np.repeat(values, 3).astype(np.float32))
+    np.testing.assert_array_equal(a["_A"], values[mesh.faces.ravel()].astype(np.float32))
 
 
 def test_bad_fields_name_the_field(spot):
