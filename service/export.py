@@ -24,8 +24,10 @@ scene that any viewer opens:
 
 2-D grids are written as a triangulated plane (z = 0), 3-D grids and point
 clouds as points (mode POINTS), graphs with positions as edge lines.
-glTF stores 32-bit floats only: the attributes hold ``float32(values)``
-exactly; the JSON result keeps full precision.
+glTF stores finite 32-bit floats only: the attributes hold ``float32(values)``
+exactly, except non-finite values (an unreachable vertex's ``inf`` distance),
+written as -/+ the largest float32 and counted in the accessor's ``extras``;
+the JSON result keeps full precision (and ``null`` for non-finite values).
 
 The container is written directly (JSON chunk + BIN chunk, 4-byte aligned,
 one buffer view per accessor, POSITION with min/max), no dependency.
@@ -169,6 +171,10 @@ class _GLTFWriter:
         """Append ``data`` ((n,) or (n, c), cast to float32 or uint32) as one accessor."""
         arr = np.ascontiguousarray(data, dtype=np.uint32 if indices else np.float32)
         comps = 1 if arr.ndim == 1 else arr.shape[1]
+        non_finite = 0 if indices else int(arr.size - np.count_nonzero(np.isfinite(arr)))
+        if non_finite:  # glTF floats must be finite: NaN/+inf -> +max, -inf -> -max float32
+            big = float(np.finfo(np.float32).max)
+            arr = np.nan_to_num(arr, nan=big, posinf=big, neginf=-big)
         while len(self.bin) % 4:
             self.bin.append(0)
         offset = len(self.bin)
@@ -183,10 +189,14 @@ class _GLTFWriter:
             "type": _TYPES[comps],
         }
         flat = arr.reshape(len(arr), comps)
-        if bounds and len(arr) and (indices or np.all(np.isfinite(flat))):
+        if bounds and len(arr):
             cast = int if indices else float
             acc["min"] = [cast(v) for v in flat.min(axis=0)]
             acc["max"] = [cast(v) for v in flat.max(axis=0)]
+        if non_finite:
+            acc["extras"] = {"nonFinite": non_finite,
+                             "nonFiniteReplacement": "NaN and +inf: +3.4028235e38 (largest "
+                                                     "float32), -inf: -3.4028235e38"}
         self.doc["accessors"].append(acc)
         return len(self.doc["accessors"]) - 1
 

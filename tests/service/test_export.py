@@ -297,12 +297,23 @@ def test_bad_fields_name_the_field(spot):
 def test_non_finite_values_keep_a_valid_document(spot):
     d = np.linspace(0.0, 1.0, spot.n)
     d[1:11] = np.inf
+    d[11] = -np.inf
+    d[12] = np.nan
     doc, binary = check_container(domain_glb(spot, fields={"distance": d}))
     a = attrs(doc, binary)
-    assert np.isinf(a["_DISTANCE"][1:11]).all()
+    big = np.finfo(np.float32).max
+    assert np.all(np.isfinite(a["_DISTANCE"]))  # glTF requires finite floats
+    assert np.all(a["_DISTANCE"][1:11] == big) and a["_DISTANCE"][11] == -big
+    assert a["_DISTANCE"][12] == big
+    finite = np.isfinite(d)
+    np.testing.assert_array_equal(a["_DISTANCE"][finite], d[finite].astype(np.float32))
     acc = doc["accessors"][doc["meshes"][0]["primitives"][0]["attributes"]["_DISTANCE"]]
-    assert "min" not in acc  # JSON cannot hold inf; bounds are optional for custom attributes
+    assert acc["extras"]["nonFinite"] == 12
+    assert acc["min"] == [float(-big)] and acc["max"] == [float(big)]
+    # colors ignore the non-finite values: the ramp spans the finite ones, which are grey
     assert doc["meshes"][0]["extras"]["value_range"] == [0.0, 1.0]
+    grey = a["COLOR_0"][1]
+    assert grey[0] == grey[1] == grey[2]
 
 
 def test_attribute_names():
