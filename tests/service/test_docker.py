@@ -12,15 +12,14 @@ import json
 import os
 import re
 import shlex
-import shutil
 import subprocess
-import sys
 import tomllib
 from pathlib import Path
 from urllib.parse import urlparse
 
 import pytest
 import yaml
+from liveserver import otgeo_command
 
 from service.settings import Settings
 
@@ -56,10 +55,8 @@ def otgeo_argv(command: list[str]) -> list[str]:
     """The container's argv, run with this checkout's installation of the console script."""
     assert command[0] == "otgeo"
     scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
-    assert scripts["otgeo"] == "service.cli:main"
-    exe = shutil.which("otgeo", path=str(Path(sys.executable).parent))
-    head = [exe] if exe else [sys.executable, "-m", "service.cli"]
-    return head + command[1:]
+    assert scripts["otgeo"] == "service.cli:main"  # so `python -m service.cli` is equivalent
+    return otgeo_command() + command[1:]
 
 
 def run_help(command: list[str], env: dict[str, str]) -> subprocess.CompletedProcess:

@@ -21,7 +21,7 @@ from service.jobs.db import make_engine
 
 REDIS_URL = "redis://127.0.0.1:6379/0"
 PG_ADMIN = dict(host="127.0.0.1", port=5432, user="postgres", dbname="postgres")
-STALE_AFTER = 1.5
+STALE_AFTER = 2.0
 MAX_ATTEMPTS = 2
 # W1 flow by ADMM on cow.obj (2,903 vertices): ~6 ms per iteration, progress every 10.
 LONG = {"max_iter": 400, "tol": 1e-12}  # ~2.5 s, never converges early
