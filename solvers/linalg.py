@@ -40,15 +40,18 @@ class CholespyFactor:
     backend = "cholespy"
 
     def __init__(self, matrix: sp.spmatrix):
-        csc = sp.csc_matrix(matrix)
-        csc.sort_indices()
-        self.n = csc.shape[0]
+        # Pass CSR, never CSC: for CSC input cholespy (<= 2.2) sorts the caller's
+        # arrays in place and then realloc()s numpy-owned buffers (heap corruption:
+        # "free(): invalid pointer" or hangs later); CSR/COO input is first copied
+        # into buffers cholespy owns.  The arrays below are read only.
+        csr = sp.csr_matrix(matrix)
+        self.n = csr.shape[0]
         self._solver = CholeskySolverD(
             self.n,
-            np.ascontiguousarray(csc.indptr, dtype=np.int32),
-            np.ascontiguousarray(csc.indices, dtype=np.int32),
-            np.ascontiguousarray(csc.data, dtype=np.float64),
-            MatrixType.CSC,
+            np.array(csr.indptr, dtype=np.int32),
+            np.array(csr.indices, dtype=np.int32),
+            np.array(csr.data, dtype=np.float64),
+            MatrixType.CSR,
         )
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
