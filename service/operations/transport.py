@@ -212,14 +212,20 @@ def _validate_pointwise(view, req: PointwiseDistanceRequest) -> list[dict]:
 
 def run_pointwise(domain, req: PointwiseDistanceRequest, progress, should_cancel
                   ) -> OperationOutput:
+    """d_W^k from the source to every vertex; vertices on other components are unreachable
+    (reported as null distances and counted)."""
     _validate_pointwise(view_of_domain(domain), req)
     pd = solver("emd", "pointwise_distances")
-    res = pd(domain, req.source, k=req.k)
-    d = np.asarray(res.distances, dtype=np.float64)
+    labels = np.asarray(domain.component_labels)
+    targets = np.flatnonzero(labels == labels[req.source])
+    res = pd(domain, req.source, k=req.k, targets=targets, progress=progress,
+             should_cancel=should_cancel)
+    d = np.full(domain.n, np.inf)
+    d[targets] = np.asarray(res.distances, dtype=np.float64)
     finite = d[np.isfinite(d)]
     values = {"source": req.source, "k": req.k,
               "max_distance": float(finite.max()) if finite.size else None,
-              "unreachable": int((~np.isfinite(d)).sum())}
+              "unreachable": int((~np.isfinite(d)).sum()), **_convergence(res)}
     return OperationOutput(values, {"distances": d}, {"fields": ["distances"],
                                                       "color": "distances"})
 
