@@ -1,0 +1,310 @@
+r"""Shared machinery of the convolutional solvers (thesis ch. 3).
+
+* :class:`LogKernel` evaluates :math:`\log H_t \exp(X)` column by column for any heat
+  kernel, so every Sinkhorn-type loop can keep its scalings as logarithms
+  (potentials) and never overflows at small :math:`\gamma`.
+* :func:`prepare` validates the common arguments and builds (or fetches the cached)
+  kernel; :class:`Monitor` runs the progress callback and the cancellation check.
+* :class:`OverRelaxation` picks the over-relaxation parameter of the Sinkhorn
+  updates from the measured convergence rate.
+
+Conventions: inputs are *masses* ``m`` (non-negative, columns summing to 1); the
+iterations work with densities :math:`\mu = m / a` (``a`` the area weights) as in
+the thesis, and ``kernel.apply(x)`` is :math:`H_t(a \otimes x)`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from solvers.distributions import normalize_masses
+from solvers.errors import CancelledError, InputError, UnsupportedDomainError
+from solvers.kernels import heat_time
+
+# Width (in natural-log units) of one band of a log-domain kernel application for
+# kernels whose smallest entry is unknown (implicit Euler): entries of the
+# shifted input down to exp(-BAND) are applied exactly; wider inputs are split
+# into several bands (extra columns of the same block solve).
+DEFAULT_BAND = 350.0
+# exp() of anything below this is 0 or denormal in float64.
+_LOG_TINY = -700.0
+# Output logs this far below the column maximum are treated as "underflowed".
+_UNDERFLOW_GAP = 1400.0
+
+
+class LogKernel:
+    r"""``X -> log H_t exp(X)`` for ``(n,)`` or ``(n, k)`` log-inputs (``-inf`` allowed).
+
+    This is the absorption of the scalings into the kernel's input and output:
+    each column is shifted by its maximum (absorbed exactly into the output), and
+    columns whose dynamic range exceeds one band are split by value into bands,
+    each applied with its own shift in the same block solve and recombined with a
+    log-sum-exp.  Implicit Euler heat kernels :math:`(D_a + \tau L)^{-1} D_a` of
+    M-matrices (robust/intrinsic-Delaunay Laplacians, graph Laplacians) are
+    entrywise positive and their triangular solves add terms of one sign, so each
+    band is computed to full relative precision; the only loss is underflow of
+    kernel entries below ``exp(-700)`` relative to the band.  Gaussian grid kernels
+    whose entries would underflow use the exact ``kernel.log_apply``.
+    """
+
+    def __init__(self, kernel, band: float | None = None):
+        self.kernel = kernel
+        self.n = int(kernel.n)
+        self.use_log_apply = False
+        if band is None:
+            band = DEFAULT_BAND
+            log_factors = getattr(kernel, "log_factors", None)
+            if log_factors is not None:
+                # Separable Gaussian: smallest log-entry of the full kernel is known.
+                kmin = float(sum(np.min(f) for f in log_factors))
+                band = -_LOG_TINY + kmin
+                if band < 50.0:
+                    self.use_log_apply = bool(getattr(kernel, "supports_log", False))
+                    band = 50.0
+        self.band = float(band)
+        self.applications = 0
+        self.columns = 0
+
+    def __call__(self, X: np.ndarray) -> np.ndarray:
+        X = np.asarray(X, dtype=np.float64)
+        vector = X.ndim == 1
+        X2 = X[:, None] if vector else X
+        k = X2.shape[1]
+        self.applications += 1
+        if self.use_log_apply:
+            self.columns += k
+            out = np.asarray(self.kernel.log_apply(X2), dtype=np.float64).reshape(self.n, k)
+            return _floor(out[:, 0] if vector else out)
+        finite = np.isfinite(X2)
+        with np.errstate(invalid="ignore"):
+            top = np.max(np.where(finite, X2, -np.inf), axis=0)
+            bottom = np.min(np.where(finite, X2, np.inf), axis=0)
+        empty = ~np.isfinite(top)
+        top = np.where(empty, 0.0, top)
+        bottom = np.where(empty, 0.0, bottom)
+        bands = np.maximum(1, np.ceil((top - bottom) / self.band).astype(np.int64))
+        if np.all(bands == 1):
+            self.columns += k
+            with np.errstate(under="ignore"):
+                Y = np.exp(X2 - top)
+            Z = self.kernel.apply(Y if not vector else Y[:, 0])
+            Z = np.asarray(Z, dtype=np.float64).reshape(self.n, k)
+            with np.errstate(divide="ignore"):
+                out = np.log(np.maximum(Z, 0.0)) + top
+        else:
+            out = self._banded(X2, top, bands)
+        return _floor(out[:, 0] if vector else out)
+
+    def _banded(self, X2, top, bands):
+        n, k = X2.shape
+        total = int(bands.sum())
+        self.columns += total
+        block = np.zeros((n, total))
+        offsets = np.empty(total)
+        owner = np.empty(total, dtype=np.int64)
+        col = 0
+        for j in range(k):
+            x = X2[:, j]
+            for b in range(int(bands[j])):
+                hi = top[j] - b * self.band
+                lo = hi - self.band
+                sel = (x <= hi) & (x > lo) if b < bands[j] - 1 else (x <= hi) & np.isfinite(x)
+                with np.errstate(under="ignore"):
+                    block[sel, col] = np.exp(x[sel] - hi)
+                offsets[col] = hi
+                owner[col] = j
+                col += 1
+        Z = np.asarray(self.kernel.apply(block), dtype=np.float64).reshape(n, total)
+        with np.errstate(divide="ignore"):
+            logs = np.log(np.maximum(Z, 0.0)) + offsets
+        out = np.empty((n, k))
+        for j in range(k):
+            part = logs[:, owner == j]
+            m = np.max(part, axis=1)
+            safe = np.where(np.isfinite(m), m, 0.0)
+            with np.errstate(divide="ignore", under="ignore"):
+                out[:, j] = np.log(np.exp(part - safe[:, None]).sum(axis=1)) + safe
+        return out
+
+
+def _floor(out: np.ndarray) -> np.ndarray:
+    """Replace underflowed (``-inf``) outputs by a finite floor far below the column maximum.
+
+    A zero output where a density is positive would make the next scaling
+    infinite; the floor keeps every quantity finite (the marginal residual then
+    reports the violation honestly).
+    """
+    if np.all(np.isfinite(out)):
+        return out
+    top = np.max(np.where(np.isfinite(out), out, -np.inf), axis=0)
+    top = np.where(np.isfinite(top), top, 0.0)
+    return np.where(np.isfinite(out), out, top - _UNDERFLOW_GAP)
+
+
+class Monitor:
+    """Progress callback and cancellation check, called once per iteration."""
+
+    def __init__(self, progress: Callable[[int, float], None] | None,
+                 should_cancel: Callable[[], bool] | None):
+        self.progress = progress
+        self.should_cancel = should_cancel
+        self.offset = 0
+
+    def __call__(self, iteration: int, residual: float) -> None:
+        if self.should_cancel is not None and self.should_cancel():
+            raise CancelledError(f"cancelled at iteration {self.offset + iteration}")
+        if self.progress is not None:
+            self.progress(self.offset + int(iteration), float(residual))
+
+
+class OverRelaxation:
+    r"""Adaptive over-relaxed Sinkhorn updates ``f <- f + omega (f_sinkhorn - f)``.
+
+    Starts with plain Sinkhorn (``omega = 1``); every ``window`` iterations the
+    measured residual decay ``lam`` gives an estimate of the plain Sinkhorn rate
+    :math:`\eta = (\lambda + \omega - 1)^2 / (\lambda \omega^2)` (the successive
+    over-relaxation relation), and ``omega`` moves up to the SOR optimum
+    :math:`2 / (1 + \sqrt{1 - \eta})` (Thibault et al. 2017, Lehmann et al. 2021).
+    If the residual grows over a window, ``omega`` backs off halfway to 1, so the
+    iteration stays safe.  ``enabled=False`` keeps plain Alg. 1.
+    """
+
+    def __init__(self, enabled: bool = True, window: int = 10, max_omega: float = 1.9):
+        self.enabled = enabled
+        self.window = window
+        self.max_omega = max_omega
+        self.omega = 1.0
+        self._history: list[float] = []
+        self._last = 0
+
+    def update(self, residual: float) -> float:
+        if not self.enabled:
+            return 1.0
+        self._history.append(residual)
+        k = len(self._history) - 1
+        if k - self._last >= self.window and k >= self.window:
+            old = self._history[k - self.window]
+            lam = (residual / old) ** (1.0 / self.window) if old > 0 else 0.0
+            if 0.0 < lam < 1.0:
+                om = self.omega
+                eta = min((lam + om - 1.0) ** 2 / (lam * om * om), 0.9999)
+                best = 2.0 / (1.0 + math.sqrt(1.0 - eta))
+                if best > self.omega:
+                    self.omega = min(best, self.max_omega)
+            elif lam >= 1.0 and self.omega > 1.0:
+                self.omega = 1.0 + 0.5 * (self.omega - 1.0)
+            self._last = k
+        return self.omega
+
+
+@dataclass
+class Setup:
+    """Validated common arguments of a convolutional solver."""
+
+    gamma: float
+    t: float
+    substeps: int
+    tol: float
+    max_iter: int
+    kernel: object
+    logk: LogKernel
+    areas: np.ndarray
+    monitor: Monitor
+
+
+def check_positive(value, field: str) -> float:
+    try:
+        x = float(value)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{field} must be a number", field=field) from exc
+    if not (math.isfinite(x) and x > 0):
+        raise InputError(f"{field} must be positive and finite, got {value}", field=field)
+    return x
+
+
+def prepare(domain, *, gamma, t, substeps, tol, max_iter, progress, should_cancel,
+            default_max_iter: int = 10000) -> Setup:
+    """Check ``gamma, t, substeps, tol, max_iter`` and fetch the domain's heat kernel."""
+    gamma = check_positive(gamma, "gamma")
+    t = heat_time(gamma) if t is None else check_positive(t, "t")
+    try:
+        substeps = int(substeps)
+    except (TypeError, ValueError) as exc:
+        raise InputError("substeps must be an integer", field="substeps") from exc
+    if substeps < 1:
+        raise InputError(f"substeps must be >= 1, got {substeps}", field="substeps")
+    tol = check_positive(tol, "tol")
+    max_iter = default_max_iter if max_iter is None else int(max_iter)
+    if max_iter < 1:
+        raise InputError(f"max_iter must be >= 1, got {max_iter}", field="max_iter")
+    if progress is not None and not callable(progress):
+        raise InputError("progress must be callable", field="progress")
+    if should_cancel is not None and not callable(should_cancel):
+        raise InputError("should_cancel must be callable", field="should_cancel")
+    kernel = domain.heat_kernel(t, substeps)
+    return Setup(gamma, t, substeps, tol, max_iter, kernel, LogKernel(kernel),
+                 np.asarray(domain.areas, dtype=np.float64), Monitor(progress, should_cancel))
+
+
+def masses_block(domain, values, field: str, columns: int | None = None) -> np.ndarray:
+    """Validated, normalized ``(n,)`` or ``(n, k)`` masses."""
+    m = normalize_masses(values, domain.n, field)
+    if columns is not None and (m.ndim != 2 or m.shape[1] != columns):
+        raise InputError(f"{field} must have shape ({domain.n}, {columns})", field=field)
+    return m
+
+
+def check_components(domain, masses: np.ndarray, tol: float, field: str) -> None:
+    """Refuse inputs whose per-component masses differ (mass cannot cross components).
+
+    ``masses`` is ``(n, k)``; with matching component masses the heat kernel is
+    block diagonal and the solvers work on every component at once.
+    """
+    if domain.n_components <= 1 or masses.shape[1] < 2:
+        return
+    per = np.stack([domain.component_masses(masses[:, j]) for j in range(masses.shape[1])],
+                   axis=1)
+    gap = np.abs(per - per[:, :1]).sum(axis=0)
+    if np.any(gap > tol):
+        j = int(np.argmax(gap))
+        raise UnsupportedDomainError(
+            f"the domain has {domain.n_components} connected components and mass cannot move "
+            f"between them, but the distributions put different mass on them (component masses "
+            f"{np.round(per[:, 0], 6).tolist()} vs {np.round(per[:, j], 6).tolist()}); give "
+            "each component the same mass in every distribution",
+            field=field,
+        )
+
+
+def log_density(masses: np.ndarray, areas: np.ndarray) -> np.ndarray:
+    """``log(m / a)`` with ``-inf`` where the mass is zero."""
+    a = areas if masses.ndim == 1 else areas[:, None]
+    with np.errstate(divide="ignore"):
+        return np.log(masses / a)
+
+
+def entropy(masses: np.ndarray, areas: np.ndarray) -> np.ndarray | float:
+    r"""Differential entropy :math:`H(\mu) = -\sum_i a_i \mu_i \log \mu_i` of ``m = a mu``.
+
+    Zero for the uniform density on a unit-area domain, negative otherwise.
+    """
+    ld = log_density(masses, areas)
+    terms = np.where(masses > 0, masses * np.where(np.isfinite(ld), ld, 0.0), 0.0)
+    out = -terms.sum(axis=0)
+    return float(out) if np.ndim(out) == 0 else out
+
+
+def masses_from_log(log_density_values: np.ndarray, areas: np.ndarray) -> np.ndarray:
+    """Masses ``a * exp(log mu)`` normalized per column (shifted to avoid overflow)."""
+    L = log_density_values
+    top = np.max(np.where(np.isfinite(L), L, -np.inf), axis=0)
+    top = np.where(np.isfinite(top), top, 0.0)
+    a = areas if L.ndim == 1 else areas[:, None]
+    with np.errstate(under="ignore"):
+        m = a * np.exp(L - top)
+    total = m.sum(axis=0)
+    return m / np.where(total > 0, total, 1.0)
