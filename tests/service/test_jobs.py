@@ -349,13 +349,41 @@ def test_metrics_cache_and_jobs(client, meshes_dir):
 
 
 # -- a real Huey consumer in its own process ----------------------------------------------
-def test_real_worker_process(make_client, meshes_dir, tmp_path):
+def _start_worker(tmp_path):
     env = {k: v for k, v in os.environ.items() if not k.startswith("OTGEO_")}
     env.update({"OTGEO_DATA_DIR": str(tmp_path), "OTGEO_HEARTBEAT_INTERVAL": "0.2",
                 "OTGEO_WORKER_POLL_INTERVAL": "0.02"})
-    log = open(tmp_path / "worker.log", "wb")  # noqa: SIM115
+    log = open(tmp_path / "worker.log", "ab")  # noqa: SIM115
     proc = subprocess.Popen([sys.executable, "-m", "service.cli", "worker"], cwd=ROOT, env=env,
                             stdout=log, stderr=subprocess.STDOUT)
+    return proc, log
+
+
+def test_worker_sigterm_hands_running_job_back(make_client, tmp_path):
+    client = make_client(queue="sqlite")
+    gid = _grid(client, (120, 120))
+    body = {"distributions": [{"vertex": 0, "radius": 0.2}, {"vertex": 14399, "radius": 0.2}],
+            "gamma": 1e-4, "tol": 1e-15, "max_iter": 100_000}
+    job = client.post(f"/v1/domains/{gid}/barycenters", json=body).json()
+    proc, log = _start_worker(tmp_path)
+    try:
+        deadline = time.monotonic() + 30
+        while client.get(f"/v1/jobs/{job['id']}").json()["state"] != "running":
+            assert time.monotonic() < deadline, (tmp_path / "worker.log").read_text()[-2000:]
+            time.sleep(0.05)
+        proc.terminate()
+        assert proc.wait(timeout=15) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        log.close()
+    back = client.get(f"/v1/jobs/{job['id']}").json()
+    assert back["state"] == "queued" and back["attempts"] == 0, back
+    assert client.delete(f"/v1/jobs/{job['id']}").json()["state"] == "cancelled"
+
+
+def test_real_worker_process(make_client, meshes_dir, tmp_path):
+    proc, log = _start_worker(tmp_path)
     try:
         client = make_client(queue="sqlite")
         mid = upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
