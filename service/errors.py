@@ -114,7 +114,7 @@ def error_dict(exc: BaseException) -> dict:
     return {"code": "internal_error", "message": f"{type(exc).__name__}: {exc}", "field": None}
 
 
-def _field_from_loc(loc) -> str | None:
+def field_from_loc(loc) -> str | None:
     parts = [str(p) for p in loc if p not in ("body", "query", "path", "header", "form")]
     if not parts:
         return None
@@ -150,7 +150,7 @@ def install_handlers(app: FastAPI) -> None:
     async def _validation(request: Request, exc: RequestValidationError):
         errors = exc.errors()
         first = errors[0] if errors else {"loc": (), "msg": "invalid request"}
-        field = _field_from_loc(first.get("loc", ()))
+        field = field_from_loc(first.get("loc", ()))
         msg = first.get("msg", "invalid request")
         message = f"{field}: {msg}" if field else msg
         if len(errors) > 1:

@@ -9,7 +9,13 @@ from fastapi.concurrency import run_in_threadpool
 from pydantic import TypeAdapter, ValidationError
 
 from service.api.deps import DomainSvc, get_runtime
-from service.errors import InvalidInput, PayloadTooLarge, UnsupportedMediaType, responses
+from service.errors import (
+    InvalidInput,
+    PayloadTooLarge,
+    UnsupportedMediaType,
+    field_from_loc,
+    responses,
+)
 from service.schemas import DomainList, DomainOut, DomainSpec
 
 router = APIRouter(prefix="/v1/domains", tags=["domains"])
@@ -60,7 +66,11 @@ async def create_domain(request: Request, response: Response,
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
     body = await _read_body(request, limit)
     if ctype == "multipart/form-data":
-        form = await request.form(max_part_size=limit)
+        try:
+            form = await request.form(max_part_size=limit)
+        except Exception as exc:  # malformed multipart body
+            detail = getattr(exc, "detail", None) or str(exc)
+            raise InvalidInput(f"malformed multipart upload: {detail}", field="file") from exc
         upload = form.get("file")
         if upload is None or isinstance(upload, str):
             raise InvalidInput("multipart upload needs a 'file' part", field="file")
@@ -80,14 +90,12 @@ async def create_domain(request: Request, response: Response,
         try:
             spec = SPEC.validate_python(raw)
         except ValidationError as exc:
-            from service.errors import _field_from_loc
-
             err = exc.errors()[0]
             loc = list(err["loc"])
             if loc and isinstance(raw, dict) and loc[0] == raw.get("kind"):
                 loc = loc[1:]  # drop the union tag
             tag_error = err["type"] in ("union_tag_invalid", "union_tag_not_found")
-            field = "kind" if tag_error else (_field_from_loc(loc) or "body")
+            field = "kind" if tag_error else (field_from_loc(loc) or "body")
             raise InvalidInput(f"{field}: {err['msg']}", field=field) from exc
         meta, created = await run_in_threadpool(svc.from_spec, spec)
     else:

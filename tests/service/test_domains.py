@@ -91,6 +91,15 @@ def test_bad_json_domains(client, body, field):
     assert_error(r, 422, field)
 
 
+def test_malformed_multipart(client):
+    r = client.post("/v1/domains", content=b"--x\r\nnonsense",
+                    headers={"content-type": "multipart/form-data; boundary=x"})
+    assert_error(r, 422, "file")
+    r = client.post("/v1/domains", data={"format": "obj"},
+                    files={"other": ("a.obj", b"v 0 0 0\n")})
+    assert_error(r, 422, "file")
+
+
 def test_unsupported_media_type(client):
     r = client.post("/v1/domains", content=b"abc", headers={"content-type": "text/plain"})
     assert_error(r, 415, "content-type")
