@@ -64,7 +64,9 @@ class BarycenterRequest(SinkhornOptions):
 class InterpolationRequest(SinkhornOptions):
     mu0: Distribution
     mu1: Distribution
-    times: list[float] = Field(min_length=1, max_length=64)
+    times: list[float] = Field(min_length=1, max_length=64, description="in [0, 1]")
+    sharpen: bool = Field(False, description="entropic sharpening of each frame")
+    debiased: bool = False
 
 
 class PointwiseDistanceRequest(OperationRequest):
@@ -193,7 +195,8 @@ def run_interpolation(domain, req: InterpolationRequest, progress, should_cancel
     masses, reports = _pair(view_of_domain(domain), req)
     interp = solver("convolutional", "displacement_interpolation")
     kwargs = _sinkhorn_kwargs(domain, req, progress, should_cancel)
-    res = interp(domain, masses["mu0"], masses["mu1"], list(req.times), **kwargs)
+    res = interp(domain, masses["mu0"], masses["mu1"], list(req.times), sharpen=req.sharpen,
+                 debiased=req.debiased, **kwargs)
     m = np.asarray(res.masses, dtype=np.float64).reshape(domain.n, -1)
     values = {"gamma": kwargs["gamma"], "times": list(req.times), **_convergence(res),
               "normalization": reports}

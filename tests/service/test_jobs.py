@@ -123,6 +123,33 @@ def test_barycenter_job_matches_solver(client):
     assert report[1]["given_total"] == pytest.approx(4.0)
 
 
+def test_interpolation_job_matches_solver(client):
+    from solvers.convolutional import displacement_interpolation
+    from solvers.domains import Grid
+
+    grid = Grid((24, 24))
+    gid = _grid(client, (24, 24))
+    body = {"mu0": {"vertex": 30, "radius": 0.25}, "mu1": {"vertex": 540, "radius": 0.25},
+            "times": [0.0, 0.5, 1.0], "gamma": 0.005}
+    job = client.post(f"/v1/domains/{gid}/interpolations?wait=20", json=body).json()
+    assert job["state"] == "succeeded", job
+    result = client.get(f"/v1/jobs/{job['id']}/result").json()
+    d0 = np.linalg.norm(grid.points - grid.points[30], axis=1)
+    d1 = np.linalg.norm(grid.points - grid.points[540], axis=1)
+    mu0 = grid.areas * np.clip(1 - d0 / 0.25, 0, None)
+    mu1 = grid.areas * np.clip(1 - d1 / 0.25, 0, None)
+    direct = displacement_interpolation(grid, mu0 / mu0.sum(), mu1 / mu1.sum(), [0.0, 0.5, 1.0],
+                                        gamma=0.005)
+    frames = np.asarray(result["arrays"]["masses"])
+    assert frames.shape == (576, 3)
+    assert np.allclose(frames, direct.masses, rtol=1e-9, atol=1e-15)
+    assert np.allclose(frames.sum(axis=0), 1.0)
+    assert result["export"]["frames"] == [0.0, 0.5, 1.0]
+    # The midpoint's mean sits halfway between the endpoints' means.
+    means = grid.points.T @ frames
+    assert np.allclose(means[:, 1], 0.5 * (means[:, 0] + means[:, 2]), atol=0.02)
+
+
 @pytest.mark.parametrize("method", ["sinkhorn", "debiased"])
 def test_distance_job_matches_solver(client, meshes_dir, shared_mesh, method):
     from solvers.convolutional import wasserstein_distance
