@@ -68,7 +68,7 @@ class SpluFactor:
 
     def __init__(self, matrix: sp.spmatrix):
         self.n = matrix.shape[0]
-        self._lu = spla.splu(sp.csc_matrix(matrix))
+        self._lu = spla.splu(sp.csc_matrix(matrix, copy=True))  # splu sums duplicates in place
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         return self._lu.solve(np.asarray(rhs, dtype=np.float64))
