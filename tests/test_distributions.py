@@ -1,0 +1,53 @@
+"""Validation and conversion of mass vectors (solvers.distributions)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from solvers.distributions import (
+    check_masses,
+    density_from_masses,
+    masses_from_density,
+    normalize_masses,
+)
+from solvers.errors import InputError
+
+
+@pytest.mark.parametrize(
+    ("values", "words"),
+    [
+        ([0.5, -0.1, 0.6], "negative"),
+        ([0.5, np.nan, 0.5], "NaN"),
+        ([0.5, np.inf, 0.5], "infinite"),
+        ([0.0, 0.0, 0.0], "zero total"),
+        ([0.5, 0.5], "length 3"),
+        (np.ones((3, 2, 1)), "length 3"),
+        (["a", "b", "c"], "numeric"),
+        (np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 0.0]]), "zero total"),
+    ],
+)
+def test_bad_masses_raise_input_error_naming_the_field(values, words):
+    with pytest.raises(InputError) as info:
+        check_masses(values, 3, field="mu0")
+    assert info.value.field == "mu0"
+    assert words.lower() in str(info.value).lower()
+    assert "mu0" in str(info.value)
+
+
+def test_negative_entry_is_located():
+    with pytest.raises(InputError, match=r"mu\[2\] is negative"):
+        check_masses([1.0, 1.0, -2.0, 1.0], 4, field="mu")
+    with pytest.raises(InputError, match=r"mus\[1\] is NaN"):
+        check_masses(np.array([[1.0, 1.0], [1.0, np.nan]]), 2, field="mus")
+
+
+def test_normalize_and_convert():
+    x = normalize_masses(np.array([[1.0, 2.0], [3.0, 2.0]]), 2)
+    np.testing.assert_allclose(x.sum(axis=0), 1.0)
+    np.testing.assert_allclose(x[:, 0], [0.25, 0.75])
+    areas = np.array([0.2, 0.8])
+    mu = density_from_masses(x, areas)
+    np.testing.assert_allclose(areas @ mu, [1.0, 1.0])
+    np.testing.assert_allclose(masses_from_density(mu, areas), x)
+    np.testing.assert_allclose(density_from_masses(x[:, 1], areas), x[:, 1] / areas)
