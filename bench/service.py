@@ -129,11 +129,14 @@ class Bench:
                 with httpx.Client(base_url=api.url, timeout=600) as client:
                     domain_id, upload_s = self.upload(client)
                     cold, cold_job = self.request(client, domain_id)
-                    warm, durations = [], []
+                    # interleaved rounds (request, then the solver alone), so both see the
+                    # same load from other processes on the machine; paired differences
+                    warm, durations, solver_warm = [], [], []
                     for _ in range(args.requests):
                         elapsed, job = self.request(client, domain_id)
                         warm.append(elapsed)
                         durations.append(job["duration_seconds"])
+                        solver_warm.append(self.solve(mesh)[0])
                     result = client.get(f"/v1/jobs/{job['id']}/result",
                                         params={"arrays": False}).json()
                     health = []
@@ -144,7 +147,6 @@ class Bench:
                     metrics = client.get("/metrics").text
             finally:
                 api.stop()
-        solver_warm = [self.solve(mesh)[0] for _ in range(args.requests)]
         assert abs(result["values"]["value"] - res.value) <= 1e-9 * max(1.0, abs(res.value)), (
             result["values"]["value"], res.value)
         assert result["values"]["iterations"] == res.iterations
@@ -207,8 +209,11 @@ class Bench:
         a = self.args
         lat = self.rows["latency"]
         warm, solver = lat["warm"], lat["solver_warm"]
-        overhead = pct(warm, 50) - pct(solver, 50)
-        worker_side = pct(lat["durations"], 50) - pct(solver, 50)
+        paired = np.asarray(warm) - np.asarray(solver)
+        paired_worker = np.asarray(lat["durations"]) - np.asarray(solver)
+        overhead = pct(paired, 50)
+        worker_side = pct(paired_worker, 50)
+        min_overhead = min(warm) - min(solver)
         verdict = "meets" if overhead * 1e3 <= TARGET_OVERHEAD_MS else "misses"
         lines = [
             "# Service latency and throughput (bench/service.py)",
@@ -239,12 +244,20 @@ class Bench:
             f"| `GET /healthz` (HTTP floor) | {ms(pct(lat['health'], 50))} | "
             f"{ms(pct(lat['health'], 95))} | {ms(min(lat['health']))} |",
             "",
-            f"**Service overhead per cached operation (p50 request - p50 solver): "
-            f"{ms(overhead)} ms** ({overhead / pct(solver, 50):.1%} of the solver time); "
-            f"of which in the worker (load from cache, validation, result storage, job-table "
-            f"writes): {ms(worker_side)} ms; the rest ({ms(overhead - worker_side)} ms) is "
-            f"HTTP, submission, queue hand-off and `wait` polling. Target <= "
-            f"{TARGET_OVERHEAD_MS:.0f} ms: {verdict}.",
+            "Requests and solver calls alternate (one each per round), and the overhead is "
+            "taken per round: request time - solver time of the same round.",
+            "",
+            "| per-round difference | p50 ms | p95 ms |",
+            "|---|---:|---:|",
+            f"| request - solver (service overhead) | {ms(overhead)} | {ms(pct(paired, 95))} |",
+            f"| worker run time - solver (inside the worker) | {ms(worker_side)} | "
+            f"{ms(pct(paired_worker, 95))} |",
+            f"| request - worker run time (HTTP, submission, queue hand-off, `wait` polling) | "
+            f"{ms(pct(paired - paired_worker, 50))} | {ms(pct(paired - paired_worker, 95))} |",
+            "",
+            f"**Service overhead per cached operation: {ms(overhead)} ms p50** "
+            f"({overhead / pct(solver, 50):.1%} of the solver time; difference of the minima: "
+            f"{ms(min_overhead)} ms). Target <= {TARGET_OVERHEAD_MS:.0f} ms p50: {verdict}.",
             "",
             "## Cold vs warm (factorization reuse)",
             "",
