@@ -164,13 +164,15 @@ class Monitor:
 class OverRelaxation:
     r"""Adaptive over-relaxed Sinkhorn updates ``f <- f + omega (f_sinkhorn - f)``.
 
-    Starts with plain Sinkhorn (``omega = 1``); every ``window`` iterations the
-    measured residual decay ``lam`` gives an estimate of the plain Sinkhorn rate
-    :math:`\eta = (\lambda + \omega - 1)^2 / (\lambda \omega^2)` (the successive
-    over-relaxation relation), and ``omega`` moves up to the SOR optimum
-    :math:`2 / (1 + \sqrt{1 - \eta})` (Thibault et al. 2017, Lehmann et al. 2021).
-    If the residual grows over a window, ``omega`` backs off halfway to 1, so the
-    iteration stays safe.  ``enabled=False`` keeps plain Alg. 1.
+    Starts with plain Sinkhorn (``omega = 1``).  After each change of ``omega``
+    the iteration is left to settle for one ``window``; then the residual decay
+    ``lam`` measured over the next window gives an estimate of the plain Sinkhorn
+    rate :math:`\eta = (\lambda + \omega - 1)^2 / (\lambda \omega^2)` (the
+    successive over-relaxation relation), and ``omega`` moves up to the SOR optimum
+    :math:`2 / (1 + \sqrt{1 - \eta})` (Thibault et al. 2017; Lehmann et al. 2021
+    for the safeguard).  If the residual grows tenfold since the last change,
+    ``omega`` backs off halfway to 1, so the iteration stays safe.
+    ``enabled=False`` keeps plain Alg. 1.
     """
 
     def __init__(self, enabled: bool = True, window: int = 10, max_omega: float = 1.9):
@@ -179,26 +181,30 @@ class OverRelaxation:
         self.max_omega = max_omega
         self.omega = 1.0
         self._history: list[float] = []
-        self._last = 0
+        self._changed = 0
 
     def update(self, residual: float) -> float:
         if not self.enabled:
             return 1.0
         self._history.append(residual)
         k = len(self._history) - 1
-        if k - self._last >= self.window and k >= self.window:
+        since = k - self._changed
+        if since >= 2 and residual > 10.0 * self._history[self._changed] and self.omega > 1.0:
+            self._set(1.0 + 0.5 * (self.omega - 1.0), k)
+        elif since >= 2 * self.window and since % self.window == 0:
             old = self._history[k - self.window]
             lam = (residual / old) ** (1.0 / self.window) if old > 0 else 0.0
             if 0.0 < lam < 1.0:
                 om = self.omega
                 eta = min((lam + om - 1.0) ** 2 / (lam * om * om), 0.9999)
-                best = 2.0 / (1.0 + math.sqrt(1.0 - eta))
-                if best > self.omega:
-                    self.omega = min(best, self.max_omega)
-            elif lam >= 1.0 and self.omega > 1.0:
-                self.omega = 1.0 + 0.5 * (self.omega - 1.0)
-            self._last = k
+                best = min(2.0 / (1.0 + math.sqrt(1.0 - eta)), self.max_omega)
+                if best > self.omega + 0.01:
+                    self._set(best, k)
         return self.omega
+
+    def _set(self, omega: float, k: int) -> None:
+        self.omega = omega
+        self._changed = k
 
 
 @dataclass
