@@ -31,6 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.special import logsumexp
 
+from solvers.errors import InputError
 from solvers.linalg import Backend, factorize_spd
 
 
@@ -78,9 +79,9 @@ class ImplicitEulerHeatKernel:
         backend: Backend = "auto",
     ):
         if not (np.isfinite(t) and t > 0):
-            raise ValueError(f"heat time t must be positive and finite, got {t}")
+            raise InputError(f"heat time t must be positive and finite, got {t}", field="t")
         if int(substeps) < 1:
-            raise ValueError(f"substeps must be >= 1, got {substeps}")
+            raise InputError(f"substeps must be >= 1, got {substeps}", field="substeps")
         self.n = len(mass)
         self.t = float(t)
         self.substeps = int(substeps)
@@ -205,7 +206,7 @@ class GaussianGridHeatKernel:
 
     def __init__(self, grid, t: float):
         if not (np.isfinite(t) and t > 0):
-            raise ValueError(f"heat time t must be positive and finite, got {t}")
+            raise InputError(f"heat time t must be positive and finite, got {t}", field="t")
         self.t = float(t)
         self.shape = tuple(grid.shape)
         self.n = int(np.prod(self.shape))

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from solvers.domains import Grid
+from solvers.domains import Graph, Grid
+from solvers.errors import InputError
 from solvers.kernels import (
     GaussianGridHeatKernel,
     ImplicitEulerHeatKernel,
@@ -129,9 +130,16 @@ def test_implicit_euler_matches_dense_inverse_and_substeps():
 
 @pytest.mark.parametrize(("t", "substeps"), [(0.0, 1), (-1.0, 1), (np.nan, 1), (1.0, 0)])
 def test_invalid_heat_times_are_refused(t, substeps):
+    field = "t" if substeps == 1 else "substeps"
     lap = sp.csr_matrix(np.array([[1.0, -1.0], [-1.0, 1.0]]))
-    with pytest.raises(ValueError):
+    with pytest.raises(InputError) as info:
         ImplicitEulerHeatKernel(np.ones(2), lap, t, substeps)
+    assert info.value.field == field
+    graph = Graph(2, [[0, 1]])
+    with pytest.raises(InputError) as info:
+        graph.heat_kernel(t, substeps=substeps)
+    assert info.value.field == field
     if substeps == 1:
-        with pytest.raises(ValueError):
+        with pytest.raises(InputError) as info:
             GaussianGridHeatKernel(Grid((4,)), t)
+        assert info.value.field == "t"
