@@ -414,6 +414,13 @@ def test_missing_file_and_extension(tmp_path):
     assert load_mesh(path, file_type="obj").n == 3
 
 
+def test_text_file_objects_and_bad_sources():
+    assert load_mesh(io.StringIO(_TRI + "f 1 2 3\n"), file_type="obj").n_faces == 1
+    with pytest.raises(MeshFormatError) as info:
+        load_mesh(12345, file_type="obj")
+    assert info.value.field == "file"
+
+
 def test_latin1_obj_comment_is_read():
     data = ("# caf\u00e9 mod\u00e8le\n" + _TRI + "f 1 2 3\n").encode("latin-1")
     assert load_mesh(data, file_type="obj").n_faces == 1

@@ -206,8 +206,15 @@ class TriangleMesh(Domain):
                 data = fh.read()
         elif isinstance(source, (bytes, bytearray)):
             data = bytes(source)
-        else:
+        elif hasattr(source, "read"):
             data = source.read()
+            if isinstance(data, str):  # text-mode file object
+                data = data.encode("utf-8")
+        else:
+            raise MeshFormatError(
+                f"expected a path, bytes or a file object, got {type(source).__name__}",
+                field="file",
+            )
         file_type = (file_type or "").lower().lstrip(".")
         if file_type not in MESH_FORMATS:
             raise MeshFormatError(
