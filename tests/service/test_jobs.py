@@ -123,6 +123,30 @@ def test_barycenter_job_matches_solver(client):
     assert report[1]["given_total"] == pytest.approx(4.0)
 
 
+def test_pointwise_distances_job(client, meshes_dir, shared_mesh):
+    from solvers.emd import pointwise_distances
+
+    mesh = shared_mesh("woody.obj")
+    mid = upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
+    job = client.post(f"/v1/domains/{mid}/pointwise-distances", json={"source": 7}).json()
+    assert job["state"] == "succeeded", job
+    result = client.get(f"/v1/jobs/{job['id']}/result").json()
+    d = np.asarray(result["arrays"]["distances"])
+    assert np.allclose(d, pointwise_distances(mesh, 7).distances, rtol=1e-9, atol=1e-12)
+    assert d[7] == pytest.approx(0.0, abs=1e-9) and result["values"]["unreachable"] == 0
+    # On a mesh with several components, other components are unreachable (null in JSON).
+    suz = shared_mesh("suzanne.obj")
+    sid = upload_mesh(client, meshes_dir / "suzanne.obj").json()["id"]
+    job = client.post(f"/v1/domains/{sid}/pointwise-distances", json={"source": 3}).json()
+    assert job["state"] == "succeeded", job
+    result = client.get(f"/v1/jobs/{job['id']}/result").json()
+    other = suz.component_labels != suz.component_labels[3]
+    values = result["arrays"]["distances"]
+    assert all(values[i] is None for i in np.flatnonzero(other))
+    assert all(values[i] is not None for i in np.flatnonzero(~other))
+    assert result["values"]["unreachable"] == int(other.sum())
+
+
 def test_interpolation_job_matches_solver(client):
     from solvers.convolutional import displacement_interpolation
     from solvers.domains import Grid
