@@ -116,7 +116,8 @@ def _bump(view: DomainView, spec: BumpDistribution, field: str) -> np.ndarray:
         adj = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(view.n, view.n))
         d = shortest_path(adj, directed=False, unweighted=True, indices=spec.vertex)
     elif view.points is not None:
-        d = np.linalg.norm(view.points - view.points[spec.vertex], axis=1)
+        diff = view.points - view.points[spec.vertex]
+        d = np.sqrt(np.einsum("ij,ij->i", diff, diff))
     else:
         raise UnsupportedOperation(f"this {view.kind} domain has no coordinates for a bump",
                                    field=field)
