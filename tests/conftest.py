@@ -1,31 +1,14 @@
-"""Shared fixtures: the real test meshes beside the repository (``../shared/meshes``)."""
+"""Shared fixtures: the real test meshes beside the repository (``../shared/meshes``).
+
+Helpers live in ``tests/shared_meshes.py``; import them from there, not from ``conftest``.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import pytest
-
-# CI clones the repository with ``shared/`` beside it, exactly like /work/main and /work/shared.
-MESHES_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
-MESH_FILES = sorted(p.name for p in MESHES_DIR.glob("*.obj"))
-# Meshes below this many vertices are cheap enough for dense or eigen-solver checks.
-SMALL_MESHES = ("woody.obj", "suzanne.obj", "beetle.obj", "spot.obj")
-
-_MESH_CACHE: dict = {}
-
-
-def load_shared_mesh(name: str, **kwargs):
-    """Load ``../shared/meshes/<name>`` once per test session (keyed by name and options).
-
-    Tests must not mutate the returned mesh; heat kernels it caches are shared.
-    """
-    from solvers.domains import load_mesh
-
-    key = (name, tuple(sorted(kwargs.items())))
-    if key not in _MESH_CACHE:
-        _MESH_CACHE[key] = load_mesh(MESHES_DIR / name, **kwargs)
-    return _MESH_CACHE[key]
+from shared_meshes import MESHES_DIR, load_shared_mesh
 
 
 @pytest.fixture(scope="session")

@@ -6,7 +6,7 @@ import numpy as np
 import ot
 import potpourri3d as pp3d
 import pytest
-from conftest import load_shared_mesh
+from shared_meshes import load_shared_mesh
 
 from solvers import Grid
 from solvers.convolutional import (

@@ -15,8 +15,8 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import trimesh
-from conftest import MESH_FILES, MESHES_DIR, load_shared_mesh
 from scipy.sparse.csgraph import connected_components
+from shared_meshes import MESH_FILES, MESHES_DIR, load_shared_mesh
 
 from solvers.domains import TriangleMesh, domain_from_arrays, load_mesh
 from solvers.errors import DomainError, InputError, MeshFormatError

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import load_shared_mesh
+from shared_meshes import load_shared_mesh
 
 from solvers.domains import PointCloud, domain_from_arrays
 from solvers.errors import DomainError
