@@ -68,6 +68,15 @@ class DomainView:
     points: np.ndarray | None = None
     edges: np.ndarray | None = None
     n_faces: int | None = None
+    memo: dict = field(default_factory=dict)  # lives on the source object: built once
+
+    def point_tree(self):
+        """k-d tree of ``points`` (bumps touch only the points within their radius)."""
+        if "tree" not in self.memo:
+            from scipy.spatial import cKDTree
+
+            self.memo["tree"] = cKDTree(self.points)
+        return self.memo["tree"]
 
     @property
     def n_components(self) -> int:
@@ -116,8 +125,13 @@ def _bump(view: DomainView, spec: BumpDistribution, field: str) -> np.ndarray:
         adj = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(view.n, view.n))
         d = shortest_path(adj, directed=False, unweighted=True, indices=spec.vertex)
     elif view.points is not None:
-        diff = view.points - view.points[spec.vertex]
+        center = view.points[spec.vertex]
+        near = np.asarray(view.point_tree().query_ball_point(center, spec.radius), dtype=np.int64)
+        diff = view.points[near] - center
+        values = np.zeros(view.n)
         d = np.sqrt(np.einsum("ij,ij->i", diff, diff))
+        values[near] = view.areas[near] * np.clip(1.0 - d / spec.radius, 0.0, None)
+        return values
     else:
         raise UnsupportedOperation(f"this {view.kind} domain has no coordinates for a bump",
                                    field=field)
@@ -189,10 +203,11 @@ def check_same_components(view: DomainView, masses: dict[str, np.ndarray]) -> No
 def view_of_domain(domain) -> DomainView:
     from service.store import domain_points
 
+    memo = domain.__dict__.setdefault("_service_memo", {})
     return DomainView(kind=domain.kind, n=int(domain.n), areas=np.asarray(domain.areas),
                       component_labels=np.asarray(domain.component_labels),
                       points=domain_points(domain), edges=getattr(domain, "edges", None),
-                      n_faces=getattr(domain, "n_faces", None))
+                      n_faces=getattr(domain, "n_faces", None), memo=memo)
 
 
 def view_of_info(info) -> DomainView:
@@ -200,7 +215,7 @@ def view_of_info(info) -> DomainView:
     n_faces = info.meta["summary"].get("faces")
     return DomainView(kind=info.kind, n=info.n, areas=info.areas,
                       component_labels=info.component_labels, points=info.points,
-                      edges=edges, n_faces=n_faces)
+                      edges=edges, n_faces=n_faces, memo=info.__dict__.setdefault("_memo", {}))
 
 
 def default_gamma(domain_or_view) -> float:
