@@ -155,7 +155,11 @@ def voxelize(mesh_or_path, resolution: int = 64, *, padding: int = 2,
     grid, origin, scale = frame
     cell = scale * grid.spacing[0]  # input units per cell (isotropic frame)
     in_cells = trimesh.Trimesh((mesh.vertices - origin) / cell, mesh.faces, process=False)
-    voxels = trimesh.voxel.creation.voxelize_subdivide(in_cells, pitch=1.0, max_iter=None)
+    # Subdivide until edges are below half a cell; trimesh's own estimate (max_iter=None)
+    # can fall one short, so allow a few more halvings.
+    longest = float(np.max(in_cells.edges_unique_length, initial=0.0))
+    halvings = max(int(np.ceil(np.log2(max(longest, 1e-12) / 0.5))), 0) + 3
+    voxels = trimesh.voxel.creation.voxelize_subdivide(in_cells, pitch=1.0, max_iter=halvings)
     filled = voxels.fill()
     index = np.rint(np.asarray(filled.points)).astype(np.int64)
     inside = np.all((index >= 0) & (index < np.asarray(grid.shape)), axis=1)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from scipy import ndimage
 
 from solvers import Grid, InputError
 from solvers.shapes import iso_surface, shape_interpolation, voxelize
@@ -126,3 +127,22 @@ def test_invalid_inputs_are_refused(ball):
     with pytest.raises(InputError) as err:
         voxelize(ball, resolution=4)
     assert err.value.field == "resolution"
+
+
+def test_real_mesh_interpolated_with_itself(shared_mesh):
+    """spot.obj (welded, closed): the self-barycenter's surface encloses the mesh volume, and
+    its super-level set lies inside the voxelized input and covers the input's eroded core."""
+    spot = shared_mesh("spot.obj")
+    exact = trimesh.Trimesh(spot.vertices * spot.length_scale, spot.faces, process=False)
+    assert exact.is_watertight
+    result = shape_interpolation([spot, spot], gamma=GAMMA, resolution=32)
+    assert result.converged
+    mesh = assert_closed_surface(result)
+    np.testing.assert_allclose(mesh.volume, exact.volume, rtol=1e-3)
+    vox = voxelize(spot, frame=(result.grid, result.origin, result.scale))
+    inside = result.volume >= result.level
+    core = ndimage.binary_erosion(vox.indicator)  # surface voxels stick out of the mesh
+    assert (inside & vox.indicator).sum() >= 0.99 * inside.sum()
+    assert (inside & core).sum() >= 0.98 * core.sum()
+    np.testing.assert_allclose(mesh.center_mass, exact.center_mass,
+                               atol=0.5 * result.scale * result.grid.spacing[0])
