@@ -30,7 +30,7 @@ class Runtime:
         self.huey = make_huey(settings)
         self.runner = JobRunner(settings, self.store, self.repo, self.cache)
         self.task = register_task(self.huey, self.runner.run)
-        self.reaper = Reaper(settings, self.repo, self.enqueue)
+        self.reaper = Reaper(settings, self.repo, self.enqueue, self.store)
         self._stop = threading.Event()
         self._published = threading.Event()
         self._presence: threading.Thread | None = None

@@ -257,6 +257,28 @@ class Store:
         except FileNotFoundError:
             raise NotFound(f"no result stored for job {job_id!r}", field="job_id") from None
 
+    # -- completion markers (cheap to poll; the job table stays the source of truth) ----
+    def mark_done(self, job_id: str) -> None:
+        """Touch ``results/<job>.done`` once the job's final state is committed."""
+        try:
+            (self.result_dir / f"{job_id}.done").touch()
+        except OSError:
+            pass  # only an optimization for waiting clients
+
+    def is_done(self, job_id: str) -> bool:
+        return (self.result_dir / f"{job_id}.done").exists()
+
+    def prune_done_markers(self, older_than: float) -> int:
+        cutoff, removed = time.time() - older_than, 0
+        for path in self.result_dir.glob("*.done"):
+            try:
+                if path.stat().st_mtime < cutoff:
+                    path.unlink()
+                    removed += 1
+            except OSError:
+                continue
+        return removed
+
     def get_result_arrays(self, job_id: str) -> dict[str, np.ndarray]:
         path = self.result_dir / f"{job_id}.npz"
         if not path.exists():

@@ -22,15 +22,28 @@ WAIT_DESCRIPTION = ("seconds to wait for the job to finish: if it ends in time t
                     "is returned with status 200, otherwise 202 with the job as it is")
 
 
+MARKER_POLL = 0.002  # seconds between checks of the job's completion marker (a stat)
+TABLE_POLL = 0.25  # seconds between job-table reads while waiting (markers can be missed)
+
+
 async def wait_for(svc, job_id: str, seconds: float):
-    """Poll the job table until the job is terminal or ``seconds`` elapsed."""
+    """Wait until the job is terminal or ``seconds`` elapsed.
+
+    Workers touch a completion marker in shared storage after committing the final state;
+    checking it is a ``stat``, so waiting costs almost nothing. The job table is read when
+    the marker appears, and every ``TABLE_POLL`` seconds in case a marker is missing (a job
+    failed by the reaper, or storage that caches file metadata)."""
     deadline = time.monotonic() + seconds
-    delay = 0.002
     job = await run_in_threadpool(svc.get, job_id)
-    while job.state not in TERMINAL and time.monotonic() < deadline:
-        await asyncio.sleep(min(delay, max(deadline - time.monotonic(), 0)))
-        delay = min(delay * 1.5, 0.01)
-        job = await run_in_threadpool(svc.get, job_id)
+    last_read = time.monotonic()
+    while job.state not in TERMINAL:
+        now = time.monotonic()
+        if now >= deadline:
+            break
+        await asyncio.sleep(min(MARKER_POLL, deadline - now))
+        if svc.rt.store.is_done(job_id) or time.monotonic() - last_read >= TABLE_POLL:
+            job = await run_in_threadpool(svc.get, job_id)
+            last_read = time.monotonic()
     return job
 
 

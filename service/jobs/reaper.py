@@ -17,9 +17,14 @@ from service.settings import Settings
 log = logging.getLogger("otgeo.reaper")
 
 
+DONE_MARKER_TTL = 3600.0  # seconds a completion marker is kept (waiting clients only)
+
+
 class Reaper:
-    def __init__(self, settings: Settings, repo: JobRepository, enqueue: Callable[[str], None]):
-        self.settings, self.repo, self.enqueue = settings, repo, enqueue
+    def __init__(self, settings: Settings, repo: JobRepository, enqueue: Callable[[str], None],
+                 store=None):
+        self.settings, self.repo, self.enqueue, self.store = settings, repo, enqueue, store
+        self._last_prune = 0.0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -41,6 +46,9 @@ class Reaper:
             if self.repo.touch_queued(job):
                 resent.append(job.id)
                 self._send(job.id)
+        if self.store is not None and now - self._last_prune > DONE_MARKER_TTL / 4:
+            self._last_prune = now
+            self.store.prune_done_markers(DONE_MARKER_TTL)
         if requeued or failed or resent:
             log.warning("reaper: requeued %s, failed %s, re-sent %s", requeued, failed, resent)
         return {"requeued": requeued, "failed": failed, "resent": resent}

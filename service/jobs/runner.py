@@ -144,6 +144,8 @@ class JobRunner:
         if not self.repo.finish(job_id, attempt, state, error=error, result_location=location,
                                 started_at=job.started_at, **progress):
             log.warning("job %s attempt %d lost ownership; result discarded", job_id, attempt)
+        else:
+            self.store.mark_done(job_id)
         self.current = None
         self.jobs_done += 1
         log.info("job %s finished: %s", job_id, state)
