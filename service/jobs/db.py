@@ -74,6 +74,9 @@ class WorkerRow(Base):
     cache: Mapped[dict] = mapped_column(JSON)
 
 
+JOBS = JobRow.__table__
+
+
 def worker_identity() -> str:
     return f"{socket.gethostname()}:{os.getpid()}"
 
@@ -131,41 +134,47 @@ class JobRepository:
             return list(s.scalars(q))
 
     def _update(self, where, **values) -> int:
-        with self.Session.begin() as s:
-            return s.execute(update(JobRow).where(*where).values(**values)).rowcount
+        """A conditional UPDATE (Core statement: no ORM bookkeeping); returns the row count."""
+        with self.engine.begin() as conn:
+            return conn.execute(update(JOBS).where(*where).values(**values)).rowcount
 
     # -- worker side -----------------------------------------------------
     def claim(self, job_id: str, worker: str) -> Claim | None:
-        """Move a queued job to running for this worker; None if someone else has it."""
+        """Move a queued job to running for this worker; None if someone else has it.
+
+        One conditional ``UPDATE ... RETURNING`` where the database supports it."""
         now = time.time()
-        with self.Session.begin() as s:
-            job = s.get(JobRow, job_id)
-            if job is None or job.state != QUEUED:
+        values = {"state": RUNNING, "attempts": JOBS.c.attempts + 1, "worker": worker,
+                  "started_at": now, "heartbeat_at": now}
+        where = (JOBS.c.id == job_id, JOBS.c.state == QUEUED)
+        if self.engine.dialect.update_returning:
+            with self.engine.begin() as conn:
+                row = conn.execute(update(JOBS).where(*where).values(**values)
+                                   .returning(*JOBS.c)).mappings().first()
+            if row is None:
                 return None
-            attempt = job.attempts + 1
-            won = s.execute(
-                update(JobRow)
-                .where(JobRow.id == job_id, JobRow.state == QUEUED,
-                       JobRow.attempts == job.attempts)
-                .values(state=RUNNING, attempts=attempt, worker=worker, started_at=now,
-                        heartbeat_at=now)
-            ).rowcount
-        if not won:
+            return Claim(int(row["attempts"]), JobRow(**row))
+        job = self.get(job_id)  # pragma: no cover - databases without RETURNING
+        if job is None or job.state != QUEUED:
             return None
-        job.state, job.attempts, job.worker = RUNNING, attempt, worker
-        job.started_at = job.heartbeat_at = now
-        return Claim(attempt, job)
+        if not self._update(where + (JOBS.c.attempts == job.attempts,), **values):
+            return None
+        return Claim(job.attempts + 1, self.get(job_id))
 
     def heartbeat(self, job_id: str, attempt: int, **progress) -> tuple[bool, bool]:
         """Refresh the heartbeat (and progress); returns (still owned, cancel requested)."""
-        owned = self._update(
-            (JobRow.id == job_id, JobRow.state == RUNNING, JobRow.attempts == attempt),
-            heartbeat_at=time.time(), **progress)
-        if not owned:
+        where = (JOBS.c.id == job_id, JOBS.c.state == RUNNING, JOBS.c.attempts == attempt)
+        values = {"heartbeat_at": time.time(), **progress}
+        if self.engine.dialect.update_returning:
+            with self.engine.begin() as conn:
+                row = conn.execute(update(JOBS).where(*where).values(**values)
+                                   .returning(JOBS.c.cancel_requested)).first()
+            return (False, True) if row is None else (True, bool(row[0]))
+        if not self._update(where, **values):  # pragma: no cover
             return False, True
-        with self.Session() as s:
+        with self.Session() as s:  # pragma: no cover
             cancel = s.scalar(select(JobRow.cancel_requested).where(JobRow.id == job_id))
-        return True, bool(cancel)
+        return True, bool(cancel)  # pragma: no cover
 
     def finish(self, job_id: str, attempt: int, state: str, *, error: dict | None = None,
                result_location: str | None = None, started_at: float | None = None,

@@ -34,7 +34,7 @@ class _Heartbeat:
         self.progress: dict = {}
         self._stop = threading.Event()
         self._lock = threading.Lock()
-        self._last_write = 0.0
+        self._last_write = time.monotonic()  # the claim just wrote a heartbeat
         self._thread = threading.Thread(target=self._loop, daemon=True,
                                         name=f"heartbeat-{job_id}")
 
