@@ -288,6 +288,23 @@ def test_time_limit(make_client, loop_op):
     assert 0.2 <= done["duration_seconds"] < 5
 
 
+def test_job_on_a_domain_deleted_meanwhile_fails_cleanly(make_client, loop_op):
+    client = make_client(queue="sqlite")
+    rt = client.app.state.runtime
+    gid = _grid(client)
+    done = _submit(client, gid, iterations=2)
+    rt.runner.run(done.id)
+    queued = _submit(client, gid, iterations=2)
+    assert client.delete(f"/v1/domains/{gid}").status_code == 204
+    rt.cache.discard(("domain", gid))  # a worker that never loaded it
+    rt.runner.run(queued.id)
+    failed = client.get(f"/v1/jobs/{queued.id}").json()
+    assert failed["state"] == "failed"
+    assert failed["error"]["code"] == "not_found" and failed["error"]["field"] == "domain_id"
+    # Earlier results are kept.
+    assert client.get(f"/v1/jobs/{done.id}/result").json()["values"] == {"iterations": 2}
+
+
 def test_finished_job_cannot_be_cancelled(client, loop_op):
     job = _submit(client, _grid(client), iterations=2)
     assert client.get(f"/v1/jobs/{job.id}").json()["state"] == "succeeded"
