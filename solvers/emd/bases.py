@@ -154,7 +154,7 @@ class SpectralBasis(_Basis):
         self.fields = np.cross(ops.normals[:, :, None], grads, axis=1)  # (F, 3, k)
 
     def _stream_field(self, c):
-        return self.fields @ c
+        return np.einsum("fck,k->fc", self.fields, c)
 
     def _stream_adjoint(self, field):
         weighted = self.ops.face_areas[:, None] * field

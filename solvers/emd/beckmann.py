@@ -129,6 +129,12 @@ def make_basis(ops: EMDOperators, basis: str, k: int | None, harmonic: bool) -> 
     raise InputError(f"basis must be one of {BASES}, got {basis!r}", field="basis")
 
 
+def _dot(x: np.ndarray, y: np.ndarray) -> float:
+    """Vector dot product without BLAS: threaded BLAS calls on vectors stall badly on
+    oversubscribed machines (tens of ms each), and the iterations make many."""
+    return float(np.einsum("i,i->", x, y))
+
+
 def _face_norms(field: np.ndarray) -> np.ndarray:
     return np.sqrt(np.einsum("fc,fc->f", field, field))
 
@@ -142,10 +148,10 @@ def _shrink(y: np.ndarray, threshold) -> np.ndarray:
 
 def _cost(ops, field, weights) -> float:
     if weights is None:
-        return float(ops.face_areas @ _face_norms(field))
+        return _dot(ops.face_areas, _face_norms(field))
     if weights.ndim == 1:
-        return float((ops.face_areas * weights) @ _face_norms(field))
-    return float(ops.face_areas @ _face_norms(_apply_metric(weights, field)))
+        return _dot(ops.face_areas * weights, _face_norms(field))
+    return _dot(ops.face_areas, _face_norms(_apply_metric(weights, field)))
 
 
 def _potential(ops, dual_field, m0, m1, weights) -> tuple[np.ndarray, float]:
@@ -246,7 +252,7 @@ def _admm(ops, basis, v, b, weights, tol, max_iter, beta, monitor):
     metric = weights if matrix else None
 
     def wnorm(x):
-        return float(np.sqrt(area @ np.einsum("fc,fc->f", x, x)))
+        return float(np.sqrt(np.einsum("f,fc,fc->", area, x, x)))
 
     if basis is None:
         def update(target):  # project target onto {D J = b}: J = y + ∇μ, L μ = D y - b
@@ -267,7 +273,7 @@ def _admm(ops, basis, v, b, weights, tol, max_iter, beta, monitor):
     z = mj.copy()
     lam = np.zeros_like(v)
     if beta is None:
-        beta = 1.0 / max(float(area @ _face_norms(mj)), 1e-300)
+        beta = 1.0 / max(_dot(area, _face_norms(mj)), 1e-300)
     flow = v
     r = s = np.inf
     it = 0

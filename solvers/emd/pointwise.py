@@ -120,10 +120,11 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
         chunk = targets[start:start + block]
         diff = g_source[:, :, None] - _green_gradients(ops, chunk)  # (F, 3, B)
         if basis is None:
-            out[start:start + len(chunk)] = area @ np.sqrt(np.einsum("fcb,fcb->fb", diff, diff))
+            out[start:start + len(chunk)] = np.einsum(
+                "f,fb->b", area, np.sqrt(np.einsum("fcb,fcb->fb", diff, diff)))
             continue
         flow = diff
-        cost = area @ np.sqrt(np.einsum("fcb,fcb->fb", flow, flow))
+        cost = np.einsum("f,fb->b", area, np.sqrt(np.einsum("fcb,fcb->fb", flow, flow)))
         for it in range(1, max_iter + 1):
             norms = np.sqrt(np.einsum("fcb,fcb->fb", flow, flow))
             floor = np.maximum(1e-9 * norms.max(axis=0), 1e-12)
@@ -132,7 +133,7 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
             rhs = -np.einsum("fb,fck,fcb->bk", omega, fields, diff)
             coef = np.linalg.solve(gram, rhs[:, :, None])[:, :, 0]  # (B, m)
             flow = diff + np.einsum("fck,bk->fcb", fields, coef)
-            new = area @ np.sqrt(np.einsum("fcb,fcb->fb", flow, flow))
+            new = np.einsum("f,fb->b", area, np.sqrt(np.einsum("fcb,fcb->fb", flow, flow)))
             change = float(np.max(np.abs(cost - new) / np.maximum(new, 1e-300)))
             cost = new
             max_its = max(max_its, it)
