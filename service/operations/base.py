@@ -115,6 +115,7 @@ class Operation:
 
 # -- distributions -------------------------------------------------------------
 def _bump(view: DomainView, spec: BumpDistribution, field: str) -> np.ndarray:
+    """Masses ``a_j max(0, 1 - d_j / r)`` around ``spec.vertex`` (hops on graphs)."""
     if spec.vertex >= view.n:
         raise InvalidInput(f"{field}.vertex {spec.vertex} out of range [0, {view.n - 1}]",
                            field=f"{field}.vertex")
@@ -123,20 +124,20 @@ def _bump(view: DomainView, spec: BumpDistribution, field: str) -> np.ndarray:
 
         e = view.edges if view.edges is not None else np.zeros((0, 2), dtype=np.int64)
         adj = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(view.n, view.n))
-        d = shortest_path(adj, directed=False, unweighted=True, indices=spec.vertex)
+        hops = shortest_path(adj, directed=False, unweighted=True, indices=spec.vertex)
+        near = np.flatnonzero(hops <= spec.radius)
+        d = hops[near]
     elif view.points is not None:
         center = view.points[spec.vertex]
         near = np.asarray(view.point_tree().query_ball_point(center, spec.radius), dtype=np.int64)
         diff = view.points[near] - center
-        values = np.zeros(view.n)
         d = np.sqrt(np.einsum("ij,ij->i", diff, diff))
-        values[near] = view.areas[near] * np.clip(1.0 - d / spec.radius, 0.0, None)
-        return values
     else:
         raise UnsupportedOperation(f"this {view.kind} domain has no coordinates for a bump",
                                    field=field)
-    weight = np.clip(1.0 - d / spec.radius, 0.0, None)
-    return view.areas * weight
+    values = np.zeros(view.n)
+    values[near] = view.areas[near] * np.clip(1.0 - d / spec.radius, 0.0, None)
+    return values
 
 
 def resolve_distribution(view: DomainView, spec, field: str, input_kind: str = "masses"
