@@ -209,7 +209,7 @@ def write_report(results, reg, repeats, path: Path):
         "plain one; a convolutional barycenter iteration is dominated by these applications.",
         "POT's log convolution materializes an n×n×n array per image (1 GB at 512²), so it is",
         "only run up to `--pot-log-max`. One row block per axis means the log-domain product",
-        "is a single max-shifted BLAS product per axis (exact since D²/4t = 250 <= 500).",
+        "is a single max-shifted BLAS product per axis (exact since D²/4t = 250 <= 650).",
         "",
         "On a machine shared with other jobs (load above the core count), two-thread BLAS",
         "timings are erratic: a gemm waits at its barrier for a descheduled worker thread, which",

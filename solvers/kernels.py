@@ -102,8 +102,9 @@ class ImplicitEulerHeatKernel:
 
 
 # Largest log-range (natural units) a stabilized block of kernel rows may span; see
-# GaussianGridHeatKernel.log_apply.  e^-500 stays far above float64's underflow (e^-708).
-_LOG_SPREAD = 500.0
+# _log_contract.  Every row sum is then >= e^-650 ~ 5e-283, while each term's underflow
+# or subnormal rounding errs by <= 2^-1074 ~ 5e-324: n such errors stay ~1e-36 relative.
+_LOG_SPREAD = 650.0
 
 
 def _stabilized_row_blocks(log_k: np.ndarray, spread: float = _LOG_SPREAD) -> list[tuple]:
@@ -196,8 +197,8 @@ class GaussianGridHeatKernel:
     ``n·eps``, no underflow at any ``t``) at nearly the cost of ``apply``:
     along each axis, rows of the kernel are grouped into blocks whose
     log-kernel spread is at most ``_LOG_SPREAD`` (one block when
-    :math:`D^2/4t \le 500`, ``D`` the axis length, e.g. all of ``[0,1]`` for
-    :math:`\gamma \ge 0.004`), and each block is one max-shifted BLAS product
+    :math:`D^2/4t \le 650`, ``D`` the axis length, e.g. all of ``[0,1]`` for
+    :math:`\gamma = 4t \ge 1/650`), and each block is one max-shifted BLAS product
     (:func:`_log_contract`).  :meth:`log_apply_exact` is the straightforward
     nested log-sum-exp, kept as the reference.
     """
