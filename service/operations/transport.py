@@ -6,7 +6,7 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import BaseModel, ConfigDict, Field
 
 from service.errors import InvalidInput
 from service.operations.base import (
@@ -67,6 +67,21 @@ class InterpolationRequest(SinkhornOptions):
     times: list[float] = Field(min_length=1, max_length=64, description="in [0, 1]")
     sharpen: bool = Field(False, description="entropic sharpening of each frame")
     debiased: bool = False
+
+
+class FixedNode(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    node: int = Field(ge=0, description="graph node whose distribution is given")
+    distribution: Distribution
+
+
+class PropagationRequest(SinkhornOptions):
+    n_nodes: int = Field(ge=1, le=10_000, description="nodes of the propagation graph (each "
+                         "carries one distribution over the domain)")
+    edges: list[tuple[int, int]] = Field(description="(m, 2) node pairs")
+    edge_weights: list[float] | None = Field(None, description="(m,) positive weights")
+    fixed: list[FixedNode] = Field(min_length=1, description="nodes with known distributions "
+                                   "(at least one per connected piece of the graph)")
 
 
 class PointwiseDistanceRequest(OperationRequest):
@@ -205,6 +220,48 @@ def run_interpolation(domain, req: InterpolationRequest, progress, should_cancel
                                             "frames": list(req.times), "color": "density"})
 
 
+# -- propagation on a graph of distributions (thesis Alg. 4) -----------------------------
+def _propagation_inputs(view: DomainView, req: PropagationRequest):
+    e = np.asarray(req.edges, dtype=np.int64).reshape(-1, 2)
+    if len(e) and (e.min() < 0 or e.max() >= req.n_nodes):
+        raise InvalidInput(f"edge endpoints must lie in [0, {req.n_nodes - 1}]", field="edges")
+    if req.edge_weights is not None and len(req.edge_weights) != len(e):
+        raise InvalidInput(f"edge_weights must have one value per edge ({len(e)})",
+                           field="edge_weights")
+    specs, seen = {}, set()
+    for i, item in enumerate(req.fixed):
+        if item.node >= req.n_nodes:
+            raise InvalidInput(f"fixed[{i}].node {item.node} out of range "
+                               f"[0, {req.n_nodes - 1}]", field=f"fixed[{i}].node")
+        if item.node in seen:
+            raise InvalidInput(f"node {item.node} is fixed twice", field=f"fixed[{i}].node")
+        seen.add(item.node)
+        specs[f"fixed[{i}].distribution"] = item.distribution
+    masses, reports = resolve_all(view, specs, req.input)
+    check_same_components(view, masses)
+    fixed = {item.node: m for item, m in zip(req.fixed, masses.values(), strict=True)}
+    return e, fixed, reports
+
+
+def _validate_propagation(view, req) -> list[dict]:
+    return _propagation_inputs(view, req)[2]
+
+
+def run_propagation(domain, req: PropagationRequest, progress, should_cancel
+                    ) -> OperationOutput:
+    edges, fixed, reports = _propagation_inputs(view_of_domain(domain), req)
+    propagate = solver("convolutional", "wasserstein_propagation")
+    kwargs = _sinkhorn_kwargs(domain, req, progress, should_cancel)
+    res = propagate(domain, req.n_nodes, edges, fixed, edge_weights=req.edge_weights, **kwargs)
+    m = np.asarray(res.masses, dtype=np.float64).reshape(domain.n, req.n_nodes)
+    values = {"gamma": kwargs["gamma"], **_convergence(res),
+              "free_nodes": np.asarray(res.free_nodes).tolist(), "normalization": reports}
+    arrays = {"masses": m, "density": m / np.asarray(domain.areas)[:, None]}
+    return OperationOutput(values, arrays, {"fields": ["masses", "density"],
+                                            "frames": list(range(req.n_nodes)),
+                                            "color": "density"})
+
+
 # -- W1 on meshes ---------------------------------------------------------------
 def _validate_pointwise(view, req: PointwiseDistanceRequest) -> list[dict]:
     if req.source >= view.n:
@@ -259,6 +316,10 @@ OPERATIONS = [
     Operation("interpolations", "createInterpolationJob",
               "Displacement interpolation between two distributions at given times",
               InterpolationRequest, run_interpolation, _validate_interpolation),
+    Operation("propagations", "createPropagationJob",
+              "Wasserstein propagation: distributions at the free nodes of a graph from the "
+              "fixed ones (thesis Alg. 4)", PropagationRequest, run_propagation,
+              _validate_propagation),
     Operation("pointwise-distances", "createPointwiseDistanceJob",
               "Distances from a source vertex to every vertex (W1 between Diracs)",
               PointwiseDistanceRequest, run_pointwise, _validate_pointwise, MESH),

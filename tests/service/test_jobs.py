@@ -174,6 +174,29 @@ def test_interpolation_job_matches_solver(client):
     assert np.allclose(means[:, 1], 0.5 * (means[:, 0] + means[:, 2]), atol=0.02)
 
 
+def test_propagation_job_matches_solver(client):
+    from solvers.convolutional import wasserstein_propagation
+    from solvers.domains import Grid
+
+    grid = Grid((20, 20))
+    gid = _grid(client, (20, 20))
+    ends = {0: {"indices": [0], "masses": [1.0]}, 2: {"indices": [399], "masses": [1.0]}}
+    body = {"n_nodes": 3, "edges": [[0, 1], [1, 2]], "gamma": 0.01,
+            "fixed": [{"node": k, "distribution": v} for k, v in ends.items()]}
+    job = client.post(f"/v1/domains/{gid}/propagations?wait=20", json=body).json()
+    assert job["state"] == "succeeded", job
+    result = client.get(f"/v1/jobs/{job['id']}/result").json()
+    m = np.asarray(result["arrays"]["masses"])
+    direct = wasserstein_propagation(grid, 3, [[0, 1], [1, 2]],
+                                     {0: np.eye(400)[0], 2: np.eye(400)[399]}, gamma=0.01)
+    assert np.allclose(m, direct.masses, rtol=1e-9, atol=1e-15)
+    assert result["values"]["free_nodes"] == [1]
+    # The free node sits halfway between the two corners.
+    assert np.allclose(grid.points.T @ m[:, 1], [0.5, 0.5], atol=1e-6)
+    assert_error(client.post(f"/v1/domains/{gid}/propagations",
+                             json={**body, "fixed": body["fixed"] * 2}), 422, "fixed[2].node")
+
+
 @pytest.mark.parametrize("method", ["sinkhorn", "debiased"])
 def test_distance_job_matches_solver(client, meshes_dir, shared_mesh, method):
     from solvers.convolutional import wasserstein_distance

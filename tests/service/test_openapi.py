@@ -12,7 +12,7 @@ SPEC_PATH = Path(__file__).resolve().parents[2] / "openapi" / "openapi.json"
 EXPECTED_IDS = {
     "createDomain", "listDomains", "getDomain", "deleteDomain",
     "createDistanceJob", "createBarycenterJob", "createInterpolationJob",
-    "createPointwiseDistanceJob", "createFlowJob",
+    "createPointwiseDistanceJob", "createFlowJob", "createPropagationJob",
     "listJobs", "getJob", "cancelJob", "getJobResult", "getJobResultGlb", "streamJobEvents",
     "health", "getMetrics",
 }
