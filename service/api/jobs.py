@@ -52,7 +52,8 @@ def get_job_result(job_id: str, svc: JobSvc,
 
 @router.get("/{job_id}/result.glb", operation_id="getJobResultGlb",
             response_class=Response,
-            responses={200: {"content": {"model/gltf-binary": {}},
+            responses={200: {"content": {"model/gltf-binary": {
+                                 "schema": {"type": "string", "format": "binary"}}},
                              "description": "glTF 2.0 binary of the result on its domain"},
                        409: {"model": ErrorResponse, "description": "job not finished"},
                        **responses(401, 404, 422)})
