@@ -258,3 +258,19 @@ def test_interpolation_and_propagation_agree(woody):
                                      edge_kernels={0: (np.ones(mesh.n), phi)}, gamma=0.01)
     assert scaled.converged
     assert (scaled.masses[:, 1] @ D[100]) < (prop.masses[:, 1] @ D[100])
+
+
+def test_log_kernel_bands_match_superposition(woody):
+    """Inputs spanning e^-900: banded absorption equals the sum of separately shifted parts."""
+    mesh, _ = woody
+    lk = LogKernel(mesh.heat_kernel(0.01, 4))
+    rng = np.random.default_rng(4)
+    part_a = np.where(np.arange(mesh.n) < 300, rng.random(mesh.n), -np.inf)
+    part_b = np.where(np.arange(mesh.n) >= 300, rng.random(mesh.n) - 900.0, -np.inf)
+    banded = lk(np.maximum(part_a, part_b) + 5000.0)  # + 5000: would overflow unshifted
+    assert lk.band < 900
+    expected = np.logaddexp(lk(part_a), lk(part_b)) + 5000.0
+    assert np.all(np.isfinite(banded))
+    assert np.abs(banded - expected).max() < 1e-9 * np.abs(expected).max()
+    two = lk(np.stack([part_a, part_b], axis=1))  # block of columns, one solve
+    assert np.allclose(two[:, 0], lk(part_a)) and np.allclose(two[:, 1], lk(part_b))

@@ -79,13 +79,12 @@ class LogKernel:
             self.columns += k
             out = np.asarray(self.kernel.log_apply(X2), dtype=np.float64).reshape(self.n, k)
             return _floor(out[:, 0] if vector else out)
-        finite = np.isfinite(X2)
-        with np.errstate(invalid="ignore"):
-            top = np.max(np.where(finite, X2, -np.inf), axis=0)
-            bottom = np.min(np.where(finite, X2, np.inf), axis=0)
+        top = np.max(X2, axis=0)  # -inf entries are fine; all -inf -> empty column
+        bottom = np.min(X2, axis=0, where=np.isfinite(X2), initial=np.inf)
         empty = ~np.isfinite(top)
-        top = np.where(empty, 0.0, top)
-        bottom = np.where(empty, 0.0, bottom)
+        if np.any(empty):
+            top = np.where(empty, 0.0, top)
+            bottom = np.where(empty, 0.0, bottom)
         bands = np.maximum(1, np.ceil((top - bottom) / self.band).astype(np.int64))
         if np.all(bands == 1):
             self.columns += k
