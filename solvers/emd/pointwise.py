@@ -112,7 +112,9 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
         fields = basis.fields
         if basis.n_harmonic:
             fields = np.concatenate([fields, basis.harmonic.transpose(1, 2, 0)], axis=2)
-        local_gram = np.einsum("fck,fcl->fkl", fields, fields)  # (F, m, m)
+        m = fields.shape[2]
+        local_gram = np.einsum("fck,fcl->fkl", fields, fields).reshape(len(fields), m * m)
+        flat_fields = fields.reshape(-1, m)  # (3F, m)
     out = np.empty(len(targets))
     worst_change, max_its, converged = 0.0, 0, True
     for start in range(0, len(targets), block):
@@ -129,10 +131,10 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
             norms = np.sqrt(np.einsum("fcb,fcb->fb", flow, flow))
             floor = np.maximum(1e-9 * norms.max(axis=0), 1e-12)
             omega = area[:, None] / np.maximum(norms, floor)  # (F, B)
-            gram = np.einsum("fb,fkl->bkl", omega, local_gram)
-            rhs = -np.einsum("fb,fck,fcb->bk", omega, fields, diff)
-            coef = np.linalg.solve(gram, rhs[:, :, None])[:, :, 0]  # (B, m)
-            flow = diff + np.einsum("fck,bk->fcb", fields, coef)
+            gram = (omega.T @ local_gram).reshape(len(chunk), m, m)
+            rhs = -(flat_fields.T @ (omega[:, None, :] * diff).reshape(-1, len(chunk)))
+            coef = np.linalg.solve(gram, rhs.T[:, :, None])[:, :, 0]  # (B, m)
+            flow = diff + (flat_fields @ coef.T).reshape(diff.shape)
             new = np.einsum("f,fb->b", area, np.sqrt(np.einsum("fcb,fcb->fb", flow, flow)))
             change = float(np.max(np.abs(cost - new) / np.maximum(new, 1e-300)))
             cost = new
