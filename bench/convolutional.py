@@ -8,12 +8,14 @@
 2. Grid barycenters of 4 inputs at 128^2, 256^2, 512^2 vs POT ``convolutional_barycenter2d``
    (reg 0.004, stopThr 1e-6; plain and ``sinkhorn_log`` where it finishes in time).
 
-Usage: ``.venv/bin/python bench/convolutional.py [--quick]``; writes
-``bench/results/convolutional.md``.
+Usage: ``.venv/bin/python bench/convolutional.py [--quick] [meshes] [grids]`` (both parts
+by default); each part's rows are kept in ``bench/results/convolutional.json`` and
+``bench/results/convolutional.md`` is rendered from all recorded parts.
 """
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from pathlib import Path
@@ -176,9 +178,16 @@ def write(mesh, grids, path):
 
 if __name__ == "__main__":
     quick = "--quick" in sys.argv
-    names = ["spot.obj", "cow.obj"] if quick else [
-        "spot.obj", "cow.obj", "rocker-arm.obj", "stanford-bunny.obj", "nefertiti.obj"]
-    sizes = [128] if quick else [128, 256, 512]
-    mesh = mesh_rows(names, seeds=2 if quick else 5)
-    grids = grid_rows(sizes)
-    write(mesh, grids, ROOT / "bench" / "results" / "convolutional.md")
+    parts = [a for a in sys.argv[1:] if a in ("meshes", "grids")] or ["meshes", "grids"]
+    store = ROOT / "bench" / "results" / "convolutional.json"
+    recorded = json.loads(store.read_text()) if store.exists() else {}
+    if "meshes" in parts:
+        names = ["spot.obj", "cow.obj"] if quick else [
+            "spot.obj", "cow.obj", "rocker-arm.obj", "stanford-bunny.obj", "nefertiti.obj"]
+        recorded["meshes"] = mesh_rows(names, seeds=2 if quick else 5)
+    if "grids" in parts:
+        recorded["grids"] = grid_rows([128] if quick else [128, 256, 512])
+    store.parent.mkdir(parents=True, exist_ok=True)
+    store.write_text(json.dumps(recorded, indent=1))
+    write(recorded.get("meshes", []), recorded.get("grids", []),
+          ROOT / "bench" / "results" / "convolutional.md")

@@ -274,3 +274,14 @@ def test_log_kernel_bands_match_superposition(woody):
     assert np.abs(banded - expected).max() < 1e-9 * np.abs(expected).max()
     two = lk(np.stack([part_a, part_b], axis=1))  # block of columns, one solve
     assert np.allclose(two[:, 0], lk(part_a)) and np.allclose(two[:, 1], lk(part_b))
+
+
+def test_barycenter_over_relaxation_same_fixed_point_fewer_iterations():
+    n, reg = 32, 0.004
+    A = _blobs(n, [(0.25, 0.25, 0.01), (0.75, 0.7, 0.02)]).reshape(2, -1).T
+    grid = Grid((n, n))
+    plain = barycenter(grid, A, [0.3, 0.7], gamma=reg, tol=1e-10, over_relaxation=False)
+    fast = barycenter(grid, A, [0.3, 0.7], gamma=reg, tol=1e-10)
+    assert plain.converged and fast.converged
+    assert fast.iterations < plain.iterations / 2
+    assert np.abs(fast.masses - plain.masses).max() < 1e-9

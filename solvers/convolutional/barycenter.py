@@ -26,6 +26,7 @@ import numpy as np
 from solvers.convolutional.common import (
     LogKernel,
     Monitor,
+    OverRelaxation,
     check_components,
     entropy,
     log_density,
@@ -102,14 +103,15 @@ def sharpen_log(lbar: np.ndarray, areas: np.ndarray, bound: float) -> np.ndarray
 def barycenters_log(logk: LogKernel, areas: np.ndarray, inputs: np.ndarray,
                     weights: np.ndarray, *, tol: float, max_iter: int, monitor: Monitor,
                     entropy_bounds: np.ndarray | None = None, debiased: bool = False,
-                    owners: np.ndarray | None = None):
+                    owners: np.ndarray | None = None, relax: bool = False):
     r"""``B`` barycenters at once from ``C`` input columns.
 
     ``inputs`` ``(n, C)`` masses; ``weights`` ``(C, B)``: column ``c`` enters
     barycenter ``b`` with weight ``weights[c, b]`` (each column of ``weights`` sums
     to 1; a column belongs to one barycenter, ``owners[c]``, default the barycenter
-    where its weight is positive).  Returns ``(log_bar (n, B),
-    iterations, residual, converged)``.
+    where its weight is positive).  ``relax`` over-relaxes both scaling updates
+    (:class:`~solvers.convolutional.common.OverRelaxation`; same fixed point).
+    Returns ``(log_bar (n, B), iterations, residual, converged)``.
     """
     n, C = inputs.shape
     owner = np.argmax(weights > 0, axis=1) if owners is None else np.asarray(owners)
@@ -120,11 +122,20 @@ def barycenters_log(logk: LogKernel, areas: np.ndarray, inputs: np.ndarray,
     lc = np.zeros((n, B))
     lbar = np.zeros((n, B))
     a = areas[:, None]
+    support = np.isfinite(lm)
+    sor = OverRelaxation(enabled=relax)
+    omega = 1.0
+    lw = None
     it = 0
     residual = np.inf
     with np.errstate(over="ignore", under="ignore", invalid="ignore"):
         while True:
-            lw = lm - logk(lv)
+            lkv = logk(lv)
+            target = lm - lkv
+            if lw is None or omega == 1.0:
+                lw = target
+            else:
+                lw = np.where(support, lw + omega * (target - lw), -np.inf)
             lku = logk(lw)
             ld = lv + lku
             if debiased:
@@ -138,13 +149,16 @@ def barycenters_log(logk: LogKernel, areas: np.ndarray, inputs: np.ndarray,
                 for b in range(B):
                     lbar[:, b] = sharpen_log(lbar[:, b], areas, entropy_bounds[b])
             gaps = np.abs(a * (np.exp(ld) - np.exp(lbar[:, owner]))).sum(axis=0)
+            if omega != 1.0:  # the relaxed w update leaves the input marginal inexact
+                gaps = gaps + np.abs(a * np.exp(lw + lkv) - inputs).sum(axis=0)
             residual = float(np.max(np.where(alpha > 0, gaps, 0.0)))
             if not np.isfinite(residual):
                 residual = float("inf")
             monitor(it, residual)
             if residual <= tol or it >= max_iter or not np.isfinite(residual):
                 break
-            lv = lbar[:, owner] - lku
+            omega = sor.update(residual)
+            lv = lv + omega * (lbar[:, owner] - lku - lv)
             it += 1
     return lbar, it, residual, bool(residual <= tol)
 
@@ -178,6 +192,7 @@ def barycenter(
     debiased: bool = False,
     tol: float = 1e-5,
     max_iter: int | None = None,
+    over_relaxation: bool = True,
     progress: Callable[[int, float], None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
 ) -> BarycenterResult:
@@ -201,6 +216,8 @@ def barycenter(
     entropy_bound, sharpen, debiased : see above.
     tol : largest L1 marginal violation over the inputs at which to stop.
     max_iter : iteration cap (default 10000).
+    over_relaxation : adaptive over-relaxation of both scaling updates (same fixed
+        point, typically 3-5x fewer iterations); used without sharpening/debiasing.
     progress, should_cancel : called every iteration.
 
     Returns
@@ -228,7 +245,7 @@ def barycenter(
     lbar, it, res, conv = barycenters_log(
         setup.logk, setup.areas, M, alpha[:, None], tol=setup.tol, max_iter=setup.max_iter,
         monitor=setup.monitor, entropy_bounds=None if bound is None else np.array([bound]),
-        debiased=debiased)
+        debiased=debiased, relax=over_relaxation and bound is None and not debiased)
     masses = masses_from_log(lbar[:, 0], setup.areas)
     return BarycenterResult(masses=masses, iterations=int(it), residual=float(res),
                             converged=conv, entropy=float(entropy(masses, setup.areas)),

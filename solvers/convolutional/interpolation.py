@@ -50,6 +50,7 @@ def displacement_interpolation(
     debiased: bool = False,
     tol: float = 1e-5,
     max_iter: int | None = None,
+    over_relaxation: bool = True,
     progress: Callable[[int, float], None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
 ) -> InterpolationResult:
@@ -62,7 +63,8 @@ def displacement_interpolation(
     Parameters
     ----------
     mu0, mu1 : ``(n,)`` masses; times : sequence of ``s`` in ``[0, 1]``.
-    gamma, t, substeps, tol, max_iter, progress, should_cancel : as :func:`barycenter`.
+    gamma, t, substeps, tol, max_iter, over_relaxation, progress, should_cancel :
+        as :func:`barycenter`.
 
     Returns
     -------
@@ -93,7 +95,8 @@ def displacement_interpolation(
         bounds = np.full(T, float(np.max(entropy(np.stack([m0, m1], axis=1), setup.areas))))
     lbar, it, res, conv = barycenters_log(
         setup.logk, setup.areas, inputs, weights, tol=setup.tol, max_iter=setup.max_iter,
-        monitor=setup.monitor, entropy_bounds=bounds, debiased=debiased, owners=owners)
+        monitor=setup.monitor, entropy_bounds=bounds, debiased=debiased, owners=owners,
+        relax=over_relaxation and not sharpen and not debiased)
     masses = masses_from_log(lbar, setup.areas)
     return InterpolationResult(masses=masses, times=s, iterations=int(it), residual=float(res),
                                converged=conv, gamma=setup.gamma, t=setup.t)
