@@ -226,6 +226,19 @@ class JobRepository:
             state=FAILED, error=error, finished_at=now,
             duration=now - (job.started_at or now)))
 
+    def overdue_running(self, now: float, grace: float) -> list[JobRow]:
+        """Running jobs past their time limit by more than ``grace`` seconds."""
+        with self.Session() as s:
+            return list(s.scalars(select(JobRow).where(
+                JobRow.state == RUNNING, JobRow.started_at + JobRow.time_limit + grace < now)))
+
+    def fail_overdue(self, job: JobRow, error: dict) -> bool:
+        now = time.time()
+        return bool(self._update(
+            (JOBS.c.id == job.id, JOBS.c.state == RUNNING, JOBS.c.attempts == job.attempts),
+            state=FAILED, error=error, cancel_requested=True, finished_at=now,
+            duration=now - (job.started_at or now)))
+
     def stale_queued(self, before: float) -> list[JobRow]:
         with self.Session() as s:
             return list(s.scalars(select(JobRow).where(

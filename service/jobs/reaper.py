@@ -42,6 +42,13 @@ class Reaper:
             elif self.repo.requeue(job, before):
                 requeued.append(job.id)
                 self._send(job.id)
+        # A worker stuck in a step that never checks for cancellation: the job is reported
+        # failed; the worker's late result is refused (it no longer owns the job).
+        for job in self.repo.overdue_running(now, self.settings.stale_after):
+            error = {"code": "time_limit_exceeded", "field": "time_limit",
+                     "message": f"job exceeded its time limit of {job.time_limit:g} s"}
+            if self.repo.fail_overdue(job, error):
+                failed.append(job.id)
         for job in self.repo.stale_queued(now - self.settings.requeue_queued_after):
             if self.repo.touch_queued(job):
                 resent.append(job.id)

@@ -360,6 +360,20 @@ def test_reaper_requeues_stale_jobs_then_fails(make_client, loop_op):
     assert failed["attempts"] == 2
 
 
+def test_reaper_fails_jobs_stuck_past_their_time_limit(make_client, loop_op):
+    client = make_client(queue="sqlite", stale_after=1.0)
+    rt = client.app.state.runtime
+    job = _submit(client, _grid(client), time_limit=5)
+    claim = rt.repo.claim(job.id, "busy-worker")
+    assert rt.reaper.run_once()["failed"] == []  # within its limit
+    rt.repo._update((JobRow.id == job.id,), started_at=time.time() - 10,
+                    heartbeat_at=time.time())  # alive, but 10 s into a 5 s limit
+    assert rt.reaper.run_once()["failed"] == [job.id]
+    failed = client.get(f"/v1/jobs/{job.id}").json()
+    assert failed["state"] == "failed" and failed["error"]["code"] == "time_limit_exceeded"
+    assert not rt.repo.finish(job.id, claim.attempt, "succeeded")  # late result refused
+
+
 def test_fresh_heartbeat_is_not_reaped_and_release_keeps_attempts(make_client, loop_op):
     client = make_client(queue="sqlite", stale_after=60)
     rt = client.app.state.runtime
