@@ -11,29 +11,11 @@ from __future__ import annotations
 
 import numpy as np
 import ot
-import potpourri3d as pp3d
 import pytest
 
 from solvers.domains import Grid
 from solvers.emd import earth_movers_distance, mesh_operators
 from solvers.errors import CancelledError, InputError, UnsupportedDomainError
-
-_GEODESICS: dict = {}
-
-
-def geodesic_lengths(mesh, sources, targets) -> np.ndarray:
-    """Exact polyhedral geodesic lengths (edge-flip shortening), (len(sources), len(targets))."""
-    key = id(mesh)
-    if key not in _GEODESICS:
-        _GEODESICS[key] = pp3d.EdgeFlipGeodesicSolver(mesh.vertices, mesh.faces)
-    solver = _GEODESICS[key]
-    out = np.zeros((len(sources), len(targets)))
-    for i, s in enumerate(sources):
-        for j, t in enumerate(targets):
-            if s != t:
-                path = solver.find_geodesic_path(int(s), int(t))
-                out[i, j] = np.linalg.norm(np.diff(path, axis=0), axis=1).sum()
-    return out
 
 
 def scattered_masses(mesh, rng, count, radius=0.35):
@@ -57,8 +39,13 @@ def woody(shared_mesh):
     return shared_mesh("woody.obj")
 
 
+@pytest.fixture(scope="module")
+def geodesic_lengths(flip_geodesics):
+    return flip_geodesics
+
+
 @pytest.mark.parametrize("seed", [0, 1])
-def test_w1_matches_exact_lp_with_geodesic_costs(woody, seed):
+def test_w1_matches_exact_lp_with_geodesic_costs(woody, seed, geodesic_lengths):
     rng = np.random.default_rng(seed)
     m0, s0 = scattered_masses(woody, rng, 40)
     m1, s1 = scattered_masses(woody, rng, 40)
@@ -73,7 +60,7 @@ def test_w1_matches_exact_lp_with_geodesic_costs(woody, seed):
     assert flow.lower_bound <= flow.value and flow.lower_bound > flow.value * (1 - 1e-2)
 
 
-def test_w1_on_spot_against_lp(shared_mesh):
+def test_w1_on_spot_against_lp(shared_mesh, geodesic_lengths):
     spot = shared_mesh("spot.obj", weld=True)
     rng = np.random.default_rng(5)
     m0, s0 = scattered_masses(spot, rng, 15)
@@ -123,7 +110,7 @@ def test_symmetry_and_triangle_inequality(woody):
         assert ab <= ac + bc + 1e-4 * ab
 
 
-def test_dirac_w1_approaches_geodesic_distance(woody):
+def test_dirac_w1_approaches_geodesic_distance(woody, geodesic_lengths):
     rng = np.random.default_rng(11)
     pairs = rng.choice(woody.n, (3, 2), replace=False)
     for p, q in pairs:
@@ -196,7 +183,7 @@ def test_anisotropic_face_weights(woody):
     assert abs(aniso.value - weis.value) < 2e-3 * aniso.value
 
 
-def test_genus_one_needs_harmonic_fields(shared_mesh):
+def test_genus_one_needs_harmonic_fields(shared_mesh, geodesic_lengths):
     """rocker-arm (genus 1): without the 2 harmonic fields W1 is overestimated."""
     mesh = shared_mesh("rocker-arm.obj")
     ops = mesh_operators(mesh)
