@@ -146,8 +146,22 @@ def test_row_blocks_bound_the_log_spread():
         blocks = _stabilized_row_blocks(log_k)
         assert (len(blocks) == 1) == expect_single
         assert blocks[0][0] == 0 and blocks[-1][1] == 300
-        for (start, stop, shift, scaled), nxt in zip(blocks, blocks[1:] + [None], strict=True):
+        for (start, stop, shift, scaled, width), nxt in zip(blocks, blocks[1:] + [None],
+                                                            strict=True):
             assert nxt is None or nxt[0] == stop
             rows = log_k[start:stop]
-            assert np.max(rows.max(axis=0) - rows.min(axis=0)) <= _LOG_SPREAD
-            np.testing.assert_allclose(np.log(scaled) + shift, rows, atol=1e-9)
+            assert np.max(rows.max(axis=0) - rows.min(axis=0)) == width <= _LOG_SPREAD
+            np.testing.assert_allclose(np.log(scaled) + shift - width, rows, atol=1e-9)
+            # kernel entries in [1, e^width]: products with normal inputs stay normal
+            assert scaled.min() >= 1 - 1e-12 and scaled.max() <= np.exp(width) * (1 + 1e-12)
+
+
+def test_kernel_factors_have_no_subnormal_entries():
+    """Subnormal operands slow BLAS 5-10x; entries below the normal range are flushed to 0."""
+    tiny = np.finfo(float).tiny
+    kernel = Grid((200,)).heat_kernel(1e-4)  # exp(-d^2/4t) reaches e^-2500
+    factor = kernel.factors[0]
+    assert np.any(factor == 0.0)
+    assert not np.any((factor > 0) & (factor < tiny))
+    log_k = kernel.log_factors[0]
+    np.testing.assert_array_equal(factor == 0.0, log_k < np.log(tiny))
