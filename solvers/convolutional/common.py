@@ -174,7 +174,7 @@ class OverRelaxation:
     ``enabled=False`` keeps plain Alg. 1.
     """
 
-    def __init__(self, enabled: bool = True, window: int = 10, max_omega: float = 1.9):
+    def __init__(self, enabled: bool = True, window: int = 5, max_omega: float = 1.9):
         self.enabled = enabled
         self.window = window
         self.max_omega = max_omega
