@@ -12,7 +12,11 @@ loops), then
    gradient of the per-face linear function with edge differences ω),
 2. make it divergence-free, ``X ← X + ∇α`` with ``L α = D X``,
 3. remove its component along the curl basis (classes already represented by
-   the boundary-loop stream functions vanish here) and A-orthonormalize.
+   the boundary-loop stream functions nearly vanish here; what is left of them is a
+   discretization residue, still divergence-free, kept) and A-orthonormalize.
+
+Genus-0 surfaces skip all of this: their boundary-loop classes are the loop stream
+functions.
 """
 
 from __future__ import annotations
@@ -43,7 +47,9 @@ def cohomology_basis(mesh) -> np.ndarray:
     genus = mesh.component_genus
     loops = mesh.component_boundary_loops
     h = int(np.sum(2 * genus + np.maximum(loops - 1, 0)))
-    if h == 0:
+    if h == 0 or int(np.sum(genus)) == 0:
+        # genus 0: the boundary-loop classes are the loop stream functions of the curl
+        # basis already; nothing is missing
         return np.zeros((len(mesh.edges), 0))
     e = mesh.edges
     n_e = len(e)
