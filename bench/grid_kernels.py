@@ -59,11 +59,14 @@ def timed(fns: dict, repeats: int) -> dict:
     return {name: min(r) for name, r in runs.items()}
 
 
-def straightforward_apply(kernel, block):
-    """The first implementation: move each axis to the front of the (shape + (k,)) array."""
+def straightforward_apply(kernel, block, factors):
+    """The first implementation: move each axis to the front of the (shape + (k,)) array.
+
+    ``factors`` are ``exp(log_factors)`` as it built them (subnormal entries included).
+    """
     k = block.shape[1]
     grid = block.reshape(kernel.shape + (k,))
-    for axis, factor in enumerate(kernel.factors):
+    for axis, factor in enumerate(factors):
         moved = np.moveaxis(grid, axis, 0)
         flat = moved.reshape(moved.shape[0], -1)
         grid = np.moveaxis((factor @ flat).reshape(moved.shape), 0, axis)
@@ -111,7 +114,8 @@ def measure(n: int, reg: float, repeats: int, pot_log_max: int, rng) -> dict:
     fast = kernel.apply(dens)
     ref_pot = pot_plain(images).reshape(K_COLUMNS, -1).T * cell
     apply_err = float(np.max(np.abs(fast - ref_pot) / np.abs(ref_pot)))
-    straight_err = float(np.max(np.abs(fast - straightforward_apply(kernel, dens))
+    plain_factors = [np.exp(lk) for lk in kernel.log_factors]
+    straight_err = float(np.max(np.abs(fast - straightforward_apply(kernel, dens, plain_factors))
                                 / np.abs(fast)))
 
     start = time.perf_counter()
@@ -124,12 +128,13 @@ def measure(n: int, reg: float, repeats: int, pot_log_max: int, rng) -> dict:
 
     row = timed({
         "apply": lambda: kernel.apply(dens),
-        "apply_straight": lambda: straightforward_apply(kernel, dens),
+        "apply_straight": lambda: straightforward_apply(kernel, dens, plain_factors),
         "apply_pot": lambda: pot_plain(images),
         "log_apply": lambda: kernel.log_apply(logs),
     }, repeats)
     row.update({
         "n": n,
+        "reg": reg,
         "blocks": [len(b) for b in kernel.log_blocks],
         "log_exact": t_exact,
         "log_pot": None,
@@ -152,16 +157,20 @@ def measure(n: int, reg: float, repeats: int, pot_log_max: int, rng) -> dict:
     return row
 
 
-def run(sizes, reg, repeats, pot_log_max):
+def run(sizes, reg, repeats, pot_log_max, small_regs=(), small_size=256):
+    """Rows for every size at ``reg``, then ``small_size`` at each of ``small_regs``."""
     rng = np.random.default_rng(0)
-    return [measure(n, reg, repeats, pot_log_max, rng) for n in sizes]
+    rows = [measure(n, reg, repeats, pot_log_max, rng) for n in sizes]
+    rows += [measure(small_size, r, repeats, 0, rng) for r in small_regs]
+    return rows
 
 
 def write_report(results, reg, repeats, path: Path):
     lines = [
         "# Grid heat kernel: apply and log_apply (2-D, k = 4 columns)",
         "",
-        f"Command: `.venv/bin/python bench/grid_kernels.py` — reg = {reg} (t = reg/4, POT's "
+        f"Command: `.venv/bin/python bench/grid_kernels.py` — reg = {reg} unless stated "
+        "(t = reg/4, POT's "
         f"`exp(-d^2/reg)` on `linspace(0, 1, n)`). Times: minimum over {repeats} interleaved "
         "rounds after a warm-up (exact log-sum-exp and POT log: a single run).",
         f"Machine: {platform.machine()}, 2 cores shared with other jobs, Python "
@@ -176,16 +185,17 @@ def write_report(results, reg, repeats, path: Path):
             f"1-minute load average of the machine at start / end of this run: "
             f"{rows[0]['load'][0]:.1f} / {rows[0]['load'][1]:.1f} (2 cores).",
             "",
-            "| grid | apply | straightforward | POT conv | apply speedup vs POT | log_apply | "
-            "log/plain | exact logsumexp | POT log conv | log speedup vs exact | "
+            "| grid | reg | apply | straightforward | POT conv | apply speedup vs POT | "
+            "log_apply | log/plain | exact logsumexp | POT log conv | log speedup vs exact | "
             "log speedup vs POT log |",
-            "|---|---|---|---|---|---|---|---|---|---|---|",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for r in rows:
             pot_log = f"{r['log_pot']:.2f} s" if r["log_pot"] else "not run"
             pot_log_ratio = f"{r['log_pot'] / r['log_apply']:.0f}×" if r["log_pot"] else "—"
             lines.append(
-                f"| {r['n']}² | {r['apply'] * 1e3:.2f} ms | {r['apply_straight'] * 1e3:.2f} ms | "
+                f"| {r['n']}² | {r['reg']:g} | {r['apply'] * 1e3:.2f} ms | "
+                f"{r['apply_straight'] * 1e3:.2f} ms | "
                 f"{r['apply_pot'] * 1e3:.1f} ms | {r['apply_pot'] / r['apply']:.1f}× | "
                 f"{r['log_apply'] * 1e3:.2f} ms | {r['log_apply'] / r['apply']:.2f} | "
                 f"{r['log_exact']:.2f} s | {pot_log} | {r['log_exact'] / r['log_apply']:.0f}× | "
@@ -195,21 +205,29 @@ def write_report(results, reg, repeats, path: Path):
         "",
         "Accuracy (same runs):",
         "",
-        "| grid | row blocks per axis | apply vs POT (max rel.) | apply vs straightforward "
+        "| grid | reg | row blocks per axis | apply vs POT (max rel.) | apply vs straightforward "
         "(max rel.) | log_apply vs exact (max abs.) | range of exact log values |",
-        "|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|",
     ]
     for r in results[0][1]:
         lo, hi = r["log_range"]
-        lines.append(f"| {r['n']}² | {r['blocks']} | {r['apply_err']:.1e} | "
+        lines.append(f"| {r['n']}² | {r['reg']:g} | {r['blocks']} | {r['apply_err']:.1e} | "
                      f"{r['straight_err']:.1e} | {r['log_err']:.1e} | [{lo:.0f}, {hi:.0f}] |")
     lines += [
+        "",
+        "`straightforward` is the foundation's first apply (each axis moved to the front, a copy",
+        "per axis, kernel factors `exp(log_factors)` with their subnormal entries): at small reg",
+        "those subnormals alone make its BLAS products several times slower; `apply` flushes",
+        "entries below the normal range to 0 and keeps the block layout `(k, *shape)`.",
         "",
         "`log/plain` is the cost of one stabilized (log-domain) kernel application relative to a",
         "plain one; a convolutional barycenter iteration is dominated by these applications.",
         "POT's log convolution materializes an n×n×n array per image (1 GB at 512²), so it is",
         "only run up to `--pot-log-max`. One row block per axis means the log-domain product",
-        "is a single max-shifted BLAS product per axis (exact since D²/4t = 250 <= 650).",
+        "is a single max-shifted BLAS product per axis (exact since D²/4t = 1/reg = 250 <= 650).",
+        "The small-reg rows (D²/4t = 1/reg > 650) need several row blocks per axis; each block",
+        "repeats the element-wise passes (shift, exp) over the whole array (the BLAS work is",
+        "split, not repeated): the price of exactness where the naive product underflows.",
         "",
         "On a machine shared with other jobs (load above the core count), two-thread BLAS",
         "timings are erratic: a gemm waits at its barrier for a descheduled worker thread, which",
@@ -225,6 +243,8 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[128, 256, 512])
     parser.add_argument("--reg", type=float, default=0.004)
+    parser.add_argument("--small-regs", type=float, nargs="*", default=[0.001, 0.0004],
+                        help="extra 256² rows at these (multi-block) regularizations")
     parser.add_argument("--repeats", type=int, default=9)
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--pot-log-max", type=int, default=256)
@@ -234,7 +254,7 @@ def main():
     args = parser.parse_args()
     if args.worker is not None:
         load_before = os.getloadavg()[0]
-        rows = run(args.sizes, args.reg, args.repeats, args.pot_log_max)
+        rows = run(args.sizes, args.reg, args.repeats, args.pot_log_max, args.small_regs)
         for row in rows:
             row["load"] = [load_before, os.getloadavg()[0]]
         print("RESULT " + json.dumps(rows), flush=True)
@@ -244,7 +264,7 @@ def main():
         print(f"-- {threads} BLAS thread(s)", flush=True)
         cmd = [sys.executable, __file__, "--worker", str(threads), "--reg", str(args.reg),
                "--repeats", str(args.repeats), "--pot-log-max", str(args.pot_log_max),
-               "--sizes", *map(str, args.sizes)]
+               "--sizes", *map(str, args.sizes), "--small-regs", *map(str, args.small_regs)]
         proc = subprocess.run(cmd, capture_output=True, text=True, check=True)
         for line in proc.stdout.splitlines():
             if line.startswith("RESULT "):
