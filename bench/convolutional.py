@@ -11,8 +11,9 @@
 3. Spot and cow at the thesis' ``t = h^2`` (``gamma = 4 h^2``), plain vs relaxed.
 
 Usage: ``.venv/bin/python bench/convolutional.py [--quick] [meshes] [small_t] [grids]`` (all
-parts by default; ``render`` only rewrites the markdown); each part's rows are kept in ``bench/results/convolutional.json`` and
-``bench/results/convolutional.md`` is rendered from all recorded parts.
+parts by default; ``render`` only rewrites the markdown); each part's rows are kept in
+``bench/results/convolutional.json`` and ``bench/results/convolutional.md`` is rendered
+from all recorded parts.
 """
 
 from __future__ import annotations
