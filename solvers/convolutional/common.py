@@ -80,7 +80,9 @@ class LogKernel:
             out = np.asarray(self.kernel.log_apply(X2), dtype=np.float64).reshape(self.n, k)
             return _floor(out[:, 0] if vector else out)
         top = np.max(X2, axis=0)  # -inf entries are fine; all -inf -> empty column
-        bottom = np.min(X2, axis=0, where=np.isfinite(X2), initial=np.inf)
+        bottom = np.min(X2, axis=0)
+        if not np.all(np.isfinite(bottom)):
+            bottom = np.min(X2, axis=0, where=np.isfinite(X2), initial=np.inf)
         empty = ~np.isfinite(top)
         if np.any(empty):
             top = np.where(empty, 0.0, top)
@@ -88,12 +90,15 @@ class LogKernel:
         bands = np.maximum(1, np.ceil((top - bottom) / self.band).astype(np.int64))
         if np.all(bands == 1):
             self.columns += k
+            Y = X2 - top
             with np.errstate(under="ignore"):
-                Y = np.exp(X2 - top)
+                np.exp(Y, out=Y)
             Z = self.kernel.apply(Y if not vector else Y[:, 0])
-            Z = np.asarray(Z, dtype=np.float64).reshape(self.n, k)
+            out = np.array(Z, dtype=np.float64).reshape(self.n, k)
+            np.maximum(out, 0.0, out=out)
             with np.errstate(divide="ignore"):
-                out = np.log(np.maximum(Z, 0.0)) + top
+                np.log(out, out=out)
+            out += top
         else:
             out = self._banded(X2, top, bands)
         return _floor(out[:, 0] if vector else out)
@@ -174,9 +179,11 @@ class OverRelaxation:
     ``enabled=False`` keeps plain Alg. 1.
     """
 
-    def __init__(self, enabled: bool = True, window: int = 5, max_omega: float = 1.9):
+    def __init__(self, enabled: bool = True, window: int = 5, max_omega: float = 1.9,
+                 stride: int = 1):
         self.enabled = enabled
         self.window = window
+        self.stride = stride  # iterations between two calls of update()
         self.max_omega = max_omega
         self.omega = 1.0
         self._history: list[float] = []
@@ -192,7 +199,7 @@ class OverRelaxation:
             self._set(1.0 + 0.5 * (self.omega - 1.0), k)
         elif since >= 2 * self.window and since % self.window == 0:
             old = self._history[k - self.window]
-            lam = (residual / old) ** (1.0 / self.window) if old > 0 else 0.0
+            lam = (residual / old) ** (1.0 / (self.window * self.stride)) if old > 0 else 0.0
             if 0.0 < lam < 1.0:
                 om = self.omega
                 eta = min((lam + om - 1.0) ** 2 / (lam * om * om), 0.9999)
