@@ -223,7 +223,15 @@ if __name__ == "__main__":
         recorded["small_t"] = mesh_rows(["spot.obj", "cow.obj"], seeds=2 if quick else 5,
                                         dense_limit=0, edge_gamma=True)
     if "grids" in parts:
-        recorded["grids"] = grid_rows([128] if quick else [128, 256, 512])
+        sizes = [int(a.split("=")[1]) for a in sys.argv[1:] if a.startswith("--sizes=")]
+        fresh = grid_rows(sizes or ([128] if quick else [128, 256, 512]),
+                          pot_log_limit=0 if sizes else 128)
+        kept = [g for g in recorded.get("grids", []) if g["n"] not in {f["n"] for f in fresh}]
+        for g in fresh:  # keep an earlier POT log-domain time when it was not re-measured
+            old = [o for o in recorded.get("grids", []) if o["n"] == g["n"]]
+            if g["pot_log"] is None and old:
+                g["pot_log"] = old[0].get("pot_log")
+        recorded["grids"] = sorted(kept + fresh, key=lambda g: g["n"])
     store.parent.mkdir(parents=True, exist_ok=True)
     store.write_text(json.dumps(recorded, indent=1))
     write(recorded.get("meshes", []), recorded.get("grids", []),
