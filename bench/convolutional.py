@@ -202,6 +202,9 @@ def write(mesh, grids, path, small_t=()):
               "std-based stop criterion move its answer by ~1e-3 relative at reg 0.004; with "
               "`stabThr=0` and tight tolerances the two agree to 1e-16 "
               "(`tests/test_convolutional.py::test_grid_barycenter_matches_pot`).",
+              "- Grid rows can come from different runs (`grids --sizes=N` re-measures one size; "
+              "the POT log-domain time is kept from the last run that measured it). "
+              "Repeated runs of the same size varied by up to 2x under load.",
               "- The machine (2 cores) was shared with other benchmark/test jobs while this ran "
               "(load average 4-6): absolute times are inflated; ratios are from the same run."]
     path.parent.mkdir(parents=True, exist_ok=True)
