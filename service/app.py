@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 from contextlib import asynccontextmanager
 
 from fastapi import Depends, FastAPI
@@ -12,6 +13,7 @@ from service import __version__
 from service.api import domains, health, jobs, operations
 from service.api.deps import require_api_key
 from service.errors import ErrorResponse, install_handlers
+from service.jobs.wake import JobWaiters
 from service.runtime import Runtime
 from service.schemas import DomainSpec
 from service.settings import Settings
@@ -49,9 +51,15 @@ def create_app(settings: Settings | None = None, *, start_background: bool = Tru
     async def lifespan(app: FastAPI):
         if start_background:
             runtime.start_background(publish=settings.queue == "immediate")
+        if settings.queue != "immediate":  # workers' "job done" datagrams wake ?wait requests
+            runtime.waiters = JobWaiters(settings.data_dir)
+            runtime.waiters.attach(asyncio.get_running_loop())
         try:
             yield
         finally:
+            if runtime.waiters is not None:
+                runtime.waiters.detach()
+                runtime.waiters = None
             runtime.close()
 
     app = FastAPI(title="otgeo", version=__version__, description=DESCRIPTION,

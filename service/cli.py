@@ -73,6 +73,14 @@ def run_worker(settings) -> None:
     runtime = Runtime(settings, role="worker")
     if settings.queue == "immediate":
         raise SystemExit("OTGEO_QUEUE=immediate runs jobs inside the API; no worker needed")
+    wake = None
+    if settings.queue == "sqlite":  # block on enqueue datagrams instead of polling the queue
+        from service.jobs.wake import WakeSocket
+
+        wake = WakeSocket(settings.data_dir, "worker")
+        if wake.sock is not None:
+            runtime.huey.storage.wake = wake
+            runtime.huey.storage.blocking = True
     consumer = runtime.huey.create_consumer(
         workers=1, worker_type="thread", periodic=False, initial_delay=0.005, backoff=1.5,
         max_delay=settings.worker_poll_interval, check_worker_health=True)
@@ -87,6 +95,8 @@ def run_worker(settings) -> None:
             runtime.enqueue(released)
             logging.getLogger("otgeo").info("handed job %s back to the queue", released)
         runtime.close()
+        if wake is not None:
+            wake.close()
 
 
 def cmd_worker(args) -> None:

@@ -12,6 +12,7 @@ from service.jobs.db import JobRepository, worker_identity
 from service.jobs.queue import make_huey, register_task
 from service.jobs.reaper import Reaper
 from service.jobs.runner import JobRunner
+from service.jobs.wake import WakeSender
 from service.settings import Settings
 from service.store import Store
 
@@ -31,9 +32,14 @@ class Runtime:
         self.runner = JobRunner(settings, self.store, self.repo, self.cache)
         self.task = register_task(self.huey, self.runner.run)
         self.reaper = Reaper(settings, self.repo, self.enqueue, self.store)
+        # wake-up datagrams to this machine's processes (enqueued -> workers, done -> API)
+        self.wake = WakeSender(settings.data_dir) if settings.queue != "immediate" else None
+        if self.wake is not None:
+            self.runner.notify_done = lambda job_id: self.wake.notify("api", job_id)
         self._stop = threading.Event()
         self._published = threading.Event()
         self._presence: threading.Thread | None = None
+        self.waiters = None  # API: JobWaiters while the app runs (service.jobs.wake)
 
     @property
     def process_id(self) -> str:
@@ -42,6 +48,8 @@ class Runtime:
     def enqueue(self, job_id: str) -> None:
         """Send a job id to the queue (in immediate mode: run it now)."""
         self.task(job_id)
+        if self.wake is not None and self.settings.queue == "sqlite":
+            self.wake.notify("worker", job_id)  # Redis workers block on the list already
 
     def pending_messages(self) -> int | None:
         if self.settings.queue == "immediate":
@@ -57,7 +65,6 @@ class Runtime:
         if self.settings.queue != "immediate":
             self.reaper.start()
         if publish:
-            self.runner.on_finished = self._published.set  # publish soon, off the job path
             self._presence = threading.Thread(target=self._publish_loop, daemon=True,
                                               name="presence")
             self._presence.start()
@@ -88,3 +95,5 @@ class Runtime:
             except Exception:
                 pass
         self.repo.dispose()
+        if self.wake is not None:
+            self.wake.close()

@@ -23,27 +23,48 @@ WAIT_DESCRIPTION = ("seconds to wait for the job to finish: if it ends in time t
 
 
 MARKER_POLL = 0.002  # seconds between checks of the job's completion marker (a stat)
+MARKER_POLL_WOKEN = 0.02  # the same when local workers send "done" datagrams
 TABLE_POLL = 0.25  # seconds between job-table reads while waiting (markers can be missed)
 
 
-async def wait_for(svc, job_id: str, seconds: float):
+async def wait_for(svc, job_id: str, seconds: float, job=None):
     """Wait until the job is terminal or ``seconds`` elapsed.
 
-    Workers touch a completion marker in shared storage after committing the final state;
-    checking it is a ``stat``, so waiting costs almost nothing. The job table is read when
-    the marker appears, and every ``TABLE_POLL`` seconds in case a marker is missing (a job
-    failed by the reaper, or storage that caches file metadata)."""
+    A worker on this machine sends a "done" datagram after committing the final state
+    (service.jobs.wake): the waiting request wakes at once and reads the job table. Workers
+    elsewhere touch a completion marker in shared storage; checking it is a ``stat`` (every
+    ``MARKER_POLL_WOKEN`` seconds when datagrams arrive, ``MARKER_POLL`` otherwise). The job
+    table is also read every ``TABLE_POLL`` seconds in case both are missed (a job failed by
+    the reaper, or storage that caches file metadata). ``job``: its row as just read."""
     deadline = time.monotonic() + seconds
-    job = await run_in_threadpool(svc.get, job_id)
-    last_read = time.monotonic()
-    while job.state not in TERMINAL:
-        now = time.monotonic()
-        if now >= deadline:
-            break
-        await asyncio.sleep(min(MARKER_POLL, deadline - now))
-        if svc.rt.store.is_done(job_id) or time.monotonic() - last_read >= TABLE_POLL:
+    waiters = svc.rt.waiters
+    event = waiters.register(job_id) if waiters is not None and waiters.active else None
+    poll = MARKER_POLL if event is None else MARKER_POLL_WOKEN
+    try:
+        if job is None:
             job = await run_in_threadpool(svc.get, job_id)
-            last_read = time.monotonic()
+        last_read = time.monotonic()
+        while job.state not in TERMINAL:
+            now = time.monotonic()
+            if now >= deadline:
+                break
+            timeout = min(poll, deadline - now)
+            if event is None:
+                await asyncio.sleep(timeout)
+            else:
+                try:
+                    await asyncio.wait_for(event.wait(), timeout)
+                except TimeoutError:
+                    pass
+            if ((event is not None and event.is_set()) or svc.rt.store.is_done(job_id)
+                    or time.monotonic() - last_read >= TABLE_POLL):
+                if event is not None:
+                    event.clear()
+                job = await run_in_threadpool(svc.get, job_id)
+                last_read = time.monotonic()
+    finally:
+        if event is not None:
+            waiters.unregister(job_id, event)
     return job
 
 
@@ -63,7 +84,7 @@ def _make_route(op: Operation):
                          wait: float = Query(0.0, ge=0, description=WAIT_DESCRIPTION)):
         job = await run_in_threadpool(submit_job, op.name, domain_id, body, wait, svc, rt)
         if wait > 0 and job.state not in TERMINAL:
-            job = await wait_for(svc, job.id, wait)
+            job = await wait_for(svc, job.id, wait, job)
         response.status_code = 200 if job.state in TERMINAL else 202
         response.headers["Location"] = f"/v1/jobs/{job.id}"
         return JobOut.from_row(job)

@@ -21,6 +21,18 @@ class WalNormalSqliteStorage(SqliteStorage):
         conn.execute("pragma synchronous=1")
         return conn
 
+    wake = None  # a WakeSocket in worker processes (service.jobs.wake)
+    wake_timeout = 1.0  # longest block on it; then the queue is read anyway
+
+    def dequeue(self):
+        """Block on the wake-up socket while the queue is empty (no idle polling): the
+        API sends a datagram after every enqueue."""
+        data = super().dequeue()
+        if data is None and self.wake is not None and self.wake.sock is not None:
+            if self.wake.wait(self.wake_timeout):
+                data = super().dequeue()
+        return data
+
 
 def make_huey(settings: Settings) -> Huey:
     if settings.queue == "redis":

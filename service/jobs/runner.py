@@ -24,26 +24,60 @@ log = logging.getLogger("otgeo.worker")
 PROGRESS_WRITE_INTERVAL = 0.25  # seconds between progress writes to the job table
 
 
-class _Heartbeat:
-    """Background thread refreshing the job's heartbeat (also during long single steps)."""
+class _Beater:
+    """One background thread per worker refreshing the running job's heartbeat (also during
+    long single steps); no thread is started or joined per job."""
 
-    def __init__(self, repo: JobRepository, job_id: str, attempt: int, interval: float):
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._current: _Heartbeat | None = None
+        self._thread: threading.Thread | None = None
+
+    def attach(self, hb: _Heartbeat) -> None:
+        with self._lock:
+            self._current = hb
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._loop, daemon=True,
+                                                name="heartbeat")
+                self._thread.start()
+
+    def detach(self, hb: _Heartbeat) -> None:
+        with self._lock:
+            if self._current is hb:
+                self._current = None
+
+    def _loop(self) -> None:
+        while True:
+            with self._lock:
+                hb = self._current
+            tick = 0.5 if hb is None else min(hb.interval / 4, 0.5)
+            time.sleep(tick)
+            if hb is not None and hb is self._current and hb.due(hb.interval):
+                hb.beat()  # after detach a beat is a no-op: the job is no longer running
+
+
+class _Heartbeat:
+    """Heartbeat and progress of one job attempt (written by _Beater and on progress)."""
+
+    def __init__(self, repo: JobRepository, job_id: str, attempt: int, interval: float,
+                 beater: _Beater):
         self.repo, self.job_id, self.attempt, self.interval = repo, job_id, attempt, interval
         self.cancel = threading.Event()
         self.lost = threading.Event()
         self.progress: dict = {}
-        self._stop = threading.Event()
+        self._beater = beater
         self._lock = threading.Lock()
         self._last_write = time.monotonic()  # the claim just wrote a heartbeat
-        self._thread = threading.Thread(target=self._loop, daemon=True,
-                                        name=f"heartbeat-{job_id}")
 
     def start(self) -> None:
-        self._thread.start()
+        self._beater.attach(self)
 
     def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5)
+        self._beater.detach(self)
+
+    def due(self, interval: float) -> bool:
+        with self._lock:
+            return time.monotonic() - self._last_write >= interval
 
     def beat(self) -> None:
         with self._lock:
@@ -68,10 +102,6 @@ class _Heartbeat:
         if due:
             self.beat()
 
-    def _loop(self) -> None:
-        while not self._stop.wait(self.interval):
-            self.beat()
-
 
 class JobRunner:
     def __init__(self, settings: Settings, store: Store, repo: JobRepository,
@@ -80,7 +110,9 @@ class JobRunner:
         self.worker_id = worker_identity()
         self.jobs_done = 0
         self.current: tuple[str, int] | None = None
+        self._beater = _Beater()
         self.on_finished = None  # optional callable() after every job (statistics)
+        self.notify_done = None  # optional callable(job_id) once the final state is committed
 
     def domain(self, domain_id: str):
         return self.cache.get_or_build(("domain", domain_id),
@@ -97,7 +129,8 @@ class JobRunner:
         limit = min(job.time_limit or self.settings.job_time_limit,
                     self.settings.job_time_limit)
         deadline = time.monotonic() + limit
-        hb = _Heartbeat(self.repo, job_id, attempt, self.settings.heartbeat_interval)
+        hb = _Heartbeat(self.repo, job_id, attempt, self.settings.heartbeat_interval,
+                        self._beater)
         timed_out = threading.Event()
 
         def should_cancel() -> bool:
@@ -107,7 +140,7 @@ class JobRunner:
             return hb.cancel.is_set()
 
         hb.start()
-        state, error, location = FAILED, None, None
+        state, error, location, built = FAILED, None, None, None
         try:
             op = get_operation(job.operation)
             params = op.request_model.model_validate(job.params)
@@ -116,7 +149,8 @@ class JobRunner:
             try:
                 output = op.run(domain, params, hb.on_progress, should_cancel)
             finally:
-                self.cache.operator_builds += len(set(getattr(domain, "_kernels", {})) - kernels)
+                built = len(set(getattr(domain, "_kernels", {})) - kernels)
+                self.cache.operator_builds += built
             if should_cancel():
                 raise CancelledError("cancelled")
             payload = {"job_id": job_id, "operation": job.operation,
@@ -139,13 +173,16 @@ class JobRunner:
             error = error_dict(exc)
         finally:
             hb.stop()
-            self.cache.refresh(("domain", job.domain_id))
         progress = dict(hb.progress)
         if not self.repo.finish(job_id, attempt, state, error=error, result_location=location,
                                 started_at=job.started_at, **progress):
             log.warning("job %s attempt %d lost ownership; result discarded", job_id, attempt)
         else:
             self.store.mark_done(job_id)
+            if self.notify_done is not None:
+                self.notify_done(job_id)
+        if built is None or built:  # operators were added: re-estimate the entry's size
+            self.cache.refresh(("domain", job.domain_id))
         self.current = None
         self.jobs_done += 1
         log.info("job %s finished: %s", job_id, state)
