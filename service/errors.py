@@ -136,6 +136,28 @@ def responses(*codes: int) -> dict:
     return {c: ERROR_RESPONSES.get(c, {"model": ErrorResponse}) for c in codes}
 
 
+class _BodyLimit:
+    """413 for a declared body over the upload limit (plain ASGI middleware: no extra task
+    and body streaming per request, unlike ``@app.middleware("http")``)."""
+
+    def __init__(self, app):
+        self.app = app
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] == "http":
+            headers = dict(scope["headers"])
+            declared = headers.get(b"content-length", b"").decode("latin-1")
+            limit = scope["app"].state.runtime.settings.max_upload_bytes
+            if declared.isdigit() and int(declared) > limit:
+                ctype = headers.get(b"content-type", b"").decode("latin-1")
+                err = PayloadTooLarge(f"request body of {declared} bytes exceeds the limit of "
+                                      f"{limit}",
+                                      field="file" if ctype.startswith("multipart/") else "body")
+                await JSONResponse(err.body(), status_code=413)(scope, receive, send)
+                return
+        await self.app(scope, receive, send)
+
+
 def install_handlers(app: FastAPI) -> None:
     @app.exception_handler(ApiError)
     async def _api_error(request: Request, exc: ApiError):
@@ -170,16 +192,7 @@ def install_handlers(app: FastAPI) -> None:
         err = ServiceUnavailable("the job database is unavailable; retry shortly")
         return JSONResponse(err.body(), status_code=503, headers={"Retry-After": "2"})
 
-    @app.middleware("http")
-    async def _body_limit(request: Request, call_next):
-        declared = request.headers.get("content-length")
-        limit = request.app.state.runtime.settings.max_upload_bytes
-        if declared and declared.isdigit() and int(declared) > limit:
-            multipart = request.headers.get("content-type", "").startswith("multipart/")
-            err = PayloadTooLarge(f"request body of {declared} bytes exceeds the limit of "
-                                  f"{limit}", field="file" if multipart else "body")
-            return JSONResponse(err.body(), status_code=413)
-        return await call_next(request)
+    app.add_middleware(_BodyLimit)
 
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception):

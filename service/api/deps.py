@@ -21,15 +21,22 @@ def get_runtime(request: Request) -> Runtime:
     return request.app.state.runtime
 
 
-def domain_service(request: Request) -> DomainService:
+# The dependencies are ``async def`` although they never await: they are trivial, and FastAPI
+# runs a plain ``def`` dependency in the thread pool (one thread hop per dependency and request).
+async def runtime_dep(request: Request) -> Runtime:
+    return get_runtime(request)
+
+
+async def domain_service(request: Request) -> DomainService:
     return DomainService(get_runtime(request))
 
 
-def job_service(request: Request) -> JobService:
+async def job_service(request: Request) -> JobService:
     return JobService(get_runtime(request))
 
 
-def require_api_key(request: Request, key: str | None = Security(api_key_header)) -> None:
+async def require_api_key(request: Request,
+                          key: str | None = Security(api_key_header)) -> None:
     keys = get_runtime(request).settings.api_keys
     if not keys:
         return
@@ -39,4 +46,4 @@ def require_api_key(request: Request, key: str | None = Security(api_key_header)
 
 DomainSvc = Annotated[DomainService, Depends(domain_service)]
 JobSvc = Annotated[JobService, Depends(job_service)]
-RuntimeDep = Annotated[Runtime, Depends(get_runtime)]
+RuntimeDep = Annotated[Runtime, Depends(runtime_dep)]

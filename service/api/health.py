@@ -17,7 +17,7 @@ router = APIRouter(tags=["health"])
 
 
 @router.get("/healthz", operation_id="health", response_model=Health)
-def healthz(rt: RuntimeDep):
+async def healthz(rt: RuntimeDep):
     return Health(status="ok", queue=rt.settings.queue, version=__version__)
 
 
