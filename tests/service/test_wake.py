@@ -1,0 +1,74 @@
+"""Wake-up datagrams (service.jobs.wake): enqueue wakes a worker blocked on the SQLite queue,
+"done" wakes the API's waiting requests; dead registrations are dropped."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+
+import pytest
+
+from service.jobs.queue import TASK_NAME
+from service.jobs.wake import JobWaiters, WakeSender, WakeSocket
+from service.runtime import Runtime
+from service.settings import Settings
+
+
+def test_sender_reaches_role_and_forgets_closed_sockets(tmp_path):
+    worker, api = WakeSocket(tmp_path, "worker"), WakeSocket(tmp_path, "api")
+    if worker.sock is None:
+        pytest.fail("abstract unix sockets are available on Linux")
+    sender = WakeSender(tmp_path)
+    try:
+        assert sender.notify("worker", "job-1") == 1
+        assert worker.wait(1.0) == ["job-1"]
+        assert api.drain() == []  # other role untouched
+        worker.close()
+        assert sender.notify("worker", "job-2") == 0
+        assert not any(p.name.startswith("worker@") for p in (tmp_path / "wake").iterdir())
+    finally:
+        api.close()
+        sender.close()
+
+
+def test_enqueue_wakes_blocked_worker_dequeue(tmp_path):
+    rt = Runtime(Settings(data_dir=tmp_path, queue="sqlite"), role="worker")
+    wake = WakeSocket(tmp_path, "worker")
+    storage = rt.huey.storage
+    storage.wake, storage.blocking, storage.wake_timeout = wake, True, 10.0
+    got: list = []
+    thread = threading.Thread(target=lambda: got.append((storage.dequeue(), time.monotonic())))
+    try:
+        thread.start()
+        time.sleep(0.2)  # the dequeue is blocked on the socket by now
+        sent = time.monotonic()
+        rt.enqueue("abc")
+        thread.join(5.0)
+        assert got and got[0][0] is not None, "dequeue did not return the message"
+        assert got[0][1] - sent < 2.0  # woken, not the 10 s timeout
+        assert rt.huey.deserialize_task(got[0][0]).name == TASK_NAME
+    finally:
+        wake.close()
+        rt.close()
+
+
+def test_done_datagram_sets_waiting_event(tmp_path):
+    async def scenario():
+        waiters = JobWaiters(tmp_path)
+        waiters.attach(asyncio.get_running_loop())
+        sender = WakeSender(tmp_path)
+        try:
+            assert waiters.active
+            event, other = waiters.register("job-a"), waiters.register("job-b")
+            assert sender.notify("api", "job-a") == 1
+            await asyncio.wait_for(event.wait(), 2.0)
+            assert not other.is_set()
+            waiters.unregister("job-a", event)
+            waiters.unregister("job-b", other)
+            assert waiters._events == {}
+        finally:
+            waiters.detach()
+            sender.close()
+
+    asyncio.run(scenario())
