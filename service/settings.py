@@ -44,7 +44,8 @@ class Settings(BaseSettings):
     workers: int = Field(1, ge=0, description="worker processes started by `otgeo serve`")
     blas_threads: int = Field(1, ge=1, description="BLAS/OpenMP threads per worker process")
     worker_poll_interval: float = Field(0.01, gt=0, description="longest idle poll delay of "
-                                        "a worker on the SQLite queue (seconds)")
+                                        "a worker on the SQLite queue (seconds) when it has "
+                                        "no wake-up socket (service.jobs.wake)")
     wait_max: float = Field(60.0, ge=0, description="largest accepted ?wait= (seconds)")
 
     @field_validator("api_keys", mode="before")
