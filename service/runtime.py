@@ -65,6 +65,7 @@ class Runtime:
         if self.settings.queue != "immediate":
             self.reaper.start()
         if publish:
+            self.runner.on_finished = self._published.set  # publish once idle, see below
             self._presence = threading.Thread(target=self._publish_loop, daemon=True,
                                               name="presence")
             self._presence.start()
@@ -79,10 +80,26 @@ class Runtime:
                 self.publish()
             except Exception:
                 log.exception("could not publish worker statistics")
-            self._published.wait(self.settings.heartbeat_interval)
+            finished = self._published.wait(self.settings.heartbeat_interval)
             self._published.clear()
             if self._stop.is_set():
                 return
+            if finished:
+                self._wait_idle(self.settings.heartbeat_interval)
+
+    PUBLISH_IDLE = 0.05  # seconds without a job before statistics are published after one
+
+    def _wait_idle(self, longest: float) -> None:
+        """After a job: wait until the worker has been idle ``PUBLISH_IDLE`` seconds (at most
+        ``longest``), so the publish stays off the path of back-to-back jobs and of the
+        waiting client's response, yet /metrics is current as soon as the worker rests."""
+        deadline = time.monotonic() + longest
+        while time.monotonic() < deadline and not self._stop.is_set():
+            runner = self.runner
+            if runner.current is None and \
+                    time.monotonic() - runner.last_finished >= self.PUBLISH_IDLE:
+                return
+            time.sleep(self.PUBLISH_IDLE / 2)
 
     def close(self) -> None:
         self._stop.set()

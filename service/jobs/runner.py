@@ -109,6 +109,7 @@ class JobRunner:
         self.settings, self.store, self.repo, self.cache = settings, store, repo, cache
         self.worker_id = worker_identity()
         self.jobs_done = 0
+        self.last_finished = 0.0  # time.monotonic() at the end of the last job
         self.current: tuple[str, int] | None = None
         self._beater = _Beater()
         self.on_finished = None  # optional callable() after every job (statistics)
@@ -185,6 +186,7 @@ class JobRunner:
             self.cache.refresh(("domain", job.domain_id))
         self.current = None
         self.jobs_done += 1
+        self.last_finished = time.monotonic()
         log.info("job %s finished: %s", job_id, state)
         if self.on_finished is not None:
             try:
