@@ -47,24 +47,23 @@ class LogKernel:
     M-matrices (robust/intrinsic-Delaunay Laplacians, graph Laplacians) are
     entrywise positive and their triangular solves add terms of one sign, so each
     band is computed to full relative precision; the only loss is underflow of
-    kernel entries below ``exp(-700)`` relative to the band.  Gaussian grid kernels
-    whose entries would underflow use the exact ``kernel.log_apply``.
+    kernel entries below ``exp(-700)`` relative to the band.  Kernels with an exact
+    ``kernel.log_apply`` (Gaussian grids) use it instead, unless a ``band`` is given.
     """
 
     def __init__(self, kernel, band: float | None = None):
         self.kernel = kernel
         self.n = int(kernel.n)
-        self.use_log_apply = False
+        # Kernels with an exact log-domain form (Gaussian grids) use it: as fast as
+        # apply() after banding and exact at every t (bench/results/convolutional.md).
+        self.use_log_apply = bool(getattr(kernel, "supports_log", False)) and band is None
         if band is None:
             band = DEFAULT_BAND
             log_factors = getattr(kernel, "log_factors", None)
             if log_factors is not None:
                 # Separable Gaussian: smallest log-entry of the full kernel is known.
                 kmin = float(sum(np.min(f) for f in log_factors))
-                band = -_LOG_TINY + kmin
-                if band < 50.0:
-                    self.use_log_apply = bool(getattr(kernel, "supports_log", False))
-                    band = 50.0
+                band = max(-_LOG_TINY + kmin, 50.0)
         self.band = float(band)
         self.applications = 0
         self.columns = 0
@@ -94,7 +93,7 @@ class LogKernel:
             with np.errstate(under="ignore"):
                 np.exp(Y, out=Y)
             Z = self.kernel.apply(Y if not vector else Y[:, 0])
-            out = np.array(Z, dtype=np.float64).reshape(self.n, k)
+            out = np.asarray(Z, dtype=np.float64).reshape(self.n, k)  # fresh array
             np.maximum(out, 0.0, out=out)
             with np.errstate(divide="ignore"):
                 np.log(out, out=out)
