@@ -116,13 +116,21 @@ def barycenters_log(logk: LogKernel, areas: np.ndarray, inputs: np.ndarray,
     n, C = inputs.shape
     owner = np.argmax(weights > 0, axis=1) if owners is None else np.asarray(owners)
     alpha = weights[np.arange(C), owner]
-    lm = log_density(inputs, areas)
-    lv = np.zeros((n, C))
+    # Keep (n, C) blocks in the kernel's preferred layout: grid kernels work on the
+    # transposed (C, *shape) block, so Fortran order avoids a transpose copy per call.
+    order = "F" if logk.use_log_apply else "C"
+    lm = np.asarray(log_density(inputs, areas), order=order)
+    lv = np.zeros((n, C), order=order)
     B = weights.shape[1]
     lc = np.zeros((n, B))
     lbar = np.zeros((n, B))
     a = areas[:, None]
     support = np.isfinite(lm)
+    full = bool(support.all())
+
+    def spread(x):  # (n, B) -> (n, C): each column's barycenter (broadcast when B == 1)
+        return x if B == 1 else x[:, owner]
+
     check = 5  # marginal violation measured every `check` iterations (and at max_iter)
     sor = OverRelaxation(enabled=relax, window=2, stride=check)
     omega = 1.0
@@ -136,7 +144,9 @@ def barycenters_log(logk: LogKernel, areas: np.ndarray, inputs: np.ndarray,
             if lw is None or omega == 1.0:
                 lw = target
             else:
-                lw = np.where(support, lw + omega * (target - lw), -np.inf)
+                lw = lw + omega * (target - lw)
+                if not full:
+                    lw = np.where(support, lw, -np.inf)
             lku = logk(lw)
             ld = lv + lku
             if debiased:
@@ -150,7 +160,7 @@ def barycenters_log(logk: LogKernel, areas: np.ndarray, inputs: np.ndarray,
                 for b in range(B):
                     lbar[:, b] = sharpen_log(lbar[:, b], areas, entropy_bounds[b])
             if it % check == 0 or it >= max_iter:
-                gaps = np.abs(a * (np.exp(ld) - np.exp(lbar[:, owner]))).sum(axis=0)
+                gaps = np.abs(a * (np.exp(ld) - np.exp(spread(lbar)))).sum(axis=0)
                 if omega != 1.0:  # the relaxed w update leaves the input marginal inexact
                     gaps = gaps + np.abs(a * np.exp(lw + lkv) - inputs).sum(axis=0)
                 residual = float(np.max(np.where(alpha > 0, gaps, 0.0)))
@@ -161,7 +171,7 @@ def barycenters_log(logk: LogKernel, areas: np.ndarray, inputs: np.ndarray,
                     break
                 omega = sor.update(residual)
             monitor(it, residual)
-            lv = lv + omega * (lbar[:, owner] - lku - lv)
+            lv = lv + omega * (spread(lbar) - lku - lv)
             it += 1
     return lbar, it, residual, bool(residual <= tol)
 
