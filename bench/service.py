@@ -195,12 +195,14 @@ class Bench:
                     # interleaved rounds (request, then the solver alone), so both see the
                     # same load from other processes on the machine; paired differences
                     warm, durations, solver_warm, ids = [], [], [], []
+                    load_before = os.getloadavg()[0]
                     for _ in range(args.requests):
                         elapsed, job = self.request(client, domain_id)
                         warm.append(elapsed)
                         durations.append(job["duration_seconds"])
                         ids.append(job["id"])
                         solver_warm.append(self.solve(mesh)[0])
+                    self.load_latency = (load_before, os.getloadavg()[0])
                     inside = read_profile(profile, ids)
                     result = client.get(f"/v1/jobs/{job['id']}/result",
                                         params={"arrays": False}).json()
@@ -297,7 +299,9 @@ class Bench:
             "",
             f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python "
             f"{platform.python_version()}; load average at start {self.load_start}, at end "
-            f"{os.getloadavg()[0]:.1f} (other processes share the machine).",
+            f"{os.getloadavg()[0]:.1f}, around the warm latency rounds "
+            f"{self.load_latency[0]:.1f} / {self.load_latency[1]:.1f} (1-minute averages; "
+            f"other processes share the machine).",
             "",
             "## Cached operation: request vs solver (1 worker)",
             "",
