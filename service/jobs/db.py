@@ -127,8 +127,10 @@ class JobRepository:
         return job
 
     def get(self, job_id: str) -> JobRow | None:
-        with self.Session() as s:
-            return s.get(JobRow, job_id)
+        """The job as a detached row (one Core SELECT: no session bookkeeping)."""
+        with self.engine.connect() as conn:
+            row = conn.execute(select(JOBS).where(JOBS.c.id == job_id)).mappings().first()
+        return None if row is None else JobRow(**row)
 
     def list(self, limit: int = 100, state: str | None = None) -> list[JobRow]:
         with self.Session() as s:

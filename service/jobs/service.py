@@ -16,6 +16,11 @@ from service.runtime import Runtime
 
 log = logging.getLogger("otgeo.jobs")
 
+# job columns without a value until a worker runs the job (set explicitly, so the row
+# returned by ``create`` is complete without reading it back)
+UNSET_AT_CREATION = ("iteration", "residual", "error", "worker", "started_at", "heartbeat_at",
+                     "finished_at", "duration", "result_location")
+
 
 class JobService:
     def __init__(self, runtime: Runtime):
@@ -35,13 +40,16 @@ class JobService:
         job = JobRow(id=uuid.uuid4().hex, operation=operation, domain_id=domain_id,
                      params=request.model_dump(mode="json"), state=QUEUED, attempts=0,
                      max_attempts=self.rt.settings.max_attempts, cancel_requested=False,
-                     time_limit=limit, created_at=now, enqueued_at=now)
+                     time_limit=limit, created_at=now, enqueued_at=now,
+                     **{c: None for c in UNSET_AT_CREATION})
         self.rt.repo.create(job)
         try:
             self.rt.enqueue(job.id)
         except Exception:  # broker unreachable: the job is recorded, the reaper re-sends it
             log.exception("could not enqueue job %s; it stays queued", job.id)
-        return self.get(job.id)
+        if self.rt.settings.queue == "immediate":  # it has run inside enqueue
+            return self.get(job.id)
+        return job  # as recorded (a worker may have claimed it already: not re-read)
 
     def get(self, job_id: str) -> JobRow:
         job = self.rt.repo.get(job_id)

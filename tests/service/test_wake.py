@@ -1,5 +1,6 @@
-"""Wake-up datagrams (service.jobs.wake): enqueue wakes a worker blocked on the SQLite queue,
-"done" wakes the API's waiting requests; dead registrations are dropped."""
+"""The latency paths: wake-up datagrams (service.jobs.wake: enqueue wakes a worker blocked on
+the SQLite queue, "done" wakes the API's waiting requests, dead registrations are dropped) and
+the job row returned by create without reading it back."""
 
 from __future__ import annotations
 
@@ -9,9 +10,14 @@ import time
 
 import pytest
 
+from service.domains import DomainService
+from service.jobs.db import JOBS
 from service.jobs.queue import TASK_NAME
+from service.jobs.service import JobService
 from service.jobs.wake import JobWaiters, WakeSender, WakeSocket
+from service.operations import get_operation
 from service.runtime import Runtime
+from service.schemas import GridSpec, JobOut
 from service.settings import Settings
 
 
@@ -72,3 +78,17 @@ def test_done_datagram_sets_waiting_event(tmp_path):
             sender.close()
 
     asyncio.run(scenario())
+
+
+def test_created_job_is_complete_without_reading_it_back(tmp_path):
+    """JobService.create returns the row it wrote (no SELECT): every column must be set."""
+    rt = Runtime(Settings(data_dir=tmp_path, queue="sqlite"), role="api")
+    try:
+        meta, _ = DomainService(rt).from_spec(GridSpec(kind="grid", shape=[6, 6]))
+        body = get_operation("distances").request_model.model_validate(
+            {"mu0": {"vertex": 0, "radius": 0.2}, "mu1": {"vertex": 35, "radius": 0.2}})
+        job = JobService(rt).create("distances", meta["id"], body)
+        assert set(JOBS.c.keys()) <= set(vars(job))
+        assert JobOut.from_row(job) == JobOut.from_row(rt.repo.get(job.id))
+    finally:
+        rt.close()
