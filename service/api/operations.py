@@ -23,7 +23,7 @@ WAIT_DESCRIPTION = ("seconds to wait for the job to finish: if it ends in time t
 
 
 MARKER_POLL = 0.002  # seconds between checks of the job's completion marker (a stat)
-MARKER_POLL_WOKEN = 0.02  # the same when local workers send "done" datagrams
+MARKER_POLL_WOKEN = 0.02  # the same on the embedded SQLite queue (workers send datagrams)
 TABLE_POLL = 0.25  # seconds between job-table reads while waiting (markers can be missed)
 
 
@@ -33,13 +33,16 @@ async def wait_for(svc, job_id: str, seconds: float, job=None):
     A worker on this machine sends a "done" datagram after committing the final state
     (service.jobs.wake): the waiting request wakes at once and reads the job table. Workers
     elsewhere touch a completion marker in shared storage; checking it is a ``stat`` (every
-    ``MARKER_POLL_WOKEN`` seconds when datagrams arrive, ``MARKER_POLL`` otherwise). The job
+    ``MARKER_POLL_WOKEN`` seconds on the SQLite queue, whose workers share this machine,
+    ``MARKER_POLL`` otherwise). The job
     table is also read every ``TABLE_POLL`` seconds in case both are missed (a job failed by
     the reaper, or storage that caches file metadata). ``job``: its row as just read."""
     deadline = time.monotonic() + seconds
     waiters = svc.rt.waiters
     event = waiters.register(job_id) if waiters is not None and waiters.active else None
-    poll = MARKER_POLL if event is None else MARKER_POLL_WOKEN
+    # with Redis, workers may run on other machines (no datagram): keep the fast marker poll
+    local = event is not None and svc.rt.settings.queue == "sqlite"
+    poll = MARKER_POLL_WOKEN if local else MARKER_POLL
     try:
         if job is None:
             job = await run_in_threadpool(svc.get, job_id)
