@@ -44,6 +44,7 @@ MESHES = ROOT.parent / "shared" / "meshes"
 
 from solvers.domains import load_mesh  # noqa: E402
 from solvers.emd import earth_movers_distance, mesh_operators, pointwise_distances  # noqa: E402
+from solvers.geodesics import polyhedral_geodesic_distances  # noqa: E402
 
 THESIS_DW0 = {3000: 3.9, 10000: 23.2}
 
@@ -114,14 +115,8 @@ def lp_row(name, mesh, m0, m1, centers, repeats) -> str:
         support = rng.choice(mesh.n, 50, replace=False, p=src)
         dst[support] = src[support] / src[support].sum()
     s0, s1 = np.flatnonzero(p0), np.flatnonzero(p1)
-    flip = pp3d.EdgeFlipGeodesicSolver(mesh.vertices, mesh.faces)
     start = time.perf_counter()
-    cost = np.zeros((len(s0), len(s1)))
-    for i, a in enumerate(s0):
-        for j, b in enumerate(s1):
-            if a != b:
-                path = flip.find_geodesic_path(int(a), int(b))
-                cost[i, j] = np.linalg.norm(np.diff(path, axis=0), axis=1).sum()
+    cost = polyhedral_geodesic_distances(mesh, s0, s1)
     t_cost = time.perf_counter() - start
     start = time.perf_counter()
     lp = ot.emd2(p0[s0], p1[s1], cost)

@@ -29,6 +29,7 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from solvers.domains import TriangleMesh, load_mesh  # noqa: E402
+from solvers.geodesics import polyhedral_geodesic_distances  # noqa: E402
 from solvers.w1_convex import beckmann_w1_exact  # noqa: E402
 
 MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
@@ -38,17 +39,6 @@ LP_MAX_VERTICES = 3000
 def icosphere(level: int) -> TriangleMesh:
     s = trimesh.creation.icosphere(subdivisions=level)
     return TriangleMesh(s.vertices, s.faces)
-
-
-def flip_costs(mesh, sources, targets) -> np.ndarray:
-    solver = pp3d.EdgeFlipGeodesicSolver(mesh.vertices, mesh.faces)
-    C = np.zeros((len(sources), len(targets)))
-    for i, s in enumerate(sources):
-        for j, t in enumerate(targets):
-            if s != t:
-                path = solver.find_geodesic_path(int(s), int(t))
-                C[i, j] = np.linalg.norm(np.diff(path, axis=0), axis=1).sum()
-    return C
 
 
 def sparse_gap_rows():
@@ -68,7 +58,7 @@ def sparse_gap_rows():
         else:
             idx = rng.choice(mesh.n, 24, replace=False)
         src, dst = idx[:12], idx[12:]
-        lp = ot.emd2(wa, wb, flip_costs(mesh, src, dst))
+        lp = ot.emd2(wa, wb, polyhedral_geodesic_distances(mesh, src, dst))
         m0, m1 = np.zeros(mesh.n), np.zeros(mesh.n)
         np.add.at(m0, src, wa)
         np.add.at(m1, dst, wb)

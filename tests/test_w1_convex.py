@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import ot
-import potpourri3d as pp3d
 import pytest
 import trimesh
 
 from solvers.domains import TriangleMesh
 from solvers.errors import CancelledError, InputError, UnsupportedDomainError
+from solvers.geodesics import polyhedral_geodesic_distances
 from solvers.w1_convex import (
     beckmann_w1_exact,
     kantorovich_rubinstein_norm,
@@ -28,18 +28,6 @@ def _bump(mesh, center, width=0.3):
     d = np.linalg.norm(mesh.vertices - mesh.vertices[center], axis=1)
     x = np.exp(-((d / width) ** 2))
     return x / x.sum()
-
-
-def _flip_geodesics(mesh, sources, targets):
-    """Polyhedral geodesic lengths from edge-flip geodesic paths (locally shortest)."""
-    solver = pp3d.EdgeFlipGeodesicSolver(mesh.vertices, mesh.faces)
-    C = np.zeros((len(sources), len(targets)))
-    for i, s in enumerate(sources):
-        for j, t in enumerate(targets):
-            if s != t:
-                path = solver.find_geodesic_path(int(s), int(t))
-                C[i, j] = np.linalg.norm(np.diff(path, axis=0), axis=1).sum()
-    return C
 
 
 @pytest.mark.parametrize("name", ["woody.obj", "ico3"])
@@ -62,7 +50,7 @@ def test_beckmann_matches_exact_lp_with_geodesic_costs(name, shared_mesh):
         a = rng.random(8) + 0.1
         b = rng.random(8) + 0.1
         a, b = a / a.sum(), b / b.sum()
-        lp = ot.emd2(a, b, _flip_geodesics(mesh, src, dst))
+        lp = ot.emd2(a, b, polyhedral_geodesic_distances(mesh, src, dst))
         m0 = np.zeros(mesh.n)
         m1 = np.zeros(mesh.n)
         np.add.at(m0, src, a)
@@ -106,7 +94,7 @@ def test_metric_properties_and_dirac_geodesic(sphere):
     p = 0
     q = int(np.argmin(sphere.vertices @ sphere.vertices[p]))
     e0, e1 = np.eye(sphere.n)[p], np.eye(sphere.n)[q]
-    geo = _flip_geodesics(sphere, [p], [q])[0, 0]
+    geo = polyhedral_geodesic_distances(sphere, [p], [q])[0, 0]
     value = beckmann_w1_exact(sphere, e0, e1).value
     assert 0.95 * geo <= value <= geo * (1 + 1e-6)
 
