@@ -151,9 +151,10 @@ def _log_contract(y: np.ndarray, blocks: list[tuple], last: bool, owned: bool) -
     ``exp(log_k[i, l] + y[l] - c + s) = scaled[i, l] * z[l]`` with
     ``z = exp(shift_I + y - c)`` in ``[0, 1]`` (1 at the maximizer) and ``scaled`` in
     ``[1, e^s]`` (block construction).  Every row sum is thus in ``[1, n e^s]``;
-    entries of ``z`` below the smallest normal float are set to 0, so no product is
-    subnormal, which changes a sum by less than ``n e^(s - 708.4)`` relative.  The
-    sums are exact to relative ``n * eps``: the result is the exact log-sum-exp.
+    exponents of ``z`` are clamped to the smallest normal float (one pass, no mask),
+    so no product is subnormal, which changes a sum by less than ``n e^(s - 708.4)``
+    relative; columns that are entirely ``-inf`` give ``-inf`` (log 0).  The sums are
+    exact to relative ``n * eps``: the result is the exact log-sum-exp.
     """
     n = y.shape[1]
     single = len(blocks) == 1
@@ -161,7 +162,8 @@ def _log_contract(y: np.ndarray, blocks: list[tuple], last: bool, owned: bool) -
     for start, stop, shift, scaled, width in blocks:
         if np.ndim(shift) == 0:
             c = np.max(y, axis=1, keepdims=True)
-            c[~np.isfinite(c)] = 0.0  # all -inf column: result is -inf (log 0)
+            empty = ~np.isfinite(c)
+            c[empty] = 0.0  # all -inf column: result is -inf (log 0), set below
             if single and owned:
                 z = y
                 z -= c
@@ -171,15 +173,18 @@ def _log_contract(y: np.ndarray, blocks: list[tuple], last: bool, owned: bool) -
         else:
             z = y + (shift if last else shift[:, None])
             c = np.max(z, axis=1, keepdims=True)
-            c[~np.isfinite(c)] = 0.0
+            empty = ~np.isfinite(c)
+            c[empty] = 0.0
             z -= c
             c -= width
+        np.maximum(z, _LOG_TINY, out=z)
         np.exp(z, out=z)
-        np.multiply(z, z >= _TINY, out=z)
         s = z @ scaled.T if last else np.matmul(scaled, z)
         with np.errstate(divide="ignore"):
             np.log(s, out=s)
         s += c
+        if empty.any():
+            s[np.broadcast_to(empty, s.shape)] = -np.inf
         if stop - start == n:
             return s
         if out is None:
