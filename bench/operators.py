@@ -145,9 +145,10 @@ def main() -> None:
         f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
         f"Python {platform.python_version()}, numpy {np.__version__}, scipy {scipy.__version__}, "
         f"cholespy {version('cholespy')}, robust-laplacian {version('robust-laplacian')}.  "
-        f"Load average (1 min) {load_before[0]:.1f} before, {load_after[0]:.1f} after: "
-        "other jobs shared the two cores, so absolute times are noisy; the ratios "
-        "compare backends measured back to back in the same process.",
+        f"Load average (1 min) {load_before[0]:.1f} before, {load_after[0]:.1f} after"
+        + (": other jobs shared the two cores, so absolute times are noisy; "
+           if max(load_before[0], load_after[0]) > 1 else "; ")
+        + "the ratios compare backends measured back to back in the same process.",
         "",
         "System: `D_a + t L` with the robust (intrinsic-Delaunay) Laplacian, "
         "t = mean_edge_length², unit total area.  Times: load and build are the best of 3 "
