@@ -14,6 +14,8 @@ by the server, which reports the normalization.
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
@@ -140,9 +142,38 @@ def _bump(view: DomainView, spec: BumpDistribution, field: str) -> np.ndarray:
     return values
 
 
-def resolve_distribution(view: DomainView, spec, field: str, input_kind: str = "masses"
-                         ) -> tuple[np.ndarray, dict]:
+BUMP_MEMO_BYTES = 32 * 2**20  # resolved bumps kept per domain (view memo), at most 8
+
+
+def _memo_bump(view: DomainView, spec: BumpDistribution, field: str
+               ) -> tuple[np.ndarray, dict]:
+    """Resolved bump masses, memoized on the view's source object (DomainInfo in the API,
+    the cached Domain in a worker): repeated requests with the same bump neither search
+    the k-d tree nor re-check a full vector. Callers get a copy of the array."""
+    memo = view.memo
+    lock = memo.setdefault("bumps_lock", threading.Lock())
+    key = (int(spec.vertex), float(spec.radius))
+    with lock:
+        bumps = memo.setdefault("bumps", OrderedDict())
+        hit = bumps.get(key)
+        if hit is not None:
+            bumps.move_to_end(key)
+    if hit is None:
+        hit = resolve_distribution(view, spec, field, memoize=False)
+        with lock:
+            bumps[key] = hit
+            limit = max(1, min(8, BUMP_MEMO_BYTES // max(8 * view.n, 1)))
+            while len(bumps) > limit:
+                bumps.popitem(last=False)
+    values, report = hit
+    return values.copy(), {**report, "field": field}
+
+
+def resolve_distribution(view: DomainView, spec, field: str, input_kind: str = "masses",
+                         memoize: bool = True) -> tuple[np.ndarray, dict]:
     """Masses (n,) summing to 1 for one distribution spec, and the normalization report."""
+    if isinstance(spec, BumpDistribution) and memoize:
+        return _memo_bump(view, spec, field)
     if isinstance(spec, BumpDistribution):
         values = _bump(view, spec, field)
         input_kind = "masses"

@@ -29,6 +29,33 @@ def test_bump_on_grid_matches_brute_force():
     assert view_of_domain(grid).memo["tree"] is tree
 
 
+def test_bump_memo_returns_independent_copies_and_stays_bounded(monkeypatch):
+    import service.operations.base as base
+
+    grid = Grid((15, 11), bounds=[(0, 2), (0, 1)])
+
+    def bump(vertex, radius, field="mu"):
+        return resolve_distribution(view_of_domain(grid), BumpDistribution(vertex=vertex,
+                                                                           radius=radius), field)
+
+    first, report = bump(40, 0.35, "mu0")
+    expected = first.copy()
+    first[:] = -1.0  # callers own their array: the memo is not affected
+    again, report2 = bump(40, 0.35, "mu1")
+    assert np.array_equal(again, expected) and again is not first
+    assert report2["field"] == "mu1" and report2["given_total"] == report["given_total"]
+    # a different radius is a different bump
+    wider, _ = bump(40, 0.5)
+    assert np.count_nonzero(wider) > np.count_nonzero(expected)
+    # bounded by bytes: room for 2 vectors of this domain, the oldest is dropped
+    monkeypatch.setattr(base, "BUMP_MEMO_BYTES", 2 * 8 * grid.n)
+    for v in (1, 2, 3):
+        bump(v, 0.3)
+    assert list(view_of_domain(grid).memo["bumps"]) == [(2, 0.3), (3, 0.3)]
+    with pytest.raises(InvalidInput):  # errors are raised every time, never memoized
+        bump(grid.n, 1.0)
+
+
 def test_bump_on_graph_counts_hops():
     graph = Graph(6, [[0, 1], [1, 2], [2, 3], [3, 4], [4, 5]])
     masses, _ = resolve_distribution(view_of_domain(graph), BumpDistribution(vertex=2, radius=2),
