@@ -24,9 +24,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from solvers.convolutional.common import (
+    BARYCENTER_ACCELERATIONS,
     LogKernel,
     Monitor,
     OverRelaxation,
+    check_acceleration,
     check_components,
     entropy,
     log_density,
@@ -205,7 +207,7 @@ def barycenter(
     debiased: bool = False,
     tol: float = 1e-5,
     max_iter: int | None = None,
-    over_relaxation: bool = True,
+    acceleration: str = "over-relaxation",
     progress: Callable[[int, float], None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
 ) -> BarycenterResult:
@@ -229,8 +231,9 @@ def barycenter(
     entropy_bound, sharpen, debiased : see above.
     tol : largest L1 marginal violation over the inputs at which to stop.
     max_iter : iteration cap (default 10000).
-    over_relaxation : adaptive over-relaxation of both scaling updates (same fixed
-        point, typically 3-5x fewer iterations); used without sharpening/debiasing.
+    acceleration : ``"over-relaxation"`` (default: adaptive over-relaxation of both
+        scaling updates, same fixed point, typically 3-5x fewer iterations; used
+        without sharpening/debiasing) or ``"none"`` (plain Alg. 2).
     progress, should_cancel : called every iteration.
 
     Returns
@@ -242,6 +245,7 @@ def barycenter(
         M = M[:, None]
     k = M.shape[1]
     alpha = check_weights(weights, k)
+    acceleration = check_acceleration(acceleration, BARYCENTER_ACCELERATIONS)
     setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
                     progress=progress, should_cancel=should_cancel)
     check_components(domain, M, setup.tol, "mus")
@@ -258,7 +262,8 @@ def barycenter(
     lbar, it, res, conv = barycenters_log(
         setup.logk, setup.areas, M, alpha[:, None], tol=setup.tol, max_iter=setup.max_iter,
         monitor=setup.monitor, entropy_bounds=None if bound is None else np.array([bound]),
-        debiased=debiased, relax=over_relaxation and bound is None and not debiased)
+        debiased=debiased,
+        relax=acceleration == "over-relaxation" and bound is None and not debiased)
     masses = masses_from_log(lbar[:, 0], setup.areas)
     return BarycenterResult(masses=masses, iterations=int(it), residual=float(res),
                             converged=conv, entropy=float(entropy(masses, setup.areas)),

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from solvers.distributions import normalize_masses
-from solvers.errors import CancelledError, InputError, UnsupportedDomainError
+from solvers.errors import CancelledError, InputError
 from solvers.kernels import heat_time
 
 # Width (in natural-log units) of one band of a log-domain kernel application for
@@ -227,6 +227,20 @@ class Setup:
     monitor: Monitor
 
 
+# Sinkhorn accelerations (same fixed point): Anderson mixing of the scaling map
+# (distances), adaptive over-relaxation, or none (the thesis' plain iterations).
+ACCELERATIONS = ("anderson", "over-relaxation", "none")
+BARYCENTER_ACCELERATIONS = ("over-relaxation", "none")
+
+
+def check_acceleration(value, allowed: tuple[str, ...]) -> str:
+    """Validate the ``acceleration`` argument against the solver's supported choices."""
+    if value not in allowed:
+        raise InputError(f"acceleration must be one of {', '.join(map(repr, allowed))}, "
+                         f"got {value!r}", field="acceleration")
+    return value
+
+
 def check_positive(value, field: str) -> float:
     try:
         x = float(value)
@@ -275,20 +289,7 @@ def check_components(domain, masses: np.ndarray, tol: float, field: str) -> None
     ``masses`` is ``(n, k)``; with matching component masses the heat kernel is
     block diagonal and the solvers work on every component at once.
     """
-    if domain.n_components <= 1 or masses.shape[1] < 2:
-        return
-    per = np.stack([domain.component_masses(masses[:, j]) for j in range(masses.shape[1])],
-                   axis=1)
-    gap = np.abs(per - per[:, :1]).sum(axis=0)
-    if np.any(gap > tol):
-        j = int(np.argmax(gap))
-        raise UnsupportedDomainError(
-            f"the domain has {domain.n_components} connected components and mass cannot move "
-            f"between them, but the distributions put different mass on them (component masses "
-            f"{np.round(per[:, 0], 6).tolist()} vs {np.round(per[:, j], 6).tolist()}); give "
-            "each component the same mass in every distribution",
-            field=field,
-        )
+    domain.require_matching_component_masses(masses, tol, field)
 
 
 def log_density(masses: np.ndarray, areas: np.ndarray) -> np.ndarray:

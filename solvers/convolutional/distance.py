@@ -21,9 +21,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from solvers.convolutional.common import (
+    ACCELERATIONS,
     LogKernel,
     Monitor,
     OverRelaxation,
+    check_acceleration,
     check_components,
     log_density,
     masses_block,
@@ -58,8 +60,12 @@ class SinkhornResult:
 
 
 def sinkhorn_log(logk: LogKernel, areas, m0, m1, *, tol, max_iter, monitor: Monitor,
-                 relax: bool = True, init=None):
-    r"""Log-domain Sinkhorn (Alg. 1) with adaptive over-relaxation.
+                 acceleration: str = "anderson", init=None):
+    r"""Log-domain Sinkhorn (Alg. 1), accelerated.
+
+    ``acceleration``: ``"anderson"`` (default, :func:`_sinkhorn_anderson`),
+    ``"over-relaxation"`` (adaptive SOR, :class:`OverRelaxation`) or ``"none"``
+    (plain Alg. 1).  All three have the same fixed point.
 
     Returns ``(f, g, iterations, residual, converged, omega)`` with ``f = log v``,
     ``g = log w`` (``-inf`` where the mass is zero).
@@ -68,14 +74,16 @@ def sinkhorn_log(logk: LogKernel, areas, m0, m1, *, tol, max_iter, monitor: Moni
     s0, s1 = m0 > 0, m1 > 0
     if init is None:
         f = np.where(s0, 0.0, -np.inf)
-        g = np.where(s1, 0.0, -np.inf)
     else:
         f = np.where(s0, init[0], -np.inf)
-        g = np.where(s1, init[1], -np.inf)
+    if acceleration == "anderson":
+        return _sinkhorn_anderson(logk, areas, m0, l0, l1, f, tol=tol, max_iter=max_iter,
+                                  monitor=monitor)
+    g = np.where(s1, 0.0 if init is None else init[1], -np.inf)
     # Full supports (the common case) update whole arrays, without gathers/scatters.
     s0 = slice(None) if s0.all() else s0
     s1 = slice(None) if s1.all() else s1
-    sor = OverRelaxation(enabled=relax)
+    sor = OverRelaxation(enabled=acceleration == "over-relaxation")
     lg = logk(g)
     res2 = 0.0
     residual = np.inf
@@ -97,6 +105,106 @@ def sinkhorn_log(logk: LogKernel, areas, m0, m1, *, tol, max_iter, monitor: Moni
             lg = logk(g)
             it += 1
     return f, g, it, residual, bool(residual <= tol), sor.omega
+
+
+# Anderson memory (past iterates combined per step; measured on the shared meshes:
+# 20 halves the iterations of 8 at t = h^2 and costs ~1 ms per step at 50k vertices)
+# and the residual growth, relative to the best so far, at which the history is dropped.
+ANDERSON_MEMORY = 20
+_ANDERSON_RESTART = 10.0
+
+
+def _sinkhorn_anderson(logk: LogKernel, areas, m0, l0, l1, f, *, tol, max_iter,
+                       monitor: Monitor, memory: int = ANDERSON_MEMORY):
+    r"""Sinkhorn as a fixed point ``f = T(f)`` solved with Anderson acceleration.
+
+    One Sinkhorn iteration is the map :math:`T(f) = \log\mu_0 - \log H(a \otimes
+    e^{g(f)})` with :math:`g(f) = \log\mu_1 - \log H(a \otimes e^f)`; its fixed
+    point is the scaling of Alg. 1.  Anderson mixing (type II, Walker & Ni 2011)
+    takes :math:`f_{k+1} = T(f_k) - \Delta T\,\gamma` with :math:`\gamma` the
+    least-squares fit of the last ``memory`` residual differences
+    :math:`\Delta r` to :math:`r_k = T(f_k) - f_k` (mass-weighted, Tikhonov-damped);
+    the cost per iteration stays two kernel applications plus O(n memory).
+    Safeguard: when the marginal violation grows ``_ANDERSON_RESTART`` times past
+    the best seen, or the fit is singular, the history is dropped and a plain
+    Sinkhorn step is taken.  The second marginal is exact after every step
+    (``g = g(f)``), so the reported residual is the L1 violation of the first.
+    """
+    support = np.flatnonzero(m0 > 0)
+    full = len(support) == len(f)
+    # Weight the log-residuals by mass: m0 |e^r - 1| ~ m0 |r| is the L1 violation.
+    weight = np.sqrt(m0 if full else m0[support])
+    mixer = _AndersonMixer(len(support), memory, weight)
+    best = np.inf
+    residual = np.inf
+    it = 0
+    with np.errstate(over="ignore", under="ignore"):
+        while True:
+            g = l1 - logk(f)
+            lg = logk(g)
+            residual = _l1_gap(m0, areas, f, lg)
+            monitor(it, residual)
+            if residual <= tol or it >= max_iter or not np.isfinite(residual):
+                break
+            if residual > _ANDERSON_RESTART * best:
+                mixer.reset()
+            best = min(best, residual)
+            t_f = (l0 - lg) if full else (l0[support] - lg[support])
+            step = mixer.step(t_f, t_f - (f if full else f[support]))
+            if full:
+                f = step
+            else:
+                f = np.full_like(f, -np.inf)
+                f[support] = step
+            it += 1
+    return f, g, it, residual, bool(residual <= tol), 1.0
+
+
+class _AndersonMixer:
+    """Anderson (type II) mixing with ring buffers and an incrementally updated Gram matrix."""
+
+    def __init__(self, n: int, memory: int, weight: np.ndarray):
+        self.memory = max(int(memory), 1)
+        self.weight = weight
+        self.d_r = np.empty((n, self.memory))  # weighted residual differences
+        self.d_t = np.empty((n, self.memory))  # differences of T(f)
+        self.gram = np.zeros((self.memory, self.memory))
+        self.reset()
+
+    def reset(self) -> None:
+        self.count = 0  # stored difference columns
+        self.slot = 0  # next column to overwrite
+        self.last_t = None
+        self.last_r = None
+
+    def step(self, t_f: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """Next iterate from ``T(f_k)`` and ``r_k = T(f_k) - f_k``."""
+        r_w = r * self.weight
+        if self.last_t is not None:
+            c = self.slot
+            np.subtract(r_w, self.last_r, out=self.d_r[:, c])
+            np.subtract(t_f, self.last_t, out=self.d_t[:, c])
+            self.count = min(self.count + 1, self.memory)
+            self.slot = (c + 1) % self.memory
+            k = self.count
+            row = self.d_r[:, :k].T @ self.d_r[:, c]
+            self.gram[c, :k] = row
+            self.gram[:k, c] = row
+        self.last_t, self.last_r = t_f, r_w
+        k = self.count
+        if k == 0:
+            return t_f
+        gram = self.gram[:k, :k].copy()
+        gram[np.diag_indices(k)] += 1e-10 * np.trace(gram) + 1e-300
+        try:
+            coef = np.linalg.solve(gram, self.d_r[:, :k].T @ r_w)
+        except np.linalg.LinAlgError:
+            coef = None
+        out = None if coef is None else t_f - self.d_t[:, :k] @ coef
+        if out is None or not np.all(np.isfinite(out)):
+            self.reset()
+            return t_f
+        return out
 
 
 def _l1_gap(m, areas, f, lk) -> float:
@@ -149,7 +257,7 @@ def wasserstein_distance(
     tol: float = 1e-5,
     max_iter: int | None = None,
     debiased: bool = False,
-    over_relaxation: bool = True,
+    acceleration: str = "anderson",
     init: tuple[np.ndarray, np.ndarray] | None = None,
     progress: Callable[[int, float], None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
@@ -190,7 +298,9 @@ def wasserstein_distance(
     max_iter : iteration cap (default 10000); when hit, ``converged`` is False
         and ``residual`` is the measured violation.
     debiased : return the Sinkhorn divergence.
-    over_relaxation : adaptive over-relaxation (default); False runs plain Alg. 1.
+    acceleration : ``"anderson"`` (default: Anderson mixing of the Sinkhorn fixed-point
+        map, about half the iterations of over-relaxation), ``"over-relaxation"``
+        (adaptive SOR) or ``"none"`` (plain Alg. 1).  Same fixed point.
     init : optional warm start ``(log_v, log_w)`` from a previous result.
     progress, should_cancel : called every iteration; ``should_cancel()`` returning
         True raises :class:`solvers.errors.CancelledError`.
@@ -205,13 +315,14 @@ def wasserstein_distance(
         if m.ndim != 1:
             raise InputError(f"{name} must be one distribution of shape ({domain.n},)",
                              field=name)
+    acceleration = check_acceleration(acceleration, ACCELERATIONS)
     setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
                     progress=progress, should_cancel=should_cancel)
     check_components(domain, np.stack([m0, m1], axis=1), setup.tol, "mu1")
     a, logk, mon = setup.areas, setup.logk, setup.monitor
     f, g, it, res, conv, omega = sinkhorn_log(logk, a, m0, m1, tol=setup.tol,
                                               max_iter=setup.max_iter, monitor=mon,
-                                              relax=over_relaxation, init=init)
+                                              acceleration=acceleration, init=init)
     value = _value(setup.gamma, m0, f, m1, g)
     self_values = None
     if debiased:

@@ -15,6 +15,8 @@ import numpy as np
 
 from solvers.convolutional.barycenter import barycenters_log
 from solvers.convolutional.common import (
+    BARYCENTER_ACCELERATIONS,
+    check_acceleration,
     check_components,
     entropy,
     masses_block,
@@ -50,7 +52,7 @@ def displacement_interpolation(
     debiased: bool = False,
     tol: float = 1e-5,
     max_iter: int | None = None,
-    over_relaxation: bool = True,
+    acceleration: str = "over-relaxation",
     progress: Callable[[int, float], None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
 ) -> InterpolationResult:
@@ -63,7 +65,7 @@ def displacement_interpolation(
     Parameters
     ----------
     mu0, mu1 : ``(n,)`` masses; times : sequence of ``s`` in ``[0, 1]``.
-    gamma, t, substeps, tol, max_iter, over_relaxation, progress, should_cancel :
+    gamma, t, substeps, tol, max_iter, acceleration, progress, should_cancel :
         as :func:`barycenter`.
 
     Returns
@@ -81,6 +83,7 @@ def displacement_interpolation(
         raise InputError("times must be numbers in [0, 1]", field="times") from exc
     if s.size == 0 or not np.all(np.isfinite(s)) or np.any((s < 0) | (s > 1)):
         raise InputError("times must be a non-empty list of numbers in [0, 1]", field="times")
+    acceleration = check_acceleration(acceleration, BARYCENTER_ACCELERATIONS)
     setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
                     progress=progress, should_cancel=should_cancel)
     check_components(domain, np.stack([m0, m1], axis=1), setup.tol, "mu1")
@@ -96,7 +99,7 @@ def displacement_interpolation(
     lbar, it, res, conv = barycenters_log(
         setup.logk, setup.areas, inputs, weights, tol=setup.tol, max_iter=setup.max_iter,
         monitor=setup.monitor, entropy_bounds=bounds, debiased=debiased, owners=owners,
-        relax=over_relaxation and not sharpen and not debiased)
+        relax=acceleration == "over-relaxation" and not sharpen and not debiased)
     masses = masses_from_log(lbar, setup.areas)
     return InterpolationResult(masses=masses, times=s, iterations=int(it), residual=float(res),
                                converged=conv, gamma=setup.gamma, t=setup.t)
