@@ -10,6 +10,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
+from solvers.errors import UnsupportedDomainError
 from solvers.kernels import HeatKernel
 from solvers.linalg import Backend
 
@@ -66,6 +67,30 @@ class Domain:
     def component_masses(self, masses: np.ndarray) -> np.ndarray:
         """Total mass per connected component of an (n,) mass vector."""
         return np.bincount(self.component_labels, weights=masses, minlength=self.n_components)
+
+    def require_matching_component_masses(self, masses: np.ndarray, tol: float,
+                                          field: str) -> None:
+        """Refuse ``(n, k)`` masses whose columns put different mass on some component.
+
+        Transport never moves mass between connected components, so every
+        distribution of one problem must give each component the same total
+        (L1 gap over components at most ``tol``, mass units).
+        """
+        if self.n_components <= 1 or masses.shape[1] < 2:
+            return
+        per = np.stack([self.component_masses(masses[:, j]) for j in range(masses.shape[1])],
+                       axis=1)
+        gap = np.abs(per - per[:, :1]).sum(axis=0)
+        if np.any(gap > tol):
+            j = int(np.argmax(gap))
+            raise UnsupportedDomainError(
+                f"the domain has {self.n_components} connected components and mass cannot "
+                f"move between them, but the distributions put different mass on them "
+                f"(component masses {np.round(per[:, 0], 6).tolist()} vs "
+                f"{np.round(per[:, j], 6).tolist()}); give each component the same mass in "
+                "every distribution",
+                field=field,
+            )
 
     # -- content addressing -------------------------------------------------
     def to_arrays(self) -> dict[str, np.ndarray]:

@@ -101,14 +101,7 @@ def check_pair(mesh, mu0, mu1) -> tuple[np.ndarray, np.ndarray]:
     m1 = normalize_masses(mu1, mesh.n, "mu1")
     if m0.ndim != 1 or m1.ndim != 1:
         raise InputError("mu0 and mu1 must be one distribution each, shape (n,)", field="mu1")
-    if mesh.n_components > 1:
-        c0, c1 = mesh.component_masses(m0), mesh.component_masses(m1)
-        bad = np.flatnonzero(np.abs(c0 - c1) > 1e-9)
-        if len(bad):
-            raise UnsupportedDomainError(
-                f"mesh has {mesh.n_components} connected components and mu0/mu1 put different "
-                f"mass on component {int(bad[0])} ({c0[bad[0]]:.6g} vs {c1[bad[0]]:.6g}): "
-                "mass cannot move between components", field="mu1")
+    mesh.require_matching_component_masses(np.stack([m0, m1], axis=1), 1e-9, "mu1")
     return m0, m1
 
 
