@@ -71,6 +71,7 @@ class EMDOperators:
         self._curl_matrix = None
         self._harmonic = None
         self._eigen: tuple[np.ndarray, np.ndarray] | None = None
+        self._green = None
 
     # -- fields -------------------------------------------------------------
     def grad(self, f: np.ndarray) -> np.ndarray:
@@ -113,6 +114,19 @@ class EMDOperators:
         """``(f, v = ∇f)`` with ``L f = difference`` (= m1 - m0), eq. 2.4."""
         f = self.solve_poisson(difference)
         return f, self.grad(f)
+
+    @property
+    def has_green_matrix(self) -> bool:
+        return self._green is not None
+
+    def green_matrix(self, check=None, max_vertices: int | None = None):
+        """The dense Green's matrix ``L⁺`` (float32 panels, :class:`solvers.emd.green.GreenMatrix`),
+        built on first use (``V`` unit solves with the pinned factor) and kept; ``4 V²`` bytes."""
+        if self._green is None:
+            from solvers.emd.green import build_green_matrix
+
+            self._green = build_green_matrix(self, check=check, max_vertices=max_vertices)
+        return self._green
 
     # -- curl basis ---------------------------------------------------------
     @property
