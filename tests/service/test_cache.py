@@ -40,6 +40,13 @@ def test_refresh_grows_entry_size_with_operators(shared_mesh):
     fresh.heat_kernel(1e-3)  # builds the Laplacian and a factorization
     cache.refresh("m")
     assert cache.bytes > before + fresh.laplacian.nnz * 12
+    # d_W^0 one-to-all keeps a dense float32 Green's matrix (4 V^2 bytes) on the mesh
+    with_factor = cache.bytes
+    from solvers.emd import pointwise_distances
+
+    pointwise_distances(fresh, 0, method="green")
+    cache.refresh("m")
+    assert cache.bytes >= with_factor + 4 * fresh.n**2
 
 
 def test_estimate_counts_arrays():
