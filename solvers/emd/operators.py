@@ -22,6 +22,8 @@ matrix of the ADMM c-update (Fig. 2.5) and is factored once per mesh.
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
@@ -72,6 +74,8 @@ class EMDOperators:
         self._harmonic = None
         self._eigen: tuple[np.ndarray, np.ndarray] | None = None
         self._green = None
+        # One build at a time: concurrent jobs on a cached mesh must not both allocate 4 V² bytes.
+        self._green_lock = threading.Lock()
 
     # -- fields -------------------------------------------------------------
     def grad(self, f: np.ndarray) -> np.ndarray:
@@ -122,10 +126,11 @@ class EMDOperators:
     def green_matrix(self, check=None, max_vertices: int | None = None):
         """The dense Green's matrix ``L⁺`` (float32 panels, :class:`solvers.emd.green.GreenMatrix`),
         built on first use (``V`` unit solves with the pinned factor) and kept; ``4 V²`` bytes."""
-        if self._green is None:
-            from solvers.emd.green import build_green_matrix
+        with self._green_lock:
+            if self._green is None:
+                from solvers.emd.green import build_green_matrix
 
-            self._green = build_green_matrix(self, check=check, max_vertices=max_vertices)
+                self._green = build_green_matrix(self, check=check, max_vertices=max_vertices)
         return self._green
 
     # -- curl basis ---------------------------------------------------------
