@@ -153,8 +153,7 @@ def _sinkhorn_anderson(logk: LogKernel, areas, m0, l0, l1, f, *, tol, max_iter,
             step = mixer.step(t_f, t_f - (f if full else f[support]))
             if full:
                 f = step
-            else:
-                f = np.full_like(f, -np.inf)
+            else:  # off the support f stays -inf
                 f[support] = step
             it += 1
     return f, g, it, residual, bool(residual <= tol), 1.0
