@@ -1,4 +1,4 @@
-"""Benchmark the exact Beckmann W1 (Clarabel SOCP, ``solvers.w1_convex``).
+"""Benchmark the exact Beckmann W1 (Clarabel SOCP, ``solvers.emd.exact``).
 
 Measured in the same run, on the same pairs of distributions:
 - accuracy: the SOCP value against POT's exact LP ``ot.emd2`` with polyhedral geodesic
@@ -29,8 +29,8 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from solvers.domains import TriangleMesh, load_mesh  # noqa: E402
+from solvers.emd.exact import beckmann_w1_exact  # noqa: E402
 from solvers.geodesics import polyhedral_geodesic_distances  # noqa: E402
-from solvers.w1_convex import beckmann_w1_exact  # noqa: E402
 
 MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 LP_MAX_VERTICES = 3000

@@ -8,7 +8,7 @@ import trimesh
 from scipy import ndimage
 
 from solvers import Grid, InputError
-from solvers.shapes import iso_surface, shape_interpolation, voxelize
+from solvers.convolutional.shapes import iso_surface, shape_interpolation, voxelize
 
 GAMMA = 0.002
 

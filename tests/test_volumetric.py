@@ -7,14 +7,14 @@ import pytest
 import trimesh
 
 from solvers.domains import TriangleMesh
-from solvers.errors import CancelledError, InputError, UnsupportedDomainError
-from solvers.volumetric import (
+from solvers.emd.volumetric import (
     mean_value_coordinates,
     volumetric_distance,
     volumetric_distances,
     volumetric_path,
     winding_number,
 )
+from solvers.errors import CancelledError, InputError, UnsupportedDomainError
 
 
 @pytest.fixture(scope="module")

@@ -29,8 +29,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from solvers.domains.mesh import TriangleMesh
+from solvers.emd.exact import MAX_VERTICES, kantorovich_rubinstein_norm
 from solvers.errors import CancelledError, InputError, UnsupportedDomainError
-from solvers.w1_convex import MAX_VERTICES, kantorovich_rubinstein_norm
 
 # Points closer than this (relative to the mean edge length) to a vertex or to the
 # plane of a face they lie in are treated as on the surface.
@@ -257,7 +257,7 @@ def volumetric_distance(
 
     :math:`d(x, y) = \lVert w(x) - w(y)\rVert_{KR}` with :math:`w` the mean value
     coordinates on the closed boundary mesh.  ``method="exact"`` solves the Beckmann
-    SOCP (:mod:`solvers.w1_convex`, at most ``max_vertices``); ``"admm"`` uses
+    SOCP (:mod:`solvers.emd.exact`, at most ``max_vertices``); ``"admm"`` uses
     :func:`solvers.emd.earth_movers_distance` on the positive and negative parts, with
     its flow ``basis`` (default ``"flow"``: all piecewise-constant flows, the same
     discrete problem as the exact solver; ``"full"``/``"spectral"`` restrict the flows

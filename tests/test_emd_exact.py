@@ -8,14 +8,14 @@ import pytest
 import trimesh
 
 from solvers.domains import TriangleMesh
-from solvers.errors import CancelledError, InputError, UnsupportedDomainError
-from solvers.geodesics import polyhedral_geodesic_distances
-from solvers.w1_convex import (
+from solvers.emd.exact import (
     beckmann_w1_exact,
     kantorovich_rubinstein_norm,
     w1_barycenter,
     w1_path_planning,
 )
+from solvers.errors import CancelledError, InputError, UnsupportedDomainError
+from solvers.geodesics import polyhedral_geodesic_distances
 
 
 @pytest.fixture(scope="module")
