@@ -1,10 +1,11 @@
 """Per-process LRU cache of built domains, which own their prefactored operators.
 
-A domain object caches its heat kernels per ``(t, substeps, backend)``, so one
-entry keyed by the domain id holds every operator built for it: the cache key is
-effectively ``(domain id, operator, parameters)``.  The cache is bounded in
-bytes; sizes are estimates (arrays + sparse matrices + Cholesky fill), refreshed
-after every job since kernels are added as they are used.
+A domain keeps every operator built for it in its operator store
+(``domain.operators``, :mod:`solvers.domains.operators`), so one entry keyed by the
+domain id holds them all: the cache key is effectively ``(domain id, operator,
+parameters)``.  The cache is bounded in bytes; an entry's size is the domain's
+``nbytes`` (its arrays plus the store's measured entries), refreshed after every job
+since operators are added as they are used.
 """
 
 from __future__ import annotations
@@ -13,55 +14,14 @@ import threading
 from collections import OrderedDict
 from collections.abc import Callable
 
-import numpy as np
-import scipy.sparse as sp
-
-# A sparse Cholesky factor of a mesh Laplacian-like matrix has a few times the
-# nonzeros of the matrix (nested dissection fill); counted at 12 bytes/nonzero.
-FACTOR_FILL = 8.0
-
-
-def _nbytes(obj, depth: int = 3, seen: set | None = None) -> int:
-    """Bytes of the arrays and sparse matrices reachable from ``obj`` (a few levels deep:
-    attributes of operator objects, dict/list members), each counted once."""
-    seen = set() if seen is None else seen
-    if id(obj) in seen:
-        return 0
-    seen.add(id(obj))
-    if isinstance(obj, np.ndarray):
-        return int(obj.nbytes)
-    if sp.issparse(obj):
-        return sum(int(getattr(obj, name).nbytes) for name in ("data", "indices", "indptr",
-                                                               "row", "col")
-                   if isinstance(getattr(obj, name, None), np.ndarray))
-    if depth <= 0 or isinstance(obj, (str, bytes, int, float, bool, type(None))):
-        return 0
-    if isinstance(obj, dict):
-        children = obj.values()
-    elif isinstance(obj, (list, tuple)):
-        children = obj
-    elif hasattr(obj, "__dict__") and not isinstance(obj, type):
-        children = vars(obj).values()
-    else:
-        return 0
-    return sum(_nbytes(child, depth - 1, seen) for child in children)
+from solvers.domains.operators import nbytes_of
 
 
 def estimate_bytes(domain) -> int:
-    """Rough memory held by a domain and the operators it has built so far: every array
-    and sparse matrix reachable from it, plus the Cholesky fill of each factored kernel
-    (the factor itself lives in C++ and cannot be measured)."""
-    total = _nbytes(domain)
-    nnz = 7 * int(domain.n)  # a triangle mesh Laplacian has about 7 nonzeros per row
-    for name in ("robust_laplacian", "cotan_laplacian", "laplacian", "_laplacian"):
-        lap = domain.__dict__.get(name)
-        if lap is not None and sp.issparse(lap):
-            nnz = int(lap.nnz)
-            break
-    for kernel in getattr(domain, "_kernels", {}).values():
-        if hasattr(kernel, "factor"):
-            total += int(FACTOR_FILL * nnz * 12)
-    return total
+    """Memory held by a domain: its arrays plus every entry of its operator store (as the
+    store measured them; factorizations report their estimated fill)."""
+    own = getattr(domain, "nbytes", None)
+    return int(own) if isinstance(own, int) else nbytes_of(domain)
 
 
 class OperatorCache:
@@ -137,7 +97,8 @@ class OperatorCache:
 
     def stats(self) -> dict:
         with self._lock:
-            operators = sum(len(getattr(v, "_kernels", {})) for v in self._items.values())
+            operators = sum(len(v.operators) for v in self._items.values()
+                            if hasattr(v, "operators"))
             return {"hits": self.hits, "misses": self.misses, "evictions": self.evictions,
                     "entries": len(self._items), "operators": operators,
                     "operator_builds": self.operator_builds, "bytes": self.bytes,

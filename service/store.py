@@ -101,6 +101,11 @@ class DomainInfo:
         return int(self.meta["summary"].get("components", 1))
 
     @cached_property
+    def memo(self) -> dict:
+        """Values derived from this stored domain during validation (resolved bumps)."""
+        return {}
+
+    @cached_property
     def aux(self) -> dict[str, np.ndarray]:
         return self._store._load_npz(self._store.domain_dir / f"{self.id}.aux.npz", self.id)
 

@@ -34,8 +34,18 @@ class Factorization(Protocol):
     def solve(self, rhs: np.ndarray) -> np.ndarray: ...
 
 
+# The factor of a mesh Laplacian-like matrix has a few times the matrix's nonzeros
+# (nested-dissection fill); cholespy keeps it in C++, so its size is estimated at this
+# fill and 12 bytes per nonzero (value + index).
+FACTOR_FILL = 8.0
+
+
+def estimated_factor_bytes(matrix: sp.spmatrix) -> int:
+    return int(FACTOR_FILL * matrix.nnz * 12)
+
+
 class CholespyFactor:
-    """Supernodal sparse Cholesky via cholespy."""
+    """Supernodal sparse Cholesky via cholespy (``nbytes``: estimated factor size)."""
 
     backend = "cholespy"
 
@@ -46,6 +56,7 @@ class CholespyFactor:
         # into buffers cholespy owns.  The arrays below are read only.
         csr = sp.csr_matrix(matrix)
         self.n = csr.shape[0]
+        self.nbytes = estimated_factor_bytes(csr)
         self._solver = CholeskySolverD(
             self.n,
             np.array(csr.indptr, dtype=np.int32),
@@ -68,6 +79,7 @@ class SpluFactor:
 
     def __init__(self, matrix: sp.spmatrix):
         self.n = matrix.shape[0]
+        self.nbytes = estimated_factor_bytes(matrix)
         self._lu = spla.splu(sp.csc_matrix(matrix, copy=True))  # splu sums duplicates in place
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:

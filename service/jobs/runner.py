@@ -146,11 +146,11 @@ class JobRunner:
             op = get_operation(job.operation)
             params = op.request_model.model_validate(job.params)
             domain = self.domain(job.domain_id)
-            kernels = set(getattr(domain, "_kernels", {}))
+            builds_before = domain.operators.builds
             try:
                 output = op.run(domain, params, hb.on_progress, should_cancel)
             finally:
-                built = len(set(getattr(domain, "_kernels", {})) - kernels)
+                built = domain.operators.builds - builds_before
                 self.cache.operator_builds += built
             if should_cancel():
                 raise CancelledError("cancelled")

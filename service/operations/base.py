@@ -15,6 +15,7 @@ by the server, which reports the normalization.
 from __future__ import annotations
 
 import threading
+import weakref
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -25,7 +26,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.sparse.csgraph import shortest_path
 
 from service.errors import InvalidInput, UnsupportedOperation
-from solvers.distributions import check_masses
+from solvers.validation import check_masses
 
 Progress = Callable[[int, float], None]
 ShouldCancel = Callable[[], bool]
@@ -232,10 +233,15 @@ def check_same_components(view: DomainView, masses: dict[str, np.ndarray]) -> No
                 f"but {names[0]} puts {ref[k]:.6g}", field=name)
 
 
+# Per built domain (a worker's cached object): values derived by validation, e.g. resolved
+# bumps; dropped with the domain when the cache evicts it.
+_DOMAIN_MEMOS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
 def view_of_domain(domain) -> DomainView:
     from service.store import domain_points
 
-    memo = domain.__dict__.setdefault("_service_memo", {})
+    memo = _DOMAIN_MEMOS.setdefault(domain, {})
     return DomainView(kind=domain.kind, n=int(domain.n), areas=np.asarray(domain.areas),
                       component_labels=np.asarray(domain.component_labels),
                       points=domain_points(domain), edges=getattr(domain, "edges", None),
@@ -247,7 +253,7 @@ def view_of_info(info) -> DomainView:
     n_faces = info.meta["summary"].get("faces")
     return DomainView(kind=info.kind, n=info.n, areas=info.areas,
                       component_labels=info.component_labels, points=info.points,
-                      edges=edges, n_faces=n_faces, memo=info.__dict__.setdefault("_memo", {}))
+                      edges=edges, n_faces=n_faces, memo=info.memo)
 
 
 def default_gamma(domain_or_view) -> float:

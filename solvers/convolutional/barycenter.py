@@ -37,6 +37,7 @@ from solvers.convolutional.common import (
     prepare,
 )
 from solvers.errors import InputError
+from solvers.validation import check_weights
 
 
 @dataclass
@@ -176,22 +177,6 @@ def barycenters_log(logk: LogKernel, areas: np.ndarray, inputs: np.ndarray,
             lv = lv + omega * (spread(lbar) - lku - lv)
             it += 1
     return lbar, it, residual, bool(residual <= tol)
-
-
-def check_weights(weights, k: int, field: str = "weights") -> np.ndarray:
-    if weights is None:
-        return np.full(k, 1.0 / k)
-    try:
-        w = np.asarray(weights, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"{field} must be numbers", field=field) from exc
-    if w.shape != (k,):
-        raise InputError(f"{field} must have one value per distribution ({k}), got shape "
-                         f"{w.shape}", field=field)
-    if not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
-        raise InputError(f"{field} must be finite, non-negative, with a positive sum",
-                         field=field)
-    return w / w.sum()
 
 
 def barycenter(

@@ -16,14 +16,14 @@ the thesis, and ``kernel.apply(x)`` is :math:`H_t(a \otimes x)`.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from solvers.distributions import normalize_masses
-from solvers.errors import CancelledError, InputError
+from solvers.errors import InputError
 from solvers.kernels import heat_time
+from solvers.monitor import Monitor
+from solvers.validation import check_positive, normalize_masses
 
 # Width (in natural-log units) of one band of a log-domain kernel application for
 # kernels whose smallest entry is unknown (implicit Euler): entries of the
@@ -148,22 +148,6 @@ def _floor(out: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(out), out, top - _UNDERFLOW_GAP)
 
 
-class Monitor:
-    """Progress callback and cancellation check, called once per iteration."""
-
-    def __init__(self, progress: Callable[[int, float], None] | None,
-                 should_cancel: Callable[[], bool] | None):
-        self.progress = progress
-        self.should_cancel = should_cancel
-        self.offset = 0
-
-    def __call__(self, iteration: int, residual: float) -> None:
-        if self.should_cancel is not None and self.should_cancel():
-            raise CancelledError(f"cancelled at iteration {self.offset + iteration}")
-        if self.progress is not None:
-            self.progress(self.offset + int(iteration), float(residual))
-
-
 class OverRelaxation:
     r"""Adaptive over-relaxed Sinkhorn updates ``f <- f + omega (f_sinkhorn - f)``.
 
@@ -239,16 +223,6 @@ def check_acceleration(value, allowed: tuple[str, ...]) -> str:
         raise InputError(f"acceleration must be one of {', '.join(map(repr, allowed))}, "
                          f"got {value!r}", field="acceleration")
     return value
-
-
-def check_positive(value, field: str) -> float:
-    try:
-        x = float(value)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"{field} must be a number", field=field) from exc
-    if not (math.isfinite(x) and x > 0):
-        raise InputError(f"{field} must be positive and finite, got {value}", field=field)
-    return x
 
 
 def prepare(domain, *, gamma, t, substeps, tol, max_iter, progress, should_cancel,

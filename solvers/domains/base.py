@@ -10,6 +10,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
+from solvers.domains.operators import OperatorStore, nbytes_of
 from solvers.errors import UnsupportedDomainError
 from solvers.kernels import HeatKernel
 from solvers.linalg import Backend
@@ -21,8 +22,9 @@ class Domain:
     Subclasses define ``kind``, ``n`` (number of points carrying mass),
     ``areas`` (positive weights summing to 1), ``laplacian`` (sparse PSD weak
     Laplacian, ``L·1 = 0``), ``_build_heat_kernel`` and ``to_arrays``.
-    Prefactored heat kernels are built once per ``(t, substeps, backend)`` and
-    kept on the object.
+    Prefactored operators (heat kernels per ``(t, substeps, backend)``, and whatever the
+    solvers derive from the domain) live in one explicit store, ``domain.operators``
+    (:class:`~solvers.domains.operators.OperatorStore`): built once under a lock, sized.
     """
 
     kind: str = "domain"
@@ -30,7 +32,7 @@ class Domain:
     areas: np.ndarray
 
     def __init__(self):
-        self._kernels: dict[tuple, HeatKernel] = {}
+        self.operators = OperatorStore()
 
     @property
     def laplacian(self) -> sp.csr_matrix:  # pragma: no cover - abstract
@@ -38,10 +40,9 @@ class Domain:
 
     def heat_kernel(self, t: float, substeps: int = 1, backend: Backend = "auto") -> HeatKernel:
         """The heat kernel at time ``t`` (built and factored once, then cached)."""
-        key = (float(t), int(substeps), backend)
-        if key not in self._kernels:
-            self._kernels[key] = self._build_heat_kernel(float(t), int(substeps), backend)
-        return self._kernels[key]
+        key = ("heat_kernel", float(t), int(substeps), backend)
+        return self.operators.get(
+            key, lambda: self._build_heat_kernel(float(t), int(substeps), backend))
 
     def _build_heat_kernel(self, t: float, substeps: int, backend: Backend) -> HeatKernel:
         raise NotImplementedError  # pragma: no cover
@@ -113,6 +114,12 @@ class Domain:
             digest.update(str(arr.shape).encode())
             digest.update(arr.tobytes())
         return digest.hexdigest()
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held: the domain's own arrays and cached geometry plus its operator store."""
+        own = {k: v for k, v in vars(self).items() if k != "operators"}
+        return nbytes_of(own) + self.operators.nbytes
 
     def summary(self) -> dict:
         """Sizes and diagnostics, JSON-serializable."""

@@ -122,15 +122,15 @@ class Grid(Domain):
         if kernel not in ("gaussian", "implicit"):
             raise DomainError(f"kernel must be 'gaussian' or 'implicit', got {kernel!r}",
                               field="kernel")
-        key = (float(t), int(substeps), backend, kernel)
-        if key not in self._kernels:
+        key = ("heat_kernel", float(t), int(substeps), backend, kernel)
+
+        def build():
             if kernel == "gaussian":
-                self._kernels[key] = GaussianGridHeatKernel(self, float(t))
-            else:
-                self._kernels[key] = ImplicitEulerHeatKernel(
-                    self.areas, self.laplacian, float(t), int(substeps), backend
-                )
-        return self._kernels[key]
+                return GaussianGridHeatKernel(self, float(t))
+            return ImplicitEulerHeatKernel(self.areas, self.laplacian, float(t), int(substeps),
+                                           backend)
+
+        return self.operators.get(key, build)
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         return {

@@ -45,11 +45,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from solvers.distributions import normalize_masses
 from solvers.emd.bases import CurlBasis, SpectralBasis, _apply_metric, _Basis
 from solvers.emd.operators import EMDOperators, mesh_operators
 from solvers.errors import CancelledError, InputError, UnsupportedDomainError
 from solvers.linalg import factorize_spd
+from solvers.validation import normalize_masses
 
 METHODS = ("admm", "weiszfeld")
 BASES = ("full", "spectral", "flow")

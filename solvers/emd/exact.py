@@ -42,9 +42,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from solvers.distributions import check_masses
 from solvers.domains.mesh import TriangleMesh
 from solvers.errors import CancelledError, InputError, UnsupportedDomainError
+from solvers.validation import check_masses
 
 MAX_VERTICES = 5000
 # Coupled programs (barycenters, paths) factor much worse than k separate ones: cap

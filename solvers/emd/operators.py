@@ -22,8 +22,6 @@ matrix of the ADMM c-update (Fig. 2.5) and is factored once per mesh.
 
 from __future__ import annotations
 
-import threading
-
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
@@ -31,16 +29,11 @@ import scipy.sparse.linalg as spla
 from solvers.errors import UnsupportedDomainError
 from solvers.linalg import factorize_spd
 
-CACHE_ATTRIBUTE = "_emd_operators"
-
 
 def mesh_operators(mesh) -> EMDOperators:
-    """The :class:`EMDOperators` of ``mesh``, built on first use and cached on the mesh."""
-    ops = getattr(mesh, CACHE_ATTRIBUTE, None)
-    if ops is None:
-        ops = EMDOperators(mesh)
-        setattr(mesh, CACHE_ATTRIBUTE, ops)
-    return ops
+    """The :class:`EMDOperators` of ``mesh``, built on first use and kept in its operator
+    store (its lazily built parts are entries of the same store)."""
+    return mesh.operators.get("emd", lambda: EMDOperators(mesh))
 
 
 def _first_per_label(labels: np.ndarray, count: int) -> np.ndarray:
@@ -68,14 +61,9 @@ class EMDOperators:
         keep[self.pins] = False
         self._keep = np.flatnonzero(keep)
         self._poisson = factorize_spd(self.laplacian[self._keep][:, self._keep])
-        self._stream = None
-        self._curl_factor = None
-        self._curl_matrix = None
-        self._harmonic = None
-        self._eigen: tuple[np.ndarray, np.ndarray] | None = None
-        self._green = None
-        # One build at a time: concurrent jobs on a cached mesh must not both allocate 4 V² bytes.
-        self._green_lock = threading.Lock()
+        # Parts built on demand are entries of the mesh's operator store (built once under
+        # its lock, each measured): ("emd", "stream"), ("emd", "curl_factor"), ...
+        self._store = mesh.operators
 
     # -- fields -------------------------------------------------------------
     def grad(self, f: np.ndarray) -> np.ndarray:
@@ -121,17 +109,23 @@ class EMDOperators:
 
     @property
     def has_green_matrix(self) -> bool:
-        return self._green is not None
+        return ("emd", "green") in self._store
 
     def green_matrix(self, check=None, max_vertices: int | None = None):
         """The dense Green's matrix ``L⁺`` (float32 panels, :class:`solvers.emd.green.GreenMatrix`),
-        built on first use (``V`` unit solves with the pinned factor) and kept; ``4 V²`` bytes."""
-        with self._green_lock:
-            if self._green is None:
-                from solvers.emd.green import build_green_matrix
+        built on first use (``V`` unit solves with the pinned factor) and kept; ``4 V²`` bytes.
+        Concurrent jobs on a cached mesh share one build (the store's lock)."""
+        from solvers.emd.green import build_green_matrix
 
-                self._green = build_green_matrix(self, check=check, max_vertices=max_vertices)
-        return self._green
+        return self._store.get(("emd", "green"), lambda: build_green_matrix(
+            self, check=check, max_vertices=max_vertices))
+
+    @property
+    def gradient_components32(self) -> list:
+        """The three (F, V) component blocks of ``G`` in float32 (the k = 0 face pass)."""
+        g = self.gradient_matrix
+        return self._store.get(("emd", "gradient32"),
+                               lambda: [g[c::3].astype(np.float32).tocsr() for c in range(3)])
 
     # -- curl basis ---------------------------------------------------------
     @property
@@ -152,42 +146,42 @@ class EMDOperators:
     @property
     def stream_map(self) -> sp.csr_matrix:
         """``P`` (V × n_c): coefficients -> stream function values (see module docstring)."""
-        if self._stream is None:
-            self.require_curl_basis()
-            nv = self.n_vertices
-            loops = self.mesh.boundary_loops
-            free = np.ones(nv, dtype=bool)
-            for loop in loops:
-                free[loop] = False
-            loop_comp = np.array([self.labels[loop[0]] for loop in loops], dtype=np.int64)
-            has_boundary = np.zeros(self.n_components, dtype=bool)
-            has_boundary[loop_comp] = True
-            closed_pins = self.pins[~has_boundary]
-            free[closed_pins] = False
-            cols = [np.flatnonzero(free)]
-            rows = [cols[0]]
-            ids = [np.arange(len(cols[0]))]
-            next_col = len(cols[0])
-            seen = set()
-            for loop, comp in zip(loops, loop_comp, strict=True):
-                if comp not in seen:  # the first loop of each component stays at s = 0
-                    seen.add(comp)
-                    continue
-                rows.append(np.asarray(loop))
-                ids.append(np.full(len(loop), next_col))
-                next_col += 1
-            r = np.concatenate(rows)
-            c = np.concatenate(ids)
-            self._stream = sp.csr_matrix((np.ones(len(r)), (r, c)), shape=(nv, next_col))
-        return self._stream
+        return self._store.get(("emd", "stream"), self._build_stream_map)
+
+    def _build_stream_map(self) -> sp.csr_matrix:
+        self.require_curl_basis()
+        nv = self.n_vertices
+        loops = self.mesh.boundary_loops
+        free = np.ones(nv, dtype=bool)
+        for loop in loops:
+            free[loop] = False
+        loop_comp = np.array([self.labels[loop[0]] for loop in loops], dtype=np.int64)
+        has_boundary = np.zeros(self.n_components, dtype=bool)
+        has_boundary[loop_comp] = True
+        closed_pins = self.pins[~has_boundary]
+        free[closed_pins] = False
+        cols = [np.flatnonzero(free)]
+        rows = [cols[0]]
+        ids = [np.arange(len(cols[0]))]
+        next_col = len(cols[0])
+        seen = set()
+        for loop, comp in zip(loops, loop_comp, strict=True):
+            if comp not in seen:  # the first loop of each component stays at s = 0
+                seen.add(comp)
+                continue
+            rows.append(np.asarray(loop))
+            ids.append(np.full(len(loop), next_col))
+            next_col += 1
+        r = np.concatenate(rows)
+        c = np.concatenate(ids)
+        return sp.csr_matrix((np.ones(len(r)), (r, c)), shape=(nv, next_col))
 
     @property
     def curl_factor(self):
         """Factor of ``K = Pᵀ L P``: the ADMM c-update system, once per mesh."""
-        if self._curl_factor is None:
-            p = self.stream_map
-            self._curl_factor = factorize_spd((p.T @ self.laplacian @ p).tocsc())
-        return self._curl_factor
+        p = self.stream_map
+        return self._store.get(("emd", "curl_factor"),
+                               lambda: factorize_spd((p.T @ self.laplacian @ p).tocsc()))
 
     @property
     def rotation_matrix(self) -> sp.csr_matrix:
@@ -202,11 +196,11 @@ class EMDOperators:
     @property
     def curl_matrix(self) -> tuple[sp.csr_matrix, sp.csr_matrix]:
         """``(Ψ, Ψᵀ diag(A))`` as sparse matrices (3F × n_c and n_c × 3F), built once."""
-        if self._curl_matrix is None:
+        def build():
             psi = (self.rotation_matrix @ self.gradient_matrix @ self.stream_map).tocsr()
-            adj = (psi.T @ sp.diags(np.repeat(self.face_areas, 3))).tocsr()
-            self._curl_matrix = (psi, adj)
-        return self._curl_matrix
+            return psi, (psi.T @ sp.diags(np.repeat(self.face_areas, 3))).tocsr()
+
+        return self._store.get(("emd", "curl_matrix"), build)
 
     def curl_field(self, c: np.ndarray) -> np.ndarray:
         """``Ψ c = N × ∇(P c)``: (n_c,) -> (F, 3)."""
@@ -223,11 +217,9 @@ class EMDOperators:
 
         A-orthonormal and A-orthogonal to every curl field; empty for genus 0.
         """
-        if self._harmonic is None:
-            from solvers.emd.harmonic import harmonic_fields
+        from solvers.emd.harmonic import harmonic_fields
 
-            self._harmonic = harmonic_fields(self)
-        return self._harmonic
+        return self._store.get(("emd", "harmonic"), lambda: harmonic_fields(self))
 
     # -- spectral basis -----------------------------------------------------
     def stream_eigenbasis(self, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -241,17 +233,20 @@ class EMDOperators:
             from solvers.errors import InputError
 
             raise InputError(f"k must be in [1, {n_c - 2}], got {k}", field="k")
-        if self._eigen is None or self._eigen[0].shape[0] < k:
+        key = ("emd", "stream_eigenbasis")
+        eigen = self._store.peek(key)
+        if eigen is None or eigen[0].shape[0] < k:
             p = self.stream_map
             mass = (p.T @ sp.diags(self.mesh.areas) @ p).tocsc()
             stiff = (p.T @ self.laplacian @ p).tocsc()
             factor = self.curl_factor
             op_inv = spla.LinearOperator(stiff.shape, matvec=factor.solve, dtype=np.float64)
-            want = max(k, 2 * (0 if self._eigen is None else self._eigen[0].shape[0]))
+            want = max(k, 2 * (0 if eigen is None else eigen[0].shape[0]))
             want = min(want, n_c - 2)
             vals, vecs = spla.eigsh(stiff, k=want, M=mass, sigma=0.0, OPinv=op_inv,
                                     which="LM")
             order = np.argsort(vals)
-            self._eigen = (vals[order], vecs[:, order])
-        vals, vecs = self._eigen
+            self._store.discard(key)  # replaced by the larger basis
+            eigen = self._store.get(key, lambda: (vals[order], vecs[:, order]))
+        vals, vecs = eigen
         return vals[:k], vecs[:, :k]

@@ -68,12 +68,7 @@ def _pair_potentials(ops, source: int, targets: np.ndarray) -> np.ndarray:
 
 def _split_gradient(ops) -> list:
     """The three (F, V) component blocks of ``G`` in float32, for the k = 0 face pass."""
-    cached = getattr(ops, "_gradient_components32", None)
-    if cached is None:
-        g = ops.gradient_matrix
-        cached = [g[c::3].astype(np.float32).tocsr() for c in range(3)]
-        ops._gradient_components32 = cached
-    return cached
+    return ops.gradient_components32
 
 
 def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic: bool = True,

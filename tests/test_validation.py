@@ -1,17 +1,17 @@
-"""Validation and conversion of mass vectors (solvers.distributions)."""
+"""Validation and conversion of mass vectors (solvers.validation)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from solvers.distributions import (
+from solvers.errors import InputError
+from solvers.validation import (
     check_masses,
     density_from_masses,
     masses_from_density,
     normalize_masses,
 )
-from solvers.errors import InputError
 
 
 @pytest.mark.parametrize(
