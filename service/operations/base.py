@@ -267,16 +267,3 @@ def default_gamma(domain_or_view) -> float:
     if h is None:
         h = float(np.sqrt(1.0 / max(domain_or_view.n, 1)))  # unit area, n points
     return float((2.0 * h) ** 2)
-
-
-def solver(module: str, name: str):
-    """Import ``solvers.<module>.<name>``, failing with a clear error while it is missing."""
-    import importlib
-
-    try:
-        mod = importlib.import_module(f"solvers.{module}")
-        return getattr(mod, name)
-    except (ImportError, AttributeError) as exc:
-        raise UnsupportedOperation(
-            f"solver solvers.{module}.{name} is not available in this build ({exc})",
-            field="operation", code="not_implemented") from exc

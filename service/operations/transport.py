@@ -18,9 +18,15 @@ from service.operations.base import (
     check_same_components,
     default_gamma,
     resolve_all,
-    solver,
     view_of_domain,
 )
+from solvers.convolutional import (
+    barycenter,
+    displacement_interpolation,
+    wasserstein_distance,
+    wasserstein_propagation,
+)
+from solvers.emd import earth_movers_distance, pointwise_distances
 
 
 class SinkhornOptions(OperationRequest):
@@ -120,9 +126,9 @@ def _sinkhorn_kwargs(domain, req, progress, should_cancel) -> dict:
 
 
 def _w1(domain, masses, req, progress, should_cancel):
-    emd = solver("emd", "earth_movers_distance")
-    return emd(domain, masses["mu0"], masses["mu1"], method=req.w1_method, basis=req.basis,
-               k=req.k, progress=progress, should_cancel=should_cancel, **_optional(req))
+    return earth_movers_distance(domain, masses["mu0"], masses["mu1"], method=req.w1_method,
+                                 basis=req.basis, k=req.k, progress=progress,
+                                 should_cancel=should_cancel, **_optional(req))
 
 
 def _convergence(result) -> dict:
@@ -150,9 +156,9 @@ def run_distance(domain, req: DistanceRequest, progress, should_cancel) -> Opera
         arrays = {"flow": np.asarray(res.flow), "potential": np.asarray(res.potential)}
         export = {"fields": ["potential"], "flow": "flow", "color": "potential"}
         return OperationOutput({**values, "normalization": reports}, arrays, export)
-    wd = solver("convolutional", "wasserstein_distance")
     kwargs = _sinkhorn_kwargs(domain, req, progress, should_cancel)
-    res = wd(domain, masses["mu0"], masses["mu1"], debiased=req.method == "debiased", **kwargs)
+    res = wasserstein_distance(domain, masses["mu0"], masses["mu1"],
+                               debiased=req.method == "debiased", **kwargs)
     values = {"value": float(res.value), "method": req.method, "gamma": kwargs["gamma"],
               **_convergence(res), "normalization": reports}
     return OperationOutput(values)
@@ -184,9 +190,8 @@ def _validate_barycenter(view, req) -> list[dict]:
 
 def run_barycenter(domain, req: BarycenterRequest, progress, should_cancel) -> OperationOutput:
     mus, weights, reports = _barycenter_inputs(view_of_domain(domain), req)
-    bary = solver("convolutional", "barycenter")
     kwargs = _sinkhorn_kwargs(domain, req, progress, should_cancel)
-    res = bary(domain, mus, weights, sharpen=req.sharpen, entropy_bound=req.entropy_bound,
+    res = barycenter(domain, mus, weights, sharpen=req.sharpen, entropy_bound=req.entropy_bound,
                debiased=req.debiased, **kwargs)
     masses = np.asarray(res.masses, dtype=np.float64)
     values = {"gamma": kwargs["gamma"], "weights": weights.tolist(), **_convergence(res),
@@ -208,10 +213,9 @@ def run_interpolation(domain, req: InterpolationRequest, progress, should_cancel
                       ) -> OperationOutput:
     _validate_interpolation(view_of_domain(domain), req)
     masses, reports = _pair(view_of_domain(domain), req)
-    interp = solver("convolutional", "displacement_interpolation")
     kwargs = _sinkhorn_kwargs(domain, req, progress, should_cancel)
-    res = interp(domain, masses["mu0"], masses["mu1"], list(req.times), sharpen=req.sharpen,
-                 debiased=req.debiased, **kwargs)
+    res = displacement_interpolation(domain, masses["mu0"], masses["mu1"], list(req.times),
+                                     sharpen=req.sharpen, debiased=req.debiased, **kwargs)
     m = np.asarray(res.masses, dtype=np.float64).reshape(domain.n, -1)
     values = {"gamma": kwargs["gamma"], "times": list(req.times), **_convergence(res),
               "normalization": reports}
@@ -250,9 +254,9 @@ def _validate_propagation(view, req) -> list[dict]:
 def run_propagation(domain, req: PropagationRequest, progress, should_cancel
                     ) -> OperationOutput:
     edges, fixed, reports = _propagation_inputs(view_of_domain(domain), req)
-    propagate = solver("convolutional", "wasserstein_propagation")
     kwargs = _sinkhorn_kwargs(domain, req, progress, should_cancel)
-    res = propagate(domain, req.n_nodes, edges, fixed, edge_weights=req.edge_weights, **kwargs)
+    res = wasserstein_propagation(domain, req.n_nodes, edges, fixed,
+                                  edge_weights=req.edge_weights, **kwargs)
     m = np.asarray(res.masses, dtype=np.float64).reshape(domain.n, req.n_nodes)
     values = {"gamma": kwargs["gamma"], **_convergence(res),
               "free_nodes": np.asarray(res.free_nodes).tolist(), "normalization": reports}
@@ -275,10 +279,9 @@ def run_pointwise(domain, req: PointwiseDistanceRequest, progress, should_cancel
     """d_W^k from the source to every vertex; vertices on other components are unreachable
     (reported as null distances and counted)."""
     _validate_pointwise(view_of_domain(domain), req)
-    pd = solver("emd", "pointwise_distances")
     labels = np.asarray(domain.component_labels)
     targets = np.flatnonzero(labels == labels[req.source])
-    res = pd(domain, req.source, k=req.k, targets=targets, progress=progress,
+    res = pointwise_distances(domain, req.source, k=req.k, targets=targets, progress=progress,
              should_cancel=should_cancel)
     d = np.full(domain.n, np.inf)
     d[targets] = np.asarray(res.distances, dtype=np.float64)
