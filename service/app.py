@@ -10,7 +10,7 @@ from fastapi.openapi.utils import get_openapi
 from pydantic import TypeAdapter
 
 from service import __version__
-from service.api import domains, health, jobs, operations
+from service.api import domains, health, jobs, operations, viewer
 from service.api.deps import require_api_key
 from service.errors import ErrorResponse, install_handlers
 from service.jobs.wake import JobWaiters
@@ -26,7 +26,8 @@ flows) on it; every job is observable, cancellable and keeps its result. Errors 
 `{"error": {"code", "message", "field"}}`."""
 
 # Routers under /v1 (API key checked when configured); add new resource routers here.
-V1_ROUTERS = [domains.router, operations.router, jobs.router]
+# The operation routes are built per app from its registry (service.operations).
+V1_ROUTERS = [domains.router, viewer.router, jobs.router]
 
 
 def _errors_everywhere(schema: dict) -> None:
@@ -67,9 +68,10 @@ def create_app(settings: Settings | None = None, *, start_background: bool = Tru
     app.state.runtime = runtime
     install_handlers(app)
     auth = [Depends(require_api_key)]
-    for router in V1_ROUTERS:
+    for router in [*V1_ROUTERS, operations.build_router(runtime.operations)]:
         app.include_router(router, dependencies=auth)
     app.include_router(health.router)
+    viewer.install(app)  # the browser viewer at / and /viewer, assets under /static
 
     def openapi():
         if app.openapi_schema is None:

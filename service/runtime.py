@@ -3,16 +3,21 @@ operator cache, runner and reaper.  Built once per process (API or worker)."""
 
 from __future__ import annotations
 
+import errno
 import logging
+import os
+import tempfile
 import threading
 import time
+from pathlib import Path
 
 from service.cache import OperatorCache
 from service.jobs.db import JobRepository, worker_identity
-from service.jobs.queue import make_huey, register_task
+from service.jobs.queue import QUEUES, make_queues, register_task
 from service.jobs.reaper import Reaper
 from service.jobs.runner import JobRunner
 from service.jobs.wake import WakeSender
+from service.operations import build_registry
 from service.settings import Settings
 from service.store import Store
 
@@ -28,9 +33,12 @@ class Runtime:
         self.store = Store(settings.data_dir)
         self.repo = JobRepository(settings.job_database_url)
         self.cache = OperatorCache(settings.cache_bytes)
-        self.huey = make_huey(settings)
-        self.runner = JobRunner(settings, self.store, self.repo, self.cache)
-        self.task = register_task(self.huey, self.runner.run)
+        self.operations = build_registry()
+        self.hueys = make_queues(settings)  # "short" and "long" (service.jobs.queue)
+        self.huey = self.hueys["short"]
+        self.runner = JobRunner(settings, self.store, self.repo, self.cache, self.operations)
+        self.tasks = {q: register_task(h, self.runner.run) for q, h in self.hueys.items()}
+        self.task = self.tasks["short"]
         self.reaper = Reaper(settings, self.repo, self.enqueue, self.store)
         # wake-up datagrams to this machine's processes (enqueued -> workers, done -> API)
         self.wake = WakeSender(settings.data_dir) if settings.queue != "immediate" else None
@@ -45,9 +53,10 @@ class Runtime:
     def process_id(self) -> str:
         return worker_identity()
 
-    def enqueue(self, job_id: str) -> None:
-        """Send a job id to the queue (in immediate mode: run it now)."""
-        self.task(job_id)
+    def enqueue(self, job_id: str, queue: str | None = None) -> None:
+        """Send a job id to its queue (``short`` unless given; in immediate mode: run it)."""
+        queue = queue if queue in QUEUES else "short"
+        self.tasks[queue](job_id)
         if self.wake is not None and self.settings.queue == "sqlite":
             self.wake.notify("worker", job_id)  # Redis workers block on the list already
 
@@ -55,9 +64,25 @@ class Runtime:
         if self.settings.queue == "immediate":
             return 0
         try:
-            return int(self.huey.pending_count())
+            return sum(int(h.pending_count()) for h in self.hueys.values())
         except Exception:  # broker down
             return None
+
+    # -- storage -----------------------------------------------------------
+    _storage_checked = (0.0, None)
+    STORAGE_CHECK_EVERY = 1.0  # seconds a storage probe result is reused
+
+    def storage_status(self) -> dict:
+        """Whether the data directory takes writes, and its free bytes (probed at most
+        once a second)."""
+        at, status = self._storage_checked
+        if status is None or time.monotonic() - at > self.STORAGE_CHECK_EVERY:
+            status = storage_status(self.settings.data_dir,
+                                    (self.store.domain_dir, self.store.result_dir))
+            status["low_space"] = status["free_bytes"] is not None and \
+                status["free_bytes"] < self.settings.min_free_bytes
+            self._storage_checked = (time.monotonic(), status)
+        return status
 
     # -- background threads ---------------------------------------------
     def start_background(self, publish: bool) -> None:
@@ -114,3 +139,42 @@ class Runtime:
         self.repo.dispose()
         if self.wake is not None:
             self.wake.close()
+
+
+STORAGE_ERRNOS = {errno.EROFS: "read-only file system", errno.ENOSPC: "no space left",
+                  errno.EDQUOT: "disk quota exceeded", errno.EACCES: "permission denied",
+                  errno.EPERM: "permission denied", errno.ENOTDIR: "not a directory",
+                  errno.EEXIST: "a file is in the way", errno.EFBIG: "file too large",
+                  errno.EIO: "input/output error"}
+
+
+def storage_reason(exc: OSError) -> str:
+    return STORAGE_ERRNOS.get(exc.errno, exc.strerror or type(exc).__name__)
+
+
+def storage_status(data_dir: Path, subdirs=()) -> dict:
+    """Probe ``data_dir`` (and ``subdirs``): create the directories, write, sync and remove
+    a small file in each. ``{"writable", "free_bytes", "reason"}``; ``reason`` names the
+    failure without the path."""
+    data_dir = Path(data_dir)
+    free = None
+    try:
+        for directory in (data_dir, *subdirs):
+            Path(directory).mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=".probe-", dir=directory)
+            try:
+                os.write(fd, b"otgeo")
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+                os.unlink(tmp)
+        st = os.statvfs(data_dir)
+        free = int(st.f_bavail * st.f_frsize)
+    except OSError as exc:
+        try:
+            st = os.statvfs(data_dir)
+            free = int(st.f_bavail * st.f_frsize)
+        except OSError:
+            pass
+        return {"writable": False, "free_bytes": free, "reason": storage_reason(exc)}
+    return {"writable": True, "free_bytes": free, "reason": None}

@@ -141,6 +141,11 @@ class JobList(BaseModel):
     jobs: list[JobOut]
 
 
+class ResultFileInfo(BaseModel):
+    media_type: str
+    bytes: int
+
+
 class JobResult(BaseModel):
     job_id: str
     operation: str
@@ -150,6 +155,15 @@ class JobResult(BaseModel):
     arrays: dict[str, list | None] = Field(
         default_factory=dict, description="result arrays as nested lists (null for non-finite)")
     export: dict = Field(default_factory=dict)
+    files: dict[str, ResultFileInfo] = Field(
+        default_factory=dict, description="files the job produced, each served at "
+        "/v1/jobs/{job_id}/files/{name}")
+
+
+class ArrayRow(BaseModel):
+    name: str
+    row: int
+    values: list[float | None] = Field(description="the row (null for non-finite)")
 
 
 class Health(BaseModel):

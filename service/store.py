@@ -32,6 +32,7 @@ from service.export import to_jsonable as jsonable
 from solvers.domains import Domain, domain_from_arrays
 
 _ID = re.compile(r"^[0-9a-f]{16,64}$")
+_FILE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
 
 
 def atomic_write(path: Path, write, durable: bool = True) -> None:
@@ -135,8 +136,9 @@ class Store:
         self.root = Path(data_dir)
         self.domain_dir = self.root / "domains"
         self.result_dir = self.root / "results"
-        self.domain_dir.mkdir(parents=True, exist_ok=True)
-        self.result_dir.mkdir(parents=True, exist_ok=True)
+        self.blob_dir = self.root / "blobs"
+        for folder in (self.domain_dir, self.result_dir, self.blob_dir):
+            folder.mkdir(parents=True, exist_ok=True)
 
     # -- domains --------------------------------------------------------
     @staticmethod
@@ -245,16 +247,84 @@ class Store:
 
     # -- results --------------------------------------------------------
     def put_result(self, job_id: str, payload: dict, arrays: dict[str, np.ndarray],
-                   durable: bool = False) -> str:
-        """Store a job's result (arrays first, JSON last); returns its location.
+                   files: dict | None = None, durable: bool = False) -> str:
+        """Store a job's result (arrays and files first, JSON last); returns its location.
 
-        Not fsynced by default: the job table (SQLite WAL, synchronous=NORMAL) gives the same
-        guarantee — atomic across process crashes — and a result can be recomputed.
+        ``files``: ``name -> ResultFile(media_type, data)``, listed in the payload's
+        ``files`` as ``{name: {"media_type", "bytes"}}``. Not fsynced by default: the job
+        table (SQLite WAL, synchronous=NORMAL) gives the same guarantee — atomic across
+        process crashes — and a result can be recomputed.
         """
         if arrays:
             _write_npz(self.result_dir / f"{job_id}.npz", arrays, durable)
+        listed = {}
+        if files:
+            folder = self.result_dir / f"{job_id}.files"
+            folder.mkdir(exist_ok=True)
+            for name, item in files.items():
+                if not _FILE_NAME.match(name):
+                    raise ValueError(f"invalid result file name {name!r}")
+                atomic_write(folder / name, lambda fh, d=item.data: fh.write(d), durable)
+                listed[name] = {"media_type": item.media_type, "bytes": len(item.data)}
+        payload = {**payload, "files": listed}
         _write_json(self.result_dir / f"{job_id}.json", jsonable(payload), durable)
         return f"results/{job_id}.json"
+
+    def get_result_file(self, job_id: str, name: str) -> tuple[bytes, str]:
+        """``(data, media_type)`` of a file a job produced; 404 naming ``name`` otherwise."""
+        listed = self.get_result(job_id).get("files") or {}
+        if name not in listed or not _FILE_NAME.match(name):
+            raise NotFound(f"job {job_id} has no file {name!r}", field="name")
+        try:
+            data = (self.result_dir / f"{job_id}.files" / name).read_bytes()
+        except FileNotFoundError:
+            raise NotFound(f"job {job_id} has no file {name!r}", field="name") from None
+        return data, listed[name]["media_type"]
+
+    def get_result_array(self, job_id: str, name: str) -> np.ndarray:
+        """One stored result array (only that member of the archive is read)."""
+        path = self.result_dir / f"{job_id}.npz"
+        try:
+            with np.load(path, allow_pickle=False) as archive:
+                if name not in archive.files:
+                    raise NotFound(f"job {job_id} has no array {name!r}", field="name")
+                return archive[name]
+        except FileNotFoundError:
+            raise NotFound(f"job {job_id} has no array {name!r}", field="name") from None
+
+    # -- blobs (uploaded inputs other than domains, e.g. images) -----------------
+    def put_blob(self, data: bytes, media_type: str, meta: dict | None = None
+                 ) -> tuple[dict, bool]:
+        """Store ``data`` under its SHA-256; returns ``(meta, created)``."""
+        import hashlib
+
+        blob_id = hashlib.sha256(data).hexdigest()
+        meta_path = self.blob_dir / f"{blob_id}.json"
+        if meta_path.exists():
+            try:
+                return json.loads(meta_path.read_text()), False
+            except (OSError, ValueError):
+                pass
+        info = {"id": blob_id, "media_type": media_type, "bytes": len(data),
+                "created_at": time.time(), **(meta or {})}
+        atomic_write(self.blob_dir / f"{blob_id}.bin", lambda fh: fh.write(data))
+        _write_json(meta_path, jsonable(info))
+        return info, True
+
+    def blob_meta(self, blob_id: str, field: str = "blob_id") -> dict:
+        if not _ID.match(blob_id or ""):
+            raise NotFound(f"unknown blob {blob_id!r}", field=field)
+        try:
+            return json.loads((self.blob_dir / f"{blob_id}.json").read_text())
+        except FileNotFoundError:
+            raise NotFound(f"unknown blob {blob_id!r}", field=field) from None
+
+    def get_blob(self, blob_id: str, field: str = "blob_id") -> bytes:
+        self.blob_meta(blob_id, field)
+        try:
+            return (self.blob_dir / f"{blob_id}.bin").read_bytes()
+        except FileNotFoundError:
+            raise NotFound(f"unknown blob {blob_id!r}", field=field) from None
 
     def get_result(self, job_id: str) -> dict:
         try:

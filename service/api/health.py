@@ -10,7 +10,6 @@ from fastapi.responses import PlainTextResponse
 from service import __version__
 from service.api.deps import RuntimeDep
 from service.jobs.db import QUEUED, RUNNING, STATES
-from service.operations import REGISTRY
 from service.schemas import Health
 
 router = APIRouter(tags=["health"])
@@ -75,7 +74,7 @@ def metrics(rt: RuntimeDep):
                [({}, float(pending))])
     metric("otgeo_jobs", "gauge", "jobs in the job table by operation and state",
            [({"operation": op, "state": st}, float(counts.get((op, st), 0)))
-            for op in REGISTRY for st in STATES])
+            for op in rt.operations for st in STATES])
     durations = rt.repo.durations()
     for idx, (suffix, kind, help_) in enumerate([
             ("count", "counter", "finished jobs"),

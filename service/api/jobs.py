@@ -13,7 +13,7 @@ from fastapi.responses import StreamingResponse
 from service.api.deps import JobSvc
 from service.errors import ErrorResponse, responses
 from service.jobs.db import TERMINAL
-from service.schemas import JobList, JobOut, JobResult, JobState
+from service.schemas import ArrayRow, JobList, JobOut, JobResult, JobState
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 
@@ -59,6 +59,27 @@ def get_job_result(job_id: str, svc: JobSvc,
                        **responses(401, 404, 422)})
 def get_job_result_glb(job_id: str, svc: JobSvc):
     return Response(svc.result_glb(job_id), media_type="model/gltf-binary")
+
+
+@router.get("/{job_id}/files/{name}", operation_id="getJobFile", response_class=Response,
+            responses={200: {"content": {"application/octet-stream": {
+                                 "schema": {"type": "string", "format": "binary"}}},
+                             "description": "a file the job produced (its media type: PNG "
+                             "image, JPEG, glTF binary, ...); listed in the result's `files`"},
+                       409: {"model": ErrorResponse, "description": "job not finished"},
+                       **responses(401, 404)})
+def get_job_file(job_id: str, name: str, svc: JobSvc):
+    data, media_type = svc.result_file(job_id, name)
+    return Response(data, media_type=media_type)
+
+
+@router.get("/{job_id}/arrays/{name}/rows/{row}", operation_id="getJobResultRow",
+            response_model=ArrayRow,
+            responses={409: {"model": ErrorResponse, "description": "job not finished"},
+                       **responses(401, 404, 422)})
+def get_job_result_row(job_id: str, name: str, row: int, svc: JobSvc):
+    """One row of a 2-D result array (e.g. a soft map's distribution of one source vertex)."""
+    return ArrayRow(name=name, row=row, values=svc.result_row(job_id, name, row))
 
 
 @router.get("/{job_id}/events", operation_id="streamJobEvents",

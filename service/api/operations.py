@@ -1,6 +1,8 @@
-"""POST /v1/domains/{domain_id}/<operation>: validate, create a job, optionally wait.
+"""Operation routes: validate, create a job, optionally wait.
 
-One route per registered operation, each with its own request model and a stable
+``POST /v1/domains/{domain_id}/<operation>`` for domain-scoped operations and ``POST
+/v1/<operation>`` for global ones (several domains, uploaded blobs). One route per
+operation of the app's registry, each with its own request model and a stable
 operationId. (No ``from __future__ import annotations``: the request model types are
 bound per route at runtime.)"""
 
@@ -13,10 +15,8 @@ from fastapi.concurrency import run_in_threadpool
 from service.api.deps import JobSvc, RuntimeDep
 from service.errors import InvalidInput, responses
 from service.jobs.db import TERMINAL
-from service.operations import REGISTRY, Operation
+from service.operations import Operation, Registry
 from service.schemas import JobOut
-
-router = APIRouter(prefix="/v1/domains", tags=["operations"])
 
 WAIT_DESCRIPTION = ("seconds to wait for the job to finish: if it ends in time the finished job "
                     "is returned with status 200, otherwise 202 with the job as it is")
@@ -71,7 +71,7 @@ async def wait_for(svc, job_id: str, seconds: float, job=None):
     return job
 
 
-def submit_job(op_name: str, domain_id: str, body, wait: float, svc, rt):
+def submit_job(op_name: str, domain_id: str | None, body, wait: float, svc, rt):
     """Shared by every operation route (sync part)."""
     if wait > rt.settings.wait_max:
         raise InvalidInput(f"wait must be at most {rt.settings.wait_max:g} seconds",
@@ -79,26 +79,56 @@ def submit_job(op_name: str, domain_id: str, body, wait: float, svc, rt):
     return svc.create(op_name, domain_id, body)
 
 
-def _make_route(op: Operation):
+async def finish_submission(op_name: str, domain_id: str | None, body, wait: float,
+                            response: Response, svc, rt) -> JobOut:
+    """Create the job, wait up to ``wait`` seconds, set 200/202 and ``Location``; also for
+    families with their own routes (``Operation(route=False)``)."""
+    job = await run_in_threadpool(submit_job, op_name, domain_id, body, wait, svc, rt)
+    if wait > 0 and job.state not in TERMINAL:
+        job = await wait_for(svc, job.id, wait, job)
+    response.status_code = 200 if job.state in TERMINAL else 202
+    response.headers["Location"] = f"/v1/jobs/{job.id}"
+    return JobOut.from_row(job)
+
+
+ROUTE_RESPONSES = {200: {"model": JobOut, "description": "the job finished within `wait`"},
+                   **responses(401, 404, 422)}
+
+
+def _domain_route(router: APIRouter, op: Operation) -> None:
     model = op.request_model
 
     async def create_job(domain_id: str, body: model, response: Response, svc: JobSvc,
                          rt: RuntimeDep,
                          wait: float = Query(0.0, ge=0, description=WAIT_DESCRIPTION)):
-        job = await run_in_threadpool(submit_job, op.name, domain_id, body, wait, svc, rt)
-        if wait > 0 and job.state not in TERMINAL:
-            job = await wait_for(svc, job.id, wait, job)
-        response.status_code = 200 if job.state in TERMINAL else 202
-        response.headers["Location"] = f"/v1/jobs/{job.id}"
-        return JobOut.from_row(job)
+        return await finish_submission(op.name, domain_id, body, wait, response, svc, rt)
 
     create_job.__name__ = op.operation_id
     router.add_api_route(
-        f"/{{domain_id}}/{op.name}", create_job, methods=["POST"], operation_id=op.operation_id,
+        f"/domains/{{domain_id}}/{op.name}", create_job, methods=["POST"],
+        operation_id=op.operation_id, summary=op.summary, status_code=202,
+        response_model=JobOut, responses=ROUTE_RESPONSES)
+
+
+def _global_route(router: APIRouter, op: Operation) -> None:
+    model = op.request_model
+
+    async def create_job(body: model, response: Response, svc: JobSvc, rt: RuntimeDep,
+                         wait: float = Query(0.0, ge=0, description=WAIT_DESCRIPTION)):
+        return await finish_submission(op.name, None, body, wait, response, svc, rt)
+
+    create_job.__name__ = op.operation_id
+    router.add_api_route(
+        f"/{op.name}", create_job, methods=["POST"], operation_id=op.operation_id,
         summary=op.summary, status_code=202, response_model=JobOut,
-        responses={200: {"model": JobOut, "description": "the job finished within `wait`"},
-                   **responses(401, 404, 422)})
+        responses=ROUTE_RESPONSES)
 
 
-for _op in REGISTRY.values():
-    _make_route(_op)
+def build_router(registry: Registry) -> APIRouter:
+    """The operation routes of ``registry`` (under /v1)."""
+    router = APIRouter(prefix="/v1", tags=["operations"])
+    for op in registry.values():
+        if not op.route:
+            continue
+        (_domain_route if op.scope == "domain" else _global_route)(router, op)
+    return router

@@ -14,7 +14,7 @@ import time
 from service.cache import OperatorCache
 from service.errors import ApiError, error_dict
 from service.jobs.db import CANCELLED, FAILED, SUCCEEDED, JobRepository, worker_identity
-from service.operations import get_operation
+from service.operations.base import RunContext
 from service.settings import Settings
 from service.store import Store
 from solvers.errors import CancelledError, OTGeoError
@@ -105,8 +105,9 @@ class _Heartbeat:
 
 class JobRunner:
     def __init__(self, settings: Settings, store: Store, repo: JobRepository,
-                 cache: OperatorCache):
+                 cache: OperatorCache, operations):
         self.settings, self.store, self.repo, self.cache = settings, store, repo, cache
+        self.operations = operations  # name -> Operation (service.operations.build_registry)
         self.worker_id = worker_identity()
         self.jobs_done = 0
         self.last_finished = 0.0  # time.monotonic() at the end of the last job
@@ -142,15 +143,14 @@ class JobRunner:
 
         hb.start()
         state, error, location, built = FAILED, None, None, None
+        ctx = RunContext(self.store, self.settings, self.domain, job.domain_id)
         try:
-            op = get_operation(job.operation)
+            op = self.operations.get_operation(job.operation)
             params = op.request_model.model_validate(job.params)
-            domain = self.domain(job.domain_id)
-            builds_before = domain.operators.builds
             try:
-                output = op.run(domain, params, hb.on_progress, should_cancel)
+                output = ctx.run(op, params, hb.on_progress, should_cancel)
             finally:
-                built = domain.operators.builds - builds_before
+                built = ctx.operator_builds()
                 self.cache.operator_builds += built
             if should_cancel():
                 raise CancelledError("cancelled")
@@ -159,7 +159,7 @@ class JobRunner:
                        "arrays": {k: {"shape": list(v.shape), "dtype": str(v.dtype)}
                                   for k, v in output.arrays.items()},
                        "export": output.export}
-            location = self.store.put_result(job_id, payload, output.arrays)
+            location = self.store.put_result(job_id, payload, output.arrays, output.files)
             state = SUCCEEDED
         except CancelledError:
             if timed_out.is_set():
@@ -182,8 +182,9 @@ class JobRunner:
             self.store.mark_done(job_id)
             if self.notify_done is not None:
                 self.notify_done(job_id)
-        if built is None or built:  # operators were added: re-estimate the entry's size
-            self.cache.refresh(("domain", job.domain_id))
+        if built is None or built:  # operators were added: re-estimate the entries' sizes
+            for domain_id in ctx.domains:
+                self.cache.refresh(("domain", domain_id))
         self.current = None
         self.jobs_done += 1
         self.last_finished = time.monotonic()

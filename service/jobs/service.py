@@ -10,8 +10,7 @@ import numpy as np
 
 from service.errors import Conflict, NotFound
 from service.jobs.db import QUEUED, TERMINAL, JobRow
-from service.operations import get_operation
-from service.operations.base import OperationRequest, view_of_info
+from service.operations.base import OperationRequest, SubmitContext, view_of_info
 from service.runtime import Runtime
 
 log = logging.getLogger("otgeo.jobs")
@@ -26,13 +25,18 @@ class JobService:
     def __init__(self, runtime: Runtime):
         self.rt = runtime
 
-    def create(self, operation: str, domain_id: str, request: OperationRequest) -> JobRow:
-        """Validate against the stored domain, record the job, enqueue its id."""
-        op = get_operation(operation)
-        info = self.rt.store.domain_info(domain_id)
-        view = view_of_info(info)
-        op.check_kind(view)
-        op.validate(view, request)
+    def create(self, operation: str, domain_id: str | None, request: OperationRequest
+               ) -> JobRow:
+        """Validate (against the stored domain, or the stored inputs of a global operation),
+        record the job, enqueue its id."""
+        op = self.rt.operations.get_operation(operation)
+        if op.scope == "domain":
+            view = view_of_info(self.rt.store.domain_info(domain_id))
+            op.check_kind(view)
+            op.validate(view, request)
+        else:
+            op.validate(SubmitContext(self.rt.store, self.rt.settings), request)
+            domain_id = op.primary_domain(request)
         limit = self.rt.settings.job_time_limit
         if request.time_limit is not None:
             limit = min(limit, request.time_limit)
@@ -83,12 +87,39 @@ class JobService:
             arrays = {k: jsonable(v) for k, v in self.rt.store.get_result_arrays(job_id).items()}
         return {**payload, "arrays": arrays}
 
+    def result_file(self, job_id: str, name: str) -> tuple[bytes, str]:
+        """``(data, media_type)`` of a file the job produced (an image, a GLB, ...)."""
+        self.result(job_id, include_arrays=False)  # state checks
+        return self.rt.store.get_result_file(job_id, name)
+
+    def result_row(self, job_id: str, name: str, row: int) -> list:
+        """Row ``row`` of a stored 2-D result array (e.g. one source vertex's distribution
+        in a soft map) without sending the whole array."""
+        from service.errors import InvalidInput
+        from service.store import jsonable
+
+        self.result(job_id, include_arrays=False)  # state checks
+        array = self.rt.store.get_result_array(job_id, name)
+        if array.ndim != 2:
+            raise InvalidInput(f"array {name!r} has shape {list(array.shape)}; rows exist only "
+                               "for 2-D arrays", field="name")
+        if not 0 <= row < array.shape[0]:
+            raise InvalidInput(f"row {row} out of range [0, {array.shape[0] - 1}]",
+                               field="row")
+        return jsonable(array[row])
+
     def result_glb(self, job_id: str) -> bytes:
-        """The result as glTF 2.0 binary over its domain (see service.export.domain_glb)."""
+        """The result as glTF 2.0 binary: the file ``result.glb`` the operation produced, or
+        the generic export over its domain (see service.export.domain_glb)."""
         from service.export import domain_glb
 
         self.result(job_id, include_arrays=False)  # state checks
         payload = self.rt.store.get_result(job_id)
+        if "result.glb" in (payload.get("files") or {}):
+            return self.rt.store.get_result_file(job_id, "result.glb")[0]
+        if not payload.get("domain_id"):
+            raise Conflict(f"job {job_id}'s operation has no glTF export", field="job_id",
+                           code="no_glb")
         arrays = self.rt.store.get_result_arrays(job_id)
         export = payload.get("export") or {}
         domain = self.rt.runner.domain(payload["domain_id"])

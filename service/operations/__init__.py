@@ -1,29 +1,45 @@
-"""Registry of operations: each is a request model, validation and a run function."""
+"""The service's operations: each family module lists its ``OPERATIONS``.
 
-from service.operations.base import Operation, OperationOutput
-from service.operations.transport import OPERATIONS as _TRANSPORT
+:func:`build_registry` collects them into a fresh ``name -> Operation`` mapping; the app
+factory and every worker's runtime build their own (nothing is registered at import).
+Add a family by listing its module in ``FAMILIES``.
+"""
 
-REGISTRY: dict[str, Operation] = {}
+from service.operations import transport
+from service.operations.base import (
+    Operation,
+    OperationOutput,
+    ResultFile,
+    RunContext,
+    SubmitContext,
+)
 
-
-def register(op: Operation) -> Operation:
-    if op.name in REGISTRY:
-        raise ValueError(f"operation {op.name!r} registered twice")
-    REGISTRY[op.name] = op
-    return op
-
-
-for _op in _TRANSPORT:
-    register(_op)
-
-
-def get_operation(name: str) -> Operation:
-    from service.errors import NotFound
-
-    try:
-        return REGISTRY[name]
-    except KeyError:
-        raise NotFound(f"unknown operation {name!r}", field="operation") from None
+FAMILIES = (transport,)
 
 
-__all__ = ["REGISTRY", "Operation", "OperationOutput", "get_operation", "register"]
+class Registry(dict):
+    """``name -> Operation``; lookups of unknown names are 404s naming the operation."""
+
+    def get_operation(self, name: str) -> Operation:
+        from service.errors import NotFound
+
+        try:
+            return self[name]
+        except KeyError:
+            raise NotFound(f"unknown operation {name!r}", field="operation") from None
+
+
+def build_registry(families=FAMILIES) -> Registry:
+    registry = Registry()
+    for family in families:
+        for op in family.OPERATIONS:
+            if op.name in registry:
+                raise ValueError(f"operation {op.name!r} registered twice")
+            if any(o.operation_id == op.operation_id for o in registry.values()):
+                raise ValueError(f"operation id {op.operation_id!r} used twice")
+            registry[op.name] = op
+    return registry
+
+
+__all__ = ["FAMILIES", "Operation", "OperationOutput", "Registry", "ResultFile", "RunContext",
+           "SubmitContext", "build_registry"]

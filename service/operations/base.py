@@ -25,7 +25,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.sparse.csgraph import shortest_path
 
-from service.errors import InvalidInput, UnsupportedOperation
+from service.errors import InvalidInput, NotFound, UnsupportedOperation
 from solvers.validation import check_masses
 
 Progress = Callable[[int, float], None]
@@ -86,34 +86,128 @@ class DomainView:
         return int(self.component_labels.max()) + 1 if len(self.component_labels) else 1
 
 
+@dataclass(frozen=True)
+class ResultFile:
+    """A file produced by a job (an image, a GLB), served at ``/v1/jobs/{id}/files/{name}``."""
+
+    media_type: str
+    data: bytes
+
+
 @dataclass
 class OperationOutput:
-    """A result: JSON values, named arrays (stored as .npz) and how to export them.
+    """A result: JSON values, named arrays (stored as .npz), files, and how to export them.
 
     ``export`` may hold ``fields`` (array names shown on the domain), ``flow`` (name of
     an ``(F, 3)`` per-face field), ``frames`` (times of ``(n, T)`` fields) and ``color``.
+    ``files`` maps a file name (letters, digits, ``._-``) to a :class:`ResultFile`; a file
+    named ``result.glb`` is what ``/result.glb`` returns instead of the generic export.
     """
 
     values: dict
     arrays: dict[str, np.ndarray] = field(default_factory=dict)
     export: dict = field(default_factory=dict)
+    files: dict[str, ResultFile] = field(default_factory=dict)
+
+
+class SubmitContext:
+    """What a global operation's ``validate`` may look at: stored domains and blobs."""
+
+    def __init__(self, store, settings):
+        self.store = store
+        self.settings = settings
+
+    def view(self, domain_id: str, field: str) -> DomainView:
+        """The validation view of a stored domain; 404 naming ``field`` when unknown."""
+        try:
+            return view_of_info(self.store.domain_info(domain_id))
+        except NotFound as exc:
+            raise NotFound(f"unknown domain {domain_id!r}", field=field) from exc
+
+    def blob(self, blob_id: str, field: str) -> bytes:
+        """The bytes of an uploaded blob; 404 naming ``field`` when unknown."""
+        return self.store.get_blob(blob_id, field=field)
+
+    def blob_meta(self, blob_id: str, field: str) -> dict:
+        return self.store.blob_meta(blob_id, field=field)
+
+
+class RunContext(SubmitContext):
+    """What a global operation's ``run`` gets in the worker: built (cached) domains too."""
+
+    def __init__(self, store, settings, load_domain: Callable[[str], object],
+                 domain_id: str = ""):
+        super().__init__(store, settings)
+        self.domain_id = domain_id  # the job's domain (domain-scoped operations)
+        self._load_domain = load_domain
+        self.domains: dict[str, object] = {}  # domain id -> domain used by this job
+        self._builds_before: dict[str, int] = {}
+
+    def domain(self, domain_id: str, field: str = "domain_id"):
+        if domain_id not in self.domains:
+            try:
+                domain = self._load_domain(domain_id)
+            except NotFound as exc:
+                raise NotFound(f"unknown domain {domain_id!r}", field=field) from exc
+            self.domains[domain_id] = domain
+            self._builds_before[domain_id] = domain.operators.builds
+        return self.domains[domain_id]
+
+    def operator_builds(self) -> int:
+        """Operators (factorizations, ...) built in the job's domains since first use."""
+        return sum(d.operators.builds - self._builds_before[i] for i, d in self.domains.items())
+
+    def run(self, op: Operation, request, progress, should_cancel) -> OperationOutput:
+        """Run ``op``: a domain-scoped one on ``request``'s domain, a global one on this."""
+        if op.scope == "domain":
+            return op.run(self.domain(self.domain_id), request, progress, should_cancel)
+        return op.run(self, request, progress, should_cancel)
+
+
+ALL_KINDS = ("mesh", "grid", "graph", "pointcloud")
 
 
 @dataclass
 class Operation:
+    """One operation of the service.
+
+    ``scope="domain"``: route ``POST /v1/domains/{domain_id}/<name>``; ``validate(view,
+    req)`` runs at submission on the stored domain's :class:`DomainView` and returns the
+    normalization reports; ``run(domain, req, progress, should_cancel)`` runs in a worker.
+
+    ``scope="global"`` (operations over several domains, or over uploaded blobs): route
+    ``POST /v1/<name>``; ``validate(ctx: SubmitContext, req)`` and ``run(ctx: RunContext,
+    req, progress, should_cancel)``. ``domain_field`` names the request field holding the
+    job's primary domain id (listed as the job's ``domain_id``), if any. ``route=False``:
+    the family provides its own route (e.g. multipart uploads) and creates jobs through
+    ``JobService.create``.
+
+    ``result_model``: pydantic model of the result's ``values`` (typed SDK results).
+    """
+
     name: str  # URL segment, e.g. "pointwise-distances"
     operation_id: str  # OpenAPI operationId
     summary: str
     request_model: type[OperationRequest]
-    run: Callable[[object, OperationRequest, Progress, ShouldCancel], OperationOutput]
-    validate: Callable[[DomainView, OperationRequest], list[dict]]
-    kinds: tuple[str, ...] = ("mesh", "grid", "graph", "pointcloud")
+    run: Callable[..., OperationOutput]
+    validate: Callable[..., list[dict]]
+    kinds: tuple[str, ...] = ALL_KINDS
+    scope: Literal["domain", "global"] = "domain"
+    domain_field: str | None = None
+    route: bool = True
+    result_model: type[BaseModel] | None = None
 
-    def check_kind(self, view: DomainView) -> None:
+    def check_kind(self, view: DomainView, field: str = "domain_id") -> None:
         if view.kind not in self.kinds:
             raise UnsupportedOperation(
                 f"{self.name} is not available on {view.kind} domains (only on "
-                f"{', '.join(self.kinds)})", field="domain_id")
+                f"{', '.join(self.kinds)})", field=field)
+
+    def primary_domain(self, request) -> str:
+        """The job's ``domain_id`` column for a global operation ("" when none)."""
+        if self.domain_field is None:
+            return ""
+        return str(getattr(request, self.domain_field, "") or "")
 
 
 # -- distributions -------------------------------------------------------------

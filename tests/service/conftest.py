@@ -1,4 +1,8 @@
-"""Fixtures for service tests: an app on a temporary data dir, and a test client."""
+"""Fixtures for service tests: an app on a temporary data dir, and a test client.
+
+Plain helpers (``upload_mesh``, ``assert_error``) live in ``service_testing.py``; import them
+from there (``tests`` itself is not importable as a package: a dependency ships one).
+"""
 
 from __future__ import annotations
 
@@ -32,19 +36,3 @@ def make_client(tmp_path):
 @pytest.fixture
 def client(make_client) -> TestClient:
     return make_client()
-
-
-def upload_mesh(client, path, **data):
-    with open(path, "rb") as fh:
-        return client.post("/v1/domains", files={"file": (path.name, fh)}, data=data)
-
-
-def assert_error(response, status: int, field: str | None, code: str | None = None) -> dict:
-    assert response.status_code == status, response.text
-    err = response.json()["error"]
-    assert set(err) == {"code", "message", "field"}
-    assert err["field"] == field, err
-    if code is not None:
-        assert err["code"] == code, err
-    assert err["message"]
-    return err

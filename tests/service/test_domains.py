@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from service_testing import assert_error, upload_mesh
 
 from solvers.domains import Grid, load_mesh
-from tests.service.conftest import assert_error, upload_mesh
 
 
 def test_mesh_upload_id_is_content_hash_and_stable(client, meshes_dir):

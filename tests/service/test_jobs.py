@@ -14,13 +14,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from service_testing import assert_error, upload_mesh
 
 from service.jobs.db import JobRow
-from service.operations import REGISTRY
 from service.operations.base import Operation, OperationOutput, OperationRequest
 from solvers.emd import earth_movers_distance
 from solvers.errors import CancelledError
-from tests.service.conftest import assert_error, upload_mesh
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -40,13 +39,13 @@ def _loop(domain, req, progress, should_cancel):
     return OperationOutput({"iterations": req.iterations}, {"ones": np.ones(domain.n)})
 
 
+LOOP_OP = Operation("test-loop", "createTestLoopJob", "test", LoopRequest, _loop,
+                    lambda view, req: [])
+
+
 @pytest.fixture
 def loop_op():
-    op = Operation("test-loop", "createTestLoopJob", "test", LoopRequest, _loop,
-                   lambda view, req: [])
-    REGISTRY[op.name] = op
-    yield op
-    REGISTRY.pop(op.name, None)
+    return LOOP_OP
 
 
 def _grid(client, shape=(6, 6)) -> str:
@@ -58,6 +57,7 @@ def _submit(client, domain_id, **params):
     from service.jobs.service import JobService
 
     rt = client.app.state.runtime
+    rt.operations[LOOP_OP.name] = LOOP_OP  # test-only operation, no HTTP route
     return JobService(rt).create("test-loop", domain_id, LoopRequest(**params))
 
 
@@ -339,7 +339,7 @@ def test_reaper_requeues_stale_jobs_then_fails(make_client, loop_op):
     client = make_client(queue="sqlite", max_attempts=2, stale_after=1.0)
     rt = client.app.state.runtime
     sent = []
-    rt.reaper.enqueue = sent.append
+    rt.reaper.enqueue = lambda job_id, queue=None: sent.append(job_id)
     job = _submit(client, _grid(client))
     repo = rt.repo
 
@@ -377,7 +377,7 @@ def test_reaper_fails_jobs_stuck_past_their_time_limit(make_client, loop_op):
 def test_fresh_heartbeat_is_not_reaped_and_release_keeps_attempts(make_client, loop_op):
     client = make_client(queue="sqlite", stale_after=60)
     rt = client.app.state.runtime
-    rt.reaper.enqueue = lambda job_id: None
+    rt.reaper.enqueue = lambda job_id, queue=None: None
     job = _submit(client, _grid(client))
     claim = rt.repo.claim(job.id, "w")
     assert rt.repo.claim(job.id, "other") is None  # never claimed twice

@@ -15,7 +15,7 @@ from service.jobs.db import JOBS
 from service.jobs.queue import TASK_NAME
 from service.jobs.service import JobService
 from service.jobs.wake import JobWaiters, WakeSender, WakeSocket
-from service.operations import get_operation
+from service.operations import build_registry
 from service.runtime import Runtime
 from service.schemas import GridSpec, JobOut
 from service.settings import Settings
@@ -85,7 +85,7 @@ def test_created_job_is_complete_without_reading_it_back(tmp_path):
     rt = Runtime(Settings(data_dir=tmp_path, queue="sqlite"), role="api")
     try:
         meta, _ = DomainService(rt).from_spec(GridSpec(kind="grid", shape=[6, 6]))
-        body = get_operation("distances").request_model.model_validate(
+        body = build_registry().get_operation("distances").request_model.model_validate(
             {"mu0": {"vertex": 0, "radius": 0.2}, "mu1": {"vertex": 35, "radius": 0.2}})
         job = JobService(rt).create("distances", meta["id"], body)
         assert set(JOBS.c.keys()) <= set(vars(job))
