@@ -124,22 +124,54 @@ def check_edges(edges, n: int, field: str = "edges") -> np.ndarray:
 
     Values beyond int64 or non-integers are refused before any conversion can overflow.
     """
-    try:
-        e = np.asarray(edges if len(edges) else np.zeros((0, 2)), dtype=object)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"{field} must be a list of node pairs", field=field) from exc
+    e = _integer_array(edges, field, "a list of node pairs")
+    if e.size == 0:
+        e = e.reshape(0, 2)
     if e.ndim != 2 or e.shape[1] != 2:
         raise InputError(f"{field} must be a list of node pairs (m, 2), got shape {e.shape}",
                          field=field)
-    for i, v in enumerate(e.ravel()):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 0 <= v < n:
-            raise InputError(f"{field}[{i // 2}] has endpoint {v!r}, outside [0, {n - 1}]",
-                             field=field)
+    outside = np.flatnonzero(((e < 0) | (e >= n)).any(axis=1))
+    if len(outside):
+        i = int(outside[0])
+        raise InputError(f"{field}[{i}] = {e[i].tolist()} has an endpoint outside "
+                         f"[0, {n - 1}]", field=field)
     out = e.astype(np.int64)
     loops = np.flatnonzero(out[:, 0] == out[:, 1])
     if len(loops):
         raise InputError(f"{field}[{int(loops[0])}] is a self-loop", field=field)
     return out
+
+
+def _integer_array(values, field: str, what: str) -> np.ndarray:
+    """``values`` as an integer array (int64, or object holding Python ints beyond int64,
+    which the caller's range check then refuses), never silently truncated or wrapped."""
+    try:
+        x = np.asarray(values)
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise InputError(f"{field} must be {what} (a rectangular array of integers)",
+                         field=field) from exc
+    if x.size == 0:
+        return np.zeros(x.shape, dtype=np.int64)
+    if x.dtype == bool:
+        raise InputError(f"{field} must hold integers, not booleans", field=field)
+    if np.issubdtype(x.dtype, np.integer):
+        if x.dtype == np.uint64 and int(x.max()) > np.iinfo(np.int64).max:
+            return x.astype(object)
+        return x.astype(np.int64, copy=False)
+    if np.issubdtype(x.dtype, np.floating):
+        if not np.all(np.isfinite(x)) or np.any(np.mod(x, 1) != 0):
+            raise InputError(f"{field} must hold integers", field=field)
+        if np.any(np.abs(x) > 2.0**62):
+            return x.astype(object)
+        return x.astype(np.int64)
+    if x.dtype == object:
+        flat = x.ravel()
+        for i, v in enumerate(flat):
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+                raise InputError(f"{field} must be {what} of integers; found {type(v).__name__}"
+                                 f" at flat position {i}", field=field)
+        return x
+    raise InputError(f"{field} must be {what} (integers)", field=field)
 
 
 def check_edge_weights(weights, m: int, field: str = "edge_weights") -> np.ndarray:
@@ -158,3 +190,151 @@ def check_edge_weights(weights, m: int, field: str = "edge_weights") -> np.ndarr
         raise InputError(f"{field}[{int(bad[0])}] must be positive and finite, got "
                          f"{w[bad[0]]:g}", field=field)
     return w
+
+
+def check_node_indices(nodes, n: int, field: str = "nodes") -> np.ndarray:
+    """``(k,)`` distinct int64 node indices in ``[0, n)``, ``k >= 1``."""
+    try:
+        raw = np.asarray(nodes, dtype=object).ravel()
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{field} must be a list of node indices", field=field) from exc
+    if raw.size == 0:
+        raise InputError(f"{field} needs at least one node", field=field)
+    for i, v in enumerate(raw):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 0 <= v < n:
+            raise InputError(f"{field}[{i}] = {v!r} is not a node index in [0, {n - 1}]",
+                             field=field)
+    out = raw.astype(np.int64)
+    uniq, first, counts = np.unique(out, return_index=True, return_counts=True)
+    if np.any(counts > 1):
+        dup = int(uniq[np.argmax(counts > 1)])
+        raise InputError(f"{field} lists node {dup} more than once", field=field)
+    return out
+
+
+def check_anchored_components(component_labels, nodes, field: str = "nodes") -> None:
+    """Every connected component (``component_labels``, ``(n,)``) holds one of ``nodes``.
+
+    The Dirichlet problems of propagation (harmonic extension from given nodes) are
+    singular on a component without a given node; the error names that component.
+    """
+    labels = np.asarray(component_labels)
+    count = int(labels.max()) + 1 if len(labels) else 0
+    have = np.zeros(count, dtype=bool)
+    have[labels[np.asarray(nodes, dtype=np.int64)]] = True
+    if not have.all():
+        comp = int(np.flatnonzero(~have)[0])
+        members = np.flatnonzero(labels == comp)
+        raise InputError(
+            f"connected component {comp} ({len(members)} nodes, e.g. node {int(members[0])}) "
+            f"has no node in {field}; give at least one per component ({count} components)",
+            field=field)
+
+
+def check_indices(indices, n: int, field: str = "indices") -> np.ndarray:
+    """``(k,)`` int64 point indices in ``[0, n)`` (values beyond int64 refused, not wrapped)."""
+    idx = _integer_array(indices, field, "a list of point indices")
+    if idx.ndim != 1:
+        raise InputError(f"{field} must be a flat list of point indices, got shape {idx.shape}",
+                         field=field)
+    outside = np.flatnonzero((idx < 0) | (idx >= n))
+    if len(outside):
+        raise InputError(f"{field}[{int(outside[0])}] = {idx[outside[0]]} is outside "
+                         f"[0, {n - 1}]", field=field)
+    return idx.astype(np.int64)
+
+
+# Mass that distributions of one problem may put differently on a connected component
+# (L1 over components): the one tolerance of the library and the service's submission check.
+COMPONENT_MASS_TOL = 1e-9
+
+
+def check_component_masses(labels: np.ndarray, masses: np.ndarray, field: str,
+                           tol: float = COMPONENT_MASS_TOL) -> None:
+    """Refuse ``(n, k)`` masses whose columns put different mass on some component.
+
+    ``labels`` ``(n,)``: connected component of every point. Transport never moves mass
+    between components, so every column must give each component the same total (L1 gap
+    over components at most ``tol``, mass units). Raises ``UnsupportedDomainError``.
+    """
+    from solvers.errors import UnsupportedDomainError
+
+    labels = np.asarray(labels)
+    count = int(labels.max()) + 1 if len(labels) else 1
+    if count <= 1 or masses.ndim != 2 or masses.shape[1] < 2:
+        return
+    per = np.stack([np.bincount(labels, weights=masses[:, j], minlength=count)
+                    for j in range(masses.shape[1])], axis=1)
+    gap = np.abs(per - per[:, :1]).sum(axis=0)
+    if np.any(gap > tol):
+        j = int(np.argmax(gap))
+        raise UnsupportedDomainError(
+            f"the domain has {count} connected components and mass cannot move between "
+            f"them, but the distributions put different mass on them (component masses "
+            f"{np.round(per[:, 0], 6).tolist()} vs {np.round(per[:, j], 6).tolist()}, L1 gap "
+            f"{gap[j]:.3g} > {tol:g}); give each component the same mass in every "
+            "distribution", field=field)
+
+
+# Largest regularization accepted, as a multiple of the squared domain extent: beyond it the
+# heat kernel is uniform over the domain (nothing left to transport) and D_a + tL is too
+# ill-conditioned to factor.
+GAMMA_MAX_FACTOR = 100.0
+
+
+def check_gamma(gamma, extent: float, field: str = "gamma") -> float:
+    """A regularization ``0 < gamma <= GAMMA_MAX_FACTOR * extent**2`` (finite).
+
+    ``extent``: the domain's size in its own units (``Domain.extent``: bounding-box
+    diagonal at unit area, grid diagonal, graph node count in hops).
+    """
+    g = check_positive(gamma, field)
+    top = GAMMA_MAX_FACTOR * float(extent) ** 2
+    if g > top:
+        raise InputError(f"{field} = {g:g} is beyond {top:.3g} ({GAMMA_MAX_FACTOR:g} x the "
+                         f"squared domain extent {float(extent):.3g}): the heat kernel would be "
+                         "uniform over the domain; use a smaller value", field=field)
+    return g
+
+
+def check_entropy_bound(bound, areas: np.ndarray, field: str = "entropy_bound") -> float:
+    r"""An entropy bound :math:`H_0` reachable by sharpening: finite and at least
+    :math:`\log \min_i a_i`, the entropy of the most concentrated distribution (a point
+    mass on the smallest cell); entropies are at most 0 (uniform density on unit area)."""
+    h = check_finite(bound, field)
+    low = float(np.log(np.min(areas)))
+    if h < low:
+        raise InputError(f"{field} = {h:g} is below {low:.6g}, the entropy of a point mass on "
+                         "this domain (log of the smallest area weight): no distribution "
+                         "reaches it", field=field)
+    return h
+
+
+def check_anchored(n_nodes: int, edges: np.ndarray, anchors, field: str = "edges") -> None:
+    """Every node of the graph ``(n_nodes, edges)`` is connected to some anchor node."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    e = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    graph = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n_nodes, n_nodes))
+    _, labels = connected_components(graph, directed=False)
+    anchored = np.zeros(int(labels.max()) + 1, dtype=bool)
+    anchored[labels[np.asarray(list(anchors), dtype=np.int64)]] = True
+    lost = np.flatnonzero(~anchored[labels])
+    if len(lost):
+        raise InputError(f"node {int(lost[0])} is not connected to any fixed node "
+                         f"({len(lost)} such nodes)", field=field)
+
+
+def check_size(shape, limit: int, field: str = "shape") -> int:
+    """The number of points ``prod(shape)`` as a Python int (no int64 wrap-around),
+    refused when above ``limit``."""
+    try:
+        dims = [int(s) for s in shape]
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise InputError(f"{field} must be a list of integers", field=field) from exc
+    total = math.prod(max(d, 0) for d in dims)
+    if total > limit:
+        raise InputError(f"{field} {dims} gives {total} points, more than the limit of {limit}",
+                         field=field)
+    return total

@@ -1,0 +1,116 @@
+r"""Graph weights for propagation: the Laplacian :math:`L = D - W` the Dirichlet energy uses.
+
+:math:`\sum_{(u,v) \in E} w_{uv} \|f_u - f_v\|^2 = f^\top L f`.  Sources:
+
+* a :class:`~solvers.domains.Graph` (its edge weights),
+* a :class:`~solvers.domains.TriangleMesh`: ``laplacian="robust"`` (intrinsic-Delaunay,
+  non-negative weights, maximum principle; default) or ``"cotan"`` (the cotangent
+  Laplacian; weights can be negative on obtuse meshes),
+* a :class:`~solvers.domains.PointCloud`: its point-cloud Laplacian (the thesis' [CL06]
+  choice; here Sharp & Crane's robust point-cloud Laplacian),
+* a :class:`~solvers.domains.Grid`: its finite-difference Laplacian,
+* a sparse symmetric ``(n, n)`` weight matrix :math:`W` (non-negative),
+* :func:`knn_graph`: a k-nearest-neighbour graph of coordinates.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from solvers.domains import Graph, PointCloud, TriangleMesh
+from solvers.domains.base import Domain
+from solvers.errors import InputError
+from solvers.validation import check_int
+
+LaplacianKind = Literal["auto", "robust", "cotan"]
+
+
+def laplacian_from_weights(weights: sp.spmatrix, field: str = "graph") -> sp.csr_matrix:
+    """``L = D - W`` from a symmetric non-negative sparse weight matrix ``W``."""
+    W = sp.csr_matrix(weights, dtype=np.float64)
+    if W.shape[0] != W.shape[1]:
+        raise InputError(f"{field}: a weight matrix must be square, got {W.shape}", field=field)
+    if not np.all(np.isfinite(W.data)) or np.any(W.data < 0):
+        raise InputError(f"{field}: weights must be finite and non-negative", field=field)
+    if abs(W - W.T).sum() > 1e-12 * max(abs(W).sum(), 1.0):
+        raise InputError(f"{field}: the weight matrix must be symmetric", field=field)
+    W = W - sp.diags(W.diagonal())
+    W.eliminate_zeros()
+    return (sp.diags(np.asarray(W.sum(axis=1)).ravel()) - W).tocsr()
+
+
+def graph_laplacian(graph, laplacian: LaplacianKind = "auto") -> sp.csr_matrix:
+    """The PSD Laplacian ``L`` (``n × n``, ``L·1 = 0``) of a domain or weight matrix."""
+    if sp.issparse(graph):
+        return laplacian_from_weights(graph)
+    if laplacian not in ("auto", "robust", "cotan"):
+        raise InputError(f"laplacian must be 'auto', 'robust' or 'cotan', got {laplacian!r}",
+                         field="laplacian")
+    if isinstance(graph, TriangleMesh):
+        if laplacian == "cotan":
+            return graph.cotan_laplacian
+        if laplacian == "robust":
+            return graph.robust_laplacian
+        return graph.laplacian
+    if laplacian != "auto" and not isinstance(graph, TriangleMesh):
+        raise InputError(f"laplacian={laplacian!r} applies to triangle meshes only",
+                         field="laplacian")
+    if isinstance(graph, Domain):
+        return sp.csr_matrix(graph.laplacian)
+    raise InputError("graph must be a Graph, TriangleMesh, PointCloud or Grid domain, or a "
+                     "sparse weight matrix", field="graph")
+
+
+def component_labels(graph, L: sp.spmatrix | None = None) -> tuple[int, np.ndarray]:
+    """``(count, (n,) labels)`` of the connected components."""
+    if isinstance(graph, Domain):
+        return int(graph.n_components), np.asarray(graph.component_labels)
+    count, labels = connected_components(abs(sp.csr_matrix(L)), directed=False)
+    return int(count), labels
+
+
+def knn_graph(points, k: int = 8, *, weights: Literal["uniform", "gaussian"] = "uniform"
+              ) -> Graph:
+    r"""Symmetric k-nearest-neighbour :class:`~solvers.domains.Graph` of ``(n, d)`` points.
+
+    ``u ~ v`` when either is among the other's ``k`` nearest neighbours.  Weights: 1, or
+    :math:`\exp(-d_{uv}^2 / \sigma^2)` with :math:`\sigma` the mean neighbour distance.
+    """
+    from scipy.spatial import cKDTree
+
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim != 2 or len(p) < 2 or not np.all(np.isfinite(p)):
+        raise InputError("points must be a finite (n, d) array with n >= 2", field="points")
+    k = check_int(k, "k", low=1, high=len(p) - 1)
+    if weights not in ("uniform", "gaussian"):
+        raise InputError(f"weights must be 'uniform' or 'gaussian', got {weights!r}",
+                         field="weights")
+    dist, idx = cKDTree(p).query(p, k=k + 1)
+    rows = np.repeat(np.arange(len(p)), k)
+    cols = idx[:, 1:].ravel()
+    d = dist[:, 1:].ravel()
+    a, b = np.minimum(rows, cols), np.maximum(rows, cols)
+    keep = a != b
+    pairs, first = np.unique(np.stack([a[keep], b[keep]], axis=1), axis=0, return_index=True)
+    if weights == "gaussian":
+        dd = d[keep][first]
+        sigma = float(dd.mean()) or 1.0
+        w = np.exp(-(dd / sigma) ** 2)
+    else:
+        w = np.ones(len(pairs))
+    return Graph(len(p), pairs, w, positions=p)
+
+
+def domain_positions(graph) -> np.ndarray | None:
+    """Coordinates of the nodes if the domain has them (for k-NN graphs, export)."""
+    if isinstance(graph, TriangleMesh):
+        return graph.vertices
+    if isinstance(graph, PointCloud):
+        return graph.points
+    if isinstance(graph, Graph):
+        return graph.positions
+    return getattr(graph, "points", None)
