@@ -65,9 +65,54 @@ def cmd_openapi(args) -> None:
     print(f"wrote {out}")
 
 
-def run_worker(settings) -> None:
-    """One worker process: Huey consumer (one job at a time), reaper, statistics."""
+PARENT_ENV = "OTGEO_PARENT_PID"  # set by `otgeo serve` for its workers
+PR_SET_PDEATHSIG = 1
+WATCHDOG_INTERVAL = 0.5  # seconds between parent checks of a worker started by `serve`
+
+
+def die_with_parent(parent_pid: int, grace: float = 10.0) -> None:
+    """Make this worker stop when the ``otgeo serve`` that started it dies, even by SIGKILL.
+
+    Linux: ``prctl(PR_SET_PDEATHSIG, SIGTERM)`` (delivered when the parent exits); everywhere
+    a watchdog thread compares ``os.getppid()`` with the parent (a dead parent's children
+    are re-parented) and sends SIGTERM itself, then exits hard after ``grace`` seconds if the
+    graceful stop hangs. SIGTERM is the worker's graceful stop: its running job goes back to
+    the queue."""
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            if libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) != 0:
+                raise OSError(ctypes.get_errno(), "prctl failed")
+        except (OSError, AttributeError) as exc:
+            logging.getLogger("otgeo").warning("no parent-death signal (%s); watchdog only", exc)
+
+    def orphaned() -> bool:
+        return os.getppid() != parent_pid
+
+    def watchdog() -> None:
+        while not orphaned():
+            time.sleep(WATCHDOG_INTERVAL)
+        logging.getLogger("otgeo").warning("parent %d is gone; stopping this worker",
+                                           parent_pid)
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(grace)
+        os._exit(1)
+
+    if orphaned():  # the parent died before the signal was armed
+        raise SystemExit(f"otgeo worker: parent process {parent_pid} is gone")
+    threading.Thread(target=watchdog, daemon=True, name="parent-watchdog").start()
+
+
+def run_worker(settings, queues=("short", "long")) -> None:
+    """One worker process: consumer of the short (and long) queue, one job at a time,
+    reaper, statistics."""
     limit_blas_threads(settings.blas_threads)
+    parent = os.environ.get(PARENT_ENV)
+    if parent and parent.isdigit():
+        die_with_parent(int(parent))
+    from service.jobs.consumer import Consumer
     from service.runtime import Runtime
 
     runtime = Runtime(settings, role="worker")
@@ -78,21 +123,17 @@ def run_worker(settings) -> None:
         from service.jobs.wake import WakeSocket
 
         wake = WakeSocket(settings.data_dir, "worker")
-        if wake.sock is not None:
-            runtime.huey.storage.wake = wake
-            runtime.huey.storage.blocking = True
-    consumer = runtime.huey.create_consumer(
-        workers=1, worker_type="thread", periodic=False, initial_delay=0.005, backoff=1.5,
-        max_delay=settings.worker_poll_interval, check_worker_health=True)
+    consumer = Consumer(runtime, queues, wake)
     runtime.start_background(publish=True)
-    logging.getLogger("otgeo").info("worker %s ready (queue %s)", runtime.process_id,
-                                    settings.queue)
+    logging.getLogger("otgeo").info("worker %s ready (queue %s: %s)", runtime.process_id,
+                                    settings.queue, ", ".join(consumer.queues))
     try:
         consumer.run()
     finally:
         released = runtime.runner.release_current()
         if released:
-            runtime.enqueue(released)
+            row = runtime.repo.get(released)
+            runtime.enqueue(released, row.queue if row is not None else None)
             logging.getLogger("otgeo").info("handed job %s back to the queue", released)
         runtime.close()
         if wake is not None:
@@ -100,24 +141,42 @@ def run_worker(settings) -> None:
 
 
 def cmd_worker(args) -> None:
-    run_worker(_settings(args))
+    queues = tuple(q.strip() for q in args.queues.split(",") if q.strip())
+    if not queues or set(queues) - {"short", "long"}:
+        raise SystemExit(f"otgeo worker: --queues takes short and/or long, not {args.queues!r}")
+    settings = _settings(args)
+    fail = storage_problem(settings)
+    if fail:
+        print(f"otgeo worker: {fail}", file=sys.stderr, flush=True)
+        raise SystemExit(2)
+    run_worker(settings, queues)
+
+
+def worker_queues(count: int, reserved_short: int) -> list[str]:
+    """The ``--queues`` of each of ``count`` workers: with two or more, ``reserved_short``
+    of them (at least one worker always serves the long queue) take short jobs only."""
+    reserved = min(reserved_short, count - 1) if count >= 2 else 0
+    return ["short,long"] * (count - reserved) + ["short"] * reserved
 
 
 class WorkerPool:
-    """Child ``otgeo worker`` processes, restarted if they die, stopped on shutdown."""
+    """Child ``otgeo worker`` processes, restarted if they die, stopped on shutdown; they
+    die with this process (parent-death signal + watchdog, see ``die_with_parent``)."""
 
-    def __init__(self, count: int, env: dict):
-        self.count, self.env = count, env
+    def __init__(self, count: int, env: dict, reserved_short: int = 1):
+        self.count = count
+        self.env = {**env, PARENT_ENV: str(os.getpid())}
+        self.queues = worker_queues(count, reserved_short)
         self.procs: list[subprocess.Popen] = []
         self._stopping = threading.Event()
         self._thread = threading.Thread(target=self._supervise, daemon=True, name="workers")
 
-    def _spawn(self) -> subprocess.Popen:
-        return subprocess.Popen([sys.executable, "-m", "service.cli", "worker"], env=self.env,
-                                start_new_session=True)
+    def _spawn(self, queues: str) -> subprocess.Popen:
+        return subprocess.Popen([sys.executable, "-m", "service.cli", "worker", "--queues",
+                                 queues], env=self.env, start_new_session=True)
 
     def start(self) -> None:
-        self.procs = [self._spawn() for _ in range(self.count)]
+        self.procs = [self._spawn(q) for q in self.queues]
         self._thread.start()
 
     def _supervise(self) -> None:
@@ -126,7 +185,7 @@ class WorkerPool:
                 if proc.poll() is not None and not self._stopping.is_set():
                     logging.getLogger("otgeo").warning(
                         "worker pid %d exited (%s); starting a new one", proc.pid, proc.returncode)
-                    self.procs[i] = self._spawn()
+                    self.procs[i] = self._spawn(self.queues[i])
 
     def stop(self, timeout: float = 10.0) -> None:
         self._stopping.set()
@@ -142,28 +201,53 @@ class WorkerPool:
                 proc.wait()
 
 
+def storage_problem(settings) -> str | None:
+    """One line saying why the data directory cannot be used, or None."""
+    from service.runtime import storage_status
+
+    status = storage_status(settings.data_dir,
+                            (settings.data_dir / "domains", settings.data_dir / "results"))
+    if status["writable"]:
+        return None
+    return (f"data directory {settings.data_dir} is not writable ({status['reason']}); "
+            "set OTGEO_DATA_DIR or --data-dir to a writable directory")
+
+
 def cmd_serve(args) -> None:
     import uvicorn
 
     settings = _settings(args)
-    settings.ensure_dirs()
+    fail = storage_problem(settings)
+    if fail:
+        print(f"otgeo serve: {fail}", file=sys.stderr, flush=True)
+        raise SystemExit(2)
     env = limit_blas_threads(settings.blas_threads, dict(os.environ))
     env["OTGEO_DATA_DIR"] = str(settings.data_dir.resolve())
     pool = None
     if settings.workers > 0 and settings.queue != "immediate":
-        pool = WorkerPool(settings.workers, env)
+        pool = WorkerPool(settings.workers, env, settings.reserved_short_workers)
         pool.start()
         print(f"otgeo: {settings.workers} worker process(es): "
-              f"{', '.join(str(p.pid) for p in pool.procs)}", flush=True)
+              f"{', '.join(str(p.pid) for p in pool.procs)} "
+              f"(queues: {'; '.join(pool.queues)})", flush=True)
     # uvicorn re-raises SIGINT/SIGTERM after a graceful shutdown, with the handlers that were
     # installed before it started: make those no-ops so the workers are stopped below.
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: None)
     try:
+        from sqlalchemy.exc import SQLAlchemyError
+
         from service.app import create_app
 
-        uvicorn.run(create_app(settings), host=args.host, port=args.port,
-                    log_level=args.log_level)
+        try:
+            app = create_app(settings)
+        except (OSError, SQLAlchemyError) as exc:  # storage or job database unusable
+            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else \
+                type(exc).__name__
+            print(f"otgeo serve: cannot open the service's storage or job database "
+                  f"({reason})", file=sys.stderr, flush=True)
+            raise SystemExit(2) from None
+        uvicorn.run(app, host=args.host, port=args.port, log_level=args.log_level)
     finally:
         if pool is not None:
             pool.stop()
@@ -176,11 +260,14 @@ def main(argv=None) -> None:
     serve.add_argument("--host", default="127.0.0.1")
     serve.add_argument("--port", type=int, default=8000)
     serve.add_argument("--workers", type=int, default=None,
-                       help="worker processes (default OTGEO_WORKERS, 1)")
+                       help="worker processes (default OTGEO_WORKERS, else the cores)")
     serve.add_argument("--data-dir", default=None)
     serve.add_argument("--log-level", default="info")
     worker = sub.add_parser("worker", help="run a worker only (scaled-out deployments)")
     worker.add_argument("--data-dir", default=None)
+    worker.add_argument("--queues", default="short,long",
+                        help="queues served: short,long (default) or short (reserved for "
+                        "short jobs)")
     spec = sub.add_parser("openapi", help="write the OpenAPI document")
     spec.add_argument("--output", "-o", default=str(DEFAULT_OPENAPI))
     args = parser.parse_args(argv)

@@ -6,6 +6,7 @@ Every field can be set as ``OTGEO_<NAME>`` (e.g. ``OTGEO_DATA_DIR=/srv/otgeo``,
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -41,7 +42,19 @@ class Settings(BaseSettings):
     api_keys: Annotated[list[str], NoDecode] = Field(
         default_factory=list, description="comma-separated accepted X-API-Key values; "
         "empty = no authentication")
-    workers: int = Field(1, ge=0, description="worker processes started by `otgeo serve`")
+    workers: int = Field(default_factory=lambda: cpu_count(), ge=0,
+                         description="worker processes started by `otgeo serve` (default: "
+                         "the cores this process may run on)")
+    reserved_short_workers: int = Field(
+        1, ge=0, description="of `otgeo serve`'s workers, how many serve only the short-job "
+        "queue (when there are at least two workers)")
+    long_job_cost: float = Field(
+        5e7, gt=0, description="estimated cost (domain size x iterations x distributions) "
+        "from which a job goes to the long-job queue")
+    metrics_open: bool = Field(False, description="serve /metrics without an API key even "
+                               "when OTGEO_API_KEYS is set")
+    min_free_bytes: int = Field(64 * 2**20, ge=0, description="free space in data_dir below "
+                                "which /healthz reports degraded storage")
     blas_threads: int = Field(1, ge=1, description="BLAS/OpenMP threads per worker process")
     worker_poll_interval: float = Field(0.01, gt=0, description="longest idle poll delay of "
                                         "a worker on the SQLite queue (seconds) when it has "
@@ -61,3 +74,11 @@ class Settings(BaseSettings):
 
     def ensure_dirs(self) -> None:
         self.data_dir.mkdir(parents=True, exist_ok=True)
+
+
+def cpu_count() -> int:
+    """Cores this process may run on (its affinity mask, else os.cpu_count())."""
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except (AttributeError, OSError):
+        return max(os.cpu_count() or 1, 1)

@@ -19,10 +19,14 @@ from sqlalchemy import (
     Float,
     Integer,
     String,
+    and_,
     create_engine,
     event,
     func,
+    inspect,
+    or_,
     select,
+    text,
     update,
 )
 from sqlalchemy.exc import OperationalError
@@ -48,6 +52,9 @@ class JobRow(Base):
     state: Mapped[str] = mapped_column(String(16), index=True)
     iteration: Mapped[int | None] = mapped_column(Integer, nullable=True)
     residual: Mapped[float | None] = mapped_column(Float, nullable=True)
+    fraction: Mapped[float | None] = mapped_column(Float, nullable=True)
+    queue: Mapped[str | None] = mapped_column(String(16), nullable=True)
+    cost: Mapped[float | None] = mapped_column(Float, nullable=True)
     error: Mapped[dict | None] = mapped_column(JSON, nullable=True)
     attempts: Mapped[int] = mapped_column(Integer, default=0)
     max_attempts: Mapped[int] = mapped_column(Integer, default=3)
@@ -76,6 +83,8 @@ class WorkerRow(Base):
 
 
 JOBS = JobRow.__table__
+# columns added after the first release: created on an existing table at start-up
+ADDED_COLUMNS = {"fraction": "FLOAT", "queue": "VARCHAR(16)", "cost": "FLOAT"}
 
 
 def worker_identity() -> str:
@@ -115,7 +124,20 @@ class JobRepository:
             Base.metadata.create_all(self.engine)
         except OperationalError:  # another process (API or worker) created it meanwhile
             Base.metadata.create_all(self.engine)
+        self._add_columns()
         self.Session = sessionmaker(self.engine, expire_on_commit=False)
+
+    def _add_columns(self) -> None:
+        """ALTER an older job table to the current columns (a no-op on a new one)."""
+        present = {c["name"] for c in inspect(self.engine).get_columns("jobs")}
+        for name, sql_type in ADDED_COLUMNS.items():
+            if name in present:
+                continue
+            try:
+                with self.engine.begin() as conn:
+                    conn.execute(text(f"ALTER TABLE jobs ADD COLUMN {name} {sql_type}"))
+            except OperationalError:  # added by another process meanwhile
+                pass
 
     def dispose(self) -> None:
         self.engine.dispose()
@@ -132,12 +154,39 @@ class JobRepository:
             row = conn.execute(select(JOBS).where(JOBS.c.id == job_id)).mappings().first()
         return None if row is None else JobRow(**row)
 
-    def list(self, limit: int = 100, state: str | None = None) -> list[JobRow]:
-        with self.Session() as s:
-            q = select(JobRow).order_by(JobRow.created_at.desc()).limit(limit)
-            if state:
-                q = q.where(JobRow.state == state)
-            return list(s.scalars(q))
+    def list(self, limit: int = 100, state: str | None = None, *,
+             after: tuple[float, str] | None = None, operation: str | None = None,
+             domain_id: str | None = None) -> list[JobRow]:
+        """Newest first (``created_at``, then ``id``, descending); ``after``: the
+        ``(created_at, id)`` of the last job of the previous page (cursor paging)."""
+        q = select(JOBS).order_by(JOBS.c.created_at.desc(), JOBS.c.id.desc()).limit(limit)
+        if state:
+            q = q.where(JOBS.c.state == state)
+        if operation:
+            q = q.where(JOBS.c.operation == operation)
+        if domain_id:
+            q = q.where(JOBS.c.domain_id == domain_id)
+        if after is not None:
+            created, last_id = after
+            q = q.where(or_(JOBS.c.created_at < created,
+                            and_(JOBS.c.created_at == created, JOBS.c.id < last_id)))
+        with self.engine.connect() as conn:
+            return [JobRow(**row) for row in conn.execute(q).mappings()]
+
+    def queue_position(self, job: JobRow) -> int | None:
+        """1 for the next queued job of its queue, 2 after that, ...; None unless queued."""
+        if job.state != QUEUED:
+            return None
+        mine = job.queue or "short"
+        same = func.coalesce(JOBS.c.queue, "short") == mine
+        at = job.enqueued_at if job.enqueued_at is not None else job.created_at
+        q = select(func.count()).select_from(JOBS).where(
+            JOBS.c.state == QUEUED, same,
+            or_(func.coalesce(JOBS.c.enqueued_at, JOBS.c.created_at) < at,
+                and_(func.coalesce(JOBS.c.enqueued_at, JOBS.c.created_at) == at,
+                     JOBS.c.id < job.id)))
+        with self.engine.connect() as conn:
+            return int(conn.execute(q).scalar() or 0) + 1
 
     def _update(self, where, **values) -> int:
         """A conditional UPDATE (Core statement: no ORM bookkeeping); returns the row count."""

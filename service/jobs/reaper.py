@@ -21,8 +21,8 @@ DONE_MARKER_TTL = 3600.0  # seconds a completion marker is kept (waiting clients
 
 
 class Reaper:
-    def __init__(self, settings: Settings, repo: JobRepository, enqueue: Callable[[str], None],
-                 store=None):
+    def __init__(self, settings: Settings, repo: JobRepository,
+                 enqueue: Callable[[str, str | None], None], store=None):
         self.settings, self.repo, self.enqueue, self.store = settings, repo, enqueue, store
         self._last_prune = 0.0
         self._stop = threading.Event()
@@ -41,7 +41,7 @@ class Reaper:
                     failed.append(job.id)
             elif self.repo.requeue(job, before):
                 requeued.append(job.id)
-                self._send(job.id)
+                self._send(job.id, job.queue)
         # A worker stuck in a step that never checks for cancellation: the job is reported
         # failed; the worker's late result is refused (it no longer owns the job).
         for job in self.repo.overdue_running(now, self.settings.stale_after):
@@ -52,7 +52,7 @@ class Reaper:
         for job in self.repo.stale_queued(now - self.settings.requeue_queued_after):
             if self.repo.touch_queued(job):
                 resent.append(job.id)
-                self._send(job.id)
+                self._send(job.id, job.queue)
         if self.store is not None and now - self._last_prune > DONE_MARKER_TTL / 4:
             self._last_prune = now
             self.store.prune_done_markers(DONE_MARKER_TTL)
@@ -60,9 +60,9 @@ class Reaper:
             log.warning("reaper: requeued %s, failed %s, re-sent %s", requeued, failed, resent)
         return {"requeued": requeued, "failed": failed, "resent": resent}
 
-    def _send(self, job_id: str) -> None:
+    def _send(self, job_id: str, queue: str | None = None) -> None:
         try:
-            self.enqueue(job_id)
+            self.enqueue(job_id, queue)
         except Exception:  # broker down: the job stays queued and is re-sent later
             log.exception("could not enqueue job %s", job_id)
 

@@ -1,0 +1,145 @@
+"""The job queues: JSON-only messages (a pickle pushed into the queue is dropped, never
+unpickled), a Redis broker behind a password, the short/long split with a reserved worker,
+and progress with queue position, fraction done and an estimate."""
+
+from __future__ import annotations
+
+import os
+import pickle
+import shutil
+import socket
+import subprocess
+import time
+
+import pytest
+from huey.registry import Message
+
+from service.jobs.consumer import Consumer
+from service.jobs.queue import (
+    TASK_STRING,
+    JsonSerializer,
+    UnsafeMessage,
+    estimate_cost,
+    make_huey,
+    queue_for_cost,
+    register_task,
+)
+from service.runtime import Runtime
+from service.settings import Settings
+
+JOB_ID = "0123456789abcdef0123456789abcdef"
+
+
+class _Boom:
+    """Unpickling this runs code: the attack a pickle queue allows."""
+
+    def __reduce__(self):
+        return (os.system, ("touch pwned",))
+
+
+def test_messages_are_json_carrying_one_job_id(tmp_path):
+    huey = make_huey(Settings(data_dir=tmp_path, queue="sqlite"))
+    task = register_task(huey, lambda job_id: None)
+    raw = huey.serialize_task(task.s(JOB_ID))
+    assert raw.startswith(b"{") and JOB_ID.encode() in raw
+    back = huey.deserialize_task(raw)
+    assert back.args == (JOB_ID,)
+    with pytest.raises(UnsafeMessage):
+        huey.serialize_task(task.s(JOB_ID, "extra"))
+    with pytest.raises(UnsafeMessage):
+        huey.serialize_task(task.s({"not": "an id"}))
+
+
+@pytest.mark.parametrize("payload", [
+    pickle.dumps(Message(JOB_ID, TASK_STRING, None, 0, 0, None, (JOB_ID,), {}, None, None,
+                         None, None, None, None, None)),
+    pickle.dumps(_Boom()),
+    b'{"v": 1, "id": "x", "name": "service.jobs.queue.otgeo.run_job", "args": ["../../x y"]}',
+    b'{"v": 1, "id": "x", "name": "builtins.eval", "args": ["' + JOB_ID.encode() + b'"]}',
+    b"[" * 100_000,
+])
+def test_serializer_refuses_everything_else(payload):
+    with pytest.raises(UnsafeMessage):
+        JsonSerializer().deserialize(payload)
+
+
+def test_pickle_pushed_into_the_queue_is_dropped_not_unpickled(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    rt = Runtime(Settings(data_dir=tmp_path, queue="sqlite"), role="worker")
+    ran: list[str] = []
+    rt.runner.run = ran.append
+    try:
+        storage = rt.hueys["short"].storage
+        storage.enqueue(pickle.dumps(_Boom()))  # what an attacker with broker access writes
+        legit = rt.hueys["short"].serialize_task(rt.tasks["short"].s(JOB_ID))
+        storage.enqueue(legit)
+        consumer = Consumer(rt, ("short", "long"))
+        assert consumer.step(0.1) is None  # the pickle: read, logged, dropped
+        assert consumer.dropped == 1
+        assert consumer.step(0.1) == JOB_ID
+        assert ran == [JOB_ID]
+        assert not (tmp_path / "pwned").exists()
+        assert rt.pending_messages() == 0
+    finally:
+        rt.close()
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.skipif(shutil.which("redis-server") is None, reason="needs redis-server")
+def test_redis_url_with_password(tmp_path):
+    port = _free_port()
+    proc = subprocess.Popen(["redis-server", "--port", str(port), "--bind", "127.0.0.1",
+                             "--requirepass", "s3cret pass", "--save", "", "--appendonly",
+                             "no"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        import redis
+
+        deadline = time.monotonic() + 10
+        while True:
+            try:
+                redis.Redis(port=port, password="s3cret pass").ping()
+                break
+            except redis.ConnectionError:
+                assert time.monotonic() < deadline
+                time.sleep(0.05)
+        # URL-encoded password (the space), as in OTGEO_REDIS_URL
+        good = Settings(data_dir=tmp_path, queue="redis",
+                        redis_url=f"redis://:s3cret%20pass@127.0.0.1:{port}/0")
+        rt = Runtime(good, role="worker")
+        ran: list[str] = []
+        rt.runner.run = ran.append
+        try:
+            rt.enqueue(JOB_ID, "long")
+            assert rt.pending_messages() == 1
+            consumer = Consumer(rt, ("short", "long"))
+            assert consumer.step(2.0) == JOB_ID and ran == [JOB_ID]
+        finally:
+            rt.close()
+        bad = Settings(data_dir=tmp_path, queue="redis",
+                       redis_url=f"redis://127.0.0.1:{port}/0")
+        with pytest.raises(redis.AuthenticationError):
+            make_huey(bad).storage.conn.ping()
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
+def test_cost_chooses_the_queue(tmp_path):
+    from service.operations.base import BumpDistribution, OperationRequest
+
+    class Req(OperationRequest):
+        distributions: list[BumpDistribution]
+        weights: list[float] | None = None
+        max_iter: int = 1000
+
+    bumps = [BumpDistribution(vertex=0, radius=0.1)] * 3
+    assert estimate_cost(100, Req(distributions=bumps, weights=[0.2, 0.3, 0.5])) == \
+        100 * 1000 * 3
+    settings = Settings(data_dir=tmp_path, long_job_cost=1e6)
+    assert queue_for_cost(settings, estimate_cost(100, Req(distributions=bumps))) == "short"
+    assert queue_for_cost(settings, estimate_cost(10_000, Req(distributions=bumps))) == "long"
