@@ -35,7 +35,7 @@ from solvers.histograms.circle import (
 )
 from solvers.histograms.diffusion import HistogramDiffusionResult, diffuse_histograms
 from solvers.histograms.dirichlet import check_labeled, dirichlet_system, harmonic_extension
-from solvers.histograms.graphs import graph_laplacian, knn_graph, laplacian_from_weights
+from solvers.histograms.graphs import as_graph, graph_laplacian, knn_graph, laplacian_from_weights
 from solvers.histograms.propagation import (
     HistogramPropagationResult,
     harmonic_means,
@@ -55,6 +55,7 @@ from solvers.histograms.summaries import summarize, w1_distance
 
 __all__ = [
     "Bins",
+    "as_graph",
     "CircularPropagationResult",
     "HistogramDiffusionResult",
     "HistogramPropagationResult",

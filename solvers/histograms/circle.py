@@ -9,9 +9,9 @@ one transport plan :math:`\pi_e \in \mathbb{R}_+^{B \times B}` per edge:
            \pi_e \mathbf 1 = \mu_u,\; \pi_e^\top \mathbf 1 = \mu_v,\;
            \mu_v \ge 0,\; \mathbf 1^\top \mu_v = 1 \text{ (unlabeled } v),
 
-with :math:`\mu_v` fixed on the labeled nodes.  ``route="lp"`` solves it exactly with
+with :math:`\mu_v` fixed on the labeled nodes.  ``algorithm="lp"`` solves it exactly with
 HiGHS (``scipy.optimize.linprog``), the constraint matrix assembled sparse
-(``2B`` rows per edge, :math:`m B^2 + |U| B` variables).  ``route="entropic"`` solves the
+(``2B`` rows per edge, :math:`m B^2 + |U| B` variables).  ``algorithm="entropic"`` solves the
 regularized version with the convolutional propagation of Alg. 4
 (:func:`solvers.convolutional.wasserstein_propagation`) on a periodic 1-D
 :class:`~solvers.domains.Grid` of the bin centers (heat kernel
@@ -30,6 +30,7 @@ import scipy.sparse as sp
 from solvers.domains import Graph
 from solvers.errors import ConvergenceError, InputError
 from solvers.histograms.bins import Bins, check_histograms, make_bins
+from solvers.histograms.graphs import as_graph
 from solvers.monitor import Monitor, SolverResult
 from solvers.validation import (
     check_anchored_components,
@@ -45,7 +46,7 @@ class CircularPropagationResult(SolverResult):
     :math:`\\sum_e w_e W_C(\\mu_u, \\mu_v)` of the returned histograms; ``lp_value`` the LP
     optimum when known and ``gap = value - lp_value`` (0 for the LP itself)."""
 
-    route: str
+    algorithm: str
     histograms: np.ndarray
     value: float
     lp_value: float | None = None
@@ -64,10 +65,9 @@ def circle_cost(bins: Bins, power: float = 2.0) -> np.ndarray:
 
 
 def _graph_arrays(graph):
-    if isinstance(graph, Graph):
-        return graph.n, graph.edges, graph.weights, np.asarray(graph.component_labels)
-    raise InputError("circle propagation runs on a Graph (edges and weights); build one "
-                     "with Graph(...) or solvers.histograms.graphs.knn_graph", field="graph")
+    if not isinstance(graph, Graph):
+        graph = as_graph(graph)
+    return graph.n, graph.edges, graph.weights, np.asarray(graph.component_labels)
 
 
 def _labels(graph, labeled, histograms, bins: Bins):
@@ -86,10 +86,15 @@ def transport_cost(mu: np.ndarray, nu: np.ndarray, cost: np.ndarray) -> float:
     from scipy.optimize import linprog
 
     B = len(mu)
+    # masses below 1e-15 only trouble HiGHS' feasibility tolerances; totals made equal, and
+    # the last column constraint (implied by the others) dropped
+    mu = np.where(mu > 1e-15, mu, 0.0)
+    nu = np.where(nu > 1e-15, nu, 0.0)
+    mu, nu = mu / mu.sum(), nu / nu.sum()
     rows = np.concatenate([np.repeat(np.arange(B), B), B + np.tile(np.arange(B), B)])
     cols = np.concatenate([np.arange(B * B), np.arange(B * B)])
-    A = sp.csr_matrix((np.ones(2 * B * B), (rows, cols)), shape=(2 * B, B * B))
-    res = linprog(cost.ravel(), A_eq=A, b_eq=np.concatenate([mu, nu]), bounds=(0, None),
+    A = sp.csr_matrix((np.ones(2 * B * B), (rows, cols)), shape=(2 * B, B * B))[:-1]
+    res = linprog(cost.ravel(), A_eq=A, b_eq=np.concatenate([mu, nu])[:-1], bounds=(0, None),
                   method="highs")
     if res.status != 0:
         raise ConvergenceError(f"transport LP failed: {res.message}")
@@ -109,6 +114,8 @@ def _solve_lp(n, edges, w, nodes, h, cost, monitor, time_limit):
 
     B = cost.shape[0]
     m = len(edges)
+    h = np.where(h > 1e-15, h, 0.0)  # below HiGHS' tolerances; keeps the LP feasible
+    h = h / h.sum(axis=1, keepdims=True)
     free_index = np.full(n, -1, dtype=np.int64)
     is_label = np.zeros(n, dtype=bool)
     is_label[nodes] = True
@@ -168,7 +175,7 @@ def _solve_lp(n, edges, w, nodes, h, cost, monitor, time_limit):
 
 
 def propagate_circular(graph: Graph, labeled, histograms, *, bins,
-                       route: Literal["lp", "entropic"] = "lp", cost: np.ndarray | None = None,
+                       algorithm: Literal["lp", "entropic"] = "lp", cost: np.ndarray | None = None,
                        gamma: float | None = None, tol: float = 1e-6,
                        max_iter: int | None = None, time_limit: float | None = None,
                        evaluate: bool = True, lp_value: float | None = None,
@@ -177,10 +184,11 @@ def propagate_circular(graph: Graph, labeled, histograms, *, bins,
 
     Parameters
     ----------
-    graph : a :class:`~solvers.domains.Graph` (edges, positive weights).
+    graph : a :class:`~solvers.domains.Graph` (edges, positive weights), or any source
+        :func:`~solvers.histograms.graphs.as_graph` accepts (mesh, point cloud, weights).
     labeled : ``(k,)`` nodes, at least one per connected component; histograms ``(k, B)``.
     bins : :class:`Bins` (``periodic=True`` for S¹) or edges.
-    route : ``"lp"`` (exact, HiGHS) or ``"entropic"`` (Alg. 4 on a periodic 1-D grid).
+    algorithm : ``"lp"`` (exact, HiGHS) or ``"entropic"`` (Alg. 4 on a periodic 1-D grid).
     cost : optional ``(B, B)`` ground cost (a small metric space); default
         :func:`circle_cost` (squared wrapped distance of bin centers).
     gamma : entropic regularization (default ``(2 w)^2``, ``w`` the mean bin width), in the
@@ -195,23 +203,24 @@ def propagate_circular(graph: Graph, labeled, histograms, *, bins,
     if C.shape != (b.count, b.count) or not np.all(np.isfinite(C)) or np.any(C < 0):
         raise InputError(f"cost must be a finite non-negative ({b.count}, {b.count}) matrix",
                          field="cost")
-    if route not in ("lp", "entropic"):
-        raise InputError(f"route must be 'lp' or 'entropic', got {route!r}", field="route")
+    if algorithm not in ("lp", "entropic"):
+        raise InputError(f"algorithm must be 'lp' or 'entropic', got {algorithm!r}",
+                         field="algorithm")
     monitor = Monitor(progress, should_cancel)
-    if route == "lp":
+    if algorithm == "lp":
         H, value, violation, nit = _solve_lp(n, edges, w, nodes, h, C, monitor, time_limit)
-        return CircularPropagationResult(route="lp", histograms=H, value=value, lp_value=value,
+        return CircularPropagationResult(algorithm="lp", histograms=H, value=value, lp_value=value,
                                          gap=0.0, labeled=nodes, iterations=nit,
                                          residual=violation, converged=violation <= 1e-7)
     if cost is not None:
-        raise InputError("route='entropic' uses the circle's heat kernel; a custom cost needs "
-                         "route='lp'", field="cost")
+        raise InputError("algorithm='entropic' uses the circle's heat kernel; a custom cost "
+                         "needs algorithm='lp'", field="cost")
     from solvers.convolutional import wasserstein_propagation
     from solvers.domains import Grid
 
     width = float(b.widths.mean())
     if not np.allclose(b.widths, width, rtol=1e-9):
-        raise InputError("route='entropic' needs equal-width bins", field="bins.edges")
+        raise InputError("algorithm='entropic' needs equal-width bins", field="bins.edges")
     gamma = (2.0 * width) ** 2 if gamma is None else check_positive(gamma, "gamma")
     lo = b.lo + 0.5 * width
     axis = Grid((b.count,), bounds=[(lo, lo + b.period)], periodic=b.periodic)
@@ -223,7 +232,7 @@ def propagate_circular(graph: Graph, labeled, histograms, *, bins,
     H /= H.sum(axis=1, keepdims=True)
     value = dirichlet_value(H, edges, w, C) if evaluate else float("nan")
     gap = None if lp_value is None or not evaluate else value - float(lp_value)
-    return CircularPropagationResult(route="entropic", histograms=H, value=value,
+    return CircularPropagationResult(algorithm="entropic", histograms=H, value=value,
                                      lp_value=lp_value, gap=gap, gamma=gamma, labeled=nodes,
                                      iterations=res.iterations, residual=res.residual,
                                      converged=res.converged)

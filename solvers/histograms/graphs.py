@@ -65,6 +65,20 @@ def graph_laplacian(graph, laplacian: LaplacianKind = "auto") -> sp.csr_matrix:
                      "sparse weight matrix", field="graph")
 
 
+def as_graph(graph, laplacian: LaplacianKind = "auto") -> Graph:
+    """A :class:`Graph` with the positive off-diagonal weights :math:`-L_{uv}` of a source.
+
+    (Negative cotangent weights of obtuse meshes are dropped; the robust Laplacian has
+    none.)
+    """
+    if isinstance(graph, Graph):
+        return graph
+    L = sp.triu(graph_laplacian(graph, laplacian), k=1).tocoo()
+    keep = L.data < 0
+    return Graph(L.shape[0], np.c_[L.row[keep], L.col[keep]], -L.data[keep],
+                 positions=domain_positions(graph))
+
+
 def component_labels(graph, L: sp.spmatrix | None = None) -> tuple[int, np.ndarray]:
     """``(count, (n,) labels)`` of the connected components."""
     if isinstance(graph, Domain):

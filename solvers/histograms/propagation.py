@@ -157,7 +157,7 @@ def propagate_histograms(graph, labeled, histograms=None, *, bins=None, samples=
     if route not in ("wasserstein", "pdf"):
         raise InputError(f"route must be 'wasserstein' or 'pdf', got {route!r}", field="route")
     b = None if bins is None else make_bins(bins)
-    if b is not None and b.periodic:
+    if b is not None and b.periodic and route == "wasserstein":
         raise InputError("periodic bins live on the circle: use "
                          "solvers.histograms.circle.propagate_circular", field="bins.periodic")
     system = dirichlet_system(graph, labeled, laplacian=laplacian, solver=solver)
