@@ -1,0 +1,256 @@
+// Operation forms generated from the service's OpenAPI schema: every POST route tagged
+// "operations" (domain-scoped /v1/domains/{domain_id}/<name>, or global /v1/<name>) gets a form
+// built from its request body's JSON schema, so operations added to the service appear here
+// without new code. Distribution fields are filled from the vertices picked on the domain.
+
+export function listOperations(openapi) {
+  const ops = [];
+  for (const [path, methods] of Object.entries(openapi.paths || {})) {
+    const op = methods.post;
+    if (!op || !(op.tags || []).includes("operations")) continue;
+    const content = op.requestBody && op.requestBody.content && op.requestBody.content["application/json"];
+    if (!content) continue;
+    const scoped = path.includes("{domain_id}");
+    ops.push({
+      path, scoped, id: op.operationId, summary: op.summary || op.operationId,
+      name: path.split("/").pop(), schema: content.schema,
+    });
+  }
+  ops.sort((a, b) => (a.scoped === b.scoped ? a.name.localeCompare(b.name) : a.scoped ? -1 : 1));
+  return ops;
+}
+
+function deref(root, s) {
+  let guard = 0;
+  while (s && s.$ref && guard++ < 20) {
+    const name = s.$ref.split("/").pop();
+    s = root.components.schemas[name];
+  }
+  return s || {};
+}
+
+function refName(s) { return s && s.$ref ? s.$ref.split("/").pop() : ""; }
+
+// {schema, nullable}: strips anyOf [X, null].
+function unwrap(root, s) {
+  s = deref(root, s);
+  const alts = s.anyOf || s.oneOf;
+  if (alts) {
+    const rest = alts.filter((a) => a.type !== "null");
+    if (rest.length === 1) {
+      return { schema: { ...deref(root, rest[0]), description: s.description,
+                         default: s.default, title: s.title }, nullable: rest.length < alts.length };
+    }
+  }
+  return { schema: s, nullable: false };
+}
+
+export function isDistribution(root, s) {
+  const alts = (deref(root, s).anyOf || deref(root, s).oneOf || []);
+  return alts.some((a) => /Distribution$/.test(refName(a)));
+}
+
+function label(name, s, required) {
+  const el = document.createElement("label");
+  el.textContent = name + (required ? " *" : "");
+  if (s.description) el.title = s.description;
+  return el;
+}
+
+// pick -> distribution JSON: a bump {vertex, radius}, or a point mass (sparse).
+export function pickToDistribution(p) {
+  return p.radius ? { vertex: p.vertex, radius: p.radius }
+    : { indices: [p.vertex], masses: [1] };
+}
+
+// Build the form of one operation into `container`; returns {collect} (async: the request body).
+export function buildForm(container, root, op, ctx) {
+  container.replaceChildren();
+  const body = deref(root, op.schema);
+  const props = body.properties || {};
+  const required = new Set(body.required || []);
+  const main = document.createElement("div");
+  const more = document.createElement("details");
+  const moreSummary = document.createElement("summary");
+  moreSummary.textContent = "options";
+  more.appendChild(moreSummary);
+  container.append(main, more);
+  const readers = [];
+  let distIndex = 0;
+
+  for (const [name, raw] of Object.entries(props)) {
+    const isReq = required.has(name);
+    const row = document.createElement("div");
+    row.className = "field";
+    row.dataset.field = name;
+    const { schema: s, nullable } = unwrap(root, raw);
+    const desc = raw.description || s.description || "";
+    const info = { ...s, description: desc };
+    row.appendChild(label(name, info, isReq));
+    let read;
+
+    if (isDistribution(root, raw)) {
+      const k = distIndex++;
+      const sel = document.createElement("select");
+      sel.name = name;
+      const fill = () => {
+        const picks = ctx.picks();
+        const keep = sel.value;
+        sel.replaceChildren(...picks.map((p, i) => new Option(`pick ${i + 1} (vertex ${p.vertex})`, String(i))));
+        sel.value = keep !== "" && keep < picks.length ? keep : String(Math.min(k, picks.length - 1));
+      };
+      fill();
+      ctx.onPicksChanged(fill);
+      row.appendChild(sel);
+      read = () => {
+        const picks = ctx.picks();
+        const p = picks[Number(sel.value)];
+        if (!p) throw fieldError(name, `pick a vertex for ${name} (click on the domain)`);
+        return pickToDistribution(p);
+      };
+    } else if (s.type === "array" && isDistribution(root, s.items)) {
+      const note = document.createElement("span");
+      note.className = "note";
+      const fill = () => { note.textContent = `all ${ctx.picks().length} picks`; };
+      fill();
+      ctx.onPicksChanged(fill);
+      row.appendChild(note);
+      read = () => {
+        const picks = ctx.picks();
+        if (!picks.length && isReq) throw fieldError(name, `pick vertices for ${name}`);
+        return picks.map(pickToDistribution);
+      };
+    } else if (s.enum) {
+      const sel = document.createElement("select");
+      sel.name = name;
+      if (!isReq && s.default === undefined) sel.appendChild(new Option("(default)", ""));
+      for (const v of s.enum) sel.appendChild(new Option(String(v), String(v)));
+      if (s.default !== undefined) sel.value = String(s.default);
+      row.appendChild(sel);
+      read = () => (sel.value === "" ? undefined : s.enum.find((v) => String(v) === sel.value));
+    } else if (s.type === "boolean") {
+      const box = document.createElement("input");
+      box.type = "checkbox";
+      box.name = name;
+      box.checked = Boolean(s.default);
+      row.appendChild(box);
+      read = () => box.checked;
+    } else if (s.type === "integer" || s.type === "number") {
+      const input = document.createElement("input");
+      input.type = "text";
+      input.inputMode = "decimal";
+      input.name = name;
+      const vertexLike = s.type === "integer" && /vertex|source|target point/i.test(desc + name)
+        && !/size|count|number of/i.test(desc);
+      if (s.default !== undefined && s.default !== null) input.value = String(s.default);
+      else if (vertexLike) input.placeholder = "first pick";
+      else input.placeholder = nullable ? "default" : "";
+      row.appendChild(input);
+      read = () => {
+        const t = input.value.trim();
+        if (t === "") {
+          if (vertexLike && ctx.picks().length) return ctx.picks()[0].vertex;
+          if (isReq) throw fieldError(name, `${name} is required`);
+          return undefined;
+        }
+        const v = Number(t);
+        if (!Number.isFinite(v)) throw fieldError(name, `${name} must be a number`);
+        return v;
+      };
+    } else if (s.type === "string" && /domain/i.test(name)) {
+      const sel = document.createElement("select");
+      sel.name = name;
+      const fill = () => {
+        const keep = sel.value;
+        sel.replaceChildren(...ctx.domains().map((d) => new Option(domainLabel(d), d.id)));
+        sel.value = keep || (ctx.currentDomain() || {}).id || "";
+      };
+      fill();
+      ctx.onDomainsChanged(fill);
+      row.appendChild(sel);
+      read = () => sel.value || undefined;
+    } else if (s.type === "string" && /blob|image|file/i.test(name) && ctx.uploadBlob) {
+      const input = document.createElement("input");
+      input.type = "file";
+      input.name = name;
+      row.appendChild(input);
+      read = async () => {
+        const f = input.files && input.files[0];
+        if (!f) { if (isReq) throw fieldError(name, `choose a file for ${name}`); return undefined; }
+        return ctx.uploadBlob(f);
+      };
+    } else if (s.type === "array" && ["number", "integer"].includes(deref(root, s.items).type)) {
+      const input = document.createElement("input");
+      input.type = "text";
+      input.name = name;
+      if (Array.isArray(s.default)) input.value = s.default.join(", ");
+      else if (name === "times") input.value = "0, 0.25, 0.5, 0.75, 1";
+      input.placeholder = "comma-separated" + (nullable ? " (default)" : "");
+      row.appendChild(input);
+      read = () => {
+        const t = input.value.trim();
+        if (!t) { if (isReq) throw fieldError(name, `${name} is required`); return undefined; }
+        const vals = t.split(/[\s,;]+/).filter(Boolean).map(Number);
+        if (vals.some((v) => !Number.isFinite(v))) throw fieldError(name, `${name}: numbers please`);
+        return vals;
+      };
+    } else if (s.type === "string") {
+      const input = document.createElement("input");
+      input.type = "text";
+      input.name = name;
+      if (s.default) input.value = s.default;
+      row.appendChild(input);
+      read = () => input.value.trim() || undefined;
+    } else { // objects, arrays of objects, tuples: JSON
+      const area = document.createElement("textarea");
+      area.name = name;
+      area.rows = 2;
+      area.placeholder = "JSON" + (s.type ? ` (${s.type})` : "");
+      if (s.default !== undefined && s.default !== null) area.value = JSON.stringify(s.default);
+      row.appendChild(area);
+      read = () => {
+        const t = area.value.trim();
+        if (!t) { if (isReq) throw fieldError(name, `${name} is required (JSON)`); return undefined; }
+        try { return JSON.parse(t); } catch (_) { throw fieldError(name, `${name}: invalid JSON`); }
+      };
+    }
+    if (desc) {
+      const help = document.createElement("div");
+      help.className = "help";
+      help.textContent = desc;
+      row.appendChild(help);
+    }
+    (isReq || isDistribution(root, raw) || name === "weights" ? main : more).appendChild(row);
+    readers.push([name, read]);
+  }
+
+  async function collect() {
+    const out = {};
+    for (const [name, read] of readers) {
+      const v = await read();
+      if (v !== undefined) out[name] = v;
+    }
+    return out;
+  }
+  return { collect };
+}
+
+export function domainLabel(d) {
+  const name = (d.source && d.source.filename) || d.kind;
+  return `${name} · ${d.kind} · ${d.n} · ${d.id.slice(0, 8)}`;
+}
+
+function fieldError(field, message) {
+  const e = new Error(message);
+  e.field = field;
+  return e;
+}
+
+// Mark the form row named by an error's field ("times[1]" -> row "times").
+export function markField(container, field) {
+  for (const el of container.querySelectorAll(".field.bad")) el.classList.remove("bad");
+  if (!field) return;
+  const head = String(field).split(/[.[]/)[0];
+  const row = container.querySelector(`.field[data-field="${CSS.escape(head)}"]`);
+  if (row) row.classList.add("bad");
+}

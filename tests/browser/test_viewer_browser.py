@@ -1,0 +1,171 @@
+"""The viewer in a real browser: upload spot by drag and drop, pick two vertices on the canvas,
+run a barycenter and an interpolation from their generated forms, follow the progress bar to
+the end and check the rendered canvas by pixel statistics of screenshots; a failing request
+shows the server's error message.
+
+``OTGEO_VIEWER_SCREENSHOTS=docs`` also writes the screenshots shown in the README."""
+
+from __future__ import annotations
+
+import base64
+import io
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+from shared_meshes import MESHES_DIR
+
+SHOTS = os.environ.get("OTGEO_VIEWER_SCREENSHOTS")
+TIMEOUT = 30_000  # ms
+
+
+def canvas_pixels(page) -> np.ndarray:
+    """RGB screenshot of the 3-D canvas without the overlays at its bottom (legend, slider)."""
+    png = page.locator("#view canvas").screenshot()
+    img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=np.float64) / 255
+    return img[: img.shape[0] - 100]
+
+
+def stats(img: np.ndarray) -> dict:
+    """Fractions of pixels that are foreground (not the background) and strongly colored."""
+    background = np.array([0x1C, 0x1E, 0x22]) / 255
+    fg = np.abs(img - background).sum(axis=2) > 0.06
+    sat = img.max(axis=2) - img.min(axis=2)
+    colored = fg & (sat > 0.25)
+    return {"foreground": fg.mean(), "colored": colored.sum() / max(fg.sum(), 1),
+            "fg_mask": fg, "colored_mask": colored}
+
+
+def save(page, name: str) -> None:
+    if SHOTS:
+        Path(SHOTS).mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(Path(SHOTS) / name))
+
+
+def drop_file(page, selector: str, path: Path) -> None:
+    """A real drop event carrying the file (what dragging it from a file manager does)."""
+    data = base64.b64encode(path.read_bytes()).decode()
+    transfer = page.evaluate_handle(
+        """([name, b64]) => {
+            const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+            const dt = new DataTransfer();
+            dt.items.add(new File([bytes], name, {type: "text/plain"}));
+            return dt;
+        }""", [path.name, data])
+    page.dispatch_event(selector, "dragover", {"dataTransfer": transfer})
+    page.dispatch_event(selector, "drop", {"dataTransfer": transfer})
+
+
+def pick_two(page) -> list[str]:
+    """Click the canvas until two vertices are picked; returns the picks' texts."""
+    box = page.locator("#view canvas").bounding_box()
+    cx, cy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+    for dx, dy in [(0, 0), (0.12, 0.0), (-0.12, 0.0), (0.0, 0.1), (0.08, -0.08), (-0.2, 0.05)]:
+        if page.locator("#picks li").count() >= 2:
+            break
+        page.mouse.click(cx + dx * box["width"], cy + dy * box["height"])
+    texts = page.locator("#picks li").all_inner_texts()
+    assert len(texts) == 2, texts
+    return texts
+
+
+def run_and_wait(page, operation_id: str) -> None:
+    page.select_option("#operation", operation_id)
+    page.click("#run")
+    page.wait_for_selector("#progress[data-state=succeeded]", timeout=TIMEOUT)
+    page.wait_for_selector("#legend:not([hidden])", timeout=TIMEOUT)
+
+
+@pytest.fixture
+def spot_page(page, live_api):
+    page.goto(live_api.url + "/")
+    page.wait_for_selector("body[data-ready='1']", timeout=TIMEOUT)
+    drop_file(page, "#drop", MESHES_DIR / "spot.obj")
+    page.wait_for_selector("#domains li.active", timeout=TIMEOUT)
+    page.wait_for_selector("#empty", state="hidden")
+    return page
+
+
+def test_page_is_served_with_its_assets(page, live_api):
+    page.goto(live_api.url + "/viewer")
+    page.wait_for_selector("body[data-ready='1']", timeout=TIMEOUT)
+    ops = page.locator("#operation option").all_inner_texts()
+    # every operation of the OpenAPI schema has a form, none is hard-coded in the page
+    for name in ("barycenters", "interpolations", "distances", "flows", "pointwise-distances"):
+        assert name in ops
+    assert page.js_errors == []
+
+
+def test_barycenter_colors_the_surface(spot_page):
+    page = spot_page
+    before = stats(canvas_pixels(page))
+    assert before["foreground"] > 0.05  # spot is drawn
+    assert before["colored"] < 0.05  # in neutral gray (pick markers aside)
+    picks = pick_two(page)
+    assert picks[0] != picks[1]
+    save(page, "viewer-picks.png")
+    run_and_wait(page, "createBarycenterJob")
+    text = page.inner_text("#progress-text")
+    assert "succeeded" in text and "iteration" in text and "residual" in text
+    assert page.locator("#field").input_value() == "density"
+    after = stats(canvas_pixels(page))
+    # the surface now shows the viridis ramp: most of it strongly colored, with several hues
+    assert after["colored"] > 0.5, after["colored"]
+    img = canvas_pixels(page)[after["colored_mask"]]
+    assert img[:, 1].std() > 0.05  # not one flat color: low (purple) to high (green/yellow)
+    lo, hi = (float(page.get_attribute("#legend", k)) for k in ("data-lo", "data-hi"))
+    assert 0 <= lo < hi
+    values = page.inner_text("#values")
+    assert "converged" in values and "iterations" in values
+    save(page, "viewer-barycenter.png")
+    # downloads of the result
+    with page.expect_download() as dl:
+        page.click("#downloads button:text('JSON')")
+    assert dl.value.suggested_filename.endswith(".json")
+    with page.expect_download() as dl:
+        page.click("#downloads button:text('GLB')")
+    glb = Path(dl.value.path()).read_bytes()
+    assert glb[:4] == b"glTF"
+    assert page.js_errors == []
+
+
+def test_interpolation_slider_changes_frames(spot_page):
+    page = spot_page
+    pick_two(page)
+    run_and_wait(page, "createInterpolationJob")
+    page.wait_for_selector("#frames:not([hidden])")
+    first = canvas_pixels(page)
+    assert "1/5" in page.inner_text("#frame-label")
+    page.focus("#frame")
+    page.keyboard.press("End")
+    page.wait_for_function("document.getElementById('frame').dataset.frame === '4'")
+    last = canvas_pixels(page)
+    assert "5/5" in page.inner_text("#frame-label")
+    fg = stats(first)["fg_mask"] & stats(last)["fg_mask"]
+    diff = np.abs(first - last).sum(axis=2)[fg]
+    # mass moved from one pick to the other: a real part of the surface changed color
+    assert (diff > 0.15).mean() > 0.02, (diff > 0.15).mean()
+    assert stats(last)["colored"] > 0.5
+    page.keyboard.press("Home")
+    page.wait_for_function("document.getElementById('frame').dataset.frame === '0'")
+    page.keyboard.press("ArrowRight")
+    page.keyboard.press("ArrowRight")
+    save(page, "viewer-interpolation.png")
+    assert page.js_errors == []
+
+
+def test_failing_request_shows_the_error(spot_page):
+    page = spot_page
+    pick_two(page)
+    page.select_option("#operation", "createInterpolationJob")
+    page.fill("#op-form input[name=times]", "0, 2")
+    page.click("#run")
+    error = page.locator("#error")
+    error.wait_for(state="visible", timeout=TIMEOUT)
+    # the server's validation message, naming the field, not a generic failure
+    assert "times[1]" in error.inner_text() and "outside [0, 1]" in error.inner_text()
+    assert page.locator(".field.bad[data-field=times]").count() == 1
+    assert page.locator("#job-panel").is_hidden()  # no job was created
+    save(page, "viewer-error.png")

@@ -1,0 +1,558 @@
+// The otgeo viewer: domains and jobs, picks, operation forms from /openapi.json, live job
+// progress (/events), results on the domain (colors + legend, frames, flows, soft maps,
+// histograms, images) and downloads.
+
+import * as api from "./api.js";
+import { drawLegend, formatNumber, range } from "./colormap.js";
+import { buildForm, domainLabel, listOperations, markField } from "./forms.js";
+import { View, pickColor } from "./scene.js";
+
+const $ = (id) => document.getElementById(id);
+
+const state = {
+  openapi: null, ops: [], domains: [], jobs: [], domain: null, geometry: null, picks: [],
+  form: null, job: null, result: null, stream: null, second: null, listeners: [],
+};
+window.otgeo = state; // for debugging in the console
+
+const view = new View($("view"));
+state.view = view;
+const geometryCache = new Map();
+
+// -- status and errors --------------------------------------------------------------
+function status(text) { $("status").textContent = text || ""; }
+
+function showError(err) {
+  const box = $("error");
+  if (!err) { box.hidden = true; box.textContent = ""; markField($("op-form"), null); return; }
+  const field = err.field ? ` (field: ${err.field})` : "";
+  const code = err.code ? `${err.code}: ` : "";
+  box.textContent = `${code}${err.message}${field}`;
+  box.hidden = false;
+  markField($("op-form"), err.field);
+}
+
+// -- API key ------------------------------------------------------------------------
+api.onKeyNeeded(() => new Promise((resolve) => {
+  const dlg = $("key-dialog");
+  $("key-input").value = "";
+  dlg.onclose = () => resolve(dlg.returnValue === "ok" ? $("key-input").value.trim() : null);
+  dlg.showModal();
+}));
+$("key-button").onclick = async () => {
+  const dlg = $("key-dialog");
+  $("key-input").value = api.apiKey() || "";
+  dlg.onclose = () => {
+    if (dlg.returnValue === "ok") { api.setApiKey($("key-input").value.trim()); refreshAll(); }
+  };
+  dlg.showModal();
+};
+
+// -- domains ------------------------------------------------------------------------
+async function refreshDomains() {
+  const { domains } = await api.getJSON("/v1/domains");
+  state.domains = domains;
+  const ul = $("domains");
+  ul.replaceChildren(...domains.map((d) => {
+    const li = document.createElement("li");
+    li.textContent = domainLabel(d);
+    li.dataset.id = d.id;
+    li.title = d.id + (d.warnings.length ? "\n" + d.warnings.join("\n") : "");
+    if (state.domain && d.id === state.domain.id) li.classList.add("active");
+    li.onclick = () => selectDomain(d.id).catch(showError);
+    return li;
+  }));
+  state.listeners.filter((l) => l.kind === "domains").forEach((l) => l.fn());
+}
+
+async function geometry(id) {
+  if (!geometryCache.has(id)) geometryCache.set(id, await api.getJSON(`/v1/domains/${id}/geometry`));
+  return geometryCache.get(id);
+}
+
+async function selectDomain(id, keepPicks = false) {
+  const meta = state.domains.find((d) => d.id === id) || await api.getJSON(`/v1/domains/${id}`);
+  status(`loading ${domainLabel(meta)}…`);
+  const geom = await geometry(id);
+  state.domain = meta;
+  state.geometry = geom;
+  state.second = null;
+  if (!keepPicks) state.picks = [];
+  view.setDomains([geom]);
+  $("empty").hidden = true;
+  for (const li of $("domains").children) li.classList.toggle("active", li.dataset.id === id);
+  clearResultView();
+  renderPicks();
+  state.listeners.filter((l) => l.kind === "domains").forEach((l) => l.fn());
+  status(`${domainLabel(meta)}`);
+}
+
+async function uploadFiles(files) {
+  showError(null);
+  let last = null;
+  for (const f of files) {
+    status(`uploading ${f.name}…`);
+    try { last = await api.upload(f); } catch (e) { showError(e); status(""); return; }
+  }
+  await refreshDomains();
+  if (last) await selectDomain(last.id);
+}
+
+const drop = $("drop");
+for (const target of [drop, $("stage")]) {
+  target.addEventListener("dragover", (e) => { e.preventDefault(); drop.classList.add("over"); });
+  target.addEventListener("dragleave", () => drop.classList.remove("over"));
+  target.addEventListener("drop", (e) => {
+    e.preventDefault();
+    drop.classList.remove("over");
+    const files = [...(e.dataTransfer ? e.dataTransfer.files : [])];
+    if (files.length) uploadFiles(files);
+  });
+}
+$("file").onchange = (e) => uploadFiles([...e.target.files]);
+
+// -- picks --------------------------------------------------------------------------
+function pickMode() { return document.querySelector("input[name=pick-mode]:checked").value; }
+function radius() { return Number($("radius").value); }
+
+function renderPicks() {
+  const ol = $("picks");
+  ol.replaceChildren(...state.picks.map((p, i) => {
+    const li = document.createElement("li");
+    const sw = document.createElement("span");
+    sw.className = "swatch";
+    sw.style.background = "#" + pickColor(i).toString(16).padStart(6, "0");
+    li.append(sw, p.radius ? `bump at vertex ${p.vertex}, r ${p.radius}` : `point mass at vertex ${p.vertex}`);
+    const rm = document.createElement("button");
+    rm.type = "button";
+    rm.textContent = "×";
+    rm.title = "remove";
+    rm.onclick = () => { state.picks.splice(i, 1); renderPicks(); };
+    li.appendChild(rm);
+    return li;
+  }));
+  if (view.items.length) view.setPicks(0, state.picks);
+  state.listeners.filter((l) => l.kind === "picks").forEach((l) => l.fn());
+  drawPlots();
+}
+
+view.onPick = ({ item, point }) => {
+  if (item !== 0) return;
+  state.picks.push({ vertex: point, radius: pickMode() === "bump" ? radius() : null });
+  renderPicks();
+};
+$("radius").oninput = () => {
+  $("radius-value").textContent = radius().toFixed(2);
+  for (const p of state.picks) if (p.radius) p.radius = radius();
+  renderPicks();
+};
+$("clear-picks").onclick = () => { state.picks = []; renderPicks(); };
+
+// -- operations ---------------------------------------------------------------------
+const formCtx = {
+  picks: () => state.picks,
+  domains: () => state.domains,
+  currentDomain: () => state.domain,
+  onPicksChanged: (fn) => state.listeners.push({ kind: "picks", fn }),
+  onDomainsChanged: (fn) => state.listeners.push({ kind: "domains", fn }),
+  uploadBlob: null,
+};
+
+function selectOperation() {
+  const op = state.ops.find((o) => o.id === $("operation").value);
+  state.listeners = [];
+  showError(null);
+  if (!op) return;
+  $("op-summary").textContent = op.summary;
+  state.form = buildForm($("op-form"), state.openapi, op, formCtx);
+  state.op = op;
+}
+
+async function runOperation() {
+  showError(null);
+  const op = state.op;
+  try {
+    if (op.scoped && !state.domain) throw new Error("choose a domain first");
+    const body = await state.form.collect();
+    const path = op.scoped ? op.path.replace("{domain_id}", state.domain.id) : op.path;
+    $("run").disabled = true;
+    const job = await api.postJSON(path, body);
+    state.jobRequest = body;
+    await refreshJobs();
+    await followJob(job);
+  } catch (e) {
+    showError(e);
+  } finally {
+    $("run").disabled = false;
+  }
+}
+$("run").onclick = runOperation;
+$("operation").onchange = selectOperation;
+$("op-form").onsubmit = (e) => { e.preventDefault(); runOperation(); };
+
+// -- jobs ---------------------------------------------------------------------------
+async function refreshJobs() {
+  const { jobs } = await api.getJSON("/v1/jobs?limit=50");
+  state.jobs = jobs;
+  $("jobs").replaceChildren(...jobs.map((j) => {
+    const li = document.createElement("li");
+    li.dataset.id = j.id;
+    li.innerHTML = `<span class="state ${j.state}">${j.state}</span>`;
+    li.append(`${j.operation} · ${j.id.slice(0, 8)}`);
+    li.title = `${j.id}\ndomain ${j.domain_id}`;
+    if (state.job && state.job.id === j.id) li.classList.add("active");
+    li.onclick = () => openJob(j).catch(showError);
+    return li;
+  }));
+}
+$("refresh-jobs").onclick = () => refreshJobs().catch(showError);
+
+async function openJob(job) {
+  showError(null);
+  if (state.domain === null || job.domain_id !== state.domain.id) {
+    if (job.domain_id) await selectDomain(job.domain_id);
+  }
+  await followJob(job);
+}
+
+function setProgress(job) {
+  const bar = $("progress");
+  bar.dataset.state = job.state;
+  const p = job.progress || {};
+  let frac = 0.03;
+  if (job.state === "succeeded") frac = 1;
+  else if (["failed", "cancelled"].includes(job.state)) frac = 1;
+  else if (p.iteration) {
+    const req = state.jobRequest || {};
+    if (req.max_iter) frac = Math.max(frac, p.iteration / req.max_iter);
+    if (p.residual > 0 && state.firstResidual > 0) {
+      const tol = req.tol || 1e-6;
+      const f = Math.log(state.firstResidual / p.residual) / Math.log(state.firstResidual / tol);
+      if (Number.isFinite(f)) frac = Math.max(frac, Math.min(0.97, f));
+    }
+  }
+  bar.style.width = `${(100 * frac).toFixed(1)}%`;
+  const parts = [job.state];
+  if (p.iteration !== null && p.iteration !== undefined) parts.push(`iteration ${p.iteration}`);
+  if (p.residual !== null && p.residual !== undefined) parts.push(`residual ${formatNumber(p.residual)}`);
+  if (job.duration_seconds) parts.push(`${job.duration_seconds.toFixed(2)} s`);
+  $("progress-text").textContent = parts.join(" · ");
+  $("cancel").disabled = !["queued", "running"].includes(job.state);
+  if (job.error) showError(job.error);
+}
+
+async function followJob(job) {
+  if (state.stream) state.stream.abort();
+  const ctrl = new AbortController();
+  state.stream = ctrl;
+  state.job = job;
+  state.firstResidual = null;
+  clearResultView();
+  $("job-panel").hidden = false;
+  $("job-title").textContent = `${job.operation} ${job.id.slice(0, 8)}`;
+  setProgress(job);
+  let last = job;
+  try {
+    await api.streamEvents(`/v1/jobs/${job.id}/events`, (name, data) => {
+      if (name !== "progress" || ctrl.signal.aborted) return;
+      last = data;
+      if (data.progress && data.progress.residual > 0 && !state.firstResidual) {
+        state.firstResidual = data.progress.residual;
+      }
+      setProgress(data);
+    }, ctrl.signal);
+  } catch (e) {
+    if (ctrl.signal.aborted) return;
+    throw e;
+  }
+  if (ctrl.signal.aborted) return;
+  state.stream = null;
+  refreshJobs().catch(() => {});
+  if (last.state === "succeeded") await showResult(last);
+}
+
+$("cancel").onclick = async () => {
+  if (!state.job) return;
+  try { setProgress(await (await api.del(`/v1/jobs/${state.job.id}`)).json()); }
+  catch (e) { showError(e); }
+};
+
+// -- results ------------------------------------------------------------------------
+function clearResultView() {
+  $("result-panel").hidden = true;
+  $("legend").hidden = true;
+  $("frames").hidden = true;
+  $("hover").hidden = true;
+  $("images").replaceChildren();
+  $("plots").replaceChildren();
+  state.result = null;
+  state.display = null;
+  view.setArrows(null);
+  view.onHover = null;
+  if (view.items.length) view.neutral(0);
+}
+
+function shape(a) {
+  const s = [];
+  while (Array.isArray(a)) { s.push(a.length); a = a[0]; }
+  return s;
+}
+
+async function showResult(job) {
+  const result = await api.getJSON(`/v1/jobs/${job.id}/result`);
+  state.result = result;
+  const geom = state.geometry;
+  $("result-panel").hidden = false;
+  // values
+  const rows = Object.entries(result.values).filter(([, v]) => typeof v !== "object" || v === null
+    || (Array.isArray(v) && v.length <= 8 && v.every((x) => typeof x !== "object")));
+  $("values").replaceChildren(...rows.map(([k, v]) => {
+    const tr = document.createElement("tr");
+    const a = document.createElement("td"), b = document.createElement("td");
+    a.textContent = k;
+    b.textContent = Array.isArray(v) ? v.map(formatNumber).join(", ") : formatNumber(v);
+    tr.append(a, b);
+    return tr;
+  }));
+  // fields that can be shown on the domain
+  const exp = result.export || {};
+  const arrays = result.arrays || {};
+  const nFaces = geom && geom.faces ? geom.faces.length / 3 : -1;
+  const names = Object.keys(arrays).filter((k) => {
+    const s = shape(arrays[k]);
+    return geom && (s[0] === geom.n || s[0] === nFaces) && (s.length === 1 || s.length === 2)
+      && k !== exp.flow;
+  });
+  const order = [...(exp.fields || []).filter((k) => names.includes(k)),
+                 ...names.filter((k) => !(exp.fields || []).includes(k))];
+  const sel = $("field");
+  sel.replaceChildren(...order.map((k) => new Option(k, k)));
+  sel.value = exp.color && order.includes(exp.color) ? exp.color : (order[0] || "");
+  sel.onchange = () => showField(sel.value);
+  if (exp.flow && arrays[exp.flow] && view.items.length) view.setArrows(arrays[exp.flow]);
+  await showSoftMap(result);
+  showField(sel.value);
+  showFiles(result);
+  showDownloads(job, result);
+}
+
+function showField(name) {
+  const result = state.result;
+  const geom = state.geometry;
+  if (!result || !name || !view.items.length) { $("legend").hidden = true; return; }
+  const arr = result.arrays[name];
+  const s = shape(arr);
+  const perFace = geom.faces && s[0] === geom.faces.length / 3 && s[0] !== geom.n;
+  const exp = result.export || {};
+  const frames = s.length === 2 && (exp.frames || []).length === s[1];
+  state.display = { name, arr, perFace, frames };
+  $("frames").hidden = !frames;
+  $("plots").replaceChildren();
+  if (s.length === 1) {
+    const [lo, hi] = range(arr);
+    view.colorBy(0, arr, lo, hi, perFace);
+    legend(lo, hi, name);
+  } else if (frames) {
+    let lo = Infinity, hi = -Infinity; // one scale for all frames
+    for (const row of arr) { const [a, b] = range(row); lo = Math.min(lo, a); hi = Math.max(hi, b); }
+    state.display.lo = lo; state.display.hi = hi;
+    const slider = $("frame");
+    slider.max = String(s[1] - 1);
+    slider.value = "0";
+    slider.oninput = () => showFrame(Number(slider.value));
+    showFrame(0);
+    legend(lo, hi, name);
+  } else { // (n, k) without frames: a histogram per point, plotted at the picks and on hover
+    view.neutral(0);
+    $("legend").hidden = true;
+    drawPlots();
+    view.onHover = ({ item, point }) => { if (item === 0) hoverPlot(point); };
+  }
+}
+
+function showFrame(t) {
+  const d = state.display;
+  const col = d.arr.map((row) => row[t]);
+  view.colorBy(0, col, d.lo, d.hi, d.perFace);
+  const times = (state.result.export || {}).frames || [];
+  $("frame-label").textContent = `t = ${formatNumber(times[t])} (${t + 1}/${times.length})`;
+  $("frame").dataset.frame = String(t);
+}
+
+function legend(lo, hi, label) {
+  const c = $("legend");
+  c.hidden = false;
+  drawLegend(c, lo, hi, label);
+  c.dataset.lo = String(lo);
+  c.dataset.hi = String(hi);
+}
+
+// Small plots of a (n, k) result row at each picked point.
+function drawPlots() {
+  const plots = $("plots");
+  plots.replaceChildren();
+  const d = state.display;
+  if (!d || d.frames || !Array.isArray(d.arr[0])) return;
+  state.picks.forEach((p, i) => {
+    const pos = view.screenPosition(0, p.vertex);
+    if (!pos) return;
+    plots.appendChild(plotCanvas(d.arr[p.vertex], pos, pickColor(i)));
+  });
+}
+
+function hoverPlot(i) {
+  const d = state.display;
+  if (!d || !Array.isArray(d.arr[0])) return;
+  const h = $("hover");
+  h.hidden = false;
+  h.textContent = `point ${i}`;
+  const old = $("plots").querySelector(".hover-plot");
+  if (old) old.remove();
+  const pos = view.screenPosition(0, i);
+  if (!pos) return;
+  const c = plotCanvas(d.arr[i], pos, 0xffffff);
+  c.classList.add("hover-plot");
+  $("plots").appendChild(c);
+}
+
+function plotCanvas(row, pos, color) {
+  const c = document.createElement("canvas");
+  c.width = 96; c.height = 56;
+  c.style.left = `${pos.x + 8}px`;
+  c.style.top = `${pos.y - 60}px`;
+  const ctx = c.getContext("2d");
+  const hi = Math.max(...row.map((v) => v || 0)) || 1;
+  const w = (c.width - 8) / row.length;
+  ctx.fillStyle = "#" + color.toString(16).padStart(6, "0");
+  row.forEach((v, k) => {
+    const h = (c.height - 14) * (v || 0) / hi;
+    ctx.fillRect(4 + k * w, c.height - 4 - h, Math.max(1, w - 1), h);
+  });
+  ctx.fillStyle = "#ccc";
+  ctx.font = "9px sans-serif";
+  ctx.fillText(`max ${formatNumber(hi)}`, 4, 9);
+  return c;
+}
+
+// Soft maps: a result that names a second domain is drawn beside the first; hovering a source
+// vertex fetches that vertex's row of the (n_source, n_target) array and colors the target.
+async function showSoftMap(result) {
+  const v = result.values || {};
+  const targetId = ["target_domain_id", "target_domain", "target"].map((k) => v[k])
+    .find((x) => typeof x === "string" && x !== state.domain.id);
+  if (!targetId) return;
+  const target = await geometry(targetId);
+  const arrays = result.arrays || {};
+  const exp = result.export || {};
+  let name = exp.rows || exp.soft_map || Object.keys(arrays).find((k) => {
+    const s = shape(arrays[k]);
+    return s.length === 2 && s[0] === state.geometry.n && s[1] === target.n;
+  }) || "soft_map";
+  view.setDomains([state.geometry, target]);
+  view.setPicks(0, state.picks);
+  state.second = target;
+  const rowsCache = new Map();
+  const rowOf = async (i) => {
+    if (arrays[name] && arrays[name][i]) return arrays[name][i];
+    if (!rowsCache.has(i)) {
+      const r = await api.getJSON(`/v1/jobs/${result.job_id}/arrays/${name}/rows/${i}`);
+      rowsCache.set(i, Array.isArray(r) ? r : (r.row || r.values || r.data));
+    }
+    return rowsCache.get(i);
+  };
+  let busy = false;
+  view.onHover = async ({ item, point }) => {
+    if (item !== 0 || busy) return;
+    busy = true;
+    try {
+      const row = await rowOf(point);
+      const [lo, hi] = range(row);
+      view.colorBy(1, row, lo, hi);
+      legend(lo, hi, `${name}[${point}, :]`);
+      const h = $("hover");
+      h.hidden = false;
+      h.textContent = `source vertex ${point}`;
+      view.setPicks(0, [{ vertex: point, radius: null }]);
+    } catch (e) { showError(e); } finally { busy = false; }
+  };
+}
+
+function showFiles(result) {
+  const files = normalizeFiles(result);
+  const box = $("images");
+  box.replaceChildren();
+  for (const f of files.filter((x) => /^image\//.test(x.media_type || "") || /\.(png|jpe?g)$/i.test(x.name))) {
+    const fig = document.createElement("figure");
+    const img = document.createElement("img");
+    img.alt = f.name;
+    api.request(`/v1/jobs/${result.job_id}/files/${f.name}`).then((r) => r.blob())
+      .then((b) => { img.src = URL.createObjectURL(b); }).catch(showError);
+    const cap = document.createElement("figcaption");
+    cap.textContent = f.name;
+    fig.append(img, cap);
+    box.appendChild(fig);
+  }
+}
+
+function normalizeFiles(result) {
+  const f = result.files || (result.export || {}).files || [];
+  if (Array.isArray(f)) return f.map((x) => (typeof x === "string" ? { name: x } : x));
+  return Object.entries(f).map(([name, meta]) => ({ name, ...(typeof meta === "object" ? meta : {}) }));
+}
+
+function showDownloads(job, result) {
+  const box = $("downloads");
+  const link = (text, fn) => {
+    const b = document.createElement("button");
+    b.type = "button";
+    b.textContent = text;
+    b.onclick = () => fn().catch(showError);
+    box.appendChild(b);
+  };
+  box.replaceChildren();
+  const base = `${job.operation}-${job.id.slice(0, 8)}`;
+  link("JSON", () => api.download(`/v1/jobs/${job.id}/result`, `${base}.json`));
+  link("GLB", () => api.download(`/v1/jobs/${job.id}/result.glb`, `${base}.glb`));
+  link("PNG", async () => {
+    view.render();
+    const blob = await new Promise((r) => view.canvas.toBlob(r, "image/png"));
+    api.saveBlob(blob, `${base}.png`);
+  });
+  for (const f of normalizeFiles(result)) {
+    if (f.name === "result.glb") continue;
+    link(f.name, () => api.download(`/v1/jobs/${job.id}/files/${f.name}`, `${base}-${f.name}`));
+  }
+}
+
+// -- start --------------------------------------------------------------------------
+async function loadOperations() {
+  state.openapi = await (await fetch("/openapi.json")).json();
+  state.ops = listOperations(state.openapi);
+  const sel = $("operation");
+  sel.replaceChildren(...state.ops.map((o) => new Option(o.scoped ? o.name : `${o.name} (global)`, o.id)));
+  const blobRoute = Object.keys(state.openapi.paths).find((p) => /^\/v1\/blobs$/.test(p)
+    && state.openapi.paths[p].post);
+  formCtx.uploadBlob = blobRoute ? async (file) => {
+    const form = new FormData();
+    form.append("file", file, file.name);
+    const out = await (await api.request(blobRoute, { method: "POST", body: form })).json();
+    return out.id;
+  } : null;
+  selectOperation();
+}
+
+async function refreshAll() {
+  try {
+    await refreshDomains();
+    await refreshJobs();
+  } catch (e) { showError(e); }
+}
+
+async function start() {
+  try { await loadOperations(); } catch (e) { showError(e); }
+  await refreshAll();
+  const wanted = new URLSearchParams(location.search).get("domain");
+  if (wanted) await selectDomain(wanted).catch(showError);
+  document.body.dataset.ready = "1";
+}
+start();
