@@ -116,7 +116,7 @@ def test_dirac_w1_approaches_geodesic_distance(woody, geodesic_lengths):
     for p, q in pairs:
         geo = geodesic_lengths(woody, [p], [q])[0, 0]
         m0, m1 = np.eye(woody.n)[p], np.eye(woody.n)[q]
-        value = earth_movers_distance(woody, m0, m1, basis="flow", method="weiszfeld",
+        value = earth_movers_distance(woody, m0, m1, basis="flow", algorithm="weiszfeld",
                                       tol=1e-5).value
         # point masses are smeared over one ring by the hat functions: a gap of order h
         assert abs(value - geo) < 1.5 * woody.mean_edge_length
@@ -128,7 +128,7 @@ def test_flow_conserves_mass_for_every_method(woody):
     values = []
     for method, basis, k in [("admm", "full", None), ("weiszfeld", "full", None),
                              ("weiszfeld", "flow", None), ("admm", "spectral", 30)]:
-        res = earth_movers_distance(woody, m0, m1, method=method, basis=basis, k=k, tol=1e-4)
+        res = earth_movers_distance(woody, m0, m1, algorithm=method, basis=basis, k=k, tol=1e-4)
         div = woody.divergence @ res.flow.ravel()
         np.testing.assert_allclose(div, m0 - m1, atol=1e-12)
         assert res.flow.shape == (woody.n_faces, 3)
@@ -177,7 +177,7 @@ def test_anisotropic_face_weights(woody):
     assert heavy.value >= base * (1 - 1e-4)
     stretch = np.broadcast_to(np.diag([1.0, 3.0, 1.0]), (woody.n_faces, 3, 3))
     aniso = earth_movers_distance(woody, m0, m1, face_weights=stretch, tol=1e-4)
-    weis = earth_movers_distance(woody, m0, m1, face_weights=stretch, method="weiszfeld",
+    weis = earth_movers_distance(woody, m0, m1, face_weights=stretch, algorithm="weiszfeld",
                                  tol=1e-5)
     assert base * (1 - 1e-4) <= aniso.value <= 3 * base
     assert abs(aniso.value - weis.value) < 2e-3 * aniso.value
@@ -232,8 +232,8 @@ def test_input_errors_and_cancel(woody):
         earth_movers_distance(woody, good[:-1], good)
     assert err.value.field == "mu0"
     with pytest.raises(InputError) as err:
-        earth_movers_distance(woody, good, good, method="simplex")
-    assert err.value.field == "method"
+        earth_movers_distance(woody, good, good, algorithm="simplex")
+    assert err.value.field == "algorithm"
     with pytest.raises(InputError) as err:
         earth_movers_distance(woody, good, good, basis="spectral")
     assert err.value.field == "k"

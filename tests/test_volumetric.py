@@ -153,7 +153,7 @@ def test_validation(sphere):
     with pytest.raises(InputError):
         mean_value_coordinates(sphere, [np.nan, 0, 0])
     with pytest.raises(InputError):
-        volumetric_distance(sphere, np.zeros(3), np.zeros(3), method="nope")
+        volumetric_distance(sphere, np.zeros(3), np.zeros(3), algorithm="nope")
     open_mesh = TriangleMesh(sphere.vertices, sphere.faces[1:])
     with pytest.raises(UnsupportedDomainError):
         mean_value_coordinates(open_mesh, np.zeros(3))
@@ -164,6 +164,6 @@ def test_admm_agrees_with_exact_solver(torus):
     problem as the interior-point SOCP (measured relative gap 6e-6 at tol 1e-5)."""
     a, c = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
     exact = volumetric_distance(torus, a, c, units="input")
-    admm = volumetric_distance(torus, a, c, units="input", method="admm", tol=1e-5)
+    admm = volumetric_distance(torus, a, c, units="input", algorithm="admm", tol=1e-5)
     assert admm.converged
     assert admm.value == pytest.approx(exact.value, rel=1e-3)

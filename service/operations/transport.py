@@ -126,7 +126,7 @@ def _sinkhorn_kwargs(domain, req, progress, should_cancel) -> dict:
 
 
 def _w1(domain, masses, req, progress, should_cancel):
-    return earth_movers_distance(domain, masses["mu0"], masses["mu1"], method=req.w1_method,
+    return earth_movers_distance(domain, masses["mu0"], masses["mu1"], algorithm=req.w1_method,
                                  basis=req.basis, k=req.k, progress=progress,
                                  should_cancel=should_cancel, **_optional(req))
 

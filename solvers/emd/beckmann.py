@@ -51,7 +51,7 @@ from solvers.errors import CancelledError, InputError, UnsupportedDomainError
 from solvers.linalg import factorize_spd
 from solvers.validation import normalize_masses
 
-METHODS = ("admm", "weiszfeld")
+ALGORITHMS = ("admm", "weiszfeld")
 BASES = ("full", "spectral", "flow")
 RELAXATION = 1.6
 
@@ -78,7 +78,7 @@ class EMDResult:
     primal_residual: float
     dual_residual: float
     converged: bool
-    method: str
+    algorithm: str
     basis: str
     beta: float = float("nan")
 
@@ -185,7 +185,7 @@ class _Monitor:
             self.progress(it, float(residual))
 
 
-def earth_movers_distance(mesh, mu0, mu1, *, method: str = "admm", basis: str = "full",
+def earth_movers_distance(mesh, mu0, mu1, *, algorithm: str = "admm", basis: str = "full",
                           k: int | None = None, harmonic: bool = True, face_weights=None,
                           tol: float = 1e-4, max_iter: int | None = None,
                           beta: float | None = None, progress=None,
@@ -199,7 +199,7 @@ def earth_movers_distance(mesh, mu0, mu1, *, method: str = "admm", basis: str = 
     ----------
     mesh : TriangleMesh.
     mu0, mu1 : (V,) masses (non-negative, normalized to sum 1).
-    method : ``"admm"`` (Fig. 2.5, default) or ``"weiszfeld"`` (Fig. 2.4).
+    algorithm : ``"admm"`` (Fig. 2.5, default) or ``"weiszfeld"`` (Fig. 2.4).
     basis : ``"full"`` (rotated gradients of every vertex hat function, plus harmonic
         fields on surfaces with handles), ``"spectral"`` (first ``k`` Laplacian
         eigenfunctions as stream functions) or ``"flow"`` (all piecewise-constant
@@ -219,8 +219,9 @@ def earth_movers_distance(mesh, mu0, mu1, *, method: str = "admm", basis: str = 
     EMDResult (value, flow (F, 3), potential (V,), lower_bound, iterations,
     primal_residual, dual_residual, converged).
     """
-    if method not in METHODS:
-        raise InputError(f"method must be one of {METHODS}, got {method!r}", field="method")
+    if algorithm not in ALGORITHMS:
+        raise InputError(f"algorithm must be one of {ALGORITHMS}, got {algorithm!r}",
+                         field="algorithm")
     if not (np.isfinite(tol) and tol > 0):
         raise InputError(f"tol must be positive, got {tol}", field="tol")
     ops = check_mesh(mesh)
@@ -232,7 +233,7 @@ def earth_movers_distance(mesh, mu0, mu1, *, method: str = "admm", basis: str = 
     flow_basis = make_basis(ops, basis, k, harmonic)
     monitor = _Monitor(progress, should_cancel)
     _, v = ops.particular_flow(m1 - m0)
-    if method == "admm":
+    if algorithm == "admm":
         max_iter = 20000 if max_iter is None else int(max_iter)
         out = _admm(ops, flow_basis, v, m0 - m1, weights, tol, max_iter, beta, monitor)
     else:
@@ -242,7 +243,7 @@ def earth_movers_distance(mesh, mu0, mu1, *, method: str = "admm", basis: str = 
     potential, lower = _potential(ops, dual, m0, m1, weights)
     return EMDResult(value=_cost(ops, flow, weights), flow=flow, potential=potential,
                      lower_bound=lower, iterations=iterations, primal_residual=r,
-                     dual_residual=s, converged=bool(r <= tol and s <= tol), method=method,
+                     dual_residual=s, converged=bool(r <= tol and s <= tol), algorithm=algorithm,
                      basis=basis, beta=beta_final)
 
 

@@ -13,10 +13,10 @@ with ``φ_i`` the first ``k`` Laplacian eigenfunctions (the truncated curl basis
 plus the ``2g`` harmonic fields for ``k > 0`` on surfaces with handles).
 
 * ``k = 0`` (the Green's-function form): no optimization, one pass over the faces per
-  target.  ``method="green"`` reads ``G_x - G_y`` from the dense Green's matrix ``L⁺``
+  target.  ``route="green"`` reads ``G_x - G_y`` from the dense Green's matrix ``L⁺``
   of the mesh (:mod:`solvers.emd.green`: built once per mesh with ``V`` unit Poisson
   solves, cached on the mesh operators, 4·V² bytes, float32) and runs a compiled
-  parallel face pass over all targets; ``method="solve"`` does one Poisson solve per
+  parallel face pass over all targets; ``route="solve"`` does one Poisson solve per
   target (``L z = e_x - e_y``, batched) and a sparse-gradient face pass (single
   precision).  Measured against a float64 evaluation: ≤ 1e-7 relative on average
   (solves: ~1e-6), up to 5e-5 (solves: 1.3e-4) at a nearest neighbour of the source
@@ -42,7 +42,7 @@ from solvers.emd.beckmann import _Monitor, check_mesh
 from solvers.emd.green import GREEN_MAX_VERTICES, dw0_from_green
 from solvers.errors import InputError
 
-METHODS = ("auto", "green", "solve")
+ROUTES = ("auto", "green", "solve")
 
 
 @dataclass
@@ -73,7 +73,7 @@ def _split_gradient(ops) -> list:
 
 def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic: bool = True,
                         tol: float = 1e-6, max_iter: int = 300, block: int = 512,
-                        method: str = "auto", green_max_vertices: int = GREEN_MAX_VERTICES,
+                        route: str = "auto", green_max_vertices: int = GREEN_MAX_VERTICES,
                         progress=None, should_cancel=None) -> PointwiseDistanceResult:
     r"""``d_W^k(source, y)`` for all vertices ``y`` (or ``targets``), thesis §2.5.
 
@@ -84,15 +84,15 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
     k : number of Laplacian eigenfunctions in the curl basis (0: Green's-function form).
     targets : optional vertex indices (default: all vertices).
     tol, max_iter : Weiszfeld stopping rule for ``k > 0`` (relative change per target).
-    block : targets per multi-RHS solve (``method="solve"`` and ``k > 0``).
-    method : ``k = 0`` only. ``"green"``: dense Green's matrix + compiled face pass (the
+    block : targets per multi-RHS solve (``route="solve"`` and ``k > 0``).
+    route : ``k = 0`` only. ``"green"``: dense Green's matrix + compiled face pass (the
         matrix is built on first use and cached on the mesh: ~2 s and 0.4 GB at 10k
         vertices, then ~0.05 s per one-to-all query); ``"solve"``: blocked Poisson solves
         per call (no memory beyond a block); ``"auto"``: ``"green"`` when the matrix is
         already built, or when the mesh has at most ``green_max_vertices`` vertices and
         at least a quarter of them are targets; ``"solve"`` otherwise.
-    green_max_vertices : largest mesh for the dense matrix (``method="green"`` raises
-        InputError(field="method") above it); default :data:`GREEN_MAX_VERTICES` (20000,
+    green_max_vertices : largest mesh for the dense matrix (``route="green"`` raises
+        InputError(field="route") above it); default :data:`GREEN_MAX_VERTICES` (20000,
         1.6 GB).
 
     Returns
@@ -114,10 +114,10 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
         if targets.ndim != 1 or not np.issubdtype(targets.dtype, np.integer) or (
                 len(targets) and (targets.min() < 0 or targets.max() >= n)):
             raise InputError(f"targets must be vertex indices in [0, {n - 1}]", field="targets")
-    if method not in METHODS:
-        raise InputError(f"method must be one of {METHODS}, got {method!r}", field="method")
-    if method == "green" and k > 0:
-        raise InputError("method='green' evaluates d_W^0 only (k = 0)", field="method")
+    if route not in ROUTES:
+        raise InputError(f"route must be one of {ROUTES}, got {route!r}", field="route")
+    if route == "green" and k > 0:
+        raise InputError("route='green' evaluates d_W^0 only (k = 0)", field="route")
     labels = ops.labels
     other = targets[labels[targets] != labels[source]]
     if len(other):
@@ -127,8 +127,8 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
             f"target {int(other[0])} lies on another connected component than the source",
             field="targets")
     monitor = _Monitor(progress, should_cancel, every=1)
-    if k == 0 and method != "solve":
-        use_green = method == "green" or ops.has_green_matrix or (
+    if k == 0 and route != "solve":
+        use_green = route == "green" or ops.has_green_matrix or (
             n <= green_max_vertices and 4 * len(targets) >= n)
         if use_green:
             monitor(0, 0.0)

@@ -213,18 +213,18 @@ def winding_number(mesh: TriangleMesh, points, *, units: str = "mesh") -> np.nda
 # ---------------------------------------------------------------------------
 # distances and paths
 # ---------------------------------------------------------------------------
-def _kr_distance(mesh, difference, method, tol, max_iter, max_vertices, basis="flow"):
+def _kr_distance(mesh, difference, algorithm, tol, max_iter, max_vertices, basis="flow"):
     """(value, potential, iterations, residual, converged) of ||difference||_KR."""
-    if method == "exact":
+    if algorithm == "exact":
         tol = 1e-8 if tol is None else tol
         res = kantorovich_rubinstein_norm(mesh, difference, tol=tol, max_iter=max_iter or 200,
                                           max_vertices=max_vertices)
         return res.value, res.potential, res.iterations, res.residual, res.converged
-    if method == "admm":
+    if algorithm == "admm":
         try:
             from solvers.emd import earth_movers_distance
         except ImportError as exc:  # pragma: no cover - depends on solvers.emd landing
-            raise InputError("method='admm' needs solvers.emd", field="method") from exc
+            raise InputError("algorithm='admm' needs solvers.emd", field="algorithm") from exc
         pos = np.clip(difference, 0.0, None)
         neg = np.clip(-difference, 0.0, None)
         mass = pos.sum()
@@ -238,7 +238,7 @@ def _kr_distance(mesh, difference, method, tol, max_iter, max_vertices, basis="f
         potential = np.zeros(mesh.n) if potential is None else np.asarray(potential)
         return (mass * float(res.value), potential, int(res.iterations),
                 float(getattr(res, "primal_residual", np.nan)), bool(res.converged))
-    raise InputError(f"method must be 'exact' or 'admm', got {method!r}", field="method")
+    raise InputError(f"algorithm must be 'exact' or 'admm', got {algorithm!r}", field="algorithm")
 
 
 def volumetric_distance(
@@ -246,7 +246,7 @@ def volumetric_distance(
     x,
     y,
     *,
-    method: str = "exact",
+    algorithm: str = "exact",
     basis: str = "flow",
     units: str = "mesh",
     tol: float | None = None,
@@ -256,7 +256,7 @@ def volumetric_distance(
     r"""Volumetric W1 distance between two points in space (thesis §2.6).
 
     :math:`d(x, y) = \lVert w(x) - w(y)\rVert_{KR}` with :math:`w` the mean value
-    coordinates on the closed boundary mesh.  ``method="exact"`` solves the Beckmann
+    coordinates on the closed boundary mesh.  ``algorithm="exact"`` solves the Beckmann
     SOCP (:mod:`solvers.emd.exact`, at most ``max_vertices``); ``"admm"`` uses
     :func:`solvers.emd.earth_movers_distance` on the positive and negative parts, with
     its flow ``basis`` (default ``"flow"``: all piecewise-constant flows, the same
@@ -270,7 +270,7 @@ def volumetric_distance(
         raise InputError("x and y must be single points (3,)", field="x")
     W = mean_value_coordinates(mesh, pts)
     value, potential, iterations, residual, converged = _kr_distance(
-        mesh, W[0] - W[1], method, tol, max_iter, max_vertices, basis)
+        mesh, W[0] - W[1], algorithm, tol, max_iter, max_vertices, basis)
     return VolumetricDistanceResult(value=value, weights_x=W[0], weights_y=W[1],
                                     potential=potential, iterations=iterations,
                                     residual=residual, converged=converged)
@@ -281,7 +281,7 @@ def volumetric_distances(
     source,
     points,
     *,
-    method: str = "exact",
+    algorithm: str = "exact",
     basis: str = "flow",
     units: str = "mesh",
     tol: float | None = None,
@@ -308,7 +308,7 @@ def volumetric_distances(
     for j in range(len(pts)):
         if should_cancel is not None and should_cancel():
             raise CancelledError("volumetric distances cancelled", field="should_cancel")
-        value, _, its, res, ok = _kr_distance(mesh, w_src - W[j], method, tol, max_iter,
+        value, _, its, res, ok = _kr_distance(mesh, w_src - W[j], algorithm, tol, max_iter,
                                               max_vertices, basis)
         out[j] = value
         iterations += its
@@ -327,7 +327,7 @@ def volumetric_path(
     *,
     step: float | None = None,
     max_iter: int = 100,
-    method: str = "exact",
+    algorithm: str = "exact",
     basis: str = "flow",
     units: str = "mesh",
     tol: float | None = None,
@@ -350,7 +350,7 @@ def volumetric_path(
     ----------
     start, target : (3,) points.
     step : step length (default: the mean edge length).
-    method, basis : W1 solver, as in :func:`volumetric_distance`.
+    algorithm, basis : W1 solver, as in :func:`volumetric_distance`.
     max_iter : maximum number of steps.
     progress : callable(iteration, distance) or None.  should_cancel : callable() -> bool.
     """
@@ -373,7 +373,7 @@ def volumetric_path(
         if should_cancel is not None and should_cancel():
             raise CancelledError("volumetric path cancelled", field="should_cancel")
         W = mean_value_coordinates(mesh, np.vstack([x, x + offsets]))
-        value, potential, _, _, _ = _kr_distance(mesh, W[0] - w_target, method, tol, None,
+        value, potential, _, _, _ = _kr_distance(mesh, W[0] - w_target, algorithm, tol, None,
                                                  max_vertices, basis)
         distances.append(value)
         if progress is not None:
@@ -392,7 +392,7 @@ def volumetric_path(
         points.append(x.copy())
     if len(distances) < len(points):
         W = mean_value_coordinates(mesh, points[-1])
-        distances.append(_kr_distance(mesh, W[0] - w_target, method, tol, None,
+        distances.append(_kr_distance(mesh, W[0] - w_target, algorithm, tol, None,
                                       max_vertices, basis)[0])
     return VolumetricPathResult(points=np.array(points), distances=np.array(distances),
                                 iterations=iterations, residual=float(distances[-1]),
