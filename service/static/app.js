@@ -131,7 +131,7 @@ function renderPicks() {
     li.appendChild(rm);
     return li;
   }));
-  if (view.items.length) view.setPicks(0, state.picks);
+  if (view.items.length) view.setPicks(0, state.picks, !state.result);
   state.listeners.filter((l) => l.kind === "picks").forEach((l) => l.fn());
   drawPlots();
 }
@@ -289,7 +289,7 @@ function clearResultView() {
   state.display = null;
   view.setArrows(null);
   view.onHover = null;
-  if (view.items.length) view.neutral(0);
+  if (view.items.length) { view.neutral(0); view.setPicks(0, state.picks); }
 }
 
 function shape(a) {
@@ -302,6 +302,7 @@ async function showResult(job) {
   const result = await api.getJSON(`/v1/jobs/${job.id}/result`);
   state.result = result;
   const geom = state.geometry;
+  if (view.items.length) view.setPicks(0, state.picks, false); // supports hide the colors
   $("result-panel").hidden = false;
   // values
   const rows = Object.entries(result.values).filter(([, v]) => typeof v !== "object" || v === null

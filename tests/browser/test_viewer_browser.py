@@ -22,10 +22,11 @@ TIMEOUT = 30_000  # ms
 
 
 def canvas_pixels(page) -> np.ndarray:
-    """RGB screenshot of the 3-D canvas without the overlays at its bottom (legend, slider)."""
+    """RGB screenshot of the 3-D canvas without the bands of its overlays (legend and hover box
+    at the top, the frame slider at the bottom)."""
     png = page.locator("#view canvas").screenshot()
     img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=np.float64) / 255
-    return img[: img.shape[0] - 100]
+    return img[70: img.shape[0] - 70]
 
 
 def stats(img: np.ndarray) -> dict:

@@ -252,7 +252,10 @@ export class View {
     const dist = radius / Math.sin((this.camera.fov * Math.PI / 180) / 2) * 1.05;
     this.camera.near = dist / 100;
     this.camera.far = dist * 100;
-    this.camera.position.copy(center).add(new THREE.Vector3(0, 0, dist));
+    // a three-quarter view for one surface; straight on for images and side-by-side pairs
+    const dir = this.items.length === 1 && this.items[0].kind === "surface"
+      ? new THREE.Vector3(0.55, 0.3, 1).normalize() : new THREE.Vector3(0, 0, 1);
+    this.camera.position.copy(center).add(dir.multiplyScalar(dist));
     this.camera.updateProjectionMatrix();
     this.controls.target.copy(center);
     this.controls.update();
@@ -273,7 +276,7 @@ export class View {
   neutral(itemIndex) { this.items[itemIndex].setNeutral(); this.render(); }
 
   // picks: [{vertex, radius|null}] drawn as dots (and the bump's support as a sphere).
-  setPicks(itemIndex, picks) {
+  setPicks(itemIndex, picks, supports = true) {
     const it = this.items[itemIndex];
     if (!it) return;
     it.markers.clear();
@@ -284,9 +287,9 @@ export class View {
                                  new THREE.MeshBasicMaterial({ color }));
       dot.position.copy(it.position(p.vertex));
       it.markers.add(dot);
-      if (p.radius) {
+      if (p.radius && supports) {
         const ball = new THREE.Mesh(new THREE.SphereGeometry(p.radius, 24, 16),
-          new THREE.MeshBasicMaterial({ color, transparent: true, opacity: 0.18, depthWrite: false }));
+          new THREE.MeshBasicMaterial({ color, transparent: true, opacity: 0.12, depthWrite: false }));
         ball.position.copy(dot.position);
         it.markers.add(ball);
       }
