@@ -37,26 +37,27 @@ from solvers.convolutional.common import (
     prepare,
 )
 from solvers.errors import InputError
+from solvers.monitor import SolverResult
 from solvers.validation import check_weights
 
 
 @dataclass
-class BarycenterResult:
+class BarycenterResult(SolverResult):
     r"""Result of :func:`barycenter`: ``masses`` ``(n,)`` (sum 1), convergence data, entropy.
 
     ``residual``: largest L1 violation :math:`\|a \otimes (v_i \otimes H(a\otimes w_i) -
     \mu)\|_1` over the inputs (mass units); ``entropy``: :math:`-\sum m \log(m/a)`;
-    ``entropy_bound``: the bound used by sharpening (None without sharpening).
+    ``entropy_bound``: the bound used by sharpening (None without sharpening);
+    ``log_scalings``: ``(log v, log w)``, each ``(n, k)``: the plan of input ``i`` is
+    :math:`\pi_i = D_{v_i} K D_{w_i}` (barycenter side ``v``, input side ``w``).
     """
 
     masses: np.ndarray
-    iterations: int
-    residual: float
-    converged: bool
     entropy: float
     entropy_bound: float | None = None
     gamma: float = 0.0
     t: float = 0.0
+    log_scalings: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def sharpen_log(lbar: np.ndarray, areas: np.ndarray, bound: float) -> np.ndarray:
@@ -106,7 +107,8 @@ def sharpen_log(lbar: np.ndarray, areas: np.ndarray, bound: float) -> np.ndarray
 def barycenters_log(logk: LogKernel, areas: np.ndarray, inputs: np.ndarray,
                     weights: np.ndarray, *, tol: float, max_iter: int, monitor: Monitor,
                     entropy_bounds: np.ndarray | None = None, debiased: bool = False,
-                    owners: np.ndarray | None = None, relax: bool = False):
+                    owners: np.ndarray | None = None, relax: bool = False,
+                    measure_all: bool = False, scalings: dict | None = None):
     r"""``B`` barycenters at once from ``C`` input columns.
 
     ``inputs`` ``(n, C)`` masses; ``weights`` ``(C, B)``: column ``c`` enters
@@ -114,6 +116,9 @@ def barycenters_log(logk: LogKernel, areas: np.ndarray, inputs: np.ndarray,
     to 1; a column belongs to one barycenter, ``owners[c]``, default the barycenter
     where its weight is positive).  ``relax`` over-relaxes both scaling updates
     (:class:`~solvers.convolutional.common.OverRelaxation`; same fixed point).
+    ``measure_all``: the residual also counts columns of weight 0 (their plans, to the
+    barycenter they do not influence, are then converged too); ``scalings``: a dict that
+    receives ``"log_v"`` and ``"log_w"`` (``(n, C)``) at the end.
     Returns ``(log_bar (n, B), iterations, residual, converged)``.
     """
     n, C = inputs.shape
@@ -166,7 +171,7 @@ def barycenters_log(logk: LogKernel, areas: np.ndarray, inputs: np.ndarray,
                 gaps = np.abs(a * (np.exp(ld) - np.exp(spread(lbar)))).sum(axis=0)
                 if omega != 1.0:  # the relaxed w update leaves the input marginal inexact
                     gaps = gaps + np.abs(a * np.exp(lw + lkv) - inputs).sum(axis=0)
-                residual = float(np.max(np.where(alpha > 0, gaps, 0.0)))
+                residual = float(np.max(gaps if measure_all else np.where(alpha > 0, gaps, 0.0)))
                 if not np.isfinite(residual):
                     residual = float("inf")
                 if residual <= tol or it >= max_iter or not np.isfinite(residual):
@@ -176,6 +181,8 @@ def barycenters_log(logk: LogKernel, areas: np.ndarray, inputs: np.ndarray,
             monitor(it, residual)
             lv = lv + omega * (spread(lbar) - lku - lv)
             it += 1
+    if scalings is not None:
+        scalings["log_v"], scalings["log_w"] = lv, lw
     return lbar, it, residual, bool(residual <= tol)
 
 
@@ -244,12 +251,15 @@ def barycenter(
             raise InputError("entropy_bound must be finite", field="entropy_bound")
     elif sharpen:
         bound = float(np.max(entropy(M, setup.areas)))
+    scalings: dict = {}
     lbar, it, res, conv = barycenters_log(
         setup.logk, setup.areas, M, alpha[:, None], tol=setup.tol, max_iter=setup.max_iter,
         monitor=setup.monitor, entropy_bounds=None if bound is None else np.array([bound]),
         debiased=debiased,
-        relax=acceleration == "over-relaxation" and bound is None and not debiased)
+        relax=acceleration == "over-relaxation" and bound is None and not debiased,
+        scalings=scalings)
     masses = masses_from_log(lbar[:, 0], setup.areas)
     return BarycenterResult(masses=masses, iterations=int(it), residual=float(res),
                             converged=conv, entropy=float(entropy(masses, setup.areas)),
-                            entropy_bound=bound, gamma=setup.gamma, t=setup.t)
+                            entropy_bound=bound, gamma=setup.gamma, t=setup.t,
+                            log_scalings=(scalings["log_v"], scalings["log_w"]))

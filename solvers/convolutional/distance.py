@@ -32,10 +32,11 @@ from solvers.convolutional.common import (
     prepare,
 )
 from solvers.errors import InputError
+from solvers.monitor import SolverResult
 
 
 @dataclass
-class SinkhornResult:
+class SinkhornResult(SolverResult):
     r"""Result of :func:`wasserstein_distance`.
 
     ``value``: the (debiased, if asked) regularized squared distance;
@@ -48,9 +49,6 @@ class SinkhornResult:
     value: float
     v: np.ndarray
     w: np.ndarray
-    iterations: int
-    residual: float
-    converged: bool
     log_v: np.ndarray = field(repr=False, default=None)
     log_w: np.ndarray = field(repr=False, default=None)
     gamma: float = 0.0

@@ -24,17 +24,15 @@ from solvers.convolutional.common import (
     prepare,
 )
 from solvers.errors import InputError
+from solvers.monitor import SolverResult
 
 
 @dataclass
-class InterpolationResult:
+class InterpolationResult(SolverResult):
     """``masses`` ``(n, len(times))`` (columns sum to 1), one per time; convergence data."""
 
     masses: np.ndarray
     times: np.ndarray
-    iterations: int
-    residual: float
-    converged: bool
     gamma: float = 0.0
     t: float = 0.0
 

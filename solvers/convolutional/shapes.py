@@ -39,6 +39,7 @@ import numpy as np
 
 from solvers.domains.grid import Grid
 from solvers.errors import InputError
+from solvers.monitor import SolverResult
 
 
 @dataclass
@@ -61,7 +62,7 @@ class Voxelization:
 
 
 @dataclass
-class ShapeResult:
+class ShapeResult(SolverResult):
     """Interpolated shape: barycenter volume and its iso-surface.
 
     ``vertices`` are in input coordinates; ``faces`` are triangles ``(F, 3)`` in
@@ -78,9 +79,6 @@ class ShapeResult:
     level: float
     target_volume: float
     enclosed_volume: float
-    iterations: int
-    residual: float
-    converged: bool
     origin: np.ndarray
     scale: float
 

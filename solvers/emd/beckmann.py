@@ -49,6 +49,7 @@ from solvers.emd.bases import CurlBasis, SpectralBasis, _apply_metric, _Basis
 from solvers.emd.operators import EMDOperators, mesh_operators
 from solvers.errors import CancelledError, InputError, UnsupportedDomainError
 from solvers.linalg import factorize_spd
+from solvers.monitor import SolverResult
 from solvers.validation import normalize_masses
 
 ALGORITHMS = ("admm", "weiszfeld")
@@ -57,7 +58,7 @@ RELAXATION = 1.6
 
 
 @dataclass
-class EMDResult:
+class EMDResult(SolverResult):
     """W1 between two distributions on a mesh.
 
     value : W1 (discrete Beckmann objective of ``flow``; lengths at unit total area,
@@ -74,17 +75,11 @@ class EMDResult:
     flow: np.ndarray
     potential: np.ndarray
     lower_bound: float
-    iterations: int
     primal_residual: float
     dual_residual: float
-    converged: bool
     algorithm: str
     basis: str
     beta: float = float("nan")
-
-    @property
-    def residual(self) -> float:
-        return max(self.primal_residual, self.dual_residual)
 
 
 def check_mesh(mesh) -> EMDOperators:
@@ -243,7 +238,8 @@ def earth_movers_distance(mesh, mu0, mu1, *, algorithm: str = "admm", basis: str
     potential, lower = _potential(ops, dual, m0, m1, weights)
     return EMDResult(value=_cost(ops, flow, weights), flow=flow, potential=potential,
                      lower_bound=lower, iterations=iterations, primal_residual=r,
-                     dual_residual=s, converged=bool(r <= tol and s <= tol), algorithm=algorithm,
+                     dual_residual=s, residual=max(r, s), converged=bool(r <= tol and s <= tol),
+                     algorithm=algorithm,
                      basis=basis, beta=beta_final)
 
 

@@ -44,6 +44,7 @@ import scipy.sparse as sp
 
 from solvers.domains.mesh import TriangleMesh
 from solvers.errors import CancelledError, InputError, UnsupportedDomainError
+from solvers.monitor import SolverResult
 from solvers.validation import check_masses
 
 MAX_VERTICES = 5000
@@ -56,7 +57,7 @@ _BALANCE_TOL = 1e-9
 
 
 @dataclass
-class BeckmannResult:
+class BeckmannResult(SolverResult):
     """Exact W1 between two vertex mass vectors.
 
     ``flow`` is :math:`J` per face ``(F, 3)`` (tangent; flux density, mass per length),
@@ -69,15 +70,12 @@ class BeckmannResult:
     value: float
     flow: np.ndarray
     potential: np.ndarray
-    iterations: int
-    residual: float
-    converged: bool
     status: str
     solve_time: float
 
 
 @dataclass
-class W1BarycenterResult:
+class W1BarycenterResult(SolverResult):
     """W1 barycenter (eq. 2.6): ``masses`` ``(V,)``, objective ``value`` and the
     distances ``(k,)`` from the barycenter to each input, with their flows ``(k, F, 3)``."""
 
@@ -85,15 +83,12 @@ class W1BarycenterResult:
     value: float
     distances: np.ndarray
     flows: np.ndarray
-    iterations: int
-    residual: float
-    converged: bool
     status: str
     solve_time: float
 
 
 @dataclass
-class W1PathResult:
+class W1PathResult(SolverResult):
     """W1 path (eq. 2.7): ``masses`` ``(V, n_steps + 1)`` from start to goal, the cost
     ``step_costs`` ``(n_steps,)`` of every step, their sum ``value`` and the step flows
     ``(n_steps, F, 3)``."""
@@ -102,9 +97,6 @@ class W1PathResult:
     value: float
     step_costs: np.ndarray
     flows: np.ndarray
-    iterations: int
-    residual: float
-    converged: bool
     status: str
     solve_time: float
     times: np.ndarray = field(default_factory=lambda: np.zeros(0))

@@ -41,21 +41,19 @@ from solvers.emd.bases import SpectralBasis
 from solvers.emd.beckmann import _Monitor, check_mesh
 from solvers.emd.green import GREEN_MAX_VERTICES, dw0_from_green
 from solvers.errors import InputError
+from solvers.monitor import SolverResult
 
 ROUTES = ("auto", "green", "solve")
 
 
 @dataclass
-class PointwiseDistanceResult:
+class PointwiseDistanceResult(SolverResult):
     """``distances[y] = d_W^k(source, y)`` for every target ``y`` (unit-area lengths)."""
 
     distances: np.ndarray
     source: int
     k: int
     targets: np.ndarray
-    iterations: int = 0
-    residual: float = 0.0
-    converged: bool = True
 
 
 def _pair_potentials(ops, source: int, targets: np.ndarray) -> np.ndarray:

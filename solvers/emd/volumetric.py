@@ -31,6 +31,7 @@ import scipy.sparse as sp
 from solvers.domains.mesh import TriangleMesh
 from solvers.emd.exact import MAX_VERTICES, kantorovich_rubinstein_norm
 from solvers.errors import CancelledError, InputError, UnsupportedDomainError
+from solvers.monitor import SolverResult
 
 # Points closer than this (relative to the mean edge length) to a vertex or to the
 # plane of a face they lie in are treated as on the surface.
@@ -39,7 +40,7 @@ _CHUNK_ENTRIES = 4_000_000  # points x faces per vectorized block
 
 
 @dataclass
-class VolumetricDistanceResult:
+class VolumetricDistanceResult(SolverResult):
     """``value`` = d(x, y); ``weights_x``, ``weights_y`` (V,) mean value coordinates;
     ``potential`` (V,) optimal Kantorovich potential, ``value == potential @ (w_y - w_x)``."""
 
@@ -47,33 +48,24 @@ class VolumetricDistanceResult:
     weights_x: np.ndarray
     weights_y: np.ndarray
     potential: np.ndarray
-    iterations: int
-    residual: float
-    converged: bool
 
 
 @dataclass
-class VolumetricFieldResult:
+class VolumetricFieldResult(SolverResult):
     """Distances (P,) from one ``source`` point to each of ``points``; ``iterations`` sums
     the solver iterations, ``residual`` is the largest solver residual."""
 
     distances: np.ndarray
-    iterations: int
-    residual: float
-    converged: bool
 
 
 @dataclass
-class VolumetricPathResult:
+class VolumetricPathResult(SolverResult):
     """Gradient-descent path from ``start`` towards ``target``: ``points`` (K, 3) and the
     distances (K,) to the target along it; ``converged`` when the last step reached
     the target within ``step``."""
 
     points: np.ndarray
     distances: np.ndarray
-    iterations: int
-    residual: float
-    converged: bool
 
 
 # ---------------------------------------------------------------------------
