@@ -101,28 +101,33 @@ def make_bins(edges=None, *, lo=None, hi=None, count=None, periodic: bool = Fals
 def check_histograms(values, n_bins: int, field: str = "histograms") -> np.ndarray:
     """``(k, B)`` histograms: finite, non-negative, each with positive mass; normalized.
 
-    A single ``(B,)`` histogram is accepted as ``k = 1``.  Raises ``InputError`` naming
-    ``field[i]`` (the offending histogram).
+    A single ``(B,)`` histogram is accepted as ``k = 1`` (errors then name ``field``);
+    otherwise ``InputError`` names ``field[i]``, the offending histogram.
     """
     try:
         h = np.asarray(values, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise InputError(f"{field} must be numbers", field=field) from exc
-    if h.ndim == 1:
+    single = h.ndim == 1
+    if single:
         h = h[None, :]
+
+    def name(i: int) -> str:  # a single histogram is named by the field itself
+        return field if single else f"{field}[{i}]"
+
     if h.ndim != 2 or h.shape[1] != n_bins:
         raise InputError(f"{field} must have one value per bin ({n_bins}), got shape "
                          f"{np.shape(values)}", field=field)
     if not np.all(np.isfinite(h)):
         i, j = (int(v) for v in np.argwhere(~np.isfinite(h))[0])
-        raise InputError(f"{field}[{i}][{j}] is NaN or infinite", field=f"{field}[{i}]")
+        raise InputError(f"{name(i)}[{j}] is NaN or infinite", field=name(i))
     if np.any(h < 0):
         i, j = (int(v) for v in np.argwhere(h < 0)[0])
-        raise InputError(f"{field}[{i}][{j}] is negative ({h[i, j]:g})", field=f"{field}[{i}]")
+        raise InputError(f"{name(i)}[{j}] is negative ({h[i, j]:g})", field=name(i))
     mass = h.sum(axis=1)
     if np.any(mass <= 0):
         i = int(np.flatnonzero(mass <= 0)[0])
-        raise InputError(f"{field}[{i}] has zero total mass", field=f"{field}[{i}]")
+        raise InputError(f"{name(i)} has zero total mass", field=name(i))
     return h / mass[:, None]
 
 
