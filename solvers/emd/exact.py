@@ -536,55 +536,12 @@ def w1_path_planning(
     if m0.ndim != 1 or m1.ndim != 1:
         raise InputError("mu_start and mu_goal must be (V,) vectors", field="mu_start")
     mesh.require_matching_component_masses(np.stack([m0, m1], axis=1), _BALANCE_TOL, "mu_goal")
-    fw = _face_weights(mesh, face_weights)
-    upper = None
-    if capacity is not None:
-        upper = np.broadcast_to(np.asarray(capacity, dtype=np.float64), (mesh.n,)).copy()
-        if not np.all(np.isfinite(upper) | (upper == np.inf)) or np.any(upper < 0):
-            raise InputError("capacity must be non-negative", field="capacity")
-    forbidden = np.zeros(mesh.n, dtype=bool)
-    if obstacle_vertices is not None:
-        idx = np.asarray(obstacle_vertices, dtype=np.int64).ravel()
-        if idx.size and (idx.min() < 0 or idx.max() >= mesh.n):
-            raise InputError(f"obstacle_vertices must lie in [0, {mesh.n - 1}]",
-                             field="obstacle_vertices")
-        forbidden[idx] = True
-        if (m0[forbidden].sum() > 0) or (m1[forbidden].sum() > 0):
-            raise InputError("mu_start and mu_goal must carry no mass on obstacle_vertices",
-                             field="obstacle_vertices")
-        fw = np.where(forbidden[mesh.faces].any(axis=1), np.inf, fw)
+    fw, upper, forbidden = _path_constraints(mesh, m0, m1, capacity, obstacle_vertices,
+                                             face_weights)
     geo = _flow_geometry(mesh, fw)
-    keep = _kept_rows(mesh)
-    restrict = sp.identity(mesh.n, format="csr")[keep]
-    eye = sp.identity(mesh.n, format="csr")
-    comp_sum = _component_sum_matrix(mesh)
     _check_cancel(should_cancel)
-
-    prog = _ConicProgram()
     K = int(n_steps)
-    mids = [prog.variables(mesh.n) for _ in range(K - 1)]
-    flows = [prog.flow_block(geo) for _ in range(K)]
-    for k in range(K):
-        terms = [(flows[k], geo.div[keep])]
-        rhs = np.zeros(len(keep))
-        # div J_k - mu_k + mu_{k+1} = 0, known endpoints moved to the right-hand side
-        if k == 0:
-            rhs += m0[keep]
-        else:
-            terms.append((mids[k - 1], -restrict))
-        if k == K - 1:
-            rhs -= m1[keep]
-        else:
-            terms.append((mids[k], restrict))
-        prog.constrain("eq", terms, rhs)
-    for mid in mids:
-        prog.constrain("eq", [(mid, comp_sum)], mesh.component_masses(m0))
-        prog.constrain("nonneg", [(mid, -eye)], np.zeros(mesh.n))
-        if upper is not None:
-            finite = np.flatnonzero(np.isfinite(upper))
-            prog.constrain("nonneg", [(mid, eye[finite])], upper[finite])
-        if forbidden.any():
-            prog.constrain("eq", [(mid, eye[forbidden])], np.zeros(int(forbidden.sum())))
+    prog, mids, flows = _path_program(mesh, geo, m0, m1, K, upper, forbidden)
     x, _, iterations, status, elapsed = prog.solve(
         tol, max_iter, time_limit, progress, should_cancel)
     if status in ("PrimalInfeasible", "AlmostPrimalInfeasible"):
@@ -611,3 +568,60 @@ def w1_path_planning(
         solve_time=elapsed,
         times=np.linspace(0.0, 1.0, K + 1),
     )
+
+
+def _path_constraints(mesh, m0, m1, capacity, obstacle_vertices, face_weights):
+    """Validated path constraints: face weights (``inf`` on faces touching an obstacle
+    vertex), per-vertex capacity (or ``None``) and the (V,) obstacle mask."""
+    fw = _face_weights(mesh, face_weights)
+    upper = None
+    if capacity is not None:
+        upper = np.broadcast_to(np.asarray(capacity, dtype=np.float64), (mesh.n,)).copy()
+        if not np.all(np.isfinite(upper) | (upper == np.inf)) or np.any(upper < 0):
+            raise InputError("capacity must be non-negative", field="capacity")
+    forbidden = np.zeros(mesh.n, dtype=bool)
+    if obstacle_vertices is not None:
+        idx = np.asarray(obstacle_vertices, dtype=np.int64).ravel()
+        if idx.size and (idx.min() < 0 or idx.max() >= mesh.n):
+            raise InputError(f"obstacle_vertices must lie in [0, {mesh.n - 1}]",
+                             field="obstacle_vertices")
+        forbidden[idx] = True
+        if (m0[forbidden].sum() > 0) or (m1[forbidden].sum() > 0):
+            raise InputError("mu_start and mu_goal must carry no mass on obstacle_vertices",
+                             field="obstacle_vertices")
+        fw = np.where(forbidden[mesh.faces].any(axis=1), np.inf, fw)
+    return fw, upper, forbidden
+
+
+def _path_program(mesh, geo, m0, m1, K, upper, forbidden):
+    """The conic program of eq. 2.7: ``K`` flow blocks chained through ``K - 1``
+    intermediate distributions; returns ``(program, mid variables, flow variables)``."""
+    keep = _kept_rows(mesh)
+    restrict = sp.identity(mesh.n, format="csr")[keep]
+    eye = sp.identity(mesh.n, format="csr")
+    comp_sum = _component_sum_matrix(mesh)
+    prog = _ConicProgram()
+    mids = [prog.variables(mesh.n) for _ in range(K - 1)]
+    flows = [prog.flow_block(geo) for _ in range(K)]
+    for k in range(K):
+        terms = [(flows[k], geo.div[keep])]
+        rhs = np.zeros(len(keep))
+        # div J_k - mu_k + mu_{k+1} = 0, known endpoints moved to the right-hand side
+        if k == 0:
+            rhs += m0[keep]
+        else:
+            terms.append((mids[k - 1], -restrict))
+        if k == K - 1:
+            rhs -= m1[keep]
+        else:
+            terms.append((mids[k], restrict))
+        prog.constrain("eq", terms, rhs)
+    for mid in mids:
+        prog.constrain("eq", [(mid, comp_sum)], mesh.component_masses(m0))
+        prog.constrain("nonneg", [(mid, -eye)], np.zeros(mesh.n))
+        if upper is not None:
+            finite = np.flatnonzero(np.isfinite(upper))
+            prog.constrain("nonneg", [(mid, eye[finite])], upper[finite])
+        if forbidden.any():
+            prog.constrain("eq", [(mid, eye[forbidden])], np.zeros(int(forbidden.sum())))
+    return prog, mids, flows
