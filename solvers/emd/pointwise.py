@@ -98,7 +98,20 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
     PointwiseDistanceResult with ``distances`` (len(targets),) — (V,) by default.
     """
     ops = check_mesh(mesh)
-    n = mesh.n
+    source, k, targets = _check_inputs(ops, source, k, targets, route)
+    monitor = _Monitor(progress, should_cancel, every=1)
+    if k == 0 and route != "solve" and (
+            route == "green" or ops.has_green_matrix
+            or (mesh.n <= green_max_vertices and 4 * len(targets) >= mesh.n)):
+        return _dw0_green(ops, source, targets, monitor, green_max_vertices)
+    if k == 0:
+        return _dw0_solve(ops, source, targets, block, monitor)
+    return _dwk_weiszfeld(ops, source, k, targets, harmonic, tol, max_iter, block, monitor)
+
+
+def _check_inputs(ops, source, k, targets, route) -> tuple[int, int, np.ndarray]:
+    """Validated ``(source, k, targets)``; targets must share the source's component."""
+    n = ops.n_vertices
     if not (isinstance(source, (int, np.integer)) and 0 <= int(source) < n):
         raise InputError(f"source must be a vertex index in [0, {n - 1}], got {source!r}",
                          field="source")
@@ -124,44 +137,56 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
         raise UnsupportedDomainError(
             f"target {int(other[0])} lies on another connected component than the source",
             field="targets")
-    monitor = _Monitor(progress, should_cancel, every=1)
-    if k == 0 and route != "solve":
-        use_green = route == "green" or ops.has_green_matrix or (
-            n <= green_max_vertices and 4 * len(targets) >= n)
-        if use_green:
-            monitor(0, 0.0)
-            green = ops.green_matrix(check=lambda: monitor(0, 0.0),
-                                     max_vertices=green_max_vertices)
-            full = len(targets) == n and np.array_equal(targets, np.arange(n))
-            out = dw0_from_green(green, source, None if full else targets)
-            return PointwiseDistanceResult(distances=out, source=source, k=0, targets=targets)
+    return source, int(k), targets
+
+
+def _dw0_green(ops, source, targets, monitor, green_max_vertices) -> PointwiseDistanceResult:
+    """``d_W^0`` from the cached dense Green's matrix and the compiled face pass."""
+    monitor(0, 0.0)
+    green = ops.green_matrix(check=lambda: monitor(0, 0.0), max_vertices=green_max_vertices)
+    n = ops.n_vertices
+    full = len(targets) == n and np.array_equal(targets, np.arange(n))
+    out = dw0_from_green(green, source, None if full else targets)
+    return PointwiseDistanceResult(distances=out, source=source, k=0, targets=targets,
+                                   iterations=0, residual=0.0, converged=True)  # direct
+
+
+def _dw0_solve(ops, source, targets, block, monitor) -> PointwiseDistanceResult:
+    """``d_W^0`` by blocked Poisson solves: ``∫ |∇(G_x - G_y)|`` per target, float32 faces."""
+    area32 = ops.face_areas.astype(np.float32)
+    out = np.empty(len(targets))
+    for start in range(0, len(targets), block):
+        monitor(start // block, 0.0)
+        chunk = targets[start:start + block]
+        z32 = _pair_potentials(ops, source, chunk).astype(np.float32)
+        acc = None
+        for gc in _split_gradient(ops):
+            comp = gc @ z32
+            acc = comp * comp if acc is None else acc + comp * comp
+        np.sqrt(acc, out=acc)
+        out[start:start + len(chunk)] = area32 @ acc
+    return PointwiseDistanceResult(distances=out, source=source, k=0, targets=targets,
+                                   iterations=0, residual=0.0, converged=True)
+
+
+def _dwk_weiszfeld(ops, source, k, targets, harmonic, tol, max_iter, block, monitor
+                   ) -> PointwiseDistanceResult:
+    """``d_W^k`` (k > 0): the flow ``∇(G_x - G_y)`` corrected in the spectral curl basis,
+    minimizing ``∫ |J|`` by Weiszfeld iterations, all targets of a block at once."""
     area = ops.face_areas
-    area32 = area.astype(np.float32)
-    basis = SpectralBasis(ops, int(k), harmonic=harmonic) if k > 0 else None
-    if basis is not None:
-        fields = basis.fields
-        if basis.n_harmonic:
-            fields = np.concatenate([fields, basis.harmonic.transpose(1, 2, 0)], axis=2)
-        m = fields.shape[2]
-        local_gram = np.einsum("fck,fcl->fkl", fields, fields).reshape(len(fields), m * m)
-        flat_fields = fields.reshape(-1, m)  # (3F, m)
+    basis = SpectralBasis(ops, k, harmonic=harmonic)
+    fields = basis.fields
+    if basis.n_harmonic:
+        fields = np.concatenate([fields, basis.harmonic.transpose(1, 2, 0)], axis=2)
+    m = fields.shape[2]
+    local_gram = np.einsum("fck,fcl->fkl", fields, fields).reshape(len(fields), m * m)
+    flat_fields = fields.reshape(-1, m)  # (3F, m)
     out = np.empty(len(targets))
     worst_change, max_its, converged = 0.0, 0, True
     for start in range(0, len(targets), block):
         monitor(start // block, worst_change)
         chunk = targets[start:start + block]
-        z = _pair_potentials(ops, source, chunk)
-        if basis is None:
-            # single precision face pass: |∇(G_x - G_y)| per face, integrated
-            z32 = z.astype(np.float32)
-            acc = None
-            for gc in _split_gradient(ops):
-                comp = gc @ z32
-                acc = comp * comp if acc is None else acc + comp * comp
-            np.sqrt(acc, out=acc)
-            out[start:start + len(chunk)] = area32 @ acc
-            continue
-        diff = ops.grad(z)  # (F, 3, B)
+        diff = ops.grad(_pair_potentials(ops, source, chunk))  # (F, 3, B)
         flow = diff
         cost = np.einsum("f,fb->b", area, np.sqrt(np.einsum("fcb,fcb->fb", flow, flow)))
         for it in range(1, max_iter + 1):
@@ -181,6 +206,6 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
         worst_change = max(worst_change, change)
         converged = converged and change <= tol
         out[start:start + len(chunk)] = cost
-    return PointwiseDistanceResult(distances=out, source=source, k=int(k), targets=targets,
+    return PointwiseDistanceResult(distances=out, source=source, k=k, targets=targets,
                                    iterations=max_its, residual=worst_change,
                                    converged=converged)
