@@ -1,4 +1,11 @@
-"""Domains own their geometry, area weights, Laplacians and prefactored heat kernels."""
+"""Domains own their geometry, area weights, Laplacians and prefactored heat kernels.
+
+* :class:`TriangleMesh` (§2.2: cotangent / intrinsic-Delaunay Laplacian, lumped areas,
+  per-face gradient and divergence), :class:`Grid` (§3.4: separable Gaussian kernels),
+  :class:`Graph`, :class:`PointCloud` — each in its own module;
+* ``operators`` — :class:`~solvers.domains.operators.OperatorStore`, the one explicit
+  store of every prefactored operator a domain owns (built once under a lock, sized).
+"""
 
 from __future__ import annotations
 
