@@ -49,8 +49,7 @@ from solvers.validation import check_masses
 
 MAX_VERTICES = 5000
 # Coupled programs (barycenters, paths) factor much worse than k separate ones: cap
-# vertices x (flow blocks + distribution blocks).  Measured on spot (2,930 vertices):
-# one W1 0.7 s; barycenter of 3 (4 blocks) 32 s; path with 4 steps (7 blocks) 106 s.
+# vertices x (flow blocks + distribution blocks); timings in bench/results/w1_exact.md.
 MAX_BLOCK_UNKNOWNS = 12000
 # Relative component-mass mismatch above which mass would have to cross components.
 _BALANCE_TOL = 1e-9

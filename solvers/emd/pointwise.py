@@ -84,8 +84,8 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
     tol, max_iter : Weiszfeld stopping rule for ``k > 0`` (relative change per target).
     block : targets per multi-RHS solve (``route="solve"`` and ``k > 0``).
     route : ``k = 0`` only. ``"green"``: dense Green's matrix + compiled face pass (the
-        matrix is built on first use and cached on the mesh: ~2 s and 0.4 GB at 10k
-        vertices, then ~0.05 s per one-to-all query); ``"solve"``: blocked Poisson solves
+        matrix, ``4 V²`` bytes, is built on first use and kept in the mesh's operator
+        store; build and query times in bench/results/emd.md); ``"solve"``: blocked Poisson solves
         per call (no memory beyond a block); ``"auto"``: ``"green"`` when the matrix is
         already built, or when the mesh has at most ``green_max_vertices`` vertices and
         at least a quarter of them are targets; ``"solve"`` otherwise.
