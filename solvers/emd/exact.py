@@ -49,7 +49,8 @@ from solvers.validation import check_masses
 
 MAX_VERTICES = 5000
 # Coupled programs (barycenters, paths) factor much worse than k separate ones: cap
-# vertices x (flow blocks + distribution blocks); timings in bench/results/w1_exact.md.
+# vertices x (flow blocks + distribution blocks). Single-W1 timings are in
+# bench/results/w1_exact.md; a coupled program costs far more than its blocks solved apart.
 MAX_BLOCK_UNKNOWNS = 12000
 # Relative component-mass mismatch above which mass would have to cross components.
 _BALANCE_TOL = 1e-9
