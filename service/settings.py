@@ -30,6 +30,9 @@ class Settings(BaseSettings):
     max_upload_bytes: int = Field(200 * 2**20, gt=0)
     max_vertices: int = Field(2_000_000, gt=0, description="largest domain (points) accepted")
     cache_bytes: int = Field(2 * 2**30, ge=0, description="per-process operator cache bound")
+    job_memory_bytes: int = Field(4 * 2**30, gt=0, description="largest working memory a job "
+                                  "may need, estimated at submission from its sizes (points, "
+                                  "distributions, basis size); larger jobs get 413")
     job_time_limit: float = Field(600.0, gt=0, description="seconds; checked between iterations")
     max_attempts: int = Field(3, ge=1, description="runs of a job whose worker died, at most")
     heartbeat_interval: float = Field(2.0, gt=0, description="seconds between heartbeats")

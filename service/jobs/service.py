@@ -10,7 +10,12 @@ import numpy as np
 
 from service.errors import Conflict, NotFound
 from service.jobs.db import QUEUED, TERMINAL, JobRow
-from service.operations.base import OperationRequest, SubmitContext, view_of_info
+from service.operations.base import (
+    OperationRequest,
+    SubmitContext,
+    check_job_memory,
+    view_of_info,
+)
 from service.runtime import Runtime
 
 log = logging.getLogger("otgeo.jobs")
@@ -34,6 +39,7 @@ class JobService:
             view = view_of_info(self.rt.store.domain_info(domain_id))
             op.check_kind(view)
             op.validate(view, request)
+            check_job_memory(op, view, request, self.rt.settings.job_memory_bytes)
         else:
             op.validate(SubmitContext(self.rt.store, self.rt.settings), request)
             domain_id = op.primary_domain(request)

@@ -26,20 +26,28 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.sparse.csgraph import shortest_path
 
 from service.errors import InvalidInput, NotFound, UnsupportedOperation
-from solvers.validation import check_masses
+from solvers.validation import (
+    COMPONENT_MASS_TOL,
+    check_component_masses,
+    check_entropy_bound,
+    check_gamma,
+    check_indices,
+    check_int,
+    check_masses,
+)
 
 Progress = Callable[[int, float], None]
 ShouldCancel = Callable[[], bool]
 
 
 class SparseDistribution(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     indices: list[int] = Field(min_length=1, description="point indices")
     masses: list[float] = Field(min_length=1, description="value at each listed point")
 
 
 class BumpDistribution(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     vertex: int = Field(ge=0, description="center point index")
     radius: float = Field(gt=0, description="support radius (unit-area coordinates; hops on "
                           "graphs)")
@@ -49,9 +57,9 @@ Distribution = list[float] | SparseDistribution | BumpDistribution
 
 
 class OperationRequest(BaseModel):
-    """Fields shared by every operation request."""
+    """Fields shared by every operation request (Infinity/NaN refused in every float)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     input: Literal["masses", "density"] = Field(
         "masses", description="how distribution values are meant: masses per point, or "
         "densities with respect to the domain's area weights")
@@ -196,6 +204,9 @@ class Operation:
     domain_field: str | None = None
     route: bool = True
     result_model: type[BaseModel] | None = None
+    # bytes of working memory a job needs, estimated from (view, request) at submission
+    # (default: ``estimate_job_bytes``); checked against ``job_memory_bytes``
+    estimate_bytes: Callable[..., int] | None = None
 
     def check_kind(self, view: DomainView, field: str = "domain_id") -> None:
         if view.kind not in self.kinds:
@@ -277,11 +288,7 @@ def resolve_distribution(view: DomainView, spec, field: str, input_kind: str = "
             raise InvalidInput(f"{field}.indices and {field}.masses differ in length "
                                f"({len(spec.indices)} vs {len(spec.masses)})",
                                field=f"{field}.masses")
-        idx = np.asarray(spec.indices, dtype=np.int64)
-        if idx.min() < 0 or idx.max() >= view.n:
-            bad = int(idx[(idx < 0) | (idx >= view.n)][0])
-            raise InvalidInput(f"{field}.indices contains {bad}, outside [0, {view.n - 1}]",
-                               field=f"{field}.indices")
+        idx = check_indices(spec.indices, view.n, field=f"{field}.indices")
         vals = check_masses(spec.masses, len(idx), field=f"{field}.masses")
         values = np.zeros(view.n)
         np.add.at(values, idx, vals)
@@ -307,24 +314,21 @@ def resolve_all(view: DomainView, specs: dict[str, object], input_kind: str
     return masses, reports
 
 
-def check_same_components(view: DomainView, masses: dict[str, np.ndarray]) -> None:
+def check_same_components(view: DomainView, masses: dict[str, np.ndarray],
+                          tol: float | None = None) -> None:
     """On a domain with several components, transport cannot move mass between them:
-    every distribution must put the same mass on each component."""
+    every distribution must put the same mass on each component. The library's check
+    (``solvers.validation.check_component_masses``, L1 over components, at most
+    ``COMPONENT_MASS_TOL`` or the request's smaller ``tol``), named after the first
+    distribution that differs."""
     if view.n_components <= 1 or len(masses) < 2:
         return
+    tol = COMPONENT_MASS_TOL if tol is None else min(float(tol), COMPONENT_MASS_TOL)
     names = list(masses)
-    ref = np.bincount(view.component_labels, weights=masses[names[0]],
-                      minlength=view.n_components)
+    ref = masses[names[0]]
     for name in names[1:]:
-        comp = np.bincount(view.component_labels, weights=masses[name],
-                           minlength=view.n_components)
-        diff = np.abs(comp - ref)
-        if diff.max() > 1e-6:
-            k = int(np.argmax(diff))
-            raise UnsupportedOperation(
-                f"the domain has {view.n_components} connected components and mass cannot "
-                f"move between them: {name} puts {comp[k]:.6g} of its mass on component {k} "
-                f"but {names[0]} puts {ref[k]:.6g}", field=name)
+        check_component_masses(view.component_labels, np.stack([ref, masses[name]], axis=1),
+                               name, tol)
 
 
 # Per built domain (a worker's cached object): values derived by validation, e.g. resolved
@@ -348,6 +352,82 @@ def view_of_info(info) -> DomainView:
     return DomainView(kind=info.kind, n=info.n, areas=info.areas,
                       component_labels=info.component_labels, points=info.points,
                       edges=edges, n_faces=n_faces, memo=info.memo)
+
+
+# -- sizes and scalar options, checked at submission and again in the worker -------------
+def view_extent(view: DomainView) -> float:
+    """The domain's size in its own units, as ``Domain.extent`` computes it (bounding-box
+    diagonal of the stored points; hops on graphs), memoized on the view's source."""
+    if view.kind == "graph":
+        return float(max(view.n - 1, 1))
+    if "extent" not in view.memo:
+        from solvers.domains.base import points_extent
+
+        view.memo["extent"] = points_extent(view.points)
+    return view.memo["extent"]
+
+
+def check_options(view: DomainView, req) -> None:
+    """The request's scalar options against the domain, with the library's validators:
+    ``gamma`` (positive, at most ``GAMMA_MAX_FACTOR`` x extent^2), ``entropy_bound``
+    (reachable), spectral basis sizes ``k`` (below the number of points)."""
+    gamma = getattr(req, "gamma", None)
+    if gamma is not None:
+        check_gamma(gamma, view_extent(view), "gamma")
+    bound = getattr(req, "entropy_bound", None)
+    if bound is not None:
+        check_entropy_bound(bound, view.areas, "entropy_bound")
+    k = getattr(req, "k", None)
+    spectral = getattr(req, "basis", "spectral") == "spectral"
+    if k is not None and k != 0 and spectral:
+        check_int(k, "k", low=1, high=max(view.n - 3, 1))
+    if (getattr(req, "basis", None) == "spectral" and k is None
+            and getattr(req, "method", "emd") == "emd"):
+        raise InvalidInput("basis 'spectral' needs k, the number of eigenfunctions", field="k")
+
+
+GREEN_MAX_VERTICES = 20_000  # the d_W^0 route caches a dense float32 Green's matrix below
+
+
+def estimate_job_bytes(view: DomainView, req) -> int:
+    """Working memory of a job, estimated from its sizes (Python ints: no overflow).
+
+    ``columns`` (n,)-vectors per distribution the solver keeps (~12 arrays each in the
+    log-domain Sinkhorn iterations), plus spectral bases ``k`` x (2 V + 3 F) and the
+    dense Green's matrix of exact pointwise distances (4 V^2 bytes)."""
+    n = int(view.n)
+    faces = int(view.n_faces or 2 * n)
+    if getattr(req, "distributions", None) is not None:
+        columns = len(req.distributions) + 1
+    elif getattr(req, "times", None) is not None:
+        columns = 2 + len(req.times)
+    elif getattr(req, "n_nodes", None) is not None and getattr(req, "edges", None) is not None:
+        columns = int(req.n_nodes) + 2 * len(req.edges)
+    else:
+        columns = 2
+    total = 12 * 8 * n * columns
+    k = getattr(req, "k", None) or 0
+    if k and getattr(req, "basis", "spectral") == "spectral":
+        total += 2 * 8 * int(k) * (2 * n + 3 * faces)
+    if hasattr(req, "source") and not k and n <= GREEN_MAX_VERTICES:
+        total += 4 * n * n
+    return total
+
+
+def check_job_memory(op: Operation, view: DomainView, req, limit: int) -> int:
+    """413 (field: the request's size-giving field) when the job's estimated memory is
+    above ``limit`` (``Settings.job_memory_bytes``); returns the estimate."""
+    from service.errors import PayloadTooLarge
+
+    estimate = (op.estimate_bytes or estimate_job_bytes)(view, req)
+    if estimate > limit:
+        field = next((f for f in ("distributions", "times", "edges", "n_nodes", "k")
+                      if getattr(req, f, None)), None)
+        raise PayloadTooLarge(f"this job would need about {estimate / 2**30:.3g} GiB of "
+                              f"working memory, more than the limit of {limit / 2**30:.3g} GiB "
+                              "(OTGEO_JOB_MEMORY_BYTES): use fewer points or columns",
+                              field=field)
+    return estimate
 
 
 def default_gamma(domain_or_view) -> float:

@@ -23,7 +23,7 @@ import numpy as np
 from solvers.errors import InputError
 from solvers.kernels import heat_time
 from solvers.monitor import Monitor
-from solvers.validation import check_positive, normalize_masses
+from solvers.validation import check_gamma, check_positive, normalize_masses
 
 # Width (in natural-log units) of one band of a log-domain kernel application for
 # kernels whose smallest entry is unknown (implicit Euler): entries of the
@@ -228,7 +228,8 @@ def check_acceleration(value, allowed: tuple[str, ...]) -> str:
 def prepare(domain, *, gamma, t, substeps, tol, max_iter, progress, should_cancel,
             default_max_iter: int = 10000) -> Setup:
     """Check ``gamma, t, substeps, tol, max_iter`` and fetch the domain's heat kernel."""
-    gamma = check_positive(gamma, "gamma")
+    extent = getattr(domain, "extent", None)
+    gamma = check_positive(gamma, "gamma") if extent is None else check_gamma(gamma, extent)
     t = heat_time(gamma) if t is None else check_positive(t, "t")
     try:
         substeps = int(substeps)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 from functools import cached_property
@@ -11,9 +12,31 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from solvers.domains.operators import OperatorStore, nbytes_of
-from solvers.errors import UnsupportedDomainError
+from solvers.errors import DomainError, InputError
 from solvers.kernels import HeatKernel
 from solvers.linalg import Backend
+from solvers.validation import check_component_masses
+
+
+@contextlib.contextmanager
+def domain_input():
+    """Re-raise the shared validators' ``InputError`` as ``DomainError`` (same message and
+    field) while a domain checks its construction arguments."""
+    try:
+        yield
+    except DomainError:
+        raise
+    except InputError as exc:
+        raise DomainError(exc.message, field=exc.field) from exc
+
+
+def points_extent(points) -> float:
+    """Bounding-box diagonal of ``(n, d)`` points (1.0 without points or for one point)."""
+    if points is None or len(points) == 0:
+        return 1.0
+    pts = np.asarray(points, dtype=np.float64)
+    diag = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+    return diag if np.isfinite(diag) and diag > 0 else 1.0
 
 
 class Domain:
@@ -65,6 +88,15 @@ class Domain:
         """(n,) component index of every point."""
         return self._components[1]
 
+    @property
+    def extent(self) -> float:
+        """Size of the domain in its own units (the scale that bounds ``gamma``): the
+        bounding-box diagonal of its points (unit area for meshes and point clouds)."""
+        pts = getattr(self, "points", None)
+        if pts is None:
+            pts = getattr(self, "vertices", None)
+        return points_extent(pts)
+
     def component_masses(self, masses: np.ndarray) -> np.ndarray:
         """Total mass per connected component of an (n,) mass vector."""
         return np.bincount(self.component_labels, weights=masses, minlength=self.n_components)
@@ -79,19 +111,7 @@ class Domain:
         """
         if self.n_components <= 1 or masses.shape[1] < 2:
             return
-        per = np.stack([self.component_masses(masses[:, j]) for j in range(masses.shape[1])],
-                       axis=1)
-        gap = np.abs(per - per[:, :1]).sum(axis=0)
-        if np.any(gap > tol):
-            j = int(np.argmax(gap))
-            raise UnsupportedDomainError(
-                f"the domain has {self.n_components} connected components and mass cannot "
-                f"move between them, but the distributions put different mass on them "
-                f"(component masses {np.round(per[:, 0], 6).tolist()} vs "
-                f"{np.round(per[:, j], 6).tolist()}); give each component the same mass in "
-                "every distribution",
-                field=field,
-            )
+        check_component_masses(self.component_labels, masses, field, tol)
 
     # -- content addressing -------------------------------------------------
     def to_arrays(self) -> dict[str, np.ndarray]:

@@ -7,10 +7,11 @@ from functools import cached_property
 import numpy as np
 import scipy.sparse as sp
 
-from solvers.domains.base import Domain
+from solvers.domains.base import Domain, domain_input
 from solvers.errors import DomainError
 from solvers.kernels import ImplicitEulerHeatKernel
 from solvers.linalg import Backend
+from solvers.validation import check_edge_weights, check_edges
 
 
 class Graph(Domain):
@@ -33,33 +34,26 @@ class Graph(Domain):
         super().__init__()
         try:
             n_nodes = int(n_nodes)
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError, OverflowError) as exc:
             raise DomainError("n_nodes must be an integer", field="n_nodes") from exc
         if n_nodes < 1:
             raise DomainError(f"a graph needs at least one node, got {n_nodes}", field="n_nodes")
-        e = np.asarray(edges)
-        if e.size == 0:
-            e = np.zeros((0, 2), dtype=np.int64)
-        if e.ndim != 2 or e.shape[1] != 2:
-            raise DomainError(f"edges must have shape (m, 2), got {e.shape}", field="edges")
-        if not np.issubdtype(e.dtype, np.integer):
-            if not np.all(np.isfinite(e)) or np.any(np.mod(e, 1) != 0):
-                raise DomainError("edge endpoints must be integers", field="edges")
-        e = e.astype(np.int64)
-        if len(e) and (e.min() < 0 or e.max() >= n_nodes):
-            raise DomainError(f"edge endpoints must lie in [0, {n_nodes - 1}]", field="edges")
-        if np.any(e[:, 0] == e[:, 1]):
-            bad = int(np.flatnonzero(e[:, 0] == e[:, 1])[0])
-            raise DomainError(f"edge {bad} is a self loop", field="edges")
-        w = np.ones(len(e)) if weights is None else np.asarray(weights, dtype=np.float64)
-        if w.shape != (len(e),):
-            raise DomainError(f"weights must have length {len(e)}, got shape {w.shape}",
+        with domain_input():
+            e = check_edges(edges, n_nodes, "edges")
+            w = check_edge_weights(weights, len(e), "weights")
+        with np.errstate(over="ignore"):
+            degree = np.bincount(e.ravel(), weights=np.repeat(w, 2), minlength=n_nodes)
+        if not np.all(np.isfinite(degree)):
+            bad = int(np.flatnonzero(~np.isfinite(degree))[0])
+            raise DomainError(f"the weights of the edges at node {bad} sum to infinity",
                               field="weights")
-        if not np.all(np.isfinite(w)) or np.any(w <= 0):
-            raise DomainError("edge weights must be finite and positive", field="weights")
         if positions is not None:
-            positions = np.asarray(positions, dtype=np.float64)
-            if positions.ndim != 2 or len(positions) != n_nodes:
+            try:
+                positions = np.asarray(positions, dtype=np.float64)
+            except (TypeError, ValueError, OverflowError) as exc:
+                raise DomainError(f"positions must have shape ({n_nodes}, d) of numbers",
+                                  field="positions") from exc
+            if positions.ndim != 2 or len(positions) != n_nodes or positions.shape[1] == 0:
                 raise DomainError(f"positions must have shape ({n_nodes}, d)", field="positions")
             if not np.all(np.isfinite(positions)):
                 raise DomainError("positions must be finite", field="positions")
@@ -71,6 +65,11 @@ class Graph(Domain):
     @property
     def n(self) -> int:
         return self.n_nodes
+
+    @property
+    def extent(self) -> float:
+        """Largest possible hop distance, ``n - 1`` (at least 1): graph units are hops."""
+        return float(max(self.n_nodes - 1, 1))
 
     @cached_property
     def adjacency(self) -> sp.csr_matrix:

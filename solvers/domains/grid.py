@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from functools import cached_property
 
@@ -12,6 +13,10 @@ from solvers.domains.base import Domain
 from solvers.errors import DomainError
 from solvers.kernels import GaussianGridHeatKernel, ImplicitEulerHeatKernel
 from solvers.linalg import Backend
+
+# Nodes of the largest grid built (the service's limit on points is lower); shapes whose
+# product exceeds it are refused before anything is allocated.
+MAX_GRID_POINTS = 2**31
 
 
 class Grid(Domain):
@@ -40,20 +45,37 @@ class Grid(Domain):
         super().__init__()
         try:
             shape = tuple(int(s) for s in shape)
-        except (TypeError, ValueError) as exc:
-            raise DomainError(f"shape must be a list of integers: {exc}", field="shape") from exc
+        except (TypeError, ValueError, OverflowError) as exc:
+            raise DomainError("shape must be a list of integers", field="shape") from exc
         if not 1 <= len(shape) <= 3:
             raise DomainError(f"grids have 1 to 3 axes, got {len(shape)}", field="shape")
         if any(s < 2 for s in shape):
             raise DomainError(f"every axis needs at least 2 nodes, got {shape}", field="shape")
+        size = math.prod(shape)  # Python ints: no int64 wrap-around
+        if size > MAX_GRID_POINTS:
+            raise DomainError(f"shape {list(shape)} gives {size} nodes, more than "
+                              f"{MAX_GRID_POINTS}", field="shape")
         if bounds is None:
             bounds = [(0.0, 1.0)] * len(shape)
-        bounds = np.asarray(bounds, dtype=np.float64)
+        try:
+            bounds = np.asarray(bounds, dtype=np.float64)
+        except (TypeError, ValueError, OverflowError) as exc:  # ragged or not numbers
+            raise DomainError(f"bounds must be {len(shape)} pairs (lo, hi) of numbers",
+                              field="bounds") from exc
         if bounds.shape != (len(shape), 2):
             raise DomainError(f"bounds must have shape ({len(shape)}, 2), got {bounds.shape}",
                               field="bounds")
         if not np.all(np.isfinite(bounds)) or np.any(bounds[:, 1] <= bounds[:, 0]):
             raise DomainError("bounds must be finite with lo < hi on every axis", field="bounds")
+        with np.errstate(over="ignore", under="ignore", divide="ignore"):
+            width = bounds[:, 1] - bounds[:, 0]
+            h = width / np.asarray(shape, dtype=np.float64)
+            inv_h2 = 1.0 / (h * h)
+        if not (np.all(np.isfinite(width)) and np.all(np.isfinite(inv_h2))
+                and np.all(h * h > 0) and np.all(np.isfinite(width**2))):
+            raise DomainError("bounds give a grid spacing whose square under- or overflows "
+                              "(axis lengths must lie within about 1e-150 and 1e150)",
+                              field="bounds")
         if isinstance(periodic, (bool, np.bool_)):
             periodic = (bool(periodic),) * len(shape)
         periodic = tuple(bool(p) for p in periodic)
@@ -66,7 +88,12 @@ class Grid(Domain):
 
     @property
     def n(self) -> int:
-        return int(np.prod(self.shape))
+        return math.prod(self.shape)
+
+    @property
+    def extent(self) -> float:
+        """Diagonal of the bounding box (grid units)."""
+        return float(np.linalg.norm(self.bounds[:, 1] - self.bounds[:, 0]))
 
     @property
     def ndim(self) -> int:

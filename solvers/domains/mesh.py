@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import logging
 import os
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -17,11 +18,16 @@ from solvers.errors import DomainError, MeshFormatError
 from solvers.kernels import ImplicitEulerHeatKernel
 from solvers.linalg import Backend
 
+log = logging.getLogger("otgeo.solvers")
+
 MESH_FORMATS = ("obj", "ply", "stl", "off", "glb", "gltf")
-# Formats that store one vertex per (position, attribute) pair or none at all, so
-# coincident positions must be welded to recover the surface. OBJ keeps its
-# position indices (faces' first index), which already weld UV/normal seams.
-POSITION_WELD_FORMATS = ("stl", "glb", "gltf")
+# Formats whose files may store one vertex per (position, attribute) pair or none at all
+# (PLY and OFF exports split vertices along UV seams too), so coincident positions are
+# welded by default to recover the surface (``weld=False`` keeps the file's vertices).
+# OBJ faces keep their position indices (``v`` lines), which already weld UV/normal seams;
+# welding OBJ by position as well (``weld=True``) would also fuse separate parts that only
+# touch (e.g. suzanne's eyes), so it is not the default there.
+POSITION_WELD_FORMATS = ("ply", "off", "stl", "glb", "gltf")
 
 # Relative area below which a face counts as degenerate (fraction of mean face area).
 DEGENERATE_AREA_FRACTION = 1e-12
@@ -74,8 +80,26 @@ def _validate_arrays(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
     return v, f
 
 
+def _unit_box(v: np.ndarray) -> tuple[np.ndarray, float]:
+    """``v`` centered and scaled into ``[-1, 1]^3`` and the scale, so products of
+    coordinates (areas, normals) cannot overflow whatever the input units."""
+    center = 0.5 * (v.max(axis=0) + v.min(axis=0))
+    with np.errstate(over="ignore"):
+        box = float(np.max(np.abs(v - center)))
+    if not np.isfinite(box):
+        raise DomainError("vertex coordinates span a range too large to represent (beyond "
+                          "about 1e308): rescale the mesh", field="vertices")
+    if box <= 0:
+        raise DomainError("all vertices coincide", field="vertices")
+    return (v - center) / box, box
+
+
 def _clean(v: np.ndarray, f: np.ndarray, weld: bool, diag: MeshDiagnostics):
-    """Weld coincident vertices, drop degenerate/duplicate faces and unused vertices."""
+    """Weld coincident vertices, drop degenerate/duplicate faces and unused vertices.
+
+    Returns ``(kept, faces)``: indices into ``v`` of the vertices kept and the faces over
+    them (so callers can take the kept rows of any per-vertex array)."""
+    kept = np.arange(len(v))
     if weld:
         # Seams (UV / normal splits) store one surface point several times.
         scale = max(float(np.ptp(v, axis=0).max()), 1e-300)
@@ -84,6 +108,7 @@ def _clean(v: np.ndarray, f: np.ndarray, weld: bool, diag: MeshDiagnostics):
         inverse = inverse.reshape(-1)
         diag.welded_vertices = int(len(v) - len(first))
         v = v[first]
+        kept = kept[first]
         f = inverse[f]
     repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])
     cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
@@ -92,6 +117,10 @@ def _clean(v: np.ndarray, f: np.ndarray, weld: bool, diag: MeshDiagnostics):
     tiny = DEGENERATE_AREA_FRACTION * (positive.mean() if positive.size else 0.0)
     degenerate = repeated | (area2 <= tiny)
     diag.removed_degenerate_faces = int(degenerate.sum())
+    if len(f) >= 16 and degenerate.sum() > 0.5 * len(f) and degenerate.sum() < len(f):
+        raise DomainError(f"{int(degenerate.sum())} of {len(f)} faces are degenerate (zero area "
+                          "or a repeated vertex); if the coordinates span many orders of "
+                          "magnitude (an outlier vertex), fix or rescale them", field="faces")
     f = f[~degenerate]
     if len(f) == 0:
         raise DomainError("mesh has no non-degenerate faces", field="faces")
@@ -103,7 +132,7 @@ def _clean(v: np.ndarray, f: np.ndarray, weld: bool, diag: MeshDiagnostics):
     diag.removed_unreferenced_vertices = int((~used).sum())
     remap = -np.ones(len(v), dtype=np.int64)
     remap[used] = np.arange(used.sum())
-    return v[used], remap[f]
+    return kept[used], remap[f]
 
 
 def _as_utf8_text_if_needed(data: bytes, file_type: str) -> bytes:
@@ -130,6 +159,126 @@ def _as_utf8_text_if_needed(data: bytes, file_type: str) -> bytes:
             f"{file_type.upper()} file is binary data, not text{detail}", field="file"
         )
     return data.decode("latin-1").encode("utf-8")
+
+
+def _check_obj_indices(data: bytes) -> None:
+    """OBJ face indices are 1-based (negative: relative to the end): refuse 0 and indices
+    beyond the vertices the file defines, naming the line (the parser would drop or wrap
+    them silently)."""
+    import re
+
+    count = len(re.findall(rb"(?m)^v[ \t]", data))
+    faces = re.findall(rb"(?m)^f[ \t]+([^\r\n#]*)", data)
+    refs = re.sub(rb"/[^ \t]*", b"", b" ".join(faces)).split()
+    try:
+        values = np.array(refs).astype(np.int64) if refs else np.zeros(0, dtype=np.int64)
+        if np.all((values != 0) & (np.abs(values) <= count)):
+            return  # all valid (the common case: no per-line scan)
+    except (ValueError, OverflowError):
+        pass
+    for match in re.finditer(rb"(?m)^f[ \t]+([^\r\n#]*)", data):
+        refs = [t.split(b"/", 1)[0] for t in match.group(1).split()]
+        try:
+            values = [int(r) for r in refs]
+        except ValueError:
+            values = None
+        if values is not None and all(0 < v <= count or 0 < -v <= count for v in values):
+            continue
+        number = data.count(b"\n", 0, match.start()) + 1
+        if values is None:
+            raise MeshFormatError(f"OBJ line {number}: a face vertex is not an index",
+                                  field="file")
+        bad = next(v for v in values if not (0 < v <= count or 0 < -v <= count))
+        if bad == 0:
+            raise MeshFormatError(f"OBJ line {number}: face vertex index 0 (OBJ indices start "
+                                  "at 1)", field="file")
+        raise MeshFormatError(f"OBJ line {number}: face vertex index {bad} is out of bounds "
+                              f"(the file defines {count} vertices)", field="file")
+
+
+GLB_MAGIC = b"glTF"
+
+
+def _gltf_problem(data: bytes, file_type: str) -> str | None:
+    """What is structurally wrong with a glTF 2.0 file (GLB or JSON), or None: header,
+    JSON, meshes with triangle primitives whose accessors, buffer views and buffers exist
+    (a .gltf may only embed its buffers as data: URIs; upload a GLB otherwise)."""
+    import json
+    import struct
+
+    if file_type == "glb":
+        if len(data) < 20 or data[:4] != GLB_MAGIC:
+            return "it does not start with the GLB header ('glTF' magic)"
+        version, length = struct.unpack_from("<II", data, 4)
+        if version != 2:
+            return f"GLB version {version} (only glTF 2.0 is supported)"
+        if length > len(data):
+            return f"the header declares {length} bytes but the file has {len(data)}"
+        chunk_len, chunk_type = struct.unpack_from("<II", data, 12)
+        if chunk_type != 0x4E4F534A or 20 + chunk_len > len(data):
+            return "its first chunk is not a complete JSON chunk"
+        text = data[20:20 + chunk_len]
+    else:
+        if data[:4] == GLB_MAGIC:
+            return "this is a binary GLB file: upload it with format 'glb'"
+        text = data
+    try:
+        doc = json.loads(text)
+    except (ValueError, RecursionError):
+        return "its JSON part is not valid JSON"
+    if not isinstance(doc, dict):
+        return "its JSON part is not an object"
+
+    def items(name):
+        value = doc.get(name, [])
+        return value if isinstance(value, list) else None
+
+    meshes, accessors = items("meshes"), items("accessors")
+    views, buffers = items("bufferViews"), items("buffers")
+    for name, value in (("meshes", meshes), ("accessors", accessors), ("bufferViews", views),
+                        ("buffers", buffers)):
+        if value is None:
+            return f"'{name}' is not a list"
+    if not meshes:
+        return "it has no meshes"
+
+    def check_accessor(index, where):
+        if not isinstance(index, int) or isinstance(index, bool) or not 0 <= index < len(
+                accessors):
+            return f"{where} refers to accessor {index!r}, but there are {len(accessors)}"
+        acc = accessors[index]
+        if not isinstance(acc, dict):
+            return f"accessor {index} is not an object"
+        view = acc.get("bufferView")
+        if view is None:
+            return None
+        if not isinstance(view, int) or isinstance(view, bool) or not 0 <= view < len(views):
+            return f"accessor {index} refers to bufferView {view!r}, but there are {len(views)}"
+        bv = views[view]
+        buf = bv.get("buffer") if isinstance(bv, dict) else None
+        if not isinstance(buf, int) or isinstance(buf, bool) or not 0 <= buf < len(buffers):
+            return f"bufferView {view} refers to buffer {buf!r}, but there are {len(buffers)}"
+        uri = buffers[buf].get("uri") if isinstance(buffers[buf], dict) else None
+        if file_type == "gltf" and not (isinstance(uri, str) and uri.startswith("data:")):
+            return (f"buffer {buf} is not embedded (an external file or none): upload a GLB, "
+                    "or embed buffers as data: URIs")
+        return None
+
+    for m, mesh in enumerate(meshes):
+        prims = mesh.get("primitives") if isinstance(mesh, dict) else None
+        if not isinstance(prims, list) or not prims:
+            return f"mesh {m} has no primitives"
+        for p, prim in enumerate(prims):
+            where = f"mesh {m} primitive {p}"
+            attrs = prim.get("attributes") if isinstance(prim, dict) else None
+            if not isinstance(attrs, dict) or "POSITION" not in attrs:
+                return f"{where} has no POSITION attribute"
+            problem = check_accessor(attrs["POSITION"], f"{where} POSITION")
+            if problem is None and prim.get("indices") is not None:
+                problem = check_accessor(prim["indices"], f"{where} indices")
+            if problem:
+                return problem
+    return None
 
 
 class TriangleMesh(Domain):
@@ -175,16 +324,39 @@ class TriangleMesh(Domain):
                               field="laplacian")
         v, f = _validate_arrays(vertices, faces)
         self.diagnostics = _diagnostics or MeshDiagnostics()
-        v, f = _clean(v, f, weld, self.diagnostics)
-        raw_area = 0.5 * np.linalg.norm(
-            np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1
+        unit, box = _unit_box(v)
+        kept, f = _clean(unit, f, weld, self.diagnostics)
+        v, unit = v[kept], unit[kept]
+        unit_area = 0.5 * np.linalg.norm(
+            np.cross(unit[f[:, 1]] - unit[f[:, 0]], unit[f[:, 2]] - unit[f[:, 0]]), axis=1
         ).sum()
-        self.length_scale = float(np.sqrt(raw_area))
+        self.length_scale = float(np.sqrt(unit_area)) * box
+        if not (np.isfinite(self.length_scale) and self.length_scale > 0):
+            raise DomainError("the mesh has no measurable area at its coordinates' scale",
+                              field="vertices")
         self._input_vertices = v
         self.vertices = v / self.length_scale
+        if not np.all(np.isfinite(self.vertices)):
+            raise DomainError("vertex coordinates cannot be rescaled to unit area (they span "
+                              "too many orders of magnitude)", field="vertices")
+        self._check_geometry(f)
         self.faces = f
         self.laplacian_kind = laplacian
         self._analyze_topology()
+
+    def _check_geometry(self, f: np.ndarray) -> None:
+        """Refuse geometry whose derived quantities are not finite and positive (vertex
+        areas, edge lengths): every operator is built from them."""
+        v = self.vertices
+        cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+        face_area = 0.5 * np.linalg.norm(cross, axis=1)
+        vertex_area = np.bincount(f.ravel(), weights=np.repeat(face_area / 3.0, 3),
+                                  minlength=len(v))
+        bad = np.flatnonzero(~(np.isfinite(vertex_area) & (vertex_area > 0)))
+        if len(bad):
+            raise DomainError(f"vertex {int(bad[0])} gets area {vertex_area[bad[0]]:g} at unit "
+                              f"total area ({len(bad)} such vertices): the coordinates span "
+                              "too many orders of magnitude", field="vertices")
 
     # -- construction -------------------------------------------------------
     @classmethod
@@ -192,8 +364,9 @@ class TriangleMesh(Domain):
         """Load OBJ, PLY, STL, OFF or glTF/GLB from a path, bytes or a binary file object.
 
         Scenes with several meshes are concatenated. Seams are welded: OBJ faces
-        keep their position indices (``v`` lines), and STL/glTF vertices are
-        merged by position; pass ``weld=`` to override the latter.
+        keep their position indices (``v`` lines), and PLY/OFF/STL/glTF vertices are
+        merged by position; ``weld=True`` merges by position for OBJ too, ``weld=False``
+        never (``weld=None``: the format's default, ``POSITION_WELD_FORMATS``).
         """
         import trimesh
 
@@ -224,14 +397,25 @@ class TriangleMesh(Domain):
         if len(data) == 0:
             raise MeshFormatError("mesh file is empty", field="file")
         data = _as_utf8_text_if_needed(data, file_type)
-        kwargs.setdefault("weld", file_type in POSITION_WELD_FORMATS)
+        if kwargs.get("weld") is None:
+            kwargs["weld"] = file_type in POSITION_WELD_FORMATS
+        if file_type == "obj":
+            _check_obj_indices(data)
+        if file_type in ("glb", "gltf"):
+            problem = _gltf_problem(data, file_type)
+            if problem:
+                raise MeshFormatError(f"could not read the {file_type.upper()} file: {problem}",
+                                      field="file")
         options = {"maintain_order": True, "skip_materials": True} if file_type == "obj" else {}
         try:
             loaded = trimesh.load(
                 io.BytesIO(data), file_type=file_type, force="mesh", process=False, **options
             )
         except Exception as exc:  # trimesh raises many types on bad input
-            raise MeshFormatError(f"could not parse {file_type.upper()} file: {exc}",
+            # The parser's own text is not shown (it names internals, not the file's problem).
+            log.info("%s parse error: %s: %s", file_type, type(exc).__name__, exc)
+            raise MeshFormatError(f"could not parse the {file_type.upper()} file: it is "
+                                  f"malformed or not a {file_type.upper()} file",
                                   field="file") from exc
         vertices = np.asarray(getattr(loaded, "vertices", np.empty((0, 3))))
         faces = np.asarray(getattr(loaded, "faces", np.empty((0, 3))))

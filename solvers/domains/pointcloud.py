@@ -6,10 +6,11 @@ import numpy as np
 import robust_laplacian
 import scipy.sparse as sp
 
-from solvers.domains.base import Domain
+from solvers.domains.base import Domain, domain_input
 from solvers.errors import DomainError
 from solvers.kernels import ImplicitEulerHeatKernel
 from solvers.linalg import Backend
+from solvers.validation import check_int
 
 
 class PointCloud(Domain):
@@ -29,7 +30,10 @@ class PointCloud(Domain):
 
     def __init__(self, points, n_neighbors: int = 30):
         super().__init__()
-        p = np.asarray(points, dtype=np.float64)
+        try:
+            p = np.asarray(points, dtype=np.float64)
+        except (TypeError, ValueError, OverflowError) as exc:
+            raise DomainError("points must be an (n, 3) array of numbers", field="points") from exc
         if p.ndim != 2 or p.shape[1] != 3:
             raise DomainError(f"points must have shape (n, 3), got {p.shape}", field="points")
         if len(p) < 4:
@@ -38,22 +42,45 @@ class PointCloud(Domain):
         if not np.all(np.isfinite(p)):
             bad = int(np.argwhere(~np.isfinite(p))[0, 0])
             raise DomainError(f"point {bad} has a NaN or infinite coordinate", field="points")
-        n_neighbors = int(n_neighbors)
-        if not 3 <= n_neighbors < len(p):
-            raise DomainError(f"n_neighbors must lie in [3, {len(p) - 1}]",
-                              field="n_neighbors")
+        with domain_input():
+            n_neighbors = check_int(n_neighbors, "n_neighbors", low=3, high=len(p) - 1)
+        distinct = len(np.unique(p, axis=0))
+        if distinct < len(p):
+            raise DomainError(f"points holds {len(p) - distinct} repeated points (each point "
+                              "must appear once)", field="points")
+        # Laplacian and masses are computed on the cloud centered and scaled into the unit
+        # box (the weak Laplacian is scale invariant, masses scale with the square), so huge
+        # or tiny coordinates cannot overflow.
+        center = 0.5 * (p.max(axis=0) + p.min(axis=0))
+        with np.errstate(over="ignore"):
+            box = float(np.max(np.abs(p - center)))
+        if not np.isfinite(box) or box <= 0:
+            raise DomainError("point coordinates span a range too large to represent",
+                              field="points")
+        unit = (p - center) / box
         self._input_points = p
         self.n_neighbors = n_neighbors
-        lap, mass = robust_laplacian.point_cloud_laplacian(p, n_neighbors=n_neighbors)
+        try:
+            lap, mass = robust_laplacian.point_cloud_laplacian(unit, n_neighbors=n_neighbors)
+        except (RuntimeError, ValueError) as exc:
+            raise DomainError("could not build the point-cloud Laplacian (are the points "
+                              "degenerate, e.g. all on a line?)", field="points") from exc
         mass = np.asarray(mass.diagonal(), dtype=np.float64)
+        lap = sp.csr_matrix(lap)
+        if not (np.all(np.isfinite(mass)) and np.all(np.isfinite(lap.data))):
+            raise DomainError("the point-cloud Laplacian is not finite (degenerate points)",
+                              field="points")
         if not np.all(mass > 0):
-            raise DomainError("some points received no area (duplicates?)", field="points")
-        total = float(mass.sum())
-        self.length_scale = float(np.sqrt(total))
+            raise DomainError("some points received no area (near-duplicates?)", field="points")
+        total = float(mass.sum())  # area of the unit-box cloud
+        if not (np.isfinite(total) and total > 0):
+            raise DomainError("the estimated surface area of the points is not finite",
+                              field="points")
+        self.length_scale = float(np.sqrt(total)) * box
         self.points = p / self.length_scale
         self.areas = mass / total
         # The weak Laplacian is scale invariant on surfaces; only masses rescale.
-        self._laplacian = sp.csr_matrix(lap)
+        self._laplacian = lap
 
     @property
     def n(self) -> int:
