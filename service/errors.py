@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 
+import numpy as np
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
@@ -106,16 +107,66 @@ def from_library(exc: OTGeoError) -> ApiError:
 
 
 def error_dict(exc: BaseException) -> dict:
-    """``{"code", "message", "field"}`` for any exception (used for failed jobs)."""
+    """``{"code", "message", "field"}`` for any exception (used for failed jobs).
+
+    Errors raised on purpose (``ApiError``, the library's ``OTGeoError``) keep their
+    message and field. Anything else never shows its text (it may name internals or server
+    paths): numerical breakdowns and memory exhaustion get a fixed message of their own,
+    the rest a generic one; the caller logs the exception with its traceback.
+    """
     if isinstance(exc, OTGeoError):
         exc = from_library(exc)
     if isinstance(exc, ApiError):
         return exc.body()["error"]
-    return {"code": "internal_error", "message": f"{type(exc).__name__}: {exc}", "field": None}
+    if isinstance(exc, MemoryError):
+        return {"code": "out_of_memory", "field": None,
+                "message": "the job ran out of memory; use fewer points or columns"}
+    if isinstance(exc, (ArithmeticError, np.linalg.LinAlgError)) or (
+            isinstance(exc, RuntimeError) and "positive definite" in str(exc)):
+        return {"code": "numerical_error", "field": None,
+                "message": "the computation broke down numerically (a factorization or "
+                "iteration failed); a smaller gamma or better-conditioned input may help"}
+    return {"code": "internal_error", "field": None,
+            "message": "internal error while running the job (logged on the server)"}
 
 
-def field_from_loc(loc) -> str | None:
-    parts = [str(p) for p in loc if p not in ("body", "query", "path", "header", "form")]
+def _is_union_tag(part) -> bool:
+    """A pydantic union member in an error location ('list[float]', 'BumpDistribution',
+    'tuple[int, int]', 'function-after[...]'), not a field name."""
+    return isinstance(part, str) and ("[" in part or part[:1].isupper())
+
+
+def most_relevant_error(errors: list[dict]) -> dict:
+    """The error to report: for a value matching no member of a union, the member it came
+    closest to (errors that only say "not this member's type" are skipped, then the member
+    with the fewest problems wins), so ``{"vertex": 0, "radius": Infinity}`` is reported at
+    ``radius``, not as "not a list"."""
+    def member(err):
+        loc = tuple(err.get("loc", ()))
+        for i, part in enumerate(loc):
+            if _is_union_tag(part):
+                return loc[:i + 1]
+        return None
+
+    tagged = [(member(e), e) for e in errors]
+    if not any(m is not None for m, _ in tagged):
+        return errors[0]
+    shape_only = {m for m, e in tagged if m is not None and tuple(e.get("loc", ())) == m
+                  and str(e.get("type", "")).endswith("_type")}
+    candidates = [(m, e) for m, e in tagged if m not in shape_only] or tagged
+    counts: dict = {}
+    for m, _ in candidates:
+        counts[m] = counts.get(m, 0) + 1
+    return min(candidates, key=lambda me: counts[me[0]])[1]
+
+
+def field_from_loc(loc, elements: bool = False) -> str | None:
+    """The request field of an error location (``fixed[0].node``); trailing list indices
+    are dropped (``points[3][1]`` -> ``points``) unless ``elements`` (for messages)."""
+    parts = [str(p) for p in loc if p not in ("body", "query", "path", "header", "form")
+             and not _is_union_tag(p)]
+    while parts and not elements and len(parts) > 1 and parts[-1].isdigit():
+        parts.pop()
     if not parts:
         return None
     out = parts[0]
@@ -171,10 +222,11 @@ def install_handlers(app: FastAPI) -> None:
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError):
         errors = exc.errors()
-        first = errors[0] if errors else {"loc": (), "msg": "invalid request"}
+        first = most_relevant_error(errors) if errors else {"loc": (), "msg": "invalid request"}
         field = field_from_loc(first.get("loc", ()))
+        where = field_from_loc(first.get("loc", ()), elements=True)
         msg = first.get("msg", "invalid request")
-        message = f"{field}: {msg}" if field else msg
+        message = f"{where}: {msg}" if where else msg
         if len(errors) > 1:
             message += f" (and {len(errors) - 1} more problems)"
         return JSONResponse(InvalidInput(message, field=field).body(), status_code=422)

@@ -15,8 +15,12 @@ def timestamp(value: float | None) -> datetime | None:
 
 
 # -- domains ----------------------------------------------------------------------
+# Request bodies refuse Infinity/NaN (JSON extensions, or 1e400 read as inf) at the door.
+SPEC_CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
 class GridSpec(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = SPEC_CONFIG
     kind: Literal["grid"]
     shape: list[int] = Field(min_length=1, max_length=3, description="nodes per axis")
     bounds: list[list[float]] | None = Field(None, description="(lo, hi) per axis; "
@@ -25,7 +29,7 @@ class GridSpec(BaseModel):
 
 
 class GraphSpec(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = SPEC_CONFIG
     kind: Literal["graph"]
     n_nodes: int = Field(ge=1)
     edges: list[list[int]] = Field(description="(m, 2) node index pairs")
@@ -34,18 +38,19 @@ class GraphSpec(BaseModel):
 
 
 class PointCloudSpec(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = SPEC_CONFIG
     kind: Literal["pointcloud"]
     points: list[list[float]] = Field(description="(n, 3) coordinates")
     n_neighbors: int = 30
 
 
 class MeshSpec(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = SPEC_CONFIG
     kind: Literal["mesh"]
     vertices: list[list[float]] = Field(description="(n, 3) coordinates")
     faces: list[list[int]] = Field(description="(m, 3) vertex indices")
     laplacian: Literal["robust", "cotan"] = "robust"
+    weld: bool = Field(False, description="merge vertices at equal positions (seams)")
 
 
 DomainSpec = Annotated[GridSpec | GraphSpec | PointCloudSpec | MeshSpec,
@@ -68,7 +73,11 @@ class DomainOut(BaseModel):
     diagnostics: dict = Field(default_factory=dict)
     warnings: list[str] = Field(default_factory=list)
     parameters: dict = Field(default_factory=dict)
-    source: dict = Field(default_factory=dict)
+    source: dict = Field(default_factory=dict, description="the upload that stored the domain")
+    already_existed: bool = Field(False, description="this upload gave a domain stored "
+                                  "before (same content id): it was not stored again, and "
+                                  "`source` is the earlier upload")
+    upload: dict | None = Field(None, description="this upload, when it differs from `source`")
     summary: dict = Field(default_factory=dict)
     created_at: datetime
     links: dict[str, str]
@@ -86,10 +95,17 @@ class DomainOut(BaseModel):
                                 closed=bool(s.get("closed", False)))
         diagnostics = dict(s.get("diagnostics") or {})
         warnings = list(diagnostics.pop("warnings", []))
+        existed = bool(meta.get("already_existed"))
+        if existed:
+            src = meta.get("source") or {}
+            name = src.get("filename") or "a JSON body"
+            warnings.insert(0, f"this domain already existed: stored before from {name} "
+                            f"({src.get('format', 'json')}); the stored domain is returned")
         return cls(id=meta["id"], kind=meta["kind"], n=int(s["n"]), sizes=sizes,
                    genus=s.get("genus"), components=int(s.get("components", 1)),
                    boundary=boundary, diagnostics=diagnostics, warnings=warnings,
                    parameters=meta.get("parameters") or {}, source=meta.get("source") or {},
+                   already_existed=existed, upload=meta.get("upload") if existed else None,
                    summary=s, created_at=timestamp(meta.get("created_at", 0.0)),
                    links={"self": f"/v1/domains/{meta['id']}"})
 

@@ -15,6 +15,7 @@ from service.operations.base import (
     Operation,
     OperationOutput,
     OperationRequest,
+    check_options,
     check_same_components,
     default_gamma,
     resolve_all,
@@ -27,6 +28,7 @@ from solvers.convolutional import (
     wasserstein_propagation,
 )
 from solvers.emd import earth_movers_distance, pointwise_distances
+from solvers.validation import check_anchored, check_edge_weights, check_edges, check_weights
 
 
 class SinkhornOptions(OperationRequest):
@@ -102,6 +104,7 @@ class FlowRequest(W1Options):
 
 # -- helpers ------------------------------------------------------------------
 def _pair(view: DomainView, req) -> tuple[dict[str, np.ndarray], list[dict]]:
+    check_options(view, req)
     masses, reports = resolve_all(view, {"mu0": req.mu0, "mu1": req.mu1}, req.input)
     check_same_components(view, masses)
     return masses, reports
@@ -166,21 +169,11 @@ def run_distance(domain, req: DistanceRequest, progress, should_cancel) -> Opera
 
 # -- barycenters --------------------------------------------------------------
 def _barycenter_inputs(view: DomainView, req: BarycenterRequest):
+    check_options(view, req)
     specs = {f"distributions[{i}]": d for i, d in enumerate(req.distributions)}
     masses, reports = resolve_all(view, specs, req.input)
     check_same_components(view, masses)
-    k = len(req.distributions)
-    if req.weights is None:
-        weights = np.full(k, 1.0 / k)
-    else:
-        weights = np.asarray(req.weights, dtype=np.float64)
-        if weights.shape != (k,):
-            raise InvalidInput(f"weights must have one value per distribution ({k}), got "
-                               f"{len(req.weights)}", field="weights")
-        if not np.all(np.isfinite(weights)) or np.any(weights < 0) or weights.sum() <= 0:
-            raise InvalidInput("weights must be finite, non-negative, with a positive sum",
-                               field="weights")
-        weights = weights / weights.sum()
+    weights = check_weights(req.weights, len(req.distributions), "weights")
     return np.stack(list(masses.values()), axis=1), weights, reports
 
 
@@ -226,12 +219,13 @@ def run_interpolation(domain, req: InterpolationRequest, progress, should_cancel
 
 # -- propagation on a graph of distributions (thesis Alg. 4) -----------------------------
 def _propagation_inputs(view: DomainView, req: PropagationRequest):
-    e = np.asarray(req.edges, dtype=np.int64).reshape(-1, 2)
-    if len(e) and (e.min() < 0 or e.max() >= req.n_nodes):
-        raise InvalidInput(f"edge endpoints must lie in [0, {req.n_nodes - 1}]", field="edges")
-    if req.edge_weights is not None and len(req.edge_weights) != len(e):
-        raise InvalidInput(f"edge_weights must have one value per edge ({len(e)})",
-                           field="edge_weights")
+    check_options(view, req)
+    if req.n_nodes < 2:
+        raise InvalidInput("propagation needs at least two nodes", field="n_nodes")
+    e = check_edges(req.edges, req.n_nodes, "edges")
+    if len(e) == 0:
+        raise InvalidInput("edges must list at least one node pair", field="edges")
+    check_edge_weights(req.edge_weights, len(e), "edge_weights")
     specs, seen = {}, set()
     for i, item in enumerate(req.fixed):
         if item.node >= req.n_nodes:
@@ -241,6 +235,7 @@ def _propagation_inputs(view: DomainView, req: PropagationRequest):
             raise InvalidInput(f"node {item.node} is fixed twice", field=f"fixed[{i}].node")
         seen.add(item.node)
         specs[f"fixed[{i}].distribution"] = item.distribution
+    check_anchored(req.n_nodes, e, seen, "edges")
     masses, reports = resolve_all(view, specs, req.input)
     check_same_components(view, masses)
     fixed = {item.node: m for item, m in zip(req.fixed, masses.values(), strict=True)}
@@ -271,6 +266,7 @@ def _validate_pointwise(view, req: PointwiseDistanceRequest) -> list[dict]:
     if req.source >= view.n:
         raise InvalidInput(f"source {req.source} out of range [0, {view.n - 1}]",
                            field="source")
+    check_options(view, req)
     return []
 
 
