@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from solvers.convolutional.barycenter import barycenters_log, sharpen_log  # noqa: F401
+from solvers.convolutional.barycenter import barycenters_log
 from solvers.convolutional.common import entropy, masses_from_log, prepare
 from solvers.domains.grid import Grid
 from solvers.errors import InputError
