@@ -131,7 +131,7 @@ def check_label_count(labeled, histograms=None, samples=None, densities=None) ->
 def propagate_histograms(graph, labeled, histograms=None, *, bins=None, samples=None,
                          densities=None, route: Route = "wasserstein", levels: int = 100,
                          laplacian: str = "auto", solver: str = "auto",
-                         rank_tol: float = 1e-12, tol: float = 1e-10, max_iter: int = 500,
+                         rank_tol: float = 1e-9, tol: float = 1e-10, max_iter: int = 500,
                          progress=None, should_cancel=None) -> HistogramPropagationResult:
     r"""Propagate labeled distributions to every node (Prop. 13; PDF baseline).
 
@@ -172,8 +172,9 @@ def propagate_histograms(graph, labeled, histograms=None, *, bins=None, samples=
         V[order] = q
         ext = harmonic_extension(system, V, rank_tol=rank_tol, tol=tol, max_iter=max_iter,
                                  progress=progress, should_cancel=should_cancel)
-        Q = np.sort(ext.values, axis=1)  # monotone already with non-negative weights
-        H = None if b is None else histograms_from_inverse_cdf(Q, lev, b)
+        Q = ext.values
+        Q.sort(axis=1)  # in place; monotone already with non-negative weights
+        H = None if b is None else histograms_from_inverse_cdf(Q, lev, b, sorted_rows=True)
     else:
         if b is None:
             raise InputError("route='pdf' needs bins", field="bins")
@@ -182,7 +183,7 @@ def propagate_histograms(graph, labeled, histograms=None, *, bins=None, samples=
         V[order] = h
         ext = harmonic_extension(system, V, rank_tol=rank_tol, tol=tol, max_iter=max_iter,
                                  progress=progress, should_cancel=should_cancel)
-        H = np.clip(ext.values, 0.0, None)
+        H = np.clip(ext.values, 0.0, None, out=ext.values)
         H /= H.sum(axis=1, keepdims=True)
         Q, lev = None, None
     return HistogramPropagationResult(
