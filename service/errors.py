@@ -226,6 +226,13 @@ def install_handlers(app: FastAPI) -> None:
         field = field_from_loc(first.get("loc", ()))
         where = field_from_loc(first.get("loc", ()), elements=True)
         msg = first.get("msg", "invalid request")
+        if first.get("type") == "json_invalid":  # loc is ("body", <byte offset>)
+            offset = first.get("loc", (None, None))[-1]
+            field = "body"
+            msg = "body is not valid JSON" + (f" (at byte {offset})"
+                                              if isinstance(offset, int) else "")
+            return JSONResponse(InvalidInput(msg, field=field, code="invalid_json").body(),
+                                status_code=422)
         message = f"{where}: {msg}" if where else msg
         if len(errors) > 1:
             message += f" (and {len(errors) - 1} more problems)"

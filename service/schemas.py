@@ -112,6 +112,8 @@ class DomainOut(BaseModel):
 
 class DomainList(BaseModel):
     domains: list[DomainOut]
+    next_cursor: str | None = Field(None, description="pass as ?cursor= for the next page; "
+                                    "null on the last page")
 
 
 # -- jobs -------------------------------------------------------------------------
@@ -121,6 +123,10 @@ JobState = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 class JobProgress(BaseModel):
     iteration: int | None = None
     residual: float | None = None
+    fraction: float | None = Field(None, description="estimated fraction done, 0..1 (from "
+                                   "the residual's decrease towards tol, or iteration/max_iter)")
+    eta_seconds: float | None = Field(None, description="estimated seconds left while running "
+                                      "(elapsed × (1 − fraction) / fraction)")
 
 
 class JobOut(BaseModel):
@@ -129,6 +135,10 @@ class JobOut(BaseModel):
     domain_id: str
     state: JobState
     progress: JobProgress
+    queue: Literal["short", "long"] = Field(
+        "short", description="the queue the job was sent to (chosen by its estimated cost)")
+    queue_position: int | None = Field(None, description="while queued: 1 = next to run "
+                                       "in its queue")
     attempts: int
     error: ErrorBody | None = None
     cancel_requested: bool
@@ -144,7 +154,11 @@ class JobOut(BaseModel):
         base = f"/v1/jobs/{row.id}"
         return cls(
             id=row.id, operation=row.operation, domain_id=row.domain_id, state=row.state,
-            progress=JobProgress(iteration=row.iteration, residual=row.residual),
+            progress=JobProgress(iteration=row.iteration, residual=row.residual,
+                                 fraction=getattr(row, "fraction", None),
+                                 eta_seconds=_eta(row)),
+            queue=getattr(row, "queue", None) or "short",
+            queue_position=getattr(row, "queue_position", None),
             attempts=row.attempts, error=ErrorBody(**row.error) if row.error else None,
             cancel_requested=bool(row.cancel_requested), time_limit=row.time_limit,
             created_at=timestamp(row.created_at), started_at=timestamp(row.started_at),
@@ -153,8 +167,21 @@ class JobOut(BaseModel):
                    "events": f"{base}/events", "domain": f"/v1/domains/{row.domain_id}"})
 
 
+def _eta(row) -> float | None:
+    """Seconds left of a running job from its fraction done (None until it reports one)."""
+    import time
+
+    fraction = getattr(row, "fraction", None)
+    if row.state != "running" or not fraction or row.started_at is None:
+        return None
+    elapsed = max(time.time() - row.started_at, 0.0)
+    return round(elapsed * (1.0 - fraction) / fraction, 3)
+
+
 class JobList(BaseModel):
     jobs: list[JobOut]
+    next_cursor: str | None = Field(None, description="pass as ?cursor= for the next page; "
+                                    "null on the last page")
 
 
 class ResultFileInfo(BaseModel):
@@ -182,7 +209,15 @@ class ArrayRow(BaseModel):
     values: list[float | None] = Field(description="the row (null for non-finite)")
 
 
+class StorageHealth(BaseModel):
+    writable: bool = Field(description="the data directory takes writes (probed)")
+    free_bytes: int | None = None
+    low_space: bool = Field(False, description="free_bytes below OTGEO_MIN_FREE_BYTES")
+    reason: str | None = Field(None, description="why it does not take writes")
+
+
 class Health(BaseModel):
-    status: Literal["ok"]
+    status: Literal["ok", "degraded"]
     queue: str
     version: str
+    storage: StorageHealth | None = None

@@ -37,11 +37,21 @@ async def job_service(request: Request) -> JobService:
 
 async def require_api_key(request: Request,
                           key: str | None = Security(api_key_header)) -> None:
+    """The key check as the routers declare it (OpenAPI security); service.api.guards runs
+    the same check before the body is read, so this one only backs it up."""
     keys = get_runtime(request).settings.api_keys
     if not keys:
         return
     if key is None or not any(hmac.compare_digest(key, k) for k in keys):
         raise Unauthorized("missing or invalid X-API-Key header", field="X-API-Key")
+
+
+async def require_metrics_key(request: Request,
+                              key: str | None = Security(api_key_header)) -> None:
+    """/metrics (host names, process ids): behind the key unless OTGEO_METRICS_OPEN."""
+    if get_runtime(request).settings.metrics_open:
+        return
+    await require_api_key(request, key)
 
 
 DomainSvc = Annotated[DomainService, Depends(domain_service)]

@@ -2,18 +2,22 @@
 
 from __future__ import annotations
 
-import json
+import asyncio
+from typing import Annotated, Literal
 
-from fastapi import APIRouter, Request, Response
+from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
-from pydantic import TypeAdapter, ValidationError
+from pydantic import TypeAdapter
 
+from service.api.bodies import parse_spec
 from service.api.deps import DomainSvc, get_runtime
+from service.api.paging import decode_cursor, encode_cursor
 from service.errors import (
+    ApiError,
+    ErrorResponse,
     InvalidInput,
     PayloadTooLarge,
     UnsupportedMediaType,
-    field_from_loc,
     responses,
 )
 from service.schemas import DomainList, DomainOut, DomainSpec
@@ -33,7 +37,14 @@ UPLOAD_BODY = {
                            "has no extension (obj, ply, stl, off, glb, gltf)"},
                 "laplacian": {"type": "string", "enum": ["robust", "cotan"],
                               "default": "robust"},
+                "weld": {"type": "boolean", "description": "merge vertices at equal "
+                         "positions (seams); default: the format's usual behaviour"},
             }}},
+    },
+}
+JSON_BODY = {
+    "required": True,
+    "content": {
         "application/json": {"schema": {"$ref": "#/components/schemas/DomainSpec"}},
     },
 }
@@ -55,62 +66,109 @@ async def _read_body(request: Request, limit: int) -> bytes:
     return body
 
 
-@router.post("", operation_id="createDomain", status_code=201, response_model=DomainOut,
-             summary="Upload a domain (mesh file, or JSON grid/graph/point cloud/mesh)",
-             openapi_extra={"requestBody": UPLOAD_BODY},
-             responses={200: {"model": DomainOut, "description": "already stored (same id)"},
-                        **responses(401, 413, 415, 422)})
-async def create_domain(request: Request, response: Response,
-                        svc: DomainSvc):
+def _parse_multipart(body: bytes, headers, limit: int) -> tuple:
+    """``(file bytes, file name, format, laplacian, weld)`` of a multipart upload, parsed in
+    the calling thread (the thread pool) on its own event loop."""
+    from starlette.formparsers import MultiPartParser
+
+    async def stream():
+        yield body
+
+    async def parse():
+        form = await MultiPartParser(headers, stream(), max_part_size=limit).parse()
+        try:
+            upload = form.get("file")
+            if upload is None or isinstance(upload, str):
+                raise InvalidInput("multipart upload needs a 'file' part", field="file")
+            data = await upload.read()
+            fmt, laplacian = form.get("format"), form.get("laplacian") or "robust"
+            weld = form.get("weld")
+            return (data, upload.filename, fmt if isinstance(fmt, str) else None,
+                    str(laplacian), weld if isinstance(weld, str) else None)
+        finally:
+            await form.close()
+
+    try:
+        return asyncio.run(parse())
+    except ApiError:
+        raise
+    except Exception as exc:  # malformed multipart body
+        detail = getattr(exc, "detail", None) or type(exc).__name__
+        raise InvalidInput(f"malformed multipart upload: {detail}", field="file") from exc
+
+
+async def _create(request: Request, response: Response, svc, allow_json: bool,
+                  allow_multipart: bool):
     limit = get_runtime(request).settings.max_upload_bytes
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
-    body = await _read_body(request, limit)
-    if ctype == "multipart/form-data":
-        try:
-            form = await request.form(max_part_size=limit)
-        except Exception as exc:  # malformed multipart body
-            detail = getattr(exc, "detail", None) or str(exc)
-            raise InvalidInput(f"malformed multipart upload: {detail}", field="file") from exc
-        upload = form.get("file")
-        if upload is None or isinstance(upload, str):
-            raise InvalidInput("multipart upload needs a 'file' part", field="file")
-        data = await upload.read()
-        fmt = form.get("format")
-        laplacian = form.get("laplacian") or "robust"
-        meta, created = await run_in_threadpool(
-            svc.from_file, data, upload.filename, fmt if isinstance(fmt, str) else None,
-            str(laplacian))
-    elif ctype in ("application/json", ""):
-        if not body:
-            raise InvalidInput("empty request body", field="body")
-        try:
-            raw = json.loads(body)
-        except ValueError as exc:
-            raise InvalidInput(f"body is not valid JSON: {exc}", field="body") from exc
-        try:
-            spec = SPEC.validate_python(raw)
-        except ValidationError as exc:
-            err = exc.errors()[0]
-            loc = list(err["loc"])
-            if loc and isinstance(raw, dict) and loc[0] == raw.get("kind"):
-                loc = loc[1:]  # drop the union tag
-            tag_error = err["type"] in ("union_tag_invalid", "union_tag_not_found")
-            field = "kind" if tag_error else (field_from_loc(loc) or "body")
-            raise InvalidInput(f"{field}: {err['msg']}", field=field) from exc
+    if ctype == "multipart/form-data" and allow_multipart:
+        body = await _read_body(request, limit)
+        data, filename, fmt, laplacian, weld = await run_in_threadpool(
+            _parse_multipart, body, request.headers, limit)
+        meta, created = await run_in_threadpool(svc.from_file, data, filename, fmt, laplacian,
+                                                weld)
+    elif ctype in ("application/json", "") and allow_json:
+        body = await _read_body(request, limit)
+        spec = await parse_spec(body)
         meta, created = await run_in_threadpool(svc.from_spec, spec)
+    elif allow_json:
+        raise UnsupportedMediaType(f"content type {ctype!r}: send application/json (or a mesh "
+                                   "file as multipart/form-data to /v1/domains/upload)",
+                                   field="content-type")
     else:
         raise UnsupportedMediaType(f"content type {ctype!r}: send multipart/form-data with a "
-                                   "mesh file, or application/json", field="content-type")
+                                   "'file' part (JSON domains go to POST /v1/domains)",
+                                   field="content-type")
     if not created:
         response.status_code = 200
     response.headers["Location"] = f"/v1/domains/{meta['id']}"
     return DomainOut.from_meta(meta)
 
 
+CREATED = {200: {"model": DomainOut, "description": "already stored (same id)"},
+           503: {"model": ErrorResponse, "description": "storage cannot take writes "
+                 "(`storage_unavailable`)"}}
+
+
+@router.post("", operation_id="createDomain", status_code=201, response_model=DomainOut,
+             summary="Create a domain from JSON (grid, graph, point cloud or mesh arrays)",
+             openapi_extra={"requestBody": JSON_BODY},
+             responses={**CREATED, **responses(400, 401, 413, 415, 422)})
+async def create_domain(request: Request, response: Response, svc: DomainSvc):
+    """A JSON domain (``{"kind": "grid" | "graph" | "pointcloud" | "mesh", ...}``). A mesh
+    file sent here as multipart/form-data is accepted too (as by ``/v1/domains/upload``)."""
+    return await _create(request, response, svc, allow_json=True, allow_multipart=True)
+
+
+@router.post("/upload", operation_id="uploadDomain", status_code=201, response_model=DomainOut,
+             summary="Upload a mesh file (OBJ, PLY, STL, OFF, GLB, glTF) as multipart/form-data",
+             openapi_extra={"requestBody": UPLOAD_BODY},
+             responses={**CREATED, **responses(401, 413, 415, 422)})
+async def upload_domain(request: Request, response: Response, svc: DomainSvc):
+    return await _create(request, response, svc, allow_json=False, allow_multipart=True)
+
+
 @router.get("", operation_id="listDomains", response_model=DomainList,
-            responses=responses(401))
-def list_domains(svc: DomainSvc):
-    return DomainList(domains=[DomainOut.from_meta(m) for m in svc.list()])
+            responses=responses(401, 422))
+def list_domains(svc: DomainSvc,
+                 limit: Annotated[int, Query(ge=1, le=1000, description="page size")] = 100,
+                 cursor: Annotated[str | None, Query(
+                     description="`next_cursor` of the previous page")] = None,
+                 kind: Annotated[Literal["mesh", "grid", "graph", "pointcloud"] | None,
+                                 Query(description="only domains of this kind")] = None):
+    """Stored domains, oldest first, a page at a time (follow `next_cursor` until null)."""
+    after = decode_cursor(cursor)
+
+    def key(meta):
+        return (float(meta.get("created_at", 0.0)), meta["id"])
+
+    metas = sorted((m for m in svc.list() if kind is None or m.get("kind") == kind), key=key)
+    if after is not None:
+        metas = [m for m in metas if key(m) > after]
+    page = metas[:limit]
+    more = len(metas) > limit
+    return DomainList(domains=[DomainOut.from_meta(m) for m in page],
+                      next_cursor=encode_cursor(*key(page[-1])) if more else None)
 
 
 @router.get("/{domain_id}", operation_id="getDomain", response_model=DomainOut,

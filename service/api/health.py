@@ -4,20 +4,32 @@ from __future__ import annotations
 
 import time
 
-from fastapi import APIRouter
-from fastapi.responses import PlainTextResponse
+from fastapi import APIRouter, Depends
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import JSONResponse, PlainTextResponse
 
 from service import __version__
-from service.api.deps import RuntimeDep
+from service.api.deps import RuntimeDep, require_metrics_key
+from service.errors import ErrorResponse
 from service.jobs.db import QUEUED, RUNNING, STATES
 from service.schemas import Health
 
 router = APIRouter(tags=["health"])
 
 
-@router.get("/healthz", operation_id="health", response_model=Health)
+@router.get("/healthz", operation_id="health", response_model=Health,
+            responses={503: {"model": Health, "description": "storage cannot take writes "
+                             "(or is nearly full): `storage` says why"}})
 async def healthz(rt: RuntimeDep):
-    return Health(status="ok", queue=rt.settings.queue, version=__version__)
+    """Liveness plus storage: the data directory takes writes (a probe file is written and
+    removed, at most once a second) and its free bytes."""
+    storage = await run_in_threadpool(rt.storage_status)
+    ok = storage["writable"] and not storage["low_space"]
+    health = Health(status="ok" if ok else "degraded", queue=rt.settings.queue,
+                    version=__version__, storage=storage)
+    if ok:
+        return health
+    return JSONResponse(health.model_dump(mode="json"), status_code=503)
 
 
 def _labels(**kv) -> str:
@@ -26,8 +38,11 @@ def _labels(**kv) -> str:
 
 
 @router.get("/metrics", operation_id="getMetrics", response_class=PlainTextResponse,
+            dependencies=[Depends(require_metrics_key)],
             responses={200: {"content": {"text/plain": {}},
-                             "description": "Prometheus text exposition format"}})
+                             "description": "Prometheus text exposition format"},
+                       401: {"model": ErrorResponse, "description": "missing or wrong "
+                             "X-API-Key (unless OTGEO_METRICS_OPEN)"}})
 def metrics(rt: RuntimeDep):
     """Cache hits/misses and sizes (this process and every live worker), queue depth and job
     counts and durations (from the job table)."""

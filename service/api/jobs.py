@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import asyncio
 import json
-from typing import Annotated
+from typing import Annotated, Literal, Union
 
 from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import StreamingResponse
+from fastapi.responses import JSONResponse, StreamingResponse
+from pydantic import BaseModel, Field, create_model
 
 from service.api.deps import JobSvc
+from service.api.paging import decode_cursor, encode_cursor
 from service.errors import ErrorResponse, responses
 from service.jobs.db import TERMINAL
 from service.schemas import ArrayRow, JobList, JobOut, JobResult, JobState
@@ -22,16 +24,40 @@ EVENT_KEEPALIVE = 15.0
 
 
 @router.get("", operation_id="listJobs", response_model=JobList, responses=responses(401, 422))
-def list_jobs(svc: JobSvc, limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+def list_jobs(svc: JobSvc,
+              limit: Annotated[int, Query(ge=1, le=1000, description="page size")] = 100,
               state: Annotated[JobState | None,
-                               Query(description="only jobs in this state")] = None):
-    return JobList(jobs=[JobOut.from_row(j) for j in svc.list(limit, state)])
+                               Query(description="only jobs in this state")] = None,
+              operation: Annotated[str | None, Query(
+                  description="only jobs of this operation (e.g. barycenters)")] = None,
+              domain_id: Annotated[str | None, Query(
+                  description="only jobs on this domain")] = None,
+              cursor: Annotated[str | None, Query(
+                  description="`next_cursor` of the previous page")] = None):
+    """Jobs, newest first, a page at a time (follow `next_cursor` until it is null)."""
+    rows = svc.rt.repo.list(limit + 1, state, after=decode_cursor(cursor),
+                            operation=operation, domain_id=domain_id)
+    page = rows[:limit]
+    for row in page:
+        _with_position(svc, row)
+    more = len(rows) > limit
+    return JobList(jobs=[JobOut.from_row(j) for j in page],
+                   next_cursor=encode_cursor(page[-1].created_at, page[-1].id) if more else None)
+
+
+def _with_position(svc, job):
+    """Attach the queue position of a queued job (read by JobOut.from_row)."""
+    if job.state == "queued":
+        job.queue_position = svc.rt.repo.queue_position(job)
+    return job
 
 
 @router.get("/{job_id}", operation_id="getJob", response_model=JobOut,
             responses=responses(401, 404))
 def get_job(job_id: str, svc: JobSvc):
-    return JobOut.from_row(svc.get(job_id))
+    """State, progress (iteration, residual, fraction done, estimated seconds left) and,
+    while queued, the position in its queue."""
+    return JobOut.from_row(_with_position(svc, svc.get(job_id)))
 
 
 @router.delete("/{job_id}", operation_id="cancelJob", response_model=JobOut,
@@ -50,11 +76,50 @@ def get_job_result(job_id: str, svc: JobSvc,
     return svc.result(job_id, include_arrays=arrays)
 
 
+def result_models(operations) -> list[type[BaseModel]]:
+    """One result model per operation (``operation`` a constant, ``values`` the operation's
+    ``result_model``), then the generic JobResult: what ``getJobResult`` may return, so a
+    generated SDK parses each result into its operation's type."""
+    models = []
+    for op in operations.values():
+        base = op.operation_id[len("create"):] if op.operation_id.startswith("create") \
+            else op.operation_id[:1].upper() + op.operation_id[1:]
+        values = op.result_model or dict
+        models.append(create_model(
+            f"{base}Result", __base__=JobResult,
+            __doc__=f"Result of a `{op.name}` job.",
+            operation=(Literal[op.name], Field(description="the operation")),
+            values=(values, Field(description=f"values of the {op.name} result"))))
+    return [*models, JobResult]
+
+
+def build_result_router(operations) -> APIRouter:
+    """``GET /v1/jobs/{job_id}/result`` typed by the app's operation registry."""
+    results = APIRouter(prefix="/v1/jobs", tags=["jobs"])
+    models = result_models(operations)
+    union = models[0] if len(models) == 1 else Union[tuple(models)]  # noqa: UP007
+
+    @results.get("/{job_id}/result", operation_id="getJobResult", response_model=union,
+                 responses={409: {"model": ErrorResponse, "description": "job not "
+                                  "(successfully) finished"}, **responses(401, 404)})
+    def get_job_result(job_id: str, svc: JobSvc,
+                       arrays: bool = Query(True, description="include result arrays")):
+        """The result: `values` typed per operation (see each `...Result` schema), arrays
+        as nested lists, files produced."""
+        return JSONResponse(svc.result(job_id, include_arrays=arrays))
+
+    return results
+
+
 @router.get("/{job_id}/result.glb", operation_id="getJobResultGlb",
             response_class=Response,
-            responses={200: {"content": {"model/gltf-binary": {
-                                 "schema": {"type": "string", "format": "binary"}}},
-                             "description": "glTF 2.0 binary of the result on its domain"},
+            responses={200: {"content": {
+                                 "model/gltf-binary": {
+                                     "schema": {"type": "string", "format": "binary"}},
+                                 "application/octet-stream": {
+                                     "schema": {"type": "string", "format": "binary"}}},
+                             "description": "glTF 2.0 binary of the result on its domain "
+                             "(sent as model/gltf-binary)"},
                        409: {"model": ErrorResponse, "description": "job not finished"},
                        **responses(401, 404, 422)})
 def get_job_result_glb(job_id: str, svc: JobSvc):

@@ -137,5 +137,5 @@ def test_unknown_ids_and_routes(client):
 
 
 def test_list_jobs_state_filter_is_validated(client):
-    assert client.get("/v1/jobs?state=queued").json() == {"jobs": []}
+    assert client.get("/v1/jobs?state=queued").json() == {"jobs": [], "next_cursor": None}
     assert_error(client.get("/v1/jobs?state=sleeping"), 422, "state")

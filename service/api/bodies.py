@@ -1,0 +1,125 @@
+"""Parsing and validating JSON domain bodies without stalling the event loop.
+
+``json.loads`` and pydantic validation of a 12 MB graph are single C calls that hold the GIL
+for seconds, so a thread does not keep the loop answering: bodies above
+``IN_PROCESS_BYTES`` are parsed in a child process, which sends back the large numeric
+arrays as numpy arrays (a memory copy to unpickle, instead of rebuilding a million Python
+lists). Smaller bodies are parsed in the thread pool. Either way the result is the same
+validated ``DomainSpec`` (large array fields as numpy arrays when they convert losslessly).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import multiprocessing
+import threading
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+
+import numpy as np
+from pydantic import TypeAdapter, ValidationError
+
+from service.errors import ApiError, InvalidInput, field_from_loc
+from service.schemas import DomainSpec, GraphSpec, GridSpec, MeshSpec, PointCloudSpec
+
+log = logging.getLogger("otgeo.service")
+
+SPEC = TypeAdapter(DomainSpec)
+IN_PROCESS_BYTES = 1 << 20  # bodies from 1 MiB on are parsed in a child process
+KINDS = {"grid": GridSpec, "graph": GraphSpec, "pointcloud": PointCloudSpec, "mesh": MeshSpec}
+ARRAY_FIELDS = {"edges": np.int64, "faces": np.int64, "points": np.float64,
+                "vertices": np.float64, "positions": np.float64, "weights": np.float64}
+
+
+def _too_deep() -> ApiError:
+    return ApiError("body is nested too deeply to be a domain", field="body", code="invalid_json")
+
+
+def spec_from_json(body: bytes):
+    """The validated DomainSpec of a JSON body; ApiError naming the field otherwise."""
+    if not body:
+        raise InvalidInput("empty request body", field="body")
+    try:
+        raw = json.loads(body)
+    except RecursionError as exc:
+        raise _too_deep() from exc
+    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError
+        where = f" (line {exc.lineno}, column {exc.colno})" if hasattr(exc, "lineno") else ""
+        raise InvalidInput(f"body is not valid JSON{where}", field="body",
+                           code="invalid_json") from exc
+    try:
+        return SPEC.validate_python(raw)
+    except RecursionError as exc:
+        raise _too_deep() from exc
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = list(err["loc"])
+        if loc and isinstance(raw, dict) and loc[0] == raw.get("kind"):
+            loc = loc[1:]  # drop the union tag
+        tag_error = err["type"] in ("union_tag_invalid", "union_tag_not_found")
+        field = "kind" if tag_error else (field_from_loc(loc) or "body")
+        raise InvalidInput(f"{field}: {err['msg']}", field=field) from exc
+
+
+def compact_spec(body: bytes) -> tuple:
+    """In the child: ``("ok", kind, fields)`` with large numeric lists as arrays, or
+    ``("error", status, code, message, field)``."""
+    try:
+        spec = spec_from_json(body)
+    except ApiError as exc:
+        return ("error", exc.status_code, exc.code, exc.message, exc.field)
+    fields = {}
+    for name in type(spec).model_fields:
+        value = getattr(spec, name)
+        dtype = ARRAY_FIELDS.get(name)
+        if dtype is not None and isinstance(value, list) and len(value) > 64:
+            try:
+                value = np.asarray(value, dtype=dtype)
+            except (ValueError, OverflowError, TypeError):
+                pass  # ragged or out of range: sent as it is, the domain builder reports it
+        fields[name] = value
+    return ("ok", spec.kind, fields)
+
+
+_pool: ProcessPoolExecutor | None = None
+_pool_lock = threading.Lock()
+
+
+def _executor() -> ProcessPoolExecutor:
+    global _pool
+    with _pool_lock:
+        if _pool is None:
+            _pool = ProcessPoolExecutor(max_workers=1,
+                                        mp_context=multiprocessing.get_context("spawn"))
+        return _pool
+
+
+def _discard_pool() -> None:
+    global _pool
+    with _pool_lock:
+        pool, _pool = _pool, None
+    if pool is not None:
+        pool.shutdown(wait=False, cancel_futures=True)
+
+
+async def parse_spec(body: bytes):
+    """The validated DomainSpec of ``body``, parsed off the event loop."""
+    from fastapi.concurrency import run_in_threadpool
+
+    if len(body) < IN_PROCESS_BYTES:
+        return await run_in_threadpool(spec_from_json, body)
+    try:
+        out = await asyncio.wrap_future(_executor().submit(compact_spec, body))
+    except (BrokenProcessPool, OSError, RuntimeError) as exc:  # child died: parse here
+        log.warning("JSON parser process unavailable (%s); parsing in a thread", exc)
+        _discard_pool()
+        return await run_in_threadpool(spec_from_json, body)
+    if out[0] == "error":
+        _, status, code, message, field = out
+        err = ApiError(message, field=field, code=code)
+        err.status_code = status
+        raise err
+    _, kind, fields = out
+    return KINDS[kind].model_construct(**fields)
