@@ -16,6 +16,7 @@ const state = {
 window.otgeo = state; // for debugging in the console
 
 const view = new View($("view"));
+view.controls.addEventListener("change", () => { if (state.display && state.display.hist) drawPlots(); });
 state.view = view;
 const geometryCache = new Map();
 
@@ -222,6 +223,7 @@ function setProgress(job) {
   let frac = 0.03;
   if (job.state === "succeeded") frac = 1;
   else if (["failed", "cancelled"].includes(job.state)) frac = 1;
+  else if (p.fraction !== null && p.fraction !== undefined) frac = Math.max(frac, p.fraction);
   else if (p.iteration) {
     const req = state.jobRequest || {};
     if (req.max_iter) frac = Math.max(frac, p.iteration / req.max_iter);
@@ -235,6 +237,7 @@ function setProgress(job) {
   const parts = [job.state];
   if (p.iteration !== null && p.iteration !== undefined) parts.push(`iteration ${p.iteration}`);
   if (p.residual !== null && p.residual !== undefined) parts.push(`residual ${formatNumber(p.residual)}`);
+  if (p.eta_seconds) parts.push(`≈${p.eta_seconds.toFixed(1)} s left`);
   if (job.duration_seconds) parts.push(`${job.duration_seconds.toFixed(2)} s`);
   $("progress-text").textContent = parts.join(" · ");
   $("cancel").disabled = !["queued", "running"].includes(job.state);
@@ -346,7 +349,7 @@ function showField(name) {
   const perFace = geom.faces && s[0] === geom.faces.length / 3 && s[0] !== geom.n;
   const exp = result.export || {};
   const frames = s.length === 2 && (exp.frames || []).length === s[1];
-  state.display = { name, arr, perFace, frames };
+  state.display = { name, arr, perFace, frames, hist: histogramArray(result, geom) };
   $("frames").hidden = !frames;
   $("plots").replaceChildren();
   if (s.length === 1) {
@@ -363,12 +366,37 @@ function showField(name) {
     slider.oninput = () => showFrame(Number(slider.value));
     showFrame(0);
     legend(lo, hi, name);
-  } else { // (n, k) without frames: a histogram per point, plotted at the picks and on hover
+  } else { // (n, k) without frames: a histogram per point
+    state.display.hist = { name, arr };
     view.neutral(0);
     $("legend").hidden = true;
-    drawPlots();
+  }
+  drawPlots();
+  if (state.display.hist && !state.second) {
     view.onHover = ({ item, point }) => { if (item === 0) hoverPlot(point); };
   }
+}
+
+// A (n, k) result array of histograms per point (shown as small plots at the picks and under
+// the cursor): the export's "histograms", else an array named so.
+function histogramArray(result, geom) {
+  const exp = result.export || {};
+  const name = exp.histograms || (result.arrays.histograms ? "histograms" : null);
+  const arr = name && result.arrays[name];
+  if (!arr || shape(arr).length !== 2 || shape(arr)[0] !== geom.n) return null;
+  return { name, arr };
+}
+
+// One point's histogram; with frames (k = T * B columns) the current frame's B bins.
+function histogramRow(i) {
+  const d = state.display;
+  const row = d.hist.arr[i];
+  const T = ((state.result.export || {}).frames || []).length;
+  if (d.frames && T > 1 && row.length % T === 0) {
+    const B = row.length / T, t = Number($("frame").value);
+    return row.slice(t * B, (t + 1) * B);
+  }
+  return row;
 }
 
 function showFrame(t) {
@@ -378,6 +406,7 @@ function showFrame(t) {
   const times = (state.result.export || {}).frames || [];
   $("frame-label").textContent = `t = ${formatNumber(times[t])} (${t + 1}/${times.length})`;
   $("frame").dataset.frame = String(t);
+  if (d.hist) drawPlots();
 }
 
 function legend(lo, hi, label) {
@@ -393,25 +422,25 @@ function drawPlots() {
   const plots = $("plots");
   plots.replaceChildren();
   const d = state.display;
-  if (!d || d.frames || !Array.isArray(d.arr[0])) return;
+  if (!d || !d.hist) return;
   state.picks.forEach((p, i) => {
     const pos = view.screenPosition(0, p.vertex);
     if (!pos) return;
-    plots.appendChild(plotCanvas(d.arr[p.vertex], pos, pickColor(i)));
+    plots.appendChild(plotCanvas(histogramRow(p.vertex), pos, pickColor(i)));
   });
 }
 
 function hoverPlot(i) {
   const d = state.display;
-  if (!d || !Array.isArray(d.arr[0])) return;
+  if (!d || !d.hist) return;
   const h = $("hover");
   h.hidden = false;
-  h.textContent = `point ${i}`;
+  h.textContent = `point ${i}: ${d.hist.name}`;
   const old = $("plots").querySelector(".hover-plot");
   if (old) old.remove();
   const pos = view.screenPosition(0, i);
   if (!pos) return;
-  const c = plotCanvas(d.arr[i], pos, 0xffffff);
+  const c = plotCanvas(histogramRow(i), pos, 0xffffff);
   c.classList.add("hover-plot");
   $("plots").appendChild(c);
 }

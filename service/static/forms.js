@@ -184,7 +184,7 @@ export function buildForm(container, root, op, ctx) {
       input.type = "text";
       input.name = name;
       if (Array.isArray(s.default)) input.value = s.default.join(", ");
-      else if (name === "times") input.value = "0, 0.25, 0.5, 0.75, 1";
+      else if (name === "times" && isReq) input.value = "0, 0.25, 0.5, 0.75, 1";
       input.placeholder = "comma-separated" + (nullable ? " (default)" : "");
       row.appendChild(input);
       read = () => {
@@ -208,6 +208,15 @@ export function buildForm(container, root, op, ctx) {
       area.placeholder = "JSON" + (s.type ? ` (${s.type})` : "");
       if (s.default !== undefined && s.default !== null) area.value = JSON.stringify(s.default);
       row.appendChild(area);
+      const template = pickTemplate(root, s);
+      if (template) { // e.g. labeled nodes, fixed nodes: one item per pick, to be completed
+        const b = document.createElement("button");
+        b.type = "button";
+        b.className = "small";
+        b.textContent = "from picks";
+        b.onclick = () => { area.value = JSON.stringify(ctx.picks().map(template)); };
+        row.appendChild(b);
+      }
       read = () => {
         const t = area.value.trim();
         if (!t) { if (isReq) throw fieldError(name, `${name} is required (JSON)`); return undefined; }
@@ -233,6 +242,19 @@ export function buildForm(container, root, op, ctx) {
     return out;
   }
   return { collect };
+}
+
+// For an array of objects naming a point ("node"/"vertex"), a pick -> item function: items
+// with a distribution property get it from the pick (and their index as the node), others
+// the picked vertex.
+function pickTemplate(root, s) {
+  if (s.type !== "array") return null;
+  const item = deref(root, s.items);
+  const props = item.properties || {};
+  const key = ["node", "vertex"].find((k) => props[k] && deref(root, props[k]).type === "integer");
+  if (!key) return null;
+  const dist = Object.keys(props).find((k) => isDistribution(root, props[k]));
+  return (p, i) => (dist ? { [key]: i, [dist]: pickToDistribution(p) } : { [key]: p.vertex });
 }
 
 export function domainLabel(d) {

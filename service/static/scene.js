@@ -109,8 +109,8 @@ class Item {
     g.setAttribute("color", new THREE.BufferAttribute(new Float32Array(this.geom.n * 3), 3));
     g.computeBoundingSphere();
     const r = g.boundingSphere.radius || 1;
-    this.edgeLength = r / Math.cbrt(Math.max(this.geom.n, 1)) ;
-    const mat = new THREE.PointsMaterial({ size: Math.max(this.edgeLength * 0.9, r / 150),
+    this.edgeLength = 2 * r / Math.sqrt(Math.max(this.geom.n, 1)); // spacing of a 2-D spread
+    const mat = new THREE.PointsMaterial({ size: Math.max(this.edgeLength * 0.35, r / 300),
                                            vertexColors: true });
     this.object = new THREE.Points(g, mat);
     this.group.add(this.object);
@@ -280,7 +280,7 @@ export class View {
     const it = this.items[itemIndex];
     if (!it) return;
     it.markers.clear();
-    const s = it.edgeLength * 1.2;
+    const s = it.edgeLength * (it.kind === "surface" ? 1.2 : 0.4);
     picks.forEach((p, k) => {
       const color = pickColor(k);
       const dot = new THREE.Mesh(new THREE.SphereGeometry(s, 12, 8),

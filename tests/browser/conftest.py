@@ -12,6 +12,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "service"))
 from liveserver import API  # noqa: E402
 
+API_KEY = "viewer-test-key"  # the live server wants one: every test goes through the key form
 CHROMIUM = Path(os.environ.get("OTGEO_CHROMIUM", "/usr/bin/chromium"))
 CHROMIUM_ARGS = [
     "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -25,8 +26,9 @@ CHROMIUM_ARGS = [
 def live_api(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("viewer")
     env = {"OTGEO_DATA_DIR": str(tmp / "data"), "OTGEO_WORKERS": "1",
-           "OTGEO_REAPER_INTERVAL": "1"}
+           "OTGEO_REAPER_INTERVAL": "1", "OTGEO_API_KEYS": API_KEY}
     api = API(env, tmp)
+    api.key = API_KEY
     try:
         api.wait_healthy(60)
         yield api

@@ -79,10 +79,18 @@ def run_and_wait(page, operation_id: str) -> None:
     page.wait_for_selector("#legend:not([hidden])", timeout=TIMEOUT)
 
 
+def open_viewer(page, api, path: str = "/") -> None:
+    """Open the page; it asks for the API key (the server wants one) and lists the domains."""
+    page.goto(api.url + path)
+    page.wait_for_selector("#key-dialog[open]", timeout=TIMEOUT)
+    page.fill("#key-input", api.key)
+    page.click("#key-dialog button[value=ok]")
+    page.wait_for_selector("body[data-ready='1']", timeout=TIMEOUT)
+
+
 @pytest.fixture
 def spot_page(page, live_api):
-    page.goto(live_api.url + "/")
-    page.wait_for_selector("body[data-ready='1']", timeout=TIMEOUT)
+    open_viewer(page, live_api)
     drop_file(page, "#drop", MESHES_DIR / "spot.obj")
     page.wait_for_selector("#domains li.active", timeout=TIMEOUT)
     page.wait_for_selector("#empty", state="hidden")
@@ -90,8 +98,12 @@ def spot_page(page, live_api):
 
 
 def test_page_is_served_with_its_assets(page, live_api):
-    page.goto(live_api.url + "/viewer")
+    open_viewer(page, live_api, "/viewer")
+    assert page.evaluate("sessionStorage.getItem('otgeo.apiKey')") == live_api.key
+    page.reload()  # the tab keeps the key: asked once
     page.wait_for_selector("body[data-ready='1']", timeout=TIMEOUT)
+    assert page.locator("#key-dialog[open]").count() == 0
+    assert page.locator("#error").is_hidden()
     ops = page.locator("#operation option").all_inner_texts()
     # every operation of the OpenAPI schema has a form, none is hard-coded in the page
     for name in ("barycenters", "interpolations", "distances", "flows", "pointwise-distances"):

@@ -15,6 +15,7 @@ export class ApiError extends Error {
 }
 
 let askKey = async () => null; // set by the page: shows the key form, resolves to the key
+let asking = null; // one question at a time, shared by concurrent requests
 
 export function onKeyNeeded(fn) { askKey = fn; }
 export function apiKey() { return sessionStorage.getItem(KEY); }
@@ -33,7 +34,8 @@ function headers(extra) {
 export async function request(path, options = {}, retry = true) {
   const resp = await fetch(path, { ...options, headers: headers(options.headers) });
   if (resp.status === 401 && retry) {
-    const key = await askKey();
+    if (!asking) asking = askKey().finally(() => { asking = null; });
+    const key = await asking;
     if (key) { setApiKey(key); return request(path, options, false); }
   }
   if (!resp.ok) {
