@@ -1,0 +1,26 @@
+#!/usr/bin/env bash
+# Build every image the container test needs, from local sources only (no Docker Hub):
+#   1. the Debian bookworm base (build-base.sh; reused when present),
+#   2. Redis and PostgreSQL on it (reused when present; FORCE=1 rebuilds),
+#   3. the otgeo image from the working tree (always; Docker's layer cache keeps reruns fast).
+# Usage: docker/local/build-images.sh [OTGEO_TAG]   (default otgeo:test)
+# apt and pip inside the builds reach their registries through `--network host`.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+DOCKER=${DOCKER:-docker}
+BASE=${BASE_IMAGE:-otgeo-base:bookworm}
+TAG=${1:-otgeo:test}
+export DOCKER_BUILDKIT=1  # honours docker/Dockerfile.dockerignore (the context is the repo root)
+
+t0=$(date +%s)
+DOCKER=$DOCKER docker/local/build-base.sh "$BASE"
+for svc in redis postgres; do
+  if [ "${FORCE:-0}" != 1 ] && "$DOCKER" image inspect "otgeo-$svc:local" >/dev/null 2>&1; then
+    echo "otgeo-$svc:local exists; reusing it"
+  else
+    "$DOCKER" build --network host --build-arg "BASE_IMAGE=$BASE" \
+      -f "docker/local/$svc.Dockerfile" -t "otgeo-$svc:local" docker/local
+  fi
+done
+"$DOCKER" build --network host --build-arg "BASE_IMAGE=$BASE" -f docker/Dockerfile -t "$TAG" .
+echo "images ready in $(( $(date +%s) - t0 )) s"
