@@ -10,7 +10,7 @@ from fastapi.openapi.utils import get_openapi
 from pydantic import TypeAdapter
 
 from service import __version__
-from service.api import domains, health, jobs, operations, viewer
+from service.api import domains, health, images, jobs, operations, viewer
 from service.api.deps import require_api_key
 from service.errors import ErrorResponse, install_handlers
 from service.jobs.wake import JobWaiters
@@ -27,7 +27,7 @@ flows) on it; every job is observable, cancellable and keeps its result. Errors 
 
 # Routers under /v1 (API key checked when configured); add new resource routers here.
 # The operation routes are built per app from its registry (service.operations).
-V1_ROUTERS = [domains.router, viewer.router, jobs.router]
+V1_ROUTERS = [domains.router, viewer.router, jobs.router, images.router]
 
 
 def _errors_everywhere(schema: dict) -> None:

@@ -63,6 +63,10 @@ class Settings(BaseSettings):
                                         "a worker on the SQLite queue (seconds) when it has "
                                         "no wake-up socket (service.jobs.wake)")
     wait_max: float = Field(60.0, ge=0, description="largest accepted ?wait= (seconds)")
+    color_max_pixels: int = Field(40_000_000, gt=0, description="largest image (pixels) a "
+                                  "color transfer accepts (413 beyond)")
+    color_max_job_pixels: int = Field(100_000_000, gt=0, description="largest total of "
+                                      "pixels over a color transfer's images (413 beyond)")
 
     @field_validator("api_keys", mode="before")
     @classmethod

@@ -1,0 +1,99 @@
+"""Routes taking images (multipart uploads): ``POST /v1/color-transfers``.
+
+The images are stored as blobs (content-addressed) after a header check (format, pixel
+limits) and the job is created over their ids by the same path as every other operation
+(:func:`service.api.operations.finish_submission`), whose validation decodes them fully.
+"""
+
+from typing import Annotated, Literal
+
+from fastapi import APIRouter, File, Form, Query, Response, UploadFile
+from fastapi.concurrency import run_in_threadpool
+from pydantic import ValidationError
+
+from service.api.deps import JobSvc, RuntimeDep
+from service.api.operations import ROUTE_RESPONSES, WAIT_DESCRIPTION, finish_submission
+from service.errors import InvalidInput, PayloadTooLarge, responses
+from service.operations.color import ColorTransferRequest, check_header
+from service.schemas import JobOut
+
+router = APIRouter(prefix="/v1", tags=["operations"])
+
+
+def _json_list(text: str | None, field: str):
+    import json
+
+    if text is None or text == "":
+        return None
+    try:
+        value = json.loads(text)
+    except ValueError as exc:
+        raise InvalidInput(f"{field} must be a JSON list", field=field) from exc
+    if not isinstance(value, list):
+        raise InvalidInput(f"{field} must be a JSON list", field=field)
+    return value
+
+
+def _store_images(rt, uploads: list[bytes], media: list[str]) -> list[str]:
+    ids = []
+    for i, (data, media_type) in enumerate(zip(uploads, media, strict=True)):
+        info = check_header(data, f"images[{i}]", rt.settings)
+        meta, _ = rt.store.put_blob(data, media_type or "application/octet-stream",
+                                    {"width": info.width, "height": info.height,
+                                     "format": info.format})
+        ids.append(meta["id"])
+    return ids
+
+
+@router.post(
+    "/color-transfers", operation_id="createColorTransfer", status_code=202,
+    response_model=JobOut, responses={**ROUTE_RESPONSES, **responses(413)},
+    summary="Color transfer between 2-16 uploaded images by Wasserstein barycenters of their "
+            "chrominance histograms (thesis §3.7)")
+async def create_color_transfer(
+    response: Response, svc: JobSvc, rt: RuntimeDep,
+    images: Annotated[list[UploadFile], File(description="2 to 16 image files (PNG, JPEG, "
+                                             "TIFF, WebP; 8 or 16 bits; alpha kept)")],
+    weights: str | None = Form(None, description="JSON list: one weight per image"),
+    alphas: str | None = Form(None, description="JSON list of weight vectors (a sequence, "
+                              "e.g. [[1,0],[0.5,0.5],[0,1]])"),
+    bins: int = Form(128, description="nodes per axis of the ab grid (8..512)"),
+    gamma: float = Form(16.0, description="entropic regularization (squared ab units)"),
+    luminance: bool = Form(True, description="also transfer L* (1-D OT)"),
+    sharpen: bool = Form(False, description="entropic sharpening of the barycenters"),
+    debiased: bool = Form(False, description="debiased barycenters"),
+    recolor: str | None = Form(None, description="JSON list of image indices to recolor"),
+    format: Literal["png", "jpeg"] = Form("png", description="output image format"),
+    time_limit: float | None = Form(None, description="seconds"),
+    wait: float = Query(0.0, ge=0, description=WAIT_DESCRIPTION),
+):
+    """Upload the images and create the job; results at `/v1/jobs/{id}/result`, images at
+    `/v1/jobs/{id}/files/image-{b}-{i}.png` and `barycenter-{b}.png`."""
+    if len(images) < 2:
+        raise InvalidInput(f"color transfer needs at least 2 images, got {len(images)}",
+                           field="images")
+    if len(images) > 16:
+        raise InvalidInput(f"color transfer takes at most 16 images, got {len(images)}",
+                           field="images")
+    limit = rt.settings.max_upload_bytes
+    datas, media, total = [], [], 0
+    for i, upload in enumerate(images):
+        data = await upload.read()
+        total += len(data)
+        if total > limit:
+            raise PayloadTooLarge(f"the images exceed the upload limit of {limit} bytes",
+                                  field=f"images[{i}]")
+        datas.append(data)
+        media.append(upload.content_type or "")
+    ids = await run_in_threadpool(_store_images, rt, datas, media)
+    try:
+        body = ColorTransferRequest(
+            images=ids, weights=_json_list(weights, "weights"),
+            alphas=_json_list(alphas, "alphas"), bins=bins, gamma=gamma, luminance=luminance,
+            sharpen=sharpen, debiased=debiased, recolor=_json_list(recolor, "recolor"),
+            format=format, time_limit=time_limit)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        field = ".".join(str(p) for p in err.get("loc", ())) or None
+        raise InvalidInput(f"{field}: {err.get('msg')}", field=field) from None
+    return await finish_submission("color-transfers", None, body, wait, response, svc, rt)

@@ -1,0 +1,194 @@
+"""Color transfer between uploaded images (thesis §3.7; :func:`solvers.color.color_transfer`).
+
+``POST /v1/color-transfers`` (multipart, :mod:`service.api.images`) stores each image as a
+blob and creates a job over their ids.  Everything that can be refused is decided at
+submission (:func:`validate`): each blob must decode completely (no truncated or corrupt
+files, no decompression bombs) within the per-image and per-job pixel limits
+(``OTGEO_COLOR_MAX_PIXELS``, ``OTGEO_COLOR_MAX_JOB_PIXELS``; 413 beyond), and the weights,
+``bins`` and ``gamma`` pass the library's validators, so an accepted job can fail only for
+numerical reasons.
+
+Result: ``values`` (solver metrics, per-output chrominance statistics, file names), arrays
+``histograms`` ``(k, bins²)`` and ``barycenters`` ``(B, bins²)``, and files
+``image-{b}-{i}.png`` (or ``.jpg``; input ``i`` recolored for weight vector ``b``) and
+``barycenter-{b}.png`` (the barycenter histogram as a picture, Fig. 3.12).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, Field
+
+from service.errors import InvalidInput, PayloadTooLarge
+from service.operations.base import Operation, OperationOutput, OperationRequest, ResultFile
+from solvers.color import (
+    color_transfer,
+    histogram_picture,
+    probe_image,
+    read_image,
+    rgb_to_lab,
+    write_image,
+)
+from solvers.color.chrominance import check_bins
+from solvers.color.transfer import DEFAULT_GAMMA, MAX_IMAGES, check_alphas
+from solvers.validation import check_positive
+
+MAX_ALPHAS = 32
+MEDIA = {"png": "image/png", "jpeg": "image/jpeg"}
+EXT = {"png": "png", "jpeg": "jpg"}
+
+
+class ColorTransferRequest(OperationRequest):
+    images: list[str] = Field(min_length=2, max_length=MAX_IMAGES,
+                              description="blob ids of the uploaded images (2 to 16)")
+    weights: list[float] | None = Field(None, description="one barycentric weight per image "
+                                        "(normalized); default uniform")
+    alphas: list[list[float]] | None = Field(
+        None, min_length=1, max_length=MAX_ALPHAS, description="several weight vectors "
+        "(e.g. (1 - s, s) for a sequence of s, thesis Fig. 3.12); exclusive with weights")
+    bins: int = Field(128, ge=8, le=512, description="nodes per axis of the ab histogram "
+                      "grid over [-128, 128]^2")
+    gamma: float = Field(DEFAULT_GAMMA, gt=0, description="entropic regularization in "
+                         "squared ab units (blur of standard deviation sqrt(gamma/2))")
+    luminance: bool = Field(True, description="also transfer L* (1-D optimal transport)")
+    sharpen: bool = Field(False, description="entropic sharpening of the barycenters")
+    debiased: bool = Field(False, description="debiased barycenters (less entropic blur)")
+    recolor: list[int] | None = Field(None, description="indices of the images to recolor "
+                                      "(default all)")
+    format: Literal["png", "jpeg"] = Field("png", description="format of the output images")
+    tol: float = Field(1e-4, gt=0, lt=1, description="largest L1 marginal violation")
+    max_iter: int = Field(3000, ge=1, le=100_000)
+
+
+class ColorOutputInfo(BaseModel):
+    file: str
+    alpha_index: int
+    image_index: int
+    width: int
+    height: int
+    mean_ab_before: list[float]
+    mean_ab_after: list[float]
+
+
+class ColorTransferValues(BaseModel):
+    """``values`` of a color-transfer result."""
+
+    n_images: int
+    alphas: list[list[float]]
+    bins: int
+    gamma: float
+    iterations: int
+    residual: float = Field(description="largest L1 marginal violation over all plans")
+    converged: bool
+    window: list[list[int]] = Field(description="[[a_start, a_stop], [b_start, b_stop]]: "
+                                    "grid nodes the barycenter was computed on")
+    timings: dict[str, float]
+    outputs: list[ColorOutputInfo]
+    barycenter_pictures: list[str]
+    arrays: list[str]
+
+
+def _alphas(req: ColorTransferRequest) -> np.ndarray:
+    k = len(req.images)
+    if req.weights is not None and req.alphas is not None:
+        raise InvalidInput("give weights or alphas, not both", field="alphas")
+    if req.alphas is not None:
+        return check_alphas(req.alphas, k)
+    if req.weights is not None:
+        try:
+            return check_alphas(req.weights, k)
+        except Exception as exc:
+            raise InvalidInput(str(exc).replace("alphas[0]: ", ""), field="weights") from exc
+    return check_alphas(None, k)
+
+
+def _recolor(req: ColorTransferRequest) -> list[int] | None:
+    if req.recolor is None:
+        return None
+    bad = [i for i in req.recolor if not 0 <= i < len(req.images)]
+    if bad or not req.recolor:
+        raise InvalidInput(f"recolor indices must lie in [0, {len(req.images)})",
+                           field="recolor")
+    return sorted(set(req.recolor))
+
+
+def check_header(data: bytes, field: str, settings):
+    """Decode the header only and enforce the per-image pixel limit (413 beyond); files that
+    are not images are 422 naming ``field``."""
+    info = probe_image(data, field)
+    if info.pixels > settings.color_max_pixels:
+        raise PayloadTooLarge(f"{field} has {info.pixels} pixels, more than the limit of "
+                              f"{settings.color_max_pixels}", field=field)
+    return info
+
+
+def validate(ctx, req: ColorTransferRequest) -> list[dict]:
+    A = _alphas(req)
+    check_bins(req.bins)
+    check_positive(req.gamma, "gamma")
+    _recolor(req)
+    blobs = [ctx.blob(blob_id, f"images[{i}]") for i, blob_id in enumerate(req.images)]
+    total = 0
+    for i, data in enumerate(blobs):
+        total += check_header(data, f"images[{i}]", ctx.settings).pixels
+    if total > ctx.settings.color_max_job_pixels:
+        raise PayloadTooLarge(f"the images hold {total} pixels, more than the limit of "
+                              f"{ctx.settings.color_max_job_pixels} per job", field="images")
+    for i, data in enumerate(blobs):
+        read_image(data, f"images[{i}]")  # decodes completely: truncated files fail here
+    return [{"alphas": A.tolist()}]
+
+
+def run(ctx, req: ColorTransferRequest, progress, should_cancel) -> OperationOutput:
+    images = [read_image(ctx.blob(b, f"images[{i}]"), f"images[{i}]")
+              for i, b in enumerate(req.images)]
+    A = _alphas(req)
+    r = color_transfer(images, A, bins=req.bins, gamma=req.gamma, luminance=req.luminance,
+                       sharpen=req.sharpen, debiased=req.debiased, recolor=_recolor(req),
+                       tol=req.tol, max_iter=req.max_iter, progress=progress,
+                       should_cancel=should_cancel)
+    files: dict[str, ResultFile] = {}
+    outputs = []
+    before = [rgb_to_lab(img)[..., 1:].reshape(-1, 2).mean(axis=0) for img in images]
+    for b in range(A.shape[0]):
+        for i, out in enumerate(r.images[b]):
+            if out is None:
+                continue
+            name = f"image-{b}-{i}.{EXT[req.format]}"
+            files[name] = ResultFile(MEDIA[req.format], write_image(out, req.format))
+            after = rgb_to_lab(out)[..., 1:].reshape(-1, 2).mean(axis=0)
+            outputs.append(ColorOutputInfo(
+                file=name, alpha_index=b, image_index=i, width=int(out.shape[1]),
+                height=int(out.shape[0]), mean_ab_before=[float(x) for x in before[i]],
+                mean_ab_after=[float(x) for x in after]).model_dump())
+        pic = f"barycenter-{b}.png"
+        files[pic] = ResultFile("image/png", write_image(histogram_picture(r.barycenters[b])))
+    rows, cols = r.window
+    values = ColorTransferValues(
+        n_images=len(images), alphas=A.tolist(), bins=r.bins, gamma=r.gamma,
+        iterations=r.iterations, residual=r.residual, converged=r.converged,
+        window=[[int(rows.start), int(rows.stop)], [int(cols.start), int(cols.stop)]],
+        timings={k: float(v) for k, v in r.timings.items()}, outputs=outputs,
+        barycenter_pictures=[f"barycenter-{b}.png" for b in range(A.shape[0])],
+        arrays=["histograms", "barycenters"]).model_dump()
+    arrays = {"histograms": r.histograms.reshape(len(images), -1).astype(np.float32),
+              "barycenters": r.barycenters.reshape(A.shape[0], -1).astype(np.float32)}
+    return OperationOutput(values=values, arrays=arrays, files=files)
+
+
+OPERATIONS = [
+    Operation(
+        name="color-transfers",
+        operation_id="createColorTransfer",
+        summary="Color transfer between 2-16 uploaded images by Wasserstein barycenters of "
+                "their chrominance histograms (thesis §3.7)",
+        request_model=ColorTransferRequest,
+        run=run,
+        validate=validate,
+        scope="global",
+        route=False,
+        result_model=ColorTransferValues,
+    ),
+]
