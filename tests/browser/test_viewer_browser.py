@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import base64
 import io
+import json
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -118,7 +120,6 @@ def test_barycenter_colors_the_surface(spot_page):
     assert before["colored"] < 0.05  # in neutral gray (pick markers aside)
     picks = pick_two(page)
     assert picks[0] != picks[1]
-    save(page, "viewer-picks.png")
     run_and_wait(page, "createBarycenterJob")
     text = page.inner_text("#progress-text")
     assert "succeeded" in text and "iteration" in text and "residual" in text
@@ -182,3 +183,62 @@ def test_failing_request_shows_the_error(spot_page):
     assert page.locator(".field.bad[data-field=times]").count() == 1
     assert page.locator("#job-panel").is_hidden()  # no job was created
     save(page, "viewer-error.png")
+
+
+def picked_vertices(texts: list[str]) -> list[int]:
+    return [int(re.search(r"vertex (\d+)", t).group(1)) for t in texts]
+
+
+def test_flow_arrows_and_histogram_plots(spot_page):
+    page = spot_page
+    vertices = picked_vertices(pick_two(page))
+    run_and_wait(page, "createFlowJob")
+    assert page.locator("#field").input_value() == "potential"
+    with_arrows = canvas_pixels(page)
+    page.uncheck("#show-arrows")
+    without = canvas_pixels(page)
+    changed = np.abs(with_arrows - without).sum(axis=2) > 0.3
+    # the arrows are white strokes over the colored surface, drawn between the two picks
+    assert changed.mean() > 0.002, changed.mean()
+    assert with_arrows[changed].min(axis=1).mean() > 0.6
+    page.check("#show-arrows")
+    save(page, "viewer-flow.png")
+
+    page.select_option("#operation", "createHistogramPropagationJob")
+    page.click("#op-form .field[data-field=labeled] button:text('from picks')")
+    labeled = json.loads(page.input_value("#op-form textarea[name=labeled]"))
+    assert [item["node"] for item in labeled] == vertices
+    labeled[0]["histogram"] = [4, 2, 1, 0, 0, 0, 0, 0]
+    labeled[1]["histogram"] = [0, 0, 0, 0, 0, 1, 2, 4]
+    page.fill("#op-form textarea[name=bins]", json.dumps({"lo": 0, "hi": 1, "count": 8}))
+    page.fill("#op-form textarea[name=labeled]", json.dumps(labeled))
+    page.click("#run")
+    page.wait_for_function("document.getElementById('job-title').textContent"
+                           ".startsWith('histogram-propagations')")
+    page.wait_for_selector("#progress[data-state=succeeded]", timeout=TIMEOUT)
+    page.wait_for_selector("#legend:not([hidden])", timeout=TIMEOUT)
+    assert page.locator("#field").input_value() == "mean"
+    assert page.locator("#plots canvas").count() == 2  # one small histogram per pick
+    assert stats(canvas_pixels(page))["colored"] > 0.5
+    save(page, "viewer-histograms.png")
+    assert page.js_errors == []
+
+
+def test_grid_domain_is_an_image(page, live_api, tmp_path):
+    open_viewer(page, live_api)
+    grid = tmp_path / "grid.json"
+    grid.write_text(json.dumps({"kind": "grid", "shape": [40, 40]}))
+    drop_file(page, "#drop", grid)
+    page.wait_for_function("document.getElementById('status').textContent.startsWith('grid')",
+                           timeout=TIMEOUT)
+    before = stats(canvas_pixels(page))
+    assert before["foreground"] > 0.2 and before["colored"] < 0.05  # a neutral square
+    pick_two(page)
+    run_and_wait(page, "createBarycenterJob")
+    img = canvas_pixels(page)
+    after = stats(img)
+    assert after["colored"] > 0.9  # every cell has a color of the ramp
+    bright = img[after["colored_mask"]].mean(axis=1) > 0.45  # the green/yellow barycenter
+    assert 0.005 < bright.mean() < 0.5, bright.mean()
+    save(page, "viewer-grid.png")
+    assert page.js_errors == []

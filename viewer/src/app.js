@@ -333,7 +333,11 @@ async function showResult(job) {
   sel.replaceChildren(...order.map((k) => new Option(k, k)));
   sel.value = exp.color && order.includes(exp.color) ? exp.color : (order[0] || "");
   sel.onchange = () => showField(sel.value);
-  if (exp.flow && arrays[exp.flow] && view.items.length) view.setArrows(arrays[exp.flow]);
+  const flow = exp.flow && arrays[exp.flow] && view.items.length ? arrays[exp.flow] : null;
+  $("arrows-toggle").hidden = !flow;
+  $("show-arrows").checked = true;
+  $("show-arrows").onchange = () => view.setArrows($("show-arrows").checked ? flow : null);
+  if (flow) view.setArrows(flow);
   await showSoftMap(result);
   showField(sel.value);
   showFiles(result);

@@ -280,7 +280,7 @@ export class View {
     const it = this.items[itemIndex];
     if (!it) return;
     it.markers.clear();
-    const s = it.edgeLength * (it.kind === "surface" ? 1.2 : 0.4);
+    const s = it.edgeLength * (it.kind === "surface" ? 0.8 : 0.4);
     picks.forEach((p, k) => {
       const color = pickColor(k);
       const dot = new THREE.Mesh(new THREE.SphereGeometry(s, 12, 8),
