@@ -30,6 +30,7 @@ from solvers.validation import check_gamma, check_positive, normalize_masses
 # shifted input down to exp(-BAND) are applied exactly; wider inputs are split
 # into several bands (extra columns of the same block solve).
 DEFAULT_BAND = 350.0
+MAX_BANDS = 32  # bands per column in LogKernel._banded (values further down underflow)
 # exp() of anything below this is 0 or denormal in float64.
 _LOG_TINY = -700.0
 # Output logs this far below the column maximum are treated as "underflowed".
@@ -103,19 +104,29 @@ class LogKernel:
         return _floor(out[:, 0] if vector else out)
 
     def _banded(self, X2, top, bands):
+        # Only occupied bands get a column, and at most MAX_BANDS per input column (the
+        # last one takes everything below; what lies more than MAX_BANDS bands under the
+        # top underflows): the work stays bounded whatever the dynamic range (an entropy
+        # bound that sharpens to huge exponents no longer builds a block of ~range/band
+        # columns per call).
         n, k = X2.shape
-        total = int(bands.sum())
+        levels = []
+        for j in range(k):
+            x = X2[:, j]
+            rows = np.flatnonzero(np.isfinite(x))
+            level = np.minimum((top[j] - x[rows]) // self.band, MAX_BANDS - 1).astype(np.int64)
+            levels.append((rows, level, np.unique(level)))
+        total = sum(len(used) for _, _, used in levels)
         self.columns += total
         block = np.zeros((n, total))
         offsets = np.empty(total)
         owner = np.empty(total, dtype=np.int64)
         col = 0
-        for j in range(k):
+        for j, (rows, level, used) in enumerate(levels):
             x = X2[:, j]
-            for b in range(int(bands[j])):
+            for b in used:
                 hi = top[j] - b * self.band
-                lo = hi - self.band
-                sel = (x <= hi) & (x > lo) if b < bands[j] - 1 else (x <= hi) & np.isfinite(x)
+                sel = rows[level == b]
                 with np.errstate(under="ignore"):
                     block[sel, col] = np.exp(x[sel] - hi)
                 offsets[col] = hi
