@@ -335,3 +335,40 @@ def test_log_kernel_work_is_bounded_for_huge_dynamic_ranges(sphere):
     top = y.max()
     direct = np.log(dense @ np.exp(y - top)) + top
     np.testing.assert_allclose(logk(y), direct, rtol=1e-10, atol=1e-8)
+
+
+def test_worker_memory_limit_keeps_solvers_working():
+    """RLIMIT_AS at base + cache + one job: numba kernels and cholespy factorizations
+    still run (BLAS pinned to one thread), and an allocation beyond it is a MemoryError,
+    reported on the job as out_of_memory."""
+    import os
+    import subprocess
+    import sys
+
+    code = """
+import numpy as np
+from service.limits import limit_worker_memory
+from service.settings import Settings
+from service.errors import error_dict
+limit = limit_worker_memory(Settings(cache_bytes=2**28, job_memory_bytes=2**28))
+from solvers.domains import Grid, TriangleMesh
+import trimesh
+s = trimesh.creation.icosphere(subdivisions=3)
+mesh = TriangleMesh(s.vertices, s.faces)
+from solvers.emd import pointwise_distances
+from solvers.convolutional import wasserstein_distance
+d = pointwise_distances(mesh, 0).distances
+m0 = np.zeros(mesh.n); m0[0] = 1; m1 = np.zeros(mesh.n); m1[5] = 1
+v = wasserstein_distance(mesh, m0, m1, gamma=0.05).value
+try:
+    np.ones(limit // 8 + 1)
+    print("NO-LIMIT")
+except MemoryError as exc:
+    print("LIMIT", limit, error_dict(exc)["code"], float(d.max()) > 0, v > 0)
+"""
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split()[0] == "LIMIT", out.stdout
+    assert out.stdout.split()[2:] == ["out_of_memory", "True", "True"], out.stdout
