@@ -590,10 +590,20 @@ class TriangleMesh(Domain):
 
     @cached_property
     def robust_laplacian(self) -> sp.csr_matrix:
-        lap, _ = robust_laplacian.mesh_laplacian(
-            np.ascontiguousarray(self.vertices), np.ascontiguousarray(self.faces)
-        )
-        return sp.csr_matrix(lap)
+        try:
+            lap, _ = robust_laplacian.mesh_laplacian(
+                np.ascontiguousarray(self.vertices), np.ascontiguousarray(self.faces)
+            )
+        except (RuntimeError, ValueError) as exc:
+            log.info("robust Laplacian failed: %s", exc)
+            raise DomainError("could not build the intrinsic-Delaunay Laplacian of this mesh "
+                              "(degenerate geometry); try laplacian='cotan'",
+                              field="laplacian") from exc
+        lap = sp.csr_matrix(lap)
+        if not np.all(np.isfinite(lap.data)):
+            raise DomainError("the intrinsic-Delaunay Laplacian of this mesh is not finite "
+                              "(degenerate geometry); try laplacian='cotan'", field="laplacian")
+        return lap
 
     @property
     def laplacian(self) -> sp.csr_matrix:
