@@ -203,7 +203,7 @@ class WorkerPool:
 
 def storage_problem(settings) -> str | None:
     """One line saying why the data directory cannot be used, or None."""
-    from service.runtime import storage_status
+    from service.storage_probe import storage_status
 
     status = storage_status(settings.data_dir,
                             (settings.data_dir / "domains", settings.data_dir / "results"))

@@ -3,13 +3,9 @@ operator cache, runner and reaper.  Built once per process (API or worker)."""
 
 from __future__ import annotations
 
-import errno
 import logging
-import os
-import tempfile
 import threading
 import time
-from pathlib import Path
 
 from service.cache import OperatorCache
 from service.jobs.db import JobRepository, worker_identity
@@ -19,6 +15,7 @@ from service.jobs.runner import JobRunner
 from service.jobs.wake import WakeSender
 from service.operations import build_registry
 from service.settings import Settings
+from service.storage_probe import STORAGE_ERRNOS, storage_reason, storage_status  # noqa: F401
 from service.store import Store
 
 log = logging.getLogger("otgeo")
@@ -140,41 +137,3 @@ class Runtime:
         if self.wake is not None:
             self.wake.close()
 
-
-STORAGE_ERRNOS = {errno.EROFS: "read-only file system", errno.ENOSPC: "no space left",
-                  errno.EDQUOT: "disk quota exceeded", errno.EACCES: "permission denied",
-                  errno.EPERM: "permission denied", errno.ENOTDIR: "not a directory",
-                  errno.EEXIST: "a file is in the way", errno.EFBIG: "file too large",
-                  errno.EIO: "input/output error"}
-
-
-def storage_reason(exc: OSError) -> str:
-    return STORAGE_ERRNOS.get(exc.errno, exc.strerror or type(exc).__name__)
-
-
-def storage_status(data_dir: Path, subdirs=()) -> dict:
-    """Probe ``data_dir`` (and ``subdirs``): create the directories, write, sync and remove
-    a small file in each. ``{"writable", "free_bytes", "reason"}``; ``reason`` names the
-    failure without the path."""
-    data_dir = Path(data_dir)
-    free = None
-    try:
-        for directory in (data_dir, *subdirs):
-            Path(directory).mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=".probe-", dir=directory)
-            try:
-                os.write(fd, b"otgeo")
-                os.fsync(fd)
-            finally:
-                os.close(fd)
-                os.unlink(tmp)
-        st = os.statvfs(data_dir)
-        free = int(st.f_bavail * st.f_frsize)
-    except OSError as exc:
-        try:
-            st = os.statvfs(data_dir)
-            free = int(st.f_bavail * st.f_frsize)
-        except OSError:
-            pass
-        return {"writable": False, "free_bytes": free, "reason": storage_reason(exc)}
-    return {"writable": True, "free_bytes": free, "reason": None}

@@ -63,7 +63,7 @@ class StorageUnavailable(ServiceUnavailable):
 
 def storage_error(exc: OSError) -> StorageUnavailable | None:
     """The 503 for an OSError of the data directory (read-only, full, ...), else None."""
-    from service.runtime import STORAGE_ERRNOS, storage_reason
+    from service.storage_probe import STORAGE_ERRNOS, storage_reason
 
     if exc.errno not in STORAGE_ERRNOS:
         return None

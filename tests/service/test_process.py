@@ -7,7 +7,6 @@ import os
 import re
 import signal
 import subprocess
-import sys
 import time
 
 from liveserver import API, ROOT, otgeo_command
@@ -28,17 +27,13 @@ def test_workers_die_when_serve_is_killed(tmp_path):
     api = API({"OTGEO_DATA_DIR": str(tmp_path), "OTGEO_WORKERS": "2"}, tmp_path)
     pids: list[int] = []
     try:
-        api.wait_healthy(timeout=60)
-        deadline = time.monotonic() + 30
+        deadline = time.monotonic() + 60  # serve prints its workers' pids once spawned
         while not (m := re.search(r"worker process\(es\): ([\d, ]+)", api.log(10**6))):
-            assert time.monotonic() < deadline, api.log()
-            time.sleep(0.1)
+            assert api.alive() and time.monotonic() < deadline, api.log()
+            time.sleep(0.05)
         pids = [int(p) for p in m.group(1).replace(",", " ").split()]
         assert len(pids) == 2 and all(_alive(p) for p in pids)
-        deadline = time.monotonic() + 30  # workers up (their consumers logged "ready")
-        while api.log(10**6).count(" ready (queue ") < 2:
-            assert time.monotonic() < deadline, api.log()
-            time.sleep(0.1)
+        time.sleep(0.5)  # the workers are running their own code (whatever its stage)
         api.kill(signal.SIGKILL)
         killed = time.monotonic()
         while any(_alive(p) for p in pids) and time.monotonic() - killed < 10:
@@ -73,4 +68,3 @@ def test_worker_queue_assignment():
     assert worker_queues(4, 1) == ["short,long"] * 3 + ["short"]
     assert worker_queues(2, 5) == ["short,long", "short"]  # one always serves long jobs
     assert worker_queues(3, 0) == ["short,long"] * 3
-    assert sys.executable
