@@ -372,3 +372,44 @@ except MemoryError as exc:
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split()[0] == "LIMIT", out.stdout
     assert out.stdout.split()[2:] == ["out_of_memory", "True", "True"], out.stdout
+
+
+@pytest.mark.parametrize(("name", "data"), [
+    ("huge.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000000000\n"
+     b"property float x\nproperty float y\nproperty float z\nelement face 1\n"
+     b"property list uchar int vertex_indices\nend_header\n" + b"\0" * 100),
+    ("huge.off", b"OFF\n3000000000 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"),
+    ("count.stl", b"\0" * 80 + (10**9).to_bytes(4, "little") + b"\0" * 50),
+    ("big.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999999999999\n"),
+    ("neg.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf -1 -2 -4\n"),
+    ("text.glb", b"v 0 0 0\n"),
+])
+def test_hostile_mesh_files(client, name, data):
+    r = upload(client, name, data)
+    err = assert_4xx(r, "file")
+    assert "Error" not in err["message"]  # no exception class names or texts
+
+
+def test_weld_option_of_the_library(sphere):
+    from solvers.domains import load_mesh
+
+    v = sphere.vertices[sphere.faces.ravel()]
+    f = np.arange(len(v)).reshape(-1, 3)
+    data = trimesh.Trimesh(v, f, process=False).export(file_type="ply")
+    assert load_mesh(data, "ply").n == len(sphere.vertices)
+    split = load_mesh(data, "ply", weld=False)
+    assert split.n == len(v) and split.n_components == len(sphere.faces)
+    obj = trimesh.Trimesh(v, f, process=False).export(file_type="obj").encode()
+    assert load_mesh(obj, "obj").n == len(v)  # OBJ: position indices only by default
+    assert load_mesh(obj, "obj", weld=True).n == len(sphere.vertices)
+
+
+def test_weld_form_values():
+    from service.domains import parse_weld
+    from service.errors import InvalidInput
+
+    assert parse_weld("true") is True and parse_weld("0") is False
+    assert parse_weld(None) is None and parse_weld("auto") is None
+    with pytest.raises(InvalidInput) as info:
+        parse_weld("sometimes")
+    assert info.value.field == "weld"
