@@ -29,7 +29,7 @@ from sqlalchemy import (
     text,
     update,
 )
-from sqlalchemy.exc import OperationalError
+from sqlalchemy.exc import OperationalError, SQLAlchemyError
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, sessionmaker
 
 QUEUED, RUNNING, SUCCEEDED, FAILED, CANCELLED = (
@@ -136,8 +136,10 @@ class JobRepository:
             try:
                 with self.engine.begin() as conn:
                     conn.execute(text(f"ALTER TABLE jobs ADD COLUMN {name} {sql_type}"))
-            except OperationalError:  # added by another process meanwhile
-                pass
+            except SQLAlchemyError:  # added by another process meanwhile (duplicate column)
+                present = {c["name"] for c in inspect(self.engine).get_columns("jobs")}
+                if name not in present:
+                    raise
 
     def dispose(self) -> None:
         self.engine.dispose()

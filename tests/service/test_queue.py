@@ -143,3 +143,34 @@ def test_cost_chooses_the_queue(tmp_path):
     settings = Settings(data_dir=tmp_path, long_job_cost=1e6)
     assert queue_for_cost(settings, estimate_cost(100, Req(distributions=bumps))) == "short"
     assert queue_for_cost(settings, estimate_cost(10_000, Req(distributions=bumps))) == "long"
+
+
+def test_older_job_table_gains_the_new_columns(tmp_path):
+    import sqlalchemy as sa
+
+    from service.jobs.db import ADDED_COLUMNS, JobRepository
+
+    url = f"sqlite:///{tmp_path / 'old.sqlite3'}"
+    engine = sa.create_engine(url)
+    with engine.begin() as conn:  # the table as the first release created it
+        conn.execute(sa.text(
+            "CREATE TABLE jobs (id VARCHAR(32) PRIMARY KEY, operation VARCHAR(64), "
+            "domain_id VARCHAR(64), params JSON, state VARCHAR(16), iteration INTEGER, "
+            "residual FLOAT, error JSON, attempts INTEGER, max_attempts INTEGER, "
+            "cancel_requested BOOLEAN, time_limit FLOAT, worker VARCHAR(128), "
+            "created_at FLOAT, enqueued_at FLOAT, started_at FLOAT, heartbeat_at FLOAT, "
+            "finished_at FLOAT, duration FLOAT, result_location VARCHAR(256))"))
+        conn.execute(sa.text("INSERT INTO jobs (id, operation, domain_id, params, state, "
+                             "attempts, max_attempts, cancel_requested, time_limit, "
+                             "created_at, enqueued_at) VALUES ('j1', 'distances', 'd', '{}', "
+                             "'queued', 0, 3, 0, 60, 1.0, 1.0)"))
+    engine.dispose()
+    repo = JobRepository(url)
+    try:
+        columns = {c["name"] for c in sa.inspect(repo.engine).get_columns("jobs")}
+        assert set(ADDED_COLUMNS) <= columns
+        job = repo.get("j1")
+        assert job.queue is None and repo.queue_position(job) == 1
+        JobRepository(url).dispose()  # a second process starting on it: nothing to add
+    finally:
+        repo.dispose()
