@@ -1,36 +1,225 @@
-"""Reference geodesic distances on triangle meshes (potpourri3d).
+"""Exact geodesic distances on triangle meshes: the ground truth of transport costs.
 
-Used as ground truth for transport costs (exact LPs with geodesic costs) and for
-comparison with transport-based distances.
+Used by the exact transport route (:mod:`solvers.convolutional.exact`), as ground truth for
+transport costs in tests and benchmarks (exact LPs with geodesic costs), and for comparison
+with transport-based distances.
+
+Two exact polyhedral algorithms, both on the *fan-split* surface (below):
+
+* ``"mmp"`` — Mitchell–Mount–Papadimitriou exact geodesics (Kirsanov's implementation in
+  ``tvb-gdist``) from one source to every vertex; cost grows with the mesh, not with the
+  number of targets.
+* ``"edge-flip"`` — potpourri3d's edge-flip solver (Sharp & Crane 2020): the Dijkstra path
+  straightened by edge flips into a locally shortest geodesic, one pair at a time; cheap per
+  pair, so it wins for a few pairs on a large mesh.
+
+Non-manifold meshes.  Both algorithms need a manifold surface.  A vertex whose incident
+faces form several fans (an "hourglass", e.g. one vertex of cow.obj) or that lies on an
+edge with more than two faces (beetle.obj) is split into one copy per fan, which gives a
+manifold surface (possibly in several pieces).  The copies of one vertex are the same point,
+so a path may pass from one copy to another for free: distances on the original surface are
+recovered exactly *through vertices* by a closure over these junction vertices (exact
+distances from every junction, then shortest paths in the junction graph).  Paths that would
+cross a non-manifold edge in its interior instead of at a vertex are not represented (an
+overestimate of at most the length of the shared edge's detour; none on hourglass vertices).
 """
 
 from __future__ import annotations
 
-from weakref import WeakKeyDictionary
+from dataclasses import dataclass
 
 import numpy as np
-import potpourri3d as pp3d
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components, shortest_path
 
 from solvers.domains.mesh import TriangleMesh
+from solvers.errors import InputError
 
-_FLIP_SOLVERS: WeakKeyDictionary = WeakKeyDictionary()
+ROUTES = ("mmp", "edge-flip")
+
+
+@dataclass
+class _Pieces:
+    """The fan-split (manifold) surface of a mesh and its junction closure."""
+
+    vertices: np.ndarray  # (n_split, 3)
+    faces: np.ndarray  # (n_faces, 3) int32, indices into vertices
+    owner: np.ndarray  # (n_split,) original vertex of each copy
+    first_copy: np.ndarray  # (n,) one split vertex of each original vertex
+    junctions: np.ndarray  # original vertices with more than one copy
+    closure: np.ndarray | None = None  # (J, n) distances from each junction (through junctions)
+
+
+def _split_fans(vertices: np.ndarray, f: np.ndarray):
+    """One vertex per (vertex, fan of incident faces): the manifold surface of ``f``."""
+    nv, nf = len(vertices), len(f)
+    half = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    edges, edge_of_half, counts = np.unique(np.sort(half, axis=1), axis=0,
+                                            return_inverse=True, return_counts=True)
+    edge_of_half = edge_of_half.reshape(-1)
+    face_of_half = np.tile(np.arange(nf), 3)
+    interior = np.flatnonzero(counts == 2)
+    order = np.argsort(edge_of_half, kind="stable")
+    starts = np.searchsorted(edge_of_half[order], interior)
+    f1, f2 = face_of_half[order[starts]], face_of_half[order[starts + 1]]
+    corner = np.arange(3 * nf).reshape(3, nf).T  # corner id of (face, local vertex)
+    pairs = []
+    for endpoint in (0, 1):  # corners of one vertex across a manifold edge share a fan
+        vert = edges[interior, endpoint]
+        c1 = corner[f1, np.argmax(f[f1] == vert[:, None], axis=1)]
+        c2 = corner[f2, np.argmax(f[f2] == vert[:, None], axis=1)]
+        pairs.append(np.stack([c1, c2], axis=1))
+    pairs = np.concatenate(pairs) if pairs else np.zeros((0, 2), dtype=np.int64)
+    graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
+                          shape=(3 * nf, 3 * nf))
+    _, fan = connected_components(graph, directed=False)
+    corner_vertex = f.T.reshape(-1)
+    keys, new = np.unique(np.stack([corner_vertex, fan], axis=1), axis=0, return_inverse=True)
+    faces = new.reshape(-1).reshape(3, nf).T.astype(np.int32)
+    owner = keys[:, 0]
+    first = np.full(nv, -1, dtype=np.int64)
+    first[owner[::-1]] = np.arange(len(owner))[::-1]
+    counts_per_vertex = np.bincount(owner, minlength=nv)
+    return (np.ascontiguousarray(vertices[owner], dtype=np.float64), faces, owner, first,
+            np.flatnonzero(counts_per_vertex > 1))
+
+
+def _pieces(mesh: TriangleMesh) -> _Pieces:
+    def build():
+        v, f, owner, first, junctions = _split_fans(np.asarray(mesh.vertices, np.float64),
+                                                    np.asarray(mesh.faces, np.int64))
+        pieces = _Pieces(v, f, owner, first, junctions)
+        if len(junctions):
+            raw = np.stack([_mmp_split(pieces, int(j)) for j in junctions])  # (J, n)
+            # Shortest paths in the junction graph.
+            between = shortest_path(np.ascontiguousarray(raw[:, junctions]), directed=False)
+            # Through junctions: d(j, x) = min_k D*(j, k) + raw(k, x).
+            closure = raw.copy()
+            for k in range(len(junctions)):
+                np.minimum(closure, between[:, k, None] + raw[k], out=closure)
+            pieces.closure = closure
+        return pieces
+
+    return mesh.operators.get(("geodesic-pieces",), build)
+
+
+def _mmp_split(pieces: _Pieces, source: int, bound: float | None = None) -> np.ndarray:
+    """(n,) exact distances on the split surface from all copies of original ``source``
+    (``inf`` beyond ``bound`` when given)."""
+    import gdist
+
+    copies = np.flatnonzero(pieces.owner == source).astype(np.int32)
+    extra = {} if bound is None or not np.isfinite(bound) else {"max_distance": float(bound)}
+    d = gdist.compute_gdist(pieces.vertices, pieces.faces, source_indices=copies, **extra)
+    d = np.where(d > 1e30, np.inf, d)  # other pieces are unreachable on the split surface
+    out = np.full(len(pieces.first_copy), np.inf)
+    np.minimum.at(out, pieces.owner, d)
+    return out
+
+
+def _edge_graph(mesh: TriangleMesh):
+    """Vertex graph weighted by edge lengths (its path lengths bound geodesics above)."""
+    def build():
+        e = np.asarray(mesh.edges)
+        w = np.linalg.norm(mesh.vertices[e[:, 0]] - mesh.vertices[e[:, 1]], axis=1)
+        return sp.csr_matrix((w, (e[:, 0], e[:, 1])), shape=(mesh.n, mesh.n))
+
+    return mesh.operators.get(("edge-length-graph",), build)
+
+
+def _one_to_all(pieces: _Pieces, source: int, bound: float | None = None) -> np.ndarray:
+    """Exact distances from ``source``; correct at least up to ``bound`` (an upper bound
+    of the wanted distances: MMP stops propagating there)."""
+    d = _mmp_split(pieces, source, None if bound is None else bound * (1 + 1e-9) + 1e-12)
+    if pieces.closure is not None:
+        via = d[pieces.junctions][:, None] + pieces.closure  # through a junction
+        d = np.minimum(d, via.min(axis=0))
+    return d
+
+
+def _edge_flip_solver(mesh: TriangleMesh, pieces: _Pieces):
+    import potpourri3d as pp3d
+
+    return mesh.operators.get(("edge-flip-solver",),
+                              lambda: pp3d.EdgeFlipGeodesicSolver(pieces.vertices,
+                                                                  pieces.faces))
+
+
+def _check_indices(mesh: TriangleMesh, values, name: str) -> np.ndarray:
+    idx = np.asarray(values, dtype=np.int64).reshape(-1)
+    if idx.size and (idx.min() < 0 or idx.max() >= mesh.n):
+        raise InputError(f"{name} must be vertex indices in [0, {mesh.n - 1}]", field=name)
+    return idx
+
+
+def cost_estimate(mesh: TriangleMesh, n_sources: int, n_targets: int, route: str) -> float:
+    """Rough seconds for a (sources × targets) matrix by ``route`` on 2 cores (measured:
+    ``bench/results/convolutional.md``, exact-route section)."""
+    if route == "mmp":
+        return min(n_sources, n_targets) * 5e-7 * mesh.n ** 1.4
+    return n_sources * n_targets * (6e-4 + 2e-7 * mesh.n)
+
+
+def geodesic_distances(mesh: TriangleMesh, sources, targets=None, *, route: str = "mmp",
+                       should_cancel=None) -> np.ndarray:
+    """Exact polyhedral geodesic distances ``(len(sources), len(targets))`` at unit area.
+
+    ``targets=None``: every vertex.  ``route``: ``"mmp"`` (default: one exact solve from
+    each source, or target when there are fewer, stopped at the largest edge-path distance
+    to the other side), ``"edge-flip"`` (one locally shortest path per pair, only on meshes
+    without junction vertices; not always the shortest: measured up to 7.5 % longer than
+    MMP on spot, ``bench/results/convolutional.md``).  Vertices on other connected
+    components are at distance ``inf``.  ``should_cancel()`` is checked between solves.
+    """
+    if route not in ROUTES:
+        raise InputError(f"route must be one of {ROUTES}, got {route!r}", field="route")
+    src = _check_indices(mesh, sources, "sources")
+    dst = np.arange(mesh.n) if targets is None else _check_indices(mesh, targets, "targets")
+    pieces = _pieces(mesh)
+    if route == "edge-flip" and len(pieces.junctions):
+        raise InputError("the edge-flip route needs a manifold mesh; use route='mmp'",
+                         field="route")
+    if route == "mmp":
+        flip = len(dst) < len(src)  # symmetric: solve from the smaller side
+        rows, cols = (dst, src) if flip else (src, dst)
+        out = np.zeros((len(rows), len(cols)))
+        if len(cols) < mesh.n:  # stop each solve past the farthest wanted vertex
+            from scipy.sparse.csgraph import dijkstra
+
+            graph = _edge_graph(mesh)
+        for i, s in enumerate(rows):
+            if should_cancel is not None and should_cancel():
+                from solvers.errors import CancelledError
+
+                raise CancelledError("cancelled between geodesic solves")
+            bound = None
+            if len(cols) < mesh.n:
+                reach = dijkstra(graph, directed=False, indices=int(s))[cols]
+                finite = reach[np.isfinite(reach)]
+                bound = float(finite.max()) if finite.size else 0.0
+            out[i] = _one_to_all(pieces, int(s), bound)[cols]
+        return out.T if flip else out
+    solver = _edge_flip_solver(mesh, pieces)
+    labels = mesh.component_labels
+    out = np.zeros((len(src), len(dst)))
+    for i, s in enumerate(src):
+        for j, t in enumerate(dst):
+            if labels[s] != labels[t]:
+                out[i, j] = np.inf
+            elif s != t:
+                path = solver.find_geodesic_path(int(pieces.first_copy[s]),
+                                                 int(pieces.first_copy[t]))
+                out[i, j] = np.linalg.norm(np.diff(path, axis=0), axis=1).sum()
+    return out
 
 
 def polyhedral_geodesic_distances(mesh: TriangleMesh, sources, targets) -> np.ndarray:
-    """(len(sources), len(targets)) geodesic lengths at the mesh's unit-area scale.
+    """(len(sources), len(targets)) exact geodesic lengths at the mesh's unit-area scale.
 
-    Each pair is a locally shortest path found by potpourri3d's edge-flip solver
-    (the Dijkstra path straightened by edge flips; exact polyhedral geodesics in
-    practice). The solver is built once per mesh. Cost grows with the number of pairs:
-    meant for small supports (LP oracles, benchmarks).
+    The oracle of tests and benchmarks: potpourri3d's edge-flip paths on manifold meshes
+    (as before), exact MMP distances with the junction closure on non-manifold ones (cow,
+    beetle), see the module docstring.
     """
-    solver = _FLIP_SOLVERS.get(mesh)
-    if solver is None:
-        solver = _FLIP_SOLVERS[mesh] = pp3d.EdgeFlipGeodesicSolver(mesh.vertices, mesh.faces)
-    out = np.zeros((len(sources), len(targets)))
-    for i, s in enumerate(sources):
-        for j, t in enumerate(targets):
-            if s != t:
-                path = solver.find_geodesic_path(int(s), int(t))
-                out[i, j] = np.linalg.norm(np.diff(path, axis=0), axis=1).sum()
-    return out
+    pieces = _pieces(mesh)
+    route = "mmp" if len(pieces.junctions) else "edge-flip"
+    return geodesic_distances(mesh, sources, targets, route=route)

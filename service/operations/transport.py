@@ -17,7 +17,6 @@ from service.operations.base import (
     OperationRequest,
     check_options,
     check_same_components,
-    default_gamma,
     resolve_all,
     view_of_domain,
 )
@@ -27,21 +26,26 @@ from solvers.convolutional import (
     wasserstein_distance,
     wasserstein_propagation,
 )
+from solvers.convolutional.exact import EXACT_KINDS, MAX_SUPPORT_PRODUCT
 from solvers.emd import earth_movers_distance, pointwise_distances
+from solvers.regularization import shape_regularization
 from solvers.validation import check_anchored, check_edge_weights, check_edges, check_weights
 
 
 class SinkhornOptions(OperationRequest):
     gamma: float | None = Field(None, gt=0, description="entropic regularization (cost d^2, "
-                                "unit-area units); default (2h)^2 with h the mean edge length")
-    substeps: int = Field(1, ge=1, le=100, description="implicit Euler heat substeps")
+                                "unit-area units); default: the regularization policy "
+                                "(solvers.regularization), reported in the result")
+    substeps: int | None = Field(None, ge=1, le=512, description="implicit Euler heat "
+                                 "substeps (default: the policy's; 1 when gamma is given)")
     tol: float | None = Field(None, gt=0, lt=1, description="stopping tolerance (marginal "
                               "violation; default: the solver's)")
     max_iter: int | None = Field(None, ge=1, le=100_000, description="default: the solver's")
 
 
 class W1Options(OperationRequest):
-    w1_method: Literal["admm", "weiszfeld"] = "admm"
+    algorithm: Literal["admm", "weiszfeld"] = Field(
+        "admm", description="W1 solver: ADMM (thesis Fig. 2.5) or Weiszfeld (Fig. 2.4)")
     basis: Literal["full", "spectral"] = "full"
     k: int | None = Field(None, ge=1, description="spectral basis size")
     tol: float | None = Field(None, gt=0, lt=1, description="relative primal/dual residual "
@@ -52,12 +56,55 @@ class W1Options(OperationRequest):
 class DistanceRequest(SinkhornOptions):
     mu0: Distribution
     mu1: Distribution
-    method: Literal["sinkhorn", "debiased", "emd"] = Field(
-        "sinkhorn", description="sinkhorn: entropic W2 (thesis Alg. 1); debiased: Sinkhorn "
-        "divergence; emd: W1 earth mover's distance (Beckmann problem, ch. 2), meshes only")
-    w1_method: Literal["admm", "weiszfeld"] = "admm"
-    basis: Literal["full", "spectral"] = "full"
-    k: int | None = Field(None, ge=1)
+    metric: Literal["w2", "w1"] = Field(
+        "w2", description="w2: squared 2-Wasserstein distance (geodesic cost d^2); w1: earth "
+        "mover's distance (Beckmann problem, thesis ch. 2), meshes only")
+    route: Literal["auto", "convolutional", "exact"] = Field(
+        "auto", description="W2 only. exact: geodesic cost matrix between the supports and "
+        "the transport LP (meshes, grids, point clouds; sparse supports); convolutional: "
+        "entropic W2 with heat kernels (thesis Alg. 1); auto: exact when its estimated time "
+        "is small, else convolutional (always convolutional when gamma is given)")
+    debiased: bool | None = Field(None, description="W2 convolutional: Sinkhorn divergence "
+                                  "(default: the policy's choice, true; false when gamma is "
+                                  "given)")
+    algorithm: Literal["admm", "weiszfeld"] = Field("admm", description="W1 solver")
+    basis: Literal["full", "spectral"] = Field("full", description="W1 flow basis")
+    k: int | None = Field(None, ge=1, description="W1 spectral basis size")
+
+
+class Regularization(BaseModel):
+    """The regularization a convolutional solver used and why."""
+
+    gamma: float
+    t: float
+    substeps: int
+    debiased: bool
+    purpose: Literal["values", "shapes"]
+    h: float = Field(description="length scale (mean edge length / grid spacing)")
+    distance: float | None = Field(None, description="estimated transport distance (values)")
+    reason: str
+
+
+class DistanceResult(BaseModel):
+    """Values of a distance job."""
+
+    value: float = Field(description="W2^2 (metric w2) or W1 (metric w1)")
+    metric: Literal["w2", "w1"]
+    route: Literal["convolutional", "exact", "beckmann"]
+    gamma: float | None = None
+    t: float | None = None
+    substeps: int | None = None
+    debiased: bool | None = None
+    regularization: Regularization | None = Field(None, description="the policy's choice "
+                                                  "(when gamma was left out)")
+    support_sizes: list[int] | None = Field(None, description="exact route: support sizes")
+    cost_seconds: float | None = Field(None, description="exact route: geodesic cost matrix")
+    lp_seconds: float | None = Field(None, description="exact route: transport LP")
+    algorithm: str | None = Field(None, description="W1 solver")
+    iterations: int
+    residual: float
+    converged: bool
+    normalization: list[dict]
 
 
 class BarycenterRequest(SinkhornOptions):
@@ -114,22 +161,22 @@ def _validate_pair(view: DomainView, req) -> list[dict]:
     return _pair(view, req)[1]
 
 
-def _gamma(domain, req) -> float:
-    return float(req.gamma) if req.gamma is not None else default_gamma(domain)
-
-
 def _optional(req) -> dict:
     """tol / max_iter only when given, so the solvers' own defaults apply otherwise."""
     return {k: getattr(req, k) for k in ("tol", "max_iter") if getattr(req, k) is not None}
 
 
-def _sinkhorn_kwargs(domain, req, progress, should_cancel) -> dict:
-    return {"gamma": _gamma(domain, req), "substeps": req.substeps, **_optional(req),
-            "progress": progress, "should_cancel": should_cancel}
+def _shape_kwargs(domain, req, progress, should_cancel) -> tuple[dict, dict | None]:
+    """Solver arguments of the shape operations and the policy's choice (None when the
+    request gave gamma): gamma/substeps left out go through the "shapes" policy."""
+    reg, gamma, substeps = shape_regularization(domain, req.gamma, None, req.substeps)
+    kwargs = {"gamma": float(gamma), "substeps": int(substeps), **_optional(req),
+              "progress": progress, "should_cancel": should_cancel}
+    return kwargs, None if reg is None else reg.as_dict()
 
 
 def _w1(domain, masses, req, progress, should_cancel):
-    return earth_movers_distance(domain, masses["mu0"], masses["mu1"], algorithm=req.w1_method,
+    return earth_movers_distance(domain, masses["mu0"], masses["mu1"], algorithm=req.algorithm,
                                  basis=req.basis, k=req.k, progress=progress,
                                  should_cancel=should_cancel, **_optional(req))
 
@@ -141,30 +188,51 @@ def _convergence(result) -> dict:
 
 # -- distances ------------------------------------------------------------------
 def _validate_distance(view: DomainView, req: DistanceRequest) -> list[dict]:
-    if req.method == "emd" and view.kind != "mesh":
-        from service.errors import UnsupportedOperation
+    from service.errors import UnsupportedOperation
 
-        raise UnsupportedOperation("method 'emd' (W1) is available on triangle meshes only",
-                                   field="method")
-    return _validate_pair(view, req)
+    if req.metric == "w1" and view.kind != "mesh":
+        raise UnsupportedOperation("metric 'w1' is available on triangle meshes only",
+                                   field="metric")
+    if req.metric == "w2" and req.route == "exact" and view.kind not in EXACT_KINDS:
+        raise UnsupportedOperation(f"route 'exact' is available on {', '.join(EXACT_KINDS)} "
+                                   "domains; use route 'convolutional'", field="route")
+    masses, reports = _pair(view, req)
+    if req.metric == "w2" and req.route == "exact":
+        n0, n1 = (int(np.count_nonzero(masses[k])) for k in ("mu0", "mu1"))
+        if n0 * n1 > MAX_SUPPORT_PRODUCT:
+            raise InvalidInput(f"route 'exact' needs a {n0} x {n1} cost matrix, above its "
+                               f"limit of {MAX_SUPPORT_PRODUCT} entries; use route "
+                               "'convolutional' or 'auto'", field="route")
+    return reports
 
 
 def run_distance(domain, req: DistanceRequest, progress, should_cancel) -> OperationOutput:
     masses, reports = _pair(view_of_domain(domain), req)
-    if req.method == "emd":
+    if req.metric == "w1":
         res = _w1(domain, masses, req, progress, should_cancel)
-        values = {"value": float(res.value), "method": "emd", "iterations": int(res.iterations),
+        values = {"value": float(res.value), "metric": "w1", "route": "beckmann",
+                  "algorithm": req.algorithm, "iterations": int(res.iterations),
                   "residual": float(max(res.primal_residual, res.dual_residual)),
                   "converged": bool(res.converged)}
         arrays = {"flow": np.asarray(res.flow), "potential": np.asarray(res.potential)}
         export = {"fields": ["potential"], "flow": "flow", "color": "potential"}
         return OperationOutput({**values, "normalization": reports}, arrays, export)
-    kwargs = _sinkhorn_kwargs(domain, req, progress, should_cancel)
-    res = wasserstein_distance(domain, masses["mu0"], masses["mu1"],
-                               debiased=req.method == "debiased", **kwargs)
-    values = {"value": float(res.value), "method": req.method, "gamma": kwargs["gamma"],
-              **_convergence(res), "normalization": reports}
-    return OperationOutput(values)
+    kwargs = {"gamma": "auto" if req.gamma is None else float(req.gamma), "route": req.route,
+              "debiased": req.debiased, **_optional(req), "progress": progress,
+              "should_cancel": should_cancel}
+    if req.substeps is not None:
+        kwargs["substeps"] = req.substeps
+    res = wasserstein_distance(domain, masses["mu0"], masses["mu1"], **kwargs)
+    values = {"value": float(res.value), "metric": "w2", "route": res.route}
+    if res.route == "exact":
+        values.update(support_sizes=[len(res.sources), len(res.targets)],
+                      cost_seconds=float(res.cost_seconds), lp_seconds=float(res.lp_seconds))
+    else:
+        reg = res.regularization
+        values.update(gamma=float(res.gamma), t=float(res.t), substeps=int(res.substeps),
+                      debiased=bool(res.debiased),
+                      regularization=None if reg is None else reg.as_dict())
+    return OperationOutput({**values, **_convergence(res), "normalization": reports})
 
 
 # -- barycenters --------------------------------------------------------------
@@ -183,11 +251,12 @@ def _validate_barycenter(view, req) -> list[dict]:
 
 def run_barycenter(domain, req: BarycenterRequest, progress, should_cancel) -> OperationOutput:
     mus, weights, reports = _barycenter_inputs(view_of_domain(domain), req)
-    kwargs = _sinkhorn_kwargs(domain, req, progress, should_cancel)
+    kwargs, reg = _shape_kwargs(domain, req, progress, should_cancel)
     res = barycenter(domain, mus, weights, sharpen=req.sharpen, entropy_bound=req.entropy_bound,
-               debiased=req.debiased, **kwargs)
+                     debiased=req.debiased, **kwargs)
     masses = np.asarray(res.masses, dtype=np.float64)
-    values = {"gamma": kwargs["gamma"], "weights": weights.tolist(), **_convergence(res),
+    values = {"gamma": kwargs["gamma"], "substeps": kwargs["substeps"], "regularization": reg,
+              "weights": weights.tolist(), **_convergence(res),
               "entropy": getattr(res, "entropy", None), "normalization": reports}
     arrays = {"masses": masses, "density": masses / np.asarray(domain.areas)}
     return OperationOutput(values, arrays, {"fields": ["masses", "density"],
@@ -206,11 +275,12 @@ def run_interpolation(domain, req: InterpolationRequest, progress, should_cancel
                       ) -> OperationOutput:
     _validate_interpolation(view_of_domain(domain), req)
     masses, reports = _pair(view_of_domain(domain), req)
-    kwargs = _sinkhorn_kwargs(domain, req, progress, should_cancel)
+    kwargs, reg = _shape_kwargs(domain, req, progress, should_cancel)
     res = displacement_interpolation(domain, masses["mu0"], masses["mu1"], list(req.times),
                                      sharpen=req.sharpen, debiased=req.debiased, **kwargs)
     m = np.asarray(res.masses, dtype=np.float64).reshape(domain.n, -1)
-    values = {"gamma": kwargs["gamma"], "times": list(req.times), **_convergence(res),
+    values = {"gamma": kwargs["gamma"], "substeps": kwargs["substeps"], "regularization": reg,
+              "times": list(req.times), **_convergence(res),
               "normalization": reports}
     arrays = {"masses": m, "density": m / np.asarray(domain.areas)[:, None]}
     return OperationOutput(values, arrays, {"fields": ["masses", "density"],
@@ -249,11 +319,12 @@ def _validate_propagation(view, req) -> list[dict]:
 def run_propagation(domain, req: PropagationRequest, progress, should_cancel
                     ) -> OperationOutput:
     edges, fixed, reports = _propagation_inputs(view_of_domain(domain), req)
-    kwargs = _sinkhorn_kwargs(domain, req, progress, should_cancel)
+    kwargs, reg = _shape_kwargs(domain, req, progress, should_cancel)
     res = wasserstein_propagation(domain, req.n_nodes, edges, fixed,
                                   edge_weights=req.edge_weights, **kwargs)
     m = np.asarray(res.masses, dtype=np.float64).reshape(domain.n, req.n_nodes)
-    values = {"gamma": kwargs["gamma"], **_convergence(res),
+    values = {"gamma": kwargs["gamma"], "substeps": kwargs["substeps"], "regularization": reg,
+              **_convergence(res),
               "free_nodes": np.asarray(res.free_nodes).tolist(), "normalization": reports}
     arrays = {"masses": m, "density": m / np.asarray(domain.areas)[:, None]}
     return OperationOutput(values, arrays, {"fields": ["masses", "density"],
@@ -307,8 +378,9 @@ def run_flow(domain, req: FlowRequest, progress, should_cancel) -> OperationOutp
 MESH = ("mesh",)
 OPERATIONS = [
     Operation("distances", "createDistanceJob",
-              "Transport distance between two distributions (entropic W2, debiased, or W1)",
-              DistanceRequest, run_distance, _validate_distance),
+              "Transport distance between two distributions (W2^2: exact LP for sparse "
+              "supports or convolutional; or W1)",
+              DistanceRequest, run_distance, _validate_distance, result_model=DistanceResult),
     Operation("barycenters", "createBarycenterJob",
               "Wasserstein barycenter of distributions (convolutional, optional sharpening)",
               BarycenterRequest, run_barycenter, _validate_barycenter),

@@ -36,9 +36,10 @@ from solvers.convolutional.common import (
     masses_from_log,
     prepare,
 )
-from solvers.errors import InputError
+from solvers.convolutional.distance import watch_stagnation
 from solvers.monitor import SolverResult
-from solvers.validation import check_weights
+from solvers.regularization import Regularization, shape_regularization
+from solvers.validation import check_entropy_bound, check_weights
 
 
 @dataclass
@@ -58,6 +59,8 @@ class BarycenterResult(SolverResult):
     gamma: float = 0.0
     t: float = 0.0
     log_scalings: tuple[np.ndarray, np.ndarray] | None = None
+    substeps: int = 1
+    regularization: Regularization | None = None
 
 
 def sharpen_log(lbar: np.ndarray, areas: np.ndarray, bound: float) -> np.ndarray:
@@ -174,7 +177,8 @@ def barycenters_log(logk: LogKernel, areas: np.ndarray, inputs: np.ndarray,
                 residual = float(np.max(gaps if measure_all else np.where(alpha > 0, gaps, 0.0)))
                 if not np.isfinite(residual):
                     residual = float("inf")
-                if residual <= tol or it >= max_iter or not np.isfinite(residual):
+                if residual <= tol or it >= max_iter or not np.isfinite(residual) \
+                        or monitor.stalled:
                     monitor(it, residual)
                     break
                 omega = sor.update(residual)
@@ -191,9 +195,9 @@ def barycenter(
     mus,
     weights=None,
     *,
-    gamma: float,
+    gamma: float | str = "auto",
     t: float | None = None,
-    substeps: int = 1,
+    substeps: int | None = None,
     entropy_bound: float | None = None,
     sharpen: bool = False,
     debiased: bool = False,
@@ -220,9 +224,13 @@ def barycenter(
     mus : ``(n, k)`` input masses (columns normalized here).
     weights : ``(k,)`` non-negative barycentric weights (default uniform), normalized.
     gamma, t, substeps : regularization, heat time (default ``gamma/4``), substeps.
+        ``gamma="auto"`` (default) takes :func:`solvers.regularization.choose_regularization`
+        with ``purpose="shapes"`` (reported in ``result.regularization``); a numeric
+        ``gamma`` runs as specified, one substep unless given.
     entropy_bound, sharpen, debiased : see above.
     tol : largest L1 marginal violation over the inputs at which to stop.
-    max_iter : iteration cap (default 10000).
+    max_iter : iteration cap (default 10000); the loop also stops when the residual stops
+        falling (stagnation), reporting ``converged=False`` and the measured residual.
     acceleration : ``"over-relaxation"`` (default: adaptive over-relaxation of both
         scaling updates, same fixed point, typically 3-5x fewer iterations; used
         without sharpening/debiasing) or ``"none"`` (plain Alg. 2).
@@ -238,17 +246,14 @@ def barycenter(
     k = M.shape[1]
     alpha = check_weights(weights, k)
     acceleration = check_acceleration(acceleration, BARYCENTER_ACCELERATIONS)
+    reg, gamma, substeps = shape_regularization(domain, gamma, t, substeps)
     setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
                     progress=progress, should_cancel=should_cancel)
+    watch_stagnation(setup.monitor, setup.tol)
     check_components(domain, M, setup.tol, "mus")
     bound = None
     if entropy_bound is not None:
-        try:
-            bound = float(entropy_bound)
-        except (TypeError, ValueError) as exc:
-            raise InputError("entropy_bound must be a number", field="entropy_bound") from exc
-        if not np.isfinite(bound):
-            raise InputError("entropy_bound must be finite", field="entropy_bound")
+        bound = check_entropy_bound(entropy_bound, setup.areas, "entropy_bound")
     elif sharpen:
         bound = float(np.max(entropy(M, setup.areas)))
     scalings: dict = {}
@@ -262,4 +267,5 @@ def barycenter(
     return BarycenterResult(masses=masses, iterations=int(it), residual=float(res),
                             converged=conv, entropy=float(entropy(masses, setup.areas)),
                             entropy_bound=bound, gamma=setup.gamma, t=setup.t,
-                            log_scalings=(scalings["log_v"], scalings["log_w"]))
+                            log_scalings=(scalings["log_v"], scalings["log_w"]),
+                            substeps=setup.substeps, regularization=reg)

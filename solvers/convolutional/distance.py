@@ -31,8 +31,39 @@ from solvers.convolutional.common import (
     masses_block,
     prepare,
 )
+from solvers.convolutional.exact import (
+    AUTO_SECONDS,
+    MAX_SUPPORT_PRODUCT,
+    ExactTransportResult,
+    exact_route_seconds,
+    exact_wasserstein_distance,
+    supports_exact,
+)
 from solvers.errors import InputError
 from solvers.monitor import SolverResult
+from solvers.regularization import Regularization, choose_regularization
+
+ROUTES = ("auto", "convolutional", "exact")
+# Iterations without a 0.1 % improvement of the best residual after which the convolutional
+# solvers stop as stalled (converged=False with the measured residual).
+STALL_PATIENCE = 200
+
+
+def watch_stagnation(monitor: Monitor, tol: float | None = None) -> Monitor:
+    """Turn on stagnation detection (``monitor.stalled``) with :data:`STALL_PATIENCE`."""
+    monitor.patience = STALL_PATIENCE
+    if tol is not None:
+        monitor.tol = tol
+    return monitor
+
+
+def stage_monitor(monitor: Monitor) -> Monitor:
+    """A fresh monitor (same callbacks, tol, patience, offset) for a solver's next stage,
+    so the stagnation record of one stage does not stop the next."""
+    fresh = Monitor(monitor.progress, monitor.should_cancel, tol=monitor.tol,
+                    patience=monitor.patience, min_improvement=monitor.min_improvement)
+    fresh.offset = monitor.offset
+    return fresh
 
 
 @dataclass
@@ -55,6 +86,10 @@ class SinkhornResult(SolverResult):
     t: float = 0.0
     omega: float = 1.0
     self_values: tuple[float, float] | None = None
+    substeps: int = 1
+    debiased: bool = False
+    route: str = "convolutional"
+    regularization: Regularization | None = None
 
 
 def sinkhorn_log(logk: LogKernel, areas, m0, m1, *, tol, max_iter, monitor: Monitor,
@@ -93,7 +128,8 @@ def sinkhorn_log(logk: LogKernel, areas, m0, m1, *, tol, max_iter, monitor: Moni
             res1 = _l1_gap(m0, areas, f, lg)
             residual = res1 + res2
             monitor(it, residual)
-            if residual <= tol or it >= max_iter or not np.isfinite(residual):
+            if residual <= tol or it >= max_iter or not np.isfinite(residual) \
+                    or monitor.stalled:
                 break
             omega = sor.update(residual)
             f[s0] += omega * (l0[s0] - lg[s0] - f[s0])
@@ -142,7 +178,8 @@ def _sinkhorn_anderson(logk: LogKernel, areas, m0, l0, l1, f, *, tol, max_iter,
             lg = logk(g)
             residual = _l1_gap(m0, areas, f, lg)
             monitor(it, residual)
-            if residual <= tol or it >= max_iter or not np.isfinite(residual):
+            if residual <= tol or it >= max_iter or not np.isfinite(residual) \
+                    or monitor.stalled:
                 break
             if residual > _ANDERSON_RESTART * best:
                 mixer.reset()
@@ -230,7 +267,8 @@ def symmetric_sinkhorn_log(logk: LogKernel, areas, m, *, tol, max_iter, monitor:
         while True:
             residual = float(np.max(np.abs(m - a * np.exp(f + lf)).sum(axis=0)))
             monitor(it, residual)
-            if residual <= tol or it >= max_iter or not np.isfinite(residual):
+            if residual <= tol or it >= max_iter or not np.isfinite(residual) \
+                    or monitor.stalled:
                 break
             f[s] = 0.5 * (f[s] + lm[s] - lf[s])
             lf = logk(f)
@@ -248,17 +286,18 @@ def wasserstein_distance(
     mu0,
     mu1,
     *,
-    gamma: float,
+    gamma: float | str = "auto",
     t: float | None = None,
-    substeps: int = 1,
+    substeps: int | None = None,
     tol: float = 1e-5,
     max_iter: int | None = None,
-    debiased: bool = False,
+    debiased: bool | None = None,
+    route: str = "auto",
     acceleration: str = "anderson",
     init: tuple[np.ndarray, np.ndarray] | None = None,
     progress: Callable[[int, float], None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
-) -> SinkhornResult:
+) -> SinkhornResult | ExactTransportResult:
     r"""Convolutional Wasserstein distance :math:`W^2_{2,H_t}` (thesis Alg. 1, eq. 3.10).
 
     Objective: :math:`\min_\pi \int\!\!\int d^2\,d\pi - \gamma H(\pi)` over couplings of
@@ -270,31 +309,35 @@ def wasserstein_distance(
     W(\mu_1,\mu_1)` is returned, which vanishes for ``mu0 == mu1`` and removes the
     first-order entropic bias.
 
-    Choosing ``gamma``/``t`` (measured against the exact LP with squared geodesic
-    costs; ``tests/test_convolutional.py``, ``bench/results/convolutional.md``): the
-    discrete heat kernel follows Varadhan's :math:`e^{-d^2/4t}` out to distance
-    ``d`` only when the time resolves the mesh along the way, :math:`t \gtrsim h\,d`
-    (``h`` the mean edge length), and implicit Euler needs enough ``substeps`` to
-    lose its exponential tail (:math:`e^{-d/\sqrt{\tau}}`, :math:`\tau = t/`substeps).
-    Below that the effective cost grows almost linearly with distance and values
-    come out far too small (the cause of W2^2 = 0.019 vs the LP's 0.249 on cow with
-    ``t = h^2``, one substep and the thesis' ``2t`` value factor).  For *values*:
-    ``debiased=True``, ``gamma = 2.5 h d`` with ``d`` the expected transport distance
-    (a first pass at ``gamma = 0.05`` gives ``d = sqrt(value)``), ``substeps=64``
-    (16 loses 5-10 % at the largest distances): within 10 % of the LP on the
-    shared meshes.  For barycenters and interpolation (shapes, not values) smaller
-    ``gamma`` is fine, but keep ``substeps >= 8`` so mass moves along geodesics.
+    Defaults (``gamma="auto"``, ``route="auto"``): values users can trust.  When both
+    supports are small enough that the exact route is estimated below
+    :data:`~solvers.convolutional.exact.AUTO_SECONDS` (point masses, a few scattered
+    points, tiny meshes), the exact discrete W2² is computed instead
+    (:func:`~solvers.convolutional.exact.exact_wasserstein_distance`: exact geodesic cost
+    matrix between the supports, network-simplex LP).  Otherwise the regularization comes
+    from :func:`solvers.regularization.choose_regularization` with ``purpose="values"``
+    (debiased, ``gamma`` proportional to the mesh resolution times the estimated transport
+    distance, substeps enough for implicit Euler to follow the Gaussian out to that
+    distance); its choice is in ``result.regularization``.  Measured accuracy of both
+    routes against the exact LP: ``bench/results/convolutional.md``.  A numeric ``gamma``
+    runs Alg. 1 exactly as specified (``substeps=1``, ``debiased=False`` unless given;
+    ``route="auto"`` then means convolutional).
 
     Parameters
     ----------
     domain : any domain (mesh, grid, graph, point cloud).
     mu0, mu1 : ``(n,)`` masses (non-negative, normalized here).
-    gamma : entropic regularization (cost :math:`d^2`).
-    t, substeps : heat time (default ``gamma/4``) and implicit Euler substeps.
+    gamma : entropic regularization (cost :math:`d^2`), or ``"auto"`` (default: the policy).
+    t, substeps : heat time (default ``gamma/4``) and implicit Euler substeps (default: the
+        policy's with ``gamma="auto"``, else 1).
     tol : L1 marginal violation at which to stop (mass units).
-    max_iter : iteration cap (default 10000); when hit, ``converged`` is False
-        and ``residual`` is the measured violation.
-    debiased : return the Sinkhorn divergence.
+    max_iter : iteration cap (default 10000); when hit, or when the residual stops
+        falling (stagnation), ``converged`` is False and ``residual`` is the measured
+        violation.
+    debiased : return the Sinkhorn divergence (default: the policy's choice, True, with
+        ``gamma="auto"``; else False).
+    route : ``"auto"`` (default), ``"convolutional"`` (always Alg. 1) or ``"exact"`` (always
+        the LP; meshes, grids and point clouds).
     acceleration : ``"anderson"`` (default: Anderson mixing of the Sinkhorn fixed-point
         map, about half the iterations of over-relaxation), ``"over-relaxation"``
         (adaptive SOR) or ``"none"`` (plain Alg. 1).  Same fixed point.
@@ -304,7 +347,9 @@ def wasserstein_distance(
 
     Returns
     -------
-    SinkhornResult(value, v, w, iterations, residual, converged, log_v, log_w, ...)
+    SinkhornResult(value, v, w, iterations, residual, converged, log_v, log_w, gamma, t,
+    substeps, debiased, route="convolutional", regularization, ...), or an
+    ExactTransportResult(value, ..., route="exact") when the exact route is taken.
     """
     m0 = masses_block(domain, mu0, "mu0")
     m1 = masses_block(domain, mu1, "mu1")
@@ -313,16 +358,32 @@ def wasserstein_distance(
             raise InputError(f"{name} must be one distribution of shape ({domain.n},)",
                              field=name)
     acceleration = check_acceleration(acceleration, ACCELERATIONS)
+    if route not in ROUTES:
+        raise InputError(f"route must be one of {', '.join(map(repr, ROUTES))}, got "
+                         f"{route!r}", field="route")
+    auto = isinstance(gamma, str) and gamma == "auto"
+    if route == "exact" or (route == "auto" and auto and _exact_fits(domain, m0, m1)):
+        return exact_wasserstein_distance(domain, m0, m1, progress=progress,
+                                          should_cancel=should_cancel)
+    if auto:
+        reg = choose_regularization(domain, m0, m1, purpose="values", t=t,
+                                    substeps=substeps, debiased=debiased)
+        gamma, t, substeps, debiased = reg.gamma, reg.t, reg.substeps, reg.debiased
+    else:  # an explicit gamma: the solver as specified (one substep, biased by default)
+        reg = None
+        substeps = 1 if substeps is None else substeps
+        debiased = False if debiased is None else bool(debiased)
     setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
                     progress=progress, should_cancel=should_cancel)
     check_components(domain, np.stack([m0, m1], axis=1), setup.tol, "mu1")
-    a, logk, mon = setup.areas, setup.logk, setup.monitor
+    a, logk, mon = setup.areas, setup.logk, watch_stagnation(setup.monitor, setup.tol)
     f, g, it, res, conv, omega = sinkhorn_log(logk, a, m0, m1, tol=setup.tol,
                                               max_iter=setup.max_iter, monitor=mon,
                                               acceleration=acceleration, init=init)
     value = _value(setup.gamma, m0, f, m1, g)
     self_values = None
     if debiased:
+        mon = stage_monitor(mon)  # second stage: its own stagnation record
         mon.offset += it + 1
         both = np.stack([m0, m1], axis=1)
         h, it_s, res_s, conv_s = symmetric_sinkhorn_log(
@@ -341,7 +402,17 @@ def wasserstein_distance(
         v, w = np.exp(f), np.exp(g)
     return SinkhornResult(value=value, v=v, w=w, iterations=int(it), residual=float(res),
                           converged=bool(conv), log_v=f, log_w=g, gamma=setup.gamma,
-                          t=setup.t, omega=float(omega), self_values=self_values)
+                          t=setup.t, omega=float(omega), self_values=self_values,
+                          substeps=setup.substeps, debiased=bool(debiased),
+                          regularization=reg)
+
+
+def _exact_fits(domain, m0: np.ndarray, m1: np.ndarray) -> bool:
+    """route='auto': the exact route when available and estimated below AUTO_SECONDS."""
+    if not supports_exact(domain):
+        return False
+    n0, n1 = int(np.count_nonzero(m0)), int(np.count_nonzero(m1))
+    return n0 * n1 <= MAX_SUPPORT_PRODUCT and exact_route_seconds(domain, n0, n1) <= AUTO_SECONDS
 
 
 def _finite_max(x: np.ndarray) -> float:

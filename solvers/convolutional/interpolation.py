@@ -23,8 +23,10 @@ from solvers.convolutional.common import (
     masses_from_log,
     prepare,
 )
+from solvers.convolutional.distance import watch_stagnation
 from solvers.errors import InputError
 from solvers.monitor import SolverResult
+from solvers.regularization import Regularization, shape_regularization
 
 
 @dataclass
@@ -35,6 +37,8 @@ class InterpolationResult(SolverResult):
     times: np.ndarray
     gamma: float = 0.0
     t: float = 0.0
+    substeps: int = 1
+    regularization: Regularization | None = None
 
 
 def displacement_interpolation(
@@ -43,9 +47,9 @@ def displacement_interpolation(
     mu1,
     times,
     *,
-    gamma: float,
+    gamma: float | str = "auto",
     t: float | None = None,
-    substeps: int = 1,
+    substeps: int | None = None,
     sharpen: bool = False,
     debiased: bool = False,
     tol: float = 1e-5,
@@ -64,7 +68,7 @@ def displacement_interpolation(
     ----------
     mu0, mu1 : ``(n,)`` masses; times : sequence of ``s`` in ``[0, 1]``.
     gamma, t, substeps, tol, max_iter, acceleration, progress, should_cancel :
-        as :func:`barycenter`.
+        as :func:`barycenter` (``gamma="auto"``: the ``"shapes"`` policy).
 
     Returns
     -------
@@ -82,8 +86,10 @@ def displacement_interpolation(
     if s.size == 0 or not np.all(np.isfinite(s)) or np.any((s < 0) | (s > 1)):
         raise InputError("times must be a non-empty list of numbers in [0, 1]", field="times")
     acceleration = check_acceleration(acceleration, BARYCENTER_ACCELERATIONS)
+    reg, gamma, substeps = shape_regularization(domain, gamma, t, substeps)
     setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
                     progress=progress, should_cancel=should_cancel)
+    watch_stagnation(setup.monitor, setup.tol)
     check_components(domain, np.stack([m0, m1], axis=1), setup.tol, "mu1")
     T = s.size
     inputs = np.concatenate([np.tile(m0[:, None], (1, T)), np.tile(m1[:, None], (1, T))], axis=1)
@@ -100,4 +106,5 @@ def displacement_interpolation(
         relax=acceleration == "over-relaxation" and not sharpen and not debiased)
     masses = masses_from_log(lbar, setup.areas)
     return InterpolationResult(masses=masses, times=s, iterations=int(it), residual=float(res),
-                               converged=conv, gamma=setup.gamma, t=setup.t)
+                               converged=conv, gamma=setup.gamma, t=setup.t,
+                               substeps=setup.substeps, regularization=reg)

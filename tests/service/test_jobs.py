@@ -204,7 +204,7 @@ def test_distance_job_matches_solver(client, meshes_dir, shared_mesh, method):
     mesh = shared_mesh("woody.obj")
     mid = upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
     body = {"mu0": {"vertex": 0, "radius": 0.15}, "mu1": {"vertex": 500, "radius": 0.15},
-            "method": method, "gamma": 0.01}
+            "debiased": method == "debiased", "gamma": 0.01}
     job = client.post(f"/v1/domains/{mid}/distances", json=body).json()
     assert job["state"] == "succeeded", job
     values = client.get(f"/v1/jobs/{job['id']}/result").json()["values"]
@@ -247,7 +247,7 @@ def test_job_input_errors_name_the_field(client, meshes_dir, shared_mesh):
     assert_error(client.post(f"/v1/domains/{gid}/pointwise-distances", json={"source": 0}),
                  422, "domain_id", "unsupported_operation")
     assert_error(client.post(f"/v1/domains/{gid}/distances",
-                             json={"mu0": ok, "mu1": ok, "method": "emd"}), 422, "method")
+                             json={"mu0": ok, "mu1": ok, "metric": "w1"}), 422, "metric")
     # Several components: mass cannot cross them.
     suz = shared_mesh("suzanne.obj")
     sid = upload_mesh(client, meshes_dir / "suzanne.obj").json()["id"]

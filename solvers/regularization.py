@@ -1,0 +1,249 @@
+r"""One policy for the entropic regularization of convolutional transport (thesis ch. 3).
+
+Convolutional transport replaces :math:`e^{-d^2/\gamma}` by the heat kernel at
+:math:`t = \gamma/4` (:func:`solvers.kernels.heat_time`, Varadhan's formula).  On a mesh the
+implicit-Euler heat kernel follows :math:`e^{-d^2/4t}` out to a distance :math:`d` only when
+:math:`t \gtrsim h\,d` (``h`` the mean edge length at unit area) and with enough substeps to
+lose Euler's exponential tail; below that the effective cost grows almost linearly with
+distance and W2² values come out far too small.  Hence two purposes:
+
+* ``purpose="values"`` (distances): debiased Sinkhorn divergence, ``substeps =``
+  :data:`VALUE_SUBSTEPS`, :math:`\gamma = c\,h\,d` with ``d`` the typical transport
+  distance of the inputs, estimated cheaply by :func:`transport_distance_estimate` (an exact
+  LP between few-point quantizations of the two inputs, with heat-method geodesics on
+  meshes), and :math:`c` = :data:`VALUE_FACTOR` (the README's expert rule).
+* ``purpose="shapes"`` (barycenters, interpolations, propagation): the support of the result
+  matters, not the value; :math:`\gamma = (2h)^2` (``t = h^2``, sharp) with
+  :data:`SHAPE_SUBSTEPS` substeps so that mass travels along geodesics.
+
+Measured accuracy against the exact LP (squared exact geodesics): ``bench/results/
+convolutional.md`` ("Accuracy of the defaults").  Grids (exact Gaussian kernel) use the
+grid spacing for ``h``; graphs use hops (``h = 1``); point clouds the mean neighbour
+spacing at unit area.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from solvers.errors import InputError
+from solvers.kernels import heat_time
+
+PURPOSES = ("values", "shapes")
+# gamma = VALUE_FACTOR * h * d for values (bench/results/convolutional.md).
+VALUE_FACTOR = 2.5
+# Implicit Euler needs about SUBSTEP_FACTOR * d^2 / t substeps (t = gamma / 4) before its
+# kernel follows exp(-d^2 / 4t) out to the transport distance d; rounded up to a power of
+# two within [VALUE_SUBSTEPS, MAX_SUBSTEPS] and lowered to fit VALUE_SECONDS.
+VALUE_SUBSTEPS = 64
+MAX_SUBSTEPS = 512
+SUBSTEP_FACTOR = 2.0
+# Time budget (estimated seconds) of a default distance; substeps are reduced to fit.
+VALUE_SECONDS = 60.0
+# Kernel applications of a debiased distance solve (Sinkhorn + symmetric passes, measured)
+# and seconds per substep solve per mesh vertex (2 cores, bench/results/convolutional.md).
+APPLICATIONS = 60
+SOLVE_SECONDS_PER_VERTEX = 3e-7
+SHAPE_SUBSTEPS = 8
+# Points per side of the quantized first pass of transport_distance_estimate.
+ESTIMATE_POINTS = 8
+
+
+@dataclass(frozen=True)
+class Regularization:
+    """The chosen ``gamma``, heat time ``t``, ``substeps`` and ``debiased`` and why.
+
+    ``h``: the domain's length scale (mean edge length / grid spacing at unit area);
+    ``distance``: the estimated typical transport distance (None for shapes);
+    ``reason``: a one-line account of the choice.
+    """
+
+    gamma: float
+    t: float
+    substeps: int
+    debiased: bool
+    purpose: str
+    h: float
+    distance: float | None
+    reason: str
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def length_scale(domain) -> float:
+    """``h``: mean edge length (meshes, unit area), largest grid spacing, 1 hop on graphs,
+    or ``sqrt(1/n)`` (unit area, ``n`` points) otherwise."""
+    kind = getattr(domain, "kind", None)
+    h = getattr(domain, "mean_edge_length", None)
+    if h is not None:
+        return float(h)
+    if kind == "grid" or hasattr(domain, "spacing"):
+        return float(max(domain.spacing))
+    if kind == "graph":
+        return 1.0
+    return float(math.sqrt(1.0 / max(int(domain.n), 1)))
+
+
+def _quantize(points: np.ndarray, masses: np.ndarray, k: int):
+    """``k`` representatives of a weighted point set (mass-weighted farthest points, each
+    point's mass moved to its nearest representative): ``(indices, masses)``."""
+    support = np.flatnonzero(masses > 0)
+    if len(support) <= k:
+        return support, masses[support]
+    p, m = points[support], masses[support]
+    chosen = [int(np.argmax(m))]
+    dist = np.linalg.norm(p - p[chosen[0]], axis=1)
+    for _ in range(k - 1):
+        nxt = int(np.argmax(dist * np.sqrt(m)))
+        if dist[nxt] <= 0:
+            break
+        chosen.append(nxt)
+        dist = np.minimum(dist, np.linalg.norm(p - p[nxt], axis=1))
+    reps = p[chosen]
+    owner = np.argmin(((p[:, None, :] - reps[None, :, :]) ** 2).sum(axis=2), axis=1)
+    return support[chosen], np.bincount(owner, weights=m, minlength=len(chosen))
+
+
+def _distances_from(domain, sources: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """Approximate ground distances ``(len(sources), len(targets))`` for the estimate."""
+    kind = getattr(domain, "kind", None)
+    if kind == "mesh":
+        def build():
+            import potpourri3d as pp3d
+
+            return pp3d.MeshHeatMethodDistanceSolver(np.asarray(domain.vertices, np.float64),
+                                                     np.asarray(domain.faces))
+
+        solver = domain.operators.get(("heat-method-distance",), build)
+        labels = domain.component_labels
+        out = np.stack([solver.compute_distance(int(s))[targets] for s in sources])
+        return np.where(labels[sources][:, None] == labels[targets][None, :], out, np.inf)
+    if kind == "graph":
+        from scipy.sparse.csgraph import dijkstra
+
+        return dijkstra(_graph_lengths(domain), indices=sources)[:, targets]
+    pts = np.asarray(domain.points, dtype=np.float64)
+    return np.linalg.norm(pts[sources][:, None, :] - pts[targets][None, :, :], axis=2)
+
+
+def _graph_lengths(domain):
+    """Hop graph of a graph domain (unit edge lengths)."""
+    import scipy.sparse as sp
+
+    lap = sp.csr_matrix(domain.laplacian)
+    adj = (lap - sp.diags(lap.diagonal())).tocoo()
+    return sp.csr_matrix((np.ones(adj.nnz), (adj.row, adj.col)), shape=lap.shape)
+
+
+def transport_distance_estimate(domain, m0: np.ndarray, m1: np.ndarray,
+                                points: int = ESTIMATE_POINTS) -> float:
+    r"""Cheap estimate of :math:`W_2(\mu_0, \mu_1)`: the exact LP between ``points``-point
+    quantizations of the two inputs, with heat-method geodesics on meshes (Crane et al.
+    2013), hop distances on graphs and Euclidean distances otherwise."""
+    import ot
+
+    if getattr(domain, "kind", None) == "graph":
+        coords = None
+    else:
+        coords = np.asarray(domain.vertices if hasattr(domain, "vertices") else domain.points,
+                            dtype=np.float64)
+    if coords is None:  # graphs: no coordinates; quantize by mass only
+        i0 = np.argsort(m0)[::-1][:points]
+        i1 = np.argsort(m1)[::-1][:points]
+        w0, w1 = m0[i0], m1[i1]
+    else:
+        i0, w0 = _quantize(coords, m0, points)
+        i1, w1 = _quantize(coords, m1, points)
+    cost = _distances_from(domain, i0, i1) ** 2
+    if not np.all(np.isfinite(cost)):  # different components: per-component masses match
+        cost = np.where(np.isfinite(cost), cost, 1e6 * np.nanmax(np.where(np.isfinite(cost),
+                                                                          cost, 0.0)) + 1.0)
+    w0, w1 = w0 / w0.sum(), w1 / w1.sum()
+    return float(math.sqrt(max(ot.emd2(w0, w1, cost), 0.0)))
+
+
+def value_substeps(domain, distance: float, t: float) -> tuple[int, str]:
+    """Substeps for values: ``SUBSTEP_FACTOR * d^2 / t`` rounded up to a power of two in
+    ``[VALUE_SUBSTEPS, MAX_SUBSTEPS]``, lowered (not below VALUE_SUBSTEPS) until the
+    estimated solve time fits ``VALUE_SECONDS``; returns ``(substeps, why)``."""
+    if getattr(domain, "kind", None) == "grid":  # exact Gaussian: substeps are unused
+        return 1, "exact grid kernel"
+    want = SUBSTEP_FACTOR * distance * distance / t
+    steps = VALUE_SUBSTEPS
+    while steps < want and steps < MAX_SUBSTEPS:
+        steps *= 2
+    per_step = APPLICATIONS * SOLVE_SECONDS_PER_VERTEX * float(domain.n)
+    note = f"{SUBSTEP_FACTOR} d^2/t = {want:.0f}"
+    if steps > VALUE_SUBSTEPS and steps * per_step > VALUE_SECONDS:
+        while steps > VALUE_SUBSTEPS and steps * per_step > VALUE_SECONDS:
+            steps //= 2
+        note += f", lowered to fit the {VALUE_SECONDS:.0f} s budget"
+    return steps, note
+
+
+def choose_regularization(domain, m0=None, m1=None, *, purpose: str = "values",
+                          gamma=None, t=None, substeps=None, debiased=None) -> Regularization:
+    """The regularization policy (module docstring); explicit arguments win.
+
+    ``m0, m1``: normalized ``(n,)`` masses (needed for ``purpose="values"`` unless ``gamma``
+    is given).  ``gamma``: a number, or None/``"auto"`` for the policy's choice; ``t``,
+    ``substeps``, ``debiased``: None for the policy's choice.
+    """
+    if purpose not in PURPOSES:
+        raise InputError(f"purpose must be one of {PURPOSES}, got {purpose!r}", field="purpose")
+    h = length_scale(domain)
+    auto = gamma is None or (isinstance(gamma, str) and gamma == "auto")
+    if isinstance(gamma, str) and not auto:
+        raise InputError(f"gamma must be a positive number or 'auto', got {gamma!r}",
+                         field="gamma")
+    distance = None
+    if purpose == "values":
+        deb = True if debiased is None else bool(debiased)
+        if auto:
+            if m0 is None or m1 is None:
+                raise InputError("gamma='auto' for values needs both distributions",
+                                 field="gamma")
+            distance = transport_distance_estimate(domain, np.asarray(m0), np.asarray(m1))
+            # Identical or nearly identical inputs: resolve at least a few edges.
+            d_eff = max(distance, 4.0 * h)
+            value = VALUE_FACTOR * h * d_eff
+            why = (f"values: gamma = {VALUE_FACTOR} h d with h = {h:.4g}, estimated "
+                   f"transport distance d = {distance:.4g}"
+                   + (f" (raised to 4h = {4 * h:.4g})" if d_eff > distance else ""))
+            if substeps is None:
+                steps, note = value_substeps(domain, d_eff, heat_time(value))
+                why += f"; debiased, {steps} substeps ({note})"
+            else:
+                steps = int(substeps)
+        else:
+            value = float(gamma)
+            steps = VALUE_SUBSTEPS if substeps is None else int(substeps)
+            why = "values: gamma given"
+    else:
+        steps = SHAPE_SUBSTEPS if substeps is None else int(substeps)
+        deb = False if debiased is None else bool(debiased)
+        if auto:
+            value = (2.0 * h) ** 2
+            why = f"shapes: gamma = (2h)^2 with h = {h:.4g} (t = h^2), {steps} substeps"
+        else:
+            value = float(gamma)
+            why = "shapes: gamma given"
+    if not (value > 0 and math.isfinite(value)):
+        raise InputError(f"gamma must be positive and finite, got {value!r}", field="gamma")
+    tt = heat_time(value) if t is None else float(t)
+    return Regularization(gamma=float(value), t=float(tt), substeps=int(steps), debiased=deb,
+                          purpose=purpose, h=h, distance=distance, reason=why)
+
+
+def shape_regularization(domain, gamma, t, substeps) -> tuple[Regularization | None, float, int]:
+    """``(policy or None, gamma, substeps)`` of the shape solvers (barycenters,
+    interpolations, propagation): ``gamma="auto"`` takes the ``"shapes"`` policy; an
+    explicit number runs as specified (one substep unless given)."""
+    if gamma is None or (isinstance(gamma, str) and gamma == "auto"):
+        reg = choose_regularization(domain, purpose="shapes", t=t, substeps=substeps)
+        return reg, reg.gamma, reg.substeps
+    return None, gamma, 1 if substeps is None else substeps
