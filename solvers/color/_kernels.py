@@ -153,15 +153,17 @@ def _analyze(px, lut, m, lab, nbins, lo, h, lbins, lmax, hist, lhist):
     n = px.shape[0]
     chunks = hist.shape[0]
     step = (n + chunks - 1) // chunks
+    keep = lab.shape[0] == n
     for c in numba.prange(chunks):
         for p in range(c * step, min(n, (c + 1) * step)):
             r = _linear(px[p, 0], lut)
             g = _linear(px[p, 1], lut)
             b = _linear(px[p, 2], lut)
             L, A, B = _lab_of(r, g, b, m)
-            lab[p, 0] = L
-            lab[p, 1] = A
-            lab[p, 2] = B
+            if keep:
+                lab[p, 0] = L
+                lab[p, 1] = A
+                lab[p, 2] = B
             if nbins > 0:
                 i = int((A - lo) / h + 0.5)
                 j = int((B - lo) / h + 0.5)
@@ -175,11 +177,12 @@ def _analyze(px, lut, m, lab, nbins, lo, h, lbins, lmax, hist, lhist):
 
 
 def analyze(px: np.ndarray, lut: np.ndarray, scale: float, nbins: int, lo: float, h: float,
-            lbins: int, lmax: float):
-    """Run :func:`_analyze`; returns ``(lab (N, 3) float32, ab counts, L counts)``."""
+            lbins: int, lmax: float, keep_lab: bool = True):
+    """Run :func:`_analyze`; returns ``(lab (N, 3) float32, ab counts, L counts)`` (``lab``
+    empty unless ``keep_lab``: images that only contribute histograms need no Lab copy)."""
     n = px.shape[0]
     chunks = _chunks(n)
-    lab = np.empty((n, 3), dtype=np.float32)
+    lab = np.empty((n if keep_lab else 0, 3), dtype=np.float32)
     hist = np.zeros((chunks, max(nbins, 1) ** 2), dtype=np.int32)  # 4 bytes: cache-friendlier
     lhist = np.zeros((chunks, max(lbins, 1)), dtype=np.int64)
     _analyze(px, lut, _M_FWD, lab, nbins, np.float32(lo), np.float32(h),

@@ -149,11 +149,11 @@ def color_transfer(
     lbins = LBINS if luminance else 0
 
     labs, hists, lcounts = [], [], []
-    for img in images:
+    for i, img in enumerate(images):
         px = pixels(img)
         lut, scale = lut_for(px.dtype)
         lab, counts, lc = _kernels.analyze(px, lut, scale, bins, -128.0, grid.spacing,
-                                           lbins, L_MAX)
+                                           lbins, L_MAX, keep_lab=i in todo)
         labs.append(lab)
         hists.append(counts.reshape(bins, bins) / px.shape[0])
         lcounts.append(lc)
