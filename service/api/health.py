@@ -12,6 +12,7 @@ from service import __version__
 from service.api.deps import RuntimeDep, require_metrics_key
 from service.errors import ErrorResponse
 from service.jobs.db import QUEUED, RUNNING, STATES
+from service.jobs.queue import QUEUES
 from service.schemas import Health
 
 router = APIRouter(tags=["health"])
@@ -83,6 +84,9 @@ def metrics(rt: RuntimeDep):
     by_state = {s: sum(n for (_, st), n in counts.items() if st == s) for s in STATES}
     metric("otgeo_queue_depth", "gauge", "jobs waiting for a worker", [({}, by_state[QUEUED])])
     metric("otgeo_jobs_running", "gauge", "jobs being run", [({}, by_state[RUNNING])])
+    per_queue = rt.repo.queued_by_queue()
+    metric("otgeo_queue_depth_by_queue", "gauge", "jobs waiting, per queue (short, long)",
+           [({"queue": q}, float(per_queue.get(q, 0))) for q in QUEUES])
     pending = rt.pending_messages()
     if pending is not None:
         metric("otgeo_queue_messages", "gauge", "messages in the Huey queue",

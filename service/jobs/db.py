@@ -313,6 +313,14 @@ class JobRepository:
                              .group_by(JobRow.operation, JobRow.state))
             return {(op, st): int(n) for op, st, n in rows}
 
+    def queued_by_queue(self) -> dict[str, int]:
+        """Queued jobs per queue (``short`` / ``long``)."""
+        q = func.coalesce(JOBS.c.queue, "short")
+        with self.engine.connect() as conn:
+            rows = conn.execute(select(q, func.count()).where(JOBS.c.state == QUEUED)
+                                .group_by(q))
+            return {str(name): int(n) for name, n in rows}
+
     def durations(self) -> dict[tuple[str, str], tuple[int, float, float]]:
         """(operation, state) -> (count, sum, max) of run durations of finished jobs."""
         with self.Session() as s:
