@@ -25,8 +25,9 @@ def check_masses(values, n: int, field: str = "masses") -> np.ndarray:
     """
     try:
         x = np.asarray(values, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"{field} must be numeric: {exc}", field=field) from exc
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise InputError(f"{field} must be numeric: a list of numbers (or an (n, k) block)",
+                         field=field) from exc
     if x.ndim not in (1, 2) or x.shape[0] != n:
         raise InputError(f"{field} must have length {n} (one value per point), got shape "
                          f"{x.shape}", field=field)

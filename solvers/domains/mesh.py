@@ -53,12 +53,12 @@ class MeshDiagnostics:
 def _validate_arrays(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
     try:
         v = np.asarray(vertices, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise DomainError(f"vertices are not numeric: {exc}", field="vertices") from exc
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise DomainError("vertices must be a numeric (n, 3) array", field="vertices") from exc
     try:
         f_raw = np.asarray(faces)
     except (TypeError, ValueError) as exc:  # ragged lists
-        raise DomainError(f"faces are not a triangle array: {exc}", field="faces") from exc
+        raise DomainError("faces must be an (m, 3) array of vertex indices", field="faces") from exc
     if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
         raise DomainError(f"vertices must have shape (n, 3) with n > 0, got {v.shape}",
                           field="vertices")
@@ -523,12 +523,7 @@ class TriangleMesh(Domain):
 
     @property
     def genus(self) -> int | None:
-        """Sum of the component genera (the genus, for one component); None if non-manifold.
-
-        Why cow.obj has none: one of its vertices is an "hourglass" (two fans of faces that
-        share only that vertex), so the closed surface has chi = 1, which no closed manifold
-        has. Split into one vertex per fan (what :mod:`solvers.geodesics` does) it is a
-        closed genus-0 surface."""
+        """Sum of the component genera (the genus, for one component); None if non-manifold."""
         if not self.is_manifold:
             return None
         return int(self.component_genus.sum())
