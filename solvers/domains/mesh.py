@@ -523,7 +523,12 @@ class TriangleMesh(Domain):
 
     @property
     def genus(self) -> int | None:
-        """Sum of the component genera (the genus, for one component); None if non-manifold."""
+        """Sum of the component genera (the genus, for one component); None if non-manifold.
+
+        Why cow.obj has none: one of its vertices is an "hourglass" (two fans of faces that
+        share only that vertex), so the closed surface has chi = 1, which no closed manifold
+        has. Split into one vertex per fan (what :mod:`solvers.geodesics` does) it is a
+        closed genus-0 surface."""
         if not self.is_manifold:
             return None
         return int(self.component_genus.sum())
