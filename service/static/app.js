@@ -51,7 +51,14 @@ $("key-button").onclick = async () => {
 
 // -- domains ------------------------------------------------------------------------
 async function refreshDomains() {
-  const { domains } = await api.getJSON("/v1/domains");
+  const domains = [];
+  let cursor = null;
+  for (let page = 0; page < 20; page++) { // every page of the list (up to 2,000 domains)
+    const out = await api.getJSON("/v1/domains?limit=100" + (cursor ? `&cursor=${encodeURIComponent(cursor)}` : ""));
+    domains.push(...out.domains);
+    cursor = out.next_cursor;
+    if (!cursor) break;
+  }
   state.domains = domains;
   const ul = $("domains");
   ul.replaceChildren(...domains.map((d) => {
@@ -177,8 +184,11 @@ async function runOperation() {
     const body = await state.form.collect();
     const path = op.scoped ? op.path.replace("{domain_id}", state.domain.id) : op.path;
     $("run").disabled = true;
-    const job = await api.postJSON(path, body);
-    state.jobRequest = body;
+    const job = body instanceof FormData ? await api.postForm(path, body)
+      : await api.postJSON(path, body);
+    state.jobRequest = body instanceof FormData ? {} : body;
+    state.jobInputs = body instanceof FormData
+      ? { jobId: job.id, files: [...body.values()].filter((v) => v instanceof File) } : null;
     await refreshJobs();
     await followJob(job);
   } catch (e) {
@@ -286,7 +296,8 @@ function clearResultView() {
   $("legend").hidden = true;
   $("frames").hidden = true;
   $("hover").hidden = true;
-  $("images").replaceChildren();
+  $("gallery").replaceChildren();
+  $("gallery").hidden = true;
   $("plots").replaceChildren();
   state.result = null;
   state.display = null;
@@ -304,7 +315,11 @@ function shape(a) {
 async function showResult(job) {
   const result = await api.getJSON(`/v1/jobs/${job.id}/result`);
   state.result = result;
-  const geom = state.geometry;
+  // arrays are drawn on the shown domain only when the job is about it (global jobs, e.g. color
+  // transfer, have values and files only)
+  const onDomain = Boolean(state.domain && job.domain_id && job.domain_id === state.domain.id);
+  state.resultOnDomain = onDomain;
+  const geom = onDomain ? state.geometry : null;
   if (view.items.length) view.setPicks(0, state.picks, false); // supports hide the colors
   $("result-panel").hidden = false;
   // values
@@ -330,15 +345,16 @@ async function showResult(job) {
   const order = [...(exp.fields || []).filter((k) => names.includes(k)),
                  ...names.filter((k) => !(exp.fields || []).includes(k))];
   const sel = $("field");
+  $("field-row").hidden = !order.length;
   sel.replaceChildren(...order.map((k) => new Option(k, k)));
   sel.value = exp.color && order.includes(exp.color) ? exp.color : (order[0] || "");
   sel.onchange = () => showField(sel.value);
-  const flow = exp.flow && arrays[exp.flow] && view.items.length ? arrays[exp.flow] : null;
+  const flow = geom && exp.flow && arrays[exp.flow] && view.items.length ? arrays[exp.flow] : null;
   $("arrows-toggle").hidden = !flow;
   $("show-arrows").checked = true;
   $("show-arrows").onchange = () => view.setArrows($("show-arrows").checked ? flow : null);
   if (flow) view.setArrows(flow);
-  await showSoftMap(result);
+  if (geom) await showSoftMap(result);
   showField(sel.value);
   showFiles(result);
   showDownloads(job, result);
@@ -347,7 +363,10 @@ async function showResult(job) {
 function showField(name) {
   const result = state.result;
   const geom = state.geometry;
-  if (!result || !name || !view.items.length) { $("legend").hidden = true; return; }
+  if (!result || !name || !view.items.length || !state.resultOnDomain) {
+    $("legend").hidden = true;
+    return;
+  }
   const arr = result.arrays[name];
   const s = shape(arr);
   const perFace = geom.faces && s[0] === geom.faces.length / 3 && s[0] !== geom.n;
@@ -511,21 +530,36 @@ async function showSoftMap(result) {
   };
 }
 
+// Image files of a result (color transfer) side by side over the stage, under the input images
+// of the request when this page sent it.
 function showFiles(result) {
-  const files = normalizeFiles(result);
-  const box = $("images");
+  const images = normalizeFiles(result).filter((x) => /^image\//.test(x.media_type || "")
+    || /\.(png|jpe?g|webp|tiff?)$/i.test(x.name));
+  const box = $("gallery");
   box.replaceChildren();
-  for (const f of files.filter((x) => /^image\//.test(x.media_type || "") || /\.(png|jpe?g)$/i.test(x.name))) {
-    const fig = document.createElement("figure");
-    const img = document.createElement("img");
-    img.alt = f.name;
-    api.request(`/v1/jobs/${result.job_id}/files/${f.name}`).then((r) => r.blob())
-      .then((b) => { img.src = URL.createObjectURL(b); }).catch(showError);
-    const cap = document.createElement("figcaption");
-    cap.textContent = f.name;
-    fig.append(img, cap);
-    box.appendChild(fig);
-  }
+  if (!images.length) { box.hidden = true; return; }
+  const strip = (title, items) => {
+    const h = document.createElement("h3");
+    h.textContent = title;
+    const row = document.createElement("div");
+    row.className = "strip";
+    for (const [name, src] of items) {
+      const fig = document.createElement("figure");
+      const img = document.createElement("img");
+      img.alt = name;
+      Promise.resolve(src).then((url) => { img.src = url; }).catch(showError);
+      const cap = document.createElement("figcaption");
+      cap.textContent = name;
+      fig.append(img, cap);
+      row.appendChild(fig);
+    }
+    box.append(h, row);
+  };
+  const inputs = state.jobInputs && state.jobInputs.jobId === result.job_id ? state.jobInputs.files : [];
+  if (inputs.length) strip("inputs", inputs.map((f) => [f.name, URL.createObjectURL(f)]));
+  strip("results", images.map((f) => [f.name, api.request(`/v1/jobs/${result.job_id}/files/${f.name}`)
+    .then((r) => r.blob()).then((b) => URL.createObjectURL(b))]));
+  box.hidden = false;
 }
 
 function normalizeFiles(result) {
@@ -546,13 +580,16 @@ function showDownloads(job, result) {
   box.replaceChildren();
   const base = `${job.operation}-${job.id.slice(0, 8)}`;
   link("JSON", () => api.download(`/v1/jobs/${job.id}/result`, `${base}.json`));
-  link("GLB", () => api.download(`/v1/jobs/${job.id}/result.glb`, `${base}.glb`));
-  link("PNG", async () => {
+  const files = normalizeFiles(result);
+  if (job.domain_id || files.some((f) => f.name === "result.glb")) {
+    link("GLB", () => api.download(`/v1/jobs/${job.id}/result.glb`, `${base}.glb`));
+  }
+  if (state.resultOnDomain) link("PNG", async () => {
     view.render();
     const blob = await new Promise((r) => view.canvas.toBlob(r, "image/png"));
     api.saveBlob(blob, `${base}.png`);
   });
-  for (const f of normalizeFiles(result)) {
+  for (const f of files) {
     if (f.name === "result.glb") continue;
     link(f.name, () => api.download(`/v1/jobs/${job.id}/files/${f.name}`, `${base}-${f.name}`));
   }
@@ -562,6 +599,8 @@ function showDownloads(job, result) {
 async function loadOperations() {
   state.openapi = await (await fetch("/openapi.json")).json();
   state.ops = listOperations(state.openapi);
+  const up = state.openapi.paths["/v1/domains/upload"];
+  if (up && up.post) api.setUploadPath("/v1/domains/upload");
   const sel = $("operation");
   sel.replaceChildren(...state.ops.map((o) => new Option(o.scoped ? o.name : `${o.name} (global)`, o.id)));
   const blobRoute = Object.keys(state.openapi.paths).find((p) => /^\/v1\/blobs$/.test(p)

@@ -32,8 +32,11 @@ export function formatNumber(v) {
   if (v === null || v === undefined) return "–";
   if (typeof v !== "number") return String(v);
   if (v === 0) return "0";
+  if (Number.isInteger(v) && Math.abs(v) < 1e9) return String(v);
   const a = Math.abs(v);
-  return a >= 1e4 || a < 1e-3 ? v.toExponential(3) : v.toPrecision(4).replace(/\.?0+$/, "");
+  if (a >= 1e4 || a < 1e-3) return v.toExponential(3);
+  const s = v.toPrecision(4);
+  return s.includes(".") ? s.replace(/0+$/, "").replace(/\.$/, "") : s;
 }
 
 // Draw the legend: a gradient bar with its scale's numbers.

@@ -8,12 +8,14 @@ export function listOperations(openapi) {
   for (const [path, methods] of Object.entries(openapi.paths || {})) {
     const op = methods.post;
     if (!op || !(op.tags || []).includes("operations")) continue;
-    const content = op.requestBody && op.requestBody.content && op.requestBody.content["application/json"];
-    if (!content) continue;
+    const contents = (op.requestBody && op.requestBody.content) || {};
+    const json = contents["application/json"];
+    const multipart = contents["multipart/form-data"];
+    if (!json && !multipart) continue;
     const scoped = path.includes("{domain_id}");
     ops.push({
       path, scoped, id: op.operationId, summary: op.summary || op.operationId,
-      name: path.split("/").pop(), schema: content.schema,
+      name: path.split("/").pop(), schema: (json || multipart).schema, multipart: !json,
     });
   }
   ops.sort((a, b) => (a.scoped === b.scoped ? a.name.localeCompare(b.name) : a.scoped ? -1 : 1));
@@ -27,6 +29,11 @@ function deref(root, s) {
     s = root.components.schemas[name];
   }
   return s || {};
+}
+
+function isBinary(root, s) {
+  s = deref(root, s);
+  return s.type === "string" && (s.format === "binary" || Boolean(s.contentMediaType));
 }
 
 function refName(s) { return s && s.$ref ? s.$ref.split("/").pop() : ""; }
@@ -169,6 +176,17 @@ export function buildForm(container, root, op, ctx) {
       ctx.onDomainsChanged(fill);
       row.appendChild(sel);
       read = () => sel.value || undefined;
+    } else if (isBinary(root, s) || (s.type === "array" && isBinary(root, s.items))) {
+      const input = document.createElement("input");
+      input.type = "file";
+      input.name = name;
+      input.multiple = s.type === "array";
+      row.appendChild(input);
+      read = () => {
+        const files = [...(input.files || [])];
+        if (!files.length && isReq) throw fieldError(name, `choose file(s) for ${name}`);
+        return files.length ? { files } : undefined;
+      };
     } else if (s.type === "string" && /blob|image|file/i.test(name) && ctx.uploadBlob) {
       const input = document.createElement("input");
       input.type = "file";
@@ -233,13 +251,21 @@ export function buildForm(container, root, op, ctx) {
     readers.push([name, read]);
   }
 
+  // The request body: a JSON object, or FormData for multipart operations (files as parts,
+  // other values as text: JSON for lists and objects).
   async function collect() {
     const out = {};
     for (const [name, read] of readers) {
       const v = await read();
       if (v !== undefined) out[name] = v;
     }
-    return out;
+    if (!op.multipart) return out;
+    const form = new FormData();
+    for (const [name, v] of Object.entries(out)) {
+      if (v && v.files) for (const f of v.files) form.append(name, f, f.name);
+      else form.append(name, typeof v === "object" ? JSON.stringify(v) : String(v));
+    }
+    return form;
   }
   return { collect };
 }

@@ -219,6 +219,7 @@ def test_flow_arrows_and_histogram_plots(spot_page):
     page.wait_for_selector("#legend:not([hidden])", timeout=TIMEOUT)
     assert page.locator("#field").input_value() == "mean"
     assert page.locator("#plots canvas").count() == 2  # one small histogram per pick
+    assert re.search(r"n_nodes\s+2930", page.inner_text("#values"))  # numbers as they are
     assert stats(canvas_pixels(page))["colored"] > 0.5
     save(page, "viewer-histograms.png")
     assert page.js_errors == []
@@ -241,4 +242,40 @@ def test_grid_domain_is_an_image(page, live_api, tmp_path):
     bright = img[after["colored_mask"]].mean(axis=1) > 0.45  # the green/yellow barycenter
     assert 0.005 < bright.mean() < 0.5, bright.mean()
     save(page, "viewer-grid.png")
+    assert page.js_errors == []
+
+
+def test_color_transfer_images_side_by_side(page, live_api, tmp_path):
+    """A global operation with a multipart form (files): inputs and results side by side."""
+    y, x = np.mgrid[0:36, 0:48]
+    warm = np.stack([200 + 0 * x, 60 + x, 40 + y], -1).astype(np.uint8)
+    cool = np.stack([30 + 0 * x, 80 + y, 150 + x], -1).astype(np.uint8)
+    for name, img in (("warm.png", warm), ("cool.png", cool)):
+        Image.fromarray(img).save(tmp_path / name)
+    open_viewer(page, live_api)
+    page.select_option("#operation", "createColorTransfer")
+    page.set_input_files("#op-form input[name=images]",
+                         [str(tmp_path / "warm.png"), str(tmp_path / "cool.png")])
+    page.click("#op-form details > summary")  # optional fields are folded under "options"
+    page.fill("#op-form input[name=bins]", "32")
+    page.click("#run")
+    # the first color transfer of a fresh checkout compiles the numba color kernels (~10-60 s
+    # by load); later runs load them from numba's cache
+    page.wait_for_selector("#progress[data-state=succeeded]", timeout=4 * TIMEOUT)
+    captions = ["warm.png", "cool.png", "image-0-0.png", "image-0-1.png"]
+    shown = {}
+    for caption in captions:
+        img = page.locator(f"#gallery figure:has(figcaption:text-is('{caption}')) img")
+        img.wait_for(timeout=TIMEOUT)
+        page.wait_for_function("(el) => el.complete && el.naturalWidth > 0",
+                               arg=img.element_handle())
+        png = np.asarray(Image.open(io.BytesIO(img.screenshot())).convert("RGB"), float) / 255
+        shown[caption] = png.reshape(-1, 3).mean(axis=0)
+    # both recolored images moved towards the colors' barycenter: closer to each other
+    before = np.abs(shown["warm.png"] - shown["cool.png"]).sum()
+    after = np.abs(shown["image-0-0.png"] - shown["image-0-1.png"]).sum()
+    assert after < 0.5 * before, (before, after)
+    assert np.abs(shown["image-0-0.png"] - shown["warm.png"]).sum() > 0.1
+    assert page.locator("#downloads button:text('image-0-0.png')").count() == 1
+    save(page, "viewer-color-transfer.png")
     assert page.js_errors == []

@@ -55,6 +55,13 @@ export async function postJSON(path, body) {
   return resp.json();
 }
 
+let uploadPath = "/v1/domains"; // mesh files: /v1/domains/upload where the server has it
+export function setUploadPath(path) { uploadPath = path; }
+
+export async function postForm(path, form) {
+  return (await request(path, { method: "POST", body: form })).json();
+}
+
 export async function upload(file) {
   const name = file.name || "upload";
   if (name.toLowerCase().endsWith(".json")) { // a JSON domain (grid, graph, point cloud, mesh)
@@ -66,7 +73,7 @@ export async function upload(file) {
   }
   const form = new FormData();
   form.append("file", file, name);
-  return (await request("/v1/domains", { method: "POST", body: form })).json();
+  return (await request(uploadPath, { method: "POST", body: form })).json();
 }
 
 export async function del(path) { return request(path, { method: "DELETE" }); }
