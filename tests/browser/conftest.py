@@ -33,7 +33,7 @@ def live_api(tmp_path_factory):
         api.wait_healthy(60)
         yield api
     finally:
-        api.stop()
+        api.stop(timeout=3)
 
 
 @pytest.fixture(scope="module")

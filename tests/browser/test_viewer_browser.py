@@ -279,3 +279,30 @@ def test_color_transfer_images_side_by_side(page, live_api, tmp_path):
     assert page.locator("#downloads button:text('image-0-0.png')").count() == 1
     save(page, "viewer-color-transfer.png")
     assert page.js_errors == []
+
+
+def test_live_progress_and_cancel(spot_page):
+    """A long W1 flow: the bar follows the job's events while it runs; Cancel stops it."""
+    page = spot_page
+    pick_two(page)
+    page.select_option("#operation", "createFlowJob")
+    page.click("#op-form details > summary")
+    page.fill("#op-form input[name=tol]", "1e-12")
+    page.fill("#op-form input[name=max_iter]", "100000")
+    page.click("#run")
+    page.wait_for_selector("#progress[data-state=running]", timeout=TIMEOUT)
+    iteration_above = """(n) => {
+        const m = /iteration (\\d+)/.exec(document.getElementById("progress-text").textContent);
+        return m !== null && Number(m[1]) > n;
+    }"""
+    page.wait_for_function(iteration_above, arg=-1, timeout=TIMEOUT)
+    first = int(re.search(r"iteration (\d+)", page.inner_text("#progress-text")).group(1))
+    page.wait_for_function(iteration_above, arg=first, timeout=TIMEOUT)  # live: it goes on
+    assert "residual" in page.inner_text("#progress-text")
+    width = page.evaluate("document.getElementById('progress').style.width")
+    assert width.endswith("%") and 0 < float(width[:-1]) < 100
+    page.click("#cancel")
+    page.wait_for_selector("#progress[data-state=cancelled]", timeout=TIMEOUT)
+    assert page.locator("#result-panel").is_hidden()
+    assert page.locator("#cancel").is_disabled()
+    assert page.js_errors == []
