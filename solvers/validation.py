@@ -281,15 +281,19 @@ def check_component_masses(labels: np.ndarray, masses: np.ndarray, field: str,
 # heat kernel is uniform over the domain (nothing left to transport) and D_a + tL is too
 # ill-conditioned to factor.
 GAMMA_MAX_FACTOR = 100.0
+GAMMA_MIN = 1e-300  # below it the heat time gamma/4 underflows (subnormals) to 0
 
 
 def check_gamma(gamma, extent: float, field: str = "gamma") -> float:
-    """A regularization ``0 < gamma <= GAMMA_MAX_FACTOR * extent**2`` (finite).
+    """A regularization ``GAMMA_MIN <= gamma <= GAMMA_MAX_FACTOR * extent**2`` (finite).
 
     ``extent``: the domain's size in its own units (``Domain.extent``: bounding-box
     diagonal at unit area, grid diagonal, graph node count in hops).
     """
     g = check_positive(gamma, field)
+    if g < GAMMA_MIN:
+        raise InputError(f"{field} = {g:g} is below {GAMMA_MIN:g} (its heat time would "
+                         "underflow to 0)", field=field)
     top = GAMMA_MAX_FACTOR * float(extent) ** 2
     if g > top:
         raise InputError(f"{field} = {g:g} is beyond {top:.3g} ({GAMMA_MAX_FACTOR:g} x the "

@@ -215,6 +215,9 @@ PAIR = '"mu0": {"vertex": 0, "radius": 0.5}, "mu1": {"vertex": 5, "radius": 0.5}
     ("distances", '{' + PAIR + ', "gamma": Infinity}', "gamma"),
     ("distances", '{' + PAIR + ', "gamma": 1e300}', "gamma"),
     ("distances", '{' + PAIR + ', "gamma": NaN}', "gamma"),
+    ("distances", '{' + PAIR + ', "gamma": 5e-324}', "gamma"),  # heat time underflows to 0
+    ("propagations", '{"n_nodes": 2, "edges": [[0, 1]], "gamma": 5e-324, "fixed": [{"node": 0, '
+     '"distribution": {"vertex": 0, "radius": 0.5}}]}', "gamma"),
     ("distances", '{' + PAIR + ', "tol": NaN}', "tol"),
     ("barycenters", '{"distributions": [{"vertex": 0, "radius": 0.5}], "entropy_bound": NaN}',
      "entropy_bound"),
