@@ -303,6 +303,7 @@ function clearResultView() {
   state.display = null;
   view.setArrows(null);
   view.onHover = null;
+  if (state.second && state.geometry) { view.setDomains([state.geometry]); state.second = null; }
   if (view.items.length) { view.neutral(0); view.setPicks(0, state.picks); }
 }
 
@@ -312,8 +313,23 @@ function shape(a) {
   return s;
 }
 
+// Source and target domains of a result that maps one domain to another (soft maps): from the
+// job, its values or the request this page sent.
+function domainPair(job, result) {
+  const v = result.values || {}, req = state.jobRequest || {};
+  const str = (...xs) => xs.find((x) => typeof x === "string" && x);
+  const source = str(job.domain_id, v.source_domain_id, req.source_domain_id, req.source);
+  const target = str(v.target_domain_id, req.target_domain_id, req.target);
+  return { source, target: target !== source ? target : undefined };
+}
+
 async function showResult(job) {
   const result = await api.getJSON(`/v1/jobs/${job.id}/result`);
+  const pair = domainPair(job, result);
+  if (pair.target && pair.source && (!state.domain || state.domain.id !== pair.source)) {
+    await selectDomain(pair.source, true);
+  }
+  if (pair.target && !job.domain_id) job = { ...job, domain_id: pair.source };
   state.result = result;
   // arrays are drawn on the shown domain only when the job is about it (global jobs, e.g. color
   // transfer, have values and files only)
@@ -354,7 +370,7 @@ async function showResult(job) {
   $("show-arrows").checked = true;
   $("show-arrows").onchange = () => view.setArrows($("show-arrows").checked ? flow : null);
   if (flow) view.setArrows(flow);
-  if (geom) await showSoftMap(result);
+  if (geom && pair.target) await showSoftMap(result, pair.target);
   showField(sel.value);
   showFiles(result);
   showDownloads(job, result);
@@ -487,47 +503,56 @@ function plotCanvas(row, pos, color) {
   return c;
 }
 
-// Soft maps: a result that names a second domain is drawn beside the first; hovering a source
-// vertex fetches that vertex's row of the (n_source, n_target) array and colors the target.
-async function showSoftMap(result) {
-  const v = result.values || {};
-  const targetId = ["target_domain_id", "target_domain", "target"].map((k) => v[k])
-    .find((x) => typeof x === "string" && x !== state.domain.id);
-  if (!targetId) return;
+// Soft maps: the target domain is drawn beside the source; hovering a source vertex colors the
+// target with that vertex's row of the (rows, n_target) array (fetched one row at a time from
+// /v1/jobs/{id}/arrays/{name}/rows/{i} unless the result carries it). A "labels" array of one
+// row index per source vertex (samples of the source) maps vertices to rows.
+async function showSoftMap(result, targetId) {
   const target = await geometry(targetId);
   const arrays = result.arrays || {};
   const exp = result.export || {};
-  let name = exp.rows || exp.soft_map || Object.keys(arrays).find((k) => {
-    const s = shape(arrays[k]);
-    return s.length === 2 && s[0] === state.geometry.n && s[1] === target.n;
-  }) || "soft_map";
+  const n0 = state.geometry.n;
+  const name = exp.rows || exp.soft_map || (arrays.soft_map ? "soft_map" : null)
+    || Object.keys(arrays).find((k) => { const s = shape(arrays[k]); return s.length === 2 && s[1] === target.n; })
+    || "soft_map";
+  const labels = Array.isArray(arrays[exp.labels || "labels"]) && arrays[exp.labels || "labels"].length === n0
+    ? arrays[exp.labels || "labels"] : null;
   view.setDomains([state.geometry, target]);
-  view.setPicks(0, state.picks);
+  view.setPicks(0, state.picks, false);
   state.second = target;
   const rowsCache = new Map();
   const rowOf = async (i) => {
-    if (arrays[name] && arrays[name][i]) return arrays[name][i];
-    if (!rowsCache.has(i)) {
-      const r = await api.getJSON(`/v1/jobs/${result.job_id}/arrays/${name}/rows/${i}`);
-      rowsCache.set(i, Array.isArray(r) ? r : (r.row || r.values || r.data));
+    const r = labels ? labels[i] : i;
+    if (Array.isArray(arrays[name]) && arrays[name][r]) return arrays[name][r];
+    if (!rowsCache.has(r)) {
+      const out = await api.getJSON(`/v1/jobs/${result.job_id}/arrays/${name}/rows/${r}`);
+      rowsCache.set(r, Array.isArray(out) ? out : out.values);
     }
-    return rowsCache.get(i);
+    return rowsCache.get(r);
   };
-  let busy = false;
-  view.onHover = async ({ item, point }) => {
-    if (item !== 0 || busy) return;
+  const h = $("hover");
+  h.hidden = false;
+  h.textContent = "hover the source (left) to see its distribution on the target";
+  let busy = false, wanted = null;
+  const show = async (point) => {
     busy = true;
     try {
       const row = await rowOf(point);
       const [lo, hi] = range(row);
       view.colorBy(1, row, lo, hi);
-      legend(lo, hi, `${name}[${point}, :]`);
-      const h = $("hover");
-      h.hidden = false;
+      legend(lo, hi, `${name} of source vertex ${point}`);
       h.textContent = `source vertex ${point}`;
       view.setPicks(0, [{ vertex: point, radius: null }]);
+      $("hover").dataset.vertex = String(point);
     } catch (e) { showError(e); } finally { busy = false; }
+    if (wanted !== null && wanted !== point) { const w = wanted; wanted = null; show(w); }
   };
+  view.onHover = ({ item, point }) => {
+    if (item !== 0) return;
+    if (busy) { wanted = point; return; }
+    show(point);
+  };
+  state.softMap = { name, target };
 }
 
 // Image files of a result (color transfer) side by side over the stage, under the input images
