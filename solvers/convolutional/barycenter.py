@@ -249,7 +249,7 @@ def barycenter(
     reg, gamma, substeps = shape_regularization(domain, gamma, t, substeps)
     setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
                     progress=progress, should_cancel=should_cancel)
-    watch_stagnation(setup.monitor, setup.tol)
+    monitor = watch_stagnation(setup, project=max_iter is None)
     check_components(domain, M, setup.tol, "mus")
     bound = None
     if entropy_bound is not None:
@@ -259,7 +259,7 @@ def barycenter(
     scalings: dict = {}
     lbar, it, res, conv = barycenters_log(
         setup.logk, setup.areas, M, alpha[:, None], tol=setup.tol, max_iter=setup.max_iter,
-        monitor=setup.monitor, entropy_bounds=None if bound is None else np.array([bound]),
+        monitor=monitor, entropy_bounds=None if bound is None else np.array([bound]),
         debiased=debiased,
         relax=acceleration == "over-relaxation" and bound is None and not debiased,
         scalings=scalings)

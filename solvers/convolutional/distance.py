@@ -15,6 +15,8 @@ thesis writes :math:`2t` for :math:`\gamma` because its kernel is
 
 from __future__ import annotations
 
+import math
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -44,24 +46,64 @@ from solvers.monitor import SolverResult
 from solvers.regularization import Regularization, choose_regularization
 
 ROUTES = ("auto", "convolutional", "exact")
-# Iterations without a 0.1 % improvement of the best residual after which the convolutional
-# solvers stop as stalled (converged=False with the measured residual).
+# Window (iterations) over which the convolutional solvers measure their convergence rate:
+# they stop as stalled (converged=False with the measured residual) when the best residual
+# has not fallen by 0.1 % over a window, or when at the rate of the last window ``tol``
+# would not be reached within ``max_iter``.
 STALL_PATIENCE = 200
 
 
-def watch_stagnation(monitor: Monitor, tol: float | None = None) -> Monitor:
-    """Turn on stagnation detection (``monitor.stalled``) with :data:`STALL_PATIENCE`."""
-    monitor.patience = STALL_PATIENCE
-    if tol is not None:
-        monitor.tol = tol
-    return monitor
+class StallMonitor(Monitor):
+    """:class:`~solvers.monitor.Monitor` whose ``stalled`` also turns on when the residual
+    still falls, but too slowly to reach ``tol`` within ``max_iter`` at the rate measured
+    over the last ``patience`` iterations (e.g. the sublinear tail of debiased barycenters)."""
+
+    def __init__(self, progress=None, should_cancel=None, *, tol: float, max_iter: int,
+                 patience: int = STALL_PATIENCE, project: bool = True):
+        super().__init__(progress, should_cancel, tol=tol, patience=patience)
+        self.max_iter = int(max_iter)
+        self.project = project
+        self._low = math.inf
+        self._trail: deque = deque()  # (iteration, lowest residual so far)
+        self._then = None
+
+    def __call__(self, iteration: int, residual: float) -> None:
+        super().__call__(iteration, residual)
+        it, r = int(iteration), float(residual)
+        if not math.isfinite(r):
+            return
+        self._low = min(self._low, r)
+        self._trail.append((it, self._low))
+        while self._trail and self._trail[0][0] <= it - self.patience:
+            self._then = self._trail.popleft()
+        if (not self.project or self._then is None or it < 2 * self.patience
+                or self._low <= self.tol):
+            return
+        ratio = self._low / self._then[1] if self._then[1] > 0 else 1.0
+        span = max(it - self._then[0], 1)
+        if ratio >= 1.0:
+            self.stalled = True
+        elif it + span * math.log(self.tol / self._low) / math.log(ratio) > self.max_iter:
+            self.stalled = True
 
 
-def stage_monitor(monitor: Monitor) -> Monitor:
-    """A fresh monitor (same callbacks, tol, patience, offset) for a solver's next stage,
-    so the stagnation record of one stage does not stop the next."""
-    fresh = Monitor(monitor.progress, monitor.should_cancel, tol=monitor.tol,
-                    patience=monitor.patience, min_improvement=monitor.min_improvement)
+def watch_stagnation(setup, project: bool = True) -> StallMonitor:
+    """The stagnation-watching monitor of a prepared convolutional solve.  ``project``: also
+    stop when ``tol`` is out of reach within ``max_iter`` at the measured rate (used with
+    the default cap; an explicit ``max_iter`` runs until the residual stops falling)."""
+    old = setup.monitor
+    mon = StallMonitor(old.progress, old.should_cancel, tol=setup.tol, max_iter=setup.max_iter,
+                       project=project)
+    mon.offset = old.offset
+    return mon
+
+
+def stage_monitor(monitor: StallMonitor) -> StallMonitor:
+    """A fresh monitor (same callbacks, tol, cap, offset) for a solver's next stage, so the
+    stagnation record of one stage does not stop the next."""
+    fresh = StallMonitor(monitor.progress, monitor.should_cancel, tol=monitor.tol,
+                         max_iter=monitor.max_iter, patience=monitor.patience,
+                         project=monitor.project)
     fresh.offset = monitor.offset
     return fresh
 
@@ -90,6 +132,7 @@ class SinkhornResult(SolverResult):
     debiased: bool = False
     route: str = "convolutional"
     regularization: Regularization | None = None
+
 
 
 def sinkhorn_log(logk: LogKernel, areas, m0, m1, *, tol, max_iter, monitor: Monitor,
@@ -376,7 +419,7 @@ def wasserstein_distance(
     setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
                     progress=progress, should_cancel=should_cancel)
     check_components(domain, np.stack([m0, m1], axis=1), setup.tol, "mu1")
-    a, logk, mon = setup.areas, setup.logk, watch_stagnation(setup.monitor, setup.tol)
+    a, logk, mon = setup.areas, setup.logk, watch_stagnation(setup, project=max_iter is None)
     f, g, it, res, conv, omega = sinkhorn_log(logk, a, m0, m1, tol=setup.tol,
                                               max_iter=setup.max_iter, monitor=mon,
                                               acceleration=acceleration, init=init)

@@ -89,7 +89,7 @@ def displacement_interpolation(
     reg, gamma, substeps = shape_regularization(domain, gamma, t, substeps)
     setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
                     progress=progress, should_cancel=should_cancel)
-    watch_stagnation(setup.monitor, setup.tol)
+    monitor = watch_stagnation(setup, project=max_iter is None)
     check_components(domain, np.stack([m0, m1], axis=1), setup.tol, "mu1")
     T = s.size
     inputs = np.concatenate([np.tile(m0[:, None], (1, T)), np.tile(m1[:, None], (1, T))], axis=1)
@@ -102,7 +102,7 @@ def displacement_interpolation(
         bounds = np.full(T, float(np.max(entropy(np.stack([m0, m1], axis=1), setup.areas))))
     lbar, it, res, conv = barycenters_log(
         setup.logk, setup.areas, inputs, weights, tol=setup.tol, max_iter=setup.max_iter,
-        monitor=setup.monitor, entropy_bounds=bounds, debiased=debiased, owners=owners,
+        monitor=monitor, entropy_bounds=bounds, debiased=debiased, owners=owners,
         relax=acceleration == "over-relaxation" and not sharpen and not debiased)
     masses = masses_from_log(lbar, setup.areas)
     return InterpolationResult(masses=masses, times=s, iterations=int(it), residual=float(res),
