@@ -203,6 +203,10 @@ def test_flow_arrows_and_histogram_plots(spot_page):
     assert with_arrows[changed].min(axis=1).mean() > 0.6
     page.check("#show-arrows")
     save(page, "viewer-flow.png")
+    page.select_option("#field", "flow_magnitude")  # a per-face field
+    faces = canvas_pixels(page)
+    assert stats(faces)["colored"] > 0.5
+    assert np.abs(faces - with_arrows).sum(axis=2).mean() > 0.02  # not the potential's colors
 
     page.select_option("#operation", "createHistogramPropagationJob")
     page.click("#op-form .field[data-field=labeled] button:text('from picks')")
@@ -305,4 +309,30 @@ def test_live_progress_and_cancel(spot_page):
     page.wait_for_selector("#progress[data-state=cancelled]", timeout=TIMEOUT)
     assert page.locator("#result-panel").is_hidden()
     assert page.locator("#cancel").is_disabled()
+    assert page.js_errors == []
+
+
+def test_graph_and_point_cloud_are_points(page, live_api, tmp_path):
+    open_viewer(page, live_api)
+    n = 40
+    angles = 2 * np.pi * np.arange(n) / n
+    graph = {"kind": "graph", "n_nodes": n, "edges": [[i, (i + 1) % n] for i in range(n)],
+             "positions": np.stack([np.cos(angles), np.sin(angles)], 1).tolist()}
+    points = np.random.default_rng(0).normal(size=(300, 3))
+    cloud = {"kind": "pointcloud", "points": (points / np.linalg.norm(points, axis=1,
+                                                                        keepdims=True)).tolist()}
+    fractions = {}
+    for name, spec in (("ring.json", graph), ("sphere.json", cloud)):
+        (tmp_path / name).write_text(json.dumps(spec))
+        drop_file(page, "#drop", tmp_path / name)
+        page.wait_for_function(f"document.getElementById('status').textContent"
+                               f".startsWith('{spec['kind']}')", timeout=TIMEOUT)
+        fractions[name] = stats(canvas_pixels(page))["foreground"]
+        assert 0.002 < fractions[name] < 0.3, fractions  # points (and edges), not a surface
+    box = page.locator("#view canvas").bounding_box()
+    for dx in np.linspace(-0.1, 0.1, 21):  # a click on a point of the cloud picks it
+        page.mouse.click(box["x"] + box["width"] * (0.5 + dx), box["y"] + box["height"] / 2)
+        if page.locator("#picks li").count():
+            break
+    assert page.locator("#picks li").count() >= 1
     assert page.js_errors == []
