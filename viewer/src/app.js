@@ -273,6 +273,8 @@ async function followJob(job) {
         state.firstResidual = data.progress.residual;
       }
       setProgress(data);
+      const badge = $("jobs").querySelector(`li[data-id="${data.id}"] .state`);
+      if (badge) { badge.textContent = data.state; badge.className = `state ${data.state}`; }
     }, ctrl.signal);
   } catch (e) {
     if (ctrl.signal.aborted) return;
@@ -318,8 +320,9 @@ function shape(a) {
 function domainPair(job, result) {
   const v = result.values || {}, req = state.jobRequest || {};
   const str = (...xs) => xs.find((x) => typeof x === "string" && x);
-  const source = str(job.domain_id, v.source_domain_id, req.source_domain_id, req.source);
-  const target = str(v.target_domain_id, req.target_domain_id, req.target);
+  const source = str(job.domain_id, v.source_domain_id, req.source_domain_id, req.source_domain,
+                     req.source);
+  const target = str(v.target_domain_id, req.target_domain_id, req.target_domain, req.target);
   return { source, target: target !== source ? target : undefined };
 }
 

@@ -164,7 +164,7 @@ export function buildForm(container, root, op, ctx) {
         if (!Number.isFinite(v)) throw fieldError(name, `${name} must be a number`);
         return v;
       };
-    } else if (s.type === "string" && /domain/i.test(name)) {
+    } else if (s.type === "string" && !s.enum && (/domain/i.test(name) || /domain id/i.test(desc))) {
       const sel = document.createElement("select");
       sel.name = name;
       const fill = () => {
