@@ -441,6 +441,20 @@ function histogramRow(i) {
   return row;
 }
 
+let playing = null;
+$("play").onclick = () => {
+  if (playing) { clearInterval(playing); playing = null; $("play").textContent = "▶"; return; }
+  $("play").textContent = "❚❚";
+  playing = setInterval(() => {
+    const slider = $("frame");
+    if (!state.display || !state.display.frames || $("frames").hidden) {
+      clearInterval(playing); playing = null; $("play").textContent = "▶"; return;
+    }
+    slider.value = String((Number(slider.value) + 1) % (Number(slider.max) + 1));
+    showFrame(Number(slider.value));
+  }, 400);
+};
+
 function showFrame(t) {
   const d = state.display;
   const col = d.arr.map((row) => row[t]);
