@@ -10,7 +10,7 @@ from fastapi.openapi.utils import get_openapi
 from pydantic import TypeAdapter
 
 from service import __version__
-from service.api import domains, health, images, jobs, operations, viewer
+from service.api import docs, domains, guards, health, images, jobs, operations, viewer
 from service.api.deps import require_api_key
 from service.errors import ErrorResponse, install_handlers
 from service.jobs.wake import JobWaiters
@@ -64,11 +64,14 @@ def create_app(settings: Settings | None = None, *, start_background: bool = Tru
             runtime.close()
 
     app = FastAPI(title="otgeo", version=__version__, description=DESCRIPTION,
-                  lifespan=lifespan)
+                  lifespan=lifespan, docs_url=None, redoc_url=None)  # docs: local assets
     app.state.runtime = runtime
     install_handlers(app)
+    guards.install(app)  # API key before the body is read; storage failures -> 503
+    docs.install(app)  # /docs and /redoc with their scripts served from the package
     auth = [Depends(require_api_key)]
-    for router in [*V1_ROUTERS, operations.build_router(runtime.operations)]:
+    for router in [*V1_ROUTERS, operations.build_router(runtime.operations),
+                   jobs.build_result_router(runtime.operations)]:
         app.include_router(router, dependencies=auth)
     app.include_router(health.router)
     viewer.install(app)  # the browser viewer at / and /viewer, assets under /static

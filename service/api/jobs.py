@@ -57,7 +57,7 @@ def _with_position(svc, job):
 def get_job(job_id: str, svc: JobSvc):
     """State, progress (iteration, residual, fraction done, estimated seconds left) and,
     while queued, the position in its queue."""
-    return JobOut.from_row(_with_position(svc, svc.get(job_id)))
+    return JobOut.from_row(svc.get(job_id))  # with its queue position (JobService.get)
 
 
 @router.delete("/{job_id}", operation_id="cancelJob", response_model=JobOut,
@@ -66,14 +66,6 @@ def get_job(job_id: str, svc: JobSvc):
 def cancel_job(job_id: str, svc: JobSvc):
     """Cancel: a queued job at once, a running one between two solver iterations."""
     return JobOut.from_row(svc.cancel(job_id))
-
-
-@router.get("/{job_id}/result", operation_id="getJobResult", response_model=JobResult,
-            responses={409: {"model": ErrorResponse, "description": "job not (successfully) "
-                             "finished"}, **responses(401, 404)})
-def get_job_result(job_id: str, svc: JobSvc,
-                   arrays: bool = Query(True, description="include result arrays")):
-    return svc.result(job_id, include_arrays=arrays)
 
 
 def result_models(operations) -> list[type[BaseModel]]:

@@ -94,10 +94,21 @@ class _Heartbeat:
         elif cancel:
             self.cancel.set()
 
-    def on_progress(self, iteration: int, residual: float) -> None:
+    max_iter: int | None = None  # the request's iteration bound (fraction fallback)
+
+    def on_progress(self, iteration: int, residual: float, fraction: float | None = None
+                    ) -> None:
+        """``progress(iteration, residual[, fraction])`` (solvers.monitor.Monitor passes the
+        fraction done it estimates from the residual; else iteration / max_iter)."""
+        done = fraction if fraction is not None and fraction == fraction else None
+        if self.max_iter:
+            by_count = min(int(iteration) / self.max_iter, 1.0)
+            done = by_count if done is None else max(done, by_count)
         with self._lock:
             self.progress = {"iteration": int(iteration),
-                             "residual": float(residual) if residual == residual else None}
+                             "residual": float(residual) if residual == residual else None,
+                             "fraction": None if done is None else
+                             float(min(max(done, 0.0), 1.0))}
             due = time.monotonic() - self._last_write >= PROGRESS_WRITE_INTERVAL
         if due:
             self.beat()
@@ -147,6 +158,8 @@ class JobRunner:
         try:
             op = self.operations.get_operation(job.operation)
             params = op.request_model.model_validate(job.params)
+            max_iter = getattr(params, "max_iter", None)
+            hb.max_iter = max_iter if isinstance(max_iter, int) and max_iter > 0 else None
             try:
                 output = ctx.run(op, params, hb.on_progress, should_cancel)
             finally:
@@ -175,6 +188,8 @@ class JobRunner:
         finally:
             hb.stop()
         progress = dict(hb.progress)
+        if state == SUCCEEDED:
+            progress["fraction"] = 1.0
         if not self.repo.finish(job_id, attempt, state, error=error, result_location=location,
                                 started_at=job.started_at, **progress):
             log.warning("job %s attempt %d lost ownership; result discarded", job_id, attempt)

@@ -10,6 +10,7 @@ import numpy as np
 
 from service.errors import Conflict, NotFound
 from service.jobs.db import QUEUED, TERMINAL, JobRow
+from service.jobs.queue import estimate_cost, queue_for_cost
 from service.operations.base import (
     OperationRequest,
     SubmitContext,
@@ -22,8 +23,8 @@ log = logging.getLogger("otgeo.jobs")
 
 # job columns without a value until a worker runs the job (set explicitly, so the row
 # returned by ``create`` is complete without reading it back)
-UNSET_AT_CREATION = ("iteration", "residual", "error", "worker", "started_at", "heartbeat_at",
-                     "finished_at", "duration", "result_location")
+UNSET_AT_CREATION = ("iteration", "residual", "fraction", "error", "worker", "started_at",
+                     "heartbeat_at", "finished_at", "duration", "result_location")
 
 
 class JobService:
@@ -35,8 +36,10 @@ class JobService:
         """Validate (against the stored domain, or the stored inputs of a global operation),
         record the job, enqueue its id."""
         op = self.rt.operations.get_operation(operation)
+        size = None  # points of the job's domain (its cost estimate picks the queue)
         if op.scope == "domain":
             view = view_of_info(self.rt.store.domain_info(domain_id))
+            size = view.n
             op.check_kind(view)
             op.validate(view, request)
             check_job_memory(op, view, request, self.rt.settings.job_memory_bytes)
@@ -46,15 +49,23 @@ class JobService:
         limit = self.rt.settings.job_time_limit
         if request.time_limit is not None:
             limit = min(limit, request.time_limit)
+        if size is None and domain_id:  # a global operation's primary domain
+            try:
+                size = self.rt.store.domain_info(domain_id).n
+            except NotFound:
+                size = None
+        cost = estimate_cost(size or 1, request)
+        queue = queue_for_cost(self.rt.settings, cost)
         now = time.time()
         job = JobRow(id=uuid.uuid4().hex, operation=operation, domain_id=domain_id,
+                     queue=queue, cost=cost,
                      params=request.model_dump(mode="json"), state=QUEUED, attempts=0,
                      max_attempts=self.rt.settings.max_attempts, cancel_requested=False,
                      time_limit=limit, created_at=now, enqueued_at=now,
                      **{c: None for c in UNSET_AT_CREATION})
         self.rt.repo.create(job)
         try:
-            self.rt.enqueue(job.id)
+            self.rt.enqueue(job.id, queue)
         except Exception:  # broker unreachable: the job is recorded, the reaper re-sends it
             log.exception("could not enqueue job %s; it stays queued", job.id)
         if self.rt.settings.queue == "immediate":  # it has run inside enqueue
@@ -65,6 +76,8 @@ class JobService:
         job = self.rt.repo.get(job_id)
         if job is None:
             raise NotFound(f"unknown job {job_id!r}", field="job_id")
+        if job.state == QUEUED:  # read by JobOut.from_row
+            job.queue_position = self.rt.repo.queue_position(job)
         return job
 
     def list(self, limit: int, state: str | None) -> list[JobRow]:

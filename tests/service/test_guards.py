@@ -1,0 +1,164 @@
+"""What runs before routing and around storage: the API key is checked before any body is
+parsed, /metrics is behind the key (unless configured open), storage failures give a 503
+naming the cause and /healthz reports storage, /docs and /redoc load only local assets,
+JSON bodies are parsed off the event loop, and listings page by cursor."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import threading
+import time
+
+import numpy as np
+import pytest
+from service_testing import assert_error
+
+KEY = "guard-key"
+
+
+# -- API key first -----------------------------------------------------------------------
+def test_key_is_checked_before_the_body_is_parsed(make_client):
+    client = make_client(api_keys=[KEY])
+    broken = b'{"kind": "grid", "shape": [4, 4],'
+    for path in ("/v1/domains", "/v1/domains/upload", "/v1/domains/" + "a" * 64 + "/distances"):
+        r = client.post(path, content=broken, headers={"content-type": "application/json"})
+        assert_error(r, 401, "X-API-Key", "unauthorized")
+        r = client.post(path, content=broken, headers={"content-type": "application/json",
+                                                       "X-API-Key": "wrong"})
+        assert_error(r, 401, "X-API-Key", "unauthorized")
+    r = client.post("/v1/domains", content=broken, headers={"content-type": "application/json",
+                                                            "X-API-Key": KEY})
+    assert_error(r, 422, "body", "invalid_json")
+    assert client.get("/healthz").status_code == 200  # open
+
+
+def test_metrics_behind_the_key_unless_configured_open(make_client, tmp_path):
+    client = make_client(api_keys=[KEY])
+    assert_error(client.get("/metrics"), 401, "X-API-Key", "unauthorized")
+    r = client.get("/metrics", headers={"X-API-Key": KEY})
+    assert r.status_code == 200 and "otgeo_queue_depth" in r.text
+    open_client = make_client(api_keys=[KEY], metrics_open=True, data_dir=tmp_path / "open")
+    assert open_client.get("/metrics").status_code == 200
+    assert_error(open_client.get("/v1/jobs"), 401, "X-API-Key")
+
+
+def test_json_decode_error_names_the_body_not_an_offset(client):
+    gid = client.post("/v1/domains", json={"kind": "grid", "shape": [4, 4]}).json()["id"]
+    r = client.post(f"/v1/domains/{gid}/distances", content=b'{"mu0": [1, 2],}',
+                    headers={"content-type": "application/json"})
+    err = assert_error(r, 422, "body", "invalid_json")
+    assert "15" in err["message"]  # the position is in the message, not the field
+
+
+def test_deeply_nested_json_domain_is_a_400(client):
+    r = client.post("/v1/domains", content=b"[" * 100_000,
+                    headers={"content-type": "application/json"})
+    assert_error(r, 400, "body", "invalid_json")
+    r = client.post("/v1/domains", content=b'{"kind": "grid", "shape": ' + b"[" * 100_000,
+                    headers={"content-type": "application/json"})
+    assert r.status_code in (400, 422) and r.json()["error"]["field"] == "body"
+
+
+# -- storage -----------------------------------------------------------------------------
+def test_unwritable_storage_gives_503_and_health_says_so(make_client, tmp_path):
+    client = make_client()
+    health = client.get("/healthz")
+    assert health.status_code == 200
+    storage = health.json()["storage"]
+    assert storage["writable"] is True and storage["free_bytes"] > 0
+    # the domains directory becomes unusable underneath the running service: a file where
+    # the directory was (what a lost mount or a wrong volume looks like; root ignores chmod)
+    shutil.rmtree(tmp_path / "domains")
+    (tmp_path / "domains").write_text("not a directory")
+    r = client.post("/v1/domains", json={"kind": "grid", "shape": [5, 5]})
+    err = assert_error(r, 503, None, "storage_unavailable")
+    assert str(tmp_path) not in err["message"]  # no server paths
+    client.app.state.runtime._storage_checked = (0.0, None)  # skip the 1 s probe cache
+    health = client.get("/healthz")
+    assert health.status_code == 503
+    body = health.json()
+    assert body["status"] == "degraded" and body["storage"]["writable"] is False
+    assert body["storage"]["reason"]
+
+
+def test_full_disk_is_reported_as_low_space(make_client):
+    client = make_client(min_free_bytes=2**62)  # more than any disk has free
+    r = client.get("/healthz")
+    assert r.status_code == 503
+    assert r.json()["storage"]["low_space"] is True and r.json()["storage"]["writable"]
+
+
+# -- offline docs ------------------------------------------------------------------------
+@pytest.mark.parametrize("page", ["/docs", "/redoc"])
+def test_docs_pages_use_only_local_assets(client, page):
+    html = client.get(page).text
+    urls = re.findall(r'(?:src|href)="([^"]+)"', html)
+    assert urls, html
+    assert not [u for u in urls if "://" in u or u.startswith("//")], urls
+    for url in urls:
+        r = client.get(url)
+        assert r.status_code == 200 and len(r.content) > 100, url
+    assert "http://" not in html.split("<script>")[0] and "https://" not in html
+
+
+# -- cursor paging -----------------------------------------------------------------------
+def test_jobs_and_domains_page_by_cursor(client):
+    ids = [client.post("/v1/domains", json={"kind": "grid", "shape": [4, 4 + i]}).json()["id"]
+           for i in range(5)]
+    seen, cursor = [], None
+    while True:
+        page = client.get("/v1/domains", params={"limit": 2, **({"cursor": cursor}
+                                                               if cursor else {})}).json()
+        seen += [d["id"] for d in page["domains"]]
+        cursor = page["next_cursor"]
+        if cursor is None:
+            break
+    assert seen == ids  # oldest first, each once
+    body = {"mu0": {"vertex": 0, "radius": 0.5}, "mu1": {"vertex": 15, "radius": 0.5}}
+    jobs = [client.post(f"/v1/domains/{ids[0]}/distances", json=body).json()["id"]
+            for _ in range(3)]
+    jobs.append(client.post(f"/v1/domains/{ids[1]}/distances", json=body).json()["id"])
+    first = client.get("/v1/jobs", params={"limit": 3}).json()
+    assert [j["id"] for j in first["jobs"]] == jobs[::-1][:3] and first["next_cursor"]
+    rest = client.get("/v1/jobs", params={"limit": 3, "cursor": first["next_cursor"]}).json()
+    assert [j["id"] for j in rest["jobs"]] == [jobs[0]] and rest["next_cursor"] is None
+    only = client.get("/v1/jobs", params={"domain_id": ids[1]}).json()["jobs"]
+    assert [j["id"] for j in only] == [jobs[3]]
+    assert client.get("/v1/jobs", params={"operation": "barycenters"}).json()["jobs"] == []
+    assert len(client.get("/v1/jobs", params={"state": "succeeded"}).json()["jobs"]) == 4
+    assert_error(client.get("/v1/jobs", params={"cursor": "nonsense!"}), 422, "cursor")
+
+
+# -- big uploads off the event loop --------------------------------------------------------
+def test_healthz_answers_during_a_big_json_upload(client):
+    """The upload and the health checks share the app's one event loop (TestClient requests
+    from two threads run as tasks on it): parsing must not hold the loop."""
+    rng = np.random.default_rng(0)
+    n = 80_000
+    chain = np.stack([np.arange(n - 1), np.arange(1, n)], axis=1)
+    extra = rng.integers(0, n, (200_000, 2))
+    extra = extra[extra[:, 0] != extra[:, 1]]
+    edges = ",".join(f"[{a},{b}]" for a, b in np.concatenate([chain, extra]).tolist())
+    body = f'{{"kind": "graph", "n_nodes": {n}, "edges": [{edges}]}}'.encode()
+    assert len(body) > 3 * 2**20
+    done: dict = {}
+
+    def upload():
+        t0 = time.monotonic()
+        r = client.post("/v1/domains", content=body, headers={"content-type":
+                                                                "application/json"})
+        done.update(status=r.status_code, text=r.text[:300], seconds=time.monotonic() - t0)
+
+    thread = threading.Thread(target=upload)
+    thread.start()
+    latencies = []
+    while thread.is_alive():
+        t0 = time.monotonic()
+        assert client.get("/healthz").status_code == 200
+        latencies.append(time.monotonic() - t0)
+        time.sleep(0.02)
+    thread.join()
+    assert done["status"] in (200, 201), done
+    assert len(latencies) >= 5, (done, latencies)  # the upload took a while
+    assert max(latencies) < max(0.5, done["seconds"] / 5), (done, latencies)
