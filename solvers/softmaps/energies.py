@@ -1,0 +1,164 @@
+r"""Energies of soft maps (thesis ch. 4): Dirichlet (eq. 4.1-4.2), transportation potential
+and momentum (eq. 4.3-4.4), bijectivity (eq. 4.5), descriptor (eq. 4.6).
+
+A soft map :math:`\mu: M_0 \to \mathrm{Prob}(M)` is given on the nodes of a source graph
+(vertices or samples, :mod:`solvers.softmaps.sampling`) as rows of target *masses*
+``rows[u] = a * rho_u`` (each row sums to 1).
+
+* Dirichlet energy, eq. 4.2 discretized over the source edges:
+  :math:`E_D[\mu] = \sum_{e=(u,u')} \omega_e\, W_2^2(\mu_u, \mu_{u'})`, with the
+  convolutional :math:`W_2` (ch. 3; debiased by default so that a constant map has
+  energy 0) or ``route="potential"``: the linearized :math:`W_2^2 = \int \rho |\nabla Q|^2`
+  of eq. 4.3-4.4.
+* Transportation potential: the derivative of :math:`\rho` along a source direction is
+  carried by a flow, :math:`\partial_v \rho = -\nabla\cdot(\rho\nabla Q)` (eq. 4.3); along an
+  edge :math:`\partial_v\rho \approx \rho_{u'} - \rho_u`, and where :math:`\rho` vanishes the
+  thesis regularizes with :math:`\rho + \epsilon` -- one anisotropic Poisson problem
+  :math:`G^\top D_{A_f(\rho_f + \epsilon)} G\, Q = m_{u'} - m_u` per source point and
+  direction.  The momentum is :math:`\rho \nabla Q` per target face (eq. 4.4).
+* Dirichlet energy density: :math:`\tfrac12\sum_{e \ni u}\omega_e W^2_e` divided by the
+  area of the cell of ``u``, so that it integrates to :math:`E_D`.
+* Bijectivity (eq. 4.5): :math:`b(y) = \int_{M_0}\rho_x(y)\,dx` and
+  :math:`E_B = \int_M b^2`; 1 for a bijective isometry of unit-area surfaces
+  (Proposition 11), larger when the map piles mass up.
+* Descriptor energy (eq. 4.6): :math:`\int_{M_0}\int_M c(x, y)\, d\mu_x(y)\, dx`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from solvers.errors import InputError
+from solvers.linalg import factorize_spd
+from solvers.validation import check_positive
+
+DIRICHLET_ROUTES = ("w2", "potential")
+
+
+@dataclass
+class DirichletEnergy:
+    """``total``; ``per_edge`` ``(m,)`` :math:`W_2^2` of each edge; ``density`` per node."""
+
+    total: float
+    per_edge: np.ndarray
+    density: np.ndarray
+
+
+def _check_rows(rows, n_nodes: int | None, n: int) -> np.ndarray:
+    r = np.asarray(rows, dtype=np.float64)
+    if r.ndim != 2 or r.shape[1] != n or (n_nodes is not None and r.shape[0] != n_nodes):
+        raise InputError(f"soft map rows must have shape ({n_nodes}, {n}), got {r.shape}",
+                         field="soft_map")
+    if not np.all(np.isfinite(r)) or np.any(r < 0):
+        raise InputError("soft map rows must be finite non-negative masses", field="soft_map")
+    return r / np.maximum(r.sum(axis=1, keepdims=True), 1e-300)
+
+
+def potential_operator(target, masses: np.ndarray, eps: float = 1e-3) -> sp.csr_matrix:
+    r""":math:`G^\top D_{A_f (\rho_f + \epsilon)} G`: the weighted Laplacian of eq. 4.3."""
+    rho = masses / target.areas
+    rho_f = rho[target.faces].mean(axis=1) + check_positive(eps, "eps")
+    D = sp.diags(np.repeat(target.face_areas * rho_f, 3))
+    G = target.gradient
+    return (G.T @ D @ G).tocsr()
+
+
+def transportation_potential(target, masses_from, masses_to, *, eps: float = 1e-3,
+                             with_energy: bool = False):
+    r"""Potential :math:`Q` with :math:`\nabla\cdot((\rho+\epsilon)\nabla Q) = -(\rho' - \rho)`.
+
+    ``masses_from``, ``masses_to``: ``(n,)`` target masses (``rho = m / a``); ``eps``: the
+    regularization where :math:`\rho` vanishes (density units; the mean density is 1).
+    Returns ``Q`` ``(n,)`` (zero area-weighted mean), or ``(Q, energy)`` with
+    ``energy`` :math:`= \int (\rho+\epsilon)|\nabla Q|^2`, the linearized :math:`W_2^2`.
+    """
+    m0 = np.asarray(masses_from, dtype=np.float64)
+    m1 = np.asarray(masses_to, dtype=np.float64)
+    m0, m1 = m0 / m0.sum(), m1 / m1.sum()
+    Lr = potential_operator(target, m0, eps)
+    gauge = 1e-9 * float(Lr.diagonal().mean()) / float(target.areas.mean())
+    factor = factorize_spd((Lr + gauge * sp.diags(target.areas)).tocsc())
+    q = factor.solve(m1 - m0)
+    q = q - target.areas @ q
+    if with_energy:
+        return q, float(q @ (Lr @ q))
+    return q
+
+
+def momentum(target, masses, q, *, eps: float = 1e-3) -> np.ndarray:
+    r"""``(F, 3)`` momentum :math:`(\rho + \epsilon)\nabla Q` per target face (eq. 4.4)."""
+    rho = np.asarray(masses, dtype=np.float64) / target.areas
+    rho_f = rho[target.faces].mean(axis=1) + eps
+    return (target.gradient @ q).reshape(-1, 3) * rho_f[:, None]
+
+
+def dirichlet_energy(target, rows, edges, edge_weights, *, cell_areas=None,
+                     route: str = "w2", gamma: float | None = None, substeps: int = 1,
+                     debiased: bool = True, eps: float = 1e-3, tol: float = 1e-6
+                     ) -> DirichletEnergy:
+    r"""eq. 4.2: :math:`\sum_e \omega_e W_2^2(\mu_u, \mu_{u'})` over the source edges.
+
+    ``rows`` ``(N, n)`` masses per source node; ``edges`` ``(m, 2)``; ``edge_weights`` ``(m,)``;
+    ``cell_areas`` ``(N,)`` source area per node (default: equal) for the density.
+    ``route="w2"``: convolutional :math:`W_2^2` at ``gamma`` (default ``4 * h^2``, ``h`` the
+    target's mean edge length; ``substeps`` implicit Euler steps of the heat kernel),
+    debiased (Sinkhorn divergence) unless ``debiased=False``;
+    ``route="potential"``: :math:`\int(\rho_u+\epsilon)|\nabla Q_e|^2` (eq. 4.3).
+    """
+    from solvers.convolutional import wasserstein_distance
+
+    e = np.asarray(edges, np.int64)
+    w = np.asarray(edge_weights, np.float64)
+    r = _check_rows(rows, None, target.n)
+    if route not in DIRICHLET_ROUTES:
+        raise InputError(f"route must be one of {DIRICHLET_ROUTES}, got {route!r}",
+                         field="route")
+    gamma = 4.0 * target.mean_edge_length**2 if gamma is None else check_positive(gamma,
+                                                                                  "gamma")
+    per = np.zeros(len(e))
+    for k, (u, v) in enumerate(e):
+        if route == "w2":
+            per[k] = max(wasserstein_distance(target, r[u], r[v], gamma=gamma, tol=tol,
+                                              substeps=substeps, debiased=debiased).value, 0.0)
+        else:
+            per[k] = transportation_potential(target, r[u], r[v], eps=eps, with_energy=True)[1]
+    return _assemble(per, e, w, len(r), cell_areas)
+
+
+def _assemble(per, e, w, n_nodes, cell_areas) -> DirichletEnergy:
+    cells = np.full(n_nodes, 1.0 / n_nodes) if cell_areas is None else np.asarray(cell_areas)
+    node = np.zeros(n_nodes)
+    np.add.at(node, e[:, 0], 0.5 * w * per)
+    np.add.at(node, e[:, 1], 0.5 * w * per)
+    return DirichletEnergy(total=float(w @ per), per_edge=per, density=node / cells)
+
+
+def dirichlet_from_edge_values(edge_values, edges, edge_weights, n_nodes: int,
+                               cell_areas=None) -> DirichletEnergy:
+    """Dirichlet energy from per-edge :math:`W^2` already measured (e.g. by the propagation)."""
+    per = np.maximum(np.asarray(edge_values, np.float64), 0.0)
+    return _assemble(per, np.asarray(edges, np.int64), np.asarray(edge_weights, np.float64),
+                     n_nodes, cell_areas)
+
+
+def bijectivity_density(target, rows, cell_areas) -> np.ndarray:
+    r"""eq. 4.5: :math:`b(y) = \sum_u |\text{cell}_u|\, \rho_u(y)` per target vertex."""
+    r = _check_rows(rows, None, target.n)
+    cells = np.asarray(cell_areas, np.float64)
+    return (cells @ r) / target.areas
+
+
+def bijectivity_energy(target, rows, cell_areas) -> float:
+    r"""eq. 4.5: :math:`E_B = \int_M b(y)^2\,dy` (1 for a bijective unit-area isometry)."""
+    b = bijectivity_density(target, rows, cell_areas)
+    return float(target.areas @ b**2)
+
+
+def descriptor_energy(rows, cost, cell_areas) -> float:
+    r"""eq. 4.6: :math:`\sum_u |\text{cell}_u| \sum_y \mu_u(y)\, c(u, y)` (``cost`` ``(N, n)``)."""
+    r = np.asarray(rows, np.float64)
+    r = r / np.maximum(r.sum(axis=1, keepdims=True), 1e-300)
+    return float(np.asarray(cell_areas, np.float64) @ np.einsum("ij,ij->i", r, cost))
