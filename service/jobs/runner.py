@@ -16,6 +16,7 @@ from service.errors import ApiError, error_dict
 from service.jobs.db import CANCELLED, FAILED, SUCCEEDED, JobRepository, worker_identity
 from service.operations.base import RunContext
 from service.settings import Settings
+from service.storage_probe import STORAGE_ERRNOS, storage_reason
 from service.store import Store
 from solvers.errors import CancelledError, OTGeoError
 
@@ -185,6 +186,10 @@ class JobRunner:
             if not isinstance(exc, (OTGeoError, ApiError)):
                 log.exception("job %s failed", job_id)
             error = error_dict(exc)
+            if isinstance(exc, OSError) and exc.errno in STORAGE_ERRNOS:  # no server paths
+                error = {"code": "storage_unavailable", "field": None,
+                         "message": "the result could not be stored "
+                                    f"({storage_reason(exc)}); retry later"}
         finally:
             hb.stop()
         progress = dict(hb.progress)

@@ -82,6 +82,17 @@ def test_unwritable_storage_gives_503_and_health_says_so(make_client, tmp_path):
     assert body["storage"]["reason"]
 
 
+def test_job_whose_result_cannot_be_stored_fails_naming_storage(client, tmp_path):
+    gid = client.post("/v1/domains", json={"kind": "grid", "shape": [6, 6]}).json()["id"]
+    shutil.rmtree(tmp_path / "results")
+    (tmp_path / "results").write_text("not a directory")
+    body = {"mu0": {"vertex": 0, "radius": 0.5}, "mu1": {"vertex": 35, "radius": 0.5}}
+    job = client.post(f"/v1/domains/{gid}/distances", json=body).json()
+    assert job["state"] == "failed", job
+    assert job["error"]["code"] == "storage_unavailable"
+    assert str(tmp_path) not in job["error"]["message"]
+
+
 def test_full_disk_is_reported_as_low_space(make_client):
     client = make_client(min_free_bytes=2**62)  # more than any disk has free
     r = client.get("/healthz")
@@ -161,4 +172,7 @@ def test_healthz_answers_during_a_big_json_upload(client):
     thread.join()
     assert done["status"] in (200, 201), done
     assert len(latencies) >= 5, (done, latencies)  # the upload took a while
-    assert max(latencies) < max(0.5, done["seconds"] / 5), (done, latencies)
+    # parsing on the loop stalls a health check for most of the upload (measured 6-8 s of
+    # 7-9 s, bench/results/upload_latency.md); allow scheduling noise on a loaded machine
+    slowest = max(latencies)
+    assert slowest < max(1.5, done["seconds"] / 3), (slowest, done["seconds"], latencies)
