@@ -56,7 +56,8 @@ def engine_problem() -> str | None:
     except subprocess.TimeoutExpired:
         return "`docker info` did not answer within 30 s"
     if info.returncode != 0:
-        return f"the Docker engine does not answer: {(info.stderr or info.stdout).strip()}"
+        text = (info.stderr or info.stdout).strip() or "no output"
+        return f"the Docker engine does not answer (`{cli} info` exit {info.returncode}): {text}"
     probe = subprocess.run([cli, "image", "inspect", BASE_IMAGE], capture_output=True)
     if probe.returncode != 0 and shutil.which("debootstrap") is None:
         return f"no {BASE_IMAGE} image and no debootstrap to build it"
