@@ -101,3 +101,18 @@ def test_unreachable_tolerance_stops_as_stalled():
     # default cap it stops once tol is out of reach at the measured rate.
     bary = barycenter(grid, np.stack([m0, m1], 1), gamma=0.05, debiased=True, tol=1e-9)
     assert not bary.converged and bary.iterations < 1000 and 1e-9 < bary.residual < 1e-4
+
+
+def test_long_pointwise_runs_are_refused_up_front(shared_mesh):
+    """d_W^50 from one vertex to all of spot was a 271 s run: now refused before it starts,
+    naming the limit and the faster option; a small target set still runs."""
+    from solvers.emd import pointwise_distances
+    from solvers.emd.pointwise import MAX_ESTIMATED_SECONDS
+
+    mesh = shared_mesh("spot.obj")
+    with pytest.raises(InputError) as err:
+        pointwise_distances(mesh, 0, k=50)
+    assert err.value.field == "k" and f"{MAX_ESTIMATED_SECONDS:.0f} s" in str(err.value)
+    assert "smaller k" in str(err.value)
+    res = pointwise_distances(mesh, 0, k=4, targets=np.arange(1, 9))
+    assert res.converged and np.all(res.distances > 0)

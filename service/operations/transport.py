@@ -28,6 +28,9 @@ from solvers.convolutional import (
 )
 from solvers.convolutional.exact import EXACT_KINDS, MAX_SUPPORT_PRODUCT
 from solvers.emd import earth_movers_distance, pointwise_distances
+from solvers.emd.green import GREEN_MAX_VERTICES
+from solvers.emd.pointwise import check_cost
+from solvers.errors import InputError
 from solvers.regularization import shape_regularization
 from solvers.validation import check_anchored, check_edge_weights, check_edges, check_weights
 
@@ -338,6 +341,14 @@ def _validate_pointwise(view, req: PointwiseDistanceRequest) -> list[dict]:
         raise InvalidInput(f"source {req.source} out of range [0, {view.n - 1}]",
                            field="source")
     check_options(view, req)
+    # Refuse at submission what the solver would refuse after minutes (cost estimate).
+    labels = np.asarray(view.component_labels)
+    n_targets = int(np.count_nonzero(labels == labels[req.source]))
+    green = req.k == 0 and view.n <= GREEN_MAX_VERTICES and 4 * n_targets >= view.n
+    try:
+        check_cost(view.n, int(view.n_faces or 2 * view.n), req.k, n_targets, green)
+    except InputError as exc:  # the service has no 'targets' field: the choice is k
+        raise InvalidInput(str(exc), field="k") from exc
     return []
 
 

@@ -47,9 +47,9 @@ import numpy as np
 
 from solvers.emd.bases import CurlBasis, SpectralBasis, _apply_metric, _Basis
 from solvers.emd.operators import EMDOperators, mesh_operators
-from solvers.errors import CancelledError, InputError, UnsupportedDomainError
+from solvers.errors import InputError, UnsupportedDomainError
 from solvers.linalg import factorize_spd
-from solvers.monitor import SolverResult
+from solvers.monitor import Monitor, SolverResult
 from solvers.validation import normalize_masses
 
 ALGORITHMS = ("admm", "weiszfeld")
@@ -167,17 +167,10 @@ def _potential(ops, dual_field, m0, m1, weights) -> tuple[np.ndarray, float]:
     return u, (float(u @ (m1 - m0)) / s if s > 0 else 0.0)
 
 
-class _Monitor:
-    def __init__(self, progress, should_cancel, every: int = 10):
-        self.progress, self.should_cancel, self.every = progress, should_cancel, every
-
-    def __call__(self, it: int, residual: float) -> None:
-        if it % self.every:
-            return
-        if self.should_cancel is not None and self.should_cancel():
-            raise CancelledError("earth mover's distance cancelled", field="should_cancel")
-        if self.progress is not None:
-            self.progress(it, float(residual))
+# Iterations without a 0.1 % improvement of the best residual after which the W1 loops stop
+# as stalled (converged=False with the measured residuals).
+ADMM_PATIENCE = 2000
+WEISZFELD_PATIENCE = 50
 
 
 def earth_movers_distance(mesh, mu0, mu1, *, algorithm: str = "admm", basis: str = "full",
@@ -206,7 +199,10 @@ def earth_movers_distance(mesh, mu0, mu1, *, algorithm: str = "admm", basis: str
         anisotropic cost :math:`\int\|A(x) J\|` (§2.7).
     tol : relative primal/dual residual (ADMM) or relative objective change
         (Weiszfeld) at which to stop.
-    max_iter : iteration cap (default 20000 ADMM, 500 Weiszfeld).
+    max_iter : iteration cap (default 20000 ADMM, 500 Weiszfeld); the loops also stop when
+        the residual has not improved by 0.1 % for ``ADMM_PATIENCE`` /
+        ``WEISZFELD_PATIENCE`` iterations (stagnation: converged False, measured residuals).
+    progress, should_cancel : called every iteration (``solvers.monitor.Monitor``).
     beta : initial ADMM penalty (default ``1 / Σ A‖v‖``); adapted by residual balancing.
 
     Returns
@@ -226,7 +222,8 @@ def earth_movers_distance(mesh, mu0, mu1, *, algorithm: str = "admm", basis: str
         raise InputError("matrix face_weights need basis='full' or 'spectral'",
                          field="face_weights")
     flow_basis = make_basis(ops, basis, k, harmonic)
-    monitor = _Monitor(progress, should_cancel)
+    monitor = Monitor(progress, should_cancel, tol=tol,
+                      patience=ADMM_PATIENCE if algorithm == "admm" else WEISZFELD_PATIENCE)
     _, v = ops.particular_flow(m1 - m0)
     if algorithm == "admm":
         max_iter = 20000 if max_iter is None else int(max_iter)
@@ -287,7 +284,7 @@ def _admm(ops, basis, v, b, weights, tol, max_iter, beta, monitor):
         r = wnorm(mj - z) / scale
         s = beta * wnorm(z - z_old) / max(wnorm(lam), 1e-300)
         monitor(it, max(r, s))
-        if r <= tol and s <= tol:
+        if (r <= tol and s <= tol) or monitor.stalled:
             break
         if r > 10.0 * s:
             beta *= 2.0
@@ -332,7 +329,7 @@ def _weiszfeld(ops, basis, v, b, weights, tol, max_iter, monitor):
         change = abs(cost - new_cost) / max(new_cost, 1e-300)
         cost = new_cost
         monitor(it, change)
-        if change <= tol:
+        if change <= tol or monitor.stalled:
             break
     mj = _apply_metric(metric, flow)
     norms = np.maximum(_face_norms(mj), 1e-300)

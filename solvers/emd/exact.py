@@ -44,7 +44,7 @@ import scipy.sparse as sp
 
 from solvers.domains.mesh import TriangleMesh
 from solvers.errors import CancelledError, InputError, UnsupportedDomainError
-from solvers.monitor import SolverResult
+from solvers.monitor import Monitor, SolverResult
 from solvers.validation import check_masses
 
 MAX_VERTICES = 5000
@@ -260,18 +260,22 @@ class _ConicProgram:
             settings.time_limit = float(time_limit)
         P = sp.csc_matrix((self.n, self.n))
         solver = clarabel.DefaultSolver(P, q, A, np.concatenate(b), cones, settings)
-        cancelled = []
-        if progress is not None or should_cancel is not None:
-            def callback(info) -> bool:
-                if progress is not None:
-                    progress(int(info.iterations),
-                             float(max(info.gap_rel, info.res_primal, info.res_dual)))
-                if should_cancel is not None and should_cancel():
-                    cancelled.append(True)
-                    return True
-                return False
+        cancelled, stalled = [], []
+        monitor = Monitor(progress, should_cancel, tol=tol, patience=IPM_PATIENCE)
 
-            solver.set_termination_callback(callback)
+        def callback(info) -> bool:  # True stops the interior-point loop
+            try:
+                monitor(int(info.iterations),
+                        float(max(info.gap_rel, info.res_primal, info.res_dual)))
+            except CancelledError:
+                cancelled.append(True)
+                return True
+            if monitor.stalled:  # residual stopped falling: stop, report not converged
+                stalled.append(True)
+                return True
+            return False
+
+        solver.set_termination_callback(callback)
         start = time.perf_counter()
         solution = solver.solve()
         elapsed = time.perf_counter() - start
@@ -280,6 +284,8 @@ class _ConicProgram:
         status = str(solution.status)
         if "." in status:
             status = status.rsplit(".", 1)[1]
+        if stalled:
+            status = "Stalled"
         x = np.asarray(solution.x)
         z = np.asarray(solution.z)
         return x, z, int(solution.iterations), status, elapsed
@@ -300,13 +306,13 @@ def _component_sum_matrix(mesh: TriangleMesh) -> sp.csr_matrix:
                          shape=(mesh.n_components, mesh.n))
 
 
+# Interior-point iterations without a 0.1 % improvement of the residual after which the
+# conic solve stops as stalled (status "Stalled": converged False).
+IPM_PATIENCE = 25
+
+
 def _converged(status: str) -> bool:
     return status in ("Solved", "AlmostSolved")
-
-
-def _check_cancel(should_cancel) -> None:
-    if should_cancel is not None and should_cancel():
-        raise CancelledError("cancelled before the conic solve started")
 
 
 # ---------------------------------------------------------------------------
@@ -371,7 +377,7 @@ def _beckmann_difference(mesh, difference, *, face_weights=None, tol=1e-8, max_i
     weights = _face_weights(mesh, face_weights)
     geo = _flow_geometry(mesh, weights)
     keep = _kept_rows(mesh)
-    _check_cancel(should_cancel)
+    Monitor(progress, should_cancel).check_cancel("before the conic solve")
     prog = _ConicProgram()
     flow = prog.flow_block(geo)
     prog.constrain("eq", [(flow, geo.div[keep])], difference[keep])
@@ -457,7 +463,7 @@ def w1_barycenter(
     fw = _face_weights(mesh, face_weights)
     geo = _flow_geometry(mesh, fw)
     keep = _kept_rows(mesh)
-    _check_cancel(should_cancel)
+    Monitor(progress, should_cancel).check_cancel("before the conic solve")
 
     prog = _ConicProgram()
     mu = prog.variables(mesh.n)
@@ -539,7 +545,7 @@ def w1_path_planning(
     fw, upper, forbidden = _path_constraints(mesh, m0, m1, capacity, obstacle_vertices,
                                              face_weights)
     geo = _flow_geometry(mesh, fw)
-    _check_cancel(should_cancel)
+    Monitor(progress, should_cancel).check_cancel("before the conic solve")
     K = int(n_steps)
     prog, mids, flows = _path_program(mesh, geo, m0, m1, K, upper, forbidden)
     x, _, iterations, status, elapsed = prog.solve(

@@ -38,12 +38,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from solvers.emd.bases import SpectralBasis
-from solvers.emd.beckmann import _Monitor, check_mesh
+from solvers.emd.beckmann import check_mesh
 from solvers.emd.green import GREEN_MAX_VERTICES, dw0_from_green
 from solvers.errors import InputError
-from solvers.monitor import SolverResult
+from solvers.monitor import Monitor, SolverResult
 
 ROUTES = ("auto", "green", "solve")
+
+# Cost model of the estimate (seconds on 2 cores; rough fit of spot, k = 20 and 50, 128
+# targets, 25-34 iterations): a Poisson solve per target and vertex; per Weiszfeld
+# iteration and target, a pass over the faces plus the (m x m) normal equations per face.
+_SOLVE_SECONDS = 5e-7
+_WEISZFELD_FACE_SECONDS = 3e-7
+_WEISZFELD_SECONDS = 1.5e-10
+_WEISZFELD_ITERATIONS = 30  # typical iterations per target (active targets only)
+MAX_ESTIMATED_SECONDS = 300.0
+WEISZFELD_PATIENCE = 30
 
 
 @dataclass
@@ -72,6 +82,7 @@ def _split_gradient(ops) -> list:
 def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic: bool = True,
                         tol: float = 1e-6, max_iter: int = 300, block: int = 512,
                         route: str = "auto", green_max_vertices: int = GREEN_MAX_VERTICES,
+                        max_seconds: float | None = MAX_ESTIMATED_SECONDS,
                         progress=None, should_cancel=None) -> PointwiseDistanceResult:
     r"""``d_W^k(source, y)`` for all vertices ``y`` (or ``targets``), thesis §2.5.
 
@@ -92,6 +103,11 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
     green_max_vertices : largest mesh for the dense matrix (``route="green"`` raises
         InputError(field="route") above it); default :data:`GREEN_MAX_VERTICES` (20000,
         1.6 GB).
+    max_seconds : runs estimated above this (:func:`estimate_seconds`) are refused with an
+        InputError naming the limit and the faster option (None: no limit).
+    progress, should_cancel : called every Weiszfeld iteration / solve block; Weiszfeld
+        stops a block as stalled when its worst change has not improved for
+        ``WEISZFELD_PATIENCE`` iterations (converged False, measured change).
 
     Returns
     -------
@@ -99,14 +115,50 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
     """
     ops = check_mesh(mesh)
     source, k, targets = _check_inputs(ops, source, k, targets, route)
-    monitor = _Monitor(progress, should_cancel, every=1)
-    if k == 0 and route != "solve" and (
-            route == "green" or ops.has_green_matrix
-            or (mesh.n <= green_max_vertices and 4 * len(targets) >= mesh.n)):
+    monitor = Monitor(progress, should_cancel, tol=tol, patience=WEISZFELD_PATIENCE)
+    green = k == 0 and route != "solve" and (
+        route == "green" or ops.has_green_matrix
+        or (mesh.n <= green_max_vertices and 4 * len(targets) >= mesh.n))
+    check_cost(mesh.n, ops.n_faces, k, len(targets), green, max_seconds)
+    if green:
         return _dw0_green(ops, source, targets, monitor, green_max_vertices)
     if k == 0:
         return _dw0_solve(ops, source, targets, block, monitor)
     return _dwk_weiszfeld(ops, source, k, targets, harmonic, tol, max_iter, block, monitor)
+
+
+def estimate_seconds(n_vertices: int, n_faces: int, k: int, n_targets: int,
+                     green: bool) -> float:
+    """Estimated seconds of :func:`pointwise_distances` (``green``: the dense route; its
+    one-time build is ``n_vertices`` solves, then a face pass per target)."""
+    solves = n_targets * _SOLVE_SECONDS * n_vertices
+    if k == 0:
+        return (n_vertices * _SOLVE_SECONDS * n_vertices * 0.05 + n_targets * n_faces * 2e-9
+                if green else solves)
+    m = k + 4  # eigenfunctions plus (up to) harmonic fields
+    per_iteration = _WEISZFELD_FACE_SECONDS * n_faces + _WEISZFELD_SECONDS * n_faces * m * m
+    return solves + n_targets * _WEISZFELD_ITERATIONS * per_iteration
+
+
+def check_cost(n_vertices: int, n_faces: int, k: int, n_targets: int, green: bool,
+               max_seconds: float | None = MAX_ESTIMATED_SECONDS) -> float:
+    """Refuse (InputError naming the limit and the faster option) a run estimated above
+    ``max_seconds`` (None: no limit); returns the estimate."""
+    est = estimate_seconds(n_vertices, n_faces, k, n_targets, green)
+    if max_seconds is not None and est > max_seconds:
+        if k > 0:
+            hint = (f"use a smaller k (k = 0 is the Green's-function form) or fewer targets "
+                    f"(about {max(int(n_targets * max_seconds / est), 1)} fit)")
+            field = "k"
+        else:
+            hint = (f"pass fewer targets (about {max(int(n_targets * max_seconds / est), 1)} "
+                    f"fit), or allow the dense Green's route above {GREEN_MAX_VERTICES} "
+                    f"vertices (green_max_vertices; {4 * n_vertices ** 2 / 1e9:.1f} GB)")
+            field = "targets"
+        raise InputError(f"d_W^{k} to {n_targets} targets on {n_vertices} vertices is "
+                         f"estimated at {est:.0f} s, above the limit of {max_seconds:.0f} s: "
+                         f"{hint}", field=field)
+    return est
 
 
 def _check_inputs(ops, source, k, targets, route) -> tuple[int, int, np.ndarray]:
@@ -182,27 +234,37 @@ def _dwk_weiszfeld(ops, source, k, targets, harmonic, tol, max_iter, block, moni
     local_gram = np.einsum("fck,fcl->fkl", fields, fields).reshape(len(fields), m * m)
     flat_fields = fields.reshape(-1, m)  # (3F, m)
     out = np.empty(len(targets))
-    worst_change, max_its, converged = 0.0, 0, True
+    worst_change, max_its, converged, total = 0.0, 0, True, 0
     for start in range(0, len(targets), block):
-        monitor(start // block, worst_change)
         chunk = targets[start:start + block]
         diff = ops.grad(_pair_potentials(ops, source, chunk))  # (F, 3, B)
         flow = diff
         cost = np.einsum("f,fb->b", area, np.sqrt(np.einsum("fcb,fcb->fb", flow, flow)))
+        active = np.arange(len(chunk))  # targets still iterating (converged ones drop out)
+        block_monitor = Monitor(monitor.progress, monitor.should_cancel, tol=tol,
+                                patience=monitor.patience)
+        block_monitor.offset = total
+        change = 0.0
         for it in range(1, max_iter + 1):
-            norms = np.sqrt(np.einsum("fcb,fcb->fb", flow, flow))
+            d_a, f_a = diff[:, :, active], flow[:, :, active]
+            norms = np.sqrt(np.einsum("fcb,fcb->fb", f_a, f_a))
             floor = np.maximum(1e-9 * norms.max(axis=0), 1e-12)
             omega = area[:, None] / np.maximum(norms, floor)  # (F, B)
-            gram = (omega.T @ local_gram).reshape(len(chunk), m, m)
-            rhs = -(flat_fields.T @ (omega[:, None, :] * diff).reshape(-1, len(chunk)))
+            gram = (omega.T @ local_gram).reshape(len(active), m, m)
+            rhs = -(flat_fields.T @ (omega[:, None, :] * d_a).reshape(-1, len(active)))
             coef = np.linalg.solve(gram, rhs.T[:, :, None])[:, :, 0]  # (B, m)
-            flow = diff + (flat_fields @ coef.T).reshape(diff.shape)
-            new = np.einsum("f,fb->b", area, np.sqrt(np.einsum("fcb,fcb->fb", flow, flow)))
-            change = float(np.max(np.abs(cost - new) / np.maximum(new, 1e-300)))
-            cost = new
+            f_a = d_a + (flat_fields @ coef.T).reshape(d_a.shape)
+            flow[:, :, active] = f_a
+            new = np.einsum("f,fb->b", area, np.sqrt(np.einsum("fcb,fcb->fb", f_a, f_a)))
+            changes = np.abs(cost[active] - new) / np.maximum(new, 1e-300)
+            cost[active] = new
+            change = float(changes.max())
             max_its = max(max_its, it)
-            if change <= tol:
+            block_monitor(it, change)
+            active = active[changes > tol]
+            if not len(active) or block_monitor.stalled:
                 break
+        total += max_its
         worst_change = max(worst_change, change)
         converged = converged and change <= tol
         out[start:start + len(chunk)] = cost

@@ -30,8 +30,8 @@ import scipy.sparse as sp
 
 from solvers.domains.mesh import TriangleMesh
 from solvers.emd.exact import MAX_VERTICES, kantorovich_rubinstein_norm
-from solvers.errors import CancelledError, InputError, UnsupportedDomainError
-from solvers.monitor import SolverResult
+from solvers.errors import InputError, UnsupportedDomainError
+from solvers.monitor import Monitor, SolverResult
 
 # Points closer than this (relative to the mean edge length) to a vertex or to the
 # plane of a face they lie in are treated as on the surface.
@@ -297,19 +297,21 @@ def volumetric_distances(
     W = mean_value_coordinates(mesh, pts)
     out = np.empty(len(pts))
     iterations, residual, converged = 0, 0.0, True
+    monitor = Monitor(progress, should_cancel)
     for j in range(len(pts)):
-        if should_cancel is not None and should_cancel():
-            raise CancelledError("volumetric distances cancelled", field="should_cancel")
+        monitor.check_cancel(f"before point {j}")
         value, _, its, res, ok = _kr_distance(mesh, w_src - W[j], algorithm, tol, max_iter,
                                               max_vertices, basis)
         out[j] = value
         iterations += its
         residual = max(residual, float(res))
         converged = converged and ok
-        if progress is not None:
-            progress(j + 1, value)
+        monitor(j + 1, value)
     return VolumetricFieldResult(distances=out, iterations=iterations, residual=residual,
                                  converged=converged)
+
+
+PATH_PATIENCE = 10
 
 
 def volumetric_path(
@@ -361,15 +363,17 @@ def volumetric_path(
     points, distances = [x.copy()], []
     iterations = 0
     converged = False
+    # The distance to the target must keep falling; PATH_PATIENCE steps without a 0.1 %
+    # improvement (circling near the target, a step too large) stop the descent.
+    monitor = Monitor(progress, should_cancel, patience=PATH_PATIENCE)
     for iterations in range(1, max_iter + 1):
-        if should_cancel is not None and should_cancel():
-            raise CancelledError("volumetric path cancelled", field="should_cancel")
         W = mean_value_coordinates(mesh, np.vstack([x, x + offsets]))
         value, potential, _, _, _ = _kr_distance(mesh, W[0] - w_target, algorithm, tol, None,
                                                  max_vertices, basis)
         distances.append(value)
-        if progress is not None:
-            progress(iterations, value)
+        monitor(iterations, value)
+        if monitor.stalled:
+            break
         if np.linalg.norm(x - y) <= step:
             points.append(y.copy())
             distances.append(0.0)

@@ -66,3 +66,12 @@ def test_explicit_gamma_reports_no_policy(client, meshes_dir):
     values = client.get(f"/v1/jobs/{job['id']}/result").json()["values"]
     assert values["route"] == "convolutional" and values["regularization"] is None
     assert values["gamma"] == 0.01 and values["substeps"] == 1 and values["debiased"] is False
+
+
+def test_pointwise_cost_is_checked_at_submission(client, meshes_dir):
+    from service_testing import assert_error
+
+    mid = upload_mesh(client, meshes_dir / "spot.obj").json()["id"]
+    err = assert_error(client.post(f"/v1/domains/{mid}/pointwise-distances",
+                                   json={"source": 0, "k": 50}), 422, "k")
+    assert "limit" in err["message"]
