@@ -336,3 +336,90 @@ def test_graph_and_point_cloud_are_points(page, live_api, tmp_path):
             break
     assert page.locator("#picks li").count() >= 1
     assert page.js_errors == []
+
+
+def test_soft_map_view_with_a_stubbed_job(page, live_api):
+    """The soft-map view (two meshes side by side, hovering a source vertex colors the target
+    with its row). No soft-map operation is registered yet, so the job's four routes are
+    stubbed in the browser (events, result, jobs list, rows) in the shapes issue 12 specifies;
+    the two meshes and their geometry come from the live server."""
+    import httpx
+
+    open_viewer(page, live_api)
+    ids = {}
+    for name in ("spot.obj", "cow.obj"):
+        drop_file(page, "#drop", MESHES_DIR / name)
+        page.wait_for_function(f"document.getElementById('status').textContent"
+                               f".startsWith('{name}')", timeout=TIMEOUT)
+        ids[name] = page.evaluate("otgeo.domain.id")
+    headers = {"X-API-Key": live_api.key}
+    cow = httpx.get(f"{live_api.url}/v1/domains/{ids['cow.obj']}/geometry", headers=headers,
+                    timeout=30).json()
+    cow_points = np.asarray(cow["positions"]).reshape(-1, 3)
+    job_id = "5" * 32
+    job = {"id": job_id, "operation": "soft-maps", "domain_id": ids["spot.obj"],
+           "state": "succeeded", "progress": {"iteration": 12, "residual": 1e-6},
+           "attempts": 1, "error": None, "cancel_requested": False, "time_limit": 600,
+           "created_at": "2026-12-01T19:00:00Z", "duration_seconds": 1.5, "links": {}}
+    result = {"job_id": job_id, "operation": "soft-maps", "domain_id": ids["spot.obj"],
+              "values": {"target_domain_id": ids["cow.obj"], "iterations": 12},
+              "arrays": {}, "export": {"rows": "soft_map"}, "files": {}}
+    served_rows = []
+
+    x = cow_points[:, 0]
+
+    def row(i: int) -> list[float]:  # a band across the cow that moves with the source vertex
+        center = x.min() + (x.max() - x.min()) * ((0.2 + 0.37 * i) % 1.0)
+        m = np.exp(-((x - center) ** 2) / (0.02 * np.ptp(x) ** 2))
+        return (m / m.sum()).tolist()
+
+    def handle(route):
+        url = route.request.url
+        if url.endswith("/events"):
+            body = (f"event: progress\ndata: {json.dumps(job)}\n\n"
+                    f"event: end\ndata: {json.dumps({'state': 'succeeded'})}\n\n")
+            return route.fulfill(status=200, body=body, content_type="text/event-stream")
+        if url.endswith("/result"):
+            return route.fulfill(status=200, json=result)
+        match = re.search(r"/arrays/soft_map/rows/(\d+)$", url)
+        if match:
+            served_rows.append(int(match.group(1)))
+            return route.fulfill(status=200, json={"name": "soft_map", "row": served_rows[-1],
+                                                   "values": row(served_rows[-1])})
+        return route.fulfill(status=404, json={"error": {"code": "not_found",
+                                                         "message": "stub", "field": None}})
+
+    page.route(f"**/v1/jobs/{job_id}/**", handle)
+    page.route("**/v1/jobs?*", lambda route: route.fulfill(status=200, json={
+        "jobs": [job, *route.fetch().json()["jobs"]], "next_cursor": None}))
+    page.click("#refresh-jobs")
+    page.click(f"#jobs li[data-id='{job_id}']")
+    page.wait_for_selector("#hover:not([hidden])", timeout=TIMEOUT)
+    assert page.evaluate("otgeo.view.items.length") == 2
+    before = canvas_pixels(page)
+    width = before.shape[1]
+    right = slice(width // 2, width)
+    assert stats(before[:, right])["colored"] < 0.05  # the target waits for a hover
+    box = page.locator("#view canvas").bounding_box()
+    hovered = []
+    for fx in np.linspace(0.05, 0.48, 20):  # over the source (left)
+        page.mouse.move(box["x"] + fx * box["width"], box["y"] + 0.5 * box["height"])
+        page.wait_for_timeout(150)
+        vertex = page.get_attribute("#hover", "data-vertex")
+        if vertex is not None and vertex not in hovered:
+            hovered.append(vertex)
+            page.wait_for_function("(v) => otgeo.softMap && document.getElementById('legend')"
+                                   ".dataset.hi && document.getElementById('hover')"
+                                   ".dataset.vertex === v", arg=vertex)
+            shot = canvas_pixels(page)
+            if len(hovered) == 1:
+                first = shot
+            else:
+                break
+    assert len(hovered) >= 2, hovered
+    assert served_rows[:1] == [int(hovered[0])]
+    colored = stats(first[:, right])["colored"]
+    assert colored > 0.3, colored  # the target shows the hovered vertex's distribution
+    changed = np.abs(first[:, right] - shot[:, right]).sum(axis=2) > 0.15
+    assert changed.mean() > 0.005  # another source vertex, another distribution
+    assert page.js_errors == []

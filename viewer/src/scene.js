@@ -244,6 +244,7 @@ export class View {
   }
 
   fit() {
+    this.scene.updateMatrixWorld(true); // the items' groups were just moved side by side
     const box = new THREE.Box3();
     for (const it of this.items) box.expandByObject(it.object);
     if (box.isEmpty()) return;
