@@ -441,6 +441,45 @@ def _add_flow(w: _GLTFWriter, v: np.ndarray, f: np.ndarray, flow) -> None:
     w.node("flow", mesh)
 
 
+def meshes_glb(parts: Sequence[Mapping], *, metadata: Mapping | None = None) -> bytes:
+    """Several triangle meshes in one GLB (e.g. the two surfaces of a correspondence).
+
+    Each part is a mapping with ``name``, ``vertices`` (V, 3), ``faces`` (F, 3), and
+    optionally ``colors`` (V, 3|4) RGB(A) in [0, 1] written as given, or ``field`` (V,)
+    values colormapped (``value_range`` optional), ``translation`` (3,) of its node, and
+    ``lines`` (S, 2, 3) segments (e.g. vector fields) drawn with the same translation.
+    """
+    w = _GLTFWriter(metadata)
+    for part in parts:
+        v = np.asarray(part["vertices"], dtype=np.float64)
+        f = np.asarray(part["faces"], dtype=np.int64)
+        if v.ndim != 2 or v.shape[1] != 3 or not np.all(np.isfinite(v)):
+            raise InputError("vertices must be a finite (V, 3) array", field="vertices")
+        if f.ndim != 2 or f.shape[1] != 3 or (f.size and (f.min() < 0 or f.max() >= len(v))):
+            raise InputError("faces must be (F, 3) indices into vertices", field="faces")
+        attrs = {"POSITION": w.accessor(v), "NORMAL": w.accessor(_vertex_normals(v, f))}
+        extras = {}
+        if part.get("colors") is not None:
+            c = np.clip(np.asarray(part["colors"], dtype=np.float64), 0.0, 1.0)
+            if c.shape[1] == 3:
+                c = np.concatenate([c, np.ones((len(c), 1))], axis=1)
+            attrs["COLOR_0"] = w.accessor(c)
+        elif part.get("field") is not None:
+            values = np.asarray(part["field"], dtype=np.float64)
+            attrs["COLOR_0"] = w.accessor(colormap(values, part.get("value_range")))
+            attrs[attribute_name(str(part.get("field_name", "value")))] = w.accessor(values)
+            extras["value_range"] = part.get("value_range") or (float(values.min()),
+                                                                 float(values.max()))
+        name = str(part["name"])
+        mesh = w.mesh(name, attrs, _TRIANGLES, w.accessor(f.ravel(), indices=True), extras)
+        w.node(name, mesh, part.get("translation"))
+        if part.get("lines") is not None and len(part["lines"]):
+            seg = np.asarray(part["lines"], dtype=np.float64).reshape(-1, 3)
+            lines = w.mesh(f"{name} lines", {"POSITION": w.accessor(seg)}, _LINES)
+            w.node(f"{name} lines", lines, part.get("translation"))
+    return w.to_bytes()
+
+
 # --------------------------------------------------------------------------- other domains
 def points_glb(points, *, vertex_fields: Mapping | None = None, edges=None,
                color: str | None = None, value_range=None, frames: Sequence | None = None,

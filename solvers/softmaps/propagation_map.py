@@ -109,7 +109,8 @@ class SoftMapResult(SolverResult):
     ``(N,)`` (mass outside the kept entries).  ``correspondence`` ``(n_source,)`` the target
     vertex of every source vertex (extracted, then refined if asked);
     ``sample_correspondence`` ``(N,)`` the extraction before refinement; ``dirichlet`` the
-    Dirichlet energy from the final edge plans (convolutional :math:`W^2`, not debiased).
+    Dirichlet energy from the final edge plans (convolutional :math:`W^2`, not debiased);
+    ``descriptor_energy`` eq. 4.6 with the normalized cost.
     """
 
     samples: np.ndarray
@@ -124,6 +125,7 @@ class SoftMapResult(SolverResult):
     correspondence: np.ndarray
     sample_correspondence: np.ndarray
     dirichlet: object = None
+    descriptor_energy: float = 0.0
     gamma: float = 0.0
     tau: float = 0.0
     timings: dict = field(default_factory=dict)
@@ -279,6 +281,9 @@ def soft_map(
                                    substeps=substeps,
                                    tol=tol, max_iter=max_iter, progress=progress,
                                    should_cancel=should_cancel)
+    # Descriptor energy (eq. 4.6) with the normalized cost c = -log_d * gamma * W_u / tau.
+    descriptor = -(gamma / tau) * float((cells * wu) @ np.einsum("ij,ji->i", log_d,
+                                                                  prop.masses))
     del log_d, cost
     rows = np.ascontiguousarray(prop.masses.T, dtype=np.float32)
     del prop.masses
@@ -312,4 +317,5 @@ def soft_map(
         samples=graph.indices, labels=graph.labels, cell_areas=cells, edges=graph.edges,
         edge_weights=w, soft_map=dense, top_indices=top_idx, top_masses=top_m,
         dropped_mass=dropped, correspondence=corr, sample_correspondence=sample_corr,
-        dirichlet=dirichlet, gamma=gamma, tau=tau, timings=timings, n_target=target.n)
+        dirichlet=dirichlet, descriptor_energy=descriptor, gamma=gamma, tau=tau,
+        timings=timings, n_target=target.n)

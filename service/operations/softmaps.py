@@ -1,0 +1,221 @@
+"""Soft maps between two uploaded meshes (thesis ch. 4, §3.7): ``POST /v1/soft-maps``.
+
+A global operation over two stored mesh domains; thin over :func:`solvers.softmaps.soft_map`.
+Results: energies and the extracted correspondence (JSON values); the soft map as the
+array ``soft_map`` (samples x target vertices, float32; one row, the distribution of a
+source sample, at ``GET /v1/jobs/{id}/arrays/soft_map/rows/{i}`` -- ``labels[x]`` is the
+row of source vertex ``x``), ``samples``, ``labels``, ``correspondence``; and
+``result.glb``: the source colored by target coordinates pulled back through the map, and
+one copy of the target per requested source vertex colored by its distribution, the first
+with momentum vectors (eq. 4.4) as lines.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from service.errors import InvalidInput, PayloadTooLarge, UnsupportedOperation
+from service.operations.base import Operation, OperationOutput, OperationRequest, ResultFile
+
+
+class LandmarkPair(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    source: int = Field(ge=0, description="vertex of the source mesh")
+    target: int = Field(ge=0, description="matching vertex of the target mesh")
+
+
+class SoftMapRequest(OperationRequest):
+    source_id: str = Field(description="source mesh domain id (the map goes source -> target)")
+    target_id: str = Field(description="target mesh domain id")
+    landmarks: list[LandmarkPair] = Field(min_length=1, max_length=256, description="known "
+                                          "pairs: fixed nodes of the propagation and landmark "
+                                          "descriptors")
+    samples: int = Field(1024, ge=2, le=100_000, description="farthest-point source samples "
+                         "(>= source vertices: all of them)")
+    tau: float = Field(0.05, gt=0, le=1e6, description="compatibility weight (cost of mean 1)")
+    gamma: float | None = Field(None, gt=0, le=100, description="entropic regularization on "
+                                "the target (unit area); default: twice the squared sample "
+                                "spacing, at least 4 h^2")
+    k: int = Field(100, ge=10, le=500, description="Laplace-Beltrami eigenpairs (WKS, ZoomOut)")
+    n_energies: int = Field(100, ge=2, le=1000, description="WKS energies")
+    wks_weight: float = Field(1.0, ge=0, description="weight of the WKS block of descriptors")
+    landmark_weight: float = Field(1.0, ge=0, description="weight of the landmark block")
+    landmark_route: Literal["geodesic", "heat"] = "geodesic"
+    norm: Literal["l1", "l2"] = Field("l1", description="descriptor difference (thesis: L1)")
+    tol: float = Field(1e-4, gt=0, lt=1, description="largest L1 marginal violation")
+    max_iter: int = Field(200, ge=1, le=10_000, description="propagation sweeps")
+    top_k: int | None = Field(None, ge=1, description="store only the k largest masses per "
+                              "row (arrays top_indices/top_masses, dropped_mass)")
+    extraction: Literal["mode", "barycentric", "path"] = "mode"
+    refine: Literal["zoomout", "none"] = "zoomout"
+    show_vertices: list[int] = Field(default_factory=list, max_length=8, description="source "
+                                     "vertices whose distributions color the target in the "
+                                     "GLB (default: the first landmark's)")
+
+
+class SoftMapEnergies(BaseModel):
+    dirichlet: float = Field(description="eq. 4.2 over the source edges, convolutional W2^2 "
+                             "of the final edge plans")
+    bijectivity: float = Field(description="eq. 4.5, 1 for a bijective isometry")
+    descriptor: float = Field(description="eq. 4.6 with the normalized cost")
+
+
+class SoftMapValues(BaseModel):
+    """Values of a soft-map job."""
+
+    energies: SoftMapEnergies
+    correspondence: list[int] = Field(description="target vertex of every source vertex")
+    samples: int
+    gamma: float
+    tau: float
+    iterations: int
+    residual: float
+    converged: bool
+    dropped_mass_max: float | None = Field(None, description="top_k: largest mass left out "
+                                           "of a row")
+    timings: dict[str, float]
+    rows: str = Field("soft_map", description="array holding one distribution per source "
+                      "sample; labels[x] is the row of source vertex x")
+
+
+def _mesh_view(ctx, domain_id: str, field: str):
+    view = ctx.view(domain_id, field)
+    if view.kind != "mesh":
+        raise UnsupportedOperation(f"soft maps need triangle meshes; {field} is a {view.kind} "
+                                   "domain", field=field)
+    if view.n_components > 1:
+        raise UnsupportedOperation(f"{field} has {view.n_components} connected components: "
+                                   "transport cannot cross them, upload a connected mesh",
+                                   field=field)
+    return view
+
+
+def validate(ctx, req: SoftMapRequest) -> list[dict]:
+    from solvers.softmaps.propagation_map import estimated_bytes
+
+    src = _mesh_view(ctx, req.source_id, "source_id")
+    tgt = _mesh_view(ctx, req.target_id, "target_id")
+    for i, pair in enumerate(req.landmarks):
+        if pair.source >= src.n:
+            raise InvalidInput(f"landmarks[{i}].source = {pair.source} is outside "
+                               f"[0, {src.n - 1}]", field=f"landmarks[{i}].source")
+        if pair.target >= tgt.n:
+            raise InvalidInput(f"landmarks[{i}].target = {pair.target} is outside "
+                               f"[0, {tgt.n - 1}]", field=f"landmarks[{i}].target")
+    if len({p.source for p in req.landmarks}) != len(req.landmarks):
+        raise InvalidInput("two landmarks share a source vertex", field="landmarks")
+    for i, v in enumerate(req.show_vertices):
+        if not 0 <= v < src.n:
+            raise InvalidInput(f"show_vertices[{i}] = {v} is outside [0, {src.n - 1}]",
+                               field=f"show_vertices[{i}]")
+    if req.samples < len(req.landmarks):
+        raise InvalidInput("samples must be at least the number of landmarks", field="samples")
+    if req.k >= min(src.n, tgt.n) - 2:
+        raise InvalidInput(f"k must be below {min(src.n, tgt.n) - 2}", field="k")
+    if req.top_k is not None and req.top_k > tgt.n:
+        raise InvalidInput(f"top_k must be at most {tgt.n}", field="top_k")
+    need = estimated_bytes(min(req.samples, src.n), tgt.n)
+    limit = int(ctx.settings.job_memory_bytes)
+    if need > limit:
+        raise PayloadTooLarge(f"{min(req.samples, src.n)} samples over {tgt.n} target "
+                              f"vertices need about {need / 2**30:.3g} GiB of working memory, "
+                              f"more than the limit of {limit / 2**30:.3g} GiB: use fewer "
+                              "samples", field="samples")
+    return []
+
+
+def _glb(source, target, res, show_rows, rows_of) -> bytes:
+    from service.export import meshes_glb
+    from solvers.softmaps.energies import momentum, transportation_potential
+    from solvers.softmaps.transfer import coordinate_colors, pull_back, pull_back_top_k
+
+    colors = coordinate_colors(target)
+    if res.soft_map is not None:
+        pulled = pull_back(res.soft_map, colors, res.labels)
+    else:
+        pulled = pull_back_top_k(res.top_indices, res.top_masses, colors, res.labels)
+    width = float(np.ptp(source.vertices[:, 0]) + np.ptp(target.vertices[:, 0]))
+    height = float(np.ptp(target.vertices[:, 1]))
+    parts = [{"name": "source", "vertices": source.vertices, "faces": source.faces,
+              "colors": pulled}]
+    for j, (x, row) in enumerate(zip(show_rows, rows_of, strict=True)):
+        density = row / target.areas
+        part = {"name": f"target mu_x x={x}", "vertices": target.vertices,
+                "faces": target.faces, "field": density, "field_name": "density",
+                "translation": [0.6 * width, -1.1 * height * j, 0.0]}
+        if j == 0:
+            # Momentum (eq. 4.4) of mu_x towards its first neighbour on the source graph.
+            u = int(res.labels[x])
+            nbr = res.edges[np.any(res.edges == u, axis=1)]
+            if len(nbr):
+                v = int(nbr[0, 1] if nbr[0, 0] == u else nbr[0, 0])
+                q = transportation_potential(target, row, res.row(v))
+                mom = momentum(target, row, q)
+                mag = np.linalg.norm(mom, axis=1)
+                keep = np.argsort(-mag)[:2000]
+                scale = 2.0 * target.mean_edge_length / max(float(mag.max()), 1e-300)
+                c = target.vertices[target.faces[keep]].mean(axis=1)
+                part["lines"] = np.stack([c, c + scale * mom[keep]], axis=1)
+        parts.append(part)
+    return meshes_glb(parts, metadata={"operation": "soft-maps"})
+
+
+def run(ctx, req: SoftMapRequest, progress, should_cancel) -> OperationOutput:
+    from solvers.softmaps import bijectivity_energy, soft_map
+
+    source = ctx.domain(req.source_id, "source_id")
+    target = ctx.domain(req.target_id, "target_id")
+    pairs = [[p.source, p.target] for p in req.landmarks]
+    res = soft_map(source, target, pairs, samples=req.samples, tau=req.tau, gamma=req.gamma,
+                   k=req.k, n_energies=req.n_energies, wks_weight=req.wks_weight,
+                   landmark_weight=req.landmark_weight, landmark_route=req.landmark_route,
+                   norm=req.norm, tol=req.tol, max_iter=req.max_iter, top_k=req.top_k,
+                   extraction=req.extraction, refine=req.refine, progress=progress,
+                   should_cancel=should_cancel)
+    if res.soft_map is not None:
+        bij = bijectivity_energy(target, res.soft_map, res.cell_areas)
+    else:
+        dense = np.stack([res.row(i) for i in range(len(res.samples))])
+        bij = bijectivity_energy(target, dense, res.cell_areas)
+    values = SoftMapValues(
+        energies=SoftMapEnergies(dirichlet=res.dirichlet.total, bijectivity=bij,
+                                 descriptor=res.descriptor_energy),
+        correspondence=res.correspondence.tolist(), samples=int(len(res.samples)),
+        gamma=res.gamma, tau=res.tau, iterations=res.iterations, residual=res.residual,
+        converged=res.converged,
+        dropped_mass_max=None if res.dropped_mass is None else float(res.dropped_mass.max()),
+        timings=res.timings).model_dump()
+    arrays = {"samples": res.samples, "labels": res.labels,
+              "correspondence": res.correspondence, "cell_areas": res.cell_areas,
+              "dirichlet_density": res.dirichlet.density}
+    if res.soft_map is not None:
+        arrays["soft_map"] = res.soft_map
+    else:
+        arrays.update(top_indices=res.top_indices, top_masses=res.top_masses,
+                      dropped_mass=res.dropped_mass)
+        values["rows"] = "top_masses"
+    show = req.show_vertices or [pairs[0][0]]
+    rows_of = [res.row(int(res.labels[x])) for x in show]
+    files = {"result.glb": ResultFile("model/gltf-binary",
+                                      _glb(source, target, res, show, rows_of))}
+    return OperationOutput(values=values, arrays=arrays, files=files)
+
+
+OPERATIONS = [
+    Operation(
+        name="soft-maps",
+        operation_id="createSoftMapJob",
+        summary="Soft map between two meshes by Wasserstein propagation with descriptor "
+                "compatibility (thesis §3.7, ch. 4): energies, correspondence, distributions",
+        request_model=SoftMapRequest,
+        run=run,
+        validate=validate,
+        kinds=("mesh",),
+        scope="global",
+        domain_field="source_id",
+        result_model=SoftMapValues,
+    ),
+]
