@@ -26,6 +26,7 @@ overestimate of at most the length of the shared edge's detour; none on hourglas
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -152,11 +153,20 @@ def _check_indices(mesh: TriangleMesh, values, name: str) -> np.ndarray:
     return idx
 
 
+def mmp_timing(mesh: TriangleMesh) -> dict:
+    """Measured MMP solves on this mesh so far: ``{"solves": count, "seconds": total}``."""
+    return mesh.operators.get(("mmp-timing",), lambda: {"solves": 0, "seconds": 0.0})
+
+
 def cost_estimate(mesh: TriangleMesh, n_sources: int, n_targets: int, route: str) -> float:
-    """Rough seconds for a (sources × targets) matrix by ``route`` on 2 cores (measured:
-    ``bench/results/convolutional.md``, exact-route section)."""
+    """Rough seconds for a (sources × targets) matrix by ``route``: for ``"mmp"`` the mean
+    of the solves measured on this mesh so far, else a size model fitted on the shared
+    meshes (2 cores; MMP's cost also depends on the shape, so the measured mean wins)."""
     if route == "mmp":
-        return min(n_sources, n_targets) * 5e-7 * mesh.n ** 1.4
+        timing = mesh.operators.peek(("mmp-timing",))
+        per = (timing["seconds"] / timing["solves"] if timing and timing["solves"]
+               else 5e-7 * mesh.n ** 1.4)
+        return min(n_sources, n_targets) * per
     return n_sources * n_targets * (6e-4 + 2e-7 * mesh.n)
 
 
@@ -180,6 +190,7 @@ def geodesic_distances(mesh: TriangleMesh, sources, targets=None, *, route: str 
         raise InputError("the edge-flip route needs a manifold mesh; use route='mmp'",
                          field="route")
     if route == "mmp":
+        timing = mmp_timing(mesh)
         flip = len(dst) < len(src)  # symmetric: solve from the smaller side
         rows, cols = (dst, src) if flip else (src, dst)
         out = np.zeros((len(rows), len(cols)))
@@ -193,11 +204,14 @@ def geodesic_distances(mesh: TriangleMesh, sources, targets=None, *, route: str 
 
                 raise CancelledError("cancelled between geodesic solves")
             bound = None
+            start = time.perf_counter()
             if len(cols) < mesh.n:
                 reach = dijkstra(graph, directed=False, indices=int(s))[cols]
                 finite = reach[np.isfinite(reach)]
                 bound = float(finite.max()) if finite.size else 0.0
             out[i] = _one_to_all(pieces, int(s), bound)[cols]
+            timing["solves"] += 1
+            timing["seconds"] += time.perf_counter() - start
         return out.T if flip else out
     solver = _edge_flip_solver(mesh, pieces)
     labels = mesh.component_labels

@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -34,9 +34,11 @@ from solvers.convolutional.common import (
     prepare,
 )
 from solvers.convolutional.exact import (
+    AUTO_BUDGET_SECONDS,
     AUTO_SECONDS,
     MAX_SUPPORT_PRODUCT,
     ExactTransportResult,
+    RouteTimeout,
     exact_route_seconds,
     exact_wasserstein_distance,
     supports_exact,
@@ -405,12 +407,22 @@ def wasserstein_distance(
         raise InputError(f"route must be one of {', '.join(map(repr, ROUTES))}, got "
                          f"{route!r}", field="route")
     auto = isinstance(gamma, str) and gamma == "auto"
-    if route == "exact" or (route == "auto" and auto and _exact_fits(domain, m0, m1)):
+    if route == "exact":
         return exact_wasserstein_distance(domain, m0, m1, progress=progress,
                                           should_cancel=should_cancel)
+    fallback = None
+    if route == "auto" and auto and _exact_fits(domain, m0, m1):
+        try:
+            return exact_wasserstein_distance(domain, m0, m1, time_budget=AUTO_BUDGET_SECONDS,
+                                              progress=progress, should_cancel=should_cancel)
+        except RouteTimeout:
+            fallback = (f"; the exact route ran past its {AUTO_BUDGET_SECONDS:.0f} s budget "
+                        "(route auto fell back to convolutional)")
     if auto:
         reg = choose_regularization(domain, m0, m1, purpose="values", t=t,
                                     substeps=substeps, debiased=debiased)
+        if fallback:
+            reg = replace(reg, reason=reg.reason + fallback)
         gamma, t, substeps, debiased = reg.gamma, reg.t, reg.substeps, reg.debiased
     else:  # an explicit gamma: the solver as specified (one substep, biased by default)
         reg = None

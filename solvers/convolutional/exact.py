@@ -29,11 +29,19 @@ import numpy as np
 from solvers.errors import InputError
 from solvers.monitor import Monitor, SolverResult
 
-# route="auto" takes the exact route when its estimated time is below this (seconds) ...
+# route="auto" takes the exact route when its estimated time is below this (seconds), and
+# falls back to the convolutional route when the cost matrix takes longer than
+# AUTO_BUDGET_SECONDS after all ...
 AUTO_SECONDS = 2.0
+AUTO_BUDGET_SECONDS = 10.0
 # ... and refuses route="exact" above this (the LP's dense n0 x n1 cost matrix).
 MAX_SUPPORT_PRODUCT = 25_000_000
 EXACT_KINDS = ("mesh", "grid", "pointcloud")
+
+
+class RouteTimeout(Exception):
+    """The exact route's cost matrix ran past its ``time_budget`` (route="auto" then falls
+    back to the convolutional route)."""
 
 
 @dataclass(kw_only=True)
@@ -71,12 +79,13 @@ def exact_route_seconds(domain, n0: int, n1: int) -> float:
     return lp + 1e-8 * float(n0) * float(n1)
 
 
-def _cost_matrix(domain, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+def _cost_matrix(domain, src: np.ndarray, dst: np.ndarray, should_cancel=None) -> np.ndarray:
     kind = domain.kind
     if kind == "mesh":
         from solvers.geodesics import geodesic_distances
 
-        return geodesic_distances(domain, src, dst, route="mmp") ** 2
+        return geodesic_distances(domain, src, dst, route="mmp",
+                                  should_cancel=should_cancel) ** 2
     pts = np.asarray(domain.points, dtype=np.float64)
     diff = pts[src][:, None, :] - pts[dst][None, :, :]
     if kind == "grid" and any(domain.periodic):
@@ -93,6 +102,7 @@ def exact_wasserstein_distance(
     mu1,
     *,
     max_iter: int = 10_000_000,
+    time_budget: float | None = None,
     progress: Callable[[int, float], None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
 ) -> ExactTransportResult:
@@ -103,6 +113,8 @@ def exact_wasserstein_distance(
     domain : a TriangleMesh, Grid or PointCloud.
     mu0, mu1 : ``(n,)`` masses (normalized here); their supports set the LP size.
     max_iter : network-simplex iteration cap; when hit, ``converged`` is False.
+    time_budget : seconds; a cost matrix still running past it raises :class:`RouteTimeout`
+        (``route="auto"`` falls back to the convolutional route).
     progress, should_cancel : called between the geodesic solves and before the LP.
 
     Returns
@@ -131,7 +143,15 @@ def exact_wasserstein_distance(
     monitor = Monitor(progress, should_cancel)
     monitor(0, float("nan"))
     start = time.perf_counter()
-    cost = _cost_matrix(domain, src, dst)
+
+    def stop() -> bool:  # between geodesic solves: the caller's cancel, then the budget
+        if should_cancel is not None and should_cancel():
+            return True
+        if time_budget is not None and time.perf_counter() - start > time_budget:
+            raise RouteTimeout(f"exact route past its {time_budget:.0f} s budget")
+        return False
+
+    cost = _cost_matrix(domain, src, dst, stop)
     cost_seconds = time.perf_counter() - start
     monitor.check_cancel("before the transport LP")
     a, b = m0[src], m1[dst]
