@@ -17,11 +17,11 @@ gap of its exact objective to the LP optimum.
 
 Part ``real`` — the Fig. 5.6 protocol on real meshes (``../shared/meshes``): every vertex
 gets the histogram of a geometric quantity over its geodesic neighbourhood (graph
-distance along edges <= 3 mean edge lengths): mean curvature for Prob(ℝ) (24 bins over
+distance along edges): mean curvature for Prob(ℝ) (24 bins over
 the 1st-99th percentile), principal-direction angle for S¹ (12 periodic bins on [0, π));
 1 %, 5 % and 10 % of the vertices labeled at random (plus one per unlabeled component),
-20 trials; mean W1 error per unlabeled vertex against the true histograms, Wasserstein vs
-PDF (and, on S¹, the LP vs PDF).
+20 trials, neighbourhood radii 1.5 and 3 mean edge lengths; mean W1 error per unlabeled
+vertex against the true histograms, Wasserstein vs PDF (and, on S¹, the LP vs PDF).
 
 BLAS/OpenMP threads are set to 2 (both cores; the targets are "on 2 cores") before numpy
 loads; the 1-minute load average is recorded before and after every row.
@@ -58,14 +58,20 @@ RESULTS = ROOT / "bench" / "results" / "histograms.md"
 
 from solvers import Grid, TriangleMesh, load_mesh  # noqa: E402
 from solvers.histograms import (  # noqa: E402
-    histogram_of_samples,
+    as_graph,
     knn_graph,
     make_bins,
     propagate_circular,
     propagate_histograms,
     w1_distance,
 )
+from solvers.histograms import summaries as S  # noqa: E402
 from solvers.histograms.dirichlet import dirichlet_system  # noqa: E402
+from solvers.histograms.features import (  # noqa: E402
+    mean_curvature,
+    neighbourhood_histograms,
+    principal_direction_angles,
+)
 
 LEVELS = 100
 NBINS = 32
@@ -146,6 +152,7 @@ def one_scale(kind: str, size: str, spsolve_levels: int | None) -> dict:
     res = propagate_histograms(domain, labeled, h, bins=bins, levels=LEVELS)
     row["w_solve_s"] = time.perf_counter() - t
     row["w_direct_total_s"] = row["factor_s"] + row["w_solve_s"]
+    row["rss_w_gb"] = peak_rss_gb()
     row["w_rank"] = res.rank
     row["w_residual"] = res.residual
     t = time.perf_counter()
@@ -232,12 +239,13 @@ def part_scale(quick: bool) -> list[str]:
         "spsolve = `scipy.sparse.linalg.spsolve` per level on the same reduced matrix "
         "(`*`: measured on a few levels and extrapolated to 100; AMG likewise above 200k "
         "nodes, CG iterations then of the columns run). RSS: peak of the row's process after "
-        "the direct and PDF routes (domain build included), in brackets after AMG and "
-        "spsolve too. Each row warms BLAS up on a 50-node problem first.",
+        "the Wasserstein route (domain build included), after the PDF route too (the "
+        "Wasserstein result still held), in brackets after AMG and spsolve. Each row warms "
+        "BLAS up on a 50-node problem first.",
         "",
         "| domain | n | labeled | direct: factor + solve = total (s) | rank | PDF on same "
         "factor (s) | AMG: setup + solve = total (s), CG its | spsolve loop (s) | direct vs "
-        "spsolve | peak RSS (GB): direct (whole row) | target | load before/after |",
+        "spsolve | peak RSS (GB): Wasserstein / + PDF (whole row) | target | load before/after |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
@@ -251,8 +259,8 @@ def part_scale(quick: bool) -> list[str]:
             f"{r['pdf_solve_s']:.2f} | {r['amg_setup_s']:.2f} + {r['amg_solve_s']:.2f} = "
             f"{r['amg_total_s']:.2f}{amg_star}, {r['amg_iterations']} | "
             f"{r['spsolve_total_s']:.1f}{star} "
-            f"| {r['spsolve_total_s'] / r['w_direct_total_s']:.0f}× | {r['rss_direct_gb']:.2f} "
-            f"({r['rss_peak_gb']:.2f}) | "
+            f"| {r['spsolve_total_s'] / r['w_direct_total_s']:.0f}× | {r['rss_w_gb']:.2f} / "
+            f"{r['rss_direct_gb']:.2f} ({r['rss_peak_gb']:.2f}) | "
             f"{target} | {r['load_before']:.2f} / {r['load_after']:.2f} |")
     lines.append("")
     for kind in ("grid", "mesh"):
@@ -328,66 +336,6 @@ def part_circle(quick: bool) -> list[str]:
 
 
 # -- real data (Fig. 5.6) -----------------------------------------------------------------
-def vertex_normals(v, f):
-    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    n = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(n, f[:, k], fn)
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-
-
-def mean_curvature(mesh) -> np.ndarray:
-    """Signed mean curvature: (M⁻¹ L x) · n / 2 with the cotangent Laplacian."""
-    hn = (mesh.cotan_laplacian @ mesh.vertices) / mesh.areas[:, None] / mesh.areas.sum()
-    return 0.5 * np.einsum("ij,ij->i", hn, vertex_normals(mesh.vertices, mesh.faces))
-
-
-def principal_angles(mesh) -> np.ndarray:
-    """Angle in [0, π) of the direction of largest |curvature| (quadric fit over 2-rings)
-    in a tangent frame whose first axis is the projected global z axis (x if parallel)."""
-    v, nrm = mesh.vertices, vertex_normals(mesh.vertices, mesh.faces)
-    A = (abs(mesh.cotan_laplacian) > 0).astype(np.float64)
-    A2 = (A @ A).tocsr()
-    out = np.zeros(len(v))
-    ez, ex = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
-    for i in range(len(v)):
-        nb = A2.indices[A2.indptr[i]:A2.indptr[i + 1]]
-        nb = nb[nb != i]
-        n = nrm[i]
-        ref = ez if abs(n @ ez) < 0.9 else ex
-        t1 = ref - (ref @ n) * n
-        t1 /= np.linalg.norm(t1)
-        t2 = np.cross(n, t1)
-        d = v[nb] - v[i]
-        x, y, z = d @ t1, d @ t2, d @ n
-        M = np.c_[x * x, x * y, y * y, x, y]
-        if len(nb) < 5:
-            continue
-        a, b, c = np.linalg.lstsq(M, z, rcond=None)[0][:3]
-        w, vec = np.linalg.eigh(np.array([[2 * a, b], [b, 2 * c]]))
-        e = vec[:, np.argmax(np.abs(w))]
-        out[i] = np.mod(np.arctan2(e[1], e[0]), np.pi)
-    return out
-
-
-def neighbourhood_histograms(mesh, values, bins, radius) -> np.ndarray:
-    """Histogram of ``values`` over each vertex's geodesic (edge-graph) ball."""
-    from scipy.sparse.csgraph import dijkstra
-
-    L = sp.triu(mesh.cotan_laplacian, 1).tocoo()
-    v = mesh.vertices
-    length = np.linalg.norm(v[L.row] - v[L.col], axis=1)
-    G = sp.coo_matrix((length, (L.row, L.col)), shape=(mesh.n, mesh.n)).tocsr()
-    H = np.zeros((mesh.n, bins.count))
-    chunk = 512
-    for s in range(0, mesh.n, chunk):
-        idx = np.arange(s, min(mesh.n, s + chunk))
-        D = dijkstra(G, directed=False, indices=idx, limit=radius)
-        for r, i in enumerate(idx):
-            H[i] = histogram_of_samples(values[np.isfinite(D[r])], bins)
-    return H
-
-
 def label_set(rng, mesh, fraction):
     n = mesh.n
     k = max(1, int(round(fraction * n)))
@@ -401,74 +349,83 @@ def label_set(rng, mesh, fraction):
 
 
 REAL_LINE = ["cow.obj", "spot.obj", "homer.obj", "fandisk.obj", "rocker-arm.obj"]
-REAL_CIRCLE = ["woody.obj", "suzanne.obj"]
+REAL_CIRCLE = ["suzanne.obj", "beetle.obj"]  # woody.obj is planar (no curvature)
 FRACTIONS = (0.01, 0.05, 0.10)
+RADII = (1.5, 3.0)
+CIRCLE_TRIALS = 5  # one S¹ LP takes ~10-60 s on these meshes: 5 trials, radius 1.5 h only
+
+
+def _trial_errors(mesh, truth, bins, lab, circular_graph=None):
+    free = np.setdiff1d(np.arange(mesh.n), lab)
+    t = time.perf_counter()
+    if circular_graph is None:
+        w = propagate_histograms(mesh, lab, truth[lab], bins=bins, levels=LEVELS)
+    else:
+        w = propagate_circular(circular_graph, lab, truth[lab], bins=bins)
+    elapsed = time.perf_counter() - t
+    p = propagate_histograms(mesh, lab, truth[lab], bins=bins, route="pdf")
+    ts = S.std(truth[free], bins)
+    return (w1_distance(w.histograms[free], truth[free], bins).mean(),
+            w1_distance(p.histograms[free], truth[free], bins).mean(),
+            np.abs(S.std(w.histograms[free], bins) - ts).mean(),
+            np.abs(S.std(p.histograms[free], bins) - ts).mean(), elapsed)
+
+
+def _real_rows(names, trials, quantity, bins_for, circular: bool) -> list[str]:
+    lines = []
+    for name in names:
+        mesh = load_mesh(MESHES / name)
+        values = quantity(mesh)
+        bins = bins_for(values)
+        graph = as_graph(mesh) if circular else None
+        for radius in (RADII[:1] if circular else RADII):
+            truth = neighbourhood_histograms(mesh, values, bins, radius * mesh.mean_edge_length)
+            for frac in FRACTIONS:
+                l0 = load()
+                rng = np.random.default_rng(7)
+                e = np.array([_trial_errors(mesh, truth, bins, label_set(rng, mesh, frac), graph)
+                              for _ in range(trials)])
+                ew, ep, sw, sp_, tl = e.T
+                lines.append(
+                    f"| {name} | {mesh.n} | {radius:g} h | {100 * frac:.0f} % | {ew.mean():.4f} "
+                    f"± {ew.std():.4f} | {ep.mean():.4f} ± {ep.std():.4f} | "
+                    f"{ep.mean() / ew.mean():.2f} | {int((ew < ep).sum())}/{trials} | "
+                    f"{sw.mean():.4f} / {sp_.mean():.4f} | {tl.mean():.2f} | {l0:.2f} / "
+                    f"{load():.2f} |")
+                print(lines[-1], flush=True)
+    return lines
+
+
+REAL_HEADER = ("| mesh | V | radius | labeled | {w} W1 | PDF W1 | PDF / {w} | {w} wins (of "
+               "trials) | std error {w} / PDF | {w} time per trial (s) | load before/after |")
 
 
 def part_real(quick: bool) -> list[str]:
     trials = 4 if quick else 20
     lines = ["## Real data (Fig. 5.6 protocol)", "",
              f"Mean W1 error per unlabeled vertex (against the true neighbourhood histogram), "
-             f"averaged over {trials} random labelings; ± one standard deviation over trials. "
-             "Neighbourhood: vertices within 3 mean edge lengths along mesh edges.", "",
+             f"averaged over {trials} random labelings (± one standard deviation over trials); "
+             "std error: mean |std(predicted) - std(true)| per unlabeled vertex. "
+             "Neighbourhood: vertices within `radius` along mesh edges (h: mean edge length). "
+             "W1 on S¹: min over rotations of the CDF difference.", "",
              "### Prob(ℝ): mean curvature, 24 bins over its 1st-99th percentile", "",
-             "| mesh | V | labeled | Wasserstein W1 | PDF W1 | PDF / Wasserstein | wins "
-             "(of trials) | load before/after |", "|---|---|---|---|---|---|---|---|"]
-    for name in REAL_LINE[:2] if quick else REAL_LINE:
-        mesh = load_mesh(MESHES / name)
-        hval = mean_curvature(mesh)
-        lo, hi = np.percentile(hval, [1, 99])
-        bins = make_bins(lo=lo, hi=hi, count=24)
-        truth = neighbourhood_histograms(mesh, np.clip(hval, lo, hi), bins,
-                                         3 * mesh.mean_edge_length)
-        for frac in FRACTIONS:
-            l0 = load()
-            rng = np.random.default_rng(7)
-            ew, ep = [], []
-            for _ in range(trials):
-                lab = label_set(rng, mesh, frac)
-                free = np.setdiff1d(np.arange(mesh.n), lab)
-                w = propagate_histograms(mesh, lab, truth[lab], bins=bins, levels=LEVELS)
-                p = propagate_histograms(mesh, lab, truth[lab], bins=bins, route="pdf")
-                ew.append(w1_distance(w.histograms[free], truth[free], bins).mean())
-                ep.append(w1_distance(p.histograms[free], truth[free], bins).mean())
-            ew, ep = np.array(ew), np.array(ep)
-            lines.append(f"| {name} | {mesh.n} | {100 * frac:.0f} % | {ew.mean():.4f} ± "
-                         f"{ew.std():.4f} | {ep.mean():.4f} ± {ep.std():.4f} | "
-                         f"{ep.mean() / ew.mean():.2f} | {int((ew < ep).sum())}/{trials} | "
-                         f"{l0:.2f} / {load():.2f} |")
-            print(lines[-1], flush=True)
-    lines += ["", "### S¹: principal-direction angle, 12 periodic bins on [0, π), LP (HiGHS)", "",
-              "| mesh | V | labeled | LP W1 | PDF W1 | PDF / LP | wins (of trials) | LP time per "
-              "trial (s) | load before/after |", "|---|---|---|---|---|---|---|---|---|"]
-    for name in REAL_CIRCLE[:1] if quick else REAL_CIRCLE:
-        mesh = load_mesh(MESHES / name)
-        ang = principal_angles(mesh)
-        bins = make_bins(lo=0.0, hi=np.pi, count=12, periodic=True)
-        truth = neighbourhood_histograms(mesh, ang, bins, 3 * mesh.mean_edge_length)
-        graph = None
-        from solvers.histograms import as_graph
+             REAL_HEADER.format(w="Wasserstein"), "|---|---|---|---|---|---|---|---|---|---|---|"]
 
-        graph = as_graph(mesh)
-        for frac in FRACTIONS:
-            l0 = load()
-            rng = np.random.default_rng(11)
-            ew, ep, tl = [], [], []
-            for _ in range(trials):
-                lab = label_set(rng, mesh, frac)
-                free = np.setdiff1d(np.arange(mesh.n), lab)
-                t = time.perf_counter()
-                w = propagate_circular(graph, lab, truth[lab], bins=bins)
-                tl.append(time.perf_counter() - t)
-                p = propagate_histograms(mesh, lab, truth[lab], bins=bins, route="pdf")
-                ew.append(w1_distance(w.histograms[free], truth[free], bins).mean())
-                ep.append(w1_distance(p.histograms[free], truth[free], bins).mean())
-            ew, ep = np.array(ew), np.array(ep)
-            lines.append(f"| {name} | {mesh.n} | {100 * frac:.0f} % | {ew.mean():.4f} ± "
-                         f"{ew.std():.4f} | {ep.mean():.4f} ± {ep.std():.4f} | "
-                         f"{ep.mean() / ew.mean():.2f} | {int((ew < ep).sum())}/{trials} | "
-                         f"{np.mean(tl):.2f} | {l0:.2f} / {load():.2f} |")
-            print(lines[-1], flush=True)
+    def line_bins(v):
+        lo, hi = np.percentile(v, [1, 99])
+        return make_bins(lo=lo, hi=hi, count=24)
+
+    lines += _real_rows(REAL_LINE[:2] if quick else REAL_LINE, trials, mean_curvature,
+                        line_bins, circular=False)
+    lines += ["", "### S¹: principal-direction angle, 12 periodic bins on [0, π), exact LP "
+              "(HiGHS) on the mesh's robust-Laplacian weights", "",
+              f"{min(trials, CIRCLE_TRIALS)} trials per row and radius 1.5 h only (one LP "
+              "takes tens of seconds here); woody.obj is planar, so suzanne and beetle.", "",
+              REAL_HEADER.format(w="LP"), "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines += _real_rows(REAL_CIRCLE[:1] if quick else REAL_CIRCLE, min(trials, CIRCLE_TRIALS),
+                        principal_direction_angles,
+                        lambda v: make_bins(lo=0.0, hi=np.pi, count=12, periodic=True),
+                        circular=True)
     lines.append("")
     return lines
 

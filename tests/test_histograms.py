@@ -267,3 +267,20 @@ def test_factorization_is_cached_per_labeled_set():
     propagate_histograms(g, [0, 49], h, bins=b)
     propagate_histograms(g, [49, 0], h[::-1], bins=b, route="pdf")
     assert g.operators.builds == before + 1
+
+
+def test_readme_snippet_runs_and_prints_linear_means():
+    import re
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    text = (root / "README.md").read_text()
+    section = text.split("### Propagating histograms", 1)[1]
+    code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120, cwd=root)
+    assert out.returncode == 0, out.stderr
+    means = np.array(out.stdout.replace("[", " ").replace("]", " ").split(), dtype=float)
+    assert np.allclose(means, np.linspace(0.2, 0.8, 21), atol=1e-3)

@@ -22,7 +22,8 @@ Prop. 16, §5.3.3       :mod:`.diffusion` — :func:`diffuse_histograms` (implic
 §5.4                   :mod:`.circle` — :func:`propagate_circular`: S¹ / small metric
                        space LP (HiGHS), entropic route via Alg. 4 on a periodic 1-D grid
 §5.6 (evaluation)      :mod:`.summaries` — mean, std, entropy, mode, circular mean/std,
-                       W1 between histograms
+                       W1 between histograms; :mod:`.features` — per-vertex histograms of
+                       mean curvature / principal-direction angle over geodesic balls
 =====================  ================================================================
 """
 

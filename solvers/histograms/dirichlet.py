@@ -178,7 +178,11 @@ def harmonic_extension(system: DirichletSystem, values: np.ndarray, *, rank_tol:
     np.negative(B, out=B)
     iterations = 0
     if system.factor is not None:
-        Y = system.factor.solve(B)
+        # blocks of columns: the sparse solver's internal copies stay ~128 MB
+        width = max(1, min(r, 2**24 // max(len(system.free), 1)))
+        Y = np.empty_like(B)
+        for j in range(0, r, width):
+            Y[:, j:j + width] = system.factor.solve(B[:, j:j + width])
         iterations = 1
     else:
         Y, iterations = _amg_solve(system, B, tol, max_iter, monitor)
