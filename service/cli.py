@@ -150,6 +150,13 @@ def cmd_worker(args) -> None:
         print(f"otgeo worker: {fail}", file=sys.stderr, flush=True)
         raise SystemExit(2)
     run_worker(settings, queues)
+    # A job abandoned by a stop may still be running in the consumer's daemon thread (inside
+    # native solver code): skip interpreter finalization, which can abort under it. The job
+    # was handed back and the runtime closed above.
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)
 
 
 def worker_queues(count: int, reserved_short: int) -> list[str]:
