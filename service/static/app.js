@@ -117,7 +117,7 @@ for (const target of [drop, $("stage")]) {
     if (files.length) uploadFiles(files);
   });
 }
-$("file").onchange = (e) => uploadFiles([...e.target.files]);
+$("file").onchange = (e) => { uploadFiles([...e.target.files]); e.target.value = ""; };
 
 // -- picks --------------------------------------------------------------------------
 function pickMode() { return document.querySelector("input[name=pick-mode]:checked").value; }
@@ -220,6 +220,8 @@ $("refresh-jobs").onclick = () => refreshJobs().catch(showError);
 
 async function openJob(job) {
   showError(null);
+  state.jobRequest = null; // not sent by this page: the result tells what it needs
+  state.jobInputs = null;
   if (state.domain === null || job.domain_id !== state.domain.id) {
     if (job.domain_id) await selectDomain(job.domain_id);
   }

@@ -200,7 +200,8 @@ def test_flow_arrows_and_histogram_plots(spot_page):
     changed = np.abs(with_arrows - without).sum(axis=2) > 0.3
     # the arrows are white strokes over the colored surface, drawn between the two picks
     assert changed.mean() > 0.002, changed.mean()
-    assert with_arrows[changed].min(axis=1).mean() > 0.6
+    # white strokes brighten every channel where they are drawn (antialiased: partly)
+    assert (with_arrows[changed] - without[changed]).min(axis=1).mean() > 0.1
     page.check("#show-arrows")
     save(page, "viewer-flow.png")
     page.select_option("#field", "flow_magnitude")  # a per-face field
