@@ -138,8 +138,12 @@ class ComposeStack:
         self.compose("down", "-v", "--remove-orphans", "-t", "5", check=False, timeout=180)
 
     def containers(self, service: str) -> list[str]:
-        out = self.compose("ps", "-q", service).stdout.split()
-        return [c for c in out if c]
+        """Container ids of a service, stopped ones included, oldest first (the labels
+        compose sets; `docker ps` answers much faster than `docker-compose ps`)."""
+        out = run([self.docker, "ps", "-a", "-q", "--no-trunc",
+                   "--filter", f"label=com.docker.compose.project={self.project}",
+                   "--filter", f"label=com.docker.compose.service={service}"]).stdout.split()
+        return out[::-1]
 
     def inspect(self, container: str) -> dict:
         return json.loads(run([self.docker, "inspect", container]).stdout)[0]
