@@ -323,7 +323,8 @@ def test_graph_and_point_cloud_are_points(page, live_api, tmp_path):
     cloud = {"kind": "pointcloud", "points": (points / np.linalg.norm(points, axis=1,
                                                                         keepdims=True)).tolist()}
     fractions = {}
-    for name, spec in (("ring.json", graph), ("sphere.json", cloud)):
+    volume = {"kind": "grid", "shape": [8, 8, 8]}  # a 3-D grid is drawn as points too
+    for name, spec in (("volume.json", volume), ("ring.json", graph), ("sphere.json", cloud)):
         (tmp_path / name).write_text(json.dumps(spec))
         drop_file(page, "#drop", tmp_path / name)
         page.wait_for_function(f"document.getElementById('status').textContent"
