@@ -44,6 +44,7 @@ from solvers.convolutional.common import (
     masses_from_log,
     prepare,
 )
+from solvers.convolutional.distance import watch_stagnation
 from solvers.errors import InputError
 from solvers.validation import check_anchored, check_edge_weights, check_edges
 
@@ -204,6 +205,7 @@ def wasserstein_propagation(
     n_nodes, e, w, keys = _check_graph(n_nodes, edges, edge_weights, fixed)
     setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
                     progress=progress, should_cancel=should_cancel)
+    setup.monitor = watch_stagnation(setup, project=max_iter is None)  # stalled -> stop
     a, logk = setup.areas, setup.logk
     n = domain.n
     fixed_m = {u: masses_block(domain, fixed[key], f"fixed[{u}]")
@@ -284,7 +286,8 @@ def wasserstein_propagation(
                 S[kk, ss] = new
             residual = sweep if np.isfinite(sweep) else float("inf")
             setup.monitor(it, residual)
-            if residual <= setup.tol or it >= setup.max_iter or not np.isfinite(residual):
+            if residual <= setup.tol or it >= setup.max_iter or not np.isfinite(residual) \
+                    or setup.monitor.stalled:
                 break
             it += 1
     masses = np.zeros((n, n_nodes))
