@@ -83,6 +83,20 @@ def compact_spec(body: bytes) -> tuple:
     return ("ok", spec.kind, fields)
 
 
+def _die_with_parent() -> None:
+    """Parser process initializer: exit when the API process dies (Linux), even by SIGKILL."""
+    import signal
+    import sys
+
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            ctypes.CDLL(None).prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass
+
+
 _pool: ProcessPoolExecutor | None = None
 _pool_lock = threading.Lock()
 
@@ -92,7 +106,8 @@ def _executor() -> ProcessPoolExecutor:
     with _pool_lock:
         if _pool is None:
             _pool = ProcessPoolExecutor(max_workers=1,
-                                        mp_context=multiprocessing.get_context("spawn"))
+                                        mp_context=multiprocessing.get_context("spawn"),
+                                        initializer=_die_with_parent)
         return _pool
 
 
