@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from service_testing import assert_error, upload_mesh
 
+from service.operations.histograms import HistogramPropagationValues
 from solvers import Graph
 from solvers.histograms import make_bins, propagate_histograms
 
@@ -49,6 +50,7 @@ def test_path_graph_matches_library_and_exports(client):
     assert H.shape == (11, 40) and np.allclose(H, lib.histograms, atol=1e-12)
     assert np.allclose(a["mean"], np.linspace(0.2, 0.8, 11), atol=3e-3)
     assert v["route"] == "wasserstein" and v["converged"] and v["n_labeled"] == 2
+    HistogramPropagationValues.model_validate(v)  # the documented result model
     assert v["mean_range"][0] == pytest.approx(min(a["mean"]))
     row = client.get(f"/v1/jobs/{job}/arrays/histograms/rows/5")
     assert row.status_code == 200 and np.allclose(row.json()["values"], H[5])
@@ -94,6 +96,7 @@ def test_samples_and_periodic_bins(client):
         ang = np.rad2deg(np.asarray(res["arrays"]["mean"]))
         assert np.all(np.minimum(ang, 360 - ang) <= 31)  # across 0, the short way
         assert res["values"]["algorithm"] == algorithm and res["values"]["value"] > 0
+        HistogramPropagationValues.model_validate(res["values"])
 
 
 def test_mesh_domain(client, meshes_dir):
