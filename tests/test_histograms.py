@@ -284,3 +284,19 @@ def test_readme_snippet_runs_and_prints_linear_means():
     assert out.returncode == 0, out.stderr
     means = np.array(out.stdout.replace("[", " ").replace("]", " ").split(), dtype=float)
     assert np.allclose(means, np.linspace(0.2, 0.8, 21), atol=1e-3)
+
+
+def test_point_cloud_laplacian_weights():
+    from solvers import PointCloud
+
+    rng = np.random.default_rng(8)
+    p = rng.normal(size=(400, 3))
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    cloud = PointCloud(p, n_neighbors=10)
+    b = make_bins(lo=0, hi=1, count=20)
+    lab = np.r_[np.argsort(p[:, 2])[:5], np.argsort(p[:, 2])[-5:]]
+    h = np.stack([gauss(b, 0.2, 0.05)] * 5 + [gauss(b, 0.8, 0.05)] * 5)
+    res = propagate_histograms(cloud, lab, h, bins=b)
+    m = S.mean(res.histograms, b)
+    assert np.corrcoef(m, p[:, 2])[0, 1] > 0.9 and res.converged
+    assert np.all(S.std(res.histograms, b) < 0.06)  # no added variance (equal label shapes)
