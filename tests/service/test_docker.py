@@ -388,6 +388,8 @@ def test_barycenter_distance_and_flow_through_the_published_port(stack, meshes_d
 @pytest.mark.docker
 def test_killed_worker_container_job_finishes_on_the_other(stack, meshes_dir):
     cow = upload(stack, meshes_dir, "cow.obj")
+    workers = worker_containers(stack)
+    assert len(workers) == 2
     r = stack.post(f"/v1/domains/{cow}/flows", json={
         "mu0": {"vertex": 0, "radius": 0.15}, "mu1": {"vertex": 1500, "radius": 0.15},
         "max_iter": LONG_ITER, "tol": 1e-12})
@@ -395,7 +397,6 @@ def test_killed_worker_container_job_finishes_on_the_other(stack, meshes_dir):
     job_id = r.json()["id"]
     wait_job(stack, job_id, lambda j: j["state"] == "running"
              and (j["progress"]["iteration"] or 0) >= 10, 90, "the long job to run")
-    workers = worker_containers(stack)
     host = stack.sql(f"SELECT worker FROM jobs WHERE id = '{job_id}'").rsplit(":", 1)[0]
     victim = workers.pop(host)
     (survivor_host,) = workers
@@ -405,6 +406,9 @@ def test_killed_worker_container_job_finishes_on_the_other(stack, meshes_dir):
     run([stack.docker, "kill", victim])
     state = stack.inspect(victim)["State"]
     assert not state["Running"] and state["ExitCode"] == 137
+    at_kill = job(stack, job_id)  # killed mid-job: still running (its heartbeat not yet stale)
+    assert at_kill["state"] == "running" and at_kill["attempts"] == 1, at_kill
+    assert at_kill["progress"]["iteration"] < LONG_ITER
     j = wait_job(stack, job_id, lambda j: j["attempts"] == 2 and j["state"] != "queued", 60,
                  "the reaper to re-queue the job on the surviving worker")
     requeued_after = time.monotonic() - killed_at
