@@ -8,8 +8,10 @@ import re
 import signal
 import subprocess
 import time
+from pathlib import Path
 
-from liveserver import API, ROOT, otgeo_command
+import httpx
+from liveserver import API, ROOT, free_port, otgeo_command
 
 from service.cli import worker_queues
 
@@ -68,3 +70,78 @@ def test_worker_queue_assignment():
     assert worker_queues(4, 1) == ["short,long"] * 3 + ["short"]
     assert worker_queues(2, 5) == ["short,long", "short"]  # one always serves long jobs
     assert worker_queues(3, 0) == ["short,long"] * 3
+
+
+def _in_private_mount_ns(script: str, env: dict, log) -> subprocess.Popen:
+    """Run ``script`` (sh) in its own mount namespace (root: read-only bind mounts that the
+    rest of the machine does not see)."""
+    return subprocess.Popen(["unshare", "-m", "--propagation", "private", "sh", "-c", script],
+                            cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT,
+                            start_new_session=True)
+
+
+def _env(data: Path) -> dict:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("OTGEO_")}
+    env.update({"OTGEO_DATA_DIR": str(data), "OTGEO_WORKERS": "0", "PYTHONUNBUFFERED": "1"})
+    return env
+
+
+def test_read_only_data_dir_at_start_and_while_running(tmp_path):
+    """A real read-only file system (a read-only bind mount; chmod does not stop root)."""
+    data = tmp_path / "data"
+    data.mkdir()
+    cmd = " ".join(otgeo_command())
+    proc = subprocess.run(
+        ["unshare", "-m", "--propagation", "private", "sh", "-c",
+         f"mount --bind {data} {data} && mount -o remount,bind,ro {data} {data} && "
+         f"exec {cmd} serve"], cwd=ROOT, env=_env(data), capture_output=True, text=True,
+        timeout=60)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "read-only file system" in lines[0], proc.stderr
+
+    # while running: the domains directory becomes read-only (a remount of the whole data
+    # directory is refused while SQLite holds its files open for writing)
+    port, trigger, domains = free_port(), tmp_path / "make-read-only", data / "domains"
+    domains.mkdir()
+    script = (f"mount --bind {domains} {domains} || exit 90\n"
+              f"{cmd} serve --port {port} &\nPID=$!\n"
+              f"while [ ! -e {trigger} ]; do sleep 0.05; done\n"
+              f"mount -o remount,bind,ro {domains} {domains} || exit 91\n"
+              f"touch {trigger}.done\nwait $PID\n")
+    url = f"http://127.0.0.1:{port}"
+    with open(tmp_path / "serve.log", "ab") as log:
+        server = _in_private_mount_ns(script, _env(data), log)
+        try:
+            deadline = time.monotonic() + 60
+            while True:
+                assert server.poll() is None, (tmp_path / "serve.log").read_text()
+                try:
+                    if httpx.get(url + "/healthz", timeout=1).status_code == 200:
+                        break
+                except httpx.HTTPError:
+                    pass
+                assert time.monotonic() < deadline
+                time.sleep(0.1)
+            grid = {"kind": "grid", "shape": [4, 4]}
+            assert httpx.post(url + "/v1/domains", json=grid).status_code == 201
+            trigger.touch()
+            while not Path(f"{trigger}.done").exists():
+                assert server.poll() is None and time.monotonic() < deadline
+                time.sleep(0.05)
+            r = httpx.post(url + "/v1/domains", json={"kind": "grid", "shape": [5, 5]})
+            assert r.status_code == 503, r.text
+            err = r.json()["error"]
+            assert err["code"] == "storage_unavailable"
+            assert "read-only file system" in err["message"] and str(data) not in err["message"]
+            time.sleep(1.1)  # past the health check's probe cache
+            health = httpx.get(url + "/healthz")
+            assert health.status_code == 503
+            storage = health.json()["storage"]
+            assert storage["writable"] is False and storage["reason"] == "read-only file system"
+        finally:
+            try:
+                os.killpg(server.pid, signal.SIGTERM)
+                server.wait(15)
+            except (ProcessLookupError, subprocess.TimeoutExpired):
+                os.killpg(server.pid, signal.SIGKILL)
