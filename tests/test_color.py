@@ -84,7 +84,8 @@ def test_quantile_matching_against_sorting():
     M = 4096
     counts = np.stack([np.histogram(x, M, (0, 100))[0] for x in (src, tgt)])
     lut = luminance_maps(counts, np.array([[0.0, 1.0]]))[0, 0]
-    mapped = np.interp(src, np.linspace(0, 100, M + 1), lut)
+    bin_of = lambda x: np.minimum((x / 100 * M).astype(int), M - 1)  # noqa: E731
+    mapped = lut[bin_of(src)]
     # exact 1-D OT: the i-th smallest source value goes to the target quantile of rank i
     order = np.argsort(src)
     exact = np.quantile(tgt, (np.arange(len(src)) + 0.5) / len(src))
@@ -92,7 +93,12 @@ def test_quantile_matching_against_sorting():
     assert np.median(err) < 0.05 and np.quantile(err, 0.99) < 0.5
     # alpha = (1, 0) is the identity on the support
     ident = luminance_maps(counts, np.array([[1.0, 0.0]]))[0, 0]
-    assert np.abs(np.interp(src, np.linspace(0, 100, M + 1), ident) - src).max() < 1e-6
+    assert np.abs(ident[bin_of(src)] - src).max() <= 0.5 * 100 / M + 1e-9  # bin centers
+    # all of a flat image's pixels (one bin) go to the target's mean
+    flat = np.zeros(M)
+    flat[1000] = 1.0
+    to_tgt = luminance_maps(np.stack([flat, counts[1]]), np.array([[0.0, 1.0]]))[0, 0]
+    assert abs(to_tgt[1000] - tgt.mean()) < 0.05
     # quantiles cross empty bins (almost) at once
     cdf = cdf_at_edges(np.array([1.0, 0, 0, 1.0]))
     assert np.allclose(quantiles(cdf, np.array([0.25, 0.5 - 1e-6, 0.5 + 1e-6, 0.75]), 4.0),

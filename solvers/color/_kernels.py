@@ -192,7 +192,8 @@ def analyze(px: np.ndarray, lut: np.ndarray, scale: float, nbins: int, lo: float
 
 @_jit(parallel=True, fastmath=False)
 def _apply(lab, src, out, lut_l, lstep, ta, tb, a0, b0, h, m, scale, offset, chunks):
-    """Recolor every pixel: ``L -> lut_l(L)`` (linear interpolation; ``lut_l`` empty: keep),
+    """Recolor every pixel: ``L -> lut_l[bin of L]`` (bins of width ``lstep``; ``lut_l``
+    empty: keep),
     ``ab -> (ta, tb)(ab)`` (bilinear on the nodes ``(a0 + h i, b0 + h j)``; ``ta`` empty:
     keep), Lab -> sRGB, ``out = v * scale + offset`` (rounding into integer dtypes); a
     fourth channel of ``src`` is copied."""
@@ -202,7 +203,7 @@ def _apply(lab, src, out, lut_l, lstep, ta, tb, a0, b0, h, m, scale, offset, chu
     use_ab = ta.shape[0] > 0
     m1 = max(ta.shape[0], 2)
     m2 = max(ta.shape[1], 2)
-    nl = max(lut_l.shape[0], 2)
+    nl = max(lut_l.shape[0], 1)
     inv_l = 1.0 / lstep
     inv_h = 1.0 / h
     alpha = src.shape[1] > 3 and out.shape[1] > 3
@@ -218,12 +219,9 @@ def _apply(lab, src, out, lut_l, lstep, ta, tb, a0, b0, h, m, scale, offset, chu
                 if u < 0.0:
                     u = 0.0
                 k = int(u)
-                if k > nl - 2:
-                    k = nl - 2
-                f = u - k
-                if f > 1.0:
-                    f = 1.0
-                L = lut_l[k] + f * (lut_l[k + 1] - lut_l[k])
+                if k > nl - 1:
+                    k = nl - 1
+                L = lut_l[k]
             if use_ab:
                 u = (A - a0) * inv_h
                 v = (B - b0) * inv_h

@@ -5,10 +5,16 @@ On the line the Wasserstein-2 barycenter of :math:`\nu_1..\nu_k` with weights
 map from :math:`\nu_i` to it is :math:`T_i = Q_\alpha \circ F_i` (:math:`F_i` the CDF).
 Here the :math:`\nu_i` are the L* channels, counted in ``lbins`` equal bins over
 ``[0, 100]`` (all pixels); CDFs and quantile functions are piecewise linear between bin
-edges (mass spread uniformly inside a bin; every bin gets a floor of 1e-8 of the mass),
-so :math:`T_i` is exact up to the bin width (100/4096 L* units by default, well below
-one 8-bit code) and is returned as a table at
-the bin edges, applied per pixel by linear interpolation.
+edges (every bin gets a floor of 1e-8 of the mass, so both are continuous).  All pixels of
+bin ``m`` go to the barycentric projection of the 1-D plan restricted to that bin,
+
+.. math::  T_{i,m} = \frac{1}{F_i(e_{m+1}) - F_i(e_m)} \int_{F_i(e_m)}^{F_i(e_{m+1})}
+           Q_\alpha(p)\, dp
+
+(exact: :math:`Q_\alpha` is piecewise linear), the same construction as the chrominance
+maps.  This is quantile matching to within one bin (100/4096 L* units by default, well
+below one 8-bit code), and it stays right when all pixels of a bin share one value (a flat
+image goes to the target's mean L*, not to wherever its value sits inside the bin).
 """
 
 from __future__ import annotations
@@ -43,16 +49,30 @@ def quantiles(cdf: np.ndarray, probs: np.ndarray, lmax: float = L_MAX) -> np.nda
     return np.interp(probs, cdf, edges)
 
 
+def _integral_of_quantiles(cdf: np.ndarray, probs: np.ndarray, lmax: float) -> np.ndarray:
+    """``G(p) = \\int_0^p Q`` for the piecewise-linear quantile function of ``cdf``."""
+    edges = np.linspace(0.0, lmax, cdf.shape[-1])
+    dc = np.diff(cdf)
+    de = np.diff(edges)
+    knots = np.concatenate([[0.0], np.cumsum(dc * (edges[:-1] + 0.5 * de))])
+    k = np.clip(np.searchsorted(cdf, probs, side="right") - 1, 0, len(dc) - 1)
+    x = np.clip(probs - cdf[k], 0.0, dc[k])
+    return knots[k] + x * edges[k] + 0.5 * x * x * de[k] / dc[k]
+
+
 def luminance_maps(counts: np.ndarray, alphas: np.ndarray, lmax: float = L_MAX) -> np.ndarray:
-    r"""Tables ``(B, k, M + 1)``: :math:`T_{b,i} = Q_{\alpha_b} \circ F_i` at the bin edges.
+    r"""Tables ``(B, k, M)``: the L* value :math:`T_{b,i,m}` of each bin ``m`` of input ``i``
+    for weights ``alphas[b]`` (see the module doc).
 
     ``counts`` ``(k, M)`` L* bin counts of the inputs, ``alphas`` ``(B, k)`` weights.
     """
     cdf = cdf_at_edges(counts)
     k, e = cdf.shape
     alphas = np.asarray(alphas, dtype=np.float64)
-    out = np.empty((alphas.shape[0], k, e))
+    out = np.empty((alphas.shape[0], k, e - 1))
     for i in range(k):
-        qs = np.stack([quantiles(cdf[j], cdf[i], lmax) for j in range(k)])  # (k, e)
-        out[:, i, :] = alphas @ qs
+        width = np.diff(cdf[i])
+        means = np.stack([np.diff(_integral_of_quantiles(cdf[j], cdf[i], lmax)) / width
+                          for j in range(k)])  # (k, M): mean of Q_j over bin m of input i
+        out[:, i, :] = alphas @ means
     return out

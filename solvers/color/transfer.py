@@ -47,8 +47,8 @@ class ColorTransferResult(SolverResult):
     ``barycenters`` ``(B, bins, bins)`` ab masses (axis 0: a*, axis 1: b*, nodes
     ``-128 + h·i``); ``histograms`` ``(k, bins, bins)`` the inputs' ab masses; ``maps``
     ``(B, k, 2, bins, bins)`` the ab value :math:`T_i` sends each node to (NaN outside
-    the computed ``window``); ``luminance_maps`` ``(B, k, lbins + 1)`` L* at the L bin
-    edges (``None`` with ``luminance=False``); ``residual``: largest L1 marginal
+    the computed ``window``); ``luminance_maps`` ``(B, k, lbins)`` the L* each L bin
+    goes to (``None`` with ``luminance=False``); ``residual``: largest L1 marginal
     violation over all plans; ``timings``: seconds per stage.
     """
 
