@@ -205,3 +205,27 @@ def test_soft_map_refuses_bad_input(sphere):
     with pytest.raises(InputError) as err:
         soft_map(sphere, sphere, [[0, 0]], samples=600, max_bytes=1_000_000)
     assert err.value.field == "samples"
+
+
+def test_extraction_recovers_identity_and_cost_has_mean_one(sphere):
+    from solvers.softmaps import barycentric_projection, compatibility_cost, mode, trace_path
+    from solvers.softmaps.descriptors import heat_kernel_signature
+
+    g = farthest_point_samples(sphere, 30)
+    rows = _point_map_rows(sphere, sphere.vertices, g.indices, 0.25 * sphere.mean_edge_length**2)
+    assert np.array_equal(mode(rows, sphere.areas), g.indices)
+    bary = barycentric_projection(rows, sphere)
+    assert np.linalg.norm(sphere.vertices[bary] - sphere.vertices[g.indices], axis=1).max() \
+        < 1.5 * sphere.mean_edge_length
+    # Path tracing linearizes transport (eq. 4.3): steps between neighbouring vertices.
+    small = TriangleMesh(*(lambda s: (s.vertices, s.faces))(trimesh.creation.icosphere(2)))
+    every = farthest_point_samples(small, small.n)
+    smooth = _point_map_rows(small, small.vertices, every.indices, 0.002)
+    traced = trace_path(every.edges, every.n, smooth, small, (0, int(every.indices[0])))
+    miss = np.linalg.norm(small.vertices[traced] - small.vertices[every.indices], axis=1)
+    assert np.mean(miss < 0.5 * small.mean_edge_length) > 0.9  # eq. 4.7 follows the identity
+    f = heat_kernel_signature(sphere, 30)
+    for norm in ("l1", "l2"):
+        c = compatibility_cost(f, f, areas0=sphere.areas, areas1=sphere.areas, norm=norm)
+        assert sphere.areas @ c @ sphere.areas == pytest.approx(1.0, rel=1e-9)
+        assert np.allclose(np.diag(c), 0.0)
