@@ -222,7 +222,10 @@ def test_compose_requires_passwords_checks_health_and_restarts(compose):
     assert "pg_isready" in services["postgres"]["healthcheck"]["test"]
     for name, svc in services.items():
         assert svc["restart"] in ("unless-stopped", "always", "on-failure"), name
-        assert svc["networks"] == ["otgeo"], name
+        # everyone on the internal network; only the API also on the one with a way out
+        assert svc["networks"] == (["backend", "edge"] if name == "api" else ["backend"]), name
+    assert compose["networks"]["backend"]["internal"] is True
+    assert not (compose["networks"]["edge"] or {}).get("internal")
     # only the API publishes a port
     assert [n for n, svc in services.items() if svc.get("ports")] == ["api"]
 
@@ -357,8 +360,17 @@ def test_stack_is_healthy_private_and_non_root(stack):
             assert not any(stack.inspect(c)["NetworkSettings"]["Ports"].values()), name
     # the otgeo processes run as the image's non-root user
     assert stack.exec("api", "id", "-u").stdout.strip() == "10001"
+    # workers, redis and postgres only on the internal network (no route out of the stack)
+    backend, edge = f"{stack.project}_backend", f"{stack.project}_edge"
     nets = stack.inspect(stack.containers("api")[0])["NetworkSettings"]["Networks"]
-    assert list(nets) == [f"{stack.project}_otgeo"]
+    assert sorted(nets) == [backend, edge]
+    for name in ("worker", "redis", "postgres"):
+        for c in stack.containers(name):
+            assert list(stack.inspect(c)["NetworkSettings"]["Networks"]) == [backend], name
+    from dockerstack import run
+
+    internal = run([stack.docker, "network", "inspect", "-f", "{{.Internal}}", backend, edge])
+    assert internal.stdout.split() == ["true", "false"]
 
 
 @pytest.mark.docker
