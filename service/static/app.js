@@ -322,15 +322,28 @@ function shape(a) {
 function domainPair(job, result) {
   const v = result.values || {}, req = state.jobRequest || {};
   const str = (...xs) => xs.find((x) => typeof x === "string" && x);
-  const source = str(job.domain_id, v.source_domain_id, req.source_domain_id, req.source_domain,
-                     req.source);
-  const target = str(v.target_domain_id, req.target_domain_id, req.target_domain, req.target);
+  const source = str(job.domain_id, v.source_domain_id, v.source_id, req.source_domain_id,
+                     req.source_id, req.source_domain, req.source);
+  const target = str(v.target_domain_id, v.target_id, req.target_domain_id, req.target_id,
+                     req.target_domain, req.target);
   return { source, target: target !== source ? target : undefined };
+}
+
+// A result naming a row-served array (values.rows, e.g. a soft map) whose target the job does
+// not name (opened from the list): the mesh domains as long as one row are the candidates.
+async function guessTarget(job, result, source) {
+  const name = (result.values || {}).rows;
+  if (typeof name !== "string") return undefined;
+  const out = await api.getJSON(`/v1/jobs/${job.id}/arrays/${name}/rows/0`);
+  const n = (out.values || []).length;
+  const candidates = state.domains.filter((d) => d.n === n && d.id !== source);
+  return candidates.length ? candidates[0].id : undefined;
 }
 
 async function showResult(job) {
   const result = await api.getJSON(`/v1/jobs/${job.id}/result`);
   const pair = domainPair(job, result);
+  if (!pair.target && pair.source) pair.target = await guessTarget(job, result, pair.source);
   if (pair.target && pair.source && (!state.domain || state.domain.id !== pair.source)) {
     await selectDomain(pair.source, true);
   }
@@ -531,7 +544,7 @@ async function showSoftMap(result, targetId) {
   const arrays = result.arrays || {};
   const exp = result.export || {};
   const n0 = state.geometry.n;
-  const name = exp.rows || exp.soft_map || (arrays.soft_map ? "soft_map" : null)
+  const name = exp.rows || (result.values || {}).rows || (arrays.soft_map ? "soft_map" : null)
     || Object.keys(arrays).find((k) => { const s = shape(arrays[k]); return s.length === 2 && s[1] === target.n; })
     || "soft_map";
   const labels = Array.isArray(arrays[exp.labels || "labels"]) && arrays[exp.labels || "labels"].length === n0
