@@ -71,6 +71,7 @@ def fuzz(data_dir, examples: int, log=None) -> dict:
                               wait_max=1.0))
     stats = {"cases": 0, "statuses": Counter(), "server_errors": [], "jobs": 0,
              "job_states": Counter(), "internal_job_errors": [], "by_operation": Counter(),
+             "job_errors": Counter(),
              "by_status": Counter()}
     with TestClient(app) as client:
         domains = list(_domains(client).values())
@@ -131,7 +132,11 @@ def _make_run(op, mode, examples, counter, domains, job_ids, stats):
                 stats["job_states"][job["state"]] += 1
                 job_ids.append(job["id"])
                 err = job.get("error") or {}
-                if err.get("code") == "internal_error":
+                if err:
+                    stats["job_errors"][err.get("code")] += 1
+                if err.get("code") not in (None, "no_convergence", "time_limit_exceeded",
+                                           "cancelled", "numerical_error"):
+                    # accepted at submission, so only numerical failures may happen
                     stats["internal_job_errors"].append(
                         (op.path, err, _body_excerpt(case)))
 
@@ -192,7 +197,8 @@ def main(argv=None) -> int:
     with open("/proc/loadavg") as fh:
         load_after = fh.read().split()[:3]
     print(f"cases {stats['cases']} in {time.monotonic() - start:.0f} s; statuses "
-          f"{dict(stats['statuses'])}; jobs {stats['jobs']} {dict(stats['job_states'])}; "
+          f"{dict(stats['statuses'])}; jobs {stats['jobs']} {dict(stats['job_states'])} "
+          f"errors {dict(stats['job_errors'])}; "
           f"server errors {len(stats['server_errors'])}; internal job errors "
           f"{len(stats['internal_job_errors'])}; load {load_before} -> {load_after}")
     for item in stats["server_errors"][:20] + stats["internal_job_errors"][:20]:
