@@ -73,7 +73,7 @@ def test_fused_histogram_equals_bincount(photos):
     # Both bin the same ab values (fast vs reference Lab differ by < 1e-4): only pixels
     # within 1e-4 of a bin boundary may land differently.
     assert np.abs(counts.reshape(bins, bins) / px.shape[0] - ref).sum() < 1e-3
-    assert counts.sum() == px.shape[0]
+    assert np.isclose(counts.sum(), px.shape[0], rtol=1e-12)
 
 
 # -- luminance ----------------------------------------------------------------
@@ -234,3 +234,15 @@ def test_input_errors(photos):
     with pytest.raises(InputError) as e:
         color_transfer([img, img], gamma=0)
     assert e.value.field == "gamma"
+
+
+def test_flat_image_goes_to_the_target_means(photos):
+    """A one-color image: every plan sends its single color to the target's mean (the
+    barycentric projection of a Dirac's plan), in L* and in ab."""
+    gray = np.full((40, 50, 3), 128, np.uint8)
+    tgt = photos["coffee"][::4, ::4]
+    r = color_transfer([gray, tgt], [0.0, 1.0], bins=64, gamma=16.0, recolor=[0])
+    out = rgb_to_lab_reference(r.images[0][0]).reshape(-1, 3)
+    assert out.std(axis=0).max() < 1e-6
+    mean = rgb_to_lab_reference(tgt).reshape(-1, 3).mean(axis=0)
+    assert np.abs(out[0] - mean).max() < 0.5  # 8-bit output rounding

@@ -147,13 +147,15 @@ def _analyze(px, lut, m, lab, nbins, lo, h, lbins, lmax, hist, lhist):
     """Lab of every pixel (into ``lab``) and the ab / L histograms of the block.
 
     ``px`` (N, C) uint8/uint16 (``lut``: the linear value of each code) or float in
-    [0, 1] (``lut`` unused).  ``hist`` (chunks, nbins*nbins) counts pixels at
-    the nearest ab node ``lo + h*k``; ``lhist`` (chunks, lbins) counts L over [0, lmax].
+    [0, 1] (``lut`` unused).  ``hist`` (chunks, nbins*nbins) receives each pixel's unit
+    mass split bilinearly over the 4 ab nodes ``lo + h*k`` around it (the weights
+    :func:`_apply` looks the map up with); ``lhist`` (chunks, lbins) counts L over [0, lmax].
     """
     n = px.shape[0]
     chunks = hist.shape[0]
     step = (n + chunks - 1) // chunks
     keep = lab.shape[0] == n
+    inv_h = 1.0 / h
     for c in numba.prange(chunks):
         for p in range(c * step, min(n, (c + 1) * step)):
             r = _linear(px[p, 0], lut)
@@ -164,12 +166,30 @@ def _analyze(px, lut, m, lab, nbins, lo, h, lbins, lmax, hist, lhist):
                 lab[p, 0] = L
                 lab[p, 1] = A
                 lab[p, 2] = B
-            if nbins > 0:
-                i = int((A - lo) / h + 0.5)
-                j = int((B - lo) / h + 0.5)
-                i = min(max(i, 0), nbins - 1)
-                j = min(max(j, 0), nbins - 1)
-                hist[c, i * nbins + j] += 1
+            if nbins > 0:  # bilinear ("cloud in cell") splat onto the 4 nearest nodes
+                u = (A - lo) * inv_h
+                v = (B - lo) * inv_h
+                if u < 0.0:
+                    u = 0.0
+                if v < 0.0:
+                    v = 0.0
+                i = int(u)
+                j = int(v)
+                if i > nbins - 2:
+                    i = nbins - 2
+                if j > nbins - 2:
+                    j = nbins - 2
+                fu = u - i
+                fv = v - j
+                if fu > 1.0:
+                    fu = 1.0
+                if fv > 1.0:
+                    fv = 1.0
+                q = i * nbins + j
+                hist[c, q] += (1.0 - fu) * (1.0 - fv)
+                hist[c, q + 1] += (1.0 - fu) * fv
+                hist[c, q + nbins] += fu * (1.0 - fv)
+                hist[c, q + nbins + 1] += fu * fv
             if lbins > 0:
                 k = int(L / lmax * lbins)
                 k = min(max(k, 0), lbins - 1)
@@ -183,11 +203,11 @@ def analyze(px: np.ndarray, lut: np.ndarray, scale: float, nbins: int, lo: float
     n = px.shape[0]
     chunks = _chunks(n)
     lab = np.empty((n if keep_lab else 0, 3), dtype=np.float32)
-    hist = np.zeros((chunks, max(nbins, 1) ** 2), dtype=np.int32)  # 4 bytes: cache-friendlier
+    hist = np.zeros((chunks, max(nbins, 1) ** 2), dtype=np.float64)
     lhist = np.zeros((chunks, max(lbins, 1)), dtype=np.int64)
     _analyze(px, lut, _M_FWD, lab, nbins, np.float32(lo), np.float32(h),
              lbins, np.float32(lmax), hist, lhist)
-    return lab, hist.sum(axis=0, dtype=np.int64), lhist.sum(axis=0)
+    return lab, hist.sum(axis=0), lhist.sum(axis=0)
 
 
 @_jit(parallel=True, fastmath=False)

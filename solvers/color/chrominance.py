@@ -2,9 +2,10 @@ r"""Chrominance histograms, their Wasserstein barycenters and the color maps (th
 
 The chrominance plane :math:`M = [-128, 128]^2` (CIE a*, b*) carries a regular grid of
 ``bins × bins`` nodes :math:`x_{ij} = (-128 + h i, -128 + h j)`, :math:`h = 256/(bins-1)`
-(:class:`AbGrid`).  An image's histogram counts every pixel at its nearest node
-(:func:`ab_histogram`: one ``np.bincount`` over precomputed indices; the fused pass in
-:mod:`solvers.color._kernels` computes the same counts while converting to Lab).
+(:class:`AbGrid`).  An image's histogram splits every pixel's unit mass bilinearly over
+the 4 nodes around its ab value (:func:`ab_histogram`: ``np.bincount`` with weights over
+precomputed indices; the fused pass in :mod:`solvers.color._kernels` computes the same
+while converting to Lab).
 
 Barycenters (:func:`chrominance_barycenters`): for each weight vector :math:`\alpha` the
 barycenter :math:`\mu_\alpha = \arg\min \sum_i \alpha_i W^2_{2,\gamma}(\mu, \mu_i)` by
@@ -19,8 +20,11 @@ input ``i`` is the barycentric projection
                   = \frac{H(v_i \, x)(y)}{H(v_i)(y)},
 
 two more (separable, log-domain) kernel applications per input and coordinate; no
-``n × n`` plan is formed.  The right-hand side is defined at every node, also where
-:math:`\mu_i = 0`, so pixels between nodes use bilinear interpolation of :math:`T_i`.
+``n × n`` plan is formed.  A pixel's new ab is the average of :math:`T_i` over the nodes
+its mass was splatted to, with the same bilinear weights: the barycentric projection of
+the plan restricted to that pixel's mass.  (The right-hand side also extends
+:math:`T_i` to nodes where :math:`\mu_i = 0`, but that extension tilts steeply near
+isolated support; the consistent weights never use it.)
 
 The computation runs on the *window* of the grid that holds every input's support plus
 a margin of :math:`4\sqrt{\gamma/2} + 2h` (the kernel's standard deviation is
@@ -58,12 +62,17 @@ class AbGrid:
     def nodes(self) -> np.ndarray:
         return -AB_RANGE + self.spacing * np.arange(self.bins)
 
-    def indices(self, ab: np.ndarray) -> np.ndarray:
-        """Flat nearest-node index of each ``(..., 2)`` ab value (C order, a major)."""
-        ab = np.asarray(ab, dtype=np.float64)
-        ij = np.clip(np.floor((ab + AB_RANGE) / self.spacing + 0.5), 0, self.bins - 1)
-        ij = ij.astype(np.int64)
-        return (ij[..., 0] * self.bins + ij[..., 1]).ravel()
+    def splat(self, ab: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """Bilinear ("cloud in cell") weights of ``(..., 2)`` ab values: four flat node
+        indices (C order, a major) and their weights, summing to 1 per value."""
+        ab = np.asarray(ab, dtype=np.float64).reshape(-1, 2)
+        u = np.clip((ab + AB_RANGE) / self.spacing, 0.0, self.bins - 1)
+        ij = np.minimum(np.floor(u), self.bins - 2).astype(np.int64)
+        f = u - ij
+        q = ij[:, 0] * self.bins + ij[:, 1]
+        fu, fv = f[:, 0], f[:, 1]
+        return ([q, q + 1, q + self.bins, q + self.bins + 1],
+                [(1 - fu) * (1 - fv), (1 - fu) * fv, fu * (1 - fv), fu * fv])
 
 
 def check_bins(bins) -> int:
@@ -77,9 +86,12 @@ def check_bins(bins) -> int:
 
 
 def ab_histogram(ab, bins: int) -> np.ndarray:
-    """Normalized ``(bins, bins)`` histogram of ``(..., 2)`` ab values (nearest node)."""
+    """Normalized ``(bins, bins)`` histogram of ``(..., 2)`` ab values: each value's unit
+    mass split bilinearly over the 4 nodes around it (``np.bincount`` with weights)."""
     grid = AbGrid(check_bins(bins))
-    counts = np.bincount(grid.indices(ab), minlength=grid.bins**2).astype(np.float64)
+    index, weight = grid.splat(ab)
+    counts = sum(np.bincount(i, weights=w, minlength=grid.bins**2)
+                 for i, w in zip(index, weight, strict=True))
     total = counts.sum()
     if total == 0:
         raise InputError("no pixels to histogram", field="ab")
