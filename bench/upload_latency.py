@@ -52,7 +52,7 @@ def main() -> None:
             for run in range(args.runs):
                 done: dict = {}
 
-                def upload():
+                def upload(done=done):
                     t0 = time.monotonic()
                     r = httpx.post(api.url + "/v1/domains", content=body, timeout=300,
                                    headers={"content-type": "application/json"})
