@@ -381,7 +381,9 @@ async function showResult(job) {
   const sel = $("field");
   $("field-row").hidden = !order.length;
   sel.replaceChildren(...order.map((k) => new Option(k, k)));
-  sel.value = exp.color && order.includes(exp.color) ? exp.color : (order[0] || "");
+  if (pair.target) sel.prepend(new Option("(none: hover the source)", "")); // soft maps
+  sel.value = exp.color && order.includes(exp.color) ? exp.color
+    : (pair.target ? "" : (order[0] || ""));
   sel.onchange = () => showField(sel.value);
   const flow = geom && exp.flow && arrays[exp.flow] && view.items.length ? arrays[exp.flow] : null;
   $("arrows-toggle").hidden = !flow;
