@@ -30,7 +30,9 @@ from solvers.validation import check_anchored_components, check_node_indices
 
 MAX_BINS = 4096
 MAX_OUTPUT_VALUES = 50_000_000  # nodes x bins (x times) of the returned histograms
-MAX_LP_VARIABLES = 5_000_000  # edges x bins^2 of the S¹ linear program
+MAX_LP_VARIABLES = 2_000_000  # edges x bins^2 of the S¹ linear program (before the
+# column generation keeps a band of them): beyond, use the entropic algorithm
+LP_TIME_LIMIT = 600.0  # seconds given to HiGHS when the request sets no time_limit
 
 
 class BinsSpec(BaseModel):
@@ -184,7 +186,7 @@ def run(domain, req: HistogramPropagationRequest, progress, should_cancel) -> Op
         kwargs = {k: getattr(req, k) for k in ("gamma", "tol", "max_iter")
                   if getattr(req, k) is not None}
         res = propagate_circular(domain, nodes, hists, bins=bins, algorithm=req.algorithm,
-                                 time_limit=req.time_limit, progress=progress,
+                                 time_limit=req.time_limit or LP_TIME_LIMIT, progress=progress,
                                  should_cancel=should_cancel, **kwargs)
         H = res.histograms
         extra = {"algorithm": res.algorithm, "value": res.value, "lp_value": res.lp_value,
