@@ -49,10 +49,6 @@ from solvers.softmaps.extraction import (
 from solvers.softmaps.sampling import farthest_point_samples
 from solvers.validation import check_int, check_positive
 
-# Bytes per (sample, target vertex) pair the solver holds at its peak (edge-end scalings,
-# node scalings, cost, soft map, one color block of temporaries); see bench/results.
-BYTES_PER_PAIR = 96
-
 
 def check_mesh_for_soft_map(mesh, field: str) -> None:
     """A soft map needs a triangle mesh with one connected component."""
@@ -88,7 +84,12 @@ def check_landmark_pairs(landmarks, n_source: int, n_target: int) -> np.ndarray:
 
 
 def estimated_bytes(n_samples: int, n_target: int, edges_per_sample: float = 3.0) -> int:
-    """Peak bytes of :func:`soft_map` for ``n_samples`` over ``n_target`` target vertices."""
+    """Peak bytes of :func:`soft_map` for ``n_samples`` over ``n_target`` target vertices.
+
+    Per (sample, target vertex): the edge-end log-scalings (2 per edge, float64), the node
+    scalings, the propagated masses and float32 soft map, and one color class of block
+    temporaries; measured peaks are in bench/results/softmaps.md.
+    """
     return int(n_samples * n_target * (2 * 2 * edges_per_sample * 8 + 3 * 8 + 4 + 20))
 
 
