@@ -52,11 +52,18 @@ def upload(url: str, name: str) -> str:
     return r.json()["id"]
 
 
-def one_job(url: str, domain: str) -> float:
+OVERHEAD: dict[str, list[float]] = {"stack": [], "host": []}
+
+
+def one_job(url: str, domain: str, kind: str | None = None) -> float:
+    """Client-side latency; with ``kind``, also record latency minus the job's own run time
+    (``duration_seconds`` measured by the worker): what the queue, job table and HTTP cost."""
     t0 = time.perf_counter()
     r = httpx.post(f"{url}/v1/domains/{domain}/distances?wait=60", json=JOB, timeout=90)
     dt = time.perf_counter() - t0
     assert r.status_code == 200 and r.json()["state"] == "succeeded", r.text
+    if kind is not None:
+        OVERHEAD[kind].append(dt - r.json()["duration_seconds"])
     return dt
 
 
@@ -105,14 +112,17 @@ def main() -> None:
             for _ in range(4):  # both workers of the stack have the domain cached
                 one_job(s.url, dom["stack"])
             times = {"stack": [], "host": []}
+            for k in OVERHEAD:
+                OVERHEAD[k].clear()
             la = load()
             for _ in range(args.repeats):
                 for k in ("stack", "host"):
-                    times[k].append(one_job(urls[k], dom[k]))
+                    times[k].append(one_job(urls[k], dom[k], k))
             print(f"{name}: warm job latency (Sinkhorn distance, ?wait=60), alternating, "
                   f"load {la} -> {load()}:")
             for k in ("stack", "host"):
                 print(f"  {k:5s}: {summary(times[k])}")
+                print(f"  {k:5s} latency - job duration: {summary(OVERHEAD[k])}")
             ratio = statistics.median(times["stack"]) / statistics.median(times["host"])
             print(f"  stack / host (medians): {ratio:.2f}")
     finally:
