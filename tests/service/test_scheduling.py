@@ -5,9 +5,7 @@ done and an estimate."""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
+import threading
 import time
 from pathlib import Path
 
@@ -15,7 +13,6 @@ from service.jobs.consumer import Consumer
 from service.runtime import Runtime
 from service.settings import Settings
 
-ROOT = Path(__file__).resolve().parents[2]
 A, B = "a" * 32, "b" * 32
 
 # a barycenter that runs until cancelled (tol unreachable): estimated 14400 x 1e5 x 2
@@ -41,14 +38,18 @@ def test_consumer_takes_short_jobs_first_and_reserved_ones_only_short(tmp_path):
         rt.close()
 
 
-def _worker(tmp_path: Path, queues: str, name: str):
-    env = {k: v for k, v in os.environ.items() if not k.startswith("OTGEO_")}
-    env.update({"OTGEO_DATA_DIR": str(tmp_path), "OTGEO_HEARTBEAT_INTERVAL": "0.2",
-                "OTGEO_WORKER_POLL_INTERVAL": "0.02"})
-    log = open(tmp_path / f"{name}.log", "ab")  # noqa: SIM115 - closed by the test
-    proc = subprocess.Popen([sys.executable, "-m", "service.cli", "worker", "--queues", queues],
-                            cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
-    return proc, log
+def _start_consumers(tmp_path: Path, specs) -> list:
+    """Worker runtimes with their consumers in threads of this process (the code a worker
+    process runs, without two interpreter start-ups)."""
+    started = []
+    for queues in specs:
+        rt = Runtime(Settings(data_dir=tmp_path, queue="sqlite", heartbeat_interval=0.2,
+                              worker_poll_interval=0.02), role="worker")
+        consumer = Consumer(rt, queues)
+        thread = threading.Thread(target=consumer._loop, daemon=True, name=f"worker-{queues}")
+        thread.start()
+        started.append((rt, consumer, thread))
+    return started
 
 
 def _wait(predicate, timeout, what, logs=()):
@@ -67,8 +68,8 @@ def test_short_job_runs_while_long_jobs_occupy_the_other_worker(make_client, tmp
     client = make_client(queue="sqlite")
     big = client.post("/v1/domains", json={"kind": "grid", "shape": [120, 120]}).json()["id"]
     small = client.post("/v1/domains", json={"kind": "grid", "shape": [6, 6]}).json()["id"]
-    workers = [_worker(tmp_path, "short,long", "both"), _worker(tmp_path, "short", "reserved")]
-    logs = [tmp_path / "both.log", tmp_path / "reserved.log"]
+    workers = _start_consumers(tmp_path, [("short", "long"), ("short",)])
+    logs = ()
     try:
         long1 = client.post(f"/v1/domains/{big}/barycenters", json=LONG).json()
         long2 = client.post(f"/v1/domains/{big}/barycenters", json=LONG).json()
@@ -103,11 +104,8 @@ def test_short_job_runs_while_long_jobs_occupy_the_other_worker(make_client, tmp
         _wait(lambda: client.get(f"/v1/jobs/{long1['id']}").json()["state"] == "cancelled",
               30, "the long job to stop", logs)
     finally:
-        for proc, _ in workers:
-            proc.terminate()
-        for proc, log in workers:
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-            log.close()
+        for _, consumer, _ in workers:
+            consumer.stop()
+        for rt, _, thread in workers:
+            thread.join(30)
+            rt.close()
