@@ -23,21 +23,27 @@ CHROMIUM_ARGS = [
 
 
 @pytest.fixture(scope="module")
-def live_api(tmp_path_factory):
+def api_process(tmp_path_factory):
+    """``otgeo serve`` started (not yet waited for: Chromium starts meanwhile)."""
     tmp = tmp_path_factory.mktemp("viewer")
     env = {"OTGEO_DATA_DIR": str(tmp / "data"), "OTGEO_WORKERS": "1",
            "OTGEO_REAPER_INTERVAL": "1", "OTGEO_API_KEYS": API_KEY}
     api = API(env, tmp)
     api.key = API_KEY
     try:
-        api.wait_healthy(60)
         yield api
     finally:
-        api.stop(timeout=3)
+        api.stop(timeout=1)  # a temporary data dir: no need for a graceful shutdown
 
 
 @pytest.fixture(scope="module")
-def browser_context(tmp_path_factory):
+def live_api(api_process, browser_context):
+    api_process.wait_healthy(60)
+    return api_process
+
+
+@pytest.fixture(scope="module")
+def browser_context(tmp_path_factory, api_process):
     if not CHROMIUM.exists():  # CI installs it (.ci/run); a missing browser is a failure
         pytest.fail(f"{CHROMIUM} not found: apt-get install chromium")
     from playwright.sync_api import sync_playwright
