@@ -14,7 +14,7 @@ from fastapi.concurrency import run_in_threadpool
 
 from service.api.deps import JobSvc, RuntimeDep
 from service.errors import InvalidInput, responses
-from service.jobs.db import TERMINAL
+from service.jobs.db import QUEUED, TERMINAL
 from service.operations import Operation, Registry
 from service.schemas import JobOut
 
@@ -86,6 +86,8 @@ async def finish_submission(op_name: str, domain_id: str | None, body, wait: flo
     job = await run_in_threadpool(submit_job, op_name, domain_id, body, wait, svc, rt)
     if wait > 0 and job.state not in TERMINAL:
         job = await wait_for(svc, job.id, wait, job)
+    if job.state == QUEUED:  # read by JobOut.from_row
+        job.queue_position = await run_in_threadpool(svc.rt.repo.queue_position, job)
     response.status_code = 200 if job.state in TERMINAL else 202
     response.headers["Location"] = f"/v1/jobs/{job.id}"
     return JobOut.from_row(job)

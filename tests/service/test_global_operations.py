@@ -93,3 +93,13 @@ def test_registry_is_built_per_app_and_refuses_duplicates():
 
     with pytest.raises(ValueError, match="twice"):
         build_registry((Family,))
+
+
+def test_submission_reports_the_queue_position(make_client):
+    client = make_client(queue="sqlite")  # no worker consumes: jobs stay queued
+    gid = _grid(client, (6, 6))
+    body = {"mu0": {"vertex": 0, "radius": 0.2}, "mu1": {"vertex": 35, "radius": 0.2}}
+    first = client.post(f"/v1/domains/{gid}/distances", json=body)
+    second = client.post(f"/v1/domains/{gid}/distances", json=body)
+    assert first.status_code == second.status_code == 202
+    assert first.json()["queue_position"] == 1 and second.json()["queue_position"] == 2
