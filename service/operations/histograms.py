@@ -76,6 +76,7 @@ class HistogramPropagationRequest(OperationRequest):
     gamma: float | None = Field(None, gt=0, description="entropic regularization (periodic "
                                 "bins, algorithm entropic); default (2 w)^2, w the bin width")
     tol: float | None = Field(None, gt=0, lt=1, description="entropic stopping tolerance")
+    color: Literal["mean", "std"] = Field("mean", description="field coloring result.glb")
     max_iter: int | None = Field(None, ge=1, le=100_000)
 
 
@@ -219,10 +220,10 @@ def run(domain, req: HistogramPropagationRequest, progress, should_cancel) -> Op
             arrays[name] = np.stack([s[name] for s in sums], axis=1)
         residual = max(float(residual), float(diff.residual))
         converged = bool(converged and diff.converged)
-        export = {"fields": ["mean", "std"], "color": "mean", "frames": list(req.times)}
+        export = {"fields": ["mean", "std"], "color": req.color, "frames": list(req.times)}
     else:
         arrays = {"histograms": H, **_summary_arrays(H, bins)}
-        export = {"fields": ["mean", "std"], "color": "mean"}
+        export = {"fields": ["mean", "std"], "color": req.color}
     arrays["labeled"] = nodes
     mean = arrays["mean"]
     values = {"route": req.route, "bins": bins.to_dict(), "n_nodes": int(len(H)),

@@ -113,6 +113,9 @@ def test_mesh_domain(client, meshes_dir):
     assert np.asarray(res["arrays"]["histograms"]).shape == (n, 40)
     glb = client.get(f"/v1/jobs/{r['id']}/result.glb")
     assert glb.status_code == 200 and b"_MEAN" in glb.content
+    r = _submit(client, mid, {"bins": BINS, "labeled": labeled, "color": "std"}).json()
+    glb_std = client.get(f"/v1/jobs/{r['id']}/result.glb")
+    assert glb_std.status_code == 200 and glb_std.content != glb.content  # other colors
 
 
 @pytest.mark.parametrize("patch, field", [
