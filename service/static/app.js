@@ -11,6 +11,7 @@ const $ = (id) => document.getElementById(id);
 
 const state = {
   openapi: null, ops: [], domains: [], jobs: [], domain: null, geometry: null, picks: [],
+  targetPicks: [], pairing: false,
   form: null, job: null, result: null, stream: null, second: null, listeners: [],
 };
 window.otgeo = state; // for debugging in the console
@@ -86,6 +87,8 @@ async function selectDomain(id, keepPicks = false) {
   state.geometry = geom;
   state.second = null;
   if (!keepPicks) state.picks = [];
+  state.targetPicks = [];
+  state.pairing = false;
   view.setDomains([geom]);
   $("empty").hidden = true;
   for (const li of $("domains").children) li.classList.toggle("active", li.dataset.id === id);
@@ -131,6 +134,8 @@ function renderPicks() {
     sw.className = "swatch";
     sw.style.background = "#" + pickColor(i).toString(16).padStart(6, "0");
     li.append(sw, p.radius ? `bump at vertex ${p.vertex}, r ${p.radius}` : `point mass at vertex ${p.vertex}`);
+    const t = state.pairing && state.targetPicks[i];
+    if (t) li.append(` → target ${t.vertex}`);
     const rm = document.createElement("button");
     rm.type = "button";
     rm.textContent = "×";
@@ -140,11 +145,17 @@ function renderPicks() {
     return li;
   }));
   if (view.items.length) view.setPicks(0, state.picks, !state.result);
+  if (state.pairing && view.items.length > 1) view.setPicks(1, state.targetPicks, false);
   state.listeners.filter((l) => l.kind === "picks").forEach((l) => l.fn());
   drawPlots();
 }
 
 view.onPick = ({ item, point }) => {
+  if (item === 1 && state.pairing) {
+    state.targetPicks.push({ vertex: point, radius: null });
+    renderPicks();
+    return;
+  }
   if (item !== 0) return;
   state.picks.push({ vertex: point, radius: pickMode() === "bump" ? radius() : null });
   renderPicks();
@@ -164,6 +175,19 @@ const formCtx = {
   onPicksChanged: (fn) => state.listeners.push({ kind: "picks", fn }),
   onDomainsChanged: (fn) => state.listeners.push({ kind: "domains", fn }),
   uploadBlob: null,
+  // landmark pairs: the i-th source pick with the i-th pick on the target
+  pairs: () => state.picks.map((p, i) => [p.vertex, (state.targetPicks[i] || {}).vertex])
+    .filter(([, t]) => t !== undefined),
+  pickTargets: async (targetId) => {
+    if (!state.geometry) return;
+    const target = await geometry(targetId);
+    view.setDomains([state.geometry, target]);
+    state.second = target;
+    state.targetPicks = [];
+    state.pairing = true;
+    renderPicks();
+    status("click the target (right) once per source pick, in order");
+  },
 };
 
 function selectOperation() {
@@ -308,6 +332,7 @@ function clearResultView() {
   view.setArrows(null);
   view.onHover = null;
   if (state.second && state.geometry) { view.setDomains([state.geometry]); state.second = null; }
+  state.pairing = false;
   if (view.items.length) { view.neutral(0); view.setPicks(0, state.picks); }
 }
 

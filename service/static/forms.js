@@ -227,7 +227,25 @@ export function buildForm(container, root, op, ctx) {
       if (s.default !== undefined && s.default !== null) area.value = JSON.stringify(s.default);
       row.appendChild(area);
       const template = pickTemplate(root, s);
-      if (template) { // e.g. labeled nodes, fixed nodes: one item per pick, to be completed
+      if (template === "pairs" && ctx.pickTargets) { // landmark pairs: picks on source and target
+        const show = document.createElement("button");
+        show.type = "button";
+        show.className = "small";
+        show.textContent = "pick on target";
+        show.title = "show the target beside the source; click it once per source pick";
+        show.onclick = () => {
+          const sel = container.querySelector("select[name*=target]");
+          if (sel && sel.value) ctx.pickTargets(sel.value);
+        };
+        const b = document.createElement("button");
+        b.type = "button";
+        b.className = "small";
+        b.textContent = "from picks";
+        b.onclick = () => {
+          area.value = JSON.stringify(ctx.pairs().map(([a, t]) => ({ source: a, target: t })));
+        };
+        row.append(show, b);
+      } else if (template && template !== "pairs") { // e.g. labeled nodes, fixed nodes: one item per pick, to be completed
         const b = document.createElement("button");
         b.type = "button";
         b.className = "small";
@@ -277,6 +295,8 @@ function pickTemplate(root, s) {
   if (s.type !== "array") return null;
   const item = deref(root, s.items);
   const props = item.properties || {};
+  const int = (k) => props[k] && deref(root, props[k]).type === "integer";
+  if (int("source") && int("target")) return "pairs";
   const key = ["node", "vertex"].find((k) => props[k] && deref(root, props[k]).type === "integer");
   if (!key) return null;
   const dist = Object.keys(props).find((k) => isDistribution(root, props[k]));

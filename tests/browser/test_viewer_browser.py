@@ -430,3 +430,39 @@ def test_soft_map_view_with_a_stubbed_job(page, live_api):
     changed = np.abs(first[:, right] - shot[:, right]).sum(axis=2) > 0.15
     assert changed.mean() > 0.005  # another source vertex, another distribution
     assert page.js_errors == []
+
+
+def test_soft_map_form_pairs_landmarks_from_picks(page, live_api):
+    """The soft-map form (generated like every other) pairs picks on the source with picks on
+    the target shown beside it; the request is not run (a real job takes too long here)."""
+    open_viewer(page, live_api)
+    ids = {}
+    for name in ("cow.obj", "spot.obj"):
+        drop_file(page, "#drop", MESHES_DIR / name)
+        page.wait_for_function(f"document.getElementById('status').textContent"
+                               f".startsWith('{name}')", timeout=TIMEOUT)
+        ids[name] = page.evaluate("otgeo.domain.id")
+    page.select_option("#operation", "createSoftMapJob")
+    assert page.input_value("#op-form select[name=source_id]") == ids["spot.obj"]
+    page.select_option("#op-form select[name=target_id]", ids["cow.obj"])
+    page.click("#op-form .field[data-field=landmarks] button:text('pick on target')")
+    page.wait_for_function("otgeo.view.items.length === 2")
+    box = page.locator("#view canvas").bounding_box()
+    y = box["y"] + 0.5 * box["height"]
+
+    def click_until(xs, count_js, n):
+        for fx in xs:
+            page.mouse.click(box["x"] + fx * box["width"], y)
+            if page.evaluate(count_js) >= n:
+                return
+        raise AssertionError(f"{count_js} < {n}")
+
+    click_until(np.linspace(0.15, 0.4, 12), "otgeo.picks.length", 2)  # source (left)
+    click_until(np.linspace(0.6, 0.9, 12), "otgeo.targetPicks.length", 2)  # target (right)
+    page.click("#op-form .field[data-field=landmarks] button:text('from picks')")
+    pairs = json.loads(page.input_value("#op-form textarea[name=landmarks]"))
+    source = page.evaluate("otgeo.picks.map((p) => p.vertex)")
+    target = page.evaluate("otgeo.targetPicks.map((p) => p.vertex)")
+    assert pairs == [{"source": s, "target": t} for s, t in zip(source, target, strict=True)]
+    assert "→ target" in page.inner_text("#picks")
+    assert page.js_errors == []
