@@ -1,19 +1,19 @@
-// Copies the viewer into the Python package: src/* -> service/static/, and the pinned three.js
-// build (module + OrbitControls + its license) -> service/static/vendor/. No bundler: the page
-// loads ES modules through an import map. Run `npm ci && npm run build` after editing src/.
-import { copyFileSync, mkdirSync, readdirSync, rmSync } from "node:fs";
+// Vendors the pinned three.js build (module + OrbitControls + its license) into the Python
+// package, service/static/vendor/. The viewer itself is written directly as ES modules in
+// service/static/ (no bundler: the page loads them through an import map), so there is one
+// copy of its code. Run `npm ci && npm run build` here after changing the three.js pin.
+import { copyFileSync, mkdirSync, rmSync } from "node:fs";
 import { dirname, join } from "node:path";
 import { fileURLToPath } from "node:url";
 
 const here = dirname(fileURLToPath(import.meta.url));
-const out = join(here, "..", "service", "static");
+const vendor = join(here, "..", "service", "static", "vendor");
 const three = join(here, "node_modules", "three");
 
-rmSync(out, { recursive: true, force: true });
-mkdirSync(join(out, "vendor", "addons", "controls"), { recursive: true });
-for (const name of readdirSync(join(here, "src"))) copyFileSync(join(here, "src", name), join(out, name));
-copyFileSync(join(three, "build", "three.module.min.js"), join(out, "vendor", "three.module.min.js"));
+rmSync(vendor, { recursive: true, force: true });
+mkdirSync(join(vendor, "addons", "controls"), { recursive: true });
+copyFileSync(join(three, "build", "three.module.min.js"), join(vendor, "three.module.min.js"));
 copyFileSync(join(three, "examples", "jsm", "controls", "OrbitControls.js"),
-             join(out, "vendor", "addons", "controls", "OrbitControls.js"));
-copyFileSync(join(three, "LICENSE"), join(out, "vendor", "LICENSE.three.txt"));
-console.log(`viewer built into ${out}`);
+             join(vendor, "addons", "controls", "OrbitControls.js"));
+copyFileSync(join(three, "LICENSE"), join(vendor, "LICENSE.three.txt"));
+console.log(`three.js vendored into ${vendor}`);
