@@ -22,5 +22,8 @@ for svc in redis postgres; do
       -f "docker/local/$svc.Dockerfile" -t "otgeo-$svc:local" docker/local
   fi
 done
-"$DOCKER" build --network host --build-arg "BASE_IMAGE=$BASE" -f docker/Dockerfile -t "$TAG" .
+"$DOCKER" build --network host --build-arg "BASE_IMAGE=$BASE" --label org.otgeo.local-build=1 \
+  -f docker/Dockerfile -t "$TAG" .
+# earlier builds of the tag, now untagged (their layers stay cached while the tag uses them)
+"$DOCKER" image prune -f --filter label=org.otgeo.local-build=1 >/dev/null
 echo "images ready in $(( $(date +%s) - t0 )) s"

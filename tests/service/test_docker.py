@@ -138,7 +138,10 @@ def test_dockerfile_is_multi_stage_slim_non_root_and_installs_the_package():
     for pattern in packages:
         assert pattern.rstrip("*") in copied
     assert "pyproject.toml" in copied
-    assert re.search(r"pip install \.(\s|$)", runs["build"])
+    # the package from the tree (no dependencies: installed in the layer before, from the list)
+    assert re.search(r"pip install -r /tmp/requirements.txt", runs["build"])
+    assert re.search(r"pip install [^&]*--no-deps [^&]*\s\.(\s|$)", runs["build"])
+    assert "pip check" in runs["runtime"]
     # the build context (repository root) lets the copied files through the ignore file
     ignore = (DOCKER / "Dockerfile.dockerignore").read_text().split()
     for src in copied:
