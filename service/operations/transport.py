@@ -49,7 +49,10 @@ class SinkhornOptions(OperationRequest):
 class W1Options(OperationRequest):
     algorithm: Literal["admm", "weiszfeld"] = Field(
         "admm", description="W1 solver: ADMM (thesis Fig. 2.5) or Weiszfeld (Fig. 2.4)")
-    basis: Literal["full", "spectral"] = "full"
+    basis: Literal["auto", "flow", "full", "spectral"] = Field(
+        "auto", description="W1 flow space: auto (all piecewise-constant flows; the thesis' "
+        "curl basis 'full' with matrix weights), flow, full (curl basis: an overestimate), "
+        "spectral (k eigenfunctions)")
     k: int | None = Field(None, ge=1, description="spectral basis size")
     tol: float | None = Field(None, gt=0, lt=1, description="relative primal/dual residual "
                               "(default: the solver's)")
@@ -71,7 +74,8 @@ class DistanceRequest(SinkhornOptions):
                                   "(default: the policy's choice, true; false when gamma is "
                                   "given)")
     algorithm: Literal["admm", "weiszfeld"] = Field("admm", description="W1 solver")
-    basis: Literal["full", "spectral"] = Field("full", description="W1 flow basis")
+    basis: Literal["auto", "flow", "full", "spectral"] = Field(
+        "auto", description="W1 flow space (as for flows)")
     k: int | None = Field(None, ge=1, description="W1 spectral basis size")
 
 
