@@ -113,8 +113,10 @@ def run_worker(settings, queues=("short", "long")) -> None:
     if parent and parent.isdigit():
         die_with_parent(int(parent))
     from service.jobs.consumer import Consumer
+    from service.limits import limit_worker_memory
     from service.runtime import Runtime
 
+    limit_worker_memory(settings)  # an underestimated job fails as out_of_memory, not by swap
     runtime = Runtime(settings, role="worker")
     if settings.queue == "immediate":
         raise SystemExit("OTGEO_QUEUE=immediate runs jobs inside the API; no worker needed")

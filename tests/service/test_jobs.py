@@ -510,6 +510,13 @@ def test_real_worker_process(make_client, meshes_dir, tmp_path):
         assert _metric(text, "otgeo_workers_alive") == 1
         assert _metric(text, "otgeo_cache_hits_all_total") == 1
         assert _metric(text, "otgeo_cache_misses_all_total") == 1
+        # its address space is bounded (base + operator cache + one job: service.limits)
+        from service.limits import worker_memory_limit
+        from service.settings import Settings
+
+        limits = open(f"/proc/{proc.pid}/limits").read()
+        row = next(line for line in limits.splitlines() if line.startswith("Max address space"))
+        assert int(row.split()[3]) == worker_memory_limit(Settings())
     finally:
         proc.terminate()
         assert proc.wait(timeout=15) == 0
