@@ -238,7 +238,161 @@ def _opt(row, key, scale, fmt):
     return "-" if row.get(key) is None else format(row[key] * scale, fmt)
 
 
-def write(mesh, grids, path, small_t=(), accuracy=()):
+# -- accuracy of the defaults (issue: values users can trust by default) -------------------
+SINGLE_COMPONENT = ["woody.obj", "cow.obj", "spot.obj", "alligator.obj", "homer.obj",
+                    "fandisk.obj", "cheburashka.obj", "rocker-arm.obj", "stanford-bunny.obj",
+                    "nefertiti.obj"]
+LP_FULL_SUPPORT = 400  # bump supports above this are quantized for the LP oracle
+LP_POINTS = 64  # ... to this many points (mass-weighted farthest points)
+EXACT_BENCH_SECONDS = 30.0  # the forced exact route is skipped above this estimate
+
+
+def _load() -> float:
+    return float(Path("/proc/loadavg").read_text().split()[0])
+
+
+def _bench_bump(mesh, i, r=0.1):
+    """The service's bump: masses a_j max(0, 1 - |x_j - x_i| / r), normalized."""
+    d = np.linalg.norm(mesh.vertices - mesh.vertices[i], axis=1)
+    m = mesh.areas * np.clip(1 - d / r, 0, None)
+    return m / m.sum()
+
+
+def _timed(fn, *args, **kwargs):
+    start = time.perf_counter()
+    out = fn(*args, **kwargs)
+    return out, time.perf_counter() - start
+
+
+def _rule(mesh, m0, m1):
+    """The README's expert rule: first pass at gamma 0.05, then gamma = 2.5 h d."""
+    first = wasserstein_distance(mesh, m0, m1, gamma=0.05, substeps=16, debiased=True)
+    gamma = 2.5 * mesh.mean_edge_length * np.sqrt(max(first.value, 0.0))
+    return wasserstein_distance(mesh, m0, m1, gamma=gamma, substeps=64, debiased=True).value
+
+
+def _oracle(mesh, m0, m1):
+    """Exact LP (ot.emd2) with squared exact (MMP) geodesics between the supports; supports
+    above LP_FULL_SUPPORT points are quantized to LP_POINTS first (reported)."""
+    import ot
+
+    from solvers.geodesics import geodesic_distances
+    from solvers.regularization import _quantize
+
+    kind = "full"
+    i0, i1 = np.flatnonzero(m0), np.flatnonzero(m1)
+    w0, w1 = m0[i0], m1[i1]
+    if max(len(i0), len(i1)) > LP_FULL_SUPPORT:
+        i0, w0 = _quantize(mesh.vertices, m0, LP_POINTS)
+        i1, w1 = _quantize(mesh.vertices, m1, LP_POINTS)
+        kind = f"quantized to {LP_POINTS}"
+    cost = geodesic_distances(mesh, i0, i1) ** 2
+    return float(ot.emd2(w0 / w0.sum(), w1 / w1.sum(), cost, numItermax=10**8)), kind
+
+
+def defaults_rows(names, recorded):
+    """Default vs expert rule vs convolutional policy vs exact route vs LP, per mesh and case
+    (bumps near/middle/far from vertex 0, and 25 + 25 scattered point masses)."""
+    import ot
+
+    from solvers.convolutional.exact import exact_route_seconds
+    from solvers.geodesics import geodesic_distances
+
+    rows = [r for r in recorded if r["name"] not in names]
+    for name in names:
+        mesh = load_mesh(MESHES / name)
+        d0 = geodesic_distances(mesh, [0])[0]
+        rng = np.random.default_rng(len(name))
+        cases = {}
+        for label, frac in (("near", 0.15), ("middle", 0.5), ("far", 0.9)):
+            j = int(np.argmin(np.abs(d0 - frac * d0.max())))
+            cases[label] = (_bench_bump(mesh, 0), _bench_bump(mesh, j), j)
+        p0, p1 = np.zeros(mesh.n), np.zeros(mesh.n)
+        p0[rng.choice(mesh.n, 25, replace=False)] = 1 / 25
+        p1[rng.choice(mesh.n, 25, replace=False)] = 1 / 25
+        cases["points"] = (p0, p1, None)
+        for label, (m0, m1, j) in cases.items():
+            row = dict(name=name, n=mesh.n, case=label, target=j, load_before=_load(),
+                       support=[int(np.count_nonzero(m0)), int(np.count_nonzero(m1))])
+            (lp, kind), row["lp_s"] = _timed(_oracle, mesh, m0, m1)
+            row.update(lp=lp, lp_kind=kind)
+            res, row["default_s"] = _timed(wasserstein_distance, mesh, m0, m1)
+            row.update(default=res.value, default_route=res.route,
+                       default_substeps=getattr(res, "substeps", None),
+                       default_gamma=getattr(res, "gamma", None))
+            if res.route == "convolutional":
+                row.update(conv=res.value, conv_s=row["default_s"])
+            else:
+                conv, row["conv_s"] = _timed(wasserstein_distance, mesh, m0, m1,
+                                             route="convolutional")
+                row.update(conv=conv.value, conv_substeps=conv.substeps)
+            row["rule"], row["rule_s"] = _timed(_rule, mesh, m0, m1)
+            est = exact_route_seconds(mesh, *row["support"])
+            row["exact_estimate_s"] = est
+            if res.route == "exact":
+                row.update(exact=res.value, exact_s=row["default_s"])
+            elif est <= EXACT_BENCH_SECONDS:
+                ex, row["exact_s"] = _timed(wasserstein_distance, mesh, m0, m1, route="exact")
+                row["exact"] = ex.value
+            if label == "points" and mesh.diagnostics.nonmanifold_vertices == 0:
+                i0, i1 = np.flatnonzero(m0), np.flatnonzero(m1)
+                flip = geodesic_distances(mesh, i0, i1, route="edge-flip")
+                row["lp_flip"] = float(ot.emd2(m0[i0], m1[i1], flip**2))
+            row["load_after"] = _load()
+            rows.append(row)
+            print(row, flush=True)
+            yield rows
+
+
+def _rel(value, ref):
+    return "-" if value is None else f"{value:.4f} ({value / ref - 1:+.1%})"
+
+
+def defaults_lines(rows):
+    lines = ["", "## Accuracy of the defaults vs the exact LP (squared exact geodesics)", "",
+             "Command: `OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python "
+             "bench/convolutional.py defaults` (rows of a mesh: "
+             "`defaults --mesh=cow.obj`).  Cases: bumps of the README's kind (`{\"vertex\": "
+             "0, \"radius\": 0.1}` and the vertex at 15 % / 50 % / 90 % of the largest "
+             "geodesic distance from vertex 0), and 25 + 25 scattered point masses.  LP = "
+             "`ot.emd2` on squared exact (MMP, `solvers.geodesics`) geodesics between the "
+             f"supports (supports above {LP_FULL_SUPPORT} points quantized to {LP_POINTS} "
+             "mass-weighted farthest points).  default = `wasserstein_distance(mesh, mu0, mu1)` "
+             "(route auto); policy = the same with `route=\"convolutional\"`; rule = the "
+             "README's expert rule (first pass at gamma 0.05 debiased 16 substeps, then "
+             "debiased, 64 substeps, gamma = 2.5 h sqrt(first)); exact = `route=\"exact\"` "
+             f"(skipped when estimated above {EXACT_BENCH_SECONDS:.0f} s).  Times in seconds "
+             "(wall clock, warm after the first case of a mesh); load = 1-minute load average "
+             "before/after the row.", "",
+             "| mesh | case | supports | LP | default (route, substeps) | default s | policy "
+             "(convolutional) | policy s | rule | rule s | exact | exact s | LP oracle | "
+             "load |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        sub = "" if r.get("default_substeps") is None else f", {r['default_substeps']}"
+        flip = (f"; edge-flip LP {r['lp_flip']:.4f} ({r['lp_flip'] / r['lp'] - 1:+.1%})"
+                if r.get("lp_flip") is not None else "")
+        ex_s = "-" if r.get("exact_s") is None else f"{r['exact_s']:.2f}"
+        lines.append(
+            f"| {r['name']} | {r['case']} | {r['support'][0]}/{r['support'][1]} | "
+            f"{r['lp']:.4f} | {_rel(r['default'], r['lp'])} ({r['default_route']}{sub}) | "
+            f"{r['default_s']:.2f} | {_rel(r['conv'], r['lp'])} | {r['conv_s']:.2f} | "
+            f"{_rel(r['rule'], r['lp'])} | {r['rule_s']:.2f} | {_rel(r.get('exact'), r['lp'])}"
+            f" | {ex_s} | {r['lp_kind']}{flip} | {r['load_before']:.1f}/"
+            f"{r['load_after']:.1f} |")
+    worst = {}
+    for r in rows:
+        if r["case"] == "points":
+            continue
+        err = abs(r["default"] / r["lp"] - 1)
+        if err > worst.get(r["name"], (-1,))[0]:
+            worst[r["name"]] = (err, r["case"], r["default"] / r["lp"] - 1)
+    if worst:
+        lines += ["", "Worst default error on bumps per mesh: " + ", ".join(
+            f"{k} {v[2]:+.1%} ({v[1]})" for k, v in worst.items()) + "."]
+    return lines
+
+
+def write(mesh, grids, path, small_t=(), accuracy=(), defaults=()):
     lines = ["# Convolutional toolkit benchmark", "",
              "Command: `.venv/bin/python bench/convolutional.py` (2-core machine shared with "
              "other jobs; times are wall clock).", "",
@@ -260,6 +414,8 @@ def write(mesh, grids, path, small_t=(), accuracy=()):
         lines += small_t_lines(small_t)
     if accuracy:
         lines += accuracy_lines(accuracy)
+    if defaults:
+        lines += defaults_lines(defaults)
     lines += ["", "## Grid barycenters, 4 inputs, reg 0.004, tol/stopThr 1e-6", "",
               "Our solver always runs on log-scalings (the grid kernel's exact `log_apply`: "
               "row-blocked max-shifted BLAS products, no underflow at any t).  'plain "
@@ -307,7 +463,7 @@ def write(mesh, grids, path, small_t=(), accuracy=()):
 if __name__ == "__main__":
     quick = "--quick" in sys.argv
     parts = [a for a in sys.argv[1:] if a in ("meshes", "small_t", "accuracy", "grids",
-                                             "render")] or [
+                                             "render", "defaults")] or [
         "meshes", "small_t", "accuracy", "grids"]
     store = ROOT / "bench" / "results" / "convolutional.json"
     recorded = json.loads(store.read_text()) if store.exists() else {}
@@ -330,8 +486,13 @@ if __name__ == "__main__":
             if g["pot_log"] is None and old:
                 g["pot_log"] = old[0].get("pot_log")
         recorded["grids"] = sorted(kept + fresh, key=lambda g: g["n"])
+    if "defaults" in parts:  # recorded row by row (a long run keeps what it measured)
+        names = [a.split("=")[1] for a in sys.argv[1:] if a.startswith("--mesh=")]
+        for rows in defaults_rows(names or SINGLE_COMPONENT, recorded.get("defaults", [])):
+            recorded["defaults"] = rows
+            store.write_text(json.dumps(recorded, indent=1))
     store.parent.mkdir(parents=True, exist_ok=True)
     store.write_text(json.dumps(recorded, indent=1))
     write(recorded.get("meshes", []), recorded.get("grids", []),
           ROOT / "bench" / "results" / "convolutional.md", recorded.get("small_t", []),
-          recorded.get("accuracy", []))
+          recorded.get("accuracy", []), recorded.get("defaults", []))

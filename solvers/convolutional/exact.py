@@ -32,8 +32,8 @@ from solvers.monitor import Monitor, SolverResult
 # route="auto" takes the exact route when its estimated time is below this (seconds), and
 # falls back to the convolutional route when the cost matrix takes longer than
 # AUTO_BUDGET_SECONDS after all ...
-AUTO_SECONDS = 2.0
-AUTO_BUDGET_SECONDS = 10.0
+AUTO_SECONDS = 5.0
+AUTO_BUDGET_SECONDS = 20.0
 # ... and refuses route="exact" above this (the LP's dense n0 x n1 cost matrix).
 MAX_SUPPORT_PRODUCT = 25_000_000
 EXACT_KINDS = ("mesh", "grid", "pointcloud")
