@@ -26,4 +26,6 @@ done
   -f docker/Dockerfile -t "$TAG" .
 # earlier builds of the tag, now untagged (their layers stay cached while the tag uses them)
 "$DOCKER" image prune -f --filter label=org.otgeo.local-build=1 >/dev/null
+# keep BuildKit's cache bounded (least recently used first; this build's layers stay)
+"$DOCKER" builder prune -f --keep-storage "${BUILD_CACHE_KEEP:-8GB}" >/dev/null || true
 echo "images ready in $(( $(date +%s) - t0 )) s"
