@@ -177,8 +177,8 @@ def geodesic_distances(mesh: TriangleMesh, sources, targets=None, *, route: str 
     ``targets=None``: every vertex.  ``route``: ``"mmp"`` (default: one exact solve from
     each source, or target when there are fewer, stopped at the largest edge-path distance
     to the other side), ``"edge-flip"`` (one locally shortest path per pair, only on meshes
-    without junction vertices; not always the shortest: measured up to 7.5 % longer than
-    MMP on spot, ``bench/results/convolutional.md``).  Vertices on other connected
+    without junction vertices; a locally shortest path, so never shorter and sometimes
+    longer than the MMP distance).  Vertices on other connected
     components are at distance ``inf``.  ``should_cancel()`` is checked between solves.
     """
     if route not in ROUTES:
