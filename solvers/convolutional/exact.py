@@ -113,8 +113,9 @@ def exact_wasserstein_distance(
     domain : a TriangleMesh, Grid or PointCloud.
     mu0, mu1 : ``(n,)`` masses (normalized here); their supports set the LP size.
     max_iter : network-simplex iteration cap; when hit, ``converged`` is False.
-    time_budget : seconds; a cost matrix still running past it raises :class:`RouteTimeout`
-        (``route="auto"`` falls back to the convolutional route).
+    time_budget : seconds; a cost matrix running, or projected at its measured rate to run,
+        past it raises :class:`RouteTimeout` (``route="auto"`` falls back to the
+        convolutional route).
     progress, should_cancel : called between the geodesic solves and before the LP.
 
     Returns
@@ -143,12 +144,19 @@ def exact_wasserstein_distance(
     monitor = Monitor(progress, should_cancel)
     monitor(0, float("nan"))
     start = time.perf_counter()
+    solves = min(len(src), len(dst))
+    calls = [0]
 
-    def stop() -> bool:  # between geodesic solves: the caller's cancel, then the budget
+    def stop() -> bool:  # before each geodesic solve: the caller's cancel, then the budget
         if should_cancel is not None and should_cancel():
             return True
-        if time_budget is not None and time.perf_counter() - start > time_budget:
-            raise RouteTimeout(f"exact route past its {time_budget:.0f} s budget")
+        if time_budget is not None:
+            elapsed, done = time.perf_counter() - start, calls[0]
+            projected = elapsed / done * solves if done else 0.0  # at the measured rate
+            if elapsed > time_budget or (done >= 2 and projected > time_budget):
+                raise RouteTimeout(f"exact route projected past its {time_budget:.0f} s "
+                                   "budget")
+        calls[0] += 1
         return False
 
     cost = _cost_matrix(domain, src, dst, stop)
