@@ -15,8 +15,8 @@ are timed once), 2 cores for numba (BLAS pinned to 1 thread); peak traced memory
 (tracemalloc) of the first run; the W2 of
 the result; and for this library also with file I/O (decode two JPEGs, encode the PNG).
 
-Usage: ``.venv/bin/python bench/color.py [--quick] [--repeats N] [--no-pot-big]``;
-writes ``bench/results/color.md``.
+Usage: ``.venv/bin/python bench/color.py [--repeats N] [--no-pot-big] [--skip-quality]
+[--out FILE]``; writes ``bench/results/color.md`` by default.
 """
 
 from __future__ import annotations
@@ -230,6 +230,7 @@ def main():
     ap.add_argument("--no-pot-big", action="store_true",
                     help="skip POT on the 12 Mpx pair (its out-of-sample map is slow)")
     ap.add_argument("--skip-quality", action="store_true")
+    ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "color.md"))
     args = ap.parse_args()
     lines = ["# Color transfer (bench/color.py)\n",
              f"Machine: {os.cpu_count()} cores shared with other jobs; numba threads 2, BLAS "
@@ -241,8 +242,7 @@ def main():
         quality(lines)
     lines.append("## Speed (12 Mpx)\n")
     speed(lines, args.repeats, args.no_pot_big)
-    out = ROOT / "bench" / "results" / "color.md"
-    out.write_text("\n".join(lines) + "\n")
+    Path(args.out).write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
