@@ -29,7 +29,7 @@ from sqlalchemy import (
     text,
     update,
 )
-from sqlalchemy.exc import OperationalError, SQLAlchemyError
+from sqlalchemy.exc import IntegrityError, OperationalError, ProgrammingError, SQLAlchemyError
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, sessionmaker
 
 QUEUED, RUNNING, SUCCEEDED, FAILED, CANCELLED = (
@@ -117,13 +117,23 @@ def make_engine(url: str):
     return create_engine(url, pool_pre_ping=True, pool_size=5, max_overflow=10)
 
 
+CREATE_ATTEMPTS = 5  # create_all tries when processes start together on a fresh database
+
+
 class JobRepository:
     def __init__(self, url: str):
         self.engine = make_engine(url)
-        try:
-            Base.metadata.create_all(self.engine)
-        except OperationalError:  # another process (API or worker) created it meanwhile
-            Base.metadata.create_all(self.engine)
+        for attempt in range(CREATE_ATTEMPTS):
+            try:
+                Base.metadata.create_all(self.engine)
+                break
+            except (OperationalError, IntegrityError, ProgrammingError):
+                # another process (API or worker) is creating it at the same moment: SQLite
+                # reports a lock, PostgreSQL a duplicate table or a unique violation in its
+                # type catalogue; the next create_all sees the finished table
+                if attempt == CREATE_ATTEMPTS - 1:
+                    raise
+                time.sleep(0.05 * (attempt + 1))
         self._add_columns()
         self.Session = sessionmaker(self.engine, expire_on_commit=False)
 

@@ -283,3 +283,40 @@ def test_every_job_was_started_exactly_attempts_times(stack):
     assert rows
     for job_id, attempts in rows:
         assert stack.started_lines(job_id) == attempts, job_id
+
+
+def test_job_tables_created_concurrently_on_postgresql():
+    """API and workers starting together all create the job table: the loser of the race
+    (a unique violation in PostgreSQL's type catalogue) must not crash."""
+    import threading
+
+    from service.jobs.db import JobRepository
+
+    admin = _admin()
+    dbname = f"otgeo_race_{uuid.uuid4().hex[:12]}"
+    with admin.cursor() as cur:
+        cur.execute(f'CREATE DATABASE "{dbname}"')
+    url = f"postgresql://postgres@127.0.0.1:5432/{dbname}"
+    errors, repos, start = [], [], threading.Barrier(6)
+
+    def create():
+        start.wait()
+        try:
+            repos.append(JobRepository(url))
+        except Exception as exc:  # noqa: BLE001 - the test reports any failure
+            errors.append(repr(exc))
+
+    try:
+        threads = [threading.Thread(target=create) for _ in range(6)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        assert errors == [] and len(repos) == 6
+        assert repos[0].list(limit=5) == []  # the table works
+    finally:
+        for repo in repos:
+            repo.dispose()
+        with admin.cursor() as cur:
+            cur.execute(f'DROP DATABASE IF EXISTS "{dbname}" WITH (FORCE)')
+        admin.close()
