@@ -26,7 +26,9 @@ def grid():
     return HemisphereGrid(20, 40)
 
 
-def test_grid_areas_and_kernel_symmetry(grid):
+@pytest.mark.parametrize("route", ["separable", "geodesic"])
+def test_grid_areas_and_kernel_symmetry(route):
+    grid = HemisphereGrid(20, 40, route=route)
     assert np.isclose(grid.areas.sum(), 1.0)
     # sin(theta) weights: a cell at theta has area proportional to sin(theta)
     ratio = grid.areas / np.sin(grid.theta)
@@ -37,10 +39,12 @@ def test_grid_areas_and_kernel_symmetry(grid):
     # self-adjoint in the a-weighted product, like every heat kernel
     assert np.isclose(a @ (x * K.apply(y)), a @ (y * K.apply(x)), rtol=1e-12)
     assert grid.heat_kernel(1e-3) is K  # cached in the operator store
+    np.testing.assert_allclose(K.apply(np.ones(grid.n)), 1.0, atol=1e-10)  # conserves mass
 
 
-def test_grid_kernel_close_to_mesh_kernel(grid):
-    d = kernel_discrepancy(grid, 5e-3)
+@pytest.mark.parametrize("route", ["separable", "geodesic"])
+def test_grid_kernel_close_to_mesh_kernel(route):
+    d = kernel_discrepancy(HemisphereGrid(20, 40, route=route), 5e-3)
     # the two diffusions of a Dirac spread alike (RMS geodesic radius within 20 %) ...
     ratio = d.spread[:, 0] / d.spread[:, 1]
     assert np.all(np.abs(ratio - 1.0) < 0.2), ratio
@@ -55,7 +59,7 @@ def test_highlight_moves_instead_of_cross_fading(grid):
     t0, t1 = peak_direction(grid, s_broad[0])[0], peak_direction(grid, s_sharp[0])[0]
     cell = 0.5 * np.pi / grid.shape[0]
     assert t1 - t0 > 4 * cell  # the corners' highlights are far apart
-    lam = np.linspace(0.0, 1.0, 6)
+    lam = np.linspace(0.0, 1.0, 11)
     W = np.stack([1 - lam, lam], axis=1)
     r = interpolate_brdfs(grid, [BROAD, SHARP], W, th, gamma=2e-3)
     assert r.converged and r.residual <= 1e-4
@@ -63,13 +67,14 @@ def test_highlight_moves_instead_of_cross_fading(grid):
     lin = np.array([peak_direction(grid, m)[0] for m in r.linear[0]])
     # barycenters: the peak walks monotonically from one corner's highlight to the other's
     assert np.all(np.diff(bary) >= 0) and np.isclose(bary[0], t0) and np.isclose(bary[-1], t1)
-    assert np.max(np.diff(bary)) <= 2.5 * cell
-    assert len(set(np.round(bary, 6))) >= 4  # it visits intermediate directions
+    assert np.max(np.diff(bary)) <= 1.5 * cell
+    assert len(set(np.round(bary, 6))) >= 6  # it visits intermediate directions
+    assert all(len(local_maxima(grid, m, rel=0.01)) == 1 for m in r.masses[0])  # one lobe
     # linear mix: the peak jumps in one step, and a mixture holds two separate lobes
     assert np.max(np.diff(lin)) > 4 * cell
     assert max(len(local_maxima(grid, m, rel=0.01)) for m in r.linear[0][1:-1]) >= 2
     # the barycenter at 1/2 is one lobe in between, no copy of either corner
-    mid = r.masses[0, 3]
+    mid = r.masses[0, 5]
     assert t0 < peak_direction(grid, mid)[0] < t1
 
 
@@ -87,12 +92,13 @@ def test_entropy_bound_respected(grid):
     assert np.all(fixed.entropy <= -1.5 + 1e-6)
 
 
-def test_bilinear_weights_and_render(grid):
+def test_bilinear_weights_and_render():
+    grid = HemisphereGrid(12, 32)
     W = bilinear_weights(2, 3)
     assert W.shape == (6, 4) and np.allclose(W.sum(axis=1), 1.0)
     np.testing.assert_allclose(W[0], [1, 0, 0, 0])
     np.testing.assert_allclose(W[-1], [0, 0, 0, 1])
-    th = np.radians([0.0, 30.0, 60.0, 80.0])
+    th = np.radians([0.0, 40.0, 80.0])
     mats = [BROAD, SHARP, {"model": "blinn-phong", "exponent": 40, "kd": 0.3},
             {"model": "ashikhmin-shirley", "nu": 20, "nv": 200, "rd": 0.4}]
     r = interpolate_brdfs(grid, mats, W, th, gamma=4e-3, max_iter=60)

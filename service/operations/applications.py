@@ -73,6 +73,9 @@ class BRDFInterpolationRequest(OperationRequest):
         description="polar angles of the incoming directions, degrees in [0, 90), increasing")
     n_theta: int = Field(12, ge=4, le=64, description="hemisphere grid: polar cells")
     n_phi: int = Field(48, ge=8, le=256, description="hemisphere grid: azimuth cells")
+    route: Literal["geodesic", "separable"] = Field(
+        "geodesic", description="hemisphere kernel: exact great-circle Gaussian, or the "
+        "thesis' latitude-modulated separable product (spurious mass near the pole)")
     gamma: float | None = Field(None, gt=0, description="regularization (unit hemisphere "
                                 "area); default (2 h)^2, h the polar cell size")
     entropy_bound: float | Literal["inputs"] | None = Field(
@@ -92,6 +95,7 @@ class BRDFInterpolationValues(BaseModel):
     residual: float
     converged: bool
     gamma: float
+    route: str
     grid: list[int] = Field(description="[n_theta, n_phi]; point i * n_phi + j")
     incoming_theta: list[float] = Field(description="degrees")
     weights: list[list[float]]
@@ -150,7 +154,7 @@ def _brdf_setup(req: BRDFInterpolationRequest):
     gamma = req.gamma
     if gamma is None:
         gamma = (2.0 * RADIUS * 0.5 * np.pi / req.n_theta) ** 2
-    grid = HemisphereGrid(req.n_theta, req.n_phi)
+    grid = HemisphereGrid(req.n_theta, req.n_phi, route=req.route)
     from solvers.validation import check_gamma
 
     check_gamma(gamma, grid.extent, "gamma")
@@ -188,7 +192,8 @@ def run_brdf(ctx, req: BRDFInterpolationRequest, progress, should_cancel) -> Ope
              for i in range(n_in)]
     values = BRDFInterpolationValues(
         iterations=r.iterations, residual=r.residual, converged=r.converged, gamma=gamma,
-        grid=list(grid.shape), incoming_theta=np.degrees(th).tolist(), weights=W.tolist(),
+        route=grid.route, grid=list(grid.shape), incoming_theta=np.degrees(th).tolist(),
+        weights=W.tolist(),
         entropy=r.entropy.tolist(),
         entropy_bound=None if r.entropy_bound is None else r.entropy_bound.tolist(),
         peak_theta=peaks, rows=req.rows, cols=req.cols).model_dump()

@@ -18,9 +18,19 @@ Gaussian, evaluated exactly (no recursive Deriche approximation): with the local
 a product of a Gaussian in :math:`\theta` and a Gaussian in :math:`\phi` whose width is
 divided by :math:`\sin\bar\theta` (wider near the pole, as on the sphere); using the
 mid-latitude keeps :math:`K` symmetric, so ``apply(x) = K (a ⊙ x)`` is self-adjoint in the
-``a``-weighted product like every heat kernel here.  ``t = gamma/4`` (Varadhan, see
+``a``-weighted product like every heat kernel here.  ``K`` is then rescaled symmetrically,
+:math:`D K D` with :math:`D K D a = 1` (a few symmetric Sinkhorn steps, residual in
+``kernel.normalization_residual``), so it conserves mass like the mesh kernel (Neumann
+equator) instead of losing it past the equator and near the pole.  ``t = gamma/4`` (Varadhan, see
 :mod:`solvers.kernels`).  The kernel is assembled once as a dense ``n × n`` matrix (cached
 in the domain's operator store) and applied with one BLAS product per block.
+
+``route="separable"`` is this kernel; ``route="geodesic"`` (default) replaces the
+product by the exact great-circle Gaussian :math:`\exp(-d(\omega,\omega')^2/4t)` -- the
+same dense cost here.  The separable metric overestimates distances across the pole (a
+coordinate singularity), and barycenters of lobes spanning the pole pile spurious mass on
+the first ring (measured in ``bench/results/applications.md``); the geodesic kernel has no
+such artifact.
 
 For comparison, :func:`triangulated_hemisphere` builds a :class:`~solvers.TriangleMesh`
 whose vertices are the grid points plus the pole (rings joined by triangle strips), whose
@@ -41,11 +51,13 @@ from solvers.kernels import heat_time
 from solvers.validation import check_int, check_positive
 
 RADIUS = 1.0 / np.sqrt(2.0 * np.pi)  # unit hemisphere area
+ROUTES = ("separable", "geodesic")  # kernel: the thesis' product, or exact great circles
 MAX_POINTS = 8192  # the dense kernel holds n^2 floats (512 MB at this size)
 
 
 class HemisphereHeatKernel:
-    """Dense latitude-modulated separable Gaussian on a :class:`HemisphereGrid` (see module)."""
+    """Dense Gaussian on a :class:`HemisphereGrid`: the latitude-modulated separable product
+    (``route="separable"``) or the great-circle one (``"geodesic"``), see the module."""
 
     supports_log = False
 
@@ -62,12 +74,28 @@ class HemisphereHeatKernel:
         log_t = -(RADIUS * dth) ** 2 / (4.0 * t)  # (nt, nt)
         s2 = (RADIUS * np.sin(mid)) ** 2  # (nt, nt)
         nt, nphi = grid.shape
-        log_k = (log_t[:, None, :, None]
-                 - s2[:, None, :, None] * (dph ** 2)[None, :, None, :] / (4.0 * t))
-        log_k = log_k.reshape(self.n, self.n) - np.log(4.0 * np.pi * t)
+        if grid.route == "separable":
+            log_k = (log_t[:, None, :, None]
+                     - s2[:, None, :, None] * (dph ** 2)[None, :, None, :] / (4.0 * t))
+            log_k = log_k.reshape(self.n, self.n)
+        else:  # exact great-circle distances
+            cosd = np.clip(grid.directions @ grid.directions.T, -1.0, 1.0)
+            log_k = -(RADIUS * np.arccos(cosd)) ** 2 / (4.0 * t)
+        log_k = log_k - np.log(4.0 * np.pi * t)
         with np.errstate(under="ignore"):
-            self.matrix = np.exp(log_k)
+            K = np.exp(log_k)
         self.areas = grid.areas
+        # Symmetric scaling D K D with D K D a = 1 (mass conserving, like the mesh's heat
+        # kernel with its Neumann boundary): the plain product loses mass past the equator
+        # and near the pole (where the approximate metric is poorest), which the
+        # barycenters would turn into spurious peaks there.
+        d = np.ones(self.n)
+        for _ in range(200):
+            d = np.sqrt(d / (K @ (self.areas * d)))
+            self.normalization_residual = float(np.max(np.abs(d * (K @ (self.areas * d)) - 1)))
+            if self.normalization_residual < 1e-12:
+                break
+        self.matrix = d[:, None] * K * d[None, :]
 
     def apply(self, block: np.ndarray) -> np.ndarray:
         x = np.asarray(block, dtype=np.float64)
@@ -87,8 +115,12 @@ class HemisphereGrid(Domain):
 
     kind = "hemisphere"
 
-    def __init__(self, n_theta: int = 16, n_phi: int = 64):
+    def __init__(self, n_theta: int = 16, n_phi: int = 64, route: str = "geodesic"):
         super().__init__()
+        if route not in ROUTES:
+            raise InputError(f"route must be one of {', '.join(ROUTES)}, got {route!r}",
+                             field="route")
+        self.route = route
         nt = check_int(n_theta, "n_theta", low=2)
         nphi = check_int(n_phi, "n_phi", low=4)
         if nt * nphi > MAX_POINTS:
@@ -126,6 +158,9 @@ class HemisphereGrid(Domain):
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         return {"shape": np.asarray(self.shape)}
+
+    def parameters(self) -> dict:
+        return {"route": self.route}
 
 
 def spherical_to_vector(theta, phi) -> np.ndarray:
