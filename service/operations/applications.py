@@ -34,6 +34,7 @@ from service.operations.base import (
 )
 
 MAX_COLUMNS_X_POINTS = 4_000_000  # barycenter columns x hemisphere points of one job
+MAX_HEMISPHERE_POINTS = 4096  # dense kernel: 128 MB
 MAX_SKELETON_NODES = 10_000
 
 
@@ -143,6 +144,9 @@ def _brdf_setup(req: BRDFInterpolationRequest):
     if np.degrees(th[-1]) >= 90.0:
         raise InvalidInput("incoming_theta must be below 90 degrees", field="incoming_theta")
     n = req.n_theta * req.n_phi
+    if n > MAX_HEMISPHERE_POINTS:
+        raise PayloadTooLarge(f"n_theta * n_phi = {n} exceeds {MAX_HEMISPHERE_POINTS} (the "
+                              "dense hemisphere kernel holds n^2 floats)", field="n_phi")
     columns = len(th) * len(W) * len(mats)
     if columns * n > MAX_COLUMNS_X_POINTS:
         raise PayloadTooLarge(f"{columns} barycenter columns on {n} hemisphere points exceed "

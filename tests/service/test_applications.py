@@ -54,6 +54,11 @@ def test_brdf_interpolation_refuses_bad_input(client, change, field):
     assert_error(r, 422, field)
 
 
+def test_brdf_interpolation_refuses_oversized_grids(client):
+    r = client.post("/v1/brdf-interpolations", json={**BRDF, "n_theta": 64, "n_phi": 128})
+    assert_error(r, 413, "n_phi")
+
+
 @pytest.fixture
 def capsule_id(client, tmp_path):
     c = trimesh.creation.capsule(height=2.0, radius=0.35, count=[16, 16])
