@@ -382,7 +382,7 @@ def check_options(view: DomainView, req) -> None:
     if k is not None and k != 0 and spectral:
         check_int(k, "k", low=1, high=max(view.n - 3, 1))
     if (getattr(req, "basis", None) == "spectral" and k is None
-            and getattr(req, "method", "emd") == "emd"):
+            and getattr(req, "metric", "w1") == "w1"):
         raise InvalidInput("basis 'spectral' needs k, the number of eigenfunctions", field="k")
 
 

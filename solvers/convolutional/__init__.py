@@ -1,10 +1,17 @@
 """Convolutional Wasserstein toolkit (thesis ch. 3) over the heat kernels of any domain.
 
 - :func:`wasserstein_distance` — Alg. 1 / eq. 3.10, optional debiased Sinkhorn divergence;
+  ``route="auto"`` solves sparse supports exactly (:func:`exact_wasserstein_distance`:
+  geodesic costs between the support points and the transport LP);
 - :func:`barycenter` — eq. 3.13 / Alg. 2, entropic sharpening (Alg. 3), debiased option;
 - :func:`displacement_interpolation` — eq. 3.16, barycenters of two inputs;
 - :func:`wasserstein_propagation` — Alg. 4 / eq. 3.17, per-edge rescaled kernels (eq. 3.18);
 - :func:`shape_interpolation` — §3.7, barycenters of voxelized shapes, marching cubes.
+
+Thesis section → module: §3.3–3.5 ``distance`` (Alg. 1), ``common`` (log-domain kernel
+application, over-relaxation); §3.6 ``barycenter`` (Alg. 2, 3), ``interpolation``;
+§3.6.3 ``propagation`` (Alg. 4); §3.7 ``shapes``; ``exact`` is the exact LP route for
+sparse supports (ground truth and default for few support points).
 
 All iterations run on log-scalings (stable at small ``gamma``), stop on a measured
 marginal violation, and report ``iterations``, ``residual`` and ``converged``.
@@ -12,18 +19,21 @@ marginal violation, and report ``iterations``, ``residual`` and ``converged``.
 
 from solvers.convolutional.barycenter import BarycenterResult, barycenter
 from solvers.convolutional.distance import SinkhornResult, wasserstein_distance
+from solvers.convolutional.exact import ExactTransportResult, exact_wasserstein_distance
 from solvers.convolutional.interpolation import InterpolationResult, displacement_interpolation
 from solvers.convolutional.propagation import PropagationResult, wasserstein_propagation
 from solvers.convolutional.shapes import ShapeResult, iso_surface, shape_interpolation, voxelize
 
 __all__ = [
     "BarycenterResult",
+    "ExactTransportResult",
     "InterpolationResult",
     "PropagationResult",
     "ShapeResult",
     "SinkhornResult",
     "barycenter",
     "displacement_interpolation",
+    "exact_wasserstein_distance",
     "iso_surface",
     "shape_interpolation",
     "voxelize",
