@@ -56,8 +56,10 @@ def code_scale(dtype) -> float:
 
 
 def pixels(img: np.ndarray) -> np.ndarray:
-    """The image as a C-contiguous ``(N, C)`` block (a view when possible)."""
-    return np.ascontiguousarray(img).reshape(-1, img.shape[-1])
+    """The image as a C-contiguous ``(N, C)`` block (a view when possible); float images as
+    float32 (so the kernels are compiled for uint8, uint16 and float32 only)."""
+    arr = np.ascontiguousarray(img).reshape(-1, img.shape[-1])
+    return arr.astype(np.float32) if arr.dtype.kind == "f" and arr.dtype != np.float32 else arr
 
 
 def lut_for(dtype) -> tuple[np.ndarray, float]:
@@ -76,8 +78,8 @@ def rgb_to_lab(img) -> np.ndarray:
     from solvers.color import _kernels
 
     px = pixels(arr)
-    if px.dtype.kind == "f" and px.dtype != np.float32 and px.dtype != np.float64:
-        px = px.astype(np.float32)
+    if px.dtype.kind == "f" and px.dtype != np.float32:
+        px = px.astype(np.float32)  # one compiled float variant (values in [0, 1])
     lut, scale = lut_for(px.dtype)
     lab, _, _ = _kernels.analyze(px, lut, scale, 0, 0.0, 1.0, 0, L_MAX)
     return lab.reshape(arr.shape[:-1] + (3,))
@@ -92,13 +94,14 @@ def lab_to_rgb(lab, dtype=np.float32) -> np.ndarray:
         raise InputError("Lab arrays have 3 channels", field="lab")
     flat = np.ascontiguousarray(lab).reshape(-1, 3)
     dtype = np.dtype(dtype)
-    out = np.empty((flat.shape[0], 3), dtype=dtype)
+    kernel_dtype = dtype if dtype.kind in "ui" else np.dtype(np.float32)  # one float variant
+    out = np.empty((flat.shape[0], 3), dtype=kernel_dtype)
     scale = code_scale(dtype)
     offset = 0.5 if dtype.kind in "ui" else 0.0
     empty2 = np.zeros((0, 0), dtype=np.float32)
     _kernels.apply(flat, flat, out, np.zeros(0, dtype=np.float32), 1.0, empty2, empty2,
                    0.0, 0.0, 1.0, scale, offset)
-    return out.reshape(lab.shape)
+    return out.reshape(lab.shape).astype(dtype, copy=False)
 
 
 def _as_unit_float(img) -> np.ndarray:

@@ -184,7 +184,7 @@ def color_transfer(
             offset = 0.5 if img.dtype.kind in "ui" else 0.0
             _kernels.apply(labs[i], src, out, lut_l, L_MAX / LBINS, ta, tb,
                            nodes[rows.start], nodes[cols.start], grid.spacing, scale, offset)
-            out_images[b][i] = out.reshape(img.shape)
+            out_images[b][i] = out.reshape(img.shape).astype(img.dtype, copy=False)
     times["apply"] = time.perf_counter() - t2
     times["total"] = time.perf_counter() - t0
     return ColorTransferResult(
