@@ -159,6 +159,8 @@ def greedy_coloring(n_nodes: int, edges: np.ndarray) -> np.ndarray:
 
 # Columns per kernel solve: the sparse triangular solves are fastest on narrow blocks.
 _SOLVE_COLUMNS = 32
+# Edge ends updated together (bounds the (ends, n) temporaries of a sweep).
+_BATCH_ENDS = 512
 
 
 def wasserstein_propagation(
@@ -226,9 +228,22 @@ def wasserstein_propagation(
         log_fixed[u] = log_density(m, a)
     color = greedy_coloring(n_nodes, e)
     classes = []
+    degree = np.bincount(e.ravel(), minlength=n_nodes)
+    batches = []
     for c in range(int(color.max()) + 1):
-        k0 = np.flatnonzero(color[e[:, 0]] == c)
-        k1 = np.flatnonzero(color[e[:, 1]] == c)
+        # A color class in batches of at most _BATCH_ENDS edge ends (split between nodes:
+        # nodes of one class are independent, so the batches give the same updates).
+        nodes_c = np.flatnonzero(color == c)
+        cut = np.searchsorted(np.cumsum(degree[nodes_c]),
+                              np.arange(_BATCH_ENDS, degree[nodes_c].sum(), _BATCH_ENDS))
+        batches += np.split(nodes_c, np.unique(cut))
+    for nodes_b in batches:
+        if len(nodes_b) == 0:
+            continue
+        member = np.zeros(n_nodes, dtype=bool)
+        member[nodes_b] = True
+        k0 = np.flatnonzero(member[e[:, 0]])
+        k1 = np.flatnonzero(member[e[:, 1]])
         kk = np.concatenate([k0, k1])
         ss = np.concatenate([np.zeros(len(k0), np.int64), np.ones(len(k1), np.int64)])
         node = e[kk, ss]
@@ -303,4 +318,4 @@ def wasserstein_propagation(
     return PropagationResult(masses=masses, iterations=int(it), residual=float(residual),
                              converged=bool(residual <= setup.tol), free_nodes=free,
                              gamma=setup.gamma, t=setup.t, edge_values=setup.gamma * values,
-                             colors=len(classes))
+                             colors=int(color.max()) + 1)

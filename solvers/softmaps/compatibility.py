@@ -62,13 +62,15 @@ def compatibility_cost(f0, f1, *, areas0, areas1, rows=None, norm: str = "l1",
     a1 = np.asarray(areas1, dtype=np.float64)
     if a0.shape != (len(f0),) or a1.shape != (len(np.atleast_2d(f1.T).T),):
         raise InputError("areas must have one entry per descriptor row", field="areas")
-    # The mean over M0 x M: from at most 2,048 evenly spaced source rows (area-weighted).
+    # The mean over M0 x M: exact up to 2,048 source rows, else from 2,048 evenly spaced
+    # rows (area-weighted); 256 rows at a time so the temporaries stay small.
     if len(f0) > 2048:
         pick = np.linspace(0, len(f0) - 1, 2048).astype(np.int64)
     else:
         pick = np.arange(len(f0))
     w = a0[pick] / a0[pick].sum()
-    mean = float(w @ pairwise_cost(f0[pick], f1, norm) @ a1 / a1.sum())
+    mean = sum(float(w[s:s + 256] @ pairwise_cost(f0[pick[s:s + 256]], f1, norm) @ a1)
+               for s in range(0, len(pick), 256)) / float(a1.sum())
     if not mean > 0:
         raise InputError("descriptors do not distinguish any pair of points",
                          field="descriptors")

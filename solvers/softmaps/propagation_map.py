@@ -193,7 +193,7 @@ def soft_map(
     top_k: int | None = None,
     extraction: str = "mode",
     refine: str = "zoomout",
-    zoomout_range: tuple[int, int, int] = (20, 100, 2),
+    zoomout_range: tuple[int, int, int] = (20, 50, 1),
     max_bytes: int | None = None,
     progress: Callable[[int, float], None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
