@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import inspect
 import math
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -60,12 +61,16 @@ class Monitor:
     ``log(r0 / r) / log(r0 / tol)`` (linear convergence); it is passed as a third argument
     to ``progress`` when that callable takes one. ``patience``: iterations without a
     relative improvement of the best residual by ``min_improvement`` after which
-    :attr:`stalled` becomes true (``None`` disables stagnation detection).
+    :attr:`stalled` becomes true (``None`` disables stagnation detection). With
+    ``project=True`` (and ``tol``, ``max_iter``, ``patience``) the monitor also stalls when
+    the residual still falls but, at the rate measured over the last ``patience``
+    iterations, would not reach ``tol`` within ``max_iter`` (e.g. a sublinear tail).
     """
 
     def __init__(self, progress: Progress | None = None, should_cancel: ShouldCancel | None = None,
                  *, tol: float | None = None, patience: int | None = None,
-                 min_improvement: float = 1e-3):
+                 min_improvement: float = 1e-3, max_iter: int | None = None,
+                 project: bool = False):
         if progress is not None and not callable(progress):
             raise InputError("progress must be callable", field="progress")
         if should_cancel is not None and not callable(should_cancel):
@@ -77,10 +82,24 @@ class Monitor:
         self.patience = patience
         self.min_improvement = min_improvement
         self.offset = 0  # added to reported iterations (solvers run in stages)
+        self.max_iter = None if max_iter is None else int(max_iter)
+        self.project = bool(project and tol is not None and max_iter is not None
+                            and patience is not None)
         self.first: float | None = None
         self.best = math.inf
         self._best_at = 0
+        self._trail: deque = deque()  # (iteration, lowest residual so far), last `patience`
+        self._then: tuple[int, float] | None = None
         self.stalled = False
+
+    def next_stage(self) -> Monitor:
+        """A fresh monitor with the same callbacks and settings (and offset) for a solver's
+        next stage, so one stage's stagnation record does not stop the next."""
+        fresh = Monitor(self.progress, self.should_cancel, tol=self.tol,
+                        patience=self.patience, min_improvement=self.min_improvement,
+                        max_iter=self.max_iter, project=self.project)
+        fresh.offset = self.offset
+        return fresh
 
     def check_cancel(self, where: str = "") -> None:
         if self.should_cancel is not None and self.should_cancel():
@@ -106,8 +125,22 @@ class Monitor:
                 self.best, self._best_at = residual, int(iteration)
             elif int(iteration) - self._best_at >= self.patience:
                 self.stalled = True
+            if self.project:
+                self._project(int(iteration), residual)
         if self.progress is not None:
             if self._with_fraction:
                 self.progress(self.offset + int(iteration), residual, self.fraction(residual))
             else:
                 self.progress(self.offset + int(iteration), residual)
+
+    def _project(self, it: int, residual: float) -> None:
+        low = min(self.best, residual)
+        self._trail.append((it, low))
+        while self._trail and self._trail[0][0] <= it - self.patience:
+            self._then = self._trail.popleft()
+        if self._then is None or it < 2 * self.patience or low <= self.tol:
+            return
+        ratio = low / self._then[1] if self._then[1] > 0 else 1.0
+        span = max(it - self._then[0], 1)
+        if ratio >= 1.0 or it + span * math.log(self.tol / low) / math.log(ratio) > self.max_iter:
+            self.stalled = True

@@ -15,8 +15,6 @@ thesis writes :math:`2t` for :math:`\gamma` because its kernel is
 
 from __future__ import annotations
 
-import math
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
@@ -55,59 +53,16 @@ ROUTES = ("auto", "convolutional", "exact")
 STALL_PATIENCE = 200
 
 
-class StallMonitor(Monitor):
-    """:class:`~solvers.monitor.Monitor` whose ``stalled`` also turns on when the residual
-    still falls, but too slowly to reach ``tol`` within ``max_iter`` at the rate measured
-    over the last ``patience`` iterations (e.g. the sublinear tail of debiased barycenters)."""
-
-    def __init__(self, progress=None, should_cancel=None, *, tol: float, max_iter: int,
-                 patience: int = STALL_PATIENCE, project: bool = True):
-        super().__init__(progress, should_cancel, tol=tol, patience=patience)
-        self.max_iter = int(max_iter)
-        self.project = project
-        self._low = math.inf
-        self._trail: deque = deque()  # (iteration, lowest residual so far)
-        self._then = None
-
-    def __call__(self, iteration: int, residual: float) -> None:
-        super().__call__(iteration, residual)
-        it, r = int(iteration), float(residual)
-        if not math.isfinite(r):
-            return
-        self._low = min(self._low, r)
-        self._trail.append((it, self._low))
-        while self._trail and self._trail[0][0] <= it - self.patience:
-            self._then = self._trail.popleft()
-        if (not self.project or self._then is None or it < 2 * self.patience
-                or self._low <= self.tol):
-            return
-        ratio = self._low / self._then[1] if self._then[1] > 0 else 1.0
-        span = max(it - self._then[0], 1)
-        if ratio >= 1.0:
-            self.stalled = True
-        elif it + span * math.log(self.tol / self._low) / math.log(ratio) > self.max_iter:
-            self.stalled = True
-
-
-def watch_stagnation(setup, project: bool = True) -> StallMonitor:
-    """The stagnation-watching monitor of a prepared convolutional solve.  ``project``: also
-    stop when ``tol`` is out of reach within ``max_iter`` at the measured rate (used with
-    the default cap; an explicit ``max_iter`` runs until the residual stops falling)."""
+def watch_stagnation(setup, project: bool = True) -> Monitor:
+    """The stagnation-watching monitor of a prepared convolutional solve (patience
+    ``STALL_PATIENCE``).  ``project``: also stop when ``tol`` is out of reach within
+    ``max_iter`` at the measured rate (used with the default cap; an explicit ``max_iter``
+    runs until the residual stops falling)."""
     old = setup.monitor
-    mon = StallMonitor(old.progress, old.should_cancel, tol=setup.tol, max_iter=setup.max_iter,
-                       project=project)
+    mon = Monitor(old.progress, old.should_cancel, tol=setup.tol, patience=STALL_PATIENCE,
+                  max_iter=setup.max_iter, project=project)
     mon.offset = old.offset
     return mon
-
-
-def stage_monitor(monitor: StallMonitor) -> StallMonitor:
-    """A fresh monitor (same callbacks, tol, cap, offset) for a solver's next stage, so the
-    stagnation record of one stage does not stop the next."""
-    fresh = StallMonitor(monitor.progress, monitor.should_cancel, tol=monitor.tol,
-                         max_iter=monitor.max_iter, patience=monitor.patience,
-                         project=monitor.project)
-    fresh.offset = monitor.offset
-    return fresh
 
 
 @dataclass
@@ -438,7 +393,7 @@ def wasserstein_distance(
     value = _value(setup.gamma, m0, f, m1, g)
     self_values = None
     if debiased:
-        mon = stage_monitor(mon)  # second stage: its own stagnation record
+        mon = mon.next_stage()  # second stage: its own stagnation record
         mon.offset += it + 1
         both = np.stack([m0, m1], axis=1)
         h, it_s, res_s, conv_s = symmetric_sinkhorn_log(
