@@ -114,6 +114,50 @@ class DistanceResult(BaseModel):
     normalization: list[dict]
 
 
+class ConvergenceValues(BaseModel):
+    iterations: int
+    residual: float = Field(description="the solver's measured stopping quantity")
+    converged: bool
+
+
+class ShapeValues(ConvergenceValues):
+    """Values shared by barycenter, interpolation and propagation jobs."""
+
+    gamma: float
+    substeps: int
+    regularization: Regularization | None = Field(None, description="the policy's choice "
+                                                  "(when gamma was left out)")
+    normalization: list[dict]
+
+
+class BarycenterValues(ShapeValues):
+    weights: list[float] = Field(description="the normalized barycentric weights")
+    entropy: float | None = Field(None, description="entropy of the barycenter")
+
+
+class InterpolationValues(ShapeValues):
+    times: list[float] = Field(description="frame times; arrays are (V, len(times))")
+
+
+class PropagationValues(ShapeValues):
+    free_nodes: list[int] = Field(description="nodes whose distributions were propagated")
+
+
+class PointwiseDistanceValues(ConvergenceValues):
+    source: int
+    k: int
+    max_distance: float | None
+    unreachable: int = Field(description="vertices on other components (null distances)")
+
+
+class FlowValues(ConvergenceValues):
+    value: float = Field(description="W1 (cost of the flow)")
+    primal_residual: float
+    dual_residual: float
+    max_flow: float
+    normalization: list[dict]
+
+
 class BarycenterRequest(SinkhornOptions):
     distributions: list[Distribution] = Field(min_length=1, max_length=64)
     weights: list[float] | None = Field(None, description="barycentric weights (default "
@@ -379,9 +423,9 @@ def run_flow(domain, req: FlowRequest, progress, should_cancel) -> OperationOutp
     masses, reports = _pair(view_of_domain(domain), req)
     res = _w1(domain, masses, req, progress, should_cancel)
     flow = np.asarray(res.flow, dtype=np.float64)
-    values = {"value": float(res.value), "iterations": int(res.iterations),
+    values = {"value": float(res.value), **_convergence(res),
               "primal_residual": float(res.primal_residual),
-              "dual_residual": float(res.dual_residual), "converged": bool(res.converged),
+              "dual_residual": float(res.dual_residual),
               "max_flow": float(np.linalg.norm(flow, axis=1).max()) if len(flow) else 0.0,
               "normalization": reports}
     arrays = {"flow": flow, "flow_magnitude": np.linalg.norm(flow, axis=1),
@@ -398,17 +442,20 @@ OPERATIONS = [
               DistanceRequest, run_distance, _validate_distance, result_model=DistanceResult),
     Operation("barycenters", "createBarycenterJob",
               "Wasserstein barycenter of distributions (convolutional, optional sharpening)",
-              BarycenterRequest, run_barycenter, _validate_barycenter),
+              BarycenterRequest, run_barycenter, _validate_barycenter,
+              result_model=BarycenterValues),
     Operation("interpolations", "createInterpolationJob",
               "Displacement interpolation between two distributions at given times",
-              InterpolationRequest, run_interpolation, _validate_interpolation),
+              InterpolationRequest, run_interpolation, _validate_interpolation,
+              result_model=InterpolationValues),
     Operation("propagations", "createPropagationJob",
               "Wasserstein propagation: distributions at the free nodes of a graph from the "
               "fixed ones (thesis Alg. 4)", PropagationRequest, run_propagation,
-              _validate_propagation),
+              _validate_propagation, result_model=PropagationValues),
     Operation("pointwise-distances", "createPointwiseDistanceJob",
               "Distances from a source vertex to every vertex (W1 between Diracs)",
-              PointwiseDistanceRequest, run_pointwise, _validate_pointwise, MESH),
+              PointwiseDistanceRequest, run_pointwise, _validate_pointwise, MESH,
+              result_model=PointwiseDistanceValues),
     Operation("flows", "createFlowJob", "W1 optimal flow field J between two distributions",
-              FlowRequest, run_flow, _validate_pair, MESH),
+              FlowRequest, run_flow, _validate_pair, MESH, result_model=FlowValues),
 ]
