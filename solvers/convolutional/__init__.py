@@ -6,11 +6,15 @@
 - :func:`barycenter` — eq. 3.13 / Alg. 2, entropic sharpening (Alg. 3), debiased option;
 - :func:`displacement_interpolation` — eq. 3.16, barycenters of two inputs;
 - :func:`wasserstein_propagation` — Alg. 4 / eq. 3.17, per-edge rescaled kernels (eq. 3.18);
-- :func:`shape_interpolation` — §3.7, barycenters of voxelized shapes, marching cubes.
+- :func:`shape_interpolation` — §3.7, barycenters of voxelized shapes, marching cubes;
+- :mod:`~solvers.convolutional.brdf` on the :mod:`~solvers.convolutional.hemisphere` domain —
+  §3.7 BRDF interpolation (Fig. 3.11); :mod:`~solvers.convolutional.skeleton` — §3.7
+  skeleton layout by Wasserstein propagation (Fig. 3.13).
 
 Thesis section → module: §3.3–3.5 ``distance`` (Alg. 1), ``common`` (log-domain kernel
 application, over-relaxation); §3.6 ``barycenter`` (Alg. 2, 3), ``interpolation``;
-§3.6.3 ``propagation`` (Alg. 4); §3.7 ``shapes``; ``exact`` is the exact LP route for
+§3.6.3 ``propagation`` (Alg. 4); §3.7 ``shapes``, ``hemisphere`` + ``brdf``, ``skeleton``;
+``exact`` is the exact LP route for
 sparse supports (ground truth and default for few support points).
 
 All iterations run on log-scalings (stable at small ``gamma``), stop on a measured
