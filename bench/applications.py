@@ -190,7 +190,7 @@ def skeleton() -> Figure:
         cases.append(("spot (2930 v)", spot, "front hoof -> hind hoof, chain of 7", 7,
                       [(i, i + 1) for i in range(6)], {0: hooves[0], 6: hooves[2]}))
         for name, mesh, what, nn, edges, fixed in cases:
-            for gamma in (None, 6e-3):
+            for gamma in (None, (2.0 * mesh.mean_edge_length) ** 2):  # default, (2h)^2
                 t0 = time.perf_counter()
                 r = skeleton_layout(mesh, nn, edges, fixed, gamma=gamma)
                 dt = time.perf_counter() - t0
@@ -199,7 +199,8 @@ def skeleton() -> Figure:
                 bones = segment_inside_fraction(mesh, r.positions, edges)
                 lbones = segment_inside_fraction(mesh, r.linear, edges)
                 fig.lines.append(
-                    f"| {name} | {what} | {r.gamma:.4g}{' (default)' if gamma is None else ''}"
+                    f"| {name} | {what} | {r.gamma:.4g}"
+                    f"{' (default, (4h)²)' if gamma is None else ' ((2h)²)'}"
                     f" | {ins}/{nn} / {lins}/{nn} | {bones:.2f} / {lbones:.2f} | "
                     f"{r.iterations} | {r.converged} | {dt:.2f} s |")
     return fig

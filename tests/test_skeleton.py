@@ -69,7 +69,7 @@ def test_spot_layout_follows_the_legs_where_lines_leave_the_volume():
     mesh = load_shared_mesh("spot.obj", weld=True)
     n, edges = _loop_skeleton()
     fixed = {i: HOOVES[i] for i in range(4)}
-    r = skeleton_layout(mesh, n, edges, fixed, gamma=6e-3)
+    r = skeleton_layout(mesh, n, edges, fixed)  # the default gamma, (4h)^2
     assert r.converged
     free = r.free_nodes
     assert np.all(r.winding > 0.5), r.winding  # every embedded node is inside

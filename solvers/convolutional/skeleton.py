@@ -42,6 +42,9 @@ from solvers.monitor import SolverResult
 from solvers.validation import check_anchored, check_edges, check_int
 
 INSIDE = 0.5  # winding number above which a point counts as inside
+# Default gamma = (DEFAULT_GAMMA_EDGES * mean edge length)^2 (measured on spot's legs and a
+# capsule: bench/results/applications.md).
+DEFAULT_GAMMA_EDGES = 4.0
 
 
 @dataclass
@@ -149,7 +152,9 @@ def skeleton_layout(
     n_nodes : number of skeleton nodes; edges : ``(m, 2)`` node pairs.
     fixed : ``{node: (3,) position}`` inside the volume (at least one per graph piece).
     gamma : regularization of the propagation (unit-area units; default
-        :math:`(2h)^2`, ``h`` the mean edge length); substeps : heat-kernel substeps.
+        :math:`(4h)^2`, ``h`` the mean edge length: at :math:`(2h)^2` the free nodes'
+        distributions stay too concentrated to span a limb and layouts leave thin
+        volumes; bench/results/applications.md); substeps : heat-kernel substeps.
     units : ``"mesh"`` (normalized frame) or ``"input"`` (file coordinates).
     tol, max_iter, progress, should_cancel : of the propagation.
 
@@ -169,7 +174,7 @@ def skeleton_layout(
                          f"< {INSIDE})", field="fixed")
     M, clipped, err = position_distributions(mesh, pos)
     if gamma is None:
-        gamma = (2.0 * mesh.mean_edge_length) ** 2
+        gamma = (DEFAULT_GAMMA_EDGES * mesh.mean_edge_length) ** 2
     result = wasserstein_propagation(
         mesh, n_nodes, e, {u: M[:, j] for j, u in enumerate(nodes)}, gamma=gamma,
         substeps=substeps, tol=tol, max_iter=max_iter, progress=progress,
