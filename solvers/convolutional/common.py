@@ -269,6 +269,18 @@ def masses_block(domain, values, field: str, columns: int | None = None) -> np.n
     return m
 
 
+def distribution_pair(domain, mu0, mu1) -> tuple[np.ndarray, np.ndarray]:
+    """Validated, normalized ``(n,)`` masses ``mu0``, ``mu1`` (one distribution each)."""
+    pair = []
+    for name, values in (("mu0", mu0), ("mu1", mu1)):
+        m = masses_block(domain, values, name)
+        if m.ndim != 1:
+            raise InputError(f"{name} must be one distribution of shape ({domain.n},)",
+                             field=name)
+        pair.append(m)
+    return pair[0], pair[1]
+
+
 def check_components(domain, masses: np.ndarray, tol: float, field: str) -> None:
     """Refuse inputs whose per-component masses differ (mass cannot cross components).
 

@@ -27,8 +27,8 @@ from solvers.convolutional.common import (
     OverRelaxation,
     check_acceleration,
     check_components,
+    distribution_pair,
     log_density,
-    masses_block,
     prepare,
 )
 from solvers.convolutional.exact import (
@@ -351,12 +351,7 @@ def wasserstein_distance(
     substeps, debiased, route="convolutional", regularization, ...), or an
     ExactTransportResult(value, ..., route="exact") when the exact route is taken.
     """
-    m0 = masses_block(domain, mu0, "mu0")
-    m1 = masses_block(domain, mu1, "mu1")
-    for name, m in (("mu0", m0), ("mu1", m1)):
-        if m.ndim != 1:
-            raise InputError(f"{name} must be one distribution of shape ({domain.n},)",
-                             field=name)
+    m0, m1 = distribution_pair(domain, mu0, mu1)
     acceleration = check_acceleration(acceleration, ACCELERATIONS)
     if route not in ROUTES:
         raise InputError(f"route must be one of {', '.join(map(repr, ROUTES))}, got "

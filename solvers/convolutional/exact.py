@@ -124,17 +124,12 @@ def exact_wasserstein_distance(
     """
     import ot
 
-    from solvers.convolutional.common import check_components, masses_block
+    from solvers.convolutional.common import check_components, distribution_pair
 
     if not supports_exact(domain):
         raise InputError(f"the exact route needs a mesh, grid or point cloud, not a "
                          f"{getattr(domain, 'kind', type(domain).__name__)}", field="route")
-    m0 = masses_block(domain, mu0, "mu0")
-    m1 = masses_block(domain, mu1, "mu1")
-    for name, m in (("mu0", m0), ("mu1", m1)):
-        if m.ndim != 1:
-            raise InputError(f"{name} must be one distribution of shape ({domain.n},)",
-                             field=name)
+    m0, m1 = distribution_pair(domain, mu0, mu1)
     check_components(domain, np.stack([m0, m1], axis=1), 1e-9, "mu1")
     src, dst = np.flatnonzero(m0 > 0), np.flatnonzero(m1 > 0)
     if len(src) * len(dst) > MAX_SUPPORT_PRODUCT:
