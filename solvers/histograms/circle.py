@@ -99,6 +99,9 @@ def transport_cost(mu: np.ndarray, nu: np.ndarray, cost: np.ndarray) -> float:
     A = sp.csr_matrix((np.ones(2 * B * B), (rows, cols)), shape=(2 * B, B * B))[:-1]
     res = linprog(cost.ravel(), A_eq=A, b_eq=np.concatenate([mu, nu])[:-1], bounds=(0, None),
                   method="highs")
+    if res.status == 2:  # feasible by construction: HiGHS' presolve misjudged tiny masses
+        res = linprog(cost.ravel(), A_eq=A, b_eq=np.concatenate([mu, nu])[:-1],
+                      bounds=(0, None), method="highs", options={"presolve": False})
     if res.status != 0:
         raise ConvergenceError(f"transport LP failed: {res.message}")
     return float(res.fun)
@@ -201,6 +204,11 @@ def _solve_lp(n, edges, w, nodes, h, cost, monitor, time_limit, band=None):
             "time_limit": max(1.0, deadline - time.monotonic())}
         res = linprog(c_vec, A_eq=A, b_eq=b, bounds=(0, None), method="highs",
                       options=options)
+        if res.status == 2 and n_plan >= full_size and "presolve" not in options:
+            # the full problem is feasible by construction: retry without presolve, which
+            # can misjudge near-zero label masses
+            res = linprog(c_vec, A_eq=A, b_eq=b, bounds=(0, None), method="highs",
+                          options={**options, "presolve": False})
         if res.status == 2 and n_plan < full_size:  # infeasible band: take everything
             ii, jj = (x.ravel() for x in np.meshgrid(np.arange(B), np.arange(B),
                                                      indexing="ij"))
