@@ -105,11 +105,15 @@ def _clean(v: np.ndarray, f: np.ndarray, weld: bool, diag: MeshDiagnostics):
         scale = max(float(np.ptp(v, axis=0).max()), 1e-300)
         key = np.round(v / scale, 10)
         _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
-        inverse = inverse.reshape(-1)
+        # Keep the file's vertex order (each merged point at its first occurrence): a mesh
+        # without duplicates keeps its indices, so landmarks and vertex picks still match.
+        order = np.argsort(first)
+        rank = np.empty_like(order)
+        rank[order] = np.arange(len(order))
         diag.welded_vertices = int(len(v) - len(first))
-        v = v[first]
-        kept = kept[first]
-        f = inverse[f]
+        v = v[first[order]]
+        kept = kept[first[order]]
+        f = rank[inverse.reshape(-1)][f]
     repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])
     cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     area2 = np.linalg.norm(cross, axis=1)

@@ -3,6 +3,7 @@ submission naming its field — never a 500, never a job that fails later in the
 
 from __future__ import annotations
 
+import io
 import json
 import struct
 
@@ -182,7 +183,17 @@ def test_glb_equal_to_an_earlier_stl_says_it_existed(client, sphere):
     first = upload(client, "sphere.stl", stl)
     assert first.status_code == 201, first.text
     assert first.json()["already_existed"] is False
-    glb = trimesh.Scene(sphere).export(file_type="glb")
+    # the same surface indexed as the STL's welded form (vertices in order of first use,
+    # as the service keeps a file's vertex order)
+    soup = trimesh.load(io.BytesIO(stl), file_type="stl", process=False)
+    _, seen, inverse = np.unique(soup.vertices, axis=0, return_index=True,
+                                 return_inverse=True)
+    order = np.argsort(seen)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    indexed = trimesh.Trimesh(soup.vertices[seen[order]], rank[inverse.reshape(-1)][soup.faces],
+                              process=False)
+    glb = trimesh.Scene(indexed).export(file_type="glb")
     again = upload(client, "sphere.glb", glb)
     assert again.status_code == 200, again.text
     out = again.json()
