@@ -138,6 +138,30 @@ def _rgb_of(L, a, b, m):
     return r, g, bb
 
 
+@_jit(inline="always")
+def _cell(u, v, n1, n2):
+    """The ab grid cell ``(i, j)`` holding grid coordinates ``(u, v)`` and the bilinear
+    fractions ``(fu, fv)`` inside it, clamped to the ``n1 x n2`` nodes: the same weights
+    for the histogram splat and the map lookup."""
+    if u < 0.0:
+        u = 0.0
+    if v < 0.0:
+        v = 0.0
+    i = int(u)
+    j = int(v)
+    if i > n1 - 2:
+        i = n1 - 2
+    if j > n2 - 2:
+        j = n2 - 2
+    fu = u - i
+    fv = v - j
+    if fu > 1.0:
+        fu = 1.0
+    if fv > 1.0:
+        fv = 1.0
+    return i, j, fu, fv
+
+
 def _chunks(n: int) -> int:
     return max(1, min(4 * numba.get_num_threads(), n // 4096 + 1))
 
@@ -167,24 +191,7 @@ def _analyze(px, lut, m, lab, nbins, lo, h, lbins, lmax, hist, lhist):
                 lab[p, 1] = A
                 lab[p, 2] = B
             if nbins > 0:  # bilinear ("cloud in cell") splat onto the 4 nearest nodes
-                u = (A - lo) * inv_h
-                v = (B - lo) * inv_h
-                if u < 0.0:
-                    u = 0.0
-                if v < 0.0:
-                    v = 0.0
-                i = int(u)
-                j = int(v)
-                if i > nbins - 2:
-                    i = nbins - 2
-                if j > nbins - 2:
-                    j = nbins - 2
-                fu = u - i
-                fv = v - j
-                if fu > 1.0:
-                    fu = 1.0
-                if fv > 1.0:
-                    fv = 1.0
+                i, j, fu, fv = _cell((A - lo) * inv_h, (B - lo) * inv_h, nbins, nbins)
                 q = i * nbins + j
                 hist[c, q] += (1.0 - fu) * (1.0 - fv)
                 hist[c, q + 1] += (1.0 - fu) * fv
@@ -243,24 +250,7 @@ def _apply(lab, src, out, lut_l, lstep, ta, tb, a0, b0, h, m, scale, offset, chu
                     k = nl - 1
                 L = lut_l[k]
             if use_ab:
-                u = (A - a0) * inv_h
-                v = (B - b0) * inv_h
-                if u < 0.0:
-                    u = 0.0
-                if v < 0.0:
-                    v = 0.0
-                i = int(u)
-                j = int(v)
-                if i > m1 - 2:
-                    i = m1 - 2
-                if j > m2 - 2:
-                    j = m2 - 2
-                fu = u - i
-                fv = v - j
-                if fu > 1.0:
-                    fu = 1.0
-                if fv > 1.0:
-                    fv = 1.0
+                i, j, fu, fv = _cell((A - a0) * inv_h, (B - b0) * inv_h, m1, m2)
                 t00 = ta[i, j]
                 t01 = ta[i, j + 1]
                 t10 = ta[i + 1, j]
