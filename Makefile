@@ -3,7 +3,7 @@ VENV ?= .venv
 PYTHON ?= python3
 PY := $(VENV)/bin/python
 
-.PHONY: install serve test lint openapi bench
+.PHONY: install browser serve test lint openapi bench
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -13,10 +13,17 @@ $(VENV)/.installed: pyproject.toml
 
 install: $(VENV)/.installed
 
+# The viewer's browser tests drive Debian's Chromium (never a downloaded browser): installed
+# with apt-get when missing and this is a root shell on Debian; otherwise say what to do.
+browser:
+	@[ -x /usr/bin/chromium ] || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && \
+	  apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium; } || \
+	  echo "note: install Debian's chromium (apt-get install chromium) for tests/browser"
+
 serve: install
 	$(VENV)/bin/otgeo serve
 
-test: install
+test: install browser
 	$(VENV)/bin/ruff check .
 	$(PY) -m pytest -q
 
