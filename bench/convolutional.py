@@ -33,6 +33,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 MESHES = ROOT.parent / "shared" / "meshes"
 
+from _common import load1, service_bump  # noqa: E402
+
 from solvers import Grid, load_mesh  # noqa: E402
 from solvers.convolutional import barycenter, wasserstein_distance  # noqa: E402
 from solvers.convolutional.distance import ANDERSON_MEMORY  # noqa: E402
@@ -247,15 +249,6 @@ LP_POINTS = 64  # ... to this many points (mass-weighted farthest points)
 EXACT_BENCH_SECONDS = 30.0  # the forced exact route is skipped above this estimate
 
 
-def _load() -> float:
-    return float(Path("/proc/loadavg").read_text().split()[0])
-
-
-def _bench_bump(mesh, i, r=0.1):
-    """The service's bump: masses a_j max(0, 1 - |x_j - x_i| / r), normalized."""
-    d = np.linalg.norm(mesh.vertices - mesh.vertices[i], axis=1)
-    m = mesh.areas * np.clip(1 - d / r, 0, None)
-    return m / m.sum()
 
 
 def _timed(fn, *args, **kwargs):
@@ -306,13 +299,13 @@ def defaults_rows(names, recorded):
         cases = {}
         for label, frac in (("near", 0.15), ("middle", 0.5), ("far", 0.9)):
             j = int(np.argmin(np.abs(d0 - frac * d0.max())))
-            cases[label] = (_bench_bump(mesh, 0), _bench_bump(mesh, j), j)
+            cases[label] = (service_bump(mesh, 0), service_bump(mesh, j), j)
         p0, p1 = np.zeros(mesh.n), np.zeros(mesh.n)
         p0[rng.choice(mesh.n, 25, replace=False)] = 1 / 25
         p1[rng.choice(mesh.n, 25, replace=False)] = 1 / 25
         cases["points"] = (p0, p1, None)
         for label, (m0, m1, j) in cases.items():
-            row = dict(name=name, n=mesh.n, case=label, target=j, load_before=_load(),
+            row = dict(name=name, n=mesh.n, case=label, target=j, load_before=load1(),
                        support=[int(np.count_nonzero(m0)), int(np.count_nonzero(m1))])
             (lp, kind), row["lp_s"] = _timed(_oracle, mesh, m0, m1)
             row.update(lp=lp, lp_kind=kind)
@@ -338,7 +331,7 @@ def defaults_rows(names, recorded):
                 i0, i1 = np.flatnonzero(m0), np.flatnonzero(m1)
                 flip = geodesic_distances(mesh, i0, i1, route="edge-flip")
                 row["lp_flip"] = float(ot.emd2(m0[i0], m1[i1], flip**2))
-            row["load_after"] = _load()
+            row["load_after"] = load1()
             rows.append(row)
             print(row, flush=True)
             yield rows

@@ -24,20 +24,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 MESHES = ROOT.parent / "shared" / "meshes"
 
+from _common import load1, service_bump  # noqa: E402
+
 from solvers import load_mesh  # noqa: E402
 from solvers.emd import earth_movers_distance  # noqa: E402
 from solvers.geodesics import geodesic_distances  # noqa: E402
-
-
-def _load() -> float:
-    return float(Path("/proc/loadavg").read_text().split()[0])
-
-
-def _bump(mesh, i, r=0.1):
-    d = np.linalg.norm(mesh.vertices - mesh.vertices[i], axis=1)
-    m = mesh.areas * np.clip(1 - d / r, 0, None)
-    return m / m.sum()
-
 
 VARIANTS = {"default": {}, "full": {"basis": "full", "tol": 1e-4}}
 
@@ -49,14 +40,14 @@ def rows_for(name):
     cases = {}
     for label, frac in (("near", 0.15), ("middle", 0.5), ("far", 0.9)):
         j = int(np.argmin(np.abs(d0 - frac * d0.max())))
-        cases[label] = (_bump(mesh, 0), _bump(mesh, j))
+        cases[label] = (service_bump(mesh, 0), service_bump(mesh, j))
     p0, p1 = np.zeros(mesh.n), np.zeros(mesh.n)
     p0[rng.choice(mesh.n, 25, replace=False)] = 1 / 25
     p1[rng.choice(mesh.n, 25, replace=False)] = 1 / 25
     cases["points"] = (p0, p1)
     earth_movers_distance(mesh, p0, p1, tol=1e-2)  # warm: factorizations cached
     for label, (m0, m1) in cases.items():
-        row = dict(name=name, n=mesh.n, case=label, load_before=_load())
+        row = dict(name=name, n=mesh.n, case=label, load_before=load1())
         s0, s1 = np.flatnonzero(m0), np.flatnonzero(m1)
         row["lp"] = float(ot.emd2(m0[s0], m1[s1], geodesic_distances(mesh, s0, s1)))
         for key, kwargs in VARIANTS.items():
@@ -64,7 +55,7 @@ def rows_for(name):
             res = earth_movers_distance(mesh, m0, m1, **kwargs)
             row[key] = (float(res.value), time.perf_counter() - start, int(res.iterations),
                         bool(res.converged))
-        row["load_after"] = _load()
+        row["load_after"] = load1()
         print(row, flush=True)
         yield row
 
