@@ -46,6 +46,12 @@ class DirichletEnergy:
     per_edge: np.ndarray
     density: np.ndarray
 
+    def vertex_density(self, labels) -> np.ndarray:
+        r"""``(n_source,)`` density per source vertex: that of its node's cell (``labels``
+        ``(n_source,)``), so that :math:`\sum_x a_0(x)\,e(x) = E_D` with the cell areas the
+        density was built with."""
+        return self.density[np.asarray(labels, np.int64)]
+
 
 def _check_rows(rows, n_nodes: int | None, n: int) -> np.ndarray:
     r = np.asarray(rows, dtype=np.float64)
@@ -151,6 +157,26 @@ def bijectivity_density(target, rows, cell_areas) -> np.ndarray:
     return (cells @ r) / target.areas
 
 
+def bijectivity_density_top_k(target, indices, masses, cell_areas) -> np.ndarray:
+    r""":func:`bijectivity_density` of a top-k soft map (``indices``/``masses`` ``(N, k)``).
+
+    The kept masses are used as they are (not renormalized), so
+    :math:`\int_M b = 1 - \sum_u |\text{cell}_u|\,\text{dropped}_u`: the dropped mass is
+    missing from ``b`` rather than moved onto the kept entries.
+    """
+    idx = np.asarray(indices, np.int64)
+    m = np.asarray(masses, np.float64)
+    cells = np.asarray(cell_areas, np.float64)
+    if idx.shape != m.shape or idx.ndim != 2 or len(cells) != len(m):
+        raise InputError("top-k indices and masses must both be (N, k) with N cell areas",
+                         field="soft_map")
+    if idx.size and (idx.min() < 0 or idx.max() >= target.n):
+        raise InputError(f"top-k indices must be target vertices in [0, {target.n - 1}]",
+                         field="soft_map")
+    mass = np.bincount(idx.ravel(), weights=(cells[:, None] * m).ravel(), minlength=target.n)
+    return mass / target.areas
+
+
 def bijectivity_energy(target, rows, cell_areas) -> float:
     r"""eq. 4.5: :math:`E_B = \int_M b(y)^2\,dy` (1 for a bijective unit-area isometry)."""
     b = bijectivity_density(target, rows, cell_areas)
@@ -162,3 +188,40 @@ def descriptor_energy(rows, cost, cell_areas) -> float:
     r = np.asarray(rows, np.float64)
     r = r / np.maximum(r.sum(axis=1, keepdims=True), 1e-300)
     return float(np.asarray(cell_areas, np.float64) @ np.einsum("ij,ij->i", r, cost))
+
+
+@dataclass
+class SoftMapEnergies:
+    r"""The energies of one soft map (ch. 4) with their densities.
+
+    ``dirichlet`` :class:`DirichletEnergy` (eq. 4.2; ``density`` per source node) and
+    ``dirichlet_vertex_density`` ``(n_source,)`` the same per source vertex;
+    ``bijectivity`` :math:`E_B` and ``bijectivity_density`` :math:`b` ``(n_target,)``
+    (eq. 4.5); ``descriptor`` eq. 4.6.
+    """
+
+    dirichlet: DirichletEnergy
+    dirichlet_vertex_density: np.ndarray
+    bijectivity: float
+    bijectivity_density: np.ndarray
+    descriptor: float
+
+
+def soft_map_energies(target, result) -> SoftMapEnergies:
+    r"""Energies of a :class:`~solvers.softmaps.SoftMapResult` on ``target``.
+
+    The Dirichlet energy and descriptor energy are those the propagation measured
+    (``result.dirichlet``, ``result.descriptor_energy``); :math:`b` and :math:`E_B =
+    \int_M b^2` (eq. 4.5) are computed from the rows (dense, or the kept top-k masses,
+    :func:`bijectivity_density_top_k`).
+    """
+    if result.soft_map is not None:
+        b = bijectivity_density(target, result.soft_map, result.cell_areas)
+    else:
+        b = bijectivity_density_top_k(target, result.top_indices, result.top_masses,
+                                      result.cell_areas)
+    return SoftMapEnergies(dirichlet=result.dirichlet,
+                           dirichlet_vertex_density=result.dirichlet.vertex_density(
+                               result.labels),
+                           bijectivity=float(target.areas @ b**2), bijectivity_density=b,
+                           descriptor=float(result.descriptor_energy))

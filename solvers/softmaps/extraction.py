@@ -1,4 +1,4 @@
-r"""Point-to-point correspondences from a soft map (thesis §4.5.1) and a spectral refinement.
+r"""Point-to-point correspondences from a soft map (thesis §4.5.1) and their refinements.
 
 * :func:`mode` -- the most likely target vertex of each distribution (largest density
   :math:`\rho_x(y) = \mu_x(y) / a(y)`);
@@ -11,21 +11,32 @@ r"""Point-to-point correspondences from a soft map (thesis §4.5.1) and a spectr
   a functional map :math:`C = \Phi_0^\top A_0 \Phi[T]` in ``k`` eigenfunctions, ``k`` grows
   step by step and the map is re-read as nearest neighbours of the rows of :math:`\Phi_0`
   among the rows of :math:`\Phi C^\top`.  Used as the optional refinement after extraction.
+* :func:`sinkhorn_projection` -- the soft map's plan :math:`\pi = D_{c}P` (``c`` the
+  source cell areas) scaled by rows and columns, :math:`\pi \leftarrow D_u \pi D_v`, until its
+  target marginal is the target's area :math:`a` as well (the doubly-stochastic set w.r.t.
+  the two area measures, i.e. bijectivity density :math:`b \equiv 1`, eq. 4.5); an optional
+  refinement *before* extraction.
+* :func:`extract_correspondence` -- extraction then refinement as :func:`soft_map` does it:
+  ``refine`` one of :data:`REFINEMENTS` (``"sinkhorn+zoomout"``: both).
 """
 
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from solvers.errors import InputError
+from solvers.monitor import SolverResult
 from solvers.softmaps.descriptors import eigenpairs
-from solvers.validation import check_int, check_positive
+from solvers.validation import check_indices, check_int, check_positive
 
 EXTRACTIONS = ("mode", "barycentric", "path")
-REFINEMENTS = ("zoomout", "none")
+REFINEMENTS = ("zoomout", "sinkhorn", "sinkhorn+zoomout", "none")
+SINKHORN_ITERATIONS = 20  # default of the projection inside extract_correspondence
+SINKHORN_TOL = 1e-3  # L1 target-marginal violation (the plan's total mass is 1)
 
 
 def mode(rows: np.ndarray, target_areas: np.ndarray) -> np.ndarray:
@@ -138,3 +149,124 @@ def nearest_rows(points: np.ndarray, queries: np.ndarray, chunk: int = 2048) -> 
         q = np.asarray(queries[s:s + chunk], np.float32)
         out[s:s + chunk] = np.argmin(sq[None, :] - 2.0 * q @ p32.T, axis=1)
     return out
+
+
+@dataclass(kw_only=True)
+class SinkhornProjection(SolverResult):
+    r"""``rows`` ``(N, n)`` float64 projected masses (each row sums to 1); ``residual`` the
+    L1 violation :math:`\|\pi^\top 1 - \bar a\|_1` of the target marginal after the last
+    row scaling (the source marginal is then exact; :math:`\bar a` the target areas times
+    the projected rows' share of the source area); ``initial_residual`` the same for the
+    soft map before projection (:math:`\int |b - 1|` of eq. 4.5 when no row is fixed)."""
+
+    rows: np.ndarray
+    initial_residual: float = float("nan")
+
+
+def sinkhorn_projection(rows, source_areas, target_areas, *, fixed=None,
+                        max_iter: int = SINKHORN_ITERATIONS,
+                        tol: float = SINKHORN_TOL) -> SinkhornProjection:
+    r"""Project a soft map onto the doubly-stochastic set w.r.t. source and target areas.
+
+    Objective: the Kullback-Leibler projection
+    :math:`\min_{\pi \ge 0} \mathrm{KL}(\pi \,\|\, D_c P)` subject to :math:`\pi 1 = c` and
+    :math:`\pi^\top 1 = a` (``P`` ``(N, n)`` row-stochastic target masses of the ``N``
+    source nodes, ``c`` ``(N,)`` their cell areas, ``a`` ``(n,)`` target areas, both summing
+    to 1), solved by Sinkhorn's alternating scalings :math:`v = a / (\pi_0^\top u)`,
+    :math:`u = c / (\pi_0 v)`, :math:`\pi = D_u \pi_0 D_v`.  A projected map has bijectivity
+    density :math:`b \equiv 1` (eq. 4.5, Proposition 11's bound attained).
+
+    ``fixed``: indices of rows kept as they are (a soft map's landmark deltas: a delta row
+    of cell area :math:`c_l > a(y_l)` makes the problem infeasible); the other rows are
+    projected onto the target marginal :math:`a \sum_{u\ \mathrm{free}} c_u`.  Target
+    vertices that no row reaches (all-zero columns) keep zero mass and stay in the residual.
+    Stops at ``residual <= tol`` or after ``max_iter`` scalings; returns
+    :class:`SinkhornProjection` with ``rows = \pi / c``.
+    """
+    out = np.array(rows, dtype=np.float64)  # one working copy, scaled in place
+    c = np.asarray(source_areas, np.float64)
+    a = np.asarray(target_areas, np.float64)
+    if out.ndim != 2 or out.shape != (len(c), len(a)):
+        raise InputError(f"soft map rows must have shape ({len(c)}, {len(a)}), got "
+                         f"{out.shape}", field="soft_map")
+    if not np.all(np.isfinite(out)) or np.any(out < 0):
+        raise InputError("soft map rows must be finite non-negative masses", field="soft_map")
+    max_iter = check_int(max_iter, "max_iter", low=1)
+    tol = check_positive(tol, "tol")
+    free = np.ones(len(c), bool)
+    if fixed is not None and len(fixed):
+        free[check_indices(fixed, len(c), "fixed")] = False
+    out /= np.maximum(out.sum(axis=1, keepdims=True), 1e-300)
+    c, a = c / c.sum(), a / a.sum()
+    plan = out[free] * c[free, None]  # rows sum to c exactly
+    c, a = c[free], a * c[free].sum()
+    initial = float(np.abs(plan.sum(axis=0) - a).sum())
+    u, v = np.ones(len(c)), np.ones(len(a))
+    residual, iterations = initial, 0
+    while iterations < max_iter and residual > tol:
+        iterations += 1
+        col = plan.T @ u
+        v = np.divide(a, col, out=np.zeros_like(a), where=col > 0)
+        row = plan @ v
+        u = np.divide(c, row, out=np.zeros_like(c), where=row > 0)
+        residual = float(np.abs((plan.T @ u) * v - a).sum())
+    plan *= v[None, :]
+    plan /= np.maximum(plan.sum(axis=1, keepdims=True), 1e-300)  # = pi / c, u cancels
+    out[free] = plan
+    return SinkhornProjection(rows=out, iterations=iterations, residual=residual,
+                              converged=residual <= tol, initial_residual=initial)
+
+
+@dataclass(kw_only=True)
+class Correspondence:
+    """``sample_correspondence`` ``(N,)`` target vertex per source node after extraction
+    (on the Sinkhorn-projected rows when asked); ``correspondence`` ``(n_source,)`` per
+    source vertex, after ZoomOut when asked; ``sinkhorn`` the projection (or ``None``)."""
+
+    sample_correspondence: np.ndarray
+    correspondence: np.ndarray
+    sinkhorn: SinkhornProjection | None = None
+
+
+def extract_correspondence(source, target, rows, *, labels, samples, cell_areas, edges,
+                           fixed=None, seed_target: int | None = None, extraction: str = "mode",
+                           refine: str = "zoomout",
+                           zoomout_range: tuple[int, int, int] = (20, 50, 1),
+                           sinkhorn_iterations: int = SINKHORN_ITERATIONS) -> Correspondence:
+    r"""Point map ``source vertex -> target vertex`` from soft-map rows (§4.5.1 + refinement).
+
+    ``rows`` ``(N, n)`` masses of the ``N`` source nodes ``samples`` (source vertex ids),
+    ``labels`` ``(n_source,)`` node of every source vertex, ``cell_areas`` ``(N,)``,
+    ``edges`` the source graph (for ``extraction="path"``, seeded at node 0 matched to
+    ``seed_target``).  ``refine``: ``"sinkhorn"`` projects the rows first
+    (:func:`sinkhorn_projection`, ``sinkhorn_iterations`` scalings, the rows ``fixed`` --
+    landmark deltas -- left out), ``"zoomout"`` refines
+    the extracted map (:func:`zoomout` over ``zoomout_range``), ``"sinkhorn+zoomout"`` both,
+    ``"none"`` neither.  Each node's match is spread to the vertices of its cell.
+    """
+    if extraction not in EXTRACTIONS:
+        raise InputError(f"extraction must be one of {EXTRACTIONS}", field="extraction")
+    if refine not in REFINEMENTS:
+        raise InputError(f"refine must be one of {REFINEMENTS}", field="refine")
+    labels = np.asarray(labels, np.int64)
+    samples = np.asarray(samples, np.int64)
+    projection = None
+    if refine.startswith("sinkhorn"):
+        projection = sinkhorn_projection(rows, cell_areas, target.areas, fixed=fixed,
+                                         max_iter=sinkhorn_iterations)
+        rows = projection.rows
+    if extraction == "mode":
+        sample_corr = mode(rows, target.areas)
+    elif extraction == "barycentric":
+        sample_corr = barycentric_projection(rows, target)
+    else:
+        if seed_target is None:
+            raise InputError("path tracing needs the seed's target vertex", field="seed")
+        sample_corr = trace_path(edges, len(samples), rows, target, (0, int(seed_target)))
+    corr = sample_corr[labels]
+    corr[samples] = sample_corr
+    if refine.endswith("zoomout"):
+        ks, ke, st = zoomout_range
+        corr = zoomout(source, target, corr, k_start=ks, k_end=ke, step=st)
+    return Correspondence(sample_correspondence=np.asarray(sample_corr, np.int64),
+                          correspondence=corr, sinkhorn=projection)

@@ -38,14 +38,7 @@ from solvers.softmaps.descriptors import (
     wks_energies,
 )
 from solvers.softmaps.energies import dirichlet_from_edge_values
-from solvers.softmaps.extraction import (
-    EXTRACTIONS,
-    REFINEMENTS,
-    barycentric_projection,
-    mode,
-    trace_path,
-    zoomout,
-)
+from solvers.softmaps.extraction import EXTRACTIONS, REFINEMENTS, extract_correspondence
 from solvers.softmaps.sampling import farthest_point_samples
 from solvers.validation import check_int, check_positive
 
@@ -111,7 +104,9 @@ class SoftMapResult(SolverResult):
     vertex of every source vertex (extracted, then refined if asked);
     ``sample_correspondence`` ``(N,)`` the extraction before refinement; ``dirichlet`` the
     Dirichlet energy from the final edge plans (convolutional :math:`W^2`, not debiased);
-    ``descriptor_energy`` eq. 4.6 with the normalized cost.
+    ``descriptor_energy`` eq. 4.6 with the normalized cost; ``sinkhorn`` the projection of
+    ``refine="sinkhorn"`` (:class:`~solvers.softmaps.extraction.SinkhornProjection` without
+    its rows; ``soft_map`` stays the unprojected map), else ``None``.
     """
 
     samples: np.ndarray
@@ -130,6 +125,7 @@ class SoftMapResult(SolverResult):
     gamma: float = 0.0
     tau: float = 0.0
     timings: dict = field(default_factory=dict)
+    sinkhorn: object = None
 
     def row(self, i: int) -> np.ndarray:
         """Dense ``(n_target,)`` masses of sample ``i`` (zeros outside the top-k)."""
@@ -216,7 +212,9 @@ def soft_map(
     top_k : keep only the ``k`` largest masses per row (``dropped_mass`` reports the rest).
     extraction : ``"mode"``, ``"barycentric"`` or ``"path"`` (eq. 4.7, seeded with the first
         landmark); refine : ``"zoomout"`` (spectral upsampling over ``zoomout_range =
-        (k_start, k_end, step)``) or ``"none"``.
+        (k_start, k_end, step)``), ``"sinkhorn"`` (doubly-stochastic projection of the rows
+        before extraction), ``"sinkhorn+zoomout"`` or ``"none"``
+        (:func:`~solvers.softmaps.extraction.extract_correspondence`).
     max_bytes : refuse (``InputError`` on ``samples``) a problem whose estimated peak memory
         exceeds this.
 
@@ -291,18 +289,15 @@ def soft_map(
     timings["propagation"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    if extraction == "mode":
-        sample_corr = mode(rows, target.areas)
-    elif extraction == "barycentric":
-        sample_corr = barycentric_projection(rows, target)
-    else:
-        sample_corr = trace_path(graph.edges, graph.n, rows, target,
-                                 (0, int(pairs[0, 1])))
-    corr = sample_corr[graph.labels]
-    corr[graph.indices] = sample_corr
-    if refine == "zoomout":
-        ks, ke, st = zoomout_range
-        corr = zoomout(source, target, corr, k_start=ks, k_end=ke, step=st)
+    extracted = extract_correspondence(source, target, rows, labels=graph.labels,
+                                       samples=graph.indices, cell_areas=cells,
+                                       edges=graph.edges, fixed=np.arange(len(pairs)),
+                                       seed_target=int(pairs[0, 1]),
+                                       extraction=extraction, refine=refine,
+                                       zoomout_range=zoomout_range)
+    sample_corr, corr = extracted.sample_correspondence, extracted.correspondence
+    if extracted.sinkhorn is not None:
+        extracted.sinkhorn.rows = None  # the projected copy is not kept
     timings["extraction"] = time.perf_counter() - t0
     dirichlet = dirichlet_from_edge_values(prop.edge_values, graph.edges, w, graph.n, cells)
 
@@ -319,4 +314,4 @@ def soft_map(
         edge_weights=w, soft_map=dense, top_indices=top_idx, top_masses=top_m,
         dropped_mass=dropped, correspondence=corr, sample_correspondence=sample_corr,
         dirichlet=dirichlet, descriptor_energy=descriptor, gamma=gamma, tau=tau,
-        timings=timings, n_target=target.n)
+        timings=timings, n_target=target.n, sinkhorn=extracted.sinkhorn)
