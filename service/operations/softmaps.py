@@ -4,10 +4,14 @@ A global operation over two stored mesh domains; thin over :func:`solvers.softma
 Results: energies and the extracted correspondence (JSON values); the soft map as the
 array ``soft_map`` (samples x target vertices, float32; one row, the distribution of a
 source sample, at ``GET /v1/jobs/{id}/arrays/soft_map/rows/{i}`` -- ``labels[x]`` is the
-row of source vertex ``x``), ``samples``, ``labels``, ``correspondence``; and
-``result.glb``: the source colored by target coordinates pulled back through the map, and
-one copy of the target per requested source vertex colored by its distribution, the first
-with momentum vectors (eq. 4.4) as lines.
+row of source vertex ``x``), ``samples``, ``labels``, ``correspondence``; the densities as
+one-row arrays (``.../arrays/bijectivity_density/rows/0``: :math:`b(y)` per target vertex,
+eq. 4.5; ``dirichlet_vertex_density``: the Dirichlet energy density per source vertex;
+``dirichlet_density`` per sample); and ``result.glb``: the source colored by target
+coordinates pulled back through the map, one copy of the target per requested source
+vertex colored by its distribution, the first with momentum vectors (eq. 4.4) as lines, and
+on request (``glb_densities``) the target colored by :math:`b` and the source by the
+Dirichlet energy density.
 """
 
 from __future__ import annotations
@@ -50,10 +54,30 @@ class SoftMapRequest(OperationRequest):
     top_k: int | None = Field(None, ge=1, description="store only the k largest masses per "
                               "row (arrays top_indices/top_masses, dropped_mass)")
     extraction: Literal["mode", "barycentric", "path"] = "mode"
-    refine: Literal["zoomout", "none"] = "zoomout"
+    refine: Literal["zoomout", "sinkhorn", "sinkhorn+zoomout", "none"] = Field(
+        "zoomout", description="zoomout: spectral upsampling of the extracted map; sinkhorn: "
+        "project the soft map onto the doubly-stochastic set (source/target areas) before "
+        "extraction; sinkhorn+zoomout: both; none")
     show_vertices: list[int] = Field(default_factory=list, max_length=8, description="source "
                                      "vertices whose distributions color the target in the "
                                      "GLB (default: the first landmark's)")
+    glb_densities: list[Literal["bijectivity", "dirichlet"]] = Field(
+        default_factory=list, max_length=2, description="extra copies in result.glb: "
+        "'bijectivity' the target colored by b(y) (eq. 4.5), 'dirichlet' the source colored "
+        "by the Dirichlet energy density per vertex")
+
+
+class DensitySummary(BaseModel):
+    """A per-vertex density stored as a one-row array (``GET .../arrays/{array}/rows/0``)."""
+
+    array: str = Field(description="name of the (1, n) result array holding it")
+    min: float
+    max: float
+    mean: float = Field(description="area-weighted mean (its integral over the unit-area "
+                        "surface)")
+    area_below_half: float = Field(description="fraction of the area where density < 0.5 "
+                                   "x mean")
+    area_above_two: float = Field(description="fraction of the area where density > 2 x mean")
 
 
 class SoftMapEnergies(BaseModel):
@@ -61,6 +85,20 @@ class SoftMapEnergies(BaseModel):
                              "of the final edge plans")
     bijectivity: float = Field(description="eq. 4.5, 1 for a bijective isometry")
     descriptor: float = Field(description="eq. 4.6 with the normalized cost")
+    bijectivity_density: DensitySummary = Field(description="b(y) = integral over the source "
+                                                "of rho_x(y) (eq. 4.5) per target vertex; "
+                                                "1 everywhere for a bijective isometry")
+    dirichlet_density: DensitySummary = Field(description="Dirichlet energy density per "
+                                              "source vertex (integrates to dirichlet)")
+
+
+class SinkhornSummary(BaseModel):
+    """The Sinkhorn projection of ``refine="sinkhorn"`` (marginal residuals in L1)."""
+
+    iterations: int
+    residual: float = Field(description="target-marginal L1 violation after projection")
+    initial_residual: float = Field(description="the same before: integral of |b - 1|")
+    converged: bool
 
 
 class SoftMapValues(BaseModel):
@@ -77,6 +115,8 @@ class SoftMapValues(BaseModel):
     dropped_mass_max: float | None = Field(None, description="top_k: largest mass left out "
                                            "of a row")
     timings: dict[str, float]
+    sinkhorn: SinkhornSummary | None = Field(None, description="refine sinkhorn: the "
+                                             "projection's iterations and residuals")
     rows: str = Field("soft_map", description="array holding one distribution per source "
                       "sample; labels[x] is the row of source vertex x")
 
@@ -127,7 +167,15 @@ def validate(ctx, req: SoftMapRequest) -> list[dict]:
     return []
 
 
-def _glb(source, target, res, show_rows, rows_of) -> bytes:
+def _summary(name: str, values: np.ndarray, areas: np.ndarray) -> DensitySummary:
+    mean = float(areas @ values / areas.sum())
+    frac = areas / areas.sum()
+    return DensitySummary(array=name, min=float(values.min()), max=float(values.max()),
+                          mean=mean, area_below_half=float(frac @ (values < 0.5 * mean)),
+                          area_above_two=float(frac @ (values > 2.0 * mean)))
+
+
+def _glb(source, target, res, show_rows, rows_of, densities) -> bytes:
     from service.export import meshes_glb
     from solvers.softmaps.energies import momentum, transportation_potential
     from solvers.softmaps.transfer import coordinate_colors, pull_back, pull_back_top_k
@@ -160,11 +208,19 @@ def _glb(source, target, res, show_rows, rows_of) -> bytes:
                 c = target.vertices[target.faces[keep]].mean(axis=1)
                 part["lines"] = np.stack([c, c + scale * mom[keep]], axis=1)
         parts.append(part)
+    below = len(parts) - 1  # copies on request go under the last distribution
+    for name, field_name, values, mesh, on_target in densities:
+        parts.append({"name": name, "vertices": mesh.vertices, "faces": mesh.faces,
+                      "field": values, "field_name": field_name,
+                      "translation": [0.6 * width if on_target else 0.0,
+                                      -1.1 * height * below, 0.0]})
+        below += 1
     return meshes_glb(parts, metadata={"operation": "soft-maps"})
 
 
 def run(ctx, req: SoftMapRequest, progress, should_cancel) -> OperationOutput:
-    from solvers.softmaps import bijectivity_energy, soft_map
+    from solvers.softmaps import soft_map
+    from solvers.softmaps.energies import soft_map_energies
 
     source = ctx.domain(req.source_id, "source_id")
     target = ctx.domain(req.target_id, "target_id")
@@ -175,22 +231,30 @@ def run(ctx, req: SoftMapRequest, progress, should_cancel) -> OperationOutput:
                    norm=req.norm, tol=req.tol, max_iter=req.max_iter, top_k=req.top_k,
                    extraction=req.extraction, refine=req.refine, progress=progress,
                    should_cancel=should_cancel)
-    if res.soft_map is not None:
-        bij = bijectivity_energy(target, res.soft_map, res.cell_areas)
-    else:
-        dense = np.stack([res.row(i) for i in range(len(res.samples))])
-        bij = bijectivity_energy(target, dense, res.cell_areas)
+    energies = soft_map_energies(target, res)
+    b, e_vertex = energies.bijectivity_density, energies.dirichlet_vertex_density
+    sinkhorn = getattr(res, "sinkhorn", None)
     values = SoftMapValues(
-        energies=SoftMapEnergies(dirichlet=res.dirichlet.total, bijectivity=bij,
-                                 descriptor=res.descriptor_energy),
+        energies=SoftMapEnergies(
+            dirichlet=energies.dirichlet.total, bijectivity=energies.bijectivity,
+            descriptor=energies.descriptor,
+            bijectivity_density=_summary("bijectivity_density", b, target.areas),
+            dirichlet_density=_summary("dirichlet_vertex_density", e_vertex, source.areas)),
         correspondence=res.correspondence.tolist(), samples=int(len(res.samples)),
         gamma=res.gamma, tau=res.tau, iterations=res.iterations, residual=res.residual,
         converged=res.converged,
         dropped_mass_max=None if res.dropped_mass is None else float(res.dropped_mass.max()),
-        timings=res.timings).model_dump()
+        timings=res.timings,
+        sinkhorn=None if sinkhorn is None else SinkhornSummary(
+            iterations=sinkhorn.iterations, residual=sinkhorn.residual,
+            initial_residual=sinkhorn.initial_residual, converged=sinkhorn.converged),
+    ).model_dump()
     arrays = {"samples": res.samples, "labels": res.labels,
               "correspondence": res.correspondence, "cell_areas": res.cell_areas,
-              "dirichlet_density": res.dirichlet.density}
+              "dirichlet_density": res.dirichlet.density,
+              # One-row arrays: GET .../arrays/<name>/rows/0 returns them without the map.
+              "bijectivity_density": b[None, :],
+              "dirichlet_vertex_density": e_vertex[None, :]}
     if res.soft_map is not None:
         arrays["soft_map"] = res.soft_map
     else:
@@ -199,8 +263,15 @@ def run(ctx, req: SoftMapRequest, progress, should_cancel) -> OperationOutput:
         values["rows"] = "top_masses"
     show = req.show_vertices or [pairs[0][0]]
     rows_of = [res.row(int(res.labels[x])) for x in show]
+    densities = []  # (node name, field name, values, mesh, drawn in the target's column)
+    if "bijectivity" in req.glb_densities:
+        densities.append(("target bijectivity density", "bijectivity_density", b, target,
+                          True))
+    if "dirichlet" in req.glb_densities:
+        densities.append(("source dirichlet density", "dirichlet_density", e_vertex, source,
+                          False))
     files = {"result.glb": ResultFile("model/gltf-binary",
-                                      _glb(source, target, res, show, rows_of))}
+                                      _glb(source, target, res, show, rows_of, densities))}
     return OperationOutput(values=values, arrays=arrays, files=files)
 
 

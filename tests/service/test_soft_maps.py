@@ -49,6 +49,41 @@ def test_soft_map_job_values_rows_and_glb(client, pair):
     targets = [n for n in names if n.startswith("target mu_x") and not n.endswith("lines")]
     assert names[0] == "source" and len(targets) == 2
     assert any(n.endswith("lines") for n in names)  # momentum vectors
+    assert not any("density" in n for n in names)  # density copies only on request
+    # b(y) (eq. 4.5) and the Dirichlet density per source vertex, as one-row arrays.
+    energies = values["energies"]
+    b = client.get(f"/v1/jobs/{job['id']}/arrays/bijectivity_density/rows/0").json()["values"]
+    assert len(b) == 162 and energies["bijectivity_density"]["array"] == "bijectivity_density"
+    assert min(b) == pytest.approx(energies["bijectivity_density"]["min"])
+    assert max(b) == pytest.approx(energies["bijectivity_density"]["max"])
+    assert energies["bijectivity_density"]["mean"] == pytest.approx(1.0, abs=1e-4)
+    e = client.get(f"/v1/jobs/{job['id']}/arrays/dirichlet_vertex_density/rows/0").json()
+    assert len(e["values"]) == 162 and min(e["values"]) >= 0
+    # The source has unit area: the density integrates (= its mean) to the energy.
+    assert energies["dirichlet_density"]["mean"] == pytest.approx(energies["dirichlet"],
+                                                                  rel=1e-4)
+    assert values["sinkhorn"] is None
+
+
+def test_soft_map_sinkhorn_refinement_and_density_glb(client, pair):
+    a, b = pair
+    body = {"source_id": a, "target_id": b, **BODY, "refine": "sinkhorn",
+            "glb_densities": ["bijectivity", "dirichlet"], "show_vertices": [5]}
+    job = client.post("/v1/soft-maps?wait=60", json=body).json()
+    assert job["state"] == "succeeded", job
+    values = client.get(f"/v1/jobs/{job['id']}/result?arrays=false").json()["values"]
+    sk = values["sinkhorn"]
+    assert sk["iterations"] >= 1 and sk["residual"] < sk["initial_residual"]
+    doc, _ = parse_glb(client.get(f"/v1/jobs/{job['id']}/result.glb").content)
+    names = [n["name"] for n in doc["nodes"]]
+    assert "target bijectivity density" in names and "source dirichlet density" in names
+    node = doc["nodes"][names.index("target bijectivity density")]
+    mesh = doc["meshes"][node["mesh"]]
+    attrs = mesh["primitives"][0]["attributes"]
+    assert "COLOR_0" in attrs and any("BIJECTIVITY" in k.upper() for k in attrs)
+    lo, hi = mesh["extras"]["value_range"]
+    assert lo == pytest.approx(values["energies"]["bijectivity_density"]["min"], rel=1e-5)
+    assert hi == pytest.approx(values["energies"]["bijectivity_density"]["max"], rel=1e-5)
 
 
 def test_soft_map_refuses_bad_input_naming_the_field(client, pair, make_client, meshes_dir,
@@ -69,6 +104,17 @@ def test_soft_map_refuses_bad_input_naming_the_field(client, pair, make_client, 
     multi = upload_mesh(client, path).json()["id"]
     assert_error(client.post("/v1/soft-maps", json={**body, "source_id": multi}), 422,
                  "source_id")
+    assert_error(client.post("/v1/soft-maps", json={**body, "target_id": multi}), 422,
+                 "target_id")
+    assert_error(client.post("/v1/soft-maps", json={**body, "source_id": grid}), 422,
+                 "source_id")
+    bad = {**body, "landmarks": [{"source": 0, "target": 0}, {"source": 40, "target": 162}]}
+    assert_error(client.post("/v1/soft-maps", json=bad), 422, "landmarks[1].target")
+    bad = {**body, "landmarks": [{"source": 0, "target": 0}, {"source": 0, "target": 40}]}
+    assert_error(client.post("/v1/soft-maps", json=bad), 422, "landmarks")
+    assert_error(client.post("/v1/soft-maps", json={**body, "show_vertices": [162]}), 422,
+                 "show_vertices[0]")
+    assert_error(client.post("/v1/soft-maps", json={**body, "top_k": 163}), 422, "top_k")
     small = make_client(data_dir=tmp_path / "small", job_memory_bytes=2**20)
     a2 = upload_mesh(small, _sphere_obj(tmp_path, "c.obj")).json()["id"]
     assert_error(small.post("/v1/soft-maps", json={**body, "source_id": a2, "target_id": a2,
