@@ -115,6 +115,8 @@ def test_soft_map_refuses_bad_input_naming_the_field(client, pair, make_client, 
     assert_error(client.post("/v1/soft-maps", json={**body, "show_vertices": [162]}), 422,
                  "show_vertices[0]")
     assert_error(client.post("/v1/soft-maps", json={**body, "top_k": 163}), 422, "top_k")
+    assert_error(client.post("/v1/soft-maps", json={**body, "target_id": "d" + "0" * 20}),
+                 404, "target_id")
     small = make_client(data_dir=tmp_path / "small", job_memory_bytes=2**20)
     a2 = upload_mesh(small, _sphere_obj(tmp_path, "c.obj")).json()["id"]
     assert_error(small.post("/v1/soft-maps", json={**body, "source_id": a2, "target_id": a2,
