@@ -22,7 +22,11 @@ from solvers.histograms import (
     propagate_histograms,
     quantile_levels,
 )
+from solvers.histograms import dirichlet as dirichlet_module
 from solvers.histograms import summaries as S
+from solvers.histograms.dirichlet import dirichlet_system, harmonic_extension
+from solvers.histograms.quantiles import sort_rows
+from solvers.linalg import have_pardiso
 
 
 def gauss(bins, mu, sigma):
@@ -144,6 +148,44 @@ def test_amg_solver_matches_direct():
     assert a.solver == "amg" and a.iterations > 1
     assert np.abs(a.quantiles - d.quantiles).max() < 1e-8
 
+
+
+@pytest.mark.skipif(not have_pardiso(), reason="the mkl wheel (pardiso extra) is not installed")
+def test_pardiso_and_cholespy_direct_routes_agree(monkeypatch):
+    # many columns in several blocks (the block width is forced down to 7 columns), on
+    # Fortran-ordered right-hand sides for PARDISO and C-ordered ones for cholespy
+    monkeypatch.setattr(dirichlet_module, "_block_columns", lambda r, n: 7)
+    rng = np.random.default_rng(8)
+    g = random_graph(rng, 300, 0.02)
+    lab = np.sort(rng.choice(300, 40, replace=False))
+    values = np.sort(rng.random((40, 30)), axis=1)
+    runs = {}
+    for name in ("pardiso", "cholespy"):
+        system = dirichlet_system(g, lab, factorization=name)
+        assert system.factor.backend == name
+        runs[name] = harmonic_extension(system, values)
+        assert runs[name].rank == 30 and runs[name].residual < 1e-12
+    np.testing.assert_allclose(runs["pardiso"].values, runs["cholespy"].values, atol=1e-11)
+    assert dirichlet_system(g, lab).factor.backend == "pardiso"  # "auto" picks it
+
+
+def test_back_conversion_matches_the_cdf_at_the_edges():
+    # the compiled merge pass against the vectorized CDF reader, with values beyond the
+    # edges, plateaus (atoms) and values exactly on edges
+    rng = np.random.default_rng(9)
+    b = make_bins(edges=np.r_[0.0, np.sort(rng.uniform(0.05, 0.95, 10)), 1.0])
+    lev = quantile_levels(40)
+    q = np.sort(rng.uniform(-0.1, 1.1, (60, 40)), axis=1)
+    q[:5, 10:20] = b.edges[3]
+    q[5:10] = b.edges[rng.integers(0, 12, (5, 40))]
+    q.sort(axis=1)
+    h = histograms_from_inverse_cdf(q, lev, b, sorted_rows=True)
+    F = cdf_from_inverse_cdf(q, lev, b.edges)
+    F[:, 0], F[:, -1] = 0.0, 1.0
+    np.testing.assert_allclose(h, np.clip(np.diff(F, axis=1), 0, None), atol=1e-14)
+    np.testing.assert_allclose(histograms_from_inverse_cdf(q[:, ::-1], lev, b), h, atol=1e-14)
+    shuffled = q[:, rng.permutation(40)]
+    np.testing.assert_array_equal(sort_rows(shuffled.copy()), q)
 
 # -- Fig. 5.3: disk with multimodal boundary labels ---------------------------------------
 def disk_mesh(rings=12):

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from solvers.linalg import HAVE_CHOLESPY, factorize_spd
+from solvers.linalg import HAVE_CHOLESPY, factorize_spd, have_pardiso
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -90,3 +90,22 @@ def test_invalid_arguments():
         factorize_spd(sp.csc_matrix(np.ones((2, 3))))
     with pytest.raises(ValueError, match="backend"):
         factorize_spd(sp.identity(3, format="csc"), backend="magic")
+
+
+@pytest.mark.skipif(not have_pardiso(), reason="the mkl wheel (pardiso extra) is not installed")
+def test_pardiso_backend_solves_and_refuses_indefinite():
+    a = _random_spd(400, 5)
+    before = (a.indptr.copy(), a.indices.copy(), a.data.copy())
+    f = factorize_spd(a, backend="pardiso")
+    assert f.backend == "pardiso" and f.n == 400 and f.factor_nnz >= 400 and f.nbytes > 0
+    rng = np.random.default_rng(6)
+    for rhs in (rng.normal(size=400), rng.normal(size=(400, 9)),
+                np.asfortranarray(rng.normal(size=(400, 12)))[:, ::3]):
+        x = f.solve(rhs)
+        assert x.shape == rhs.shape
+        np.testing.assert_allclose(a @ x, rhs, atol=1e-10 * np.abs(rhs).max())
+    for arr, ref in zip((a.indptr, a.indices, a.data), before, strict=True):
+        np.testing.assert_array_equal(arr, ref)
+    with pytest.raises(ValueError, match="positive definite"):
+        factorize_spd(sp.csr_matrix(np.array([[1.0, 2.0], [2.0, 1.0]])), backend="pardiso")
+    assert factorize_spd(a).backend == "cholespy"  # "auto" is unchanged for other callers

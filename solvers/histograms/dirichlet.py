@@ -20,7 +20,12 @@ bounds the error everywhere by it).
 ``solver``: ``"direct"`` (sparse Cholesky, :func:`solvers.linalg.factorize_spd`) or
 ``"amg"`` (conjugate gradients preconditioned by one smoothed-aggregation hierarchy from
 pyamg, shared by all columns); ``"auto"`` is ``"direct"``, faster at every size measured
-(``bench/results/histograms.md``).
+(``bench/results/histograms.md``).  The direct factorization is MKL PARDISO's supernodal
+Cholesky (METIS ordering, multithreaded) when the ``mkl`` wheel is installed (the
+``pardiso`` extra), else cholespy's; ``factorization=`` in :func:`dirichlet_system` picks
+one explicitly.  The block solve goes a few columns at a time, and each block's residual
+is measured as soon as it is solved, so the solution overwrites the right-hand sides
+(no second ``n × r`` array).
 """
 
 from __future__ import annotations
@@ -34,7 +39,7 @@ import scipy.sparse as sp
 from solvers.domains.base import Domain
 from solvers.errors import ConvergenceError, InputError
 from solvers.histograms.graphs import component_labels, graph_laplacian
-from solvers.linalg import factorize_spd
+from solvers.linalg import Backend, factorize_spd, have_pardiso
 from solvers.monitor import Monitor
 from solvers.validation import check_anchored_components, check_node_indices
 
@@ -71,19 +76,33 @@ def check_labeled(graph, labeled, L: sp.spmatrix | None = None,
     return nodes
 
 
-def _build(L: sp.csr_matrix, labeled: np.ndarray, solver: str) -> DirichletSystem:
+def direct_backend(factorization: Backend = "auto") -> Backend:
+    """The factorization behind ``solver="direct"``: PARDISO when it loads, else cholespy's
+    (``"auto"``); an explicit name is passed through."""
+    if factorization != "auto":
+        return factorization
+    return "pardiso" if have_pardiso() else "auto"
+
+
+def _reduced(L: sp.csr_matrix, free: np.ndarray, labeled: np.ndarray
+             ) -> tuple[sp.csr_matrix, sp.csr_matrix]:
+    """``(L_UU, L_UL)``: the free rows once, then their two column blocks."""
+    Lr = L[free]
+    return Lr[:, free].tocsr(), Lr[:, labeled].tocsr()
+
+
+def _build(L: sp.csr_matrix, labeled: np.ndarray, solver: str,
+           factorization: Backend = "auto") -> DirichletSystem:
     n = L.shape[0]
     mask = np.zeros(n, dtype=bool)
     mask[labeled] = True
     free = np.flatnonzero(~mask)
-    Lr = L[free]
-    A = Lr[:, free].tocsr()
-    coupling = Lr[:, labeled].tocsr()
+    A, coupling = _reduced(L, free, labeled)
     system = DirichletSystem(n, labeled, free, A, coupling, solver)
     if len(free) == 0:
         return system
     if solver == "direct":
-        system.factor = factorize_spd(A)
+        system.factor = factorize_spd(A, backend=direct_backend(factorization))
     else:
         try:
             import pyamg
@@ -94,18 +113,25 @@ def _build(L: sp.csr_matrix, labeled: np.ndarray, solver: str) -> DirichletSyste
 
 
 def dirichlet_system(graph, labeled, *, laplacian: str = "auto", solver: str = "auto",
-                     field: str = "labeled") -> DirichletSystem:
-    """The reduced system for ``labeled`` nodes, cached in the domain's operator store."""
+                     field: str = "labeled", factorization: Backend = "auto"
+                     ) -> DirichletSystem:
+    """The reduced system for ``labeled`` nodes, cached in the domain's operator store.
+
+    ``factorization`` (``solver="direct"``): ``"auto"`` (:func:`direct_backend`),
+    ``"pardiso"``, ``"cholespy"`` or ``"splu"``.
+    """
     if solver not in SOLVERS:
         raise InputError(f"solver must be one of {SOLVERS}, got {solver!r}", field="solver")
     solver = "direct" if solver == "auto" else solver
     L = graph_laplacian(graph, laplacian)
     nodes = check_labeled(graph, labeled, L, field)
     if not isinstance(graph, Domain):
-        return _build(L, np.sort(nodes), solver)
+        return _build(L, np.sort(nodes), solver, factorization)
     digest = hashlib.sha1(np.sort(nodes).tobytes()).hexdigest()
-    key = ("histograms.dirichlet", laplacian, solver, len(nodes), digest)
-    system = graph.operators.get(key, lambda: _build(L, np.sort(nodes), solver))
+    backend = direct_backend(factorization) if solver == "direct" else ""
+    key = ("histograms.dirichlet", laplacian, solver, backend, len(nodes), digest)
+    system = graph.operators.get(key, lambda: _build(L, np.sort(nodes), solver,
+                                                     factorization))
     return system
 
 
@@ -174,39 +200,57 @@ def harmonic_extension(system: DirichletSystem, values: np.ndarray, *, rank_tol:
             r = c
     if Qt is None:
         basis = Vc
-    B = system.coupling @ basis
+    # B = -L_UL basis; only rows next to a labeled node are nonzero. PARDISO works on
+    # columns, so B is laid out in Fortran order for it (its blocks are then no copies)
+    column_major = getattr(system.factor, "backend", "") == "pardiso"
+    B = np.zeros((len(system.free), r), order="F" if column_major else "C")
+    touched = np.flatnonzero(np.diff(system.coupling.indptr))
+    B[touched] = system.coupling[touched] @ basis
     np.negative(B, out=B)
-    iterations = 0
+    num = den = 0.0
     if system.factor is not None:
-        # blocks of columns: the sparse solver's internal copies stay ~128 MB
-        width = max(1, min(r, 2**24 // max(len(system.free), 1)))
-        Y = np.empty_like(B)
+        # blocks of columns (the solver's copies stay ~128 MB); each block's residual is
+        # measured right away, then its solution overwrites the block of B
+        width = _block_columns(r, len(system.free))
         for j in range(0, r, width):
-            Y[:, j:j + width] = system.factor.solve(B[:, j:j + width])
-        iterations = 1
+            Bj = B[:, j:j + width]
+            Xj = system.factor.solve(Bj)
+            Rj = system.A @ Xj
+            Rj -= Bj
+            num += float(np.einsum("ij,ij->", Rj, Rj))
+            den += float(np.einsum("ij,ij->", Bj, Bj))
+            del Rj
+            Bj[...] = Xj
+        Y, iterations = B, 1
     else:
         Y, iterations = _amg_solve(system, B, tol, max_iter, monitor)
+        num, den = _residual_parts(system.A, Y, B)
+    del B
     if not np.all(np.isfinite(Y)):
         raise ConvergenceError("the Dirichlet solve produced non-finite values")
-    # measured relative residual, a few columns at a time (no second n x r temporary)
-    num = den = 0.0
-    height = max(1, 2**22 // max(r, 1))
-    for i in range(0, len(system.free), height):
-        Bi = B[i:i + height]
-        Ri = system.A[i:i + height] @ Y
-        Ri -= Bi
-        num += float(np.einsum("ij,ij->", Ri, Ri))
-        den += float(np.einsum("ij,ij->", Bi, Bi))
-    del B
     residual = float(np.sqrt(num / den)) if den > 0 else 0.0
     monitor(iterations, residual)
-    if Qt is None:
-        Y += shift
-        out[system.free] = Y
-        return Extension(out, r, err, residual, iterations)
-    rows = max(1, 2**22 // max(c, 1))  # expand back to c columns in row blocks
+    rows = max(1, 2**22 // max(c, 1))  # back to c columns (plus the means) in row blocks
     for s in range(0, len(system.free), rows):
-        block = Y[s:s + rows] @ Qt
+        block = Y[s:s + rows] if Qt is None else Y[s:s + rows] @ Qt
         block += shift
         out[system.free[s:s + rows]] = block
     return Extension(out, r, err, residual, iterations)
+
+
+def _block_columns(r: int, n: int) -> int:
+    """Columns per block solve: the solver's copies of a block stay ~128 MB."""
+    return max(1, min(r, 2**24 // max(n, 1)))
+
+
+def _residual_parts(A: sp.csr_matrix, Y: np.ndarray, B: np.ndarray) -> tuple[float, float]:
+    """``(‖A Y − B‖², ‖B‖²)`` a few rows at a time (no second ``n × r`` temporary)."""
+    num = den = 0.0
+    height = max(1, 2**22 // max(Y.shape[1], 1))
+    for i in range(0, A.shape[0], height):
+        Bi = B[i:i + height]
+        Ri = A[i:i + height] @ Y
+        Ri -= Bi
+        num += float(np.einsum("ij,ij->", Ri, Ri))
+        den += float(np.einsum("ij,ij->", Bi, Bi))
+    return num, den

@@ -34,6 +34,7 @@ from solvers.histograms.quantiles import (
     inverse_cdf_from_histograms,
     inverse_cdf_from_samples,
     quantile_levels,
+    sort_rows,
 )
 from solvers.monitor import SolverResult
 
@@ -172,8 +173,7 @@ def propagate_histograms(graph, labeled, histograms=None, *, bins=None, samples=
         V[order] = q
         ext = harmonic_extension(system, V, rank_tol=rank_tol, tol=tol, max_iter=max_iter,
                                  progress=progress, should_cancel=should_cancel)
-        Q = ext.values
-        Q.sort(axis=1)  # in place; monotone already with non-negative weights
+        Q = sort_rows(ext.values)  # in place; monotone already with non-negative weights
         H = None if b is None else histograms_from_inverse_cdf(Q, lev, b, sorted_rows=True)
     else:
         if b is None:

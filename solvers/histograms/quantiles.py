@@ -134,39 +134,38 @@ def histograms_from_inverse_cdf(quantiles: np.ndarray, levels: np.ndarray,
                                 bins: Bins, *, sorted_rows: bool = False) -> np.ndarray:
     """``(n, m)`` inverse CDFs -> ``(n, B)`` histograms (CDF differences over each bin).
 
-    The CDF at every inner edge is read off as in :func:`cdf_from_inverse_cdf`, in row
-    blocks: the number ``k`` of levels at or below the edge comes from one bin count of
-    the values, then the piecewise-linear inverse CDF is inverted between levels ``k - 1``
-    and ``k``.  Mass below ``e_0`` or above ``e_B`` (none when the labels lie in the bins)
-    is put in the first / last bin, so every row sums to 1.  ``sorted_rows``: the rows are
-    known to be non-decreasing (else they are sorted).
+    The CDF at every inner edge is read off as in :func:`cdf_from_inverse_cdf`: with ``k``
+    the number of levels whose value is at or below the edge, the piecewise-linear inverse
+    CDF is inverted between levels ``k - 1`` and ``k`` (one merge pass of each row with
+    the edges, compiled: :func:`solvers.histograms._kernels.histograms_from_sorted_rows`).
+    Mass below ``e_0`` or above ``e_B`` (none when the labels lie in the bins) is put in
+    the first / last bin, so every row sums to 1.  ``sorted_rows``: the rows are known to
+    be non-decreasing (else a sorted copy is used).
     """
-    q_all = np.asarray(quantiles, dtype=np.float64)
-    n, m = q_all.shape
-    B = bins.count
-    lev = np.asarray(levels, dtype=np.float64)
-    inner = bins.edges[1:-1]
-    out = np.empty((n, B))
-    step = max(1, 2**21 // max(m, 1))
-    for s in range(0, n, step):
-        q = q_all[s:s + step] if sorted_rows else np.sort(q_all[s:s + step], axis=1)
-        rows = len(q)
-        F = np.empty((rows, B + 1))
-        F[:, 0], F[:, -1] = 0.0, 1.0
-        if B > 1:
-            # idx = #inner edges < value; value <= e_j  <=>  idx <= j
-            idx = np.searchsorted(inner, q, side="left")
-            flat = (np.arange(rows)[:, None] * B + idx).ravel()
-            counts = np.bincount(flat, minlength=rows * B).reshape(rows, B)
-            k = np.cumsum(counts, axis=1)[:, :-1]  # (rows, B - 1): levels <= e_j
-            r = np.arange(rows)[:, None]
-            km1 = np.clip(k - 1, 0, m - 1)
-            kk = np.clip(k, 0, m - 1)
-            q0, q1 = q[r, km1], q[r, kk]
-            gap = q1 - q0
-            x = inner[None, :]
-            frac = np.where(gap > 0, (x - q0) / np.where(gap > 0, gap, 1.0), 0.0)
-            inside = lev[km1] + np.clip(frac, 0.0, 1.0) * (lev[kk] - lev[km1])
-            F[:, 1:-1] = np.where(k <= 0, 0.0, np.where(k >= m, 1.0, inside))
-        out[s:s + rows] = np.clip(np.diff(F, axis=1), 0.0, None)
+    from solvers.histograms._kernels import histograms_from_sorted_rows
+
+    q = np.asarray(quantiles, dtype=np.float64)
+    if q.ndim != 2:
+        raise InputError(f"quantiles must be (n, m), got {q.shape}", field="quantiles")
+    if not sorted_rows:
+        q = np.sort(q, axis=1)
+    q = np.ascontiguousarray(q)
+    lev = np.ascontiguousarray(levels, dtype=np.float64)
+    if lev.shape != (q.shape[1],):
+        raise InputError(f"levels must be ({q.shape[1]},), got {lev.shape}", field="levels")
+    out = np.empty((len(q), bins.count))
+    histograms_from_sorted_rows(q, lev, np.ascontiguousarray(bins.edges, dtype=np.float64),
+                                out)
     return out
+
+
+def sort_rows(quantiles: np.ndarray) -> np.ndarray:
+    """Sort the rows of a float64 C-ordered ``(n, m)`` array in place (one pass over rows
+    that are sorted already) and return it."""
+    from solvers.histograms._kernels import sort_rows_inplace
+
+    if quantiles.dtype != np.float64 or not quantiles.flags.c_contiguous:
+        quantiles.sort(axis=1)
+        return quantiles
+    sort_rows_inplace(quantiles)
+    return quantiles
