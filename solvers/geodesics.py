@@ -7,8 +7,9 @@ with transport-based distances.
 Two exact polyhedral algorithms, both on the *fan-split* surface (below):
 
 * ``"mmp"`` — Mitchell–Mount–Papadimitriou exact geodesics (Kirsanov's implementation in
-  ``tvb-gdist``) from one source to every vertex; cost grows with the mesh, not with the
-  number of targets.
+  ``tvb-gdist``) from one source to every vertex, optionally stopped at a distance bound;
+  cost grows with the area covered (plus a mesh setup per call), not with the number of
+  targets.
 * ``"edge-flip"`` — potpourri3d's edge-flip solver (Sharp & Crane 2020): the Dijkstra path
   straightened by edge flips into a locally shortest geodesic, one pair at a time; cheap per
   pair, so it wins for a few pairs on a large mesh.
@@ -158,16 +159,72 @@ def mmp_timing(mesh: TriangleMesh) -> dict:
     return mesh.operators.get(("mmp-timing",), lambda: {"solves": 0, "seconds": 0.0})
 
 
+# Model of one MMP solve (tvb-gdist on the shared 2-core machine, fitted on spot, rocker-arm
+# and stanford-bunny under load ~1-10): the mesh setup of every call, MMP_SETUP_PER_VERTEX
+# * n, plus MMP_FULL_COEF * n ** MMP_FULL_POWER for a one-to-all solve, of which a solve
+# stopped at a bound pays about (fraction of vertices reached) ** MMP_REACH_POWER.  The
+# measured/model ratio of the solves on a mesh corrects later estimates there.
+MMP_SETUP_PER_VERTEX = 1.4e-5
+MMP_FULL_COEF = 3e-7
+MMP_FULL_POWER = 1.7
+MMP_REACH_POWER = 1.1
+
+
+def _bounded_timing(mesh: TriangleMesh) -> dict:
+    return mesh.operators.get(("mmp-bounded-timing",), lambda: {"seconds": 0.0, "model": 0.0})
+
+
+def _mmp_model(n: int, reach: float) -> float:
+    return (MMP_SETUP_PER_VERTEX * n
+            + MMP_FULL_COEF * n ** MMP_FULL_POWER * min(max(reach, 0.0), 1.0) ** MMP_REACH_POWER)
+
+
+def mmp_solve_seconds(mesh: TriangleMesh, reach: float = 1.0) -> float:
+    """Estimated seconds of one MMP solve reaching the fraction ``reach`` of the vertices:
+    the model above times the measured/model ratio of the bounded solves on this mesh so
+    far (clipped to [0.25, 8])."""
+    timing = mesh.operators.peek(("mmp-bounded-timing",))
+    ratio = timing["seconds"] / timing["model"] if timing and timing["model"] > 0 else 1.0
+    return _mmp_model(mesh.n, reach) * min(max(ratio, 0.25), 8.0)
+
+
 def cost_estimate(mesh: TriangleMesh, n_sources: int, n_targets: int, route: str) -> float:
-    """Rough seconds for a (sources × targets) matrix by ``route``: for ``"mmp"`` the mean
-    of the solves measured on this mesh so far, else a size model fitted on the shared
-    meshes (2 cores; MMP's cost also depends on the shape, so the measured mean wins)."""
+    """Rough seconds for a (sources × targets) matrix by ``route``: for ``"mmp"`` one
+    one-to-all solve per point of the smaller side (the measured mean on this mesh when
+    there is one, else :func:`mmp_solve_seconds`), for ``"edge-flip"`` a per-pair model."""
     if route == "mmp":
         timing = mesh.operators.peek(("mmp-timing",))
         per = (timing["seconds"] / timing["solves"] if timing and timing["solves"]
-               else 5e-7 * mesh.n ** 1.4)
+               else mmp_solve_seconds(mesh))
         return min(n_sources, n_targets) * per
-    return n_sources * n_targets * (6e-4 + 2e-7 * mesh.n)
+    return n_sources * n_targets * (6e-4 + 2e-6 * mesh.n)
+
+
+def edge_path_distances(mesh: TriangleMesh, sources) -> np.ndarray:
+    """``(len(sources), n)`` shortest edge-path lengths (Dijkstra on the edge graph, unit
+    area): upper bounds of the geodesic distances, ``inf`` across components."""
+    from scipy.sparse.csgraph import dijkstra
+
+    src = _check_indices(mesh, sources, "sources")
+    return np.atleast_2d(dijkstra(_edge_graph(mesh), directed=False, indices=src))
+
+
+def geodesic_distances_within(mesh: TriangleMesh, source: int, bound: float) -> np.ndarray:
+    """``(n,)`` exact geodesic distances from ``source`` where they are at most ``bound``,
+    ``inf`` where they are larger (MMP stops propagating past ``bound``; ``bound=inf``: a
+    one-to-all solve).  The measured time and the model's time at the fraction of vertices
+    reached are recorded for :func:`mmp_solve_seconds`."""
+    pieces = _pieces(mesh)
+    finite = bool(np.isfinite(bound))
+    start = time.perf_counter()
+    d = _one_to_all(pieces, int(source), float(bound) if finite else None)
+    seconds = time.perf_counter() - start
+    if finite:
+        d = np.where(d <= bound, d, np.inf)
+    timing = _bounded_timing(mesh)
+    timing["seconds"] += seconds
+    timing["model"] += _mmp_model(mesh.n, float(np.isfinite(d).mean()))
+    return d
 
 
 def geodesic_distances(mesh: TriangleMesh, sources, targets=None, *, route: str = "mmp",

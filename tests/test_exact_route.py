@@ -93,3 +93,48 @@ def test_geodesics_on_non_manifold_meshes(shared_mesh, name):
     lower = np.linalg.norm(mesh.vertices[s][:, None] - mesh.vertices[t][None], axis=2)
     assert np.all(d[same] <= upper[same] * (1 + 1e-9))
     assert np.all(d[same] >= lower[same] * (1 - 1e-9))
+
+
+@pytest.mark.parametrize(("name", "size", "seeds"), [("woody.obj", 25, (0, 1, 2)),
+                                                     ("cow.obj", 8, (0,))])
+def test_bounded_solves_give_the_full_lp(shared_mesh, name, size, seeds):
+    """The exact route solves each geodesic only out to the radius its plan needs (module
+    docstring of solvers.convolutional.exact): its value must still be the LP on the full
+    exact cost matrix, on a manifold mesh and on cow's junction vertex."""
+    mesh = shared_mesh(name)
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        s0, s1 = (rng.choice(mesh.n, size, replace=False) for _ in range(2))
+        m0, m1 = _points(mesh.n, s0, rng), _points(mesh.n, s1, rng)
+        res = exact_wasserstein_distance(mesh, m0, m1)
+        i0, i1 = np.flatnonzero(m0), np.flatnonzero(m1)
+        full = ot.emd2(m0[i0], m1[i1], geodesic_distances(mesh, i0, i1) ** 2)
+        assert res.value == pytest.approx(full, rel=1e-10) and res.converged
+        assert np.all(np.isfinite(res.plan)) and np.allclose(res.plan.sum(axis=0), m1[i1])
+
+
+def test_exact_route_estimate_budget_and_cancel(shared_mesh, monkeypatch):
+    """The estimate is taken before the run, a budget below it stops the route, route auto
+    then falls back to the convolutional route and says why; cancel stops it too."""
+    import solvers.convolutional.distance as distance
+    from solvers.convolutional.exact import (
+        AUTO_SECONDS,
+        RouteTimeout,
+        exact_route_estimate,
+        exact_route_seconds,
+    )
+    from solvers.errors import CancelledError
+
+    mesh = shared_mesh("woody.obj")
+    rng = np.random.default_rng(5)
+    m0 = _points(mesh.n, rng.choice(mesh.n, 25, replace=False))
+    m1 = _points(mesh.n, rng.choice(mesh.n, 25, replace=False))
+    estimate = exact_route_estimate(mesh, m0, m1)
+    assert exact_route_seconds(mesh, 25, 25) <= estimate < AUTO_SECONDS
+    with pytest.raises(RouteTimeout):
+        exact_wasserstein_distance(mesh, m0, m1, time_budget=0.0)
+    with pytest.raises(CancelledError):
+        exact_wasserstein_distance(mesh, m0, m1, should_cancel=lambda: True)
+    monkeypatch.setattr(distance, "AUTO_BUDGET_SECONDS", 0.0)
+    res = wasserstein_distance(mesh, m0, m1)
+    assert res.route == "convolutional" and "budget" in res.regularization.reason

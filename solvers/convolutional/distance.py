@@ -37,7 +37,7 @@ from solvers.convolutional.exact import (
     MAX_SUPPORT_PRODUCT,
     ExactTransportResult,
     RouteTimeout,
-    exact_route_seconds,
+    exact_route_estimate,
     exact_wasserstein_distance,
     supports_exact,
 )
@@ -417,7 +417,7 @@ def _exact_fits(domain, m0: np.ndarray, m1: np.ndarray) -> bool:
     if not supports_exact(domain):
         return False
     n0, n1 = int(np.count_nonzero(m0)), int(np.count_nonzero(m1))
-    return n0 * n1 <= MAX_SUPPORT_PRODUCT and exact_route_seconds(domain, n0, n1) <= AUTO_SECONDS
+    return n0 * n1 <= MAX_SUPPORT_PRODUCT and exact_route_estimate(domain, m0, m1) <= AUTO_SECONDS
 
 
 def _finite_max(x: np.ndarray) -> float:

@@ -5,17 +5,28 @@ r"""Exact W2 for sparse supports: a geodesic cost matrix and the transport LP.
 
 over the support points ``x_i`` of ``mu0`` and ``y_j`` of ``mu1`` only (thesis eq. 1.1,
 the discrete Kantorovich problem the convolutional solvers regularize).  ``d`` is the exact
-polyhedral geodesic distance on meshes (:func:`solvers.geodesics.geodesic_distances`: one
-exact one-to-all solve from each point of the smaller support), the Euclidean distance on
-grids (the metric whose Gaussian the grid heat kernel is; periodic axes wrap) and on point
-clouds; the LP is POT's network simplex (``ot.emd``).  No entropic bias, no heat-kernel
-discretization: the value is the discrete transport cost itself.
+polyhedral geodesic distance on meshes (MMP, :mod:`solvers.geodesics`), the Euclidean
+distance on grids (the metric whose Gaussian the grid heat kernel is; periodic axes wrap) and
+on point clouds; the LP is POT's network simplex (``ot.emd``).  No entropic bias, no
+heat-kernel discretization: the value is the discrete transport cost itself.
 
-The cost is one geodesic solve per support point and an LP of size ``n0 × n1``, so the route
-is for sparse inputs (point masses, few scattered points); :func:`exact_route_seconds`
-estimates it before it runs and :func:`~solvers.convolutional.distance.wasserstein_distance`
-(``route="auto"``) takes it when the estimate is below :data:`AUTO_SECONDS`.  Measured
-accuracy and times against the convolutional route: ``bench/results/convolutional.md``.
+Meshes: distances only as far as the optimal plan needs them.  An exact one-to-all solve
+costs ~``n^1.7`` (10-20 s on the 35k-50k shared meshes), but one stopped at a radius ``R``
+costs about the area it covers, and the optimal plan of scattered points only links nearby
+points.  So, from each point ``x_i`` of the smaller support: a bound ``R_i`` (the edge-path
+length, an upper bound of ``d``, to the targets of ``x_i`` in the LP on squared edge-path
+lengths), exact distances up to ``R_i`` (MMP stopped there), and the LP on the *lower
+bounds* ``L_ij = d_ij`` where known, ``max(R_i, |x_i - y_j|)`` where ``d_ij > R_i``.  If its
+optimal plan uses only known entries, its value is that plan's true cost, which no plan can
+beat (``L <= d`` entrywise): it is the exact W2².  Otherwise the bounds of the rows that use
+an unknown entry grow to cover it and the loop repeats (at most until every entry is known).
+
+The cost is one (bounded) geodesic solve per point of the smaller support and an LP of size
+``n0 × n1``, so the route is for sparse inputs (point masses, few scattered points);
+:func:`exact_route_estimate` estimates it before it runs and
+:func:`~solvers.convolutional.distance.wasserstein_distance` (``route="auto"``) takes it when
+the estimate is below :data:`AUTO_SECONDS`.  Measured accuracy and times against the
+convolutional route: ``bench/results/convolutional.md``.
 """
 
 from __future__ import annotations
@@ -31,11 +42,22 @@ from solvers.monitor import Monitor, SolverResult
 
 # route="auto" takes the exact route when its estimated time is below this (seconds), and
 # falls back to the convolutional route when the cost matrix takes longer than
-# AUTO_BUDGET_SECONDS after all ...
-AUTO_SECONDS = 5.0
-AUTO_BUDGET_SECONDS = 20.0
+# AUTO_BUDGET_SECONDS after all: with the convolutional fallback's own VALUE_SECONDS budget
+# (solvers.regularization) this stays well inside the service's 600 s job limit
+# (service.settings job_time_limit); 25 + 25 point masses on the 35k-50k shared meshes fit
+# (bench/results/convolutional.md) ...
+AUTO_SECONDS = 120.0
+AUTO_BUDGET_SECONDS = 300.0
 # ... and refuses route="exact" above this (the LP's dense n0 x n1 cost matrix).
 MAX_SUPPORT_PRODUCT = 25_000_000
+# Meshes: each solve bound is the edge-path length it must cover times BOUND_MARGIN (fewer
+# second rounds, bench/results/convolutional.md); the triangle-inequality lower bounds are
+# used while rows^2 x columns stays below TRIANGLE_ENTRIES.
+BOUND_MARGIN = 1.0
+TRIANGLE_ENTRIES = 20_000_000
+# The later rounds (rows whose bound grows) took 0.5-0.8 x the first round's time on 25 + 25
+# scattered points (rocker-arm, stanford-bunny): estimates count the first round this much.
+ROUNDS_FACTOR = 1.8
 EXACT_KINDS = ("mesh", "grid", "pointcloud")
 
 
@@ -68,27 +90,152 @@ def supports_exact(domain) -> bool:
     return getattr(domain, "kind", None) in EXACT_KINDS
 
 
+def _lp_seconds(n0: int, n1: int) -> float:
+    return 2e-8 * float(n0) * float(n1) * np.log2(max(n0 * n1, 2))
+
+
 def exact_route_seconds(domain, n0: int, n1: int) -> float:
-    """Estimated seconds of the exact route for supports of ``n0`` and ``n1`` points
-    (geodesic solves plus network simplex; fitted on the shared meshes, 2 cores)."""
-    lp = 2e-8 * float(n0) * float(n1) * np.log2(max(n0 * n1, 2))
+    """Size-only estimate of the exact route for supports of ``n0`` and ``n1`` points:
+    on meshes a *lower bound* (one MMP mesh setup per point of the smaller side), else the
+    cost matrix and the network simplex.  :func:`exact_route_estimate` looks at the
+    supports themselves."""
     if getattr(domain, "kind", None) == "mesh":
-        from solvers.geodesics import cost_estimate
+        from solvers.geodesics import mmp_solve_seconds
 
-        return cost_estimate(domain, n0, n1, "mmp") + lp
-    return lp + 1e-8 * float(n0) * float(n1)
+        return min(n0, n1) * mmp_solve_seconds(domain, 0.0) + _lp_seconds(n0, n1)
+    return _lp_seconds(n0, n1) + 1e-8 * float(n0) * float(n1)
 
 
-def _cost_matrix(domain, src: np.ndarray, dst: np.ndarray, should_cancel=None) -> np.ndarray:
-    kind = domain.kind
-    if kind == "mesh":
-        from solvers.geodesics import geodesic_distances
+@dataclass
+class _MeshPlan:
+    """The smaller support as rows, edge-path upper bounds and the first solve bounds."""
 
-        return geodesic_distances(domain, src, dst, route="mmp",
-                                  should_cancel=should_cancel) ** 2
+    flipped: bool
+    rows: np.ndarray
+    cols: np.ndarray
+    row_mass: np.ndarray
+    col_mass: np.ndarray
+    upper: np.ndarray  # (r, c) edge-path lengths between rows and cols (>= geodesic)
+    need: np.ndarray  # (r,) the bound of each row's first solve
+    reach: np.ndarray  # (r,) fraction of vertices within need (edge paths)
+    seconds: float  # estimated seconds of the bounded solves
+
+
+def _finite_cost(cost: np.ndarray) -> np.ndarray:
+    """Infinite entries (other components) priced above any finite plan: matching
+    component masses leave them unused."""
+    finite = np.isfinite(cost)
+    if finite.all():
+        return cost
+    return np.where(finite, cost, 10.0 * float(cost[finite].max(initial=0.0)) * cost.size + 1.0)
+
+
+def _mesh_plan(mesh, src, dst, a, b) -> _MeshPlan:
+    import ot
+
+    from solvers.geodesics import edge_path_distances, mmp_solve_seconds
+
+    flipped = len(dst) < len(src)
+    rows, cols, ra, cb = (dst, src, b, a) if flipped else (src, dst, a, b)
+    paths = edge_path_distances(mesh, rows)  # (r, n)
+    upper = paths[:, cols]
+    guess = ot.emd(ra, cb, _finite_cost(upper**2), numItermax=10_000_000)
+    need = np.where(guess > 0, upper, 0.0).max(axis=1)
+    reach = (paths <= need[:, None]).mean(axis=1)
+    seconds = ROUNDS_FACTOR * float(sum(mmp_solve_seconds(mesh, r) for r in reach))
+    return _MeshPlan(flipped, rows, cols, ra, cb, upper, need, reach, seconds)
+
+
+def _cached_plan(mesh, src, dst, a, b) -> _MeshPlan:
+    """:func:`_mesh_plan`, kept for the next call on the same supports (the estimate of
+    route="auto" is followed by the run).  Any plan gives the exact value (its bounds only
+    decide how much is solved), so masses equal to 12 digits share one."""
+    import hashlib
+
+    digest = hashlib.sha1(b"".join(np.ascontiguousarray(x).tobytes() for x in (
+        src, dst, np.round(a, 12), np.round(b, 12)))).hexdigest()
+    last = mesh.operators.peek(("exact-plan",))
+    if last is not None and last[0] == digest:
+        return last[1]
+    plan = _mesh_plan(mesh, src, dst, a, b)
+    mesh.operators.discard(("exact-plan",))
+    mesh.operators.get(("exact-plan",), lambda: (digest, plan))
+    return plan
+
+
+def exact_route_estimate(domain, mu0, mu1) -> float:
+    """Estimated seconds of :func:`exact_wasserstein_distance` on these inputs.  Meshes:
+    the solve bounds of the first round (edge-path plan, module docstring) through the MMP
+    timing model of :mod:`solvers.geodesics`; supports whose setup alone is past
+    ``AUTO_BUDGET_SECONDS`` get the size-only lower bound."""
+    m0, m1 = np.asarray(mu0), np.asarray(mu1)
+    src, dst = np.flatnonzero(m0 > 0), np.flatnonzero(m1 > 0)
+    floor = exact_route_seconds(domain, len(src), len(dst))
+    if getattr(domain, "kind", None) != "mesh" or floor > AUTO_BUDGET_SECONDS:
+        return floor
+    plan = _cached_plan(domain, src, dst, m0[src] / m0.sum(), m1[dst] / m1.sum())
+    return plan.seconds + _lp_seconds(len(src), len(dst))
+
+
+def _triangle_bounds(near: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """``(r, c)`` lower bounds ``max_k |d(x_i, x_k) - d(x_k, y_j)|`` (triangle inequality)
+    from the known row-row distances ``near`` and row-column distances ``dist`` (nan:
+    unknown)."""
+    out = np.zeros(dist.shape)
+    for i in range(len(near)):
+        with np.errstate(invalid="ignore"):
+            gaps = np.abs(near[i][:, None] - dist)  # (k, c)
+        gaps = np.where(np.isnan(gaps), 0.0, gaps)
+        out[i] = gaps.max(axis=0, initial=0.0)
+    return out
+
+
+def _mesh_exact(mesh, plan: _MeshPlan, stop, max_iter: int):
+    """The bounded-solve loop of the module docstring: ``(plan, squared cost, log, LP
+    seconds)``."""
+    import ot
+
+    from solvers.geodesics import geodesic_distances_within
+
+    r, c = len(plan.rows), len(plan.cols)
+    dist = np.full((r, c), np.nan)  # exact where known
+    near = np.full((r, r), np.nan)  # exact row-row distances where known
+    bound = np.full(r, -1.0)
+    need = plan.need * BOUND_MARGIN
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    straight = np.linalg.norm(v[plan.rows][:, None, :] - v[plan.cols][None, :, :], axis=2)
+    triangle = r * r * c <= TRIANGLE_ENTRIES
+    lp_seconds = 0.0
+    while True:
+        for i in np.flatnonzero(need > bound):
+            stop()
+            d = geodesic_distances_within(mesh, int(plan.rows[i]), float(need[i]))
+            bound[i] = need[i]
+            everything = not np.isfinite(need[i])  # an unbounded solve: inf is known too
+            dist[i] = np.where(np.isfinite(d[plan.cols]) | everything, d[plan.cols], np.nan)
+            seen = np.isfinite(d[plan.rows]) | everything
+            near[i, seen] = near[seen, i] = d[plan.rows][seen]
+        known = ~np.isnan(dist)
+        lower = np.maximum(bound[:, None], straight)
+        if triangle:
+            lower = np.maximum(lower, _triangle_bounds(near, dist))
+        lower = np.where(known, dist, lower)
+        begin = time.perf_counter()
+        coupling, log = ot.emd(plan.row_mass, plan.col_mass, _finite_cost(lower**2),
+                               numItermax=int(max_iter), log=True)
+        lp_seconds += time.perf_counter() - begin
+        guessed = (coupling > 0) & ~known
+        if not guessed.any():
+            return coupling, np.where(known, dist, np.inf) ** 2, log, lp_seconds
+        grow = np.flatnonzero(guessed.any(axis=1))  # cover the guessed entries: upper >= d
+        cover = np.where(guessed[grow], plan.upper[grow], 0.0).max(axis=1)
+        need[grow] = np.maximum(need[grow] * BOUND_MARGIN, cover * BOUND_MARGIN)
+
+
+def _cost_matrix(domain, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     pts = np.asarray(domain.points, dtype=np.float64)
     diff = pts[src][:, None, :] - pts[dst][None, :, :]
-    if kind == "grid" and any(domain.periodic):
+    if domain.kind == "grid" and any(domain.periodic):
         width = domain.bounds[:, 1] - domain.bounds[:, 0]
         for ax, per in enumerate(domain.periodic):
             if per:
@@ -113,9 +260,9 @@ def exact_wasserstein_distance(
     domain : a TriangleMesh, Grid or PointCloud.
     mu0, mu1 : ``(n,)`` masses (normalized here); their supports set the LP size.
     max_iter : network-simplex iteration cap; when hit, ``converged`` is False.
-    time_budget : seconds; a cost matrix running, or projected at its measured rate to run,
-        past it raises :class:`RouteTimeout` (``route="auto"`` falls back to the
-        convolutional route).
+    time_budget : seconds; a cost matrix running, or estimated (the MMP timing model,
+        corrected by the solves measured so far) to run, past it raises
+        :class:`RouteTimeout` (``route="auto"`` falls back to the convolutional route).
     progress, should_cancel : called between the geodesic solves and before the LP.
 
     Returns
@@ -125,6 +272,7 @@ def exact_wasserstein_distance(
     import ot
 
     from solvers.convolutional.common import check_components, distribution_pair
+    from solvers.errors import CancelledError
 
     if not supports_exact(domain):
         raise InputError(f"the exact route needs a mesh, grid or point cloud, not a "
@@ -139,35 +287,46 @@ def exact_wasserstein_distance(
     monitor = Monitor(progress, should_cancel)
     monitor(0, float("nan"))
     start = time.perf_counter()
-    solves = min(len(src), len(dst))
-    calls = [0]
+    a, b = m0[src], m1[dst]
+    solves = [0]
 
-    def stop() -> bool:  # before each geodesic solve: the caller's cancel, then the budget
+    def stop() -> None:  # before each geodesic solve: the caller's cancel, then the budget
         if should_cancel is not None and should_cancel():
-            return True
+            raise CancelledError("cancelled between geodesic solves")
         if time_budget is not None:
-            elapsed, done = time.perf_counter() - start, calls[0]
-            projected = elapsed / done * solves if done else 0.0  # at the measured rate
-            if elapsed > time_budget or (done >= 2 and projected > time_budget):
+            from solvers.geodesics import mmp_solve_seconds
+
+            elapsed = time.perf_counter() - start
+            left = len(plan.rows) - solves[0] if plan is not None else 0
+            projected = elapsed + left * mmp_solve_seconds(domain, float(np.mean(plan.reach)))
+            if elapsed > time_budget or (solves[0] >= 2 and projected > time_budget):
                 raise RouteTimeout(f"exact route projected past its {time_budget:.0f} s "
                                    "budget")
-        calls[0] += 1
-        return False
+        solves[0] += 1
 
-    cost = _cost_matrix(domain, src, dst, stop)
-    cost_seconds = time.perf_counter() - start
-    monitor.check_cancel("before the transport LP")
-    a, b = m0[src], m1[dst]
-    finite = np.isfinite(cost)
-    if not finite.all():  # other components: matching component masses make them unused
-        cost = np.where(finite, cost, 10.0 * float(cost[finite].max(initial=0.0)) + 1.0)
-    start = time.perf_counter()
-    plan, log = ot.emd(a, b, cost, numItermax=int(max_iter), log=True)
-    lp_seconds = time.perf_counter() - start
-    residual = float(np.abs(plan.sum(axis=1) - a).sum() + np.abs(plan.sum(axis=0) - b).sum())
+    plan = None
+    if domain.kind == "mesh":
+        plan = _cached_plan(domain, src, dst, a, b)
+        if time_budget is not None and plan.seconds > time_budget:
+            raise RouteTimeout(f"exact route estimated at {plan.seconds:.0f} s, past its "
+                               f"{time_budget:.0f} s budget")
+        coupling, cost, log, lp_seconds = _mesh_exact(domain, plan, stop, max_iter)
+        cost_seconds = time.perf_counter() - start - lp_seconds
+        if plan.flipped:
+            coupling, cost = coupling.T, cost.T
+    else:
+        cost = _cost_matrix(domain, src, dst)
+        cost_seconds = time.perf_counter() - start
+        monitor.check_cancel("before the transport LP")
+        begin = time.perf_counter()
+        coupling, log = ot.emd(a, b, cost, numItermax=int(max_iter), log=True)
+        lp_seconds = time.perf_counter() - begin
+    residual = float(np.abs(coupling.sum(axis=1) - a).sum()
+                     + np.abs(coupling.sum(axis=0) - b).sum())
     converged = int(log.get("result_code", 0)) == 1
-    value = float(np.sum(plan[finite] * cost[finite]))
+    used = coupling > 0
+    value = float(np.sum(coupling[used] * cost[used]))
     monitor(1, residual)
-    return ExactTransportResult(value=value, sources=src, targets=dst, plan=plan,
+    return ExactTransportResult(value=value, sources=src, targets=dst, plan=coupling,
                                 iterations=1, residual=residual, converged=converged,
                                 cost_seconds=cost_seconds, lp_seconds=lp_seconds)
