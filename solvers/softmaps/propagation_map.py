@@ -186,6 +186,7 @@ def soft_map(
     descriptors: tuple | None = None,
     tol: float = 1e-4,
     max_iter: int = 200,
+    acceleration: str = "over-relaxation",
     top_k: int | None = None,
     extraction: str = "mode",
     refine: str = "zoomout",
@@ -209,6 +210,9 @@ def soft_map(
         (:func:`descriptors_for_pair`) and cost (:func:`compatibility_cost`); or pass
         ``descriptors=(f0, f)`` directly.
     tol, max_iter : stopping of the propagation (largest L1 marginal violation).
+    acceleration : ``"over-relaxation"`` (default: adaptive over-relaxation of the sweeps,
+        same fixed point) or ``"none"`` (plain Alg. 4 sweeps); see
+        :func:`~solvers.convolutional.wasserstein_propagation`.
     top_k : keep only the ``k`` largest masses per row (``dropped_mass`` reports the rest).
     extraction : ``"mode"``, ``"barycentric"`` or ``"path"`` (eq. 4.7, seeded with the first
         landmark); refine : ``"zoomout"`` (spectral upsampling over ``zoomout_range =
@@ -277,7 +281,7 @@ def soft_map(
         fixed[j] = m  # landmark j is sample j (seeds first)
     prop = wasserstein_propagation(target, graph.n, graph.edges, fixed, edge_weights=w,
                                    node_scalings=log_d, gamma=gamma,
-                                   substeps=substeps,
+                                   substeps=substeps, acceleration=acceleration,
                                    tol=tol, max_iter=max_iter, progress=progress,
                                    should_cancel=should_cancel)
     # Descriptor energy (eq. 4.6) with the normalized cost c = -log_d * gamma * W_u / tau.
