@@ -6,7 +6,8 @@ accuracy
     lion -> cat, 5 landmark pairs (the first 5 of ``cat-lion-landmarks.txt``), score = mean
     geodesic error on the cat (heat-method distances, the same evaluator for every method)
     / sqrt(cat area).  otgeo: soft map with 1,024 source samples over all cat vertices
-    (defaults, 50 sweeps, residual reported), mode extraction, then ZoomOut.  pyFM
+    (defaults: adaptive over-relaxation; at most 50 sweeps, residual reported), mode
+    extraction, then ZoomOut.  pyFM
     (``pyfmaps``) with the settings the issue quotes from its example: WKS, 35 eigenpairs,
     the 5 landmarks, basic functional map (w_descr 1, w_lap 1e-2, w_dcomm 1e-1), then ICP
     and ZoomOut (15 steps of 1).  POT's
@@ -58,6 +59,15 @@ def load():
     return cat, lion, gt, lm
 
 
+def _code() -> str:
+    """Commit of the measured code (``+dirty`` when the solver files differ from it)."""
+    head = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
+                          capture_output=True, text=True).stdout.strip()
+    dirty = subprocess.run(["git", "-C", str(ROOT), "diff", "--quiet", "HEAD", "--",
+                            "solvers/convolutional/propagation.py", "solvers/softmaps"]).returncode
+    return head + ("+dirty" if dirty else "")
+
+
 def loadavg() -> str:
     return " ".join(open("/proc/loadavg").read().split()[:3])
 
@@ -92,8 +102,9 @@ def part_accuracy():
     res = soft_map(lion, cat, pairs, samples=1024, max_iter=SWEEPS)
     dt = time.perf_counter() - t0
     unrefined = res.sample_correspondence[res.labels]
-    rows.append({"method": f"otgeo soft map, 1024 samples, {SWEEPS} sweeps, ZoomOut "
-                           "(20, 50, 1) (first call)", "seconds": dt,
+    rows.append({"method": f"otgeo soft map, 1024 samples, at most {SWEEPS} over-relaxed "
+                           "sweeps, ZoomOut (20, 50, 1) (first call)", "seconds": dt,
+                 "code": _code(),
                  "error_mode": ev(unrefined), "error": ev(res.correspondence),
                  "iterations": res.iterations, "residual": res.residual,
                  "converged": res.converged, "timings": res.timings,
@@ -188,7 +199,7 @@ def _one_scaling(n: int) -> dict:
     return {"samples": n, "seconds": dt, "iterations": res.iterations,
             "residual": res.residual, "converged": res.converged,
             "seconds_per_sweep": res.timings["propagation"] / max(res.iterations + 1, 1),
-            "peak_extra_mb": peak / 2**20, "edges": int(len(res.edges)),
+            "peak_extra_mb": peak / 2**20, "edges": int(len(res.edges)), "code": _code(),
             "load_before": before, "load_after": loadavg()}
 
 
