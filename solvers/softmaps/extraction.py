@@ -35,7 +35,7 @@ from solvers.validation import check_indices, check_int, check_positive
 
 EXTRACTIONS = ("mode", "barycentric", "path")
 REFINEMENTS = ("zoomout", "sinkhorn", "sinkhorn+zoomout", "none")
-SINKHORN_ITERATIONS = 20  # default of the projection inside extract_correspondence
+SINKHORN_ITERATIONS = 50  # at most: stops at SINKHORN_TOL (bench/results/softmaps_refinement.md)
 SINKHORN_TOL = 1e-3  # L1 target-marginal violation (the plan's total mass is 1)
 
 
