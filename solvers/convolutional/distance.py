@@ -33,11 +33,14 @@ from solvers.convolutional.common import (
 )
 from solvers.convolutional.exact import (
     AUTO_BUDGET_SECONDS,
+    AUTO_DENSE_SECONDS,
     AUTO_SECONDS,
     MAX_SUPPORT_PRODUCT,
+    SPARSE_SUPPORT,
     ExactTransportResult,
     RouteTimeout,
     exact_route_estimate,
+    exact_route_seconds,
     exact_wasserstein_distance,
     supports_exact,
 )
@@ -309,10 +312,12 @@ def wasserstein_distance(
     W(\mu_1,\mu_1)` is returned, which vanishes for ``mu0 == mu1`` and removes the
     first-order entropic bias.
 
-    Defaults (``gamma="auto"``, ``route="auto"``): values users can trust.  When both
-    supports are small enough that the exact route is estimated below
-    :data:`~solvers.convolutional.exact.AUTO_SECONDS` (point masses, a few scattered
-    points, tiny meshes), the exact discrete W2² is computed instead
+    Defaults (``gamma="auto"``, ``route="auto"``): values users can trust.  When the
+    exact route is estimated below :data:`~solvers.convolutional.exact.AUTO_SECONDS`
+    for sparse inputs (the smaller support at most
+    :data:`~solvers.convolutional.exact.SPARSE_SUPPORT` points: point masses, a few
+    scattered points) or below :data:`~solvers.convolutional.exact.AUTO_DENSE_SECONDS`
+    otherwise (small meshes), the exact discrete W2² is computed instead
     (:func:`~solvers.convolutional.exact.exact_wasserstein_distance`: exact geodesic cost
     matrix between the supports, network-simplex LP).  Otherwise the regularization comes
     from :func:`solvers.regularization.choose_regularization` with ``purpose="values"``
@@ -413,11 +418,15 @@ def wasserstein_distance(
 
 
 def _exact_fits(domain, m0: np.ndarray, m1: np.ndarray) -> bool:
-    """route='auto': the exact route when available and estimated below AUTO_SECONDS."""
+    """route='auto': the exact route when available and estimated below AUTO_SECONDS
+    (sparse supports) or AUTO_DENSE_SECONDS (larger ones)."""
     if not supports_exact(domain):
         return False
     n0, n1 = int(np.count_nonzero(m0)), int(np.count_nonzero(m1))
-    return n0 * n1 <= MAX_SUPPORT_PRODUCT and exact_route_estimate(domain, m0, m1) <= AUTO_SECONDS
+    limit = AUTO_SECONDS if min(n0, n1) <= SPARSE_SUPPORT else AUTO_DENSE_SECONDS
+    if n0 * n1 > MAX_SUPPORT_PRODUCT or exact_route_seconds(domain, n0, n1) > limit:
+        return False
+    return exact_route_estimate(domain, m0, m1) <= limit
 
 
 def _finite_max(x: np.ndarray) -> float:

@@ -48,6 +48,12 @@ from solvers.monitor import Monitor, SolverResult
 # (bench/results/convolutional.md) ...
 AUTO_SECONDS = 120.0
 AUTO_BUDGET_SECONDS = 300.0
+# ... for sparse inputs (the smaller support at most SPARSE_SUPPORT points: there the
+# convolutional route is 9-15 % low); larger supports (bumps, within 10 % by the
+# convolutional route) take the exact route only when it is estimated below
+# AUTO_DENSE_SECONDS.
+SPARSE_SUPPORT = 64
+AUTO_DENSE_SECONDS = 10.0
 # ... and refuses route="exact" above this (the LP's dense n0 x n1 cost matrix).
 MAX_SUPPORT_PRODUCT = 25_000_000
 # Meshes: each solve bound is the edge-path length it must cover times BOUND_MARGIN (fewer
