@@ -233,7 +233,7 @@ def run(ctx, req: SoftMapRequest, progress, should_cancel) -> OperationOutput:
                    should_cancel=should_cancel)
     energies = soft_map_energies(target, res)
     b, e_vertex = energies.bijectivity_density, energies.dirichlet_vertex_density
-    sinkhorn = getattr(res, "sinkhorn", None)
+    sinkhorn = res.sinkhorn  # refine="sinkhorn...": the projection, else None
     values = SoftMapValues(
         energies=SoftMapEnergies(
             dirichlet=energies.dirichlet.total, bijectivity=energies.bijectivity,
