@@ -150,24 +150,31 @@ def part_compare():
 
 
 def render(data) -> str:
-    cmp_ = data["compare"]
-    info = cmp_["map"]
     out = ["# Soft maps: refinements with and without Sinkhorn projection "
            "(bench/softmaps_refinement.py)", "",
-           "One lion -> cat soft map (first 5 landmark pairs, 1,024 farthest-point lion samples, "
-           f"{SWEEPS} sweeps, defaults otherwise), computed once by "
-           "`.venv/bin/python bench/softmaps_refinement.py compute` at commit "
-           f"{info['commit']} ({info['when']}; {info['iterations'] + 1} sweeps, residual "
-           f"{info['residual']:.3g}, converged {info['converged']}; {info['seconds']:.0f} s "
-           f"at load {info['load_before']} -> {info['load_after']}) and saved to npz; every "
-           "row below extracts from that same map (`... compare`, run "
-           f"{cmp_['when']}).", "",
+           "Each section: one lion -> cat soft map (first 5 landmark pairs, 1,024 "
+           f"farthest-point lion samples, {SWEEPS} sweeps, soft_map's defaults at the commit "
+           "named), computed once by `SOFTMAPS_NPZ=<file> .venv/bin/python "
+           "bench/softmaps_refinement.py compute` and saved to npz; every row of the section "
+           "extracts from that same map (`SOFTMAPS_NPZ=<file> ... compare`).", "",
            "Error: mean geodesic error on the cat over all 5,000 lion vertices / sqrt(cat "
            "area) (heat-method distances, the evaluator of bench/softmaps.py). Sinkhorn: KL "
            "projection of the map onto the doubly-stochastic set w.r.t. source cell areas and "
            "cat vertex areas, landmark rows fixed; residual = L1 violation of the target "
            "marginal (before: initial). ZoomOut: range (20, 50, 1), soft_map's default. "
-           "Distinct targets: cat vertices hit by the 5,000 lion vertices.", "",
+           "Distinct targets: cat vertices hit by the 5,000 lion vertices.", ""]
+    for cmp_ in data["maps"]:
+        out += _render_map(cmp_)
+    out += ["", READING]
+    return "\n".join(out)
+
+
+def _render_map(cmp_) -> list[str]:
+    info = cmp_["map"]
+    out = [f"## Map computed at commit {info['commit']} ({info['when']})", "",
+           f"`{cmp_['npz']}`: {info['iterations'] + 1} sweeps, residual "
+           f"{info['residual']:.3g}, converged {info['converged']}; {info['seconds']:.0f} s at "
+           f"load {info['load_before']} -> {info['load_after']}. Compared {cmp_['when']}.", "",
            "| Sinkhorn scalings | marginal residual (before -> after) | extraction | ZoomOut "
            "| error | distinct targets | seconds (projection + extraction) | load before "
            "| load after |", "|---|---|---|---|---|---|---|---|---|"]
@@ -186,8 +193,8 @@ def render(data) -> str:
                    f"| {1e3 * r['error']:.2f}e-3 | {r['distinct_targets']} | "
                    f"{r['sinkhorn_seconds']:.1f} + {r['seconds']:.1f} | {r['load_before']} "
                    f"| {r['load_after']} |")
-    out += ["", READING]
-    return "\n".join(out)
+    out.append("")
+    return out
 
 
 READING = """## Reading
@@ -220,8 +227,10 @@ def main(argv):
         result = globals()[f"part_{part}"]()
         if part == "compare":
             data = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
-            data["compare"] = {**result, "when": time.strftime("%Y-%m-%d %H:%M UTC",
-                                                               time.gmtime())}
+            entry = {**result, "npz": str(NPZ),
+                     "when": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
+            maps = [m for m in data.get("maps", []) if m["npz"] != str(NPZ)]
+            data["maps"] = [*maps, entry]
             RESULTS.write_text(json.dumps(data, indent=1, default=float))
     if RESULTS.exists():
         RESULTS.with_suffix(".md").write_text(render(json.loads(RESULTS.read_text())) + "\n")
