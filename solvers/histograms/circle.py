@@ -10,10 +10,12 @@ one transport plan :math:`\pi_e \in \mathbb{R}_+^{B \times B}` per edge:
            \mu_v \ge 0,\; \mathbf 1^\top \mu_v = 1 \text{ (unlabeled } v),
 
 with :math:`\mu_v` fixed on the labeled nodes.  ``algorithm="lp"`` solves it exactly with
-HiGHS (``scipy.optimize.linprog``), the constraint matrix assembled sparse (``2B`` rows per
-edge), by column generation: the plans start on a band of cheap entries around the
-diagonal and the other entries are priced out with the LP duals and added while any has a
-negative reduced cost, so the result is the optimum over all :math:`m B^2` entries.
+HiGHS (``highspy``, dual simplex), the constraint matrix assembled sparse (``2B - 1``
+independent rows per edge), by warm-started column generation: the plans start on a band
+of cheap entries around the diagonal plus a feasible plan per edge, all other entries are
+priced with the LP duals and the negative ones added to the same model (re-solved from the
+previous basis) until none is left; a dual lower bound over all :math:`m B^2` entries then
+certifies that the result is the unrestricted LP's optimum.
 ``algorithm="entropic"`` solves the regularized version with the convolutional propagation of Alg. 4
 (:func:`solvers.convolutional.wasserstein_propagation`) on a periodic 1-D
 :class:`~solvers.domains.Grid` of the bin centers (heat kernel
@@ -23,7 +25,6 @@ with per-edge transport LPs, and, when the LP optimum is known, the gap is repor
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from typing import Literal
 
@@ -47,7 +48,13 @@ from solvers.validation import (
 class CircularPropagationResult(SolverResult):
     """``histograms`` ``(n, B)``; ``value`` the exact objective
     :math:`\\sum_e w_e W_C(\\mu_u, \\mu_v)` of the returned histograms; ``lp_value`` the LP
-    optimum when known and ``gap = value - lp_value`` (0 for the LP itself)."""
+    optimum when known and ``gap = value - lp_value`` (0 for the LP itself).
+
+    For ``algorithm="lp"`` (``iterations``: column-generation rounds): ``lower_bound`` a
+    dual bound on the *unrestricted* LP (all ``m B^2`` plan entries priced),
+    ``min_reduced_cost`` the most negative reduced cost over all its columns, and
+    ``certified`` whether ``value - lower_bound <= 1e-7 max(1, |value|)``, i.e. the
+    restricted optimum is the full LP's; ``plan_entries`` the entries the LP ended with."""
 
     algorithm: str
     histograms: np.ndarray
@@ -56,6 +63,11 @@ class CircularPropagationResult(SolverResult):
     gap: float | None = None
     gamma: float | None = None
     labeled: np.ndarray | None = None
+    lower_bound: float | None = None
+    min_reduced_cost: float | None = None
+    certified: bool | None = None
+    plan_entries: int | None = None
+    simplex_iterations: int | None = None
 
 
 def circle_cost(bins: Bins, power: float = 2.0) -> np.ndarray:
@@ -85,26 +97,15 @@ def _labels(graph, labeled, histograms, bins: Bins):
 
 
 def transport_cost(mu: np.ndarray, nu: np.ndarray, cost: np.ndarray) -> float:
-    """Exact :math:`\\min_\\pi \\langle C, \\pi\\rangle` between two histograms (HiGHS)."""
-    from scipy.optimize import linprog
+    """Exact :math:`\\min_\\pi \\langle C, \\pi\\rangle` between two histograms (POT's network
+    simplex, ``ot.emd2``; totals made equal first)."""
+    import ot
 
-    B = len(mu)
-    # masses below 1e-15 only trouble HiGHS' feasibility tolerances; totals made equal, and
-    # the last column constraint (implied by the others) dropped
     mu = np.where(mu > 1e-15, mu, 0.0)
     nu = np.where(nu > 1e-15, nu, 0.0)
-    mu, nu = mu / mu.sum(), nu / nu.sum()
-    rows = np.concatenate([np.repeat(np.arange(B), B), B + np.tile(np.arange(B), B)])
-    cols = np.concatenate([np.arange(B * B), np.arange(B * B)])
-    A = sp.csr_matrix((np.ones(2 * B * B), (rows, cols)), shape=(2 * B, B * B))[:-1]
-    res = linprog(cost.ravel(), A_eq=A, b_eq=np.concatenate([mu, nu])[:-1], bounds=(0, None),
-                  method="highs")
-    if res.status == 2:  # feasible by construction: HiGHS' presolve misjudged tiny masses
-        res = linprog(cost.ravel(), A_eq=A, b_eq=np.concatenate([mu, nu])[:-1],
-                      bounds=(0, None), method="highs", options={"presolve": False})
-    if res.status != 0:
-        raise ConvergenceError(f"transport LP failed: {res.message}")
-    return float(res.fun)
+    value = ot.emd2(mu / mu.sum(), nu / nu.sum(), np.ascontiguousarray(cost, dtype=np.float64),
+                    numItermax=10_000_000)
+    return float(value)
 
 
 def dirichlet_value(histograms: np.ndarray, edges, weights, cost: np.ndarray) -> float:
@@ -115,125 +116,187 @@ def dirichlet_value(histograms: np.ndarray, edges, weights, cost: np.ndarray) ->
                      for (u, v), w in zip(np.asarray(edges), np.asarray(weights), strict=True)))
 
 
-def _lp_problem(n, edges, w, nodes, h, cost, active):
-    """Sparse LP over the plan entries ``active = (e, i, j)`` and the free histograms."""
+def _nw_corner_support(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Entries of the north-west-corner plan between histograms ``a`` and ``b`` (at most
+    ``2B - 1``): a feasible plan for any two marginals of equal mass."""
+    ca, cb = np.cumsum(a), np.cumsum(b)
+    ca[-1] = cb[-1] = 1.0
+    br = np.unique(np.concatenate([[0.0], ca, cb]))
+    mid = 0.5 * (br[:-1] + br[1:])[np.diff(br) > 0]
+    B = len(a)
+    return (np.minimum(np.searchsorted(ca, mid), B - 1),
+            np.minimum(np.searchsorted(cb, mid), B - 1))
+
+
+def _harmonic_guess(n, edges, w, nodes, h, free):
+    """Per-bin harmonic extension of the labels (the PDF route): a feasible starting point
+    whose plans seed the LP's support."""
+    import scipy.sparse.linalg as spla
+
+    W = sp.coo_matrix((np.r_[w, w], (np.r_[edges[:, 0], edges[:, 1]],
+                                     np.r_[edges[:, 1], edges[:, 0]])), shape=(n, n)).tocsr()
+    L = (sp.diags(np.asarray(W.sum(axis=1)).ravel()) - W).tocsr()
+    H = np.zeros((n, h.shape[1]))
+    H[nodes] = h
+    if len(free):
+        X = spla.spsolve(L[free][:, free].tocsc(), -(L[free][:, nodes] @ h))
+        H[free] = np.clip(np.asarray(X).reshape(len(free), -1), 1e-12, None)
+    return H / H.sum(axis=1, keepdims=True)
+
+
+class _PlanLP:
+    r"""The §5.4 LP restricted to a set of plan entries, kept in one ``highspy.Highs``
+    model so that added entries re-solve from the previous basis.
+
+    Rows, per edge ``e = (u, v)``: the ``B`` row marginals :math:`\sum_j \pi_e(i, j) =
+    \mu_u(i)` and the first ``B - 1`` column marginals (the last one follows from the
+    others, the plan's unit mass and :math:`\mathbf 1^\top \mu_v = 1`; dropping it makes
+    the rows independent); then :math:`\mathbf 1^\top \mu_v = 1` per unlabeled node.
+    Columns: the unlabeled histograms ``(n_free, B)`` first, then plan entries."""
+
+    def __init__(self, n, edges, w, nodes, h, cost, time_limit):
+        import highspy
+
+        self.highspy = highspy
+        B = cost.shape[0]
+        m = len(edges)
+        self.B, self.m, self.R = B, m, 2 * B - 1
+        self.edges, self.w, self.cost = edges, w, cost
+        is_label = np.zeros(n, dtype=bool)
+        is_label[nodes] = True
+        self.free = np.flatnonzero(~is_label)
+        free_index = np.full(n, -1, dtype=np.int64)
+        free_index[self.free] = np.arange(len(self.free))
+        label_row = np.full(n, -1, dtype=np.int64)
+        label_row[nodes] = np.arange(len(nodes))
+        R, n_free = self.R, len(self.free)
+        self.n_rows = m * R + n_free
+        b = np.zeros(self.n_rows)
+        b[m * R:] = 1.0
+        rows, cols = [], []
+        for side in (0, 1):
+            end, width = edges[:, side], (B if side == 0 else B - 1)
+            fe = np.flatnonzero(free_index[end] >= 0)
+            le = np.flatnonzero(free_index[end] < 0)
+            rows.append(((fe * R + side * B)[:, None] + np.arange(width)).ravel())
+            cols.append(((free_index[end[fe]] * B)[:, None] + np.arange(width)).ravel())
+            b[((le * R + side * B)[:, None] + np.arange(width)).ravel()] = (
+                h[label_row[end[le]], :width].ravel())
+        vals = [-np.ones(len(r)) for r in rows]
+        rows.append(m * R + np.repeat(np.arange(n_free), B))
+        cols.append(np.arange(n_free * B))
+        vals.append(np.ones(n_free * B))
+        A = sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(self.n_rows, n_free * B))
+        self.b = b
+        self.n_mu = n_free * B
+        lp = highspy.HighsLp()
+        lp.num_col_, lp.num_row_ = self.n_mu, self.n_rows
+        lp.col_cost_ = np.zeros(self.n_mu)
+        lp.col_lower_ = np.zeros(self.n_mu)
+        lp.col_upper_ = np.full(self.n_mu, highspy.kHighsInf)
+        lp.row_lower_ = lp.row_upper_ = b
+        lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
+        lp.a_matrix_.num_col_, lp.a_matrix_.num_row_ = self.n_mu, self.n_rows
+        lp.a_matrix_.start_ = A.indptr.astype(np.int32)
+        lp.a_matrix_.index_ = A.indices.astype(np.int32)
+        lp.a_matrix_.value_ = A.data
+        self.h = highspy.Highs()
+        self.h.setOptionValue("output_flag", False)
+        self.h.setOptionValue("threads", 1)
+        if time_limit is not None:
+            self.h.setOptionValue("time_limit", float(time_limit))
+        self.h.passModel(lp)
+        self.have = np.zeros((m, B, B), dtype=bool)
+        self.entries = [np.zeros(0, dtype=np.int64)] * 3
+
+    def add(self, e, i, j):
+        """Add plan entries ``(e, i, j)`` (none already present) as columns."""
+        B, R, k = self.B, self.R, len(e)
+        if k == 0:
+            return
+        self.have[e, i, j] = True
+        last = j == B - 1  # no column-marginal row for the last bin
+        counts = np.where(last, 1, 2)
+        starts = np.r_[0, np.cumsum(counts)[:-1]].astype(np.int32)
+        index = np.empty(int(counts.sum()), dtype=np.int32)
+        index[starts] = e * R + i
+        index[starts[~last] + 1] = e[~last] * R + B + j[~last]
+        self.h.addCols(k, self.w[e] * self.cost[i, j], np.zeros(k),
+                       np.full(k, self.highspy.kHighsInf), len(index), starts, index,
+                       np.ones(len(index)))
+        self.entries = [np.concatenate([a, x]) for a, x in zip(self.entries, (e, i, j),
+                                                             strict=True)]
+
+    def solve(self):
+        self.h.run()
+        status = self.h.getModelStatus()
+        if status != self.highspy.HighsModelStatus.kOptimal:
+            raise ConvergenceError(
+                f"the propagation LP did not solve: {self.h.modelStatusToString(status)}")
+        sol = self.h.getSolution()
+        return np.asarray(sol.col_value), np.asarray(sol.row_dual), np.asarray(sol.col_dual)
+
+    def reduced_costs(self, y):
+        r""":math:`w_e C_{ij} - y^{row}_{e,i} - y^{col}_{e,j}` of all ``m B^2`` plan
+        entries ``(m, B, B)`` (``y^{col}_{e,B-1} = 0``: that row is not in the LP)."""
+        B, m, R = self.B, self.m, self.R
+        Y = y[: m * R].reshape(m, R)
+        y_col = np.concatenate([Y[:, B:], np.zeros((m, 1))], axis=1)
+        return self.w[:, None, None] * self.cost[None] - Y[:, :B, None] - y_col[:, None, :]
+
+
+def _solve_lp(n, edges, w, nodes, h, cost, monitor, time_limit, band=None,
+              price_tol=1e-9):
+    r"""Column generation, warm-started: start from a band of ``2 band + 1`` cheap entries
+    per plan row plus the north-west-corner plans of the per-bin harmonic extension (so the
+    restricted LP is feasible), price all :math:`m B^2` plan entries with the duals
+    (reduced cost :math:`w_e C_{ij} - y^{row}_{e,i} - y^{col}_{e,j}`), add the negative ones
+    as columns of the same HiGHS model (the previous basis stays primal feasible), repeat
+    until none is below ``-price_tol``.
+
+    The certificate: with duals ``y`` and the reduced costs ``r`` of *all* columns,
+    :math:`b^\top y + \sum_k \min(r_k, 0)` is a lower bound on the unrestricted LP (every
+    variable lies in ``[0, 1]``: masses); it is returned beside the primal value."""
     B = cost.shape[0]
     m = len(edges)
-    free_index = np.full(n, -1, dtype=np.int64)
-    is_label = np.zeros(n, dtype=bool)
-    is_label[nodes] = True
-    free = np.flatnonzero(~is_label)
-    free_index[free] = np.arange(len(free))
-    label_row = np.full(n, -1, dtype=np.int64)
-    label_row[nodes] = np.arange(len(nodes))
-    ae, ai, aj = active
-    n_plan = len(ae)
-    n_var = n_plan + len(free) * B
-    var = np.arange(n_plan)
-    # row marginals: row e*2B + i sums plan entries (i, *); column marginals: e*2B + B + j
-    rows = [ae * 2 * B + ai, ae * 2 * B + B + aj]
-    cols = [var, var]
-    vals = [np.ones(2 * n_plan)]
-    b = np.zeros(2 * m * B + len(free))
-    for side in (0, 1):
-        end = edges[:, side]
-        off = side * B
-        fe = np.flatnonzero(free_index[end] >= 0)
-        if len(fe):
-            r = ((fe * 2 * B + off)[:, None] + np.arange(B)[None, :]).ravel()
-            c = (n_plan + (free_index[end[fe]] * B)[:, None] + np.arange(B)[None, :]).ravel()
-            rows.append(r)
-            cols.append(c)
-            vals.append(-np.ones(len(r)))
-        le = np.flatnonzero(free_index[end] < 0)
-        if len(le):
-            r = ((le * 2 * B + off)[:, None] + np.arange(B)[None, :]).ravel()
-            b[r] = h[label_row[end[le]]].ravel()
-    if len(free):  # each unlabeled histogram sums to one
-        rows.append(2 * m * B + np.repeat(np.arange(len(free)), B))
-        cols.append(n_plan + np.arange(len(free) * B))
-        vals.append(np.ones(len(free) * B))
-        b[2 * m * B:] = 1.0
-    A = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                      shape=(len(b), n_var))
-    c_vec = np.concatenate([w[ae] * cost[ai, aj], np.zeros(len(free) * B)])
-    return A, b, c_vec, free, n_plan
-
-
-def _initial_support(edges, nodes, cost, band: int):
-    """Plan entries to start from: for each row the ``2 band + 1`` cheapest columns; the
-    full ``B × B`` on edges between two labeled nodes (their plan is fully determined)."""
-    B = cost.shape[0]
-    m = len(edges)
-    near = np.argsort(cost, axis=1, kind="stable")[:, :min(B, 2 * band + 1)]
-    bi = np.repeat(np.arange(B), near.shape[1])
-    bj = near.ravel()
-    labeled = np.zeros(int(edges.max()) + 1 if m else 0, dtype=bool)
-    labeled[nodes[nodes < len(labeled)]] = True
-    both = labeled[edges[:, 0]] & labeled[edges[:, 1]] if m else np.zeros(0, dtype=bool)
-    some = np.flatnonzero(~both)
-    full = np.flatnonzero(both)
-    ii, jj = (x.ravel() for x in np.meshgrid(np.arange(B), np.arange(B), indexing="ij"))
-    e = np.concatenate([np.repeat(some, len(bi)), np.repeat(full, B * B)])
-    i = np.concatenate([np.tile(bi, len(some)), np.tile(ii, len(full))])
-    j = np.concatenate([np.tile(bj, len(some)), np.tile(jj, len(full))])
-    return e, i, j
-
-
-def _solve_lp(n, edges, w, nodes, h, cost, monitor, time_limit, band=None):
-    r"""Column generation: solve on a band of plan entries, price out the others with the
-    duals (reduced cost :math:`w_e C_{ij} - y^{row}_{e,i} - y^{col}_{e,j}`), add the
-    negative ones, repeat until none is left -- then the restricted optimum is the full
-    LP's.  An infeasible band falls back to the full support."""
-    from scipy.optimize import linprog
-
-    B = cost.shape[0]
-    m = len(edges)
-    h = np.where(h > 1e-15, h, 0.0)  # below HiGHS' tolerances; keeps the LP feasible
+    h = np.where(h > 1e-12, h, 0.0)  # below HiGHS' tolerances; keeps the LP well scaled
     h = h / h.sum(axis=1, keepdims=True)
-    band = max(2, B // 6) if band is None else int(band)
-    active = _initial_support(edges, nodes, cost, band)
-    full_size = m * B * B
-    deadline = None if time_limit is None else time.monotonic() + float(time_limit)
+    band = 2 if band is None else int(band)
+    lp = _PlanLP(n, edges, w, nodes, h, cost, time_limit)
+    have = np.zeros((m, B, B), dtype=bool)
+    near = np.argsort(cost, axis=1, kind="stable")[:, :min(B, 2 * band + 1)]
+    have[:, np.repeat(np.arange(B), near.shape[1]), near.ravel()] = True
+    guess = _harmonic_guess(n, edges, w, nodes, h, lp.free)
+    for e, (u, v) in enumerate(edges):
+        i, j = _nw_corner_support(guess[u], guess[v])
+        have[e, i, j] = True
+    lp.add(*np.nonzero(have))
     rounds = 0
     while True:
         rounds += 1
         monitor.check_cancel("before the LP")
-        A, b, c_vec, free, n_plan = _lp_problem(n, edges, w, nodes, h, cost, active)
-        options = {} if deadline is None else {
-            "time_limit": max(1.0, deadline - time.monotonic())}
-        res = linprog(c_vec, A_eq=A, b_eq=b, bounds=(0, None), method="highs",
-                      options=options)
-        if res.status == 2 and n_plan >= full_size and "presolve" not in options:
-            # the full problem is feasible by construction: retry without presolve, which
-            # can misjudge near-zero label masses
-            res = linprog(c_vec, A_eq=A, b_eq=b, bounds=(0, None), method="highs",
-                          options={**options, "presolve": False})
-        if res.status == 2 and n_plan < full_size:  # infeasible band: take everything
-            ii, jj = (x.ravel() for x in np.meshgrid(np.arange(B), np.arange(B),
-                                                     indexing="ij"))
-            active = (np.repeat(np.arange(m), B * B), np.tile(ii, m), np.tile(jj, m))
-            continue
-        if res.status != 0 or res.x is None:
-            raise ConvergenceError(f"the propagation LP did not solve: {res.message}")
-        if n_plan >= full_size:
+        x, y, col_dual = lp.solve()
+        rc = lp.reduced_costs(y)
+        min_rc = float(rc.min())
+        add = np.nonzero((rc < -price_tol) & ~lp.have)
+        monitor(rounds, max(0.0, -min_rc))
+        if len(add[0]) == 0:
             break
-        y = np.asarray(res.eqlin.marginals)
-        yr = y[: 2 * m * B].reshape(m, 2, B)
-        rc = w[:, None, None] * cost[None] - yr[:, 0, :, None] - yr[:, 1, None, :]
-        have = np.zeros((m, B, B), dtype=bool)
-        have[active] = True
-        add = np.argwhere((rc < -1e-9) & ~have)
-        monitor(rounds, float(-rc[~have].min()) if (~have).any() else 0.0)
-        if len(add) == 0:
-            break
-        active = tuple(np.concatenate([a, add[:, k]]) for k, a in enumerate(active))
+        lp.add(*add)
+    mu_rc = col_dual[: lp.n_mu]
+    lower = float(lp.b @ y + np.minimum(rc, 0.0).sum() + np.minimum(mu_rc, 0.0).sum())
+    value = float(lp.h.getInfo().objective_function_value)
     H = np.zeros((n, B))
     H[nodes] = h
-    H[free] = np.clip(res.x[n_plan:].reshape(len(free), B), 0.0, None)
-    violation = float(np.abs(A @ res.x - b).max()) if len(b) else 0.0
+    H[lp.free] = np.clip(x[: lp.n_mu].reshape(len(lp.free), B), 0.0, None)
+    info = lp.h.getInfo()
+    violation = float(info.max_primal_infeasibility)
     monitor(rounds, violation)
-    return H, float(res.fun), violation, rounds
+    return {"histograms": H, "value": value, "violation": violation, "rounds": rounds,
+            "lower_bound": lower, "min_reduced_cost": min(min_rc, float(mu_rc.min(initial=0))),
+            "plan_entries": int(lp.have.sum()), "full_entries": m * B * B,
+            "simplex_iterations": int(info.simplex_iteration_count)}
 
 
 def propagate_circular(graph: Graph, labeled, histograms, *, bins,
@@ -270,10 +333,15 @@ def propagate_circular(graph: Graph, labeled, histograms, *, bins,
                          field="algorithm")
     monitor = Monitor(progress, should_cancel)
     if algorithm == "lp":
-        H, value, violation, nit = _solve_lp(n, edges, w, nodes, h, C, monitor, time_limit)
-        return CircularPropagationResult(algorithm="lp", histograms=H, value=value, lp_value=value,
-                                         gap=0.0, labeled=nodes, iterations=nit,
-                                         residual=violation, converged=violation <= 1e-7)
+        lp = _solve_lp(n, edges, w, nodes, h, C, monitor, time_limit)
+        value, lower = lp["value"], lp["lower_bound"]
+        certified = value - lower <= 1e-7 * max(1.0, abs(value))
+        return CircularPropagationResult(
+            algorithm="lp", histograms=lp["histograms"], value=value, lp_value=value,
+            gap=0.0, labeled=nodes, iterations=lp["rounds"], residual=lp["violation"],
+            converged=certified and lp["violation"] <= 1e-7, lower_bound=lower,
+            min_reduced_cost=lp["min_reduced_cost"], certified=certified,
+            plan_entries=lp["plan_entries"], simplex_iterations=lp["simplex_iterations"])
     if cost is not None:
         raise InputError("algorithm='entropic' uses the circle's heat kernel; a custom cost "
                          "needs algorithm='lp'", field="cost")
