@@ -205,8 +205,7 @@ def harmonic_extension(system: DirichletSystem, values: np.ndarray, *, rank_tol:
     column_major = getattr(system.factor, "backend", "") == "pardiso"
     B = np.zeros((len(system.free), r), order="F" if column_major else "C")
     touched = np.flatnonzero(np.diff(system.coupling.indptr))
-    B[touched] = system.coupling[touched] @ basis
-    np.negative(B, out=B)
+    B[touched] = -(system.coupling[touched] @ basis)
     num = den = 0.0
     if system.factor is not None:
         # blocks of columns (the solver's copies stay ~128 MB); each block's residual is
@@ -226,7 +225,8 @@ def harmonic_extension(system: DirichletSystem, values: np.ndarray, *, rank_tol:
         Y, iterations = _amg_solve(system, B, tol, max_iter, monitor)
         num, den = _residual_parts(system.A, Y, B)
     del B
-    if not np.all(np.isfinite(Y)):
+    # a non-finite value in Y makes the residual sum non-finite (one check, no pass over Y)
+    if not np.isfinite(num) and not np.all(np.isfinite(Y)):
         raise ConvergenceError("the Dirichlet solve produced non-finite values")
     residual = float(np.sqrt(num / den)) if den > 0 else 0.0
     monitor(iterations, residual)
