@@ -80,10 +80,11 @@ def estimated_bytes(n_samples: int, n_target: int, edges_per_sample: float = 3.0
     """Peak bytes of :func:`soft_map` for ``n_samples`` over ``n_target`` target vertices.
 
     Per (sample, target vertex): the edge-end log-scalings (2 per edge, float64), the node
-    scalings, the propagated masses and float32 soft map, and one color class of block
-    temporaries; measured peaks are in bench/results/softmaps.md.
+    log-rescalings, barycenters and masses with two temporaries of the final normalization
+    (float64), and the float32 soft map; the propagation's chunk temporaries are small.
+    Measured peaks are in bench/results/softmaps.md.
     """
-    return int(n_samples * n_target * (2 * 2 * edges_per_sample * 8 + 3 * 8 + 4 + 20))
+    return int(n_samples * n_target * (2 * edges_per_sample * 8 + 6 * 8 + 4))
 
 
 def default_gamma(n_samples: int, target) -> float:
