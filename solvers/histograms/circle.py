@@ -20,7 +20,8 @@ certifies that the result is the unrestricted LP's optimum.
 (:func:`solvers.convolutional.wasserstein_propagation`) on a periodic 1-D
 :class:`~solvers.domains.Grid` of the bin centers (heat kernel
 :math:`e^{-d^2/\gamma}`), which scales to larger graphs; its exact objective is evaluated
-with per-edge transport LPs, and, when the LP optimum is known, the gap is reported.
+with per-edge exact transport (network simplex), and, when the LP optimum is known, the
+gap is reported.
 """
 
 from __future__ import annotations
@@ -318,8 +319,9 @@ def propagate_circular(graph: Graph, labeled, histograms, *, bins,
         :func:`circle_cost` (squared wrapped distance of bin centers).
     gamma : entropic regularization (default ``(2 w)^2``, ``w`` the mean bin width), in the
         bins' squared units; ``tol``, ``max_iter``: its Sinkhorn stopping rule.
-    time_limit : seconds given to HiGHS.
-    evaluate : compute the exact objective of the entropic result (per-edge LPs);
+    time_limit : seconds given to HiGHS (over all column-generation rounds; the LP raises
+        :class:`~solvers.errors.ConvergenceError` when it runs out).
+    evaluate : compute the exact objective of the entropic result (per-edge exact OT);
         ``lp_value``: a known LP optimum to report the gap against.
     """
     b = make_bins(bins)
