@@ -163,6 +163,8 @@ def greedy_coloring(n_nodes: int, edges: np.ndarray) -> np.ndarray:
 # Edge ends per chunk (one kernel solve): the sparse triangular solves are fastest on
 # narrow blocks, and a chunk's (ends, n) temporaries stay in cache.
 _SOLVE_COLUMNS = 32
+# Over-relaxation starts once the residual (largest L1 marginal violation, at most 2) is below.
+_RELAX_BELOW = 0.5
 
 
 def wasserstein_propagation(
@@ -205,9 +207,10 @@ def wasserstein_propagation(
         ``"over-relaxation"``: every sweep's update of the log-scalings is over-relaxed,
         :math:`\log s \leftarrow \log s + \omega(\log s_{\text{Alg. 4}} - \log s)`,
         with :math:`\omega` adapted from the measured rate (:class:`OverRelaxation`,
-        starting at 1; backs off if the residual grows).  The weighted mean of the
-        log-scalings at a free node is kept as Alg. 4 keeps it, so the fixed point is the
-        same; only the path to it changes (fixed nodes take the plain Sinkhorn update).
+        from plain sweeps once the residual is below 0.5; backs off if it grows).  The
+        weighted mean of the log-scalings at a free node is kept as Alg. 4 keeps it, so the
+        fixed point is the same; only the path to it changes (fixed nodes take the plain
+        Sinkhorn update).
 
     Returns
     -------
@@ -215,8 +218,9 @@ def wasserstein_propagation(
     edge_values (m,))
     """
     n_nodes, e, w, keys = _check_graph(n_nodes, edges, edge_weights, fixed)
-    relax = OverRelaxation(enabled=check_acceleration(
-        acceleration, BARYCENTER_ACCELERATIONS) == "over-relaxation")
+    accelerate = check_acceleration(acceleration, BARYCENTER_ACCELERATIONS) == "over-relaxation"
+    relax = OverRelaxation(enabled=accelerate)
+    best = np.inf
     setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
                     progress=progress, should_cancel=should_cancel)
     setup.monitor = watch_stagnation(setup, project=max_iter is None)  # stalled -> stop
@@ -296,7 +300,15 @@ def wasserstein_propagation(
                         new[j] = log_fixed[u] - out[j]
                 T[rows] = new
             residual = sweep if np.isfinite(sweep) else float("inf")
-            omega = relax.update(residual)
+            if accelerate and residual < _RELAX_BELOW:
+                # The linear rate model behind OverRelaxation holds once the sweeps are in
+                # their asymptotic regime; far from it (e.g. residual ~1 on a large graph at
+                # small gamma) over-relaxed sweeps were measured to blow up.  A residual
+                # twice the best one since omega left 1 restarts from plain sweeps.
+                if omega > 1.0 and residual > 2.0 * best:
+                    relax, best = OverRelaxation(), np.inf
+                best = min(best, residual)
+                omega = relax.update(residual)
             setup.monitor(it, residual)
             if residual <= setup.tol or it >= setup.max_iter or not np.isfinite(residual) \
                     or setup.monitor.stalled:
