@@ -33,8 +33,13 @@ from solvers.errors import InputError
 from solvers.kernels import heat_time
 
 PURPOSES = ("values", "shapes")
-# gamma = VALUE_FACTOR * h * d for values (bench/results/convolutional.md).
+# gamma = VALUE_FACTOR * h * d for values (bench/results/convolutional.md), with h at least
+# VALUE_MIN_H on meshes: on finer meshes (rocker-arm h = 0.011, stanford-bunny 0.006,
+# nefertiti 0.005) gamma proportional to h needs more substeps than the time budget allows
+# and the debiased value came out 9-17 % low (bunny far -17 %); at h = 0.02, as on cow, the
+# same substeps give -3 % to +5 % there.
 VALUE_FACTOR = 2.5
+VALUE_MIN_H = 0.02
 # Implicit Euler needs about SUBSTEP_FACTOR * d^2 / t substeps (t = gamma / 4) before its
 # kernel follows exp(-d^2 / 4t) out to the transport distance d; rounded up to a power of
 # two within [VALUE_SUBSTEPS, MAX_SUBSTEPS] and lowered to fit VALUE_SECONDS.
@@ -208,12 +213,14 @@ def choose_regularization(domain, m0=None, m1=None, *, purpose: str = "values",
                 raise InputError("gamma='auto' for values needs both distributions",
                                  field="gamma")
             distance = transport_distance_estimate(domain, np.asarray(m0), np.asarray(m1))
+            h_value = max(h, VALUE_MIN_H) if getattr(domain, "kind", None) == "mesh" else h
             # Identical or nearly identical inputs: resolve at least a few edges.
-            d_eff = max(distance, 4.0 * h)
-            value = VALUE_FACTOR * h * d_eff
-            why = (f"values: gamma = {VALUE_FACTOR} h d with h = {h:.4g}, estimated "
-                   f"transport distance d = {distance:.4g}"
-                   + (f" (raised to 4h = {4 * h:.4g})" if d_eff > distance else ""))
+            d_eff = max(distance, 4.0 * h_value)
+            value = VALUE_FACTOR * h_value * d_eff
+            why = (f"values: gamma = {VALUE_FACTOR} h d with h = {h_value:.4g}"
+                   + (f" (mesh h {h:.4g} raised to {VALUE_MIN_H})" if h_value > h else "")
+                   + f", estimated transport distance d = {distance:.4g}"
+                   + (f" (raised to 4h = {4 * h_value:.4g})" if d_eff > distance else ""))
             if substeps is None:
                 steps, note = value_substeps(domain, d_eff, heat_time(value))
                 why += f"; debiased, {steps} substeps ({note})"
