@@ -199,20 +199,24 @@ def _render_map(cmp_) -> list[str]:
 
 READING = """## Reading
 
+Two maps: commit 47c8bac (plain Alg. 4 sweeps) and commit b723707 (soft_map's default
+adaptive over-relaxation, same fixed point); both stopped after 51 sweeps, far from
+converged (residual 0.906 / 0.999), and they give nearly the same errors.
+
 - The Sinkhorn projection does not improve the lion -> cat correspondence.  Before ZoomOut
-  it makes it worse: mode 77.2e-3 -> 86.5e-3 to 86.8e-3, barycentric 79.8e-3 -> 86.4e-3 to
-  86.7e-3 (5 to 100 scalings), although the extracted map reaches more cat vertices (521 ->
-  about 710 distinct targets with the mode).  The soft map is far from bijective (L1
-  target-marginal violation 0.434 before projection, for a total mass of ~1; the
-  propagation stopped at residual 0.906 after 51 sweeps); our reading, not measured
-  further: scaling the columns up where b is small pulls the maxima of ambiguous rows
-  towards regions the map hardly reaches, mostly to the wrong places there.
-- After ZoomOut the difference is within 0.5 % (21.44e-3 to 21.51e-3 with the projection,
-  21.54e-3 without, for both extractions): ZoomOut's spectral re-reading erases what the
-  projection changed.  One map, one pair, no held-out data: not a measurable improvement.
-- The projection is cheap next to the map: 5 / 20 / 100 scalings cost 0.7 / 1.6 / 6.6 s on
-  1,024 x 7,207 rows at load 9-12 (times inflated by the load), and converge
-  linearly (residual 0.041 / 3.1e-3 / 1.4e-8); the library default (at most 50 scalings,
+  it makes it worse, on both maps: mode 77.2e-3 -> 86.4e-3 to 86.8e-3, barycentric
+  79.8e-3 -> 86.4e-3 to 86.7e-3 (5 to 100 scalings), although the extracted map reaches
+  more cat vertices (521 -> about 710 distinct targets with the mode).  The soft map is far
+  from bijective (L1 target-marginal violation 0.434 / 0.435 before projection, for a total
+  mass of ~1); our reading, not measured further: scaling the columns up where b is small
+  pulls the maxima of ambiguous rows towards regions the map hardly reaches, mostly to the
+  wrong places there.
+- After ZoomOut the difference is within 0.6 % (21.44e-3 to 21.52e-3 with the projection,
+  21.54e-3 / 21.56e-3 without): ZoomOut's spectral re-reading erases what the projection
+  changed.  One pair, no held-out data: not a measurable improvement.
+- The projection is cheap next to the map: 5 / 20 / 100 scalings cost 0.7-0.9 / 1.5-1.6 /
+  5.8-6.6 s on 1,024 x 7,207 rows at load 9-14 (times inflated by the load), and converge
+  linearly (residual 0.041 / 3.1e-3 / 1.3e-8); the library default (at most 50 scalings,
   stop at 1e-3) took 28.
 - Decision: `refine="sinkhorn"` and `"sinkhorn+zoomout"` stay options; the default stays
   `refine="zoomout"` without projection.
