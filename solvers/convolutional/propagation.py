@@ -284,7 +284,7 @@ def wasserstein_propagation(
                 # Free ends: the marginal is exp(lbar + delta), delta = old - new, so its
                 # L1 gap is <a exp(lbar), |expm1(delta)|> (float32: relative precision
                 # 1e-7 of the gap itself; clipped where the marginal exceeds e^80 x target).
-                delta = np.subtract(old, new, dtype=np.float32)
+                delta = (old - new).astype(np.float32)  # difference in float64: no -inf+inf
                 np.minimum(delta, 80.0, out=delta)
                 np.abs(np.expm1(delta, out=delta), out=delta)
                 weight = np.exp(lbar) * a
@@ -304,7 +304,7 @@ def wasserstein_propagation(
                 # The linear rate model behind OverRelaxation holds once the sweeps are in
                 # their asymptotic regime; far from it (e.g. residual ~1 on a large graph at
                 # small gamma) over-relaxed sweeps were measured to blow up.  A residual
-                # twice the best one since omega left 1 restarts from plain sweeps.
+                # twice the best one since the over-relaxation (re)started restarts it.
                 if omega > 1.0 and residual > 2.0 * best:
                     relax, best = OverRelaxation(), np.inf
                 best = min(best, residual)
