@@ -253,8 +253,7 @@ LARGE_MESH = 20_000
 ORDER = ("near", "middle", "far", "points")
 EXACT_BENCH_SECONDS = 30.0  # the forced exact route is skipped above this estimate
 # Meshes with mean edge length below VALUE_MIN_H (their policy rows changed with the floor).
-FINE_MESHES = ("homer.obj", "fandisk.obj", "cheburashka.obj", "rocker-arm.obj",
-               "stanford-bunny.obj", "nefertiti.obj")
+FINE_MESHES = ("rocker-arm.obj", "stanford-bunny.obj", "nefertiti.obj")
 
 
 
@@ -464,8 +463,10 @@ def defaults_lines(rows):
              "0.05 debiased 16 substeps, then debiased, 64 substeps, gamma = 2.5 h "
              "sqrt(first)); exact = `route=\"exact\"` (skipped when estimated above "
              f"{EXACT_BENCH_SECONDS:.0f} s); exact est = `exact_route_estimate` before the "
-             "run.  † = measured before the policy's h floor (`VALUE_MIN_H`: gamma = 2.5 max(h, "
-             "0.02) d on meshes; rows of the meshes with h < 0.02 not yet re-run).  Times in "
+             f"run.  † = convolutional policy measured before its h floor (`VALUE_MIN_H`: gamma "
+             f"= 2.5 max(h, {VALUE_MIN_H}) d on meshes; changes only the meshes with h < "
+             f"{VALUE_MIN_H}: rocker-arm, bunny, nefertiti), '(h floor x)' = measured with a "
+             "trial floor x.  Times in "
              "seconds (wall clock, warm after the first case of a mesh); load = "
              "1-minute load average before/after the row.", "",
              "| mesh | case | supports | LP | default (route, substeps) | default s | policy "
@@ -478,7 +479,9 @@ def defaults_lines(rows):
         ex_s = "-" if r.get("exact_s") is None else f"{r['exact_s']:.2f}"
         est = "-" if r.get("exact_estimate_s") is None else f"{r['exact_estimate_s']:.1f}"
         star = "*" if r.get("lp_from") else ""
-        old = "" if r.get("value_min_h") or r["name"] not in FINE_MESHES else " †"
+        floor = r.get("value_min_h")
+        old = ("" if r["name"] not in FINE_MESHES or floor == VALUE_MIN_H else
+               " †" if floor is None else f" (h floor {floor})")
         lines.append(
             f"| {r['name']} | {r['case']} | {r['support'][0]}/{r['support'][1]} | "
             f"{r['lp']:.4f}{star} | {_rel(r['default'], r['lp'])} ({r['default_route']}{sub})"
