@@ -134,7 +134,8 @@ def part_graph(sizes, lp_time_limit: float) -> None:
                         f"{lp.value:.6f} | {lp.certified} ({lp.value - lp.lower_bound:.1e}) ")
             gap = (f"+{value - lp.value:.5f} / {100 * (value - lp.value) / lp.value:.0f} % ")
             r_lp = f"{resultant(lp.histograms[free], bins):.3f}"
-        emit(f"| {n} | {m} | {len(labeled)} | {lp_cells}| {ent_s:.2f}, {ent.iterations} | "
+        emit(f"| {n} | {m} | {len(labeled)} | {lp_cells}| {ent_s:.2f}, {ent.iterations}"
+             f"{'' if ent.converged else ' (not converged)'} | "
              f"{value:.6f} ({eval_s:.1f}) | {gap}| {r_lp} / {r_ent:.3f} | "
              f"{l0:.2f} / {l1:.2f} / {l2:.2f} |")
 
