@@ -25,12 +25,16 @@ field from a basis ``Ψ`` (:mod:`solvers.emd.bases`), and we minimize
 J-update is a projection, i.e. one Poisson solve): the unrestricted discrete
 problem, a reference below the curl-basis value.
 
-Accuracy (measured against the exact LP with exact geodesic costs:
+Accuracy (measured against the exact LP with exact geodesic costs, and against the exact
+optimum of the same discretization, :func:`solvers.emd.exact.beckmann_w1_exact`:
 ``bench/results/w1_accuracy.md``): the unrestricted space (``"flow"``, the default) tracks
-the LP (it is a lower bound of the LP up to the geodesic solver), while the thesis' curl basis
-(``"full"``) overestimates: rotated gradients of P1 stream functions span only part of the
-divergence-free piecewise-constant flows.  The ADMM over all flows reaches its value long
-before its residuals reach 1e-4, hence its looser default ``tol``.
+the LP (its optimum is a lower bound of the LP up to the geodesic solver), while the thesis'
+curl basis (``"full"``) overestimates: rotated gradients of P1 stream functions span only part
+of the divergence-free piecewise-constant flows.  Every ADMM iterate over all flows is
+feasible (a projection onto the divergence constraint), so its value approaches that optimum
+from above; it is within about 1 % of it long before the residuals reach 1e-4, hence the
+looser default ``tol``.  Within 1e-4 of the optimum takes ``tol`` 1e-4 and hundreds to
+thousands of iterations.
 
 The dual potential ``u`` (a vertex function with ``|∇u| ≈ 1`` where mass moves)
 satisfies ``W1 ≈ u · (m1 - m0)``; rescaled to ``max|∇u| ≤ 1`` it certifies a lower
@@ -52,9 +56,10 @@ from solvers.validation import normalize_masses
 
 ALGORITHMS = ("admm", "weiszfeld")
 BASES = ("auto", "full", "spectral", "flow")
-# Default tolerances per (algorithm, basis); others 1e-4.  The ADMM over all flows reaches
-# its value (within the gap to the LP) at relative residuals of 1e-2, in a tenth of the
-# iterations 1e-4 takes (bench/results/w1_accuracy.md).
+# Default tolerances per (algorithm, basis); others 1e-4.  The ADMM over all flows is within
+# 1 % above its optimum at relative residuals of 1e-2 (within ±3 % of the LP), in 40-130
+# iterations; 1e-4 of the optimum needs tol 1e-4 (10-100 times the iterations: not within
+# 2 s at 10k vertices; bench/results/w1_accuracy.md).
 DEFAULT_TOL = {("admm", "flow"): 1e-2}
 RELAXATION = 1.6
 
