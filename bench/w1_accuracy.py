@@ -20,7 +20,7 @@ All times warm (operators cached on the mesh), wall clock; load = 1-minute load 
 before/after the row.  Writes ``bench/results/w1_accuracy.md``.
 
 Usage: ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/w1_accuracy.py
-[--full] [mesh.obj ...]``
+[--full] [--out=bench/results/NAME.md] [mesh.obj ...]``
 """
 
 from __future__ import annotations
@@ -43,6 +43,7 @@ from solvers.emd import earth_movers_distance  # noqa: E402
 from solvers.emd.exact import beckmann_w1_exact  # noqa: E402
 from solvers.geodesics import geodesic_distances  # noqa: E402
 
+OUT = ROOT / "bench" / "results" / "w1_accuracy.md"
 SWEEP = (1e-2, 1e-3, 1e-4, 3e-5)
 TARGET = 1e-4
 
@@ -91,9 +92,10 @@ def rows_for(name, full: bool):
         yield row
 
 
-def main(names, full: bool):
+def main(names, full: bool, out: Path):
     cmd = ("OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/w1_accuracy.py "
-           + ("--full " if full else "") + " ".join(names))
+           + ("--full " if full else "") + (f"--out={out.relative_to(ROOT)} " if out != OUT else "")
+           + " ".join(names))
     lines = ["# W1 (Beckmann) vs the exact LP and the exact discrete optimum", "",
              f"Command: `{cmd}`.  LP = `ot.emd2` on exact (MMP) geodesic lengths between the "
              "supports; SOCP = `beckmann_w1_exact` (Clarabel, tol 1e-8), the exact optimum of "
@@ -107,7 +109,6 @@ def main(names, full: bool):
              "s, it | to 1e-4 of SOCP: tol, s, it |"
              + (" full basis tol 1e-4: W1 (vs LP), s, it |" if full else "") + " load |",
              "|---|---|---|---|---|---|---|" + ("---|" if full else "") + "---|"]
-    out = ROOT / "bench" / "results" / "w1_accuracy.md"
     for name in names:
         for r in rows_for(name, full):
             lp, socp = r["lp"], r["socp"]
@@ -129,5 +130,6 @@ def main(names, full: bool):
 
 
 if __name__ == "__main__":
+    outs = [ROOT / a.split("=", 1)[1] for a in sys.argv[1:] if a.startswith("--out=")]
     main([a for a in sys.argv[1:] if a.endswith(".obj")] or ["spot.obj", "cow.obj"],
-         "--full" in sys.argv)
+         "--full" in sys.argv, outs[-1] if outs else OUT)
