@@ -354,33 +354,42 @@ def render(data) -> str:
 
 READING = """## Reading
 
-- Accuracy, same run: the extracted and refined otgeo map is 21.54e-3 against pyFM's best
-  (ZoomOut) 21.56e-3 -- equal to 0.1 %, i.e. "at least as accurate" only just; better than
-  pyFM after ICP (24.6e-3; the issue quotes 28.4e-3 after ICP from another machine).
-  Caveat: the ZoomOut range (20, 50, 1) was chosen by measuring on this same pair (the first
-  run, (20, 100, 2), gave 23.1e-3, kept in softmaps.json as accuracy_run1); there is no
-  held-out pair.  Most of the accuracy comes from the spectral refinement: the soft map's
-  modes alone score 77.2e-3 (the arg-min of the compatibility cost alone scored 82e-3 in
-  development, not in this table).
-- The propagation did not converge in the accuracy run: residual 0.906 after 51 sweeps
-  (tol 1e-4).  Convergence from a few delta landmarks at this gamma is slow; the reported
-  map is the 51-sweep iterate.
-- Time: the soft map with 1,024 samples misses the 10 s warm target: 1.75 s per sweep on a
-  quiet machine (load 1.3; 5 sweeps plus descriptors 13.5 s), so the 51 sweeps of the
-  accuracy run cost about 90 s quiet (671 s were measured at load 5-13).  Time per sweep
-  grows about linearly with the number of source edges (0.18 s at 358 edges, 1.75 s at
-  3,055): each sweep applies the target kernel once per edge end (2 x 3,055 columns).
-- Memory: 933 MiB traced peak (numpy arrays) at 1,024 samples once color classes run in
-  batches of <= 512 edge ends (1,076 MiB before, scaling_busy); about linear in the samples
-  (136 / 279 / 469 / 933 MiB at 128 / 256 / 512 / 1,024) (the
-  edge-end log-scalings alone are 2 x edges x 7,207 x 8 bytes = 352 MB at 1,024 samples).
-  The cached factorization and eigenpairs are not in these figures.
-- Alg. 4 batching: the same fixed point (cow, run to tol 1e-7: L1 gap 4e-9 between the
-  results, 191 vs 187 sweeps) in 2.34 s instead of 5.82 s (2.5x, load 3); on the 7,207-vertex
-  cat with 128 nodes the kernel solves dominate and the gain is 1.18x (12.7 s vs 15.0 s for
-  41 sweeps, load 2.7-3.0).
+- Accuracy, same run (22:40, load 5.6-14): otgeo refined 21.542e-3 against pyFM's best
+  (ZoomOut) 21.555e-3 -- better by 0.06 %, i.e. "at least as accurate" only just; pyFM ICP
+  24.6e-3, basic 49.2e-3; POT GW 86.9e-3 at best.  Caveat: the ZoomOut
+  range (20, 50, 1) was chosen by measuring on this same pair (the first run, (20, 100, 2),
+  is kept in softmaps.json as accuracy_run1); there is no held-out pair.  Most of the
+  accuracy comes from the spectral refinement: the soft map's modes alone score 77.2e-3.
+- Convergence: not reached at 1,024 samples.  Plain sweeps leave residual 0.906 after 51
+  (run of 20:32); the residual (largest L1 violation of one edge plan's marginal, at most 2)
+  stays near 1 for tens of sweeps at gamma 0.0023.  Over-relaxation (adaptive, same fixed
+  point) is the soft-map default but starts only below residual 0.5: started at once, it
+  blew up on this pair (residual 15 at sweep 15) and ended at 0.9986 after 51 sweeps, with
+  a refined error of 21.559e-3 vs pyFM ZoomOut 21.555e-3 in that run (busy machine, load
+  6.7-12.7; not kept in the table).  Where the sweeps reach that regime it pays: 128
+  samples (gamma 0.018) converged to 1e-4 in 137 sweeps (131 ungated), against a plain
+  rate of 0.983 per sweep (residual 0.23 after 46 plain sweeps, about 450 sweeps to 1e-4);
+  on a 162-vertex ellipsoid (tests/test_softmaps.py) 66 sweeps against 152, the two maps
+  equal.  These convergence runs were exploratory scripts, not parts of this benchmark.
+- Time: not re-measured quietly (load 6-14 throughout).  Same iterates as before (L1 gap
+  3e-15 after 3 sweeps at 1,024 samples), with CPU time per sweep 22 % lower at 1,024
+  samples (15.7 s vs 20.1 s CPU for 3 sweeps, both at load 9) and 32 % lower at 256: the
+  sweep runs in chunks of whole nodes of ~32 edge ends (one solve each, temporaries in
+  cache), the diagonal rescalings are folded into the stored log-scalings, and the
+  residual comes from float32 expm1 of the scaling change (two float64 exp per entry
+  fewer).  On the quiet 1.75 s/sweep baseline that is about 1.4 s/sweep: 10 s warm at
+  1,024 samples holds only a few sweeps (descriptors and ZoomOut excluded), so the 10 s
+  target is missed.
+- Memory: 688 MiB traced peak at 1,024 samples (933 MiB before), about linear in the
+  samples (93 / 182 / 348 / 688 MiB at 128 / 256 / 512 / 1,024): the edge-end
+  log-scalings (2 x 3,055 x 7,207 x 8 bytes = 352 MB) plus five (samples x target)
+  arrays; the ~100 bytes per sample x target vertex of
+  ``solvers.softmaps.propagation_map.estimated_bytes``.  The cached factorization and
+  eigenpairs are not in these figures.
+- Alg. 4 batching (run of 20:34, code before the chunked sweep): the same fixed point (cow,
+  run to tol 1e-7: L1 gap 4e-9, 191 vs 187 sweeps) in 2.34 s instead of 5.82 s.
 - POT's entropic Gromov-Wasserstein on 500 samples per shape finds flipped or blurred
-  matches (240e-3 at eps 5e-3, 87e-3 at eps 1e-3 with a non-converged inner Sinkhorn).
+  matches.
 """
 
 
