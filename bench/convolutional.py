@@ -445,7 +445,9 @@ def defaults_lines(rows):
     lines = ["", "## Accuracy of the defaults vs the exact LP (squared exact geodesics)", "",
              "Command: `OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 flock /tmp/otgeo-timing.lock "
              ".venv/bin/python bench/convolutional.py defaults` (rows of a mesh: "
-             "`defaults --mesh=cow.obj`; LP oracles alone, cached in "
+             "`defaults --mesh=cow.obj [--cases=near,points]`; the 2026-12-01 rows ran without "
+             "the lock, which another job held, several meshes at once, at load 6-15: times are "
+             "inflated, values are not affected; LP oracles alone, cached in "
              "`bench/results/convolutional_oracles.json`: `oracles --mesh=...`).  Cases: bumps "
              "of the README's kind (`{\"vertex\": 0, \"radius\": 0.1}` and the vertex at 15 % "
              "/ 50 % / 90 % of the largest geodesic distance from vertex 0), and 25 + 25 "
