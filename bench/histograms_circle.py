@@ -49,6 +49,7 @@ RESULTS = ROOT / "bench" / "results" / "histograms_circle.md"
 OUT = RESULTS  # --out: rows of one run go there (several runs at once, merged by hand)
 
 from _common import load1  # noqa: E402
+from histograms import label_set  # noqa: E402  (the Fig. 5.6 label draw of bench/histograms.py)
 
 from solvers import load_mesh  # noqa: E402
 from solvers.errors import ConvergenceError  # noqa: E402
@@ -138,17 +139,6 @@ def part_graph(sizes, lp_time_limit: float) -> None:
              f"{'' if ent.converged else ' (not converged)'} | "
              f"{value:.6f} ({eval_s:.1f}) | {gap}| {r_lp} / {r_ent:.3f} | "
              f"{l0:.2f} / {l1:.2f} / {l2:.2f} |")
-
-
-def label_set(rng, mesh, fraction):
-    k = max(1, int(round(fraction * mesh.n)))
-    lab = set(rng.choice(mesh.n, k, replace=False).tolist())
-    comp = mesh.component_labels
-    for c in range(mesh.n_components):  # one per component the draw missed
-        members = np.flatnonzero(comp == c)
-        if not lab.intersection(members.tolist()):
-            lab.add(int(rng.choice(members)))
-    return np.array(sorted(lab))
 
 
 def part_real(meshes, trials: int, fraction: float, lp_time_limit: float,

@@ -181,14 +181,14 @@ def test_numba_kernels_compile_without_a_cache_location(monkeypatch):
     """No writable cache directory: numba refuses cache=True; we compile uncached."""
     import numba.core.caching as caching
 
-    from solvers.emd._green_kernels import _jit
+    from solvers.jit import cached_njit
 
     monkeypatch.setattr(caching.CacheImpl, "_locator_classes", [])
 
     def twice(x):
         return 2 * x
 
-    fn = _jit()(twice)
+    fn = cached_njit()(twice)
     assert type(fn._cache).__name__ == "NullCache"
     assert fn(21) == 42
 

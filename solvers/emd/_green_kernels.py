@@ -11,24 +11,14 @@ import numba
 import numpy as np
 
 from solvers.emd.green import PANEL
+from solvers.jit import cached_njit
 
 _FLUSH = 64  # faces summed in float32 before adding to the float64 accumulator
 
 
-def _jit(**options):
-    """``numba.njit(cache=True, ...)``; without a writable cache location numba refuses
-    to cache (RuntimeError at decoration), so compile per process instead."""
-
-    def wrap(fn):
-        try:
-            return numba.njit(cache=True, **options)(fn)
-        except RuntimeError:  # pragma: no cover - depends on the file system
-            return numba.njit(**options)(fn)
-
-    return wrap
 
 
-@_jit(parallel=True, fastmath=True)
+@cached_njit(parallel=True, fastmath=True)
 def face_pass(panels, s1, s2, tri, metric, out):  # pragma: no cover - compiled
     n_panels = panels.shape[0]
     n_faces = tri.shape[0]
@@ -59,7 +49,7 @@ def face_pass(panels, s1, s2, tri, metric, out):  # pragma: no cover - compiled
             out[b * PANEL + t] = acc[t]
 
 
-@_jit(parallel=True)
+@cached_njit(parallel=True)
 def store_block(sol, keep, pins, c, mu_row, first, panels):  # pragma: no cover - compiled
     """``panels[:, :, col] = G_pin[:, col] - c - c[col] + μ`` for the solved columns
     ``first + t`` (``sol`` (len(keep), w·PANEL) holds the rows ``keep``, the pinned rows of

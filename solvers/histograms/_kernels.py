@@ -7,21 +7,12 @@ compiled once per process.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
-
-def _jit(**options):
-    def wrap(fn):
-        try:
-            return numba.njit(cache=True, **options)(fn)
-        except RuntimeError:  # pragma: no cover - depends on the file system
-            return numba.njit(**options)(fn)
-
-    return wrap
+from solvers.jit import cached_njit
 
 
-@_jit()
+@cached_njit()
 def sort_rows_inplace(q):  # pragma: no cover - compiled
     """Sort every row of ``q`` in place; an already sorted row costs one pass."""
     n, m = q.shape
@@ -32,7 +23,7 @@ def sort_rows_inplace(q):  # pragma: no cover - compiled
                 break
 
 
-@_jit()
+@cached_njit()
 def histograms_from_sorted_rows(q, levels, edges, out):  # pragma: no cover - compiled
     """``out[i, j]``: the measure of ``{s : g_i(s) in [e_j, e_{j+1})}`` (first and last
     bins also take the mass outside the edges).
