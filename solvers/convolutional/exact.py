@@ -44,9 +44,10 @@ from solvers.monitor import Monitor, SolverResult
 # falls back to the convolutional route when the cost matrix takes longer than
 # AUTO_BUDGET_SECONDS after all: with the convolutional fallback's own VALUE_SECONDS budget
 # (solvers.regularization) this stays well inside the service's 600 s job limit
-# (service.settings job_time_limit); 25 + 25 point masses on the 35k-50k shared meshes fit
-# (bench/results/convolutional.md) ...
-AUTO_SECONDS = 120.0
+# (service.settings job_time_limit); 25 + 25 point masses on the 35k-50k shared meshes fit:
+# the estimate is pessimistic there (stanford-bunny 86 s estimated / 27 s measured,
+# nefertiti 273 s / 72 s at load 1, bench/results/convolutional.md) ...
+AUTO_SECONDS = 300.0
 AUTO_BUDGET_SECONDS = 300.0
 # ... for sparse inputs (the smaller support at most SPARSE_SUPPORT points: there the
 # convolutional route is 9-15 % low); larger supports (bumps, within 10 % by the
