@@ -212,6 +212,22 @@ class PardisoFactor:
         self.factor_nnz = int(iparm[17])
         self.nbytes = int(iparm[15] + iparm[16]) * 1024 + self._data.nbytes * 2
 
+    def refactor(self, matrix: sp.spmatrix) -> None:
+        """Numeric factorization of a matrix with the same pattern (PARDISO phase 22 only:
+        the ordering and symbolic analysis are kept), e.g. the changing weights of an
+        interior-point method's normal equations."""
+        upper = sp.triu(sp.csr_matrix(matrix, dtype=np.float64), format="csr")
+        upper.sum_duplicates()
+        if (upper.nnz != len(self._indices) or not np.array_equal(upper.indptr, self._indptr)
+                or not np.array_equal(upper.indices, self._indices)):
+            raise ValueError("refactor needs the pattern the factor was analysed with")
+        with self._lock:
+            self._data[:] = upper.data
+            err = _pardiso_call(self._lib, self._handle, 22, self.n, self._data, self._indptr,
+                                self._indices, self._iparm, 1)
+        if err:
+            raise ValueError(f"PARDISO phase 22 failed ({err}: {PARDISO_ERRORS.get(err, 'error')})")
+
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         """``A⁻¹ rhs`` for ``(n,)`` or ``(n, k)`` ``rhs``; a block comes back in Fortran
         order (PARDISO works column by column; no copy when ``rhs`` is F-ordered)."""

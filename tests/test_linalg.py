@@ -109,3 +109,15 @@ def test_pardiso_backend_solves_and_refuses_indefinite():
     with pytest.raises(ValueError, match="positive definite"):
         factorize_spd(sp.csr_matrix(np.array([[1.0, 2.0], [2.0, 1.0]])), backend="pardiso")
     assert factorize_spd(a).backend == "cholespy"  # "auto" is unchanged for other callers
+
+
+@pytest.mark.skipif(not have_pardiso(), reason="the mkl wheel (pardiso extra) is not installed")
+def test_pardiso_refactor_keeps_the_analysis_and_refuses_a_new_pattern():
+    a = _random_spd(300, 7)
+    f = factorize_spd(a, backend="pardiso")
+    b = (a + sp.diags(np.linspace(1.0, 5.0, 300))).tocsr()  # same pattern, new values
+    f.refactor(b)
+    rhs = np.random.default_rng(1).normal(size=300)
+    np.testing.assert_allclose(b @ f.solve(rhs), rhs, atol=1e-10 * np.abs(rhs).max())
+    with pytest.raises(ValueError, match="pattern"):
+        f.refactor(sp.identity(300, format="csr"))

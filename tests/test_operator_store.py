@@ -68,12 +68,15 @@ def test_heat_kernels_and_emd_factors_live_in_the_store(shared_mesh):
     m0[0] = 1.0
     m1 = np.zeros(woody.n)
     m1[300] = 1.0
-    earth_movers_distance(woody, m0, m1, tol=1e-3)
+    earth_movers_distance(woody, m0, m1, tol=1e-3)  # interior point over all flows
+    earth_movers_distance(woody, m0, m1, basis="full", tol=1e-3)  # ADMM over the curl basis
     keys = woody.operators.keys()
     assert "emd" in keys and ("emd", "curl_factor") in keys and ("emd", "stream") in keys
+    assert ("emd", "interior_point") in keys
     sizes = woody.operators.sizes()
     # the Poisson and curl factorizations are counted (estimated fill), not zero
     assert sizes["emd"] > 0 and sizes[("emd", "curl_factor")] > 0
+    assert sizes[("emd", "interior_point")] > 0  # frames, divergence, normal pattern
     assert woody.operators.nbytes == sum(sizes.values())
     grown = woody.operators.nbytes - store_before
     assert woody.nbytes - before >= grown  # geometry cached on the way may add more

@@ -47,15 +47,17 @@ class SinkhornOptions(OperationRequest):
 
 
 class W1Options(OperationRequest):
-    algorithm: Literal["admm", "weiszfeld"] = Field(
-        "admm", description="W1 solver: ADMM (thesis Fig. 2.5) or Weiszfeld (Fig. 2.4)")
+    algorithm: Literal["auto", "ipm", "admm", "weiszfeld"] = Field(
+        "auto", description="W1 solver: auto (ipm over all flows, else admm), ipm "
+        "(primal-dual interior point, all flows; stops at a certified relative gap tol), "
+        "ADMM (thesis Fig. 2.5) or Weiszfeld (Fig. 2.4)")
     basis: Literal["auto", "flow", "full", "spectral"] = Field(
         "auto", description="W1 flow space: auto (all piecewise-constant flows; the thesis' "
         "curl basis 'full' with matrix weights), flow, full (curl basis: an overestimate), "
         "spectral (k eigenfunctions)")
     k: int | None = Field(None, ge=1, description="spectral basis size")
-    tol: float | None = Field(None, gt=0, lt=1, description="relative primal/dual residual "
-                              "(default: the solver's)")
+    tol: float | None = Field(None, gt=0, lt=1, description="ipm: certified relative gap; "
+                              "admm: relative primal/dual residual (default: the solver's)")
     max_iter: int | None = Field(None, ge=1, le=100_000, description="default: the solver's")
 
 
@@ -73,7 +75,8 @@ class DistanceRequest(SinkhornOptions):
     debiased: bool | None = Field(None, description="W2 convolutional: Sinkhorn divergence "
                                   "(default: the policy's choice, true; false when gamma is "
                                   "given)")
-    algorithm: Literal["admm", "weiszfeld"] = Field("admm", description="W1 solver")
+    algorithm: Literal["auto", "ipm", "admm", "weiszfeld"] = Field(
+        "auto", description="W1 solver (as for flows)")
     basis: Literal["auto", "flow", "full", "spectral"] = Field(
         "auto", description="W1 flow space (as for flows)")
     k: int | None = Field(None, ge=1, description="W1 spectral basis size")

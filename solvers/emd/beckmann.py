@@ -23,7 +23,13 @@ field from a basis ``Ψ`` (:mod:`solvers.emd.bases`), and we minimize
 
 ``basis="flow"`` optimizes over all piecewise-constant flows (no basis; the ADMM
 J-update is a projection, i.e. one Poisson solve): the unrestricted discrete
-problem, a reference below the curl-basis value.
+problem, a reference below the curl-basis value.  Over all flows the default algorithm is
+
+* **a primal-dual interior-point method** (:mod:`solvers.emd.interior_point`): the same
+  problem as a second-order cone program whose Newton systems are vertex-sized weighted
+  Laplacians (one sparse Cholesky per iteration, 20-40 iterations); every iterate is a
+  feasible flow and a feasible Kantorovich potential, so it stops at a *certified*
+  relative gap ``tol`` between the two.
 
 Accuracy (measured against the exact LP with exact geodesic costs, and against the exact
 optimum of the same discretization, :func:`solvers.emd.exact.beckmann_w1_exact`:
@@ -33,8 +39,8 @@ curl basis (``"full"``) overestimates: rotated gradients of P1 stream functions 
 of the divergence-free piecewise-constant flows.  Every ADMM iterate over all flows is
 feasible (a projection onto the divergence constraint), so its value approaches that optimum
 from above; it is within about 1 % of it long before the residuals reach 1e-4, hence the
-looser default ``tol``.  Within 1e-4 of the optimum takes ``tol`` 1e-4 and hundreds to
-thousands of iterations.
+looser default ``tol`` of the ADMM; within 1e-4 of the optimum takes it thousands of
+iterations, which is why the interior-point method is the default over all flows.
 
 The dual potential ``u`` (a vertex function with ``|∇u| ≈ 1`` where mass moves)
 satisfies ``W1 ≈ u · (m1 - m0)``; rescaled to ``max|∇u| ≤ 1`` it certifies a lower
@@ -48,19 +54,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from solvers.emd.bases import CurlBasis, SpectralBasis, _apply_metric, _Basis
+from solvers.emd.interior_point import beckmann_interior_point
 from solvers.emd.operators import EMDOperators, mesh_operators
 from solvers.errors import InputError, UnsupportedDomainError
 from solvers.linalg import factorize_spd
 from solvers.monitor import Monitor, SolverResult
 from solvers.validation import normalize_masses
 
-ALGORITHMS = ("admm", "weiszfeld")
+ALGORITHMS = ("auto", "ipm", "admm", "weiszfeld")
 BASES = ("auto", "full", "spectral", "flow")
-# Default tolerances per (algorithm, basis); others 1e-4.  The ADMM over all flows is within
-# 1 % above its optimum at relative residuals of 1e-2 (within ±3 % of the LP), in 40-130
-# iterations; 1e-4 of the optimum needs tol 1e-4 (10-100 times the iterations: not within
-# 2 s at 10k vertices; bench/results/w1_accuracy.md).
-DEFAULT_TOL = {("admm", "flow"): 1e-2}
+# Default tolerances per (algorithm, basis); others 1e-4.  "ipm": certified relative gap.
+# The ADMM over all flows is within 1 % above its optimum at relative residuals of 1e-2, but
+# 1e-4 of the optimum takes it thousands of iterations (bench/results/w1_accuracy.md).
+DEFAULT_TOL = {("admm", "flow"): 1e-2, ("ipm", "flow"): 1e-4}
+IPM_MAX_ITER = 100
+# Interior-point iterations without a 0.1 % decrease of the certified gap: stalled.
+IPM_PATIENCE = 15
 RELAXATION = 1.6
 
 
@@ -180,7 +189,7 @@ ADMM_PATIENCE = 2000
 WEISZFELD_PATIENCE = 50
 
 
-def earth_movers_distance(mesh, mu0, mu1, *, algorithm: str = "admm", basis: str = "auto",
+def earth_movers_distance(mesh, mu0, mu1, *, algorithm: str = "auto", basis: str = "auto",
                           k: int | None = None, harmonic: bool = True, face_weights=None,
                           tol: float | None = None, max_iter: int | None = None,
                           beta: float | None = None, progress=None,
@@ -194,7 +203,10 @@ def earth_movers_distance(mesh, mu0, mu1, *, algorithm: str = "admm", basis: str
     ----------
     mesh : TriangleMesh.
     mu0, mu1 : (V,) masses (non-negative, normalized to sum 1).
-    algorithm : ``"admm"`` (Fig. 2.5, default) or ``"weiszfeld"`` (Fig. 2.4).
+    algorithm : ``"auto"`` (default: ``"ipm"`` over all flows with scalar or no face
+        weights, else ``"admm"``), ``"ipm"`` (primal-dual interior point, all flows only:
+        :mod:`solvers.emd.interior_point`), ``"admm"`` (Fig. 2.5) or ``"weiszfeld"``
+        (Fig. 2.4).
     basis : ``"auto"`` (default: ``"flow"``, or ``"full"`` with matrix ``face_weights``),
         ``"flow"`` (all piecewise-constant flows: the unrestricted discrete problem, whose
         value tracks the exact LP), ``"full"`` (the thesis' rotated gradients of every
@@ -208,13 +220,15 @@ def earth_movers_distance(mesh, mu0, mu1, *, algorithm: str = "admm", basis: str
         every harmonic flow already).
     face_weights : None, (F,) positive scalars ``w`` or (F, 3, 3) matrices ``M``:
         anisotropic cost :math:`\int\|A(x) J\|` (§2.7).
-    tol : relative primal/dual residual (ADMM) or relative objective change
-        (Weiszfeld) at which to stop; default :data:`DEFAULT_TOL` (looser for the ADMM
-        over all flows, whose value settles long before its residuals do:
+    tol : certified relative gap ``(value - lower_bound) / value`` (interior point),
+        relative primal/dual residual (ADMM) or relative objective change (Weiszfeld) at
+        which to stop; default :data:`DEFAULT_TOL` (1e-4 for the interior point; looser for
+        the ADMM over all flows, whose value settles long before its residuals do:
         ``bench/results/w1_accuracy.md``).
-    max_iter : iteration cap (default 20000 ADMM, 500 Weiszfeld); the loops also stop when
-        the residual has not improved by 0.1 % for ``ADMM_PATIENCE`` /
-        ``WEISZFELD_PATIENCE`` iterations (stagnation: converged False, measured residuals).
+    max_iter : iteration cap (default 100 interior point, 20000 ADMM, 500 Weiszfeld); the
+        loops also stop when the residual has not improved by 0.1 % for ``IPM_PATIENCE`` /
+        ``ADMM_PATIENCE`` / ``WEISZFELD_PATIENCE`` iterations (stagnation: converged False,
+        measured residuals).
     progress, should_cancel : called every iteration (``solvers.monitor.Monitor``).
     beta : initial ADMM penalty (default ``1 / Σ A‖v‖``); adapted by residual balancing.
 
@@ -229,8 +243,14 @@ def earth_movers_distance(mesh, mu0, mu1, *, algorithm: str = "admm", basis: str
     ops = check_mesh(mesh)
     m0, m1 = check_pair(mesh, mu0, mu1)
     weights = check_face_weights(face_weights, ops.n_faces)
+    matrix = weights is not None and weights.ndim == 3
     if basis == "auto":
-        basis = "full" if weights is not None and weights.ndim == 3 else "flow"
+        basis = "full" if matrix else "flow"
+    if algorithm == "auto":
+        algorithm = "ipm" if basis == "flow" and not matrix else "admm"
+    if algorithm == "ipm" and (basis != "flow" or matrix):
+        raise InputError("algorithm='ipm' solves over all flows (basis 'flow' or 'auto') with "
+                         "scalar face weights", field="algorithm")
     if tol is None:
         tol = DEFAULT_TOL.get((algorithm, basis), 1e-4)
     if not (np.isfinite(tol) and tol > 0):
@@ -239,9 +259,12 @@ def earth_movers_distance(mesh, mu0, mu1, *, algorithm: str = "admm", basis: str
         raise InputError("matrix face_weights need basis='full' or 'spectral'",
                          field="face_weights")
     flow_basis = make_basis(ops, basis, k, harmonic)
-    monitor = Monitor(progress, should_cancel, tol=tol,
-                      patience=ADMM_PATIENCE if algorithm == "admm" else WEISZFELD_PATIENCE)
+    patience = {"ipm": IPM_PATIENCE, "admm": ADMM_PATIENCE}.get(algorithm, WEISZFELD_PATIENCE)
+    monitor = Monitor(progress, should_cancel, tol=tol, patience=patience)
     _, v = ops.particular_flow(m1 - m0)
+    if algorithm == "ipm":
+        return _ipm(ops, v, m0, m1, weights, tol,
+                    IPM_MAX_ITER if max_iter is None else int(max_iter), monitor)
     if algorithm == "admm":
         max_iter = 20000 if max_iter is None else int(max_iter)
         out = _admm(ops, flow_basis, v, m0 - m1, weights, tol, max_iter, beta, monitor)
@@ -255,6 +278,26 @@ def earth_movers_distance(mesh, mu0, mu1, *, algorithm: str = "admm", basis: str
                      dual_residual=s, residual=max(r, s), converged=bool(r <= tol and s <= tol),
                      algorithm=algorithm,
                      basis=basis, beta=beta_final)
+
+
+def _ipm(ops, v, m0, m1, weights, tol, max_iter, monitor) -> EMDResult:
+    """The interior-point route: start from the Poisson flow ``v`` (feasible), return the
+    certified flow and potential."""
+    geo, structure = ops.interior_point_structure
+    w = np.ones(ops.n_faces) if weights is None else weights
+    u0 = np.einsum("fc,fdc->fd", v, geo.frames) * ops.face_areas[:, None]
+    out = beckmann_interior_point(geo.div, structure.faces, w, m0 - m1, ops._keep, u0, tol,
+                                  max_iter, monitor, structure=structure)
+    flow = np.einsum("fd,fdc->fc", out.u, geo.frames) / ops.face_areas[:, None]
+    potential = -out.y  # the module's dual maximizes y·(m0 - m1); here u·(m1 - m0)
+    labels, a = ops.labels, ops.mesh.areas
+    potential -= (np.bincount(labels, a * potential) / np.bincount(labels, a))[labels]
+    scale = max(float(np.abs(m0 - m1).max()), 1e-300)
+    return EMDResult(value=_cost(ops, flow, weights), flow=flow, potential=potential,
+                     lower_bound=out.lower_bound, iterations=out.iterations,
+                     primal_residual=out.feasibility / scale, dual_residual=0.0,
+                     residual=out.gap, converged=out.converged, algorithm="ipm",
+                     basis="flow")
 
 
 def _admm(ops, basis, v, b, weights, tol, max_iter, beta, monitor):

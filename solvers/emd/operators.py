@@ -184,6 +184,14 @@ class EMDOperators:
                                lambda: factorize_spd((p.T @ self.laplacian @ p).tocsc()))
 
     @property
+    def interior_point_structure(self):
+        """Tangent frames, divergence and normal-matrix pattern of the interior-point W1
+        (:func:`solvers.emd.interior_point.flow_structure`), once per mesh."""
+        from solvers.emd.interior_point import flow_structure
+
+        return self._store.get(("emd", "interior_point"), lambda: flow_structure(self.mesh))
+
+    @property
     def rotation_matrix(self) -> sp.csr_matrix:
         """``R`` as a block-diagonal (3F × 3F) matrix of cross products ``N ×``."""
         n_f, n = self.n_faces, self.normals

@@ -1,0 +1,300 @@
+r"""W1 over all piecewise-constant flows by a primal-dual interior-point method whose
+Newton systems are vertex-sized (thesis ch. 2, eq. 2.3).
+
+The discrete Beckmann problem of :func:`solvers.emd.exact.beckmann_w1_exact`,
+
+.. math::
+    \min_{x_t = (s_t, u_t) \in \mathcal Q^3} \sum_t w_t s_t
+    \quad\text{s.t.}\quad D u = m_0 - m_1 ,
+
+with :math:`u_t = A_t J_t` (two coordinates in a tangent frame of face ``t``), ``D`` the
+weak divergence and :math:`\mathcal Q^3` the Lorentz cone :math:`s_t \ge \lVert u_t\rVert`,
+and its dual (Kantorovich–Rubinstein, eq. 2.1)
+
+.. math::
+    \max_y\; y^\top (m_0 - m_1) \quad\text{s.t.}\quad
+    z_t = (w_t, -(D^\top y)_t) \in \mathcal Q^3
+    \;\Leftrightarrow\; \lVert \nabla y|_t \rVert \le w_t ,
+
+are solved together by Mehrotra's predictor-corrector with Nesterov–Todd scaling
+(Vandenberghe, *The CVXOPT linear and quadratic cone program solvers*, 2010, §4).  A generic
+conic solver factors the whole KKT system (``3F + V`` unknowns); here the face variables are
+eliminated in closed form (the scaling is a 3×3 block per face), which leaves the normal
+equations :math:`D\, W_t^{-2} D^\top \Delta y = r`: a weighted Laplacian of the mesh's
+sparsity, one sparse Cholesky per iteration.
+
+The start is primal and dual feasible (``u`` = the area-weighted gradient of the Poisson
+solution, ``y = 0``), and every step keeps both feasible, so each iterate brackets the
+optimum: ``value`` (the cost :math:`\sum_t w_t \lVert u_t\rVert` of a flow satisfying the
+divergence constraint) is an upper bound, ``lower_bound`` :math:`= y^\top(m_0 - m_1)` with
+unit-bounded face gradients a lower bound, and the loop stops when
+``value - lower_bound <= tol * value``: a certified relative error.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from solvers.linalg import factorize_spd, have_pardiso
+
+# Fraction of the largest cone-feasible step taken (keeps iterates interior).
+STEP_FRACTION = 0.99
+
+
+@dataclass
+class _Structure:
+    """Index maps of the normal matrix, built once per (mesh, blocked faces)."""
+
+    faces: np.ndarray  # (F, 3) vertices of the faces that carry flow
+    local: np.ndarray  # (F, 3, 2): D restricted to face t, (vertex slot, tangent coord)
+    slots: np.ndarray  # (k,) CSR data slot of each kept (face, a, b) entry
+    kept: np.ndarray  # (9 F,) bool: entry (face, a, b) touches no pinned vertex
+    pattern: sp.csr_matrix  # the normal matrix's pattern on the kept vertices
+    keep: np.ndarray  # kept vertices (one pinned per component)
+
+
+def _structure(div: sp.csr_matrix, faces: np.ndarray, keep: np.ndarray) -> _Structure:
+    """Per-face 3×2 blocks of the interleaved divergence ``div`` ``(V, 3 F)`` (columns
+    ``3t + 1 + d`` hold tangent coordinate ``d`` of face ``t``) and the CSR slots of the
+    normal matrix's face contributions."""
+    n_faces = len(faces)
+    coo = div.tocoo()
+    face, coord = np.divmod(coo.col, 3)
+    tangent = coord >= 1
+    face, coord, vertex, value = face[tangent], coord[tangent] - 1, coo.row[tangent], \
+        coo.data[tangent]
+    slot = np.argmax(faces[face] == vertex[:, None], axis=1)
+    local = np.zeros((n_faces, 3, 2))
+    np.add.at(local, (face, slot, coord), value)
+    n = div.shape[0]
+    position = np.full(n, -1, dtype=np.int64)
+    position[keep] = np.arange(len(keep))
+    rows = position[np.repeat(faces, 3, axis=1).ravel()]
+    cols = position[np.tile(faces, (1, 3)).ravel()]
+    kept = (rows >= 0) & (cols >= 0)
+    rows, cols = rows[kept], cols[kept]
+    size = len(keep)
+    pattern = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(size, size))
+    pattern.sum_duplicates()
+    pattern.sort_indices()
+    keys = np.repeat(np.arange(size), np.diff(pattern.indptr)) * size + pattern.indices
+    slots = np.searchsorted(keys, rows * size + cols)
+    return _Structure(faces, local, slots, kept, pattern, keep)
+
+
+# -- the Lorentz cone Q^3, batched over faces: arrays (F, 3) ------------------------------
+def _jdot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``xᵀ J y`` with ``J = diag(1, -1, -1)``."""
+    return x[:, 0] * y[:, 0] - x[:, 1] * y[:, 1] - x[:, 2] * y[:, 2]
+
+
+def _jordan(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Jordan product ``x ∘ y = (xᵀy, x_0 ȳ + y_0 x̄)``."""
+    out = x[:, :1] * y + y[:, :1] * x
+    out[:, 0] = _dot(x, y)
+    return out
+
+
+def _jordan_solve(lam: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """``v`` with ``lam ∘ v = r`` (the arrow matrix of ``lam`` inverted in closed form)."""
+    det = _jdot(lam, lam)
+    v0 = (lam[:, 0] * r[:, 0] - lam[:, 1] * r[:, 1] - lam[:, 2] * r[:, 2]) / det
+    out = np.empty_like(r)
+    out[:, 0] = v0
+    out[:, 1:] = (r[:, 1:] - v0[:, None] * lam[:, 1:]) / lam[:, :1]
+    return out
+
+
+@dataclass
+class _Scaling:
+    """Nesterov–Todd scaling per face: ``W = β (2 v vᵀ − J)`` with ``vᵀ J v = 1``, the
+    symmetric matrix with ``W x = W⁻¹ z = λ`` (Vandenberghe 2010, §4.2), applied in closed
+    form: ``W⁻¹ = β⁻¹ (2 p pᵀ − J)`` with ``p = J v``."""
+
+    v: np.ndarray  # (F, 3)
+    p: np.ndarray  # (F, 3), J v
+    beta: np.ndarray  # (F,)
+    lam: np.ndarray  # (F, 3), W x
+
+    def apply(self, y: np.ndarray) -> np.ndarray:  # W y
+        return self.beta[:, None] * (2.0 * self.v * _dot(self.v, y)[:, None] - _jmul(y))
+
+    def apply_inverse(self, y: np.ndarray) -> np.ndarray:  # W⁻¹ y
+        return (2.0 * self.p * _dot(self.p, y)[:, None] - _jmul(y)) / self.beta[:, None]
+
+    def apply_inverse_square(self, y: np.ndarray) -> np.ndarray:  # W⁻² y
+        return self.apply_inverse(self.apply_inverse(y))
+
+    def inverse_square_tangent(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Entries ``(t11, t12, t22)`` of the tangential 2×2 block of
+        ``W⁻² = β⁻² (4 ‖v‖² p pᵀ − 2 (p vᵀ + v pᵀ) + I)``."""
+        p, v = self.p, self.v
+        vv = 4.0 * _dot(v, v)
+        scale = 1.0 / self.beta**2
+
+        def entry(i, j):
+            eye = 1.0 if i == j else 0.0
+            return scale * (vv * p[:, i] * p[:, j] - 2.0 * (p[:, i] * v[:, j]
+                                                              + v[:, i] * p[:, j]) + eye)
+
+        return entry(1, 1), entry(1, 2), entry(2, 2)
+
+
+def _dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return x[:, 0] * y[:, 0] + x[:, 1] * y[:, 1] + x[:, 2] * y[:, 2]
+
+
+def _jmul(y: np.ndarray) -> np.ndarray:
+    out = -y
+    out[:, 0] = y[:, 0]
+    return out
+
+
+def _nt_scaling(x: np.ndarray, z: np.ndarray) -> _Scaling:
+    xn, zn = np.sqrt(_jdot(x, x)), np.sqrt(_jdot(z, z))
+    xb, zb = x / xn[:, None], z / zn[:, None]
+    gamma = np.sqrt(0.5 * (1.0 + _dot(xb, zb)))
+    wb = (zb + _jmul(xb)) / (2.0 * gamma[:, None])
+    v = wb.copy()
+    v[:, 0] += 1.0
+    v /= np.sqrt(2.0 * (wb[:, 0] + 1.0))[:, None]
+    beta = np.sqrt(zn / xn)
+    scaling = _Scaling(v=v, p=_jmul(v), beta=beta, lam=np.empty(0))
+    scaling.lam = scaling.apply(x)
+    return scaling
+
+
+def _max_step(x: np.ndarray, d: np.ndarray) -> float:
+    """Largest ``α`` with ``x + α d`` in every cone (``x`` interior; ``inf`` if none
+    leaves): the smallest positive root of ``q(α) = (x + α d)ᵀ J (x + α d)``.  Leaving
+    the cone's sheet means crossing ``q = 0`` first, and with ``q(0) > 0`` that root is
+    ``c / (√(b² − a c) − b)`` for ``q = a α² + 2 b α + c`` whenever it exists."""
+    a, b, c = _jdot(d, d), _jdot(x, d), _jdot(x, x)
+    disc = b * b - a * c
+    exists = (a < 0) | ((b < 0) & (disc >= 0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        root = np.where(exists, c / (np.sqrt(np.maximum(disc, 0.0)) - b), np.inf)
+    return float(root.min(initial=np.inf))
+
+
+def _backend(backend: str) -> str:
+    """``"auto"``: PARDISO when it loads (its numeric refactorization reuses the ordering
+    across iterations), else the library default."""
+    if backend == "auto":
+        return "pardiso" if have_pardiso() else "auto"
+    return backend
+
+
+def flow_structure(mesh):
+    """``(geometry, structure)`` of the interior-point solve on ``mesh``: tangent frames and
+    interleaved divergence (:func:`solvers.emd.exact._flow_geometry`, all faces), and the
+    normal matrix's pattern.  Built once per mesh (``EMDOperators.interior_point_structure``)."""
+    from solvers.emd.exact import _flow_geometry
+    from solvers.emd.operators import mesh_operators
+
+    geo = _flow_geometry(mesh, np.ones(mesh.n_faces))
+    return geo, _structure(geo.div, np.asarray(mesh.faces)[geo.faces], mesh_operators(mesh)._keep)
+
+
+@dataclass
+class InteriorPointOutput:
+    u: np.ndarray  # (F, 2) flow u_t = A_t J_t in the tangent frames
+    y: np.ndarray  # (V,) dual potential (0 at pinned vertices)
+    value: float  # Σ w_t ‖u_t‖ of the returned (feasible) flow
+    lower_bound: float  # yᵀ b, certified
+    gap: float  # (value − lower_bound) / value
+    iterations: int
+    feasibility: float  # max |D u − b|
+    converged: bool
+
+
+def beckmann_interior_point(div: sp.csr_matrix, faces: np.ndarray, weights: np.ndarray,
+                            b: np.ndarray, keep: np.ndarray, u0: np.ndarray, tol: float,
+                            max_iter: int, monitor, backend: str = "auto",
+                            structure: _Structure | None = None) -> InteriorPointOutput:
+    """The primal-dual loop (see the module docstring).
+
+    ``div`` ``(V, 3 F)`` interleaved weak divergence, ``faces`` ``(F, 3)`` vertex indices of
+    its faces, ``weights`` ``(F,)``, ``b = m0 - m1``, ``keep`` all vertices but one per
+    component, ``u0`` ``(F, 2)`` a flow with ``D u0 = b``; ``monitor`` a
+    :class:`~solvers.monitor.Monitor` called with the certified relative gap."""
+    st = structure if structure is not None else _structure(div, faces, keep)
+    n_faces = len(faces)
+    cost = np.zeros((n_faces, 3))
+    cost[:, 0] = weights
+    # primal start: u0 with a margin above its norm; dual start y = 0, z = (w, 0, 0)
+    norms = np.linalg.norm(u0, axis=1)
+    x = np.empty((n_faces, 3))
+    x[:, 1:] = u0
+    x[:, 0] = norms + max(float(weights @ norms) / max(float(weights.sum()), 1e-300), 1e-300)
+    y = np.zeros(div.shape[0])
+    z = cost.copy()
+    local = st.local
+    n = div.shape[0]
+    flat = faces.ravel()
+    l0, l1 = local[:, :, 0], local[:, :, 1]  # (F, 3) each
+    factor = None
+
+    def newton(scaling: _Scaling, rc: np.ndarray):
+        # λ ∘ (W Δx + W⁻¹ Δz) = rc with D Δu = 0 and Δz = −Dᵀ Δy (primal and dual
+        # residuals stay zero): (D W⁻² Dᵀ) Δy = −D (W⁻¹ q), q = λ \ rc
+        wq = scaling.apply_inverse(_jordan_solve(scaling.lam, rc))
+        rhs = np.bincount(flat, (l0 * wq[:, 1:2] + l1 * wq[:, 2:3]).ravel(), minlength=n)
+        dy = np.zeros(n)
+        dy[st.keep] = factor.solve(-rhs[st.keep])
+        yf = dy[faces]
+        dz = np.zeros((n_faces, 3))
+        dz[:, 1] = -(l0 * yf).sum(axis=1)
+        dz[:, 2] = -(l1 * yf).sum(axis=1)
+        dx = wq - scaling.apply_inverse_square(dz)
+        return dx, dy, dz
+
+    value = float(weights @ np.linalg.norm(x[:, 1:], axis=1))
+    lower = 0.0
+    it = 0
+    converged = False
+    for it in range(1, max_iter + 1):
+        scaling = _nt_scaling(x, z)
+        lam = scaling.lam
+        mu = float(_dot(x, z).sum()) / n_faces
+        # normal matrix D W⁻² Dᵀ on the kept vertices, from a 3×3 block per face
+        t11, t12, t22 = (t[:, None, None] for t in scaling.inverse_square_tangent())
+        a0, a1 = l0[:, :, None], l1[:, :, None]
+        b0, b1 = l0[:, None, :], l1[:, None, :]
+        blocks = t11 * a0 * b0 + t12 * (a0 * b1 + a1 * b0) + t22 * a1 * b1
+        data = np.bincount(st.slots, blocks.reshape(-1)[st.kept], minlength=st.pattern.nnz)
+        normal = sp.csr_matrix((data, st.pattern.indices, st.pattern.indptr),
+                               shape=st.pattern.shape)
+        if factor is not None and hasattr(factor, "refactor"):
+            factor.refactor(normal)
+        else:
+            factor = factorize_spd(normal, _backend(backend))
+        dx_a, dy_a, dz_a = newton(scaling, -_jordan(lam, lam))
+        alpha_a = min(1.0, _max_step(x, dx_a), _max_step(z, dz_a))
+        mu_a = float(_dot(x + alpha_a * dx_a, z + alpha_a * dz_a).sum()) / n_faces
+        sigma = (mu_a / mu) ** 3
+        rc = -_jordan(lam, lam) - _jordan(scaling.apply_inverse(dz_a), scaling.apply(dx_a))
+        rc[:, 0] += sigma * mu
+        dx, dy, dz = newton(scaling, rc)
+        alpha = min(1.0, STEP_FRACTION * min(_max_step(x, dx), _max_step(z, dz)))
+        x = x + alpha * dx
+        y = y + alpha * dy
+        z = z + alpha * dz
+        value = float(weights @ np.linalg.norm(x[:, 1:], axis=1))
+        lower = float(y @ b)
+        gap = (value - lower) / max(abs(value), 1e-300)
+        monitor(it, gap)
+        if gap <= tol:
+            converged = True
+            break
+        if monitor.stalled:
+            break
+    u = x[:, 1:].copy()
+    feasibility = float(np.abs(div @ np.column_stack([np.zeros(n_faces), u]).ravel()
+                               - b).max())
+    return InteriorPointOutput(u=u, y=y, value=value, lower_bound=lower,
+                               gap=(value - lower) / max(abs(value), 1e-300), iterations=it,
+                               feasibility=feasibility, converged=converged)
