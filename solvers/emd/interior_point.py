@@ -199,6 +199,41 @@ def flow_structure(mesh):
     return geo, _structure(geo.div, np.asarray(mesh.faces)[geo.faces], mesh_operators(mesh)._keep)
 
 
+def _interior(x: np.ndarray) -> bool:
+    return bool(np.all(np.isfinite(x)) and np.all(x[:, 0] > 0) and np.all(_jdot(x, x) > 0))
+
+
+def _iterate(x, z, st, local, newton, backend, factor):
+    """One Mehrotra predictor-corrector step: ``(factor, Δx, Δy, Δz, α)``."""
+    scaling = _nt_scaling(x, z)
+    lam = scaling.lam
+    mu = float(_dot(x, z).sum()) / len(x)
+    # normal matrix D W⁻² Dᵀ on the kept vertices, from a 3×3 block per face
+    t11, t12, t22 = (t[:, None, None] for t in scaling.inverse_square_tangent())
+    l0, l1 = local[:, :, 0], local[:, :, 1]
+    a0, a1 = l0[:, :, None], l1[:, :, None]
+    b0, b1 = l0[:, None, :], l1[:, None, :]
+    blocks = t11 * a0 * b0 + t12 * (a0 * b1 + a1 * b0) + t22 * a1 * b1
+    data = np.bincount(st.slots, blocks.reshape(-1)[st.kept], minlength=st.pattern.nnz)
+    if not np.all(np.isfinite(data)):
+        return None
+    normal = sp.csr_matrix((data, st.pattern.indices, st.pattern.indptr),
+                           shape=st.pattern.shape)
+    if factor is not None and hasattr(factor, "refactor"):
+        factor.refactor(normal)
+    else:
+        factor = factorize_spd(normal, _backend(backend))
+    dx_a, _, dz_a = newton(scaling, -_jordan(lam, lam), factor)
+    alpha_a = min(1.0, _max_step(x, dx_a), _max_step(z, dz_a))
+    mu_a = float(_dot(x + alpha_a * dx_a, z + alpha_a * dz_a).sum()) / len(x)
+    sigma = (max(mu_a, 0.0) / mu) ** 3
+    rc = -_jordan(lam, lam) - _jordan(scaling.apply_inverse(dz_a), scaling.apply(dx_a))
+    rc[:, 0] += sigma * mu
+    dx, dy, dz = newton(scaling, rc, factor)
+    alpha = min(1.0, STEP_FRACTION * min(_max_step(x, dx), _max_step(z, dz)))
+    return factor, dx, dy, dz, alpha
+
+
 @dataclass
 class InteriorPointOutput:
     u: np.ndarray  # (F, 2) flow u_t = A_t J_t in the tangent frames
@@ -238,7 +273,7 @@ def beckmann_interior_point(div: sp.csr_matrix, faces: np.ndarray, weights: np.n
     l0, l1 = local[:, :, 0], local[:, :, 1]  # (F, 3) each
     factor = None
 
-    def newton(scaling: _Scaling, rc: np.ndarray):
+    def newton(scaling: _Scaling, rc: np.ndarray, factor):
         # λ ∘ (W Δx + W⁻¹ Δz) = rc with D Δu = 0 and Δz = −Dᵀ Δy (primal and dual
         # residuals stay zero): (D W⁻² Dᵀ) Δy = −D (W⁻¹ q), q = λ \ rc
         wq = scaling.apply_inverse(_jordan_solve(scaling.lam, rc))
@@ -257,32 +292,19 @@ def beckmann_interior_point(div: sp.csr_matrix, faces: np.ndarray, weights: np.n
     it = 0
     converged = False
     for it in range(1, max_iter + 1):
-        scaling = _nt_scaling(x, z)
-        lam = scaling.lam
-        mu = float(_dot(x, z).sum()) / n_faces
-        # normal matrix D W⁻² Dᵀ on the kept vertices, from a 3×3 block per face
-        t11, t12, t22 = (t[:, None, None] for t in scaling.inverse_square_tangent())
-        a0, a1 = l0[:, :, None], l1[:, :, None]
-        b0, b1 = l0[:, None, :], l1[:, None, :]
-        blocks = t11 * a0 * b0 + t12 * (a0 * b1 + a1 * b0) + t22 * a1 * b1
-        data = np.bincount(st.slots, blocks.reshape(-1)[st.kept], minlength=st.pattern.nnz)
-        normal = sp.csr_matrix((data, st.pattern.indices, st.pattern.indptr),
-                               shape=st.pattern.shape)
-        if factor is not None and hasattr(factor, "refactor"):
-            factor.refactor(normal)
-        else:
-            factor = factorize_spd(normal, _backend(backend))
-        dx_a, dy_a, dz_a = newton(scaling, -_jordan(lam, lam))
-        alpha_a = min(1.0, _max_step(x, dx_a), _max_step(z, dz_a))
-        mu_a = float(_dot(x + alpha_a * dx_a, z + alpha_a * dz_a).sum()) / n_faces
-        sigma = (mu_a / mu) ** 3
-        rc = -_jordan(lam, lam) - _jordan(scaling.apply_inverse(dz_a), scaling.apply(dx_a))
-        rc[:, 0] += sigma * mu
-        dx, dy, dz = newton(scaling, rc)
-        alpha = min(1.0, STEP_FRACTION * min(_max_step(x, dx), _max_step(z, dz)))
-        x = x + alpha * dx
-        y = y + alpha * dy
-        z = z + alpha * dz
+        try:
+            step = _iterate(x, z, st, local, newton, backend, factor)
+        except (ValueError, RuntimeError, ZeroDivisionError, FloatingPointError):
+            step = None  # a factorization failed at the end of the path (rounding)
+        if step is None:
+            it -= 1
+            break
+        factor, dx, dy, dz, alpha = step
+        x_new, y_new, z_new = x + alpha * dx, y + alpha * dy, z + alpha * dz
+        if not (_interior(x_new) and _interior(z_new) and np.all(np.isfinite(y_new))):
+            it -= 1  # rounding left the cone: keep the last certified iterate
+            break
+        x, y, z = x_new, y_new, z_new
         value = float(weights @ np.linalg.norm(x[:, 1:], axis=1))
         lower = float(y @ b)
         gap = (value - lower) / max(abs(value), 1e-300)
