@@ -21,8 +21,8 @@ of the largest geodesic distance from vertex 0, and 25 + 25 scattered point mass
 All times warm (operators cached on the mesh), wall clock; load = 1-minute load average
 before/after the row.  Writes ``bench/results/w1_accuracy.md``.
 
-Usage: ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/w1_accuracy.py
-[--full] [--out=bench/results/NAME.md] [mesh.obj ...]``
+Usage: ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 .venv/bin/python
+bench/w1_accuracy.py [--full] [--out=bench/results/NAME.md] [mesh.obj ...]``
 """
 
 from __future__ import annotations
@@ -99,15 +99,17 @@ def rows_for(name, full: bool):
 
 
 def main(names, full: bool, out: Path):
-    cmd = ("OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/w1_accuracy.py "
+    cmd = ("OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 .venv/bin/python "
+           "bench/w1_accuracy.py "
            + ("--full " if full else "") + (f"--out={out.relative_to(ROOT)} " if out != OUT else "")
            + " ".join(names))
     lines = ["# W1 (Beckmann) vs the exact LP and the exact discrete optimum", "",
              f"Command: `{cmd}`.  LP = `ot.emd2` on exact (MMP) geodesic lengths between the "
              "supports; SOCP = `beckmann_w1_exact` (Clarabel, tol 1e-8), the exact optimum of "
              "the discretization the default solves; default = `earth_movers_distance` with "
-             "its defaults (all flows, ADMM, tol 1e-2), err = relative value error against the "
-             "SOCP; gap = its certified (value − lower bound) / value; ipm cholespy = the "
+             "its defaults (all flows, interior point, certified gap 1e-4), err = relative "
+             "value error against the SOCP; gap = its certified (value − lower bound) / "
+             "value; ipm cholespy = the "
              "same solve on the core install's factorization; ADMM = algorithm='admm' (tol "
              "1e-2, the previous default).  PARDISO: " + str(interior_point.have_pardiso())
              + ".  Times warm, wall clock, seconds; load = 1-minute load average "
