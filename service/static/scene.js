@@ -298,7 +298,9 @@ export class View {
     this.render();
   }
 
-  // Flow arrows: one per face from its centroid along the (F, 3) field, longest = 1.5 edges.
+  // Flow arrows: one per face from its centroid along the (F, 3) field.  Lengths are scaled
+  // so the 90th percentile of the drawn magnitudes is 1.5 edges and clipped there: an optimal
+  // flow concentrates near its sources, and scaling by the maximum would shrink the rest.
   setArrows(field, itemIndex = 0) {
     if (this.arrows) { this.arrows.parent.remove(this.arrows); this.arrows = null; }
     if (!field) { this.render(); return; }
@@ -308,14 +310,22 @@ export class View {
     let max = 0;
     for (const v of field) if (v) max = Math.max(max, Math.hypot(v[0], v[1], v[2]));
     if (!max) return;
+    const drawn = [];
+    for (const v of field) {
+      const m = v ? Math.hypot(v[0], v[1], v[2]) : 0;
+      if (m >= max * 0.02) drawn.push(m);
+    }
+    drawn.sort((a, b) => a - b);
+    const reference = drawn[Math.floor(0.9 * (drawn.length - 1))] || max;
     const stride = Math.max(1, Math.ceil(nF / 15000));
     const seg = [];
-    const scale = 1.5 * it.edgeLength / max;
+    const longest = 1.5 * it.edgeLength;
     for (let f = 0; f < nF; f += stride) {
       const v = field[f];
       if (!v) continue;
       const m = Math.hypot(v[0], v[1], v[2]);
       if (m < max * 0.02) continue;
+      const scale = Math.min(longest / reference, longest / m);
       const c = [0, 1, 2].map((d) => (p[3 * faces[3 * f] + d] + p[3 * faces[3 * f + 1] + d]
         + p[3 * faces[3 * f + 2] + d]) / 3);
       const tip = c.map((x, d) => x + v[d] * scale);

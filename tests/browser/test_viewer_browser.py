@@ -287,11 +287,13 @@ def test_color_transfer_images_side_by_side(page, live_api, tmp_path):
 
 
 def test_live_progress_and_cancel(spot_page):
-    """A long W1 flow: the bar follows the job's events while it runs; Cancel stops it."""
+    """A long W1 flow (ADMM: the default interior point ends in tens of iterations): the bar
+    follows the job's events while it runs; Cancel stops it."""
     page = spot_page
     pick_two(page)
     page.select_option("#operation", "createFlowJob")
     page.click("#op-form details > summary")
+    page.select_option("#op-form select[name=algorithm]", "admm")
     page.fill("#op-form input[name=tol]", "1e-12")
     page.fill("#op-form input[name=max_iter]", "100000")
     page.click("#run")
