@@ -325,3 +325,43 @@ def test_input_errors_and_cancel(woody):
     earth_movers_distance(woody, bump(woody, 1), bump(woody, 400), tol=1e-3,
                           progress=lambda it, r: seen.append((it, r)))
     assert seen and all(np.isfinite(r) for _, r in seen)
+
+
+def test_interior_point_cone_algebra():
+    """The Lorentz-cone pieces of the interior point on random interior points: the
+    Nesterov–Todd scaling maps x and z to the same λ, W⁻¹ inverts W, the closed-form W⁻²
+    block equals the product, the Jordan solve inverts the Jordan product, and the step to
+    the boundary lands on it."""
+    from solvers.emd.interior_point import (
+        _jdot,
+        _jordan,
+        _jordan_solve,
+        _max_step,
+        _nt_scaling,
+    )
+
+    rng = np.random.default_rng(4)
+
+    def interior(k):
+        v = rng.normal(size=(k, 3))
+        v[:, 0] = np.linalg.norm(v[:, 1:], axis=1) + rng.uniform(0.1, 1.0, k)
+        return v
+
+    x, z = interior(50), interior(50)
+    s = _nt_scaling(x, z)
+    np.testing.assert_allclose(s.apply_inverse(z), s.lam, atol=1e-12)
+    r = rng.normal(size=(50, 3))
+    np.testing.assert_allclose(s.apply_inverse(s.apply(r)), r, atol=1e-12)
+    t11, t12, t22 = s.inverse_square_tangent()
+    for i, j, t in ((1, 1, t11), (1, 2, t12), (2, 2, t22)):
+        e = np.zeros((50, 3))
+        e[:, j] = 1.0
+        np.testing.assert_allclose(s.apply_inverse_square(e)[:, i], t, atol=1e-12)
+    np.testing.assert_allclose(_jordan(x, _jordan_solve(x, r)), r, atol=1e-10)
+    d = rng.normal(size=(50, 3))
+    alpha = _max_step(x, d)
+    edge = x + alpha * d
+    assert np.isfinite(alpha) and alpha > 0
+    assert np.min(_jdot(edge, edge)) == pytest.approx(0.0, abs=1e-9)
+    assert np.all(_jdot(x + 0.999 * alpha * d, x + 0.999 * alpha * d) > 0)
+    assert _max_step(x, x) == np.inf  # moving outward never leaves the cone
