@@ -126,8 +126,9 @@ def _unrestricted_lp(n, edges, weights, labeled, labels, cost):
     return res.fun
 
 
+@pytest.mark.parametrize("solver", ["simplex", "hybrid"])
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_column_generation_reaches_the_unrestricted_lp_optimum(seed):
+def test_column_generation_reaches_the_unrestricted_lp_optimum(seed, solver):
     # far-apart labels (opposite Diracs, bimodal) need plan entries outside the starting
     # band, so the pricing rounds matter; the result must be the full LP's optimum
     rng = np.random.default_rng(seed)
@@ -145,12 +146,84 @@ def test_column_generation_reaches_the_unrestricted_lp_optimum(seed):
     labels[2, [2, 9]] += 1.0                # ... with two modes
     labels /= labels.sum(axis=1, keepdims=True)
     cost = circle_cost(bins)
-    res = propagate_circular(Graph(n, edges, weights), labeled, labels, bins=bins)
+    res = propagate_circular(Graph(n, edges, weights), labeled, labels, bins=bins,
+                             solver=solver)
     reference = _unrestricted_lp(n, edges, weights, labeled, labels, cost)
-    assert res.certified and res.converged
+    assert res.certified and res.converged and res.solver == solver
+    assert (res.ipm_iterations is not None) == (solver == "hybrid")
     assert res.value == pytest.approx(reference, rel=1e-7, abs=1e-9)
     assert res.lower_bound <= reference + 1e-9 and res.min_reduced_cost >= -1e-9
     assert res.plan_entries < len(edges) * 12 * 12  # column generation left entries out
     exact = dirichlet_value(res.histograms, edges, weights, cost)
     assert exact == pytest.approx(res.value, rel=1e-6, abs=1e-9)
     assert np.allclose(res.histograms.sum(axis=1), 1.0, atol=1e-7)
+
+
+def _random_case(seed, n=16, B=36, n_labeled=4):
+    rng = np.random.default_rng(seed)
+    e = np.c_[np.arange(n - 1), np.arange(1, n)]
+    extra = rng.choice(n, (8, 2))
+    extra = extra[extra[:, 0] != extra[:, 1]]
+    edges = np.r_[e, extra]
+    weights = rng.uniform(0.5, 2.0, len(edges))
+    labeled = rng.choice(n, n_labeled, replace=False)
+    bins = make_bins(lo=0.0, hi=2 * np.pi, count=B, periodic=True)
+    labels = np.exp(rng.uniform(5, 40, (n_labeled, 1))
+                    * np.cos(bins.centers[None] - rng.uniform(0, 2 * np.pi, (n_labeled, 1))))
+    labels /= labels.sum(axis=1, keepdims=True)
+    return n, edges, weights, labeled, labels, bins
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_hybrid_start_matches_the_simplex_start(seed):
+    # the interior-point start changes the route, not the certified optimum
+    n, edges, weights, labeled, labels, bins = _random_case(seed)
+    g = Graph(n, edges, weights)
+    old = propagate_circular(g, labeled, labels, bins=bins, solver="simplex")
+    new = propagate_circular(g, labeled, labels, bins=bins, solver="hybrid")
+    assert old.certified and new.certified and new.ipm_iterations > 0
+    assert new.value == pytest.approx(old.value, rel=1e-7, abs=1e-9)
+    exact = dirichlet_value(new.histograms, edges, weights, circle_cost(bins))
+    assert exact == pytest.approx(new.value, rel=1e-6, abs=1e-9)
+
+
+def test_structured_ipm_operators_and_normal_equations():
+    from solvers.histograms.circle_ipm import StructuredLP, dual_bound, solve_ipm
+    from solvers.monitor import Monitor
+
+    n, edges, weights, labeled, labels, bins = _random_case(5, n=12, B=8, n_labeled=3)
+    cost = circle_cost(bins)
+    lp = StructuredLP(n, edges, weights, labeled, labels, cost)
+    rng = np.random.default_rng(0)
+    B, m, nf = lp.B, lp.m, lp.nf
+    X, mu = rng.random((m, B, B)), rng.random((nf, B))
+    yr, yc, z = rng.standard_normal((m, B)), rng.standard_normal((m, B)), rng.standard_normal(nf)
+    yc[:, -1] = 0.0
+    ar, ac, az = lp.A_x(X, mu)
+    tp, tm = lp.At_y(yr, yc, z)
+    # A and A^T are adjoint
+    assert np.sum(ar * yr) + np.sum(ac * yc) + az @ z == pytest.approx(
+        np.sum(X * tp) + np.sum(mu * tm), rel=1e-12)
+    # the block elimination solves A D A^T y = g
+    D, Dmu = rng.random((m, B, B)) + 0.05, rng.random((nf, B)) + 0.05
+    lp.prepare(D, Dmu)
+    gr, gc, gz = rng.standard_normal((m, B)), rng.standard_normal((m, B)), rng.standard_normal(nf)
+    gc[:, -1] = 0.0
+    sr, sc, sz, _ = lp.normal_solve(gr, gc, gz)
+    er, ec, ez = lp.ADAt(D, Dmu, sr, sc, sz)
+    assert np.abs(er - gr).max() < 1e-8 and np.abs(ec - gc)[:, :-1].max() < 1e-8
+    assert np.abs(ez - gz).max() < 1e-8
+    # the IPM's dual bound is a lower bound on the (independently computed) optimum, and
+    # the IPM's own objectives approach it
+    res = solve_ipm(n, edges, weights, labeled, labels, cost, Monitor(), tol=1e-6)
+    reference = _unrestricted_lp(n, edges, weights, labeled, labels, cost)
+    lower, _ = dual_bound(res["lp"], res["yr"], res["yc"], res["z"])
+    assert lower <= reference + 1e-9
+    assert lower == pytest.approx(reference, rel=1e-3)
+
+
+def test_solver_validation():
+    with pytest.raises(InputError) as exc:
+        propagate_circular(path(3), [0, 2], [von_mises(0.0), von_mises(1.0)], bins=BINS,
+                           solver="barrier")
+    assert exc.value.field == "solver"

@@ -15,7 +15,12 @@ independent rows per edge), by warm-started column generation: the plans start o
 of cheap entries around the diagonal plus a feasible plan per edge, all other entries are
 priced with the LP duals and the negative ones added to the same model (re-solved from the
 previous basis) until none is left; a dual lower bound over all :math:`m B^2` entries then
-certifies that the result is the unrestricted LP's optimum.
+certifies that the result is the unrestricted LP's optimum.  ``solver="hybrid"`` (the
+default on large graphs) starts the same column generation from the support found by a
+structured primal-dual interior-point method on the full LP (:mod:`.circle_ipm`: each
+edge's plan block eliminated in closed form onto the node histograms, one sparse
+Cholesky per iteration), run to a moderate accuracy; the optimum and its certificate are
+the simplex's.
 ``algorithm="entropic"`` solves the regularized version with the convolutional propagation of Alg. 4
 (:func:`solvers.convolutional.wasserstein_propagation`) on a periodic 1-D
 :class:`~solvers.domains.Grid` of the bin centers (heat kernel
@@ -55,7 +60,9 @@ class CircularPropagationResult(SolverResult):
     dual bound on the *unrestricted* LP (all ``m B^2`` plan entries priced),
     ``min_reduced_cost`` the most negative reduced cost over all its columns, and
     ``certified`` whether ``value - lower_bound <= 1e-7 max(1, |value|)``, i.e. the
-    restricted optimum is the full LP's; ``plan_entries`` the entries the LP ended with."""
+    restricted optimum is the full LP's; ``plan_entries`` the entries the LP ended with;
+    ``solver`` the start of the column generation (``"simplex"`` or ``"hybrid"``) and
+    ``ipm_iterations`` the interior-point iterations of the hybrid start."""
 
     algorithm: str
     histograms: np.ndarray
@@ -69,6 +76,8 @@ class CircularPropagationResult(SolverResult):
     certified: bool | None = None
     plan_entries: int | None = None
     simplex_iterations: int | None = None
+    solver: str | None = None
+    ipm_iterations: int | None = None
 
 
 def circle_cost(bins: Bins, power: float = 2.0) -> np.ndarray:
@@ -248,7 +257,7 @@ class _PlanLP:
 
 
 def _solve_lp(n, edges, w, nodes, h, cost, monitor, time_limit, band=None,
-              price_tol=1e-9):
+              price_tol=1e-9, support=None, guess=None):
     r"""Column generation, warm-started: start from a band of ``2 band + 1`` cheap entries
     per plan row plus the north-west-corner plans of the per-bin harmonic extension (so the
     restricted LP is feasible), price all :math:`m B^2` plan entries with the duals
@@ -258,17 +267,24 @@ def _solve_lp(n, edges, w, nodes, h, cost, monitor, time_limit, band=None,
 
     The certificate: with duals ``y`` and the reduced costs ``r`` of *all* columns,
     :math:`b^\top y + \sum_k \min(r_k, 0)` is a lower bound on the unrestricted LP (every
-    variable lies in ``[0, 1]``: masses); it is returned beside the primal value."""
+    variable lies in ``[0, 1]``: masses); it is returned beside the primal value.
+
+    ``support`` (``(m, B, B)`` booleans) and ``guess`` (``(n, B)`` histograms) replace the
+    band and the harmonic extension as the start (the hybrid route)."""
     B = cost.shape[0]
     m = len(edges)
     h = np.where(h > 1e-12, h, 0.0)  # below HiGHS' tolerances; keeps the LP well scaled
     h = h / h.sum(axis=1, keepdims=True)
     band = 2 if band is None else int(band)
     lp = _PlanLP(n, edges, w, nodes, h, cost, time_limit)
-    have = np.zeros((m, B, B), dtype=bool)
-    near = np.argsort(cost, axis=1, kind="stable")[:, :min(B, 2 * band + 1)]
-    have[:, np.repeat(np.arange(B), near.shape[1]), near.ravel()] = True
-    guess = _harmonic_guess(n, edges, w, nodes, h, lp.free)
+    if support is None:
+        have = np.zeros((m, B, B), dtype=bool)
+        near = np.argsort(cost, axis=1, kind="stable")[:, :min(B, 2 * band + 1)]
+        have[:, np.repeat(np.arange(B), near.shape[1]), near.ravel()] = True
+    else:
+        have = np.array(support, dtype=bool)
+    if guess is None:
+        guess = _harmonic_guess(n, edges, w, nodes, h, lp.free)
     for e, (u, v) in enumerate(edges):
         i, j = _nw_corner_support(guess[u], guess[v])
         have[e, i, j] = True
@@ -300,11 +316,35 @@ def _solve_lp(n, edges, w, nodes, h, cost, monitor, time_limit, band=None,
             "simplex_iterations": int(info.simplex_iteration_count)}
 
 
+def _ipm_support(n, edges, w, nodes, h, cost, monitor, time_limit, ipm_iterations):
+    r"""The structured interior-point method (:mod:`.circle_ipm`) run to a moderate
+    accuracy; returns the starting support of the column generation — the entries whose
+    IPM plan value exceeds ``1e-3`` of its edge's largest, or whose IPM reduced cost
+    :math:`w_e C_{ij} - y^{row}_{e,i} - y^{col}_{e,j}` is below :math:`0.1 w_e` — and the
+    IPM histograms (their north-west-corner plans make the restricted LP feasible)."""
+    from solvers.histograms.circle_ipm import solve_ipm
+
+    res = solve_ipm(n, edges, w, nodes, h, cost, monitor, tol=1e-5, max_iter=ipm_iterations,
+                    time_limit=time_limit)
+    lp = res["lp"]
+    X = res["X"]
+    tp, _ = lp.At_y(res["yr"], res["yc"], res["z"])
+    support = ((X > 1e-3 * X.max(axis=(1, 2), keepdims=True))
+               | (lp.c - tp < 0.1 * np.asarray(w, dtype=np.float64)[:, None, None]))
+    H = np.zeros((n, cost.shape[0]))
+    H[nodes] = h
+    H[lp.free] = np.clip(res["mu"], 1e-15, None)
+    H /= H.sum(axis=1, keepdims=True)
+    return support, H, res
+
+
 def propagate_circular(graph: Graph, labeled, histograms, *, bins,
                        algorithm: Literal["lp", "entropic"] = "lp", cost: np.ndarray | None = None,
                        gamma: float | None = None, tol: float = 1e-6,
                        max_iter: int | None = None, time_limit: float | None = None,
                        evaluate: bool = True, lp_value: float | None = None,
+                       solver: Literal["auto", "hybrid", "simplex"] = "auto",
+                       ipm_iterations: int = 45,
                        progress=None, should_cancel=None) -> CircularPropagationResult:
     r"""Propagate histograms over periodic bins (S¹) or a small metric space (§5.4).
 
@@ -320,9 +360,17 @@ def propagate_circular(graph: Graph, labeled, histograms, *, bins,
     gamma : entropic regularization (default ``(2 w)^2``, ``w`` the mean bin width), in the
         bins' squared units; ``tol``, ``max_iter``: its Sinkhorn stopping rule.
     time_limit : seconds given to HiGHS (over all column-generation rounds; the LP raises
-        :class:`~solvers.errors.ConvergenceError` when it runs out).
+        :class:`~solvers.errors.ConvergenceError` when it runs out) and, separately, to the
+        interior-point start of ``solver="hybrid"``.
     evaluate : compute the exact objective of the entropic result (per-edge exact OT);
         ``lp_value``: a known LP optimum to report the gap against.
+    solver : how ``algorithm="lp"`` starts its column generation (the optimum and its
+        certificate are the same): ``"simplex"`` from a band of cheap entries around the
+        diagonal; ``"hybrid"`` from the support found by at most ``ipm_iterations``
+        iterations of the structured interior-point method of :mod:`.circle_ipm` (all
+        :math:`m B^2` entries; per-edge blocks eliminated onto the node histograms, one
+        sparse Cholesky per iteration); ``"auto"``: hybrid when :math:`m B^2 \ge 2 \cdot
+        10^5` and some node is unlabeled.
     """
     b = make_bins(bins)
     n, edges, w, nodes, h = _labels(graph, labeled, histograms, b)
@@ -334,8 +382,25 @@ def propagate_circular(graph: Graph, labeled, histograms, *, bins,
         raise InputError(f"algorithm must be 'lp' or 'entropic', got {algorithm!r}",
                          field="algorithm")
     monitor = Monitor(progress, should_cancel)
+    if solver not in ("auto", "hybrid", "simplex"):
+        raise InputError(f"solver must be 'auto', 'hybrid' or 'simplex', got {solver!r}",
+                         field="solver")
     if algorithm == "lp":
-        lp = _solve_lp(n, edges, w, nodes, h, C, monitor, time_limit)
+        n_free = n - len(np.unique(nodes))
+        if solver == "auto":
+            solver = "hybrid" if n_free > 0 and len(edges) * b.count**2 >= 200_000 else "simplex"
+        if n_free == 0:
+            solver = "simplex"
+        support = guess = None
+        ipm_its = None
+        if solver == "hybrid":
+            hc = np.where(h > 1e-12, h, 0.0)
+            hc = hc / hc.sum(axis=1, keepdims=True)
+            support, guess, ipm = _ipm_support(n, edges, w, nodes, hc, C, monitor, time_limit,
+                                               int(ipm_iterations))
+            ipm_its = ipm["iterations"]
+        lp = _solve_lp(n, edges, w, nodes, h, C, monitor, time_limit, support=support,
+                       guess=guess)
         value, lower = lp["value"], lp["lower_bound"]
         certified = value - lower <= 1e-7 * max(1.0, abs(value))
         return CircularPropagationResult(
@@ -343,7 +408,8 @@ def propagate_circular(graph: Graph, labeled, histograms, *, bins,
             gap=0.0, labeled=nodes, iterations=lp["rounds"], residual=lp["violation"],
             converged=certified and lp["violation"] <= 1e-7, lower_bound=lower,
             min_reduced_cost=lp["min_reduced_cost"], certified=certified,
-            plan_entries=lp["plan_entries"], simplex_iterations=lp["simplex_iterations"])
+            plan_entries=lp["plan_entries"], simplex_iterations=lp["simplex_iterations"],
+            solver=solver, ipm_iterations=ipm_its)
     if cost is not None:
         raise InputError("algorithm='entropic' uses the circle's heat kernel; a custom cost "
                          "needs algorithm='lp'", field="cost")
