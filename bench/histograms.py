@@ -3,13 +3,18 @@
 Part ``scale`` — Prop. 13 at scale: 100 quantile levels, 1 % of the nodes labeled with
 random two-Gaussian histograms on 32 bins, on grid graphs (100², 316², 1000²) and on
 midpoint-subdivided real meshes (~10k, ~100k, ~800k vertices).  Per size, in its own
-process (so the peak RSS is that size's): the Wasserstein route with the direct solver
-(Cholesky of the reduced Laplacian: factorization, one block solve, inverse CDFs back to
-histograms) and with the AMG-preconditioned CG solver (one pyamg hierarchy shared by all
-levels), the PDF route on the same (cached) factorization, and a per-quantile
-``scipy.sparse.linalg.spsolve`` loop (all 100 levels at 10k; at larger sizes a few levels,
-extrapolated linearly to 100 and marked so).  Targets: 100k nodes <= 2 s, 1M <= 30 s on 2
-cores, <= 4 GB.  The scaling exponent is the least-squares slope of log time vs log n.
+process (so the peak RSS is that size's), on a domain whose Laplacian and components are
+built first (as at upload): the Wasserstein route as users get it (``propagate_histograms``
+defaults: the direct solver, MKL PARDISO when the mkl wheel loads, else cholespy — the
+backend is recorded per row; factorization, one block solve, inverse CDFs back to
+histograms), the PDF route on the same (cached) factorization, the AMG-preconditioned CG
+solver (one pyamg hierarchy shared by all levels; at 1M on the first 10 columns,
+extrapolated), and a per-quantile ``scipy.sparse.linalg.spsolve`` loop (all 100 levels at
+10k; at larger sizes a few levels, extrapolated linearly to 100 and marked so).  Targets:
+100k nodes <= 2 s, 1M <= 30 s on 2 cores, <= 4 GB.  The scaling exponent is the
+least-squares slope of log time vs log n per family (and the slopes between consecutive
+sizes).  Raw rows go to ``bench/results/histograms_scale.json``; ``--part scale --rows
+mesh:100k`` reruns one row (e.g. at a quieter minute) and re-renders the table.
 
 Part ``circle`` — §5.4 on S¹: a 1,000-node k-NN graph, 36 periodic bins, 5 % labeled
 with von Mises histograms: the exact LP (HiGHS) time, the entropic route's time, and the
@@ -26,7 +31,9 @@ vertex against the true histograms, Wasserstein vs PDF (and, on S¹, the LP vs P
 BLAS/OpenMP threads are set to 2 (both cores; the targets are "on 2 cores") before numpy
 loads; the 1-minute load average is recorded before and after every row.
 
-Run: ``.venv/bin/python bench/histograms.py [--part scale|circle|real|all] [--quick]``;
+Run: ``.venv/bin/python bench/histograms.py [--part scale|circle|real|all] [--quick]``
+(timings that decide a target: under ``flock /tmp/otgeo-timing.lock`` with the thread
+variables set to 2 explicitly);
 writes ``bench/results/histograms.md`` (parts not run are kept from the existing file).
 """
 
@@ -127,31 +134,63 @@ def random_labels(rng, n: int, bins, k: int):
     return labeled, h / h.sum(axis=1, keepdims=True)
 
 
-def one_scale(kind: str, size: str, spsolve_levels: int | None) -> dict:
-    """One row of part ``scale`` (run in a fresh process)."""
+def one_scale(kind: str, size: str, spsolve_levels: int | None,
+              amg_columns: int | None = None, repeat: int = 1) -> dict:
+    """One row of part ``scale`` (run in a fresh process, so the peak RSS is this row's).
+
+    The Wasserstein and PDF routes are timed as a user gets them after upload: the domain,
+    its Laplacian and its components are built first (reported, not timed), then
+    ``dirichlet_system`` + ``propagate_histograms`` with their defaults (``solver="auto"``:
+    the direct route, MKL PARDISO when the mkl wheel loads, else cholespy; the backend used
+    is recorded), ``repeat`` times with a fresh factorization each (the row reports the
+    median run and keeps all).  ``amg_columns``: solve only that many (centred) columns
+    with AMG-CG and extrapolate to the solved rank (None: all, through
+    ``propagate_histograms``).
+    """
+    load_start = load()  # before this process does any work
     rng = np.random.default_rng(0)
     t0 = time.perf_counter()
     domain, label = build_domain(kind, size)
-    _ = domain.laplacian  # built here, timed with the domain
+    _ = domain.laplacian, domain.component_labels  # built at upload, not in the route
     build_s = time.perf_counter() - t0
     n = domain.n
     bins = make_bins(lo=0.0, hi=1.0, count=NBINS)
     labeled, h = random_labels(rng, n, bins, max(1, n // 100))
     row = {"kind": kind, "size": size, "domain": label, "n": n, "labeled": len(labeled),
-           "domain_build_s": build_s, "load_before": load()}
-    # warm-up on a small problem: BLAS/OpenMP thread pools start once per process
+           "load_start": load_start,
+           "domain_build_s": build_s, "rss_domain_gb": peak_rss_gb(),
+           "threads": {v: os.environ.get(v) for v in
+                       ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")},
+           "utc": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime())}
+    # warm-up on a small problem: BLAS/OpenMP thread pools and the compiled (numba)
+    # back-conversion start once per process
     from solvers import Graph
 
     warm = Graph(50, np.c_[np.arange(49), np.arange(1, 50)])
     propagate_histograms(warm, [0, 49], h[:2], bins=bins, levels=LEVELS)
 
-    t = time.perf_counter()
-    system = dirichlet_system(domain, labeled, solver="direct")
-    row["factor_s"] = time.perf_counter() - t
-    t = time.perf_counter()
-    res = propagate_histograms(domain, labeled, h, bins=bins, levels=LEVELS)
-    row["w_solve_s"] = time.perf_counter() - t
-    row["w_direct_total_s"] = row["factor_s"] + row["w_solve_s"]
+    row["load_before"] = load()
+    runs = []
+    for _ in range(repeat):  # each repetition factors afresh (cached factor discarded)
+        for key in domain.operators.keys():
+            if key[0] == "histograms.dirichlet":
+                domain.operators.discard(key)
+        system = res = None
+        t, cpu = time.perf_counter(), time.process_time()
+        system = dirichlet_system(domain, labeled)  # what propagate_histograms uses (cached)
+        factor_s = time.perf_counter() - t
+        t = time.perf_counter()
+        res = propagate_histograms(domain, labeled, h, bins=bins, levels=LEVELS)
+        solve_s = time.perf_counter() - t
+        runs.append({"factor_s": factor_s, "w_solve_s": solve_s,
+                     "w_direct_total_s": factor_s + solve_s,
+                     "w_direct_cpu_s": time.process_time() - cpu, "load": load()})
+    med = sorted(runs, key=lambda x: x["w_direct_total_s"])[(len(runs) - 1) // 2]
+    row.update({k: v for k, v in med.items() if k != "load"})  # the (lower) median run
+    row["w_direct_runs"] = runs
+    row["load_after_direct"] = load()
+    row["backend"] = getattr(system.factor, "backend", "?")
+    row["solver"] = res.solver
     row["rss_w_gb"] = peak_rss_gb()
     row["w_rank"] = res.rank
     row["w_residual"] = res.residual
@@ -160,46 +199,49 @@ def one_scale(kind: str, size: str, spsolve_levels: int | None) -> dict:
     row["pdf_solve_s"] = time.perf_counter() - t
     row["pdf_residual"] = res_pdf.residual
     row["rss_direct_gb"] = peak_rss_gb()
+    del res_pdf
 
-    # AMG-preconditioned CG shared by all levels (same labels, fresh hierarchy); above
-    # 200k nodes on the first 10 centred columns only, extrapolated to the solved rank
-    t = time.perf_counter()
-    amg = dirichlet_system(domain, labeled, solver="amg")
-    row["amg_setup_s"] = time.perf_counter() - t
-    if n <= 200_000:
-        t = time.perf_counter()
-        res_amg = propagate_histograms(domain, labeled, h, bins=bins, levels=LEVELS,
-                                       solver="amg", tol=1e-8)
-        row["amg_solve_s"] = time.perf_counter() - t
-        row["amg_iterations"] = res_amg.iterations
-        row["amg_max_diff"] = float(np.abs(res_amg.quantiles - res.quantiles).max())
-        row["amg_columns_run"] = res_amg.rank
+    from solvers.histograms import harmonic_extension, label_quantiles
+
+    # AMG-preconditioned CG shared by all levels (same labels, fresh hierarchy)
+    if amg_columns == 0:
+        row.update(amg_setup_s=None, amg_solve_s=None, amg_total_s=None,
+                   amg_iterations=None, amg_max_diff=None, amg_columns_run=0)
     else:
-        from solvers.histograms import harmonic_extension, label_quantiles
-
-        q = label_quantiles(res.levels, bins=bins, histograms=h)
-        Vq = np.empty_like(q)
-        Vq[np.searchsorted(amg.labeled, labeled)] = q
-        cols = Vq[:, :10] - Vq[:, :10].mean(axis=0)
         t = time.perf_counter()
-        ext = harmonic_extension(amg, cols + 0.0, tol=1e-8, rank_tol=0.0)
-        per = (time.perf_counter() - t) / 10
-        row["amg_solve_s"] = per * res.rank
-        row["amg_iterations"] = ext.iterations
-        ref = res.quantiles[:, :10] - Vq[:, :10].mean(axis=0)
-        row["amg_max_diff"] = float(np.abs(ext.values - ref).max())
-        row["amg_columns_run"] = 10
-    row["amg_total_s"] = row["amg_setup_s"] + row["amg_solve_s"]
+        amg = dirichlet_system(domain, labeled, solver="amg")
+        row["amg_setup_s"] = time.perf_counter() - t
+        if amg_columns is None:
+            t = time.perf_counter()
+            res_amg = propagate_histograms(domain, labeled, h, bins=bins, levels=LEVELS,
+                                           solver="amg", tol=1e-8)
+            row["amg_solve_s"] = time.perf_counter() - t
+            row["amg_iterations"] = res_amg.iterations
+            row["amg_max_diff"] = float(np.abs(res_amg.quantiles - res.quantiles).max())
+            row["amg_columns_run"] = res_amg.rank
+            del res_amg
+        else:  # the first columns only (centred, as the route solves them), extrapolated
+            c = amg_columns
+            q = label_quantiles(res.levels, bins=bins, histograms=h)
+            Vq = np.empty_like(q)
+            Vq[np.searchsorted(amg.labeled, labeled)] = q
+            cols = Vq[:, :c] - Vq[:, :c].mean(axis=0)
+            t = time.perf_counter()
+            ext = harmonic_extension(amg, cols + 0.0, tol=1e-8, rank_tol=0.0)
+            per = (time.perf_counter() - t) / c
+            row["amg_solve_s"] = per * res.rank
+            row["amg_iterations"] = ext.iterations
+            ref = res.quantiles[:, :c] - Vq[:, :c].mean(axis=0)
+            row["amg_max_diff"] = float(np.abs(ext.values - ref).max())
+            row["amg_columns_run"] = c
+        row["amg_total_s"] = row["amg_setup_s"] + row["amg_solve_s"]
+        row["load_after_amg"] = load()
 
-    # per-quantile spsolve loop on the same reduced system
+    # per-quantile spsolve loop on the same reduced system (SuperLU: refactors per level)
     A = sp.csc_matrix(system.A)
-    levels_q = res.levels
-    from solvers.histograms import label_quantiles
-
-    q = label_quantiles(levels_q, bins=bins, histograms=h)
-    order = np.searchsorted(system.labeled, labeled)
+    q = label_quantiles(res.levels, bins=bins, histograms=h)
     V = np.empty_like(q)
-    V[order] = q
+    V[np.searchsorted(system.labeled, labeled)] = q
     B = -(system.coupling @ V)
     count = LEVELS if spsolve_levels is None else min(spsolve_levels, LEVELS)
     t = time.perf_counter()
@@ -253,70 +295,183 @@ def route_only(kind: str, size: str, factorization: str = "auto") -> dict:
             "threads": os.environ.get("OMP_NUM_THREADS")}
 
 
-def part_scale(quick: bool) -> list[str]:
+SCALE_JSON = ROOT / "bench" / "results" / "histograms_scale.json"
+SCALE_ROWS = [(k, s) for k in ("grid", "mesh") for s in ("10k", "100k", "1M")]
+# spsolve levels run per size (the rest extrapolated); AMG columns (None: all)
+SPSOLVE_RUN = {"10k": LEVELS, "100k": 5, "1M": 1}
+AMG_RUN = {"10k": None, "100k": None, "1M": 10}
+REPEAT = {"10k": 5, "100k": 9, "1M": 3}  # direct-route repetitions (median reported)
+TARGETS = {"100k": (2.0, None), "1M": (30.0, 4.0)}
+
+
+def scale_row(kind: str, size: str) -> dict:
+    """Run one row of part ``scale`` in a fresh process and return its JSON."""
+    cmd = [sys.executable, __file__, "--one", kind, size, "--spsolve-levels",
+           str(SPSOLVE_RUN[size]), "--amg-columns", str(AMG_RUN[size] or -1),
+           "--repeat", str(REPEAT[size])]
+    out = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if out.returncode != 0:
+        print(out.stderr[-3000:], file=sys.stderr)
+        raise SystemExit(f"{kind} {size} failed")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def part_scale(quick: bool, only: list[str] | None = None, render: bool = False
+               ) -> list[str]:
+    """Run the rows (all, or ``only`` = ["grid:100k", ...]) one process at a time, store
+    them in ``histograms_scale.json`` (a rerun replaces its row; the replaced run is kept
+    under ``superseded``) and render the table from all stored rows (``render``: only
+    render)."""
     sizes = ["10k", "100k"] if quick else ["10k", "100k", "1M"]
-    rows = []
-    for kind in ("grid", "mesh"):
-        for size in sizes:
-            spl = None if size == "10k" else (5 if size == "100k" else 1)
-            cmd = [sys.executable, __file__, "--one", kind, size, "--spsolve-levels",
-                   str(spl if spl is not None else LEVELS)]
-            out = subprocess.run(cmd, capture_output=True, text=True, check=False)
-            if out.returncode != 0:
-                print(out.stderr[-3000:], file=sys.stderr)
-                raise SystemExit(f"{kind} {size} failed")
-            row = json.loads(out.stdout.strip().splitlines()[-1])
-            print(json.dumps(row), flush=True)
-            rows.append(row)
+    wanted = [(k, s) for k, s in SCALE_ROWS if s in sizes]
+    if only:
+        wanted = [tuple(o.split(":")) for o in only]
+    stored = json.loads(SCALE_JSON.read_text()) if SCALE_JSON.exists() else {}
+    for kind, size in [] if render else wanted:
+        row = scale_row(kind, size)
+        print(json.dumps(row), flush=True)
+        key = f"{kind}:{size}"
+        if key in stored:
+            row["superseded"] = stored[key].get("superseded", []) + [
+                {k: v for k, v in stored[key].items() if k != "superseded"}]
+        stored[key] = row
+        SCALE_JSON.write_text(json.dumps(stored, indent=1) + "\n")
+    return scale_table([stored[f"{k}:{s}"] for k, s in SCALE_ROWS if f"{k}:{s}" in stored])
+
+
+def _verdict(r: dict) -> str:
+    if r["size"] not in TARGETS:
+        return ""
+    t_max, gb_max = TARGETS[r["size"]]
+    ok = r["w_direct_total_s"] <= t_max and (gb_max is None or r["rss_w_gb"] <= gb_max)
+    text = f"≤ {t_max:.0f} s" + (f", ≤ {gb_max:.0f} GB" if gb_max else "")
+    text += ": **met**" if ok else ": **missed**"
+    worst = max([r["load_before"], r["load_after_direct"]]
+                + [x["load"] for x in r.get("w_direct_runs", [])])
+    if worst > 2:
+        text += f" (load {worst:.1f} > 2: not decisive)"
+    return text
+
+
+def _spread(r: dict) -> str:
+    runs = [x["w_direct_total_s"] for x in r.get("w_direct_runs", [])]
+    if len(runs) < 2:
+        return ""
+    return f"; median of {len(runs)}, {min(runs):.2f}-{max(runs):.2f}"
+
+
+def _median_of(r: dict) -> str:
+    runs = r.get("w_direct_runs", [])
+    return f" (median of {len(runs)})" if len(runs) > 1 else ""
+
+
+def _fmt(x, spec=".2f") -> str:
+    return "—" if x is None else format(x, spec)
+
+
+def fitted_exponents(rows: list[dict], key: str) -> tuple[float, list[float]]:
+    """Least-squares slope p of log t = p log n + c over the rows, and the slopes between
+    consecutive sizes."""
+    x = np.log([r["n"] for r in rows])
+    y = np.log([r[key] for r in rows])
+    return float(np.polyfit(x, y, 1)[0]), list(np.diff(y) / np.diff(x))
+
+
+def scale_table(rows: list[dict]) -> list[str]:
+    backends = sorted({r["backend"] for r in rows})
+    threads = sorted({str(r["threads"].get("OMP_NUM_THREADS")) for r in rows})
     lines = [
         "## Scale (Prop. 13): 100 levels, 1 % labeled, 32 bins",
         "",
-        "Direct = sparse Cholesky of the reduced Laplacian (MKL PARDISO when the mkl wheel "
-        "is installed, else cholespy; factorization once per labeled set, cached) + one "
-        "block solve of the (compressed) 100 columns + inverse "
-        "CDFs back to histograms. PDF = the same Dirichlet problem on the 32 bins, on the "
-        "cached factorization. AMG = pyamg smoothed aggregation + CG per column, tol 1e-8. "
-        "spsolve = `scipy.sparse.linalg.spsolve` per level on the same reduced matrix "
-        "(`*`: measured on a few levels and extrapolated to 100; AMG likewise above 200k "
-        "nodes, CG iterations then of the columns run). RSS: peak of the row's process after "
-        "the Wasserstein route (domain build included), after the PDF route too (the "
-        "Wasserstein result still held), in brackets after AMG and spsolve. Each row warms "
-        "BLAS up on a 50-node problem first.",
+        "Command: `flock /tmp/otgeo-timing.lock env OMP_NUM_THREADS=2 OPENBLAS_NUM_THREADS=2 "
+        "MKL_NUM_THREADS=2 .venv/bin/python bench/histograms.py --part scale` (one process "
+        "per row, one row at a time; a row rerun with `--part scale --rows KIND:SIZE` "
+        "replaces its row, raw rows in `bench/results/histograms_scale.json`). "
+        f"Measured {min(r['utc'] for r in rows)} - {max(r['utc'] for r in rows)} UTC; "
+        f"threads {', '.join(threads)}; direct backend: {', '.join(backends)}.",
         "",
-        "| domain | n | labeled | direct: factor + solve = total (s) | rank | PDF on same "
-        "factor (s) | AMG: setup + solve = total (s), CG its | spsolve loop (s) | direct vs "
-        "spsolve | peak RSS (GB): Wasserstein / + PDF (whole row) | target | load before/after |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "Direct = what `propagate_histograms` does by default (`solver=\"auto\"`): sparse "
+        "Cholesky of the reduced Laplacian (MKL PARDISO when the mkl wheel loads, else "
+        "cholespy; factorization once per labeled set, cached) + one block solve of the "
+        "(compressed) 100 columns + inverse CDFs back to histograms; timed from the label "
+        "histograms to the output histograms on a domain whose Laplacian and components "
+        "were built beforehand (as at upload; that build is the `build` column, not timed "
+        "in the route); the median of several runs (5 at 10k, 9 at 100k, 3 at 1M), each "
+        "factoring afresh, with the range of the runs. PDF = the same Dirichlet problem on "
+        "the 32 bins, on the cached "
+        "factorization (solve + normalization only). AMG = pyamg smoothed aggregation + CG "
+        "per column, tol 1e-8, hierarchy shared by all columns (`*`: the first 10 columns "
+        "run and extrapolated to the solved rank; CG iterations then of the columns run). "
+        "spsolve = `scipy.sparse.linalg.spsolve` (SuperLU, refactors per level) per level on "
+        "the same reduced matrix (`*`: a few levels run and extrapolated linearly to 100). "
+        "RSS: peak of the row's process after the Wasserstein route (domain build "
+        "included), after the PDF route too (the Wasserstein result still held), in "
+        "brackets after AMG and spsolve. Each row warms BLAS and the compiled "
+        "back-conversion up on a 50-node problem first. Load: 1-minute load average at "
+        "the row's start (before the domain build) / before the direct route / after it / "
+        "at the end of the row; all but the first include this benchmark's own threads "
+        "(up to 2 during the long rows).",
+        "",
+        "| domain | n | labeled | build (s) | direct: factor + solve = total (s) "
+        "[CPU-s of that run] | rank | PDF on same factor (s) "
+        "| AMG: setup + solve = total (s), CG its "
+        "| spsolve loop (s) | spsolve / direct | peak RSS (GB): Wasserstein / + PDF "
+        "(whole row) | target (direct) | load |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        target = {"100k": "≤ 2 s", "1M": "≤ 30 s, ≤ 4 GB"}.get(r["size"], "")
         star = "" if r["spsolve_levels_run"] == LEVELS else f"* ({r['spsolve_levels_run']} run)"
-        amg_star = "" if r["amg_columns_run"] == r["w_rank"] else (
-            f"* ({r['amg_columns_run']} columns run)")
+        if r["amg_columns_run"] == 0:
+            amg = "not run"
+        else:
+            amg_star = "" if r["amg_columns_run"] == r["w_rank"] else (
+                f"* ({r['amg_columns_run']} columns run)")
+            amg = (f"{r['amg_setup_s']:.2f} + {r['amg_solve_s']:.2f} = "
+                   f"{r['amg_total_s']:.2f}{amg_star}, {r['amg_iterations']}")
         lines.append(
-            f"| {r['domain']} | {r['n']} | {r['labeled']} | {r['factor_s']:.2f} + "
-            f"{r['w_solve_s']:.2f} = **{r['w_direct_total_s']:.2f}** | {r['w_rank']} | "
-            f"{r['pdf_solve_s']:.2f} | {r['amg_setup_s']:.2f} + {r['amg_solve_s']:.2f} = "
-            f"{r['amg_total_s']:.2f}{amg_star}, {r['amg_iterations']} | "
+            f"| {r['domain']} | {r['n']:,} | {r['labeled']:,} | {r['domain_build_s']:.1f} | "
+            f"{r['factor_s']:.2f} + {r['w_solve_s']:.2f} = **{r['w_direct_total_s']:.2f}** "
+            f"[{r['w_direct_cpu_s']:.1f}]{_spread(r)} | {r['w_rank']} | "
+            f"{r['pdf_solve_s']:.2f} | {amg} | "
             f"{r['spsolve_total_s']:.1f}{star} "
             f"| {r['spsolve_total_s'] / r['w_direct_total_s']:.0f}× | {r['rss_w_gb']:.2f} / "
-            f"{r['rss_direct_gb']:.2f} ({r['rss_peak_gb']:.2f}) | "
-            f"{target} | {r['load_before']:.2f} / {r['load_after']:.2f} |")
-    lines.append("")
+            f"{r['rss_direct_gb']:.2f} ({r['rss_peak_gb']:.2f}) | {_verdict(r)} | "
+            f"{_fmt(r.get('load_start'))} / {r['load_before']:.2f} / "
+            f"{r['load_after_direct']:.2f} / {r['load_after']:.2f} |")
+    lines += ["", "Fitted exponent p of time ∝ n^p (least squares over the sizes of a family; "
+              "in brackets the slope between consecutive sizes, 10k→100k, 100k→1M; "
+              "extrapolated entries enter as extrapolated):", "",
+              "| family | sizes | direct (Wasserstein) | PDF on same factor | AMG total "
+              "| spsolve loop |", "|---|---|---|---|---|---|"]
     for kind in ("grid", "mesh"):
         rs = [r for r in rows if r["kind"] == kind]
-        if len(rs) >= 2:
-            x = np.log([r["n"] for r in rs])
-            for key, name in (("w_direct_total_s", "direct total"), ("amg_total_s", "AMG total"),
-                              ("spsolve_total_s", "spsolve loop")):
-                y = np.log([r[key] for r in rs])
-                slope = np.polyfit(x, y, 1)[0]
-                lines.append(f"- {kind}: scaling exponent of {name}: time ∝ n^{slope:.2f}")
+        if len(rs) < 2:
+            continue
+        cells = []
+        for key in ("w_direct_total_s", "pdf_solve_s", "amg_total_s", "spsolve_total_s"):
+            rk = [r for r in rs if r.get(key) is not None]
+            if len(rk) < 2:
+                cells.append("—")
+                continue
+            p, local = fitted_exponents(rk, key)
+            cells.append(f"{p:.2f} ({', '.join(f'{s:.2f}' for s in local)})")
+        ns = ", ".join(format(r["n"], ",") for r in rs)
+        lines.append(f"| {kind} | {ns} | " + " | ".join(cells) + " |")
     lines.append("")
     lines.append("Largest differences to the direct result: " + ", ".join(
-        f"{r['domain']}: AMG {r['amg_max_diff']:.1e}, spsolve {r['spsolve_max_diff']:.1e}"
-        for r in rows) + ". Direct residuals (relative, block): " + ", ".join(
+        f"{r['domain']}: AMG {_fmt(r['amg_max_diff'], '.1e')}, "
+        f"spsolve {r['spsolve_max_diff']:.1e}" for r in rows)
+        + ". Direct residuals (relative, block): " + ", ".join(
         f"{r['w_residual']:.1e}" for r in rows) + ".")
+    old = [(r["domain"], s) for r in rows for s in r.get("superseded", [])]
+    if old:
+        lines += ["", "Earlier runs of these rows, replaced by the ones above (direct total: "
+                  "one run, or the median of the runs; load before / after the direct route): "
+                  + "; ".join(
+                      f"{d}: {s['w_direct_total_s']:.2f} s"
+                      f"{_median_of(s)}"
+                      f" at load {s['load_before']:.2f} / {s['load_after_direct']:.2f} "
+                      f"({s['utc']} UTC)" for d, s in old) + "."]
     lines.append("")
     return lines
 
@@ -482,7 +637,7 @@ def write(parts: dict[str, list[str]], command: str) -> None:
         key = ("scale" if title.startswith("Scale") else "circle" if title.startswith("S¹")
                else "real" if title.startswith("Real") else None)
         if key:
-            kept[key] = "## " + block.rstrip("\n").split("\n")
+            kept[key] = ("## " + block.rstrip("\n")).split("\n")
     header = [
         "# bench/histograms.py — Wasserstein propagation of histograms (thesis ch. 5)", "",
         f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python "
@@ -490,10 +645,18 @@ def write(parts: dict[str, list[str]], command: str) -> None:
         f"{os.environ.get('OMP_NUM_THREADS')}. Last command: `{command}` "
         f"({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}). The 1-minute load average "
         "is given per row (before/after).", ""]
+    if "--render" in command and old.startswith("# "):  # nothing ran: keep the old header
+        header = old.split("\n## ", 1)[0].rstrip("\n").split("\n") + [""]
     body = []
     for key in ("scale", "circle", "real"):
         if key in parts:
             body += parts[key]
+            # the section's dated ### subsections (separate runs) stay below its table
+            sub = None if key != "scale" else next(
+                (i for i, line in enumerate(kept.get(key, [])) if line.startswith("### ")),
+                None)
+            if sub is not None:
+                body += kept[key][sub:] + [""]
         elif key in kept:
             body += kept[key] + [""]
     notes = old.split("## Reading notes", 1)
@@ -507,6 +670,14 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--one", nargs=2, metavar=("KIND", "SIZE"))
     ap.add_argument("--spsolve-levels", type=int, default=LEVELS)
+    ap.add_argument("--amg-columns", type=int, default=-1,
+                    help="with --one: AMG columns to run (-1 all, 0 none)")
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="with --one: direct-route repetitions (median reported)")
+    ap.add_argument("--rows", nargs="+", metavar="KIND:SIZE",
+                    help="with --part scale: rerun only these rows (e.g. mesh:100k)")
+    ap.add_argument("--render", action="store_true",
+                    help="with --part scale: rewrite the table from the stored rows, run nothing")
     ap.add_argument("--route-only", nargs=2, metavar=("KIND", "SIZE"),
                     help="time the Wasserstein route alone on one domain (prints JSON)")
     ap.add_argument("--factorization", default="auto",
@@ -516,12 +687,14 @@ def main() -> None:
         print(json.dumps(route_only(*args.route_only, args.factorization)))
         return
     if args.one:
-        print(json.dumps(one_scale(args.one[0], args.one[1], args.spsolve_levels)))
+        cols = None if args.amg_columns < 0 else args.amg_columns
+        print(json.dumps(one_scale(args.one[0], args.one[1], args.spsolve_levels, cols,
+                                   args.repeat)))
         return
     command = "python bench/histograms.py " + " ".join(sys.argv[1:])
     parts = {}
     if args.part in ("scale", "all"):
-        parts["scale"] = part_scale(args.quick)
+        parts["scale"] = part_scale(args.quick, args.rows, args.render)
         write(parts, command)
     if args.part in ("circle", "all"):
         parts["circle"] = part_circle(args.quick)
