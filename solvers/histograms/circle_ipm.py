@@ -41,88 +41,48 @@ it returns, :func:`dual_bound` gives a valid lower bound
 
 from __future__ import annotations
 
-import weakref
-
 import numpy as np
 import scipy.sparse as sp
 
 from solvers.errors import ConvergenceError
 
 
-class _PardisoPattern:
-    """MKL PARDISO (real SPD) on a fixed upper-triangular CSR pattern: the ordering and
-    symbolic factorization once, then numeric factorizations and solves."""
+class _PatternCholesky:
+    """Numeric Cholesky factorizations on the fixed upper-triangular pattern of ``H``.
+    PARDISO keeps its ordering and symbolic analysis across calls
+    (:meth:`solvers.linalg.PardisoFactor.refactor`); without the mkl wheel, cholespy
+    factors the symmetrized matrix anew each time."""
 
-    def __init__(self, indptr, indices, n):
-        from solvers.linalg import _pardiso_call, _pardiso_lib, _pardiso_release
+    def __init__(self, indptr, indices, n, backend="auto"):
+        from solvers.linalg import have_pardiso
 
-        self._call = _pardiso_call
-        self.lib = _pardiso_lib()
-        if self.lib is None:
-            raise RuntimeError("PARDISO is not available")
-        self.n = n
-        self.indptr = np.ascontiguousarray(indptr, dtype=np.int32)
-        self.indices = np.ascontiguousarray(indices, dtype=np.int32)
-        self.handle = np.zeros(64, dtype=np.int64)
-        iparm = np.zeros(64, dtype=np.int32)
-        iparm[0] = 1
-        iparm[1] = 2  # METIS nested dissection
-        iparm[9] = 13
-        iparm[17] = -1
-        iparm[34] = 1  # 0-based
-        self.iparm = iparm
-        self.data = np.ones(len(self.indices))
-        self._finalizer = weakref.finalize(self, _pardiso_release, self.lib, self.handle,
-                                           iparm, _NoLock())
-        err = self._call(self.lib, self.handle, 11, n, self.data, self.indptr, self.indices,
-                         iparm, 1)
-        if err:
-            raise RuntimeError(f"PARDISO analysis failed ({err})")
-
-    def factor(self, data) -> bool:
-        self.data = np.ascontiguousarray(data, dtype=np.float64)
-        err = self._call(self.lib, self.handle, 22, self.n, self.data, self.indptr,
-                         self.indices, self.iparm, 1)
-        return err == 0
-
-    def solve(self, rhs):
-        b = np.ascontiguousarray(rhs, dtype=np.float64)
-        x = np.empty_like(b)
-        err = self._call(self.lib, self.handle, 33, self.n, self.data, self.indptr,
-                         self.indices, self.iparm.copy(), 1, b, x)
-        if err:
-            raise RuntimeError(f"PARDISO solve failed ({err})")
-        return x
-
-
-class _NoLock:
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return False
-
-
-class _CholespyPattern:
-    """Fallback: CHOLMOD (cholespy) refactored from scratch each iteration."""
-
-    def __init__(self, indptr, indices, n):
         self.indptr, self.indices, self.n = indptr, indices, n
-        self.factor_ = None
+        if backend == "pardiso" and not have_pardiso():
+            raise RuntimeError("PARDISO is not available")
+        self.backend = "pardiso" if backend in ("auto", "pardiso") and have_pardiso() \
+            else "cholespy"
+        self._factor = None
 
     def factor(self, data) -> bool:
-        from solvers.linalg import factorize_spd
+        """Factor the matrix with values ``data`` on the pattern; False if not SPD."""
+        from solvers.linalg import PardisoFactor, factorize_spd
 
-        upper = sp.csr_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
-        full = upper + sp.triu(upper, 1).T
+        upper = sp.csr_matrix((np.asarray(data, dtype=np.float64), self.indices, self.indptr),
+                              shape=(self.n, self.n))
         try:
-            self.factor_ = factorize_spd(full.tocsr())
-        except Exception:  # noqa: BLE001 - cholespy raises plain exceptions
+            if self.backend == "pardiso":
+                if self._factor is None:
+                    self._factor = PardisoFactor(upper)
+                else:
+                    self._factor.refactor(upper)
+            else:
+                self._factor = factorize_spd((upper + sp.triu(upper, 1).T).tocsr())
+        except (ValueError, RuntimeError):  # not positive definite (numerically)
             return False
         return True
 
     def solve(self, rhs):
-        return self.factor_.solve(rhs)
+        return self._factor.solve(rhs)
 
 
 class StructuredLP:
@@ -193,18 +153,8 @@ class StructuredLP:
         A.sort_indices()
         self.src = A.data.astype(np.int64) - 1
         self.N = N
-        use_pardiso = backend in ("auto", "pardiso")
-        self.solver = None
-        if use_pardiso:
-            try:
-                self.solver = _PardisoPattern(A.indptr, A.indices, N)
-                self.backend = "pardiso"
-            except RuntimeError:
-                if backend == "pardiso":
-                    raise
-        if self.solver is None:
-            self.solver = _CholespyPattern(A.indptr, A.indices, N)
-            self.backend = "cholespy"
+        self.solver = _PatternCholesky(A.indptr, A.indices, N, backend)
+        self.backend = self.solver.backend
 
     # --- A, A^T ----------------------------------------------------------------------
     def A_x(self, X, mu):
