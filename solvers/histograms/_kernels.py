@@ -7,6 +7,7 @@ compiled once per process.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from solvers.jit import cached_njit
@@ -55,3 +56,26 @@ def histograms_from_sorted_rows(q, levels, edges, out):  # pragma: no cover - co
             out[i, j - 1] = max(cdf - prev, 0.0)
             prev = cdf
         out[i, nb - 1] = max(1.0 - prev, 0.0)
+
+
+@cached_njit(parallel=True)
+def block_residual_parts(indptr, indices, data, X, B):  # pragma: no cover - compiled
+    """``(Σ (A X − B)², Σ B²)`` over a block of columns, ``A`` in CSR arrays, without the
+    ``n × w`` product: one column per thread (a Fortran-ordered ``X``, as PARDISO returns
+    it, is read contiguously)."""
+    n = indptr.shape[0] - 1
+    w = X.shape[1]
+    num = np.zeros(w)
+    den = np.zeros(w)
+    for j in numba.prange(w):
+        sn = 0.0
+        sd = 0.0
+        for i in range(n):
+            acc = -B[i, j]
+            for k in range(indptr[i], indptr[i + 1]):
+                acc += data[k] * X[indices[k], j]
+            sn += acc * acc
+            sd += B[i, j] * B[i, j]
+        num[j] = sn
+        den[j] = sd
+    return num.sum(), den.sum()

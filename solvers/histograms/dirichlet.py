@@ -208,17 +208,19 @@ def harmonic_extension(system: DirichletSystem, values: np.ndarray, *, rank_tol:
     B[touched] = -(system.coupling[touched] @ basis)
     num = den = 0.0
     if system.factor is not None:
+        from solvers.histograms._kernels import block_residual_parts
+
         # blocks of columns (the solver's copies stay ~128 MB); each block's residual is
-        # measured right away, then its solution overwrites the block of B
+        # measured right away (a compiled pass, no n x w product), then its solution
+        # overwrites the block of B
         width = _block_columns(r, len(system.free))
         for j in range(0, r, width):
             Bj = B[:, j:j + width]
             Xj = system.factor.solve(Bj)
-            Rj = system.A @ Xj
-            Rj -= Bj
-            num += float(np.einsum("ij,ij->", Rj, Rj))
-            den += float(np.einsum("ij,ij->", Bj, Bj))
-            del Rj
+            nj, dj = block_residual_parts(system.A.indptr, system.A.indices, system.A.data,
+                                          Xj, Bj)
+            num += float(nj)
+            den += float(dj)
             Bj[...] = Xj
         Y, iterations = B, 1
     else:
