@@ -203,14 +203,14 @@ def _interior(x: np.ndarray) -> bool:
     return bool(np.all(np.isfinite(x)) and np.all(x[:, 0] > 0) and np.all(_jdot(x, x) > 0))
 
 
-def _iterate(x, z, st, local, newton, backend, factor):
+def _iterate(x, z, st, newton, backend, factor):
     """One Mehrotra predictor-corrector step: ``(factor, Δx, Δy, Δz, α)``."""
     scaling = _nt_scaling(x, z)
     lam = scaling.lam
     mu = float(_dot(x, z).sum()) / len(x)
     # normal matrix D W⁻² Dᵀ on the kept vertices, from a 3×3 block per face
     t11, t12, t22 = (t[:, None, None] for t in scaling.inverse_square_tangent())
-    l0, l1 = local[:, :, 0], local[:, :, 1]
+    l0, l1 = st.local[:, :, 0], st.local[:, :, 1]
     a0, a1 = l0[:, :, None], l1[:, :, None]
     b0, b1 = l0[:, None, :], l1[:, None, :]
     blocks = t11 * a0 * b0 + t12 * (a0 * b1 + a1 * b0) + t22 * a1 * b1
@@ -258,19 +258,17 @@ def beckmann_interior_point(div: sp.csr_matrix, faces: np.ndarray, weights: np.n
     :class:`~solvers.monitor.Monitor` called with the certified relative gap."""
     st = structure if structure is not None else _structure(div, faces, keep)
     n_faces = len(faces)
-    cost = np.zeros((n_faces, 3))
-    cost[:, 0] = weights
     # primal start: u0 with a margin above its norm; dual start y = 0, z = (w, 0, 0)
     norms = np.linalg.norm(u0, axis=1)
     x = np.empty((n_faces, 3))
     x[:, 1:] = u0
     x[:, 0] = norms + max(float(weights @ norms) / max(float(weights.sum()), 1e-300), 1e-300)
     y = np.zeros(div.shape[0])
-    z = cost.copy()
-    local = st.local
+    z = np.zeros((n_faces, 3))
+    z[:, 0] = weights
     n = div.shape[0]
     flat = faces.ravel()
-    l0, l1 = local[:, :, 0], local[:, :, 1]  # (F, 3) each
+    l0, l1 = st.local[:, :, 0], st.local[:, :, 1]  # (F, 3) each
     factor = None
 
     def newton(scaling: _Scaling, rc: np.ndarray, factor):
@@ -293,7 +291,7 @@ def beckmann_interior_point(div: sp.csr_matrix, faces: np.ndarray, weights: np.n
     converged = False
     for it in range(1, max_iter + 1):
         try:
-            step = _iterate(x, z, st, local, newton, backend, factor)
+            step = _iterate(x, z, st, newton, backend, factor)
         except (ValueError, RuntimeError, ZeroDivisionError, FloatingPointError):
             step = None  # a factorization failed at the end of the path (rounding)
         if step is None:
