@@ -233,7 +233,8 @@ def test_extraction_recovers_identity_and_cost_has_mean_one(sphere):
 
 def test_default_soft_map_converges_to_the_plain_fixed_point():
     """Small case (162-vertex ellipsoid, 40 samples): the default (over-relaxed) sweeps
-    report converged with residual < tol, in fewer sweeps than plain Alg. 4, at the same
+    report converged with residual < tol, in no more sweeps than plain Alg. 4 with
+    normalized barycenters (which needs 13 here; 152 before the normalization), at the same
     fixed point (the soft maps agree to the tolerance)."""
     s = trimesh.creation.icosphere(subdivisions=2)
     mesh = TriangleMesh(s.vertices * [1.3, 1.0, 0.8], s.faces)
@@ -241,8 +242,29 @@ def test_default_soft_map_converges_to_the_plain_fixed_point():
     fast = soft_map(mesh, mesh, [[0, 0], [40, 40]], **kw)
     assert fast.converged and fast.residual < 1e-4
     plain = soft_map(mesh, mesh, [[0, 0], [40, 40]], acceleration="none", max_iter=1000, **kw)
-    assert plain.converged and fast.iterations < 0.7 * plain.iterations  # measured 65 vs 152
+    assert plain.converged and plain.iterations <= 30 and fast.iterations <= plain.iterations
     assert np.abs(fast.soft_map - plain.soft_map).sum(axis=1).max() < 1e-3
     with pytest.raises(InputError) as err:
         soft_map(mesh, mesh, [[0, 0]], acceleration="anderson", **kw)
     assert err.value.field == "acceleration"
+
+
+def test_zoomout_from_a_soft_map_starts_at_its_functional_map():
+    """One-hot rows of a point map give ZoomOut exactly the start of that point map; the
+    heat-blurred soft map of the ellipsoid's mirror symmetry refines to the mirror map."""
+    from solvers.softmaps import zoomout
+
+    s = trimesh.creation.icosphere(subdivisions=2)
+    mesh = TriangleMesh(s.vertices * [1.3, 1.0, 0.8], s.faces)
+    rng = np.random.default_rng(0)
+    point_map = rng.permutation(mesh.n)
+    one_hot = np.eye(mesh.n)[point_map]
+    labels = np.arange(mesh.n)
+    hard = zoomout(mesh, mesh, point_map, k_start=6, k_end=20)
+    soft = zoomout(mesh, mesh, k_start=6, k_end=20, soft=(one_hot, labels))
+    assert np.array_equal(hard, soft)
+    mirror = mesh.vertices * [-1.0, 1.0, 1.0]  # a symmetry of the ellipsoid
+    rows = _point_map_rows(mesh, mirror, labels, 0.5 * mesh.mean_edge_length**2)
+    refined = zoomout(mesh, mesh, k_start=6, k_end=20, soft=(rows, labels))
+    miss = np.linalg.norm(mesh.vertices[refined] - mirror, axis=1)
+    assert np.mean(miss < 0.5 * mesh.mean_edge_length) > 0.9

@@ -114,26 +114,38 @@ def trace_path(source_edges, n_nodes: int, rows: np.ndarray, target, seed: tuple
     return out
 
 
-def zoomout(source, target, correspondence, *, k_start: int = 20, k_end: int = 100,
-            step: int = 1) -> np.ndarray:
+def zoomout(source, target, correspondence=None, *, k_start: int = 20, k_end: int = 100,
+            step: int = 1, soft=None) -> np.ndarray:
     r"""Refine a point map ``source vertex -> target vertex`` by spectral upsampling.
 
     At each size ``k`` in ``k_start, k_start + step, ..., k_end``:
     :math:`C_k = \Phi_{0,k}^\top A_0 \Phi_k[T]` and :math:`T(x) = \arg\min_y
     \|\Phi_{0,k}(x) - \Phi_k(y) C_k^\top\|` (the adjoint read-out of ZoomOut).
+    ``soft=(rows, labels)`` starts instead from a soft map's own functional map, its
+    pull-back :math:`C = \Phi_{0,k}^\top A_0 P \Phi_k` with :math:`P_{x,y} =`
+    ``rows[labels[x], y]`` (``rows`` ``(N, n_target)`` masses, ``labels`` ``(n_source,)``),
+    so the first read-out sees the whole distributions, not one extracted point per row.
     Returns the ``(n_source,)`` refined map.
     """
     k_start = check_int(k_start, "k_start", low=2)
     k_end = check_int(k_end, "k_end", low=k_start)
     step = check_int(step, "step", low=1)
-    corr = np.asarray(correspondence, np.int64)
-    if corr.shape != (source.n,) or corr.min() < 0 or corr.max() >= target.n:
-        raise InputError(f"correspondence must be {source.n} target vertices",
-                         field="correspondence")
     _, phi0 = eigenpairs(source, k_end)
     _, phi1 = eigenpairs(target, k_end)
     a0 = source.areas
-    for k in list(range(k_start, k_end, step)) + [k_end]:
+    sizes = list(range(k_start, k_end, step)) + [k_end]
+    if soft is not None:
+        rows, labels = soft
+        pulled = (np.asarray(rows) @ phi1[:, :k_start])[np.asarray(labels)]  # (n0, k)
+        C = (phi0[:, :k_start] * a0[:, None]).T @ pulled
+        corr = nearest_rows(phi1[:, :k_start] @ C.T, phi0[:, :k_start])
+        sizes = sizes[1:]
+    else:
+        corr = np.asarray(correspondence, np.int64)
+        if corr.shape != (source.n,) or corr.min() < 0 or corr.max() >= target.n:
+            raise InputError(f"correspondence must be {source.n} target vertices",
+                             field="correspondence")
+    for k in sizes:
         C = (phi0[:, :k] * a0[:, None]).T @ phi1[corr, :k]
         # Adjoint read-out (as ZoomOut): source rows against the target rows mapped by C^T.
         corr = nearest_rows(phi1[:, :k] @ C.T, phi0[:, :k])
@@ -241,8 +253,10 @@ def extract_correspondence(source, target, rows, *, labels, samples, cell_areas,
     ``seed_target``).  ``refine``: ``"sinkhorn"`` projects the rows first
     (:func:`sinkhorn_projection`, ``sinkhorn_iterations`` scalings, the rows ``fixed`` --
     landmark deltas -- left out), ``"zoomout"`` refines
-    the extracted map (:func:`zoomout` over ``zoomout_range``), ``"sinkhorn+zoomout"`` both,
-    ``"none"`` neither.  Each node's match is spread to the vertices of its cell.
+    with :func:`zoomout` over ``zoomout_range``, started from the rows' own functional map
+    (the extraction is then only the unrefined ``sample_correspondence``),
+    ``"sinkhorn+zoomout"`` both, ``"none"`` neither.  Each node's match is spread to the
+    vertices of its cell.
     """
     if extraction not in EXTRACTIONS:
         raise InputError(f"extraction must be one of {EXTRACTIONS}", field="extraction")
@@ -267,6 +281,6 @@ def extract_correspondence(source, target, rows, *, labels, samples, cell_areas,
     corr[samples] = sample_corr
     if refine.endswith("zoomout"):
         ks, ke, st = zoomout_range
-        corr = zoomout(source, target, corr, k_start=ks, k_end=ke, step=st)
+        corr = zoomout(source, target, k_start=ks, k_end=ke, step=st, soft=(rows, labels))
     return Correspondence(sample_correspondence=np.asarray(sample_corr, np.int64),
                           correspondence=corr, sinkhorn=projection)

@@ -186,7 +186,7 @@ def soft_map(
     norm: str = "l1",
     descriptors: tuple | None = None,
     tol: float = 1e-4,
-    max_iter: int = 200,
+    max_iter: int = 500,
     acceleration: str = "over-relaxation",
     top_k: int | None = None,
     extraction: str = "mode",
@@ -217,8 +217,9 @@ def soft_map(
     top_k : keep only the ``k`` largest masses per row (``dropped_mass`` reports the rest).
     extraction : ``"mode"``, ``"barycentric"`` or ``"path"`` (eq. 4.7, seeded with the first
         landmark); refine : ``"zoomout"`` (spectral upsampling over ``zoomout_range =
-        (k_start, k_end, step)``), ``"sinkhorn"`` (doubly-stochastic projection of the rows
-        before extraction), ``"sinkhorn+zoomout"`` or ``"none"``
+        (k_start, k_end, step)``, started from the soft map's own functional map),
+        ``"sinkhorn"`` (doubly-stochastic projection of the rows before extraction),
+        ``"sinkhorn+zoomout"`` or ``"none"``
         (:func:`~solvers.softmaps.extraction.extract_correspondence`).
     max_bytes : refuse (``InputError`` on ``samples``) a problem whose estimated peak memory
         exceeds this.
