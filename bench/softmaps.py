@@ -200,7 +200,10 @@ def _pot_gw(cat, lion, ev, n=500):
     return out
 
 
-def _one_scaling(n: int) -> dict:
+def _warm_traced(n: int, **options):
+    """A warm soft map (caches built by a first call) with ``n`` samples, traced by
+    tracemalloc (numpy's allocations: the arrays of the call).  Returns the result, its
+    seconds, the traced peak in MiB and the load before."""
     import tracemalloc
 
     from solvers.softmaps import soft_map
@@ -209,27 +212,51 @@ def _one_scaling(n: int) -> dict:
     pairs = lm[:, ::-1]
     soft_map(lion, cat, pairs, samples=n, max_iter=2, refine="none")  # build caches
     before = loadavg()
-    tracemalloc.start()  # numpy's allocations are traced: the arrays of the call
+    tracemalloc.start()
     t0 = time.perf_counter()
-    res = soft_map(lion, cat, pairs, samples=n, refine="none", max_iter=SCALING_SWEEPS)
+    res = soft_map(lion, cat, pairs, samples=n, **options)
     dt = time.perf_counter() - t0
-    peak = tracemalloc.get_traced_memory()[1]
+    peak = tracemalloc.get_traced_memory()[1] / 2**20
     tracemalloc.stop()
+    return res, dt, peak, before
+
+
+def _one_scaling(n: int) -> dict:
+    res, dt, peak, before = _warm_traced(n, refine="none", max_iter=SCALING_SWEEPS)
     return {"samples": n, "seconds": dt, "iterations": res.iterations,
             "residual": res.residual, "converged": res.converged,
             "seconds_per_sweep": res.timings["propagation"] / max(res.iterations + 1, 1),
-            "peak_extra_mb": peak / 2**20, "edges": int(len(res.edges)), "code": _code(),
+            "peak_extra_mb": peak, "edges": int(len(res.edges)), "code": _code(),
             "load_before": before, "load_after": loadavg()}
 
 
-def part_scaling():
+def _one_convergence(n: int) -> dict:
+    res, dt, peak, before = _warm_traced(n)  # defaults: tol 1e-4, ZoomOut
+    cat, _, gt, _ = load()
+    return {"samples": n, "seconds": dt, "iterations": res.iterations,
+            "residual": res.residual, "converged": res.converged, "timings": res.timings,
+            "error": Evaluator(cat, gt)(res.correspondence), "peak_extra_mb": peak,
+            "code": _code(), "load_before": before, "load_after": loadavg()}
+
+
+def _per_size(kind: str) -> list[dict]:
+    """One fresh process per size (``_scaling`` or ``_convergence``), so each call is warm
+    in the same way and its memory is its own."""
     rows = []
     for n in SCALING_SIZES:
-        out = subprocess.run([sys.executable, __file__, "_scaling", str(n)], check=True,
+        out = subprocess.run([sys.executable, __file__, kind, str(n)], check=True,
                              capture_output=True, text=True).stdout
         rows.append(json.loads(out.strip().splitlines()[-1]))
         print(rows[-1], flush=True)
     return rows
+
+
+def part_scaling():
+    return _per_size("_scaling")
+
+
+def part_convergence():
+    return _per_size("_convergence")
 
 
 def part_reverse():
@@ -253,37 +280,6 @@ def part_reverse():
         rows += _pyfm(ev, lm[:, ::-1], target="lion-00.off", source="cat-00.off")
     except ImportError as exc:
         rows.append({"method": "pyFM", "error": None, "note": f"not installed: {exc}"})
-    return rows
-
-
-def _one_convergence(n: int) -> dict:
-    import tracemalloc
-
-    from solvers.softmaps import soft_map
-
-    cat, lion, gt, lm = load()
-    pairs = lm[:, ::-1]
-    soft_map(lion, cat, pairs, samples=n, max_iter=2, refine="none")  # build caches
-    before = loadavg()
-    tracemalloc.start()
-    t0 = time.perf_counter()
-    res = soft_map(lion, cat, pairs, samples=n)  # defaults: tol 1e-4, ZoomOut
-    dt = time.perf_counter() - t0
-    peak = tracemalloc.get_traced_memory()[1]
-    tracemalloc.stop()
-    return {"samples": n, "seconds": dt, "iterations": res.iterations,
-            "residual": res.residual, "converged": res.converged, "timings": res.timings,
-            "error": Evaluator(cat, gt)(res.correspondence), "peak_extra_mb": peak / 2**20,
-            "code": _code(), "load_before": before, "load_after": loadavg()}
-
-
-def part_convergence():
-    rows = []
-    for n in SCALING_SIZES:
-        out = subprocess.run([sys.executable, __file__, "_convergence", str(n)], check=True,
-                             capture_output=True, text=True).stdout
-        rows.append(json.loads(out.strip().splitlines()[-1]))
-        print(rows[-1], flush=True)
     return rows
 
 
