@@ -141,6 +141,9 @@ def zoomout(source, target, correspondence=None, *, k_start: int = 20, k_end: in
         corr = nearest_rows(phi1[:, :k_start] @ C.T, phi0[:, :k_start])
         sizes = sizes[1:]
     else:
+        if correspondence is None:
+            raise InputError("zoomout needs a correspondence or a soft map",
+                             field="correspondence")
         corr = np.asarray(correspondence, np.int64)
         if corr.shape != (source.n,) or corr.min() < 0 or corr.max() >= target.n:
             raise InputError(f"correspondence must be {source.n} target vertices",
