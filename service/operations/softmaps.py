@@ -50,7 +50,7 @@ class SoftMapRequest(OperationRequest):
     landmark_route: Literal["geodesic", "heat"] = "geodesic"
     norm: Literal["l1", "l2"] = Field("l1", description="descriptor difference (thesis: L1)")
     tol: float = Field(1e-4, gt=0, lt=1, description="largest L1 marginal violation")
-    max_iter: int = Field(500, ge=1, le=10_000, description="propagation sweeps")
+    max_iter: int = Field(1000, ge=1, le=10_000, description="propagation sweeps")
     top_k: int | None = Field(None, ge=1, description="store only the k largest masses per "
                               "row (arrays top_indices/top_masses, dropped_mass)")
     extraction: Literal["mode", "barycentric", "path"] = "mode"

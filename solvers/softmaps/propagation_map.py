@@ -186,7 +186,7 @@ def soft_map(
     norm: str = "l1",
     descriptors: tuple | None = None,
     tol: float = 1e-4,
-    max_iter: int = 500,
+    max_iter: int = 1000,
     acceleration: str = "over-relaxation",
     top_k: int | None = None,
     extraction: str = "mode",
