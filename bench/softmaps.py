@@ -105,39 +105,49 @@ def reverse_truth(gt, n_cat: int) -> np.ndarray:
     return out
 
 
-def part_accuracy():
+def _timed_soft_map(method: str, ev, source, target, pairs, **options):
+    """(row, result) of one otgeo soft map call, scored by ``ev`` before and after
+    refinement."""
     from solvers.softmaps import soft_map
+
+    before = loadavg()
+    t0 = time.perf_counter()
+    res = soft_map(source, target, pairs, **options)
+    row = {"method": method, "seconds": time.perf_counter() - t0, "code": _code(),
+           "error_mode": ev(res.sample_correspondence[res.labels]),
+           "error": ev(res.correspondence), "iterations": res.iterations,
+           "residual": res.residual, "converged": res.converged, "timings": res.timings,
+           "load_before": before, "load_after": loadavg()}
+    print(row, flush=True)
+    return row, res
+
+
+def _pyfm_rows(ev, lm, **meshes) -> list[dict]:
+    try:
+        return _pyfm(ev, lm, **meshes)
+    except ImportError as exc:
+        return [{"method": "pyFM", "error": None, "note": f"not installed: {exc}"}]
+
+
+def part_accuracy():
+    from solvers.softmaps import zoomout
 
     cat, lion, gt, lm = load()
     ev = Evaluator(cat, gt)
-    rows = []
     pairs = lm[:, ::-1]  # (lion vertex, cat vertex)
-    from solvers.softmaps import zoomout
-
-    before = loadavg()
-    t0 = time.perf_counter()
-    res = soft_map(lion, cat, pairs, samples=1024)
-    dt = time.perf_counter() - t0
+    row, res = _timed_soft_map("otgeo soft map, 1024 samples, defaults (tol 1e-4), ZoomOut "
+                               "(20, 50, 1) from its functional map (first call)", ev, lion,
+                               cat, pairs, samples=1024)
+    rows = [row]
     unrefined = res.sample_correspondence[res.labels]
-    rows.append({"method": "otgeo soft map, 1024 samples, defaults (tol 1e-4), ZoomOut "
-                           "(20, 50, 1) from its functional map (first call)", "seconds": dt,
-                 "code": _code(),
-                 "error_mode": ev(unrefined), "error": ev(res.correspondence),
-                 "iterations": res.iterations, "residual": res.residual,
-                 "converged": res.converged, "timings": res.timings,
-                 "load_before": before, "load_after": loadavg()})
-    print(rows[-1], flush=True)
     before = loadavg()
     t0 = time.perf_counter()
     wide = zoomout(lion, cat, unrefined, k_start=20, k_end=100, step=2)
-    rows.append({"method": "same soft map, ZoomOut (20, 100, 2)",
+    rows.append({"method": "same soft map, ZoomOut (20, 100, 2) from its modes",
                  "seconds": time.perf_counter() - t0, "error_mode": ev(unrefined),
                  "error": ev(wide), "load_before": before, "load_after": loadavg()})
     print(rows[-1], flush=True)
-    try:
-        rows += _pyfm(ev, lm)
-    except ImportError as exc:
-        rows.append({"method": "pyFM", "error": None, "note": f"not installed: {exc}"})
+    rows += _pyfm_rows(ev, lm)
     rows += _pot_gw(cat, lion, ev)
     return rows
 
@@ -203,7 +213,7 @@ def _pot_gw(cat, lion, ev, n=500):
 def _warm_traced(n: int, **options):
     """A warm soft map (caches built by a first call) with ``n`` samples, traced by
     tracemalloc (numpy's allocations: the arrays of the call).  Returns the result, its
-    seconds, the traced peak in MiB and the load before."""
+    seconds, the traced peak in MiB, the load before, and the cat and its ground truth."""
     import tracemalloc
 
     from solvers.softmaps import soft_map
@@ -218,11 +228,11 @@ def _warm_traced(n: int, **options):
     dt = time.perf_counter() - t0
     peak = tracemalloc.get_traced_memory()[1] / 2**20
     tracemalloc.stop()
-    return res, dt, peak, before
+    return res, dt, peak, before, cat, gt
 
 
 def _one_scaling(n: int) -> dict:
-    res, dt, peak, before = _warm_traced(n, refine="none", max_iter=SCALING_SWEEPS)
+    res, dt, peak, before, _, _ = _warm_traced(n, refine="none", max_iter=SCALING_SWEEPS)
     return {"samples": n, "seconds": dt, "iterations": res.iterations,
             "residual": res.residual, "converged": res.converged,
             "seconds_per_sweep": res.timings["propagation"] / max(res.iterations + 1, 1),
@@ -231,8 +241,7 @@ def _one_scaling(n: int) -> dict:
 
 
 def _one_convergence(n: int) -> dict:
-    res, dt, peak, before = _warm_traced(n)  # defaults: tol 1e-4, ZoomOut
-    cat, _, gt, _ = load()
+    res, dt, peak, before, cat, gt = _warm_traced(n)  # defaults: tol 1e-4, ZoomOut
     return {"samples": n, "seconds": dt, "iterations": res.iterations,
             "residual": res.residual, "converged": res.converged, "timings": res.timings,
             "error": Evaluator(cat, gt)(res.correspondence), "peak_extra_mb": peak,
@@ -262,25 +271,11 @@ def part_convergence():
 def part_reverse():
     """The other direction, cat -> lion, with the settings chosen on lion -> cat (no retuning):
     a check that the comparison with pyFM does not hinge on the tuned direction."""
-    from solvers.softmaps import soft_map
-
     cat, lion, gt, lm = load()
     ev = Evaluator(lion, reverse_truth(gt, cat.n))
-    before = loadavg()
-    t0 = time.perf_counter()
-    res = soft_map(cat, lion, lm, samples=1024)  # lm rows: (cat vertex, lion vertex)
-    rows = [{"method": "otgeo soft map cat -> lion, 1024 samples, defaults",
-             "seconds": time.perf_counter() - t0, "code": _code(),
-             "error_mode": ev(res.sample_correspondence[res.labels]),
-             "error": ev(res.correspondence), "iterations": res.iterations,
-             "residual": res.residual, "converged": res.converged, "timings": res.timings,
-             "load_before": before, "load_after": loadavg()}]
-    print(rows[-1], flush=True)
-    try:
-        rows += _pyfm(ev, lm[:, ::-1], target="lion-00.off", source="cat-00.off")
-    except ImportError as exc:
-        rows.append({"method": "pyFM", "error": None, "note": f"not installed: {exc}"})
-    return rows
+    row, _ = _timed_soft_map("otgeo soft map cat -> lion, 1024 samples, defaults", ev, cat,
+                             lion, lm, samples=1024)  # lm rows: (cat vertex, lion vertex)
+    return [row] + _pyfm_rows(ev, lm[:, ::-1], target="lion-00.off", source="cat-00.off")
 
 
 def part_propagation():
