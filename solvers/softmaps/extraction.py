@@ -133,13 +133,10 @@ def zoomout(source, target, correspondence=None, *, k_start: int = 20, k_end: in
     _, phi0 = eigenpairs(source, k_end)
     _, phi1 = eigenpairs(target, k_end)
     a0 = source.areas
-    sizes = list(range(k_start, k_end, step)) + [k_end]
     if soft is not None:
         rows, labels = soft
-        pulled = (np.asarray(rows) @ phi1[:, :k_start])[np.asarray(labels)]  # (n0, k)
-        C = (phi0[:, :k_start] * a0[:, None]).T @ pulled
-        corr = nearest_rows(phi1[:, :k_start] @ C.T, phi0[:, :k_start])
-        sizes = sizes[1:]
+        pulled = (np.asarray(rows) @ phi1[:, :k_start])[np.asarray(labels)]  # (n0, k_start)
+        corr = None
     else:
         if correspondence is None:
             raise InputError("zoomout needs a correspondence or a soft map",
@@ -148,8 +145,9 @@ def zoomout(source, target, correspondence=None, *, k_start: int = 20, k_end: in
         if corr.shape != (source.n,) or corr.min() < 0 or corr.max() >= target.n:
             raise InputError(f"correspondence must be {source.n} target vertices",
                              field="correspondence")
-    for k in sizes:
-        C = (phi0[:, :k] * a0[:, None]).T @ phi1[corr, :k]
+    for k in list(range(k_start, k_end, step)) + [k_end]:
+        mapped = pulled if corr is None else phi1[corr, :k]  # the soft map only at k_start
+        C = (phi0[:, :k] * a0[:, None]).T @ mapped
         # Adjoint read-out (as ZoomOut): source rows against the target rows mapped by C^T.
         corr = nearest_rows(phi1[:, :k] @ C.T, phi0[:, :k])
     return corr
