@@ -78,7 +78,7 @@ class LogKernel:
         if self.use_log_apply:
             self.columns += k
             out = np.asarray(self.kernel.log_apply(X2), dtype=np.float64).reshape(self.n, k)
-            return _floor(out[:, 0] if vector else out)
+            return floor_underflow(out[:, 0] if vector else out)
         top = np.max(X2, axis=0)  # -inf entries are fine; all -inf -> empty column
         bottom = np.min(X2, axis=0)
         if not np.all(np.isfinite(bottom)):
@@ -101,7 +101,7 @@ class LogKernel:
             out += top
         else:
             out = self._banded(X2, top, bands)
-        return _floor(out[:, 0] if vector else out)
+        return floor_underflow(out[:, 0] if vector else out)
 
     def _banded(self, X2, top, bands):
         # Only occupied bands get a column, and at most MAX_BANDS per input column (the
@@ -145,7 +145,7 @@ class LogKernel:
         return out
 
 
-def _floor(out: np.ndarray) -> np.ndarray:
+def floor_underflow(out: np.ndarray) -> np.ndarray:
     """Replace underflowed (``-inf``) outputs by a finite floor far below the column maximum.
 
     A zero output where a density is positive would make the next scaling
