@@ -220,7 +220,7 @@ def _warm_traced(n: int, **options):
 
     cat, lion, gt, lm = load()
     pairs = lm[:, ::-1]
-    soft_map(lion, cat, pairs, samples=n, max_iter=2, refine="none")  # build caches
+    soft_map(lion, cat, pairs, samples=n, **{**options, "max_iter": 2})  # build caches
     before = loadavg()
     tracemalloc.start()
     t0 = time.perf_counter()

@@ -231,6 +231,27 @@ def test_extraction_recovers_identity_and_cost_has_mean_one(sphere):
         assert np.allclose(np.diag(c), 0.0)
 
 
+def test_cost_mean_and_nearest_rows_match_brute_force():
+    """The closed-form mean of the compatibility cost (sorted 1-D sums for L1, moments for
+    squared L2) and the compiled L1 rows equal the dense sums; ``nearest_rows`` equals the
+    arg-min of the full distance matrix."""
+    from solvers.softmaps.compatibility import mean_cost, pairwise_cost
+    from solvers.softmaps.extraction import nearest_rows
+
+    rng = np.random.default_rng(3)
+    f0, f1 = rng.standard_normal((70, 5)), rng.standard_normal((90, 5))
+    f1[:10] = f0[:10]  # ties between the two sets
+    a0, a1 = rng.random(70), rng.random(90)
+    diff = f0[:, None, :] - f1[None, :, :]
+    for norm, dense in (("l1", np.abs(diff).sum(-1)), ("l2", (diff**2).sum(-1))):
+        assert np.allclose(pairwise_cost(f0, f1, norm), dense, rtol=1e-12, atol=1e-12)
+        assert mean_cost(f0, f1, a0, a1, norm) == pytest.approx(
+            a0 @ dense @ a1 / (a0.sum() * a1.sum()), rel=1e-12)
+    points, queries = rng.standard_normal((300, 7)), rng.standard_normal((520, 7))
+    dist = ((queries[:, None, :] - points[None, :, :]) ** 2).sum(-1)
+    assert np.array_equal(nearest_rows(points, queries, chunk=64), dist.argmin(1))
+
+
 def test_default_soft_map_converges_to_the_plain_fixed_point():
     """Small case (162-vertex ellipsoid, 40 samples): the default (over-relaxed) sweeps
     report converged with residual < tol, in no more sweeps than plain Alg. 4 with

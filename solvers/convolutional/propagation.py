@@ -53,7 +53,6 @@ instead of twice per edge.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -73,7 +72,8 @@ from solvers.convolutional.common import (
 )
 from solvers.convolutional.distance import watch_stagnation
 from solvers.errors import InputError
-from solvers.validation import check_anchored, check_edge_weights, check_edges, check_int
+from solvers.parallel import thread_count
+from solvers.validation import check_anchored, check_edge_weights, check_edges
 
 
 @dataclass
@@ -443,7 +443,7 @@ class _Sweeper:
         self.log_fixed = np.stack([log_density(m, self.areas) for m in fixed_m.values()])
         self.log_bar = np.zeros((n_nodes, T.shape[1]))
         self.columns = 0
-        self.threads = _thread_count(threads)
+        self.threads = thread_count(threads)
         self._pool = None
 
     def __enter__(self):
@@ -494,12 +494,3 @@ class _Sweeper:
             self.T, chunk.rows, chunk.starts, chunk.nodes, out, self.end_weight[chunk.rows],
             self.fixed_slot, self.log_fixed, self.areas, float(omega), self.log_bar, gaps)
         return float(worst), gaps
-
-
-def _thread_count(threads) -> int:
-    if threads is None:
-        try:
-            return max(1, len(os.sched_getaffinity(0)))
-        except AttributeError:  # pragma: no cover - not Linux
-            return max(1, os.cpu_count() or 1)
-    return check_int(threads, "threads", low=1)

@@ -29,7 +29,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from solvers.errors import InputError
+from solvers.jit import cached_njit
 from solvers.monitor import SolverResult
+from solvers.parallel import run_blocks
 from solvers.softmaps.descriptors import eigenpairs
 from solvers.validation import check_indices, check_int, check_positive
 
@@ -153,15 +155,30 @@ def zoomout(source, target, correspondence=None, *, k_start: int = 20, k_end: in
     return corr
 
 
-def nearest_rows(points: np.ndarray, queries: np.ndarray, chunk: int = 2048) -> np.ndarray:
-    """Index of the nearest row of ``points`` for every row of ``queries`` (brute force)."""
+def nearest_rows(points: np.ndarray, queries: np.ndarray, chunk: int = 256) -> np.ndarray:
+    """Index of the nearest row of ``points`` for every row of ``queries`` (brute force:
+    float32 inner products by BLAS, then a compiled arg-min per query; chunks in threads)."""
     p32 = np.asarray(points, np.float32)
     sq = (p32**2).sum(1)
+    pt = np.ascontiguousarray(p32.T)
+    q32 = np.asarray(queries, np.float32)
     out = np.empty(len(queries), np.int64)
-    for s in range(0, len(queries), chunk):
-        q = np.asarray(queries[s:s + chunk], np.float32)
-        out[s:s + chunk] = np.argmin(sq[None, :] - 2.0 * q @ p32.T, axis=1)
+    run_blocks(lambda rows: _argmin_rows(q32[rows] @ pt, sq, out[rows]), len(q32), chunk)
     return out
+
+
+@cached_njit(nogil=True)
+def _argmin_rows(inner, sq, out):  # pragma: no cover - compiled
+    # argmin_j |p_j|^2 - 2 <q_i, p_j> = argmin_j |q_i - p_j|^2, without a temporary.
+    for i in range(inner.shape[0]):
+        best = np.inf
+        at = 0
+        for j in range(inner.shape[1]):
+            v = sq[j] - 2.0 * inner[i, j]
+            if v < best:
+                best = v
+                at = j
+        out[i] = at
 
 
 @dataclass(kw_only=True)
