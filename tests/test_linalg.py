@@ -35,11 +35,13 @@ def test_backends_agree_and_solve(shape):
     rhs = np.random.default_rng(2).normal(size=shape)
     chol = factorize_spd(a, backend="cholespy")
     lu = factorize_spd(a, backend="splu")
-    x_chol, x_lu = chol.solve(rhs), lu.solve(rhs)
-    assert x_chol.shape == x_lu.shape == rhs.shape
+    tri = factorize_spd(a, backend="triangular")
+    x_chol, x_lu, x_tri = chol.solve(rhs), lu.solve(rhs), tri.solve(rhs)
+    assert x_chol.shape == x_lu.shape == x_tri.shape == rhs.shape
     np.testing.assert_allclose(a @ x_chol, rhs, atol=1e-10 * np.abs(rhs).max())
     np.testing.assert_allclose(x_chol, x_lu, rtol=1e-9, atol=1e-12 * np.abs(x_lu).max())
-    assert chol.n == lu.n == 300
+    np.testing.assert_allclose(x_tri, x_lu, rtol=1e-9, atol=1e-12 * np.abs(x_lu).max())
+    assert chol.n == lu.n == tri.n == 300
 
 
 def test_non_contiguous_and_integer_right_hand_sides():
@@ -51,13 +53,31 @@ def test_non_contiguous_and_integer_right_hand_sides():
     np.testing.assert_allclose(a @ f.solve(ones), ones, atol=1e-10)
 
 
+def test_triangular_backend_in_threads_and_refuses_indefinite():
+    """The compiled solves (GIL released) give the same blocks from concurrent threads, on
+    non-contiguous input; an indefinite matrix is refused at factorization."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    a = _random_spd(400, 6)
+    f = factorize_spd(a, backend="triangular")
+    blocks = [np.asfortranarray(np.random.default_rng(s).normal(size=(400, 32)))[:, ::2]
+              for s in range(8)]
+    with ThreadPoolExecutor(2) as pool:
+        solved = list(pool.map(f.solve, blocks))
+    for b, x in zip(blocks, solved, strict=True):
+        np.testing.assert_allclose(a @ x, b, atol=1e-10 * np.abs(b).max())
+        np.testing.assert_array_equal(x, f.solve(b))
+    with pytest.raises(ValueError, match="positive definite"):
+        factorize_spd(sp.diags([1.0, -1.0, 2.0]).tocsc(), backend="triangular")
+
+
 def test_input_matrix_is_not_modified():
     # Unsorted indices and a duplicate entry: cholespy's CSC path would sort the
     # caller's arrays in place and realloc() them; the CSR path copies.
     a = sp.csc_matrix((np.array([1.0, 4.0, 1.0, 3.0, 1.0]),
                        np.array([1, 0, 0, 1, 1]), np.array([0, 2, 5])), shape=(2, 2))
     before = (a.indptr.copy(), a.indices.copy(), a.data.copy())
-    for backend in ("cholespy", "splu"):
+    for backend in ("cholespy", "splu", "triangular"):
         x = factorize_spd(a, backend=backend).solve(np.array([1.0, 2.0]))
         np.testing.assert_allclose(a.toarray() @ x, [1.0, 2.0])
     for arr, ref in zip((a.indptr, a.indices, a.data), before, strict=True):

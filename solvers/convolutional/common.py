@@ -237,8 +237,9 @@ def check_acceleration(value, allowed: tuple[str, ...]) -> str:
 
 
 def prepare(domain, *, gamma, t, substeps, tol, max_iter, progress, should_cancel,
-            default_max_iter: int = 10000) -> Setup:
-    """Check ``gamma, t, substeps, tol, max_iter`` and fetch the domain's heat kernel."""
+            default_max_iter: int = 10000, backend: str = "auto") -> Setup:
+    """Check ``gamma, t, substeps, tol, max_iter`` and fetch the domain's heat kernel
+    (factored by ``backend``, :func:`solvers.linalg.factorize_spd`)."""
     extent = getattr(domain, "extent", None)
     gamma = check_positive(gamma, "gamma") if extent is None else check_gamma(gamma, extent)
     t = heat_time(gamma) if t is None else check_positive(t, "t")
@@ -256,7 +257,7 @@ def prepare(domain, *, gamma, t, substeps, tol, max_iter, progress, should_cance
         raise InputError("progress must be callable", field="progress")
     if should_cancel is not None and not callable(should_cancel):
         raise InputError("should_cancel must be callable", field="should_cancel")
-    kernel = domain.heat_kernel(t, substeps)
+    kernel = domain.heat_kernel(t, substeps, backend)
     return Setup(gamma, t, substeps, tol, max_iter, kernel, LogKernel(kernel),
                  np.asarray(domain.areas, dtype=np.float64), Monitor(progress, should_cancel))
 

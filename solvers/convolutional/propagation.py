@@ -23,8 +23,10 @@ applications of a chunk -- one column per edge end, the diagonal rescalings kept
 stored log-scalings -- are one multi-column solve, and the chunk's exp/log/gap work stays in
 cache.  This is Gauss–Seidel in the node order "by color", the same Bregman projections and
 the same fixed point as visiting the nodes one by one.  The chunks of a color class run in
-threads (compiled passes and solves release the GIL).  ``acceleration="over-relaxation"``
-over-relaxes the sweeps (same fixed point, fewer sweeps on large graphs).
+threads: the compiled passes and the solves release the GIL (the kernel is factored by the
+``"triangular"`` backend of :func:`solvers.linalg.factorize_spd`; cholespy's solves hold
+it).  ``acceleration="over-relaxation"`` over-relaxes the sweeps (same fixed point, fewer
+sweeps on large graphs).
 
 Active nodes.  Late in a solve most nodes have converged while a few still move (on a
 512-node soft map the median gap is 1e-3 of the largest one after 60 sweeps).  A sweep
@@ -196,9 +198,6 @@ _RELAX_BELOW = 0.5
 # without diverging; restarting at 2x, 1,024 soft-map samples were at 3.9e-3 after 97
 # sweeps, against 2.7e-3 at 10x).
 _RESTART_ABOVE = 10.0
-# Columns per triangular solve (4-8 were fastest for a 7,207-vertex factor, 67 us a
-# column against 77 at 32).
-_SOLVE_BLOCK = 8
 # A node is skipped while the bound on its gap is below this fraction of tol.
 _ACTIVE = 0.5
 
@@ -260,8 +259,9 @@ def wasserstein_propagation(
     accelerate = check_acceleration(acceleration, BARYCENTER_ACCELERATIONS) == "over-relaxation"
     relax = OverRelaxation(enabled=accelerate)
     best = np.inf
+    # The sweeps solve in threads: the triangular backend's solves release the GIL.
     setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
-                    progress=progress, should_cancel=should_cancel)
+                    progress=progress, should_cancel=should_cancel, backend="triangular")
     setup.monitor = watch_stagnation(setup, project=max_iter is None)  # stalled -> stop
     a = setup.areas
     n = domain.n
@@ -415,9 +415,9 @@ class _Sweeper:
     """The kernel applications and Bregman projections of chunks of edge ends, in threads.
 
     Implicit Euler kernels (meshes, point clouds, graphs) take a direct path: the rows'
-    shifts in one compiled pass, numpy's vectorized exp/log around the factor's solves in
-    8-column blocks, row-major throughout (measured faster in threads than the same work
-    through :class:`LogKernel`).  Other kernels, and rows whose dynamic
+    shifts in one compiled pass, numpy's vectorized exp/log around one solve of the whole
+    chunk (``"triangular"`` factor, GIL released), row-major throughout (measured faster in
+    threads than the same work through :class:`LogKernel`).  Other kernels, and rows whose dynamic
     range needs more than one band, go through :class:`LogKernel`.  The projections of the
     chunk's nodes are one compiled pass (:mod:`solvers.convolutional._propagation_kernels`).
     """
@@ -476,13 +476,11 @@ class _Sweeper:
                 X -= tops[:, None]
                 np.exp(X, out=X)
                 X *= self.mass
-                out = np.empty_like(X)
-                for j in range(0, len(opp), _SOLVE_BLOCK):
-                    z = self.factor.solve(X[j:j + _SOLVE_BLOCK].T)
-                    for _ in range(self.substeps - 1):
-                        z = self.factor.solve(self.mass[:, None] * z)
-                    np.maximum(z, 0.0, out=z)
-                    np.log(z.T, out=out[j:j + _SOLVE_BLOCK])
+                z = self.factor.solve(X.T)  # the chunk's ends in one block
+                for _ in range(self.substeps - 1):
+                    z = self.factor.solve(self.mass[:, None] * z)
+                np.maximum(z, 0.0, out=z)
+                out = np.log(z.T)
                 out += tops[:, None]
                 return floor_underflow(out.T).T
         return np.ascontiguousarray(self.logk(X.T).T)
