@@ -473,7 +473,9 @@ def render(data) -> str:
                 "Wall seconds of one default propagation sweep (lion -> cat over the 7,207 cat "
                 "vertices, 2 threads, warm, mean of sweeps 4-13); the code before (solves by "
                 "cholespy, which holds the GIL, in 8-column blocks) and after (the triangular "
-                "backend, GIL released, one solve per chunk), alternating in fresh processes.",
+                "backend, GIL released, one solve per chunk), alternating in fresh processes. "
+                "The residuals differ in the third digit because the cost's mean is now exact "
+                "(a cost scale 0.03 % different).",
                 "", "| samples | code | s / sweep | residual after 13 | load before | load after |",
                 "|---|---|---|---|---|---|"]
         for r in sc["rows"]:
@@ -500,44 +502,56 @@ def render(data) -> str:
 
 READING = """## Reading
 
-- Accuracy (run of 2026-12-02 05:51, load 1.6-2.0): the converged 1,024-sample soft map,
-  refined by ZoomOut (20, 50, 1) started from its own functional map, scores 21.46e-3
-  against pyFM's best (ZoomOut) 21.56e-3 in the same run: 0.44 % lower, ratio 0.996; pyFM
-  ICP 24.60e-3, basic 49.17e-3; POT GW 86.9e-3 at best.  Most of the accuracy is the
-  spectral refinement (the soft map's modes alone: 77.2e-3), and the starting point of
-  ZoomOut is where the soft map helps: from the extracted modes the same range gives
-  21.56e-3 (the earlier runs), from the soft map's functional map 21.46e-3.  Caveat: the
-  range (20, 50, 1) was chosen on this pair; the cat -> lion table applies the same
-  settings to the other direction without retuning.
-- The other direction (cat -> lion, run of 06:10, load 1.1-2.0), same settings: otgeo
-  21.37e-3 against pyFM ZoomOut 21.20e-3, **0.8 % worse** (ratio 1.008), so the lead on
-  lion -> cat is within what the tuned direction buys; and its propagation stopped at the
-  500-sweep cap with residual 3.1e-4 (not converged; 0.67 s per sweep there).  Run on
-  (ad-hoc driver, 07:05, load 1.0) it converged after 756 sweeps in 485 s, with the same
-  error (21.37e-3); the default cap is now 1,000 sweeps (the convergence rows above, all
-  converged within 277, were taken with the cap at 500).
-- Convergence: reached.  The free-node barycenters are now normalized to unit mass (same
-  fixed point; `tests/test_convolutional.py` against a textbook node-by-node Alg. 4).
-  Before, the residual was a mass deficit at the landmark nodes that relaxed one graph hop
-  per sweep (0.906 after 51 sweeps at 1,024 samples, 0.51 after 41 at 256 even from
-  ground-truth distributions); now the defaults converge to 1e-4 at every size measured:
-  36 / 48 / 75 / 277 sweeps at 128 / 256 / 512 / 1,024 samples (table above).
-- Time: **the 10 s warm target at 1,024 samples is missed**: 102.4 s warm at load 1.5
-  (96.8 s of propagation, 277 sweeps, the same residual path and refined error 21.46e-3 as
-  before), against 364 s at load 2 before this change (326.5 s of propagation in an ad-hoc
-  run at load ~1).  The change: the chunks of a color class run in two threads, the node
-  updates are one compiled pass per chunk, solves go in 8-column blocks (67 us a column
-  against 77 at 32), and late sweeps visit only the nodes whose gap may still exceed
-  tol/2 -- at 1,024 samples the median node gap is 3.5e-5 after 68 sweeps while a handful
-  of nodes keep the largest one near 1e-3 (the same six nodes lead from sweep 136 on), so
-  the last ~150 sweeps cost a few seconds in all; convergence is declared only after a
-  sweep over every node.  What remains is the first ~100 full sweeps (about 0.6 s each
-  with two threads; the triangular solves alone are ~0.2 s of that).  10 s would need
-  fewer than ~10 full sweeps, i.e. another solver (multiscale in the target, or fewer
-  sweeps to reach the asymptotic regime).  At 128 samples the default soft map takes 9.4 s
-  warm (36 sweeps) with refined error 21.54e-3 (below pyFM's 21.56e-3).
-- Memory: 688 MiB traced peak at 1,024 samples (below the 1 GB target), about linear in
-  the samples (136 / 182 / 348 / 688 MiB at 128 / 256 / 512 / 1,024 in the convergence
+- Accuracy (run of 2026-12-02 14:17, load 1.2-1.8): the converged 1,024-sample soft map,
+  refined by ZoomOut (20, 50, 1) started from its own functional map, scores 21.54e-3
+  against pyFM's best (ZoomOut) 21.56e-3 in the same run: ratio 0.999, level rather than
+  ahead.  pyFM ICP 24.60e-3, basic 49.17e-3; POT GW 86.9e-3 at best; the soft map's modes
+  alone 77.3e-3, so most of the accuracy is the spectral refinement.  The run of 05:56
+  scored 21.46e-3 with the same pipeline; since then the mean of the compatibility cost is
+  computed exactly (closed form over all source vertices, no longer estimated from 2,048
+  rows), which moved the cost scale by 0.03 % and the refined error by 0.4 %.  ZoomOut's
+  result moves by that much under perturbations of its input this small (the arithmetic
+  of the nearest-row search, float32 or float64, does not change it: 21.542e-3 either
+  way, ad-hoc), so the margin over pyFM is below this noise.  Caveat: the range
+  (20, 50, 1) was chosen on this pair.
+- The other direction (cat -> lion, run of 14:24, load 1.7-2.1), same settings: otgeo
+  21.37e-3 against pyFM ZoomOut 21.20e-3, **0.8 % worse** (ratio 1.008).  Its propagation
+  now converges within the default cap: 739 sweeps in 104 s (an ad-hoc run of the code
+  before active nodes took 756 sweeps and 485 s).
+- Convergence: the defaults converge to 1e-4 at every size: 37 / 49 / 76 / 281 sweeps at
+  128 / 256 / 512 / 1,024 samples (table above).
+- Time: **the 10 s warm target at 1,024 samples is missed.**  The run above measured
+  125.5 s warm (123.5 s of propagation, load 1.6-2.0), and the first call in the accuracy
+  table took 104.3 s (load 1.2-1.8).  The same code gave 102.4 s in the previous session's
+  run, but this machine is slower today: the code of 6202226 took 1.26-1.37 s per
+  1,024-sample sweep today, against ~0.8 s in the previous session.  So compare within a
+  run: the sweep-cost table puts one sweep at 0.94-1.02 s against 1.26-1.37 s before
+  (1.3x), and at 512 samples 0.36-0.39 s against 0.59-0.63 s (1.65x).  The cause of the
+  change: cholespy's solve holds the GIL, so the threads of the previous change ran the
+  solves one at a time.  The new ``"triangular"`` factor (SuperLU's symmetric-mode LU,
+  compiled triangular solves that release the GIL, one block per chunk of 32 edge ends)
+  solves in both threads: 57 us a column against 107-126 us with one thread (ad-hoc,
+  7,207 x 32 blocks).
+  - The rest of a call is now small.  Descriptors take 0.2-0.5 s warm, against 2.2-3.4 s
+    before: the exact mean of the cost is a closed form, and the L1 rows are compiled and
+    run in threads.  ZoomOut takes 1.4-1.6 s, against 2.2-2.8 s: inner products by BLAS
+    and a compiled arg-min in threads.  At 128 samples, the whole default soft map takes
+    6.3 s warm, against 9.4 s in the previous run (error 21.56e-3, pyFM 21.56e-3).
+  - Where the time goes at 1,024 samples (ad-hoc trace of a default run).  The 281 sweeps
+    apply as many kernel columns as 117 full sweeps.  The first ~70 sweeps are full, with
+    the residual on a plateau near 1.7e-2 between sweeps 40 and 60.  Active nodes cut the
+    last 200 sweeps to the work of 30 full sweeps.
+  - What 10 s would need.  A full sweep is 6,110 kernel columns over 7,207 vertices: 0.94-1.02
+    s here (table), of which the two-thread solves alone are ~0.35 s (6,110 x 57 us).  So
+    10 s needs fewer than ~10 full sweeps at today's cost, or ~25 with the solves alone,
+    against 117.  That needs another algorithm than Alg. 4's Gauss-Seidel sweeps.
+  - The default gamma shrinks with the samples (twice their squared spacing), so the
+    1,024-sample problem is also the sharpest.  At 1,024 samples with 2x / 4x / 8x the
+    default gamma, the sweeps were 87 / 59 / 40 and the refined errors 21.54 / 21.54 /
+    21.51e-3, against 21.46e-3 at the default (ad-hoc, cost normalization of the earlier
+    runs).  The default is kept.
+- Memory: 684 MiB traced peak at 1,024 samples (below the 1 GB target), about linear in
+  the samples (91 / 177 / 346 / 684 MiB at 128 / 256 / 512 / 1,024 in the convergence
   rows): the edge-end log-scalings (2 x 3,055 x 7,207 x 8 bytes = 352 MB) plus five
   (samples x target) arrays; the ~100 bytes per sample x target vertex of
   ``solvers.softmaps.propagation_map.estimated_bytes``.  The cached factorization and
