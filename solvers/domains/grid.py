@@ -149,7 +149,9 @@ class Grid(Domain):
         if kernel not in ("gaussian", "implicit"):
             raise DomainError(f"kernel must be 'gaussian' or 'implicit', got {kernel!r}",
                               field="kernel")
-        key = ("heat_kernel", float(t), int(substeps), backend, kernel)
+        # The Gaussian kernel has no factorization: one entry whatever the backend.
+        key = ("heat_kernel", float(t), int(substeps),
+               backend if kernel == "implicit" else None, kernel)
 
         def build():
             if kernel == "gaussian":
