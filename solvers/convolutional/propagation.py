@@ -198,6 +198,10 @@ _RELAX_BELOW = 0.5
 # without diverging; restarting at 2x, 1,024 soft-map samples were at 3.9e-3 after 97
 # sweeps, against 2.7e-3 at 10x).
 _RESTART_ABOVE = 10.0
+# Sweeps per rate measurement of the adaptive over-relaxation (OverRelaxation's default is
+# 5): 3 applied fewer kernel columns at every soft-map size measured (bench/softmaps.py
+# relaxation).
+_RELAX_WINDOW = 3
 # A node is skipped while the bound on its gap is below this fraction of tol.
 _ACTIVE = 0.5
 
@@ -257,7 +261,7 @@ def wasserstein_propagation(
     """
     n_nodes, e, w, keys = _check_graph(n_nodes, edges, edge_weights, fixed)
     accelerate = check_acceleration(acceleration, BARYCENTER_ACCELERATIONS) == "over-relaxation"
-    relax = OverRelaxation(enabled=accelerate)
+    relax = OverRelaxation(enabled=accelerate, window=_RELAX_WINDOW)
     best = np.inf
     # The sweeps solve in threads: the triangular backend's solves release the GIL.
     setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
@@ -336,7 +340,7 @@ def wasserstein_propagation(
                 # small gamma) over-relaxed sweeps were measured to blow up.  A residual
                 # _RESTART_ABOVE times the best one since the (re)start restarts it.
                 if omega > 1.0 and residual > _RESTART_ABOVE * best:
-                    relax, best = OverRelaxation(), np.inf
+                    relax, best = OverRelaxation(window=_RELAX_WINDOW), np.inf
                 best = min(best, residual)
                 omega = relax.update(residual)
             setup.monitor(it, residual)
