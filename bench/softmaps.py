@@ -561,7 +561,7 @@ def render(data) -> str:
 
 READING = """## Reading
 
-- Accuracy (run of 2026-12-02 14:17, load 1.2-1.8): the converged 1,024-sample soft map,
+- Accuracy (run of 2026-12-02 15:17, load 1.9-2.1): the converged 1,024-sample soft map,
   refined by ZoomOut (20, 50, 1) started from its own functional map, scores 21.54e-3
   against pyFM's best (ZoomOut) 21.56e-3 in the same run: ratio 0.999, level rather than
   ahead.  pyFM ICP 24.60e-3, basic 49.17e-3; POT GW 86.9e-3 at best; the soft map's modes
@@ -573,15 +573,19 @@ READING = """## Reading
   of the nearest-row search, float32 or float64, does not change it: 21.542e-3 either
   way, ad-hoc), so the margin over pyFM is below this noise.  Caveat: the range
   (20, 50, 1) was chosen on this pair.
-- The other direction (cat -> lion, run of 14:24, load 1.7-2.1), same settings: otgeo
+- The other direction (cat -> lion, run of 15:19, load 1.6-2.0), same settings: otgeo
   21.37e-3 against pyFM ZoomOut 21.20e-3, **0.8 % worse** (ratio 1.008).  Its propagation
-  now converges within the default cap: 739 sweeps in 104 s (an ad-hoc run of the code
+  now converges within the default cap: 762 sweeps in 86 s (an ad-hoc run of the code
   before active nodes took 756 sweeps and 485 s).
-- Convergence: the defaults converge to 1e-4 at every size: 37 / 49 / 76 / 281 sweeps at
-  128 / 256 / 512 / 1,024 samples (table above).
+- Convergence: the defaults converge to 1e-4 at every size: 32 / 45 / 64 / 261 sweeps at
+  128 / 256 / 512 / 1,024 samples (table above).  The over-relaxation now measures its
+  rate over 3 sweeps instead of 5; the over-relaxation table shows less kernel work at
+  every size: 31.8 / 44.5 / 58.7 / 110.2 full sweeps, against 36.9 / 48.3 / 65.1 / 116.8
+  with 5.  The refined errors are the same to the printed digits, because both runs stop
+  at the tolerance of the same fixed point.
 - Time: **the 10 s warm target at 1,024 samples is missed.**  The run above measured
-  125.5 s warm (123.5 s of propagation, load 1.6-2.0), and the first call in the accuracy
-  table took 104.3 s (load 1.2-1.8).  The same code gave 102.4 s in the previous session's
+  115.8 s warm (113.6 s of propagation, load 1.9-2.0), and the first call in the accuracy
+  table took 97.2 s (load 1.9-2.1).  The same code gave 102.4 s in the previous session's
   run, but this machine is slower today: the code of 6202226 took 1.26-1.37 s per
   1,024-sample sweep today, against ~0.8 s in the previous session.  So compare within a
   run: the sweep-cost table puts one sweep at 0.94-1.02 s against 1.26-1.37 s before
@@ -593,17 +597,19 @@ READING = """## Reading
   7,207 x 32 blocks).
   - The rest of a call is now small.  Descriptors take 0.2-0.5 s warm, against 2.2-3.4 s
     before: the exact mean of the cost is a closed form, and the L1 rows are compiled and
-    run in threads.  ZoomOut takes 1.4-1.6 s, against 2.2-2.8 s: inner products by BLAS
+    run in threads.  ZoomOut takes 1.4-1.8 s, against 2.2-2.8 s: inner products by BLAS
     and a compiled arg-min in threads.  At 128 samples, the whole default soft map takes
-    6.3 s warm, against 9.4 s in the previous run (error 21.56e-3, pyFM 21.56e-3).
-  - Where the time goes at 1,024 samples (ad-hoc trace of a default run).  The 281 sweeps
-    apply as many kernel columns as 117 full sweeps.  The first ~70 sweeps are full, with
+    4.8 s warm, against 9.4 s in the previous session's run (error 21.56e-3, pyFM
+    21.56e-3).
+  - Where the time goes at 1,024 samples (ad-hoc trace of a default run with the window
+    of 5).  The 281 sweeps apply as many kernel columns as 117 full sweeps (110 with the
+    window of 3).  The first ~70 sweeps are full, with
     the residual on a plateau near 1.7e-2 between sweeps 40 and 60.  Active nodes cut the
     last 200 sweeps to the work of 30 full sweeps.
   - What 10 s would need.  A full sweep is 6,110 kernel columns over 7,207 vertices: 0.94-1.02
     s here (table), of which the two-thread solves alone are ~0.35 s (6,110 x 57 us).  So
     10 s needs fewer than ~10 full sweeps at today's cost, or ~25 with the solves alone,
-    against 117.  That needs another algorithm than Alg. 4's Gauss-Seidel sweeps.
+    against 110.  That needs another algorithm than Alg. 4's Gauss-Seidel sweeps.
   - The default gamma shrinks with the samples (twice their squared spacing), so the
     1,024-sample problem is also the sharpest.  At 1,024 samples with 2x / 4x / 8x the
     default gamma, the sweeps were 87 / 59 / 40 and the refined errors 21.54 / 21.54 /
