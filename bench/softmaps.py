@@ -461,6 +461,19 @@ def _accuracy_table(acc, title: str, description: str) -> list[str]:
     return out + [""]
 
 
+def _table(part, title: str, description: str, header: list[str], cells) -> list[str]:
+    """A markdown section for one recorded part: title with its run time, description, and
+    one row of ``cells(row)`` per recorded row (plus the part's ``note``)."""
+    if not part:
+        return []
+    out = [f"## {title} (run {part['when']})", "", description, "",
+           "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    out += ["| " + " | ".join(str(c) for c in cells(r)) + " |" for r in part["rows"]]
+    if part.get("note"):
+        out += ["", part["note"]]
+    return out + [""]
+
+
 def render(data) -> str:
     """bench/results/softmaps.md from the recorded parts."""
     out = ["# Soft maps: TOSCA lion -> cat (bench/softmaps.py)", "",
@@ -477,84 +490,63 @@ def render(data) -> str:
                            "mean geodesic error on the lion / sqrt(lion area) over the cat "
                            "vertices the lion -> cat ground truth hits (for each, the first "
                            "lion vertex mapped to it).")
-    sc = data.get("scaling")
-    if sc:
-        out += [f"## Growth with the number of samples (run {sc['when']})", "",
-                f"Soft map over all 7,207 cat vertices, {SCALING_SWEEPS} propagation sweeps "
-                "(fixed, to compare sizes), warm (second call in a fresh process), refine none; "
-                "peak memory = tracemalloc peak of the call (numpy arrays; the cached "
-                "factorization and eigenpairs are not counted).", "",
-                "| samples | source edges | seconds | s / sweep | peak MiB | residual "
-                "| code | load before | load after |", "|---|---|---|---|---|---|---|---|---|"]
-        for r in sc["rows"]:
-            out.append(f"| {r['samples']} | {r['edges']} | {r['seconds']:.1f} | "
-                       f"{r['seconds_per_sweep']:.2f} | {r['peak_extra_mb']:.0f} | "
-                       f"{r['residual']:.3g} | {r.get('code', '')} | {r['load_before']} | "
-                       f"{r['load_after']} |")
-        if sc.get("note"):
-            out += ["", sc["note"]]
-        out.append("")
-    cv = data.get("convergence")
-    if cv:
-        out += [f"## Time to convergence (run {cv['when']})", "",
-                "Soft map over all 7,207 cat vertices with the defaults (tol 1e-4 on the "
-                "largest L1 marginal violation, at most 1,000 sweeps, ZoomOut), warm (second "
-                "call in a fresh process); error as in the accuracy table; peak = tracemalloc "
-                "peak of the call.", "",
-                "| samples | sweeps | residual | converged | propagation s | total s | "
-                "error | peak MiB | code | load before | load after |",
-                "|---|---|---|---|---|---|---|---|---|---|---|"]
-        for r in cv["rows"]:
-            out.append(f"| {r['samples']} | {r['iterations'] + 1} | {r['residual']:.3g} | "
-                       f"{r['converged']} | {r['timings']['propagation']:.1f} | "
-                       f"{r['seconds']:.1f} | {1e3 * r['error']:.2f}e-3 | "
-                       f"{r['peak_extra_mb']:.0f} | {r.get('code', '')} | "
-                       f"{r['load_before']} | {r['load_after']} |")
-        out.append("")
-    rx = data.get("relaxation")
-    if rx:
-        out += [f"## Over-relaxation window (run {rx['when']})", "",
-                "Work of the default propagation (lion -> cat, tol 1e-4) with the adaptive "
-                "over-relaxation measuring its rate over 5 sweeps (OverRelaxation's default) or "
-                "3 (the propagation's): kernel columns in units of full sweeps (2 x edges "
-                "columns each), and sweeps.  The same fixed point either way (both stop at the "
-                "tolerance); seconds are wall time on the shared machine.", "",
-                "| samples | window | full sweeps of work | sweeps | converged | propagation s "
-                "| code | load before | load after |", "|---|---|---|---|---|---|---|---|---|"]
-        for r in rx["rows"]:
-            out.append(f"| {r['samples']} | {r['window']} | {r['full_sweeps']:.1f} | "
-                       f"{r['sweeps']} | {r['converged']} | {r['propagation_seconds']:.1f} | "
-                       f"{r['code']} | {r['load_before']} | {r['load_after']} |")
-        out.append("")
-    sc = data.get("sweep_cost")
-    if sc:
-        out += [f"## Cost of one sweep, before/after (run {sc['when']})", "",
-                "Wall seconds of one default propagation sweep (lion -> cat over the 7,207 cat "
-                "vertices, 2 threads, warm, mean of sweeps 4-13); the code before (solves by "
-                "cholespy, which holds the GIL, in 8-column blocks) and after (the triangular "
-                "backend, GIL released, one solve per chunk), alternating in fresh processes. "
-                "The residuals differ in the third digit because the cost's mean is now exact "
-                "(a cost scale 0.03 % different).",
-                "", "| samples | code | s / sweep | residual after 13 | load before | load after |",
-                "|---|---|---|---|---|---|"]
-        for r in sc["rows"]:
-            out.append(f"| {r['samples']} | {r['code']} | {r['seconds_per_sweep']:.3f} | "
-                       f"{r['residual_after_13']:.4g} | {r['load_before']} | {r['load_after']} |")
-        out.append("")
-    pr = data.get("propagation")
-    if pr:
-        out += [f"## Alg. 4 before/after batching (run {pr['when']})", "",
-                "First two rows: 128 farthest-point lion samples as nodes, 5 fixed deltas on "
-                "the cat, gamma 0.004, 40 sweeps each (not converged: the gap is the "
-                "difference of two unfinished iterations). Last two: cow, a 6 x 6 grid graph "
-                "with 4 fixed bumps, gamma 0.01, run to tol 1e-7.", "",
-                "| variant | seconds | sweeps | residual | max L1 gap vs before | load before "
-                "| load after |", "|---|---|---|---|---|---|---|"]
-        for r in pr["rows"]:
-            gap = f"{r['max_l1_gap_vs_before']:.2g}" if "max_l1_gap_vs_before" in r else ""
-            out.append(f"| {r['variant']} | {r['seconds']:.1f} | {r['sweeps']} | "
-                       f"{r['residual']:.3g} | {gap} | {r['load_before']} | {r['load_after']} |")
-        out.append("")
+    out += _table(
+        data.get("scaling"), "Growth with the number of samples",
+        f"Soft map over all 7,207 cat vertices, {SCALING_SWEEPS} propagation sweeps (fixed, to "
+        "compare sizes), warm (second call in a fresh process), refine none; peak memory = "
+        "tracemalloc peak of the call (numpy arrays; the cached factorization and eigenpairs "
+        "are not counted).",
+        ["samples", "source edges", "seconds", "s / sweep", "peak MiB", "residual", "code",
+         "load before", "load after"],
+        lambda r: [r["samples"], r["edges"], f"{r['seconds']:.1f}",
+                   f"{r['seconds_per_sweep']:.2f}", f"{r['peak_extra_mb']:.0f}",
+                   f"{r['residual']:.3g}", r.get("code", ""), r["load_before"],
+                   r["load_after"]])
+    out += _table(
+        data.get("convergence"), "Time to convergence",
+        "Soft map over all 7,207 cat vertices with the defaults (tol 1e-4 on the largest L1 "
+        "marginal violation, at most 1,000 sweeps, ZoomOut), warm (second call in a fresh "
+        "process); error as in the accuracy table; peak = tracemalloc peak of the call.",
+        ["samples", "sweeps", "residual", "converged", "propagation s", "total s", "error",
+         "peak MiB", "code", "load before", "load after"],
+        lambda r: [r["samples"], r["iterations"] + 1, f"{r['residual']:.3g}", r["converged"],
+                   f"{r['timings']['propagation']:.1f}", f"{r['seconds']:.1f}",
+                   f"{1e3 * r['error']:.2f}e-3", f"{r['peak_extra_mb']:.0f}",
+                   r.get("code", ""), r["load_before"], r["load_after"]])
+    out += _table(
+        data.get("relaxation"), "Over-relaxation window",
+        "Work of the default propagation (lion -> cat, tol 1e-4) with the adaptive "
+        "over-relaxation measuring its rate over 5 sweeps (OverRelaxation's default) or 3 (the "
+        "propagation's): kernel columns in units of full sweeps (2 x edges columns each), and "
+        "sweeps.  The same fixed point either way (both stop at the tolerance); seconds are "
+        "wall time on the shared machine.",
+        ["samples", "window", "full sweeps of work", "sweeps", "converged", "propagation s",
+         "code", "load before", "load after"],
+        lambda r: [r["samples"], r["window"], f"{r['full_sweeps']:.1f}", r["sweeps"],
+                   r["converged"], f"{r['propagation_seconds']:.1f}", r["code"],
+                   r["load_before"], r["load_after"]])
+    out += _table(
+        data.get("sweep_cost"), "Cost of one sweep, before/after",
+        "Wall seconds of one default propagation sweep (lion -> cat over the 7,207 cat "
+        "vertices, 2 threads, warm, mean of sweeps 4-13); the code before (solves by cholespy, "
+        "which holds the GIL, in 8-column blocks) and after (the triangular backend, GIL "
+        "released, one solve per chunk), alternating in fresh processes. The residuals differ "
+        "in the third digit because the cost's mean is now exact (a cost scale 0.03 % "
+        "different).",
+        ["samples", "code", "s / sweep", "residual after 13", "load before", "load after"],
+        lambda r: [r["samples"], r["code"], f"{r['seconds_per_sweep']:.3f}",
+                   f"{r['residual_after_13']:.4g}", r["load_before"], r["load_after"]])
+    out += _table(
+        data.get("propagation"), "Alg. 4 before/after batching",
+        "First two rows: 128 farthest-point lion samples as nodes, 5 fixed deltas on the cat, "
+        "gamma 0.004, 40 sweeps each (not converged: the gap is the difference of two "
+        "unfinished iterations). Last two: cow, a 6 x 6 grid graph with 4 fixed bumps, gamma "
+        "0.01, run to tol 1e-7.",
+        ["variant", "seconds", "sweeps", "residual", "max L1 gap vs before", "load before",
+         "load after"],
+        lambda r: [r["variant"], f"{r['seconds']:.1f}", r["sweeps"], f"{r['residual']:.3g}",
+                   f"{r['max_l1_gap_vs_before']:.2g}" if "max_l1_gap_vs_before" in r else "",
+                   r["load_before"], r["load_after"]])
     out += [READING]
     return "\n".join(out)
 
