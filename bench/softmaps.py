@@ -279,6 +279,7 @@ def part_convergence():
 def part_relaxation():
     import solvers.convolutional.propagation as propagation
     import solvers.softmaps.propagation_map as propagation_map
+    from solvers.softmaps import soft_map
 
     cat, lion, gt, lm = load()
     pairs = lm[:, ::-1]
@@ -297,7 +298,7 @@ def part_relaxation():
             for window in (5, 3):
                 propagation._RELAX_WINDOW = window
                 before = loadavg()
-                res = soft_map_call(lion, cat, pairs, n)
+                res = soft_map(lion, cat, pairs, samples=n, refine="none")
                 rows.append({"samples": n, "window": window, "sweeps": res.iterations + 1,
                              "full_sweeps": runs[-1].kernel_columns / (2 * len(res.edges)),
                              "converged": res.converged, "residual": res.residual,
@@ -308,12 +309,6 @@ def part_relaxation():
         propagation._RELAX_WINDOW = default
         propagation_map.wasserstein_propagation = inner
     return rows
-
-
-def soft_map_call(source, target, pairs, n):
-    from solvers.softmaps import soft_map
-
-    return soft_map(source, target, pairs, samples=n, refine="none")
 
 
 SWEEP_BEFORE = "6202226"  # the last commit before the GIL-free triangular solves

@@ -252,7 +252,7 @@ class TriangularFactor:
     """SuperLU's factorization in symmetric mode (``Pr A Pc = L U``, no pivoting: ``A`` is
     SPD; minimum-degree ordering on :math:`A + A^\top`) with compiled triangular solves
     that release the GIL, so threads solve blocks in parallel (cholespy's solve holds the
-    GIL).  ``solve`` takes ``(n,)`` or ``(n, k)``; a C-ordered block is solved in place of a
+    GIL).  ``solve`` takes ``(n,)`` or ``(n, k)``; a C-ordered block is read without a
     copy.  ``factor_nnz``: nonzeros of ``L`` and ``U`` (diagonals counted once)."""
 
     backend = "triangular"

@@ -1,4 +1,4 @@
-"""Threads for compiled kernels that release the GIL (numba ``nogil``, BLAS, cholespy)."""
+"""Threads for compiled kernels that release the GIL (numba ``nogil``, BLAS)."""
 
 from __future__ import annotations
 

@@ -22,6 +22,7 @@ import numpy as np
 
 from solvers.errors import InputError
 from solvers.kernels import heat_time
+from solvers.linalg import Backend
 from solvers.monitor import Monitor
 from solvers.validation import check_gamma, check_positive, normalize_masses
 
@@ -237,7 +238,7 @@ def check_acceleration(value, allowed: tuple[str, ...]) -> str:
 
 
 def prepare(domain, *, gamma, t, substeps, tol, max_iter, progress, should_cancel,
-            default_max_iter: int = 10000, backend: str = "auto") -> Setup:
+            default_max_iter: int = 10000, backend: Backend = "auto") -> Setup:
     """Check ``gamma, t, substeps, tol, max_iter`` and fetch the domain's heat kernel
     (factored by ``backend``, :func:`solvers.linalg.factorize_spd`)."""
     extent = getattr(domain, "extent", None)

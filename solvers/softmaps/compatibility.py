@@ -99,14 +99,14 @@ def compatibility_cost(f0, f1, *, areas0, areas1, rows=None, norm: str = "l1",
     and ``areas1`` their vertex areas; ``rows``: optional source vertices to return (the
     mean is still over all of :math:`M_0`).  Returns ``(len(rows) or n0, n1)``.
     """
-    f0 = _check_descriptors(f0, "f0")
+    f0, f1 = _check_pair(f0, f1)
     a0 = np.asarray(areas0, dtype=np.float64)
     a1 = np.asarray(areas1, dtype=np.float64)
-    if a0.shape != (len(f0),) or a1.shape != (len(np.atleast_2d(f1.T).T),):
+    if a0.shape != (len(f0),) or a1.shape != (len(f1),):
         raise InputError("areas must have one entry per descriptor row", field="areas")
     if norm not in NORMS:
         raise InputError(f"norm must be one of {NORMS}, got {norm!r}", field="norm")
-    mean = mean_cost(*_check_pair(f0, f1), a0, a1, norm)
+    mean = mean_cost(f0, f1, a0, a1, norm)
     if not mean > 0:
         raise InputError("descriptors do not distinguish any pair of points",
                          field="descriptors")
