@@ -351,6 +351,32 @@ def test_propagation_active_nodes_and_threads_keep_the_fixed_point(woody):
     assert np.abs(one.masses - ref.masses).sum(axis=0).max() < 1e-4
 
 
+def test_propagation_warm_start_keeps_the_fixed_point(woody):
+    """A warm start from a converged result is certified by its first sweep; one from a
+    coarser gamma (epsilon-scaling, potentials carried over) reaches the cold start's fixed
+    point; a start from another graph is refused."""
+    mesh, D = woody
+    p, q = _bumps(mesh, D, 100, 500)
+    k = 12
+    edges = [[i, (i + 1) % k] for i in range(k)] + [[0, 6]]
+    fixed = {0: p, 6: q}
+    opts = dict(acceleration="over-relaxation", tol=1e-8)
+    cold = wasserstein_propagation(mesh, k, edges, fixed, gamma=0.01, keep_scalings=True,
+                                   **opts)
+    assert cold.converged and cold.scalings.shape == (2 * len(edges), mesh.n)
+    again = wasserstein_propagation(mesh, k, edges, fixed, gamma=0.01, initial=cold, **opts)
+    assert again.converged and again.iterations == 0
+    assert np.abs(again.masses - cold.masses).sum(axis=0).max() < 1e-7
+    coarse = wasserstein_propagation(mesh, k, edges, fixed, gamma=0.04, keep_scalings=True,
+                                     acceleration="over-relaxation", tol=1e-3)
+    warm = wasserstein_propagation(mesh, k, edges, fixed, gamma=0.01, initial=coarse, **opts)
+    assert warm.converged and warm.gamma == cold.gamma
+    assert np.abs(warm.masses - cold.masses).sum(axis=0).max() < 1e-6
+    with pytest.raises(InputError) as err:
+        wasserstein_propagation(mesh, k, edges[:-1], fixed, gamma=0.01, initial=cold, **opts)
+    assert err.value.field == "initial"
+
+
 def test_log_kernel_bands_match_superposition(woody):
     """Inputs spanning e^-900: banded absorption equals the sum of separately shifted parts."""
     mesh, _ = woody

@@ -86,7 +86,10 @@ class PropagationResult:
     :math:`\gamma(\langle m_u, \log v_e\rangle + \langle m_{u'}, \log w_e\rangle)` of its
     final plan (eq. 3.10, the scalings without the diagonal rescalings), i.e. the entropic
     :math:`W^2_{2,H_t}` of the edge; ``colors``: color classes per sweep (kernel blocks);
-    ``kernel_columns``: kernel applications in all (one per visited edge end and sweep).
+    ``kernel_columns``: kernel applications in all (one per visited edge end and sweep);
+    ``scalings`` ``(2m, n)``: with ``keep_scalings=True``, the final log-scalings
+    :math:`\log v_e, \log w_e` of the edge ends (without the diagonal rescalings), row ``r``
+    the end ``(edge end_order[r] % m, side end_order[r] // m)``, for a later ``initial``.
     """
 
     masses: np.ndarray
@@ -99,6 +102,8 @@ class PropagationResult:
     edge_values: np.ndarray | None = None
     colors: int = 0
     kernel_columns: int = 0
+    scalings: np.ndarray | None = None
+    end_order: np.ndarray | None = None
 
 
 def _check_graph(n_nodes, edges, edge_weights, fixed):
@@ -224,6 +229,8 @@ def wasserstein_propagation(
     should_cancel: Callable[[], bool] | None = None,
     acceleration: str = "none",
     threads: int | None = None,
+    initial: PropagationResult | None = None,
+    keep_scalings: bool = False,
 ) -> PropagationResult:
     r"""Propagate distributions from fixed graph nodes to the others (Alg. 4, eq. 3.17).
 
@@ -253,6 +260,13 @@ def wasserstein_propagation(
         Sinkhorn update).
     threads : worker threads for the chunks of a color class (default: the CPUs this
         process may use).
+    initial : warm start: the result of an earlier call on the same graph and domain made
+        with ``keep_scalings=True``.  The sweeps start from its edge log-scalings times
+        ``initial.gamma / gamma`` (the dual potentials :math:`\gamma \log v_e` carry over
+        when gamma changes: :math:`\varepsilon`-scaling) instead of zeros.  Same fixed point,
+        another start.
+    keep_scalings : return the final edge log-scalings in ``scalings`` (``2m x n`` floats,
+        the solver's largest array, handed over without a copy).
 
     Returns
     -------
@@ -296,6 +310,9 @@ def wasserstein_propagation(
     row_of[end_edge, end_side] = np.arange(2 * len(e))
     opposite = row_of[end_edge, 1 - end_side]
     T = _own_side_logs(log_p, log_q, log_d, end_edge, end_side, end_node, n)
+    end_order = end_side * len(e) + end_edge
+    if initial is not None:
+        _warm_start(T, initial, end_order, setup.gamma)
     sweeper = _Sweeper(setup, T, end_node, opposite,
                        w[end_edge] / np.bincount(e.ravel(), weights=np.repeat(w, 2),
                                                  minlength=n_nodes)[end_node],
@@ -366,11 +383,34 @@ def wasserstein_propagation(
         s_log = T[rows] - own if isinstance(own, np.ndarray) else T[rows]
         np.add.at(values, end_edge[rows],
                   np.einsum("ij,ij->i", ms, np.where(ms > 0, s_log, 0.0)))
+    scalings = None
+    if keep_scalings:
+        for r0 in range(0, len(T), 256):  # in place: no second (2m, n) array
+            rows = slice(r0, r0 + 256)
+            own = _own_side_logs(log_p, log_q, log_d, end_edge[rows], end_side[rows],
+                                 end_node[rows], n)
+            # An end whose own side is zero (log -inf) has no defined scaling there: 0.
+            T[rows] = np.where(own > -np.inf, T[rows] - own, 0.0)
+        scalings = T
     return PropagationResult(masses=masses, iterations=int(it), residual=float(residual),
                              converged=bool(residual <= setup.tol and every_node),
                              free_nodes=free, gamma=setup.gamma, t=setup.t,
                              edge_values=setup.gamma * values, colors=len(by_color),
-                             kernel_columns=sweeper.columns)
+                             kernel_columns=sweeper.columns, scalings=scalings,
+                             end_order=end_order)
+
+
+def _warm_start(T, initial, end_order, gamma) -> None:
+    """Add ``initial``'s edge log-scalings, rescaled to ``gamma``, to ``T`` in place."""
+    if not isinstance(initial, PropagationResult) or initial.scalings is None:
+        raise InputError("initial must be a PropagationResult made with keep_scalings=True",
+                         field="initial")
+    if initial.scalings.shape != T.shape or not np.array_equal(initial.end_order, end_order):
+        raise InputError(f"initial has scalings of shape {initial.scalings.shape}; this graph "
+                         f"and domain need {T.shape} in the same edge order", field="initial")
+    ratio = initial.gamma / gamma
+    for r0 in range(0, len(T), 256):
+        T[r0:r0 + 256] += ratio * initial.scalings[r0:r0 + 256]
 
 
 def _own_side_logs(log_p, log_q, log_d, end_edge, end_side, end_node, n):
