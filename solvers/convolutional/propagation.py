@@ -372,7 +372,8 @@ def wasserstein_propagation(
         masses[:, u] = m
     if len(free):
         masses[:, free] = masses_from_log(log_bar[free].T, a)
-    # Edge values from the scalings S = T - (own-side rescalings), one chunk at a time.
+    # Edge values from the scalings S = T - (own-side rescalings), one chunk at a time; with
+    # keep_scalings, S replaces T in place (no second (2m, n) array).
     values = np.zeros(len(e))
     node_mass = masses.T
     for r0 in range(0, len(T), _SOLVE_COLUMNS):
@@ -380,23 +381,18 @@ def wasserstein_propagation(
         own = _own_side_logs(log_p, log_q, log_d, end_edge[rows], end_side[rows],
                              end_node[rows], n)
         ms = node_mass[end_node[rows]]
-        s_log = T[rows] - own if isinstance(own, np.ndarray) else T[rows]
+        # Where an end's own side is zero (log -inf) its scaling is undefined: 0.
+        s_log = np.where(own > -np.inf, T[rows] - own, 0.0)
         np.add.at(values, end_edge[rows],
                   np.einsum("ij,ij->i", ms, np.where(ms > 0, s_log, 0.0)))
-    scalings = None
-    if keep_scalings:
-        for r0 in range(0, len(T), 256):  # in place: no second (2m, n) array
-            rows = slice(r0, r0 + 256)
-            own = _own_side_logs(log_p, log_q, log_d, end_edge[rows], end_side[rows],
-                                 end_node[rows], n)
-            # An end whose own side is zero (log -inf) has no defined scaling there: 0.
-            T[rows] = np.where(own > -np.inf, T[rows] - own, 0.0)
-        scalings = T
+        if keep_scalings:
+            T[rows] = s_log
     return PropagationResult(masses=masses, iterations=int(it), residual=float(residual),
                              converged=bool(residual <= setup.tol and every_node),
                              free_nodes=free, gamma=setup.gamma, t=setup.t,
                              edge_values=setup.gamma * values, colors=len(by_color),
-                             kernel_columns=sweeper.columns, scalings=scalings,
+                             kernel_columns=sweeper.columns,
+                             scalings=T if keep_scalings else None,
                              end_order=end_order)
 
 
