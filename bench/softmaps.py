@@ -727,19 +727,24 @@ READING = """## Reading
     s here (table), of which the two-thread solves alone are ~0.35 s (6,110 x 57 us).  So
     10 s needs fewer than ~10 full sweeps at today's cost, or ~25 with the solves alone,
     against 110.  That needs another algorithm than Alg. 4's Gauss-Seidel sweeps.
-- Residual against time (trace table): after 10 s the default
-  1,024-sample propagation has run 9 sweeps and its residual is 0.25 (of at most 2): the
-  distributions are nowhere near the fixed point.  It reaches 1e-1 after 23 sweeps
-  (21.5 s), 1e-2 after 55 (47.5 s), 1e-3 after 124 (81.0 s) and 1e-4 after 260 (96.9 s).
-  So no tolerance a user would accept brings 1,024 samples under 10 s: a hundred times the
-  default tol still takes 47.5 s.
-- Epsilon-scaling (continuation table) does not help either.
-  Stages at 8 / 4 / 2 x gamma, each to tol 1e-2 and warm-starting the next
-  (``wasserstein_propagation(..., initial=, keep_scalings=True)``, the potentials
-  gamma log v carried over), cost 22.2 + 22.5 + 27.2 full sweeps; the final stage at the
-  default gamma then still needs 233 sweeps (99.1 full sweeps of work, 71.4 s) against
-  261 (110.2, 93.3 s) from a cold start: 171 full sweeps in all.  The slow part is the
-  tail at the default gamma, whatever the start.
+- Residual against time (trace table, load 0.7 before, 1.8 after with the run's own two
+  threads): after 10 s the default 1,024-sample propagation has run 11 sweeps and its
+  residual is 0.21 (of at most 2): the distributions are nowhere near the fixed point.
+  It reaches 1e-1 after 23 sweeps (20.1 s), 1e-2 after 55 (48.1 s), 1e-3 after 124
+  (77.5 s) and 1e-4 after 260 (94.5 s).  So no tolerance a user would accept brings 1,024
+  samples under 10 s: a hundred times the default tol still takes 48 s.
+- Epsilon-scaling (continuation table) does not help either.  Stages at 8 / 4 / 2 x gamma,
+  each to tol 1e-2 and warm-starting the next (``wasserstein_propagation(..., initial=,
+  keep_scalings=True)``, the potentials gamma log v carried over), cost 22.2 + 22.5 + 27.2
+  full sweeps; the final stage at the default gamma then still needs 233 sweeps (99.1 full
+  sweeps of work, 78.3 s) against 261 (110.2, 90.3 s) from a cold start: 171.1 full sweeps
+  and 135.3 s in all.  The slow part is the tail at the default gamma, whatever the start.
+- Why the tail is slow: the nodes that hold the largest gap late in the solve (the same
+  few, in one region of the lion) carry bimodal distributions, about 66 % of their mass
+  within 0.1 of their mode and 32 % around a second mode 0.48 away on the cat (ad hoc, on
+  the converged map: a left/right ambiguity).  Moving mass between two separated modes
+  through an entropic kernel is the classic slow mode of Sinkhorn-type iterations, and it
+  slows sharply as gamma shrinks (87 sweeps at 2x the default gamma, 261 at the default).
 - Also measured this session, ad hoc (not kept): letting the over-relaxation go up to
   omega 1.97 instead of 1.9 ended in 191 sweeps instead of 261, but many more nodes stayed
   active (e.g. 733 against 307 visited at sweep 104), so no work was saved; Anderson
