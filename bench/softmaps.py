@@ -744,7 +744,8 @@ READING = """## Reading
   within 0.1 of their mode and 32 % around a second mode 0.48 away on the cat (ad hoc, on
   the converged map: a left/right ambiguity).  Moving mass between two separated modes
   through an entropic kernel is the classic slow mode of Sinkhorn-type iterations, and it
-  slows sharply as gamma shrinks (87 sweeps at 2x the default gamma, 261 at the default).
+  slows sharply as gamma shrinks (at 2x the default gamma the previous session measured 87
+  sweeps, ad hoc; 261 at the default).
 - Also measured this session, ad hoc (not kept): letting the over-relaxation go up to
   omega 1.97 instead of 1.9 ended in 191 sweeps instead of 261, but many more nodes stayed
   active (e.g. 733 against 307 visited at sweep 104), so no work was saved; Anderson
