@@ -367,26 +367,22 @@ def part_continuation():
     inner = propagation_map.wasserstein_propagation
     stages = []  # (variant, propagation result, seconds)
 
-    def timed(name, **kwargs):
+    def timed(name, *args, **kwargs):
         t0 = time.perf_counter()
-        out = inner(**kwargs)
+        out = inner(*args, **kwargs)
         stages.append((name, out, time.perf_counter() - t0))
         return out
 
-    positional = ("domain", "n_nodes", "edges", "fixed")
-
     def cold(*args, **kwargs):
-        kwargs.update(zip(positional, args, strict=False))
-        return timed("cold start (the default)", **kwargs)
+        return timed("cold start (the default)", *args, **kwargs)
 
     def continued(*args, gamma, node_scalings, tol, **kwargs):
-        kwargs.update(zip(positional, args, strict=False))
         prev = None
         for factor in CONTINUATION:
-            prev = timed(f"stage {factor:g} x gamma, tol {CONTINUATION_TOL:g}",
+            prev = timed(f"stage {factor:g} x gamma, tol {CONTINUATION_TOL:g}", *args,
                          gamma=factor * gamma, node_scalings=node_scalings / factor,
                          tol=CONTINUATION_TOL, initial=prev, keep_scalings=True, **kwargs)
-        return timed(f"final stage, default gamma, tol {tol:g}", gamma=gamma,
+        return timed(f"final stage, default gamma, tol {tol:g}", *args, gamma=gamma,
                      node_scalings=node_scalings, tol=tol, initial=prev, **kwargs)
 
     rows = []
@@ -727,6 +723,11 @@ READING = """## Reading
     s here (table), of which the two-thread solves alone are ~0.35 s (6,110 x 57 us).  So
     10 s needs fewer than ~10 full sweeps at today's cost, or ~25 with the solves alone,
     against 110.  That needs another algorithm than Alg. 4's Gauss-Seidel sweeps.
+  - The default gamma shrinks with the samples (twice their squared spacing), so the
+    1,024-sample problem is also the sharpest.  At 1,024 samples with 2x / 4x / 8x the
+    default gamma, the sweeps were 87 / 59 / 40 and the refined errors 21.54 / 21.54 /
+    21.51e-3, against 21.46e-3 at the default (ad-hoc, cost normalization of the earlier
+    runs).  The default is kept.
 - Residual against time (trace table, load 0.7 before, 1.8 after with the run's own two
   threads): after 10 s the default 1,024-sample propagation has run 11 sweeps and its
   residual is 0.21 (of at most 2): the distributions are nowhere near the fixed point.
@@ -754,11 +755,6 @@ READING = """## Reading
   default over-relaxation).  Where one sweep's time goes (1,024 samples, one thread, 10
   sweeps, 14.3 s): solves 5.9 s, the compiled node updates 4.5 s, exp/log 1.7 s, row
   maxima 0.75 s; halving any one of them leaves the target out of reach.
-  - The default gamma shrinks with the samples (twice their squared spacing), so the
-    1,024-sample problem is also the sharpest.  At 1,024 samples with 2x / 4x / 8x the
-    default gamma, the sweeps were 87 / 59 / 40 and the refined errors 21.54 / 21.54 /
-    21.51e-3, against 21.46e-3 at the default (ad-hoc, cost normalization of the earlier
-    runs).  The default is kept.
 - Memory: 684 MiB traced peak at 1,024 samples (below the 1 GB target), about linear in
   the samples (91 / 177 / 346 / 684 MiB at 128 / 256 / 512 / 1,024 in the convergence
   rows): the edge-end log-scalings (2 x 3,055 x 7,207 x 8 bytes = 352 MB) plus five
