@@ -44,6 +44,21 @@ def _errors_everywhere(schema: dict) -> None:
         schema["components"]["schemas"].pop(name, None)
 
 
+def _binary_uploads(node) -> None:
+    """File fields as ``{"type": "string", "format": "binary"}``, which SDK generators read as
+    files (FastAPI writes OpenAPI 3.1's ``contentMediaType``: openapi-python-client then types
+    the field as text and sends no file)."""
+    if isinstance(node, dict):
+        if node.get("type") == "string" and "contentMediaType" in node:
+            del node["contentMediaType"]
+            node["format"] = "binary"
+        for value in node.values():
+            _binary_uploads(value)
+    elif isinstance(node, list):
+        for value in node:
+            _binary_uploads(value)
+
+
 def create_app(settings: Settings | None = None, *, start_background: bool = True) -> FastAPI:
     settings = settings or Settings()
     runtime = Runtime(settings, role="api")
@@ -89,6 +104,7 @@ def create_app(settings: Settings | None = None, *, start_background: bool = Tru
                 ref_template="#/components/schemas/{model}")
             components["ErrorResponse"].pop("$defs", None)
             _errors_everywhere(schema)
+            _binary_uploads(schema)
             app.openapi_schema = schema
         return app.openapi_schema
 

@@ -3,6 +3,9 @@
 JSON: :func:`to_jsonable` turns result dataclasses, numpy arrays and scalars
 into plain JSON values; non-finite floats (an unreachable vertex's ``inf``
 distance, say) become ``null`` because JSON has no NaN or infinity.
+:func:`result_document` sizes a job's JSON result for the web: every array is
+linked as a ``.npy`` file, and those whose JSON fits a byte budget are also
+inlined as nested lists (smallest first), so small results stay one request.
 
 GLB: :func:`domain_glb` writes the result fields of one domain as a glTF
 scene that any viewer opens:
@@ -41,6 +44,7 @@ import math
 import re
 import struct
 from collections.abc import Mapping, Sequence
+from urllib.parse import quote
 
 import numpy as np
 
@@ -48,15 +52,18 @@ from solvers.errors import InputError, UnsupportedDomainError
 
 __all__ = [
     "GLB_MEDIA_TYPE",
+    "NPY_MEDIA_TYPE",
     "colormap",
     "domain_glb",
     "mesh_glb",
     "parse_glb",
     "points_glb",
+    "result_document",
     "to_jsonable",
 ]
 
 GLB_MEDIA_TYPE = "model/gltf-binary"
+NPY_MEDIA_TYPE = "application/x-npy"  # NumPy's .npy format (a header, then the raw data)
 
 _GLB_MAGIC = 0x46546C67  # b"glTF"
 _CHUNK_JSON = 0x4E4F534A  # b"JSON"
@@ -95,6 +102,44 @@ def to_jsonable(obj):
     if isinstance(obj, (list, tuple)):
         return [to_jsonable(v) for v in obj]
     return obj
+
+
+def json_bytes(obj) -> bytes:
+    """``obj`` as the API sends JSON (Starlette's JSONResponse: compact, UTF-8)."""
+    return json.dumps(obj, ensure_ascii=False, allow_nan=False, indent=None,
+                      separators=(",", ":")).encode()
+
+
+def result_document(job_id: str, payload: Mapping, stored: Mapping, load, budget: int,
+                    include_arrays: bool = True) -> dict:
+    """The JSON result of a job: ``payload`` (values, export, files), ``array_files`` and
+    ``arrays``.
+
+    ``stored``: name -> :class:`service.store.StoredArray` (shape, dtype, .npy size) of every
+    result array; each is listed in ``array_files`` with the link of its ``.npy`` file.
+    ``arrays`` holds, as nested lists, the arrays whose JSON fits ``budget`` bytes with the
+    rest of the document, taken smallest first (``load(name)`` reads one): a result whose
+    arrays are all small is complete in one response, a large one stays within the budget
+    (unless its values alone exceed it). ``include_arrays=False``: none inline.
+    """
+    files = {name: {"href": f"/v1/jobs/{job_id}/arrays/{quote(name, safe='')}.npy",
+                    "media_type": NPY_MEDIA_TYPE, "bytes": int(item.npy_bytes),
+                    "shape": list(item.shape), "dtype": item.dtype.name}
+             for name, item in sorted(stored.items())}
+    doc = {**payload, "arrays": {}, "array_files": files}
+    if not include_arrays:
+        return doc
+    room = budget - len(json_bytes(doc))
+    for name in sorted(stored, key=lambda n: (stored[n].size, n)):
+        key = len(json_bytes(name)) + 2  # "name": and a comma
+        if key + 2 * stored[name].size > room:  # at least a digit and a separator per value
+            continue
+        values = to_jsonable(load(name))
+        cost = key + len(json_bytes(values))
+        if cost <= room:
+            doc["arrays"][name] = values
+            room -= cost
+    return doc
 
 
 # --------------------------------------------------------------------------- colors

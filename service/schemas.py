@@ -20,7 +20,8 @@ SPEC_CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class GridSpec(BaseModel):
-    model_config = SPEC_CONFIG
+    model_config = ConfigDict(**SPEC_CONFIG, json_schema_extra={"examples": [
+        {"kind": "grid", "shape": [32, 32]}]})
     kind: Literal["grid"]
     shape: list[int] = Field(min_length=1, max_length=3, description="nodes per axis")
     bounds: list[list[float]] | None = Field(None, description="(lo, hi) per axis; "
@@ -29,7 +30,9 @@ class GridSpec(BaseModel):
 
 
 class GraphSpec(BaseModel):
-    model_config = SPEC_CONFIG
+    model_config = ConfigDict(**SPEC_CONFIG, json_schema_extra={"examples": [
+        {"kind": "graph", "n_nodes": 4, "edges": [[0, 1], [1, 2], [2, 3]],
+         "weights": [1.0, 1.0, 2.0]}]})
     kind: Literal["graph"]
     n_nodes: int = Field(ge=1)
     edges: list[list[int]] = Field(description="(m, 2) node index pairs")
@@ -38,14 +41,18 @@ class GraphSpec(BaseModel):
 
 
 class PointCloudSpec(BaseModel):
-    model_config = SPEC_CONFIG
+    model_config = ConfigDict(**SPEC_CONFIG, json_schema_extra={"examples": [
+        {"kind": "pointcloud", "n_neighbors": 5,
+         "points": [[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.0, 1.0)]}]})
     kind: Literal["pointcloud"]
     points: list[list[float]] = Field(description="(n, 3) coordinates")
     n_neighbors: int = 30
 
 
 class MeshSpec(BaseModel):
-    model_config = SPEC_CONFIG
+    model_config = ConfigDict(**SPEC_CONFIG, json_schema_extra={"examples": [
+        {"kind": "mesh", "vertices": [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]],
+         "faces": [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]}]})
     kind: Literal["mesh"]
     vertices: list[list[float]] = Field(description="(n, 3) coordinates")
     faces: list[list[int]] = Field(description="(m, 3) vertex indices")
@@ -167,6 +174,26 @@ class JobOut(BaseModel):
                    "events": f"{base}/events", "domain": f"/v1/domains/{row.domain_id}"})
 
 
+RETRY_AFTER_MAX = 30  # seconds
+RETRY_AFTER_HEADERS = {
+    "Retry-After": {"description": "seconds to wait before polling the job (GET "
+                    "/v1/jobs/{id}) again: its estimated time left while running, else 1 (short "
+                    f"queue) or 5 (long queue); at most {RETRY_AFTER_MAX}",
+                    "schema": {"type": "integer", "minimum": 1}},
+    "Location": {"description": "the job: /v1/jobs/{id}", "schema": {"type": "string"}},
+}
+
+
+def retry_after(job: JobOut) -> int:
+    """Seconds a client should wait before polling an unfinished job (``Retry-After``)."""
+    import math
+
+    eta = job.progress.eta_seconds
+    if eta is not None:
+        return max(1, min(RETRY_AFTER_MAX, math.ceil(eta)))
+    return 5 if job.queue == "long" else 1
+
+
 def _eta(row) -> float | None:
     """Seconds left of a running job from its fraction done (None until it reports one)."""
     import time
@@ -189,6 +216,19 @@ class ResultFileInfo(BaseModel):
     bytes: int
 
 
+class ArrayFile(BaseModel):
+    """A result array as a NumPy ``.npy`` file: a short header (magic, dtype, shape), then the
+    raw little-endian values in C order."""
+
+    href: str = Field(description="where the file is served: GET /v1/jobs/{job_id}/arrays/"
+                      "{name}.npy")
+    media_type: Literal["application/x-npy"] = "application/x-npy"
+    bytes: int = Field(description="size of the file")
+    shape: list[int]
+    dtype: str = Field(description="NumPy type of the values: float64, float32, int64, "
+                       "bool, ...")
+
+
 class JobResult(BaseModel):
     job_id: str
     operation: str
@@ -196,7 +236,13 @@ class JobResult(BaseModel):
     values: dict = Field(description="scalars: value, iterations, residual, converged, "
                          "normalization of the inputs, ...")
     arrays: dict[str, list | None] = Field(
-        default_factory=dict, description="result arrays as nested lists (null for non-finite)")
+        default_factory=dict, description="the result arrays whose JSON fits the result's "
+        "size budget (OTGEO_RESULT_JSON_BYTES, 1 MiB by default), smallest first, as nested "
+        "lists (null for non-finite values); every array, inline or not, is in `array_files`")
+    array_files: dict[str, ArrayFile] = Field(
+        default_factory=dict, description="every result array as a .npy file (its link, "
+        "shape and dtype); rows of 2-D arrays also one at a time: GET /v1/jobs/{job_id}/"
+        "arrays/{name}/rows/{row}")
     export: dict = Field(default_factory=dict)
     files: dict[str, ResultFileInfo] = Field(
         default_factory=dict, description="files the job produced, each served at "

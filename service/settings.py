@@ -63,6 +63,10 @@ class Settings(BaseSettings):
                                         "a worker on the SQLite queue (seconds) when it has "
                                         "no wake-up socket (service.jobs.wake)")
     wait_max: float = Field(60.0, ge=0, description="largest accepted ?wait= (seconds)")
+    result_json_bytes: int = Field(
+        2**20, ge=0, description="size budget of a job's JSON result (GET /v1/jobs/{id}/"
+        "result): arrays are inlined, smallest first, while the body stays within it; every "
+        "array is also a .npy file (GET /v1/jobs/{id}/arrays/{name}.npy)")
     color_max_pixels: int = Field(40_000_000, gt=0, description="largest image (pixels) a "
                                   "color transfer accepts (413 beyond)")
     color_max_job_pixels: int = Field(100_000_000, gt=0, description="largest total of "

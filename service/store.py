@@ -6,7 +6,8 @@ Layout (shared by every API and worker process, possibly on several machines)::
     domains/<id>.aux.npz   areas, component labels, points (cheap input validation)
     domains/<id>.json      kind, parameters, summary      (written last: marks complete)
     results/<job>.json     result payload (scalars, array descriptions)
-    results/<job>.npz      result arrays (per vertex / per face / ...)
+    results/<job>.npz      result arrays (per vertex / per face / ...): an uncompressed zip
+                           of .npy files (``np.savez``), served member by member
 
 Every file is written to a temporary name and renamed into place, so readers
 never see partial files; a domain's id is ``Domain.content_hash()``.
@@ -17,10 +18,13 @@ from __future__ import annotations
 import json
 import os
 import re
+import struct
 import tempfile
 import threading
 import time
+import zipfile
 from collections import OrderedDict
+from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -70,6 +74,53 @@ def _write_npz(path: Path, arrays: dict[str, np.ndarray], durable: bool = True) 
 def _read_npz(path: Path) -> dict[str, np.ndarray]:
     with np.load(path, allow_pickle=False) as data:
         return {k: data[k] for k in data.files}
+
+
+@dataclass(frozen=True)
+class StoredArray:
+    """One result array as a member of its job's .npz: shape, dtype, and where its bytes lie.
+
+    ``data_offset`` (absolute, in the archive) is set when the member is stored uncompressed
+    with a C-order array (what ``np.savez`` writes), so rows are read without the rest."""
+
+    name: str
+    shape: tuple[int, ...]
+    dtype: np.dtype
+    npy_bytes: int  # size of the member: the .npy file (header + data)
+    data_offset: int | None = None
+
+    @property
+    def size(self) -> int:
+        return int(np.prod(self.shape, dtype=np.int64))
+
+
+_LOCAL_HEADER = struct.Struct("<4s5H3I2H")  # zip local file header (30 bytes)
+
+
+def _npz_index(path: Path) -> dict[str, StoredArray]:
+    """The arrays of an .npz, from the zip directory and each member's .npy header only."""
+    out = {}
+    with open(path, "rb") as fh, zipfile.ZipFile(fh) as archive:
+        for info in archive.infolist():
+            if not info.filename.endswith(".npy"):
+                continue
+            name = info.filename[:-len(".npy")]
+            with archive.open(info) as member:
+                version = np.lib.format.read_magic(member)
+                if version == (1, 0):
+                    shape, fortran, dtype = np.lib.format.read_array_header_1_0(member)
+                else:
+                    shape, fortran, dtype = np.lib.format.read_array_header_2_0(member)
+                header = member.tell()
+            offset = None
+            if info.compress_type == zipfile.ZIP_STORED and not fortran and not dtype.hasobject:
+                fh.seek(info.header_offset)
+                fields = _LOCAL_HEADER.unpack(fh.read(_LOCAL_HEADER.size))
+                offset = info.header_offset + _LOCAL_HEADER.size + fields[-2] + fields[-1]
+                offset += header
+            out[name] = StoredArray(name, tuple(int(n) for n in shape), dtype,
+                                    int(info.file_size), offset)
+    return out
 
 
 def domain_points(domain: Domain) -> np.ndarray | None:
@@ -280,6 +331,46 @@ class Store:
         except FileNotFoundError:
             raise NotFound(f"job {job_id} has no file {name!r}", field="name") from None
         return data, listed[name]["media_type"]
+
+    def result_array_index(self, job_id: str) -> dict[str, StoredArray]:
+        """Every stored array of a job (shape, dtype, file size), without reading the data."""
+        path = self.result_dir / f"{job_id}.npz"
+        try:
+            return _npz_index(path)
+        except FileNotFoundError:
+            return {}
+
+    def _stored_array(self, job_id: str, name: str) -> StoredArray:
+        found = self.result_array_index(job_id).get(name)
+        if found is None:
+            raise NotFound(f"job {job_id} has no array {name!r}", field="name")
+        return found
+
+    def result_array_npy(self, job_id: str, name: str, chunk: int = 1 << 20
+                         ) -> tuple[Iterator[bytes], int]:
+        """``(chunks, size)``: the array's .npy file, read from the archive as it is sent."""
+        stored = self._stored_array(job_id, name)
+        path = self.result_dir / f"{job_id}.npz"
+        archive = zipfile.ZipFile(path)  # opened now: a 404 above, not in the middle of a body
+
+        def chunks() -> Iterator[bytes]:
+            with archive, archive.open(f"{name}.npy") as member:
+                while data := member.read(chunk):
+                    yield data
+
+        return chunks(), stored.npy_bytes
+
+    def get_result_row(self, job_id: str, name: str, row: int) -> np.ndarray:
+        """Row ``row`` of a stored 2-D array (``StoredArray.shape`` checked by the caller);
+        only that row's bytes are read when the archive stores the array plainly."""
+        stored = self._stored_array(job_id, name)
+        if stored.data_offset is None or len(stored.shape) != 2:
+            return self.get_result_array(job_id, name)[row]
+        width = stored.shape[1] * stored.dtype.itemsize
+        with open(self.result_dir / f"{job_id}.npz", "rb") as fh:
+            fh.seek(stored.data_offset + row * width)
+            data = fh.read(width)
+        return np.frombuffer(data, dtype=stored.dtype).astype(stored.dtype.newbyteorder("="))
 
     def get_result_array(self, job_id: str, name: str) -> np.ndarray:
         """One stored result array (only that member of the archive is read)."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import json
 from typing import Annotated, Literal, Union
+from urllib.parse import quote
 
 from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
@@ -14,6 +15,7 @@ from pydantic import BaseModel, Field, create_model
 from service.api.deps import JobSvc
 from service.api.paging import decode_cursor, encode_cursor
 from service.errors import ErrorResponse, responses
+from service.export import NPY_MEDIA_TYPE
 from service.jobs.db import TERMINAL
 from service.schemas import ArrayRow, JobList, JobOut, JobResult, JobState
 
@@ -95,9 +97,12 @@ def build_result_router(operations) -> APIRouter:
                  responses={409: {"model": ErrorResponse, "description": "job not "
                                   "(successfully) finished"}, **responses(401, 404)})
     def get_job_result(job_id: str, svc: JobSvc,
-                       arrays: bool = Query(True, description="include result arrays")):
-        """The result: `values` typed per operation (see each `...Result` schema), arrays
-        as nested lists, files produced."""
+                       arrays: bool = Query(True, description="inline the arrays that fit "
+                                            "the size budget (false: links only)")):
+        """The result: `values` typed per operation (see each `...Result` schema), the files
+        produced, every array as a linked .npy file (`array_files`) and, within the result's
+        size budget (OTGEO_RESULT_JSON_BYTES), smallest first, also inline as nested lists
+        (`arrays`)."""
         return JSONResponse(svc.result(job_id, include_arrays=arrays))
 
     return results
@@ -128,6 +133,27 @@ def get_job_result_glb(job_id: str, svc: JobSvc):
 def get_job_file(job_id: str, name: str, svc: JobSvc):
     data, media_type = svc.result_file(job_id, name)
     return Response(data, media_type=media_type)
+
+
+BINARY = {"schema": {"type": "string", "format": "binary"}}
+
+
+@router.get("/{job_id}/arrays/{name}.npy", operation_id="getJobResultArray",
+            response_class=Response,
+            responses={200: {"content": {NPY_MEDIA_TYPE: BINARY,
+                                         "application/octet-stream": BINARY},
+                             "description": "the array as a NumPy .npy file (sent as "
+                             f"{NPY_MEDIA_TYPE}): a header giving dtype and shape, then the "
+                             "raw little-endian values in C order; listed in the result's "
+                             "`array_files`"},
+                       409: {"model": ErrorResponse, "description": "job not finished"},
+                       **responses(401, 404)})
+def get_job_result_array(job_id: str, name: str, svc: JobSvc):
+    """One result array in binary, however large (the JSON result inlines small ones only)."""
+    chunks, size = svc.result_npy(job_id, name)
+    return StreamingResponse(chunks, media_type=NPY_MEDIA_TYPE, headers={
+        "Content-Length": str(size),
+        "Content-Disposition": f'attachment; filename="{job_id}-{quote(name)}.npy"'})
 
 
 @router.get("/{job_id}/arrays/{name}/rows/{row}", operation_id="getJobResultRow",

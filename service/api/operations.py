@@ -16,7 +16,7 @@ from service.api.deps import JobSvc, RuntimeDep
 from service.errors import InvalidInput, responses
 from service.jobs.db import QUEUED, TERMINAL
 from service.operations import Operation, Registry
-from service.schemas import JobOut
+from service.schemas import RETRY_AFTER_HEADERS, JobOut, retry_after
 
 WAIT_DESCRIPTION = ("seconds to wait for the job to finish: if it ends in time the finished job "
                     "is returned with status 200, otherwise 202 with the job as it is")
@@ -90,10 +90,15 @@ async def finish_submission(op_name: str, domain_id: str | None, body, wait: flo
         job.queue_position = await run_in_threadpool(svc.rt.repo.queue_position, job)
     response.status_code = 200 if job.state in TERMINAL else 202
     response.headers["Location"] = f"/v1/jobs/{job.id}"
-    return JobOut.from_row(job)
+    out = JobOut.from_row(job)
+    if job.state not in TERMINAL:  # poll, at the pace the job suggests
+        response.headers["Retry-After"] = str(retry_after(out))
+    return out
 
 
 ROUTE_RESPONSES = {200: {"model": JobOut, "description": "the job finished within `wait`"},
+                   202: {"description": "the job, not finished (yet): poll `Location` after "
+                         "`Retry-After` seconds", "headers": RETRY_AFTER_HEADERS},
                    **responses(401, 404, 422)}
 
 

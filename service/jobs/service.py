@@ -98,13 +98,17 @@ class JobService:
                                code="job_" + job.state)
             raise Conflict(f"job {job_id} is {job.state}; the result is not ready",
                            field="job_id", code="job_not_finished")
-        payload = self.rt.store.get_result(job_id)
-        arrays = {}
-        if include_arrays:
-            from service.store import jsonable
+        from service.export import result_document
 
-            arrays = {k: jsonable(v) for k, v in self.rt.store.get_result_arrays(job_id).items()}
-        return {**payload, "arrays": arrays}
+        store = self.rt.store
+        return result_document(job_id, store.get_result(job_id), store.result_array_index(job_id),
+                               lambda name: store.get_result_array(job_id, name),
+                               self.rt.settings.result_json_bytes, include_arrays)
+
+    def result_npy(self, job_id: str, name: str):
+        """``(chunks, size)`` of a result array's .npy file."""
+        self.result(job_id, include_arrays=False)  # state checks
+        return self.rt.store.result_array_npy(job_id, name)
 
     def result_file(self, job_id: str, name: str) -> tuple[bytes, str]:
         """``(data, media_type)`` of a file the job produced (an image, a GLB, ...)."""
@@ -118,14 +122,16 @@ class JobService:
         from service.store import jsonable
 
         self.result(job_id, include_arrays=False)  # state checks
-        array = self.rt.store.get_result_array(job_id, name)
-        if array.ndim != 2:
-            raise InvalidInput(f"array {name!r} has shape {list(array.shape)}; rows exist only "
+        stored = self.rt.store.result_array_index(job_id).get(name)
+        if stored is None:
+            raise NotFound(f"job {job_id} has no array {name!r}", field="name")
+        if len(stored.shape) != 2:
+            raise InvalidInput(f"array {name!r} has shape {list(stored.shape)}; rows exist only "
                                "for 2-D arrays", field="name")
-        if not 0 <= row < array.shape[0]:
-            raise InvalidInput(f"row {row} out of range [0, {array.shape[0] - 1}]",
+        if not 0 <= row < stored.shape[0]:
+            raise InvalidInput(f"row {row} out of range [0, {stored.shape[0] - 1}]",
                                field="row")
-        return jsonable(array[row])
+        return jsonable(self.rt.store.get_result_row(job_id, name, row))
 
     def result_glb(self, job_id: str) -> bytes:
         """The result as glTF 2.0 binary: the file ``result.glb`` the operation produced, or

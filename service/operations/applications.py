@@ -31,6 +31,7 @@ from service.operations.base import (
     OperationOutput,
     OperationRequest,
     ResultFile,
+    example,
 )
 
 MAX_COLUMNS_X_POINTS = 4_000_000  # barycenter columns x hemisphere points of one job
@@ -60,6 +61,10 @@ Material = Annotated[BlinnPhong | AshikhminShirley, Field(discriminator="model")
 
 
 class BRDFInterpolationRequest(OperationRequest):
+    model_config = example({
+        "materials": [{"model": "blinn-phong", "exponent": 100.0},
+                      {"model": "blinn-phong", "exponent": 5.0, "ks": 0.6, "kd": 0.4}],
+        "rows": 1, "cols": 3, "incoming_theta": [30.0]})
     materials: list[Material] = Field(min_length=2, max_length=4, description="the corner "
                                       "materials; with 4, bilinear weights over the parameter "
                                       "square (corners (0,0), (0,1), (1,0), (1,1))")
@@ -211,17 +216,23 @@ def run_brdf(ctx, req: BRDFInterpolationRequest, progress, should_cancel) -> Ope
 
 
 # -- skeleton layout ----------------------------------------------------------------------
-class FixedNode(BaseModel):
+class FixedPosition(BaseModel):
+    """A skeleton node whose position is given."""
+
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     node: int = Field(ge=0, description="skeleton node index")
     position: list[float] = Field(min_length=3, max_length=3, description="inside the mesh")
 
 
 class SkeletonLayoutRequest(OperationRequest):
+    model_config = example({
+        "n_nodes": 3, "edges": [[0, 1], [1, 2]],
+        "fixed": [{"node": 0, "position": [-0.1, 0.0, 0.0]},
+                  {"node": 2, "position": [0.1, 0.0, 0.0]}]})
     n_nodes: int = Field(ge=2, le=MAX_SKELETON_NODES, description="skeleton nodes")
     edges: list[tuple[int, int]] = Field(min_length=1, max_length=4 * MAX_SKELETON_NODES,
                                          description="skeleton bones (node pairs)")
-    fixed: list[FixedNode] = Field(min_length=1, max_length=MAX_SKELETON_NODES,
+    fixed: list[FixedPosition] = Field(min_length=1, max_length=MAX_SKELETON_NODES,
                                    description="nodes with known positions (at least one per "
                                    "piece of the graph)")
     units: Literal["mesh", "input"] = Field("mesh", description="positions in the stored "

@@ -22,7 +22,14 @@ import numpy as np
 from pydantic import BaseModel, Field
 
 from service.errors import InvalidInput, PayloadTooLarge
-from service.operations.base import Operation, OperationOutput, OperationRequest, ResultFile
+from service.operations.base import (
+    EXAMPLE_ID,
+    Operation,
+    OperationOutput,
+    OperationRequest,
+    ResultFile,
+    example,
+)
 from solvers.color import (
     color_transfer,
     histogram_picture,
@@ -41,6 +48,8 @@ EXT = {"png": "png", "jpeg": "jpg"}
 
 
 class ColorTransferRequest(OperationRequest):
+    model_config = example({"images": [EXAMPLE_ID, EXAMPLE_ID], "weights": [0.5, 0.5],
+                                  "bins": 64})
     images: list[str] = Field(min_length=2, max_length=MAX_IMAGES,
                               description="blob ids of the uploaded images (2 to 16)")
     weights: list[float] | None = Field(None, description="one barycentric weight per image "

@@ -15,7 +15,13 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from service.errors import InvalidInput, PayloadTooLarge
-from service.operations.base import DomainView, Operation, OperationOutput, OperationRequest
+from service.operations.base import (
+    DomainView,
+    Operation,
+    OperationOutput,
+    OperationRequest,
+    example,
+)
 from solvers.histograms import (
     Bins,
     diffuse_histograms,
@@ -56,6 +62,10 @@ class LabeledNode(BaseModel):
 
 
 class HistogramPropagationRequest(OperationRequest):
+    model_config = example({
+        "bins": {"lo": 0.0, "hi": 1.0, "count": 8},
+        "labeled": [{"node": 0, "histogram": [4, 2, 1, 0, 0, 0, 0, 0]},
+                    {"node": 100, "samples": [0.7, 0.8, 0.85, 0.9]}]})
     bins: BinsSpec
     labeled: list[LabeledNode] = Field(min_length=1, max_length=200_000, description="at "
                                        "least one per connected component")

@@ -22,7 +22,14 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from service.errors import InvalidInput, PayloadTooLarge, UnsupportedOperation
-from service.operations.base import Operation, OperationOutput, OperationRequest, ResultFile
+from service.operations.base import (
+    EXAMPLE_ID,
+    Operation,
+    OperationOutput,
+    OperationRequest,
+    ResultFile,
+    example,
+)
 
 
 class LandmarkPair(BaseModel):
@@ -32,6 +39,10 @@ class LandmarkPair(BaseModel):
 
 
 class SoftMapRequest(OperationRequest):
+    model_config = example({
+        "source_id": EXAMPLE_ID, "target_id": EXAMPLE_ID,
+        "landmarks": [{"source": 0, "target": 0}, {"source": 100, "target": 100}],
+        "samples": 64, "k": 20, "max_iter": 50})
     source_id: str = Field(description="source mesh domain id (the map goes source -> target)")
     target_id: str = Field(description="target mesh domain id")
     landmarks: list[LandmarkPair] = Field(min_length=1, max_length=256, description="known "

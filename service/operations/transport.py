@@ -10,6 +10,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from service.errors import InvalidInput
 from service.operations.base import (
+    BUMP_A,
+    BUMP_B,
     Distribution,
     DomainView,
     Operation,
@@ -17,6 +19,7 @@ from service.operations.base import (
     OperationRequest,
     check_options,
     check_same_components,
+    example,
     resolve_all,
     view_of_domain,
 )
@@ -62,6 +65,7 @@ class W1Options(OperationRequest):
 
 
 class DistanceRequest(SinkhornOptions):
+    model_config = example({"mu0": BUMP_A, "mu1": BUMP_B})
     mu0: Distribution
     mu1: Distribution
     metric: Literal["w2", "w1"] = Field(
@@ -162,6 +166,7 @@ class FlowValues(ConvergenceValues):
 
 
 class BarycenterRequest(SinkhornOptions):
+    model_config = example({"distributions": [BUMP_A, BUMP_B], "weights": [0.5, 0.5]})
     distributions: list[Distribution] = Field(min_length=1, max_length=64)
     weights: list[float] | None = Field(None, description="barycentric weights (default "
                                         "uniform); normalized to sum 1")
@@ -171,6 +176,7 @@ class BarycenterRequest(SinkhornOptions):
 
 
 class InterpolationRequest(SinkhornOptions):
+    model_config = example({"mu0": BUMP_A, "mu1": BUMP_B, "times": [0.0, 0.5, 1.0]})
     mu0: Distribution
     mu1: Distribution
     times: list[float] = Field(min_length=1, max_length=64, description="in [0, 1]")
@@ -178,27 +184,35 @@ class InterpolationRequest(SinkhornOptions):
     debiased: bool = False
 
 
-class FixedNode(BaseModel):
+class FixedDistribution(BaseModel):
+    """A node of the propagation graph whose distribution is given."""
+
     model_config = ConfigDict(extra="forbid")
     node: int = Field(ge=0, description="graph node whose distribution is given")
     distribution: Distribution
 
 
 class PropagationRequest(SinkhornOptions):
+    model_config = example({
+        "n_nodes": 3, "edges": [[0, 1], [1, 2]],
+        "fixed": [{"node": 0, "distribution": BUMP_A}, {"node": 2, "distribution": BUMP_B}]})
     n_nodes: int = Field(ge=1, le=10_000, description="nodes of the propagation graph (each "
                          "carries one distribution over the domain)")
     edges: list[tuple[int, int]] = Field(description="(m, 2) node pairs")
     edge_weights: list[float] | None = Field(None, description="(m,) positive weights")
-    fixed: list[FixedNode] = Field(min_length=1, description="nodes with known distributions "
-                                   "(at least one per connected piece of the graph)")
+    fixed: list[FixedDistribution] = Field(min_length=1, description="nodes with known "
+                                           "distributions (at least one per connected piece "
+                                           "of the graph)")
 
 
 class PointwiseDistanceRequest(OperationRequest):
+    model_config = example({"source": 0})
     source: int = Field(ge=0, description="source vertex")
     k: int = Field(0, ge=0, description="spectral basis size (0: exact)")
 
 
 class FlowRequest(W1Options):
+    model_config = example({"mu0": BUMP_A, "mu1": BUMP_B})
     mu0: Distribution
     mu1: Distribution
 

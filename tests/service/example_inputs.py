@@ -1,0 +1,72 @@
+"""Inputs for running every operation from its OpenAPI request example (import as ``from
+example_inputs import ...``): a small closed mesh, two small images, and the substitution of
+the examples' placeholder ids (``EXAMPLE_ID``) by stored domain and blob ids."""
+
+from __future__ import annotations
+
+import io
+from functools import cache
+
+import numpy as np
+
+from service.operations.base import EXAMPLE_ID
+
+
+@cache
+def sphere_obj() -> bytes:
+    """An icosphere (642 vertices, closed, genus 0) as OBJ: every domain operation accepts it
+    (skeleton layouts need a closed surface) and it is small enough for quick jobs."""
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    return trimesh.exchange.obj.export_obj(sphere).encode()
+
+
+@cache
+def png_images() -> tuple[bytes, bytes]:
+    """Two 24 x 16 PNG images of different colors (a color transfer's inputs)."""
+    from PIL import Image
+
+    y, x = np.mgrid[0:16, 0:24]
+    warm = np.stack([200 + 0 * x, 60 + 4 * x, 40 + 6 * y], -1).astype(np.uint8)
+    cool = np.stack([30 + 0 * x, 80 + 6 * y, 120 + 4 * x], -1).astype(np.uint8)
+    out = []
+    for img in (warm, cool):
+        buf = io.BytesIO()
+        Image.fromarray(img).save(buf, format="PNG")
+        out.append(buf.getvalue())
+    return tuple(out)
+
+
+def names_blobs(field: str) -> bool:
+    """Fields whose placeholder ids stand for uploaded blobs (images), not domains."""
+    return "image" in field or "blob" in field
+
+
+def substitute_ids(example, domain_id: str, blob_ids: list[str] | None = None, field: str = ""):
+    """``example`` with every ``EXAMPLE_ID`` replaced: by the i-th of ``blob_ids`` in a list
+    field naming blobs (``images``), by ``domain_id`` elsewhere (``source_id``, ...)."""
+    if isinstance(example, dict):
+        return {k: substitute_ids(v, domain_id, blob_ids, k) for k, v in example.items()}
+    if isinstance(example, list):
+        if names_blobs(field):
+            assert blob_ids and len(blob_ids) >= len(example), f"{field} needs uploaded blobs"
+            return [blob_ids[i] if v == EXAMPLE_ID else v for i, v in enumerate(example)]
+        return [substitute_ids(v, domain_id, blob_ids, field) for v in example]
+    if example == EXAMPLE_ID:
+        assert not names_blobs(field), f"{field} needs an uploaded blob"
+        return domain_id
+    return example
+
+
+def schema_example(schema: dict) -> dict:
+    """The first OpenAPI example of a request schema; fails naming the schema without one."""
+    examples = schema.get("examples") or []
+    assert examples, f"request schema {schema.get('title')!r} has no example (json_schema_extra)"
+    return examples[0]
+
+
+def at_defaults(schema: dict) -> dict:
+    """The request's example reduced to its required fields: every size at its default."""
+    example = schema_example(schema)
+    return {k: v for k, v in example.items() if k in schema.get("required", [])}

@@ -1,0 +1,88 @@
+"""Results sized for the web, on every operation of the registry at its default sizes (its
+request example reduced to the required fields, on a 642-vertex sphere and two small images):
+
+- ``GET /v1/jobs/{id}/result`` stays within the JSON budget (``OTGEO_RESULT_JSON_BYTES``,
+  1 MiB by default; at these sizes a soft map's arrays alone take ~9 MB of JSON and a BRDF
+  interpolation's ~1.3 MB);
+- every stored array is listed in ``array_files``, and its ``.npy`` link returns exactly the
+  stored array; arrays inlined in ``arrays`` are the stored values;
+- read with a tight budget, the same result links its arrays instead of inlining them.
+"""
+
+from __future__ import annotations
+
+import io
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from example_inputs import at_defaults, png_images, sphere_obj, substitute_ids
+from fastapi.testclient import TestClient
+
+from service.app import create_app
+from service.export import NPY_MEDIA_TYPE, to_jsonable
+from service.jobs.service import JobService
+from service.operations import build_registry
+from service.settings import Settings
+
+BUDGET = Settings.model_fields["result_json_bytes"].default
+TIGHT = 4096
+
+
+@pytest.fixture(scope="module")
+def env(tmp_path_factory):
+    data = tmp_path_factory.mktemp("budget")
+    with TestClient(create_app(Settings(data_dir=data, queue="immediate"))) as client, \
+            TestClient(create_app(Settings(data_dir=data, queue="immediate",
+                                           result_json_bytes=TIGHT))) as tight:
+        rt = client.app.state.runtime
+        mesh = client.post("/v1/domains/upload", files={"file": ("sphere.obj", sphere_obj())})
+        assert mesh.status_code == 201, mesh.text
+        blobs = [rt.store.put_blob(png, "image/png")[0]["id"] for png in png_images()]
+        yield SimpleNamespace(client=client, tight=tight, rt=rt, mesh=mesh.json()["id"],
+                              blobs=blobs)
+
+
+def run_at_defaults(env, name: str) -> str:
+    op = env.rt.operations[name]
+    body = substitute_ids(at_defaults(op.request_model.model_json_schema()), env.mesh,
+                          env.blobs)
+    job = JobService(env.rt).create(name, env.mesh if op.scope == "domain" else None,
+                                    op.request_model.model_validate(body))
+    assert job.state == "succeeded", job.error
+    return job.id
+
+
+@pytest.mark.parametrize("name", sorted(build_registry()))
+def test_result_within_budget_at_default_sizes(env, name):
+    job_id = run_at_defaults(env, name)
+    resp = env.client.get(f"/v1/jobs/{job_id}/result")
+    assert resp.status_code == 200, resp.text
+    assert len(resp.content) <= BUDGET, f"{name}: {len(resp.content)} bytes of JSON"
+    doc = resp.json()
+    stored = env.rt.store.get_result_arrays(job_id)
+    assert set(doc["array_files"]) == set(stored)
+    assert set(doc["arrays"]) <= set(stored)
+    for key, array in stored.items():
+        info = doc["array_files"][key]
+        assert info == {"href": f"/v1/jobs/{job_id}/arrays/{key}.npy",
+                        "media_type": NPY_MEDIA_TYPE, "bytes": info["bytes"],
+                        "shape": list(array.shape), "dtype": array.dtype.name}
+        npy = env.client.get(info["href"])
+        assert npy.status_code == 200 and npy.headers["content-type"] == NPY_MEDIA_TYPE
+        assert int(npy.headers["content-length"]) == len(npy.content) == info["bytes"]
+        loaded = np.load(io.BytesIO(npy.content), allow_pickle=False)
+        assert loaded.dtype == array.dtype
+        np.testing.assert_array_equal(loaded, array)
+        if key in doc["arrays"]:
+            assert doc["arrays"][key] == to_jsonable(array)
+
+    bare = env.client.get(f"/v1/jobs/{job_id}/result?arrays=false")
+    assert bare.json()["arrays"] == {} and bare.json()["array_files"] == doc["array_files"]
+    tight = env.tight.get(f"/v1/jobs/{job_id}/result")
+    assert len(tight.content) <= max(TIGHT, len(bare.content))
+    small = tight.json()["arrays"]
+    assert set(small) <= set(doc["arrays"])
+    assert all(small[k] == doc["arrays"][k] for k in small)
+    if len(resp.content) > TIGHT:  # something had to be left out
+        assert set(small) < set(stored)
