@@ -394,10 +394,9 @@ async function showResult(job) {
   }));
   // fields that can be shown on the domain
   const exp = result.export || {};
-  const arrays = result.arrays || {};
   const nFaces = geom && geom.faces ? geom.faces.length / 3 : -1;
-  const names = Object.keys(arrays).filter((k) => {
-    const s = shape(arrays[k]);
+  const names = api.arrayNames(result).filter((k) => { // large arrays are fetched when shown
+    const s = api.arrayShape(result, k);
     return geom && (s[0] === geom.n || s[0] === nFaces) && (s.length === 1 || s.length === 2)
       && k !== exp.flow;
   });
@@ -409,7 +408,9 @@ async function showResult(job) {
   if (pair.target) sel.prepend(new Option("(none: hover the source)", "")); // soft maps
   sel.value = exp.color && order.includes(exp.color) ? exp.color
     : (pair.target ? "" : (order[0] || ""));
-  sel.onchange = () => showField(sel.value);
+  sel.onchange = async () => { await api.loadArrays(result, [sel.value]); showField(sel.value); };
+  const hist = exp.histograms || "histograms";
+  const arrays = await api.loadArrays(result, geom ? [sel.value, exp.flow, hist] : []);
   const flow = geom && exp.flow && arrays[exp.flow] && view.items.length ? arrays[exp.flow] : null;
   $("arrows-toggle").hidden = !flow;
   $("show-arrows").checked = true;
@@ -568,11 +569,12 @@ function plotCanvas(row, pos, color) {
 // row index per source vertex (samples of the source) maps vertices to rows.
 async function showSoftMap(result, targetId) {
   const target = await geometry(targetId);
-  const arrays = result.arrays || {};
   const exp = result.export || {};
+  const arrays = await api.loadArrays(result, [exp.labels || "labels"]); // rows: one at a time
   const n0 = state.geometry.n;
-  const name = exp.rows || (result.values || {}).rows || (arrays.soft_map ? "soft_map" : null)
-    || Object.keys(arrays).find((k) => { const s = shape(arrays[k]); return s.length === 2 && s[1] === target.n; })
+  const name = exp.rows || (result.values || {}).rows
+    || (api.arrayShape(result, "soft_map").length ? "soft_map" : null)
+    || api.arrayNames(result).find((k) => { const s = api.arrayShape(result, k); return s.length === 2 && s[1] === target.n; })
     || "soft_map";
   const labels = Array.isArray(arrays[exp.labels || "labels"]) && arrays[exp.labels || "labels"].length === n0
     ? arrays[exp.labels || "labels"] : null;

@@ -1,0 +1,82 @@
+"""The viewer reads result arrays that the JSON result only links (``array_files``): a server
+with a tiny JSON budget inlines no per-vertex array, so coloring the surface needs the .npy
+files; and the page's .npy reader gives the values numpy stored, for every dtype results use."""
+
+from __future__ import annotations
+
+import base64
+import io
+
+import numpy as np
+import pytest
+from liveserver import API
+from shared_meshes import MESHES_DIR
+from test_viewer_browser import TIMEOUT, canvas_pixels, drop_file, open_viewer, pick_two, stats
+
+API_KEY = "viewer-arrays-key"
+
+
+@pytest.fixture(scope="module")
+def api_process(tmp_path_factory):
+    """``otgeo serve`` whose JSON results hold at most 2 kB: arrays come as files."""
+    tmp = tmp_path_factory.mktemp("viewer-arrays")
+    env = {"OTGEO_DATA_DIR": str(tmp / "data"), "OTGEO_WORKERS": "1",
+           "OTGEO_API_KEYS": API_KEY, "OTGEO_RESULT_JSON_BYTES": "2048"}
+    api = API(env, tmp)
+    api.key = API_KEY
+    try:
+        yield api
+    finally:
+        api.stop(timeout=1)
+
+
+def test_linked_arrays_color_the_surface(page, live_api):
+    fetched = []
+    page.on("request", lambda r: fetched.append(r.url) if r.url.endswith(".npy") else None)
+    open_viewer(page, live_api)
+    drop_file(page, "#drop", MESHES_DIR / "spot.obj")
+    page.wait_for_selector("#domains li.active", timeout=TIMEOUT)
+    pick_two(page)
+    page.select_option("#operation", "createBarycenterJob")
+    page.click("#run")
+    page.wait_for_selector("#progress[data-state=succeeded]", timeout=TIMEOUT)
+    page.wait_for_selector("#legend:not([hidden])", timeout=TIMEOUT)
+    assert page.locator("#field").input_value() == "density"
+    assert any(url.endswith("/arrays/density.npy") for url in fetched), fetched
+    assert stats(canvas_pixels(page))["colored"] > 0.5
+    page.select_option("#field", "masses")  # another linked array, fetched on selection
+    page.wait_for_function("document.getElementById('legend').dataset.hi !== undefined")
+    page.wait_for_function("() => performance.getEntriesByType('resource')"
+                           ".some((e) => e.name.endsWith('/arrays/masses.npy'))",
+                           timeout=TIMEOUT)
+    assert page.js_errors == []
+
+
+ARRAYS = {
+    "f8": np.array([[1.5, np.inf], [np.nan, -2.0], [3.0, 1e-300]]),
+    "f4": np.arange(7, dtype=np.float32) / 3,
+    "i8": np.array([-(2**40), 0, 5], dtype=np.int64),
+    "i4": np.arange(-3, 3, dtype=np.int32).reshape(2, 3),
+    "bool": np.array([True, False, True]),
+    "fortran": np.asfortranarray(np.arange(12.0).reshape(3, 4)),
+    "scalar": np.float64(2.5),
+}
+
+
+def test_npy_reader_matches_numpy(page, live_api):
+    page.goto(live_api.url + "/viewer")
+    for name, array in ARRAYS.items():
+        buf = io.BytesIO()
+        np.save(buf, array)
+        data = base64.b64encode(buf.getvalue()).decode()
+        parsed = page.evaluate("""async (b64) => {
+            const api = await import("/static/api.js");
+            const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+            const npy = api.parseNpy(bytes.buffer);
+            return { shape: npy.shape, values: api.nested(npy) };
+        }""", data)
+        assert parsed["shape"] == list(np.shape(array)), name
+        expected = np.where(np.isfinite(array), array, np.nan) if array.dtype.kind == "f" \
+            else array
+        got = np.array(parsed["values"], dtype=float if array.dtype.kind == "f" else None)
+        np.testing.assert_array_equal(got, expected, err_msg=name)
