@@ -131,7 +131,7 @@ def result_document(job_id: str, payload: Mapping, stored: Mapping, load, budget
         return doc
     room = budget - len(json_bytes(doc))
     for name in sorted(stored, key=lambda n: (stored[n].size, n)):
-        key = len(json_bytes(name)) + 2  # "name": and a comma
+        key = len(json_bytes(name)) + 1 + bool(doc["arrays"])  # "name": (after a comma)
         if key + 2 * stored[name].size > room:  # at least a digit and a separator per value
             continue
         values = to_jsonable(load(name))

@@ -31,8 +31,8 @@ from service.operations.base import (
     OperationOutput,
     OperationRequest,
     ResultFile,
-    example,
 )
+from service.operations.examples import example
 
 MAX_COLUMNS_X_POINTS = 4_000_000  # barycenter columns x hemisphere points of one job
 MAX_HEMISPHERE_POINTS = 4096  # dense kernel: 128 MB

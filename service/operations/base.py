@@ -55,18 +55,6 @@ class BumpDistribution(BaseModel):
 
 Distribution = list[float] | SparseDistribution | BumpDistribution
 
-# Bumps of the request examples (vertices present on any mesh of a few hundred vertices).
-BUMP_A = {"vertex": 0, "radius": 0.2}
-BUMP_B = {"vertex": 100, "radius": 0.2}
-# Stands for a stored domain's or blob's id in request examples (tests substitute real ids).
-EXAMPLE_ID = "0123456789abcdef0123456789abcdef"
-
-
-def example(body: dict) -> ConfigDict:
-    """``model_config`` giving a request model its OpenAPI example: the docs show it, and
-    tests/service/test_sdk.py submits it for every operation (ids substituted)."""
-    return ConfigDict(json_schema_extra={"examples": [body]})
-
 
 class OperationRequest(BaseModel):
     """Fields shared by every operation request (Infinity/NaN refused in every float)."""

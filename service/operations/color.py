@@ -22,14 +22,8 @@ import numpy as np
 from pydantic import BaseModel, Field
 
 from service.errors import InvalidInput, PayloadTooLarge
-from service.operations.base import (
-    EXAMPLE_ID,
-    Operation,
-    OperationOutput,
-    OperationRequest,
-    ResultFile,
-    example,
-)
+from service.operations.base import Operation, OperationOutput, OperationRequest, ResultFile
+from service.operations.examples import EXAMPLE_ID, example
 from solvers.color import (
     color_transfer,
     histogram_picture,

@@ -15,13 +15,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from service.errors import InvalidInput, PayloadTooLarge
-from service.operations.base import (
-    DomainView,
-    Operation,
-    OperationOutput,
-    OperationRequest,
-    example,
-)
+from service.operations.base import DomainView, Operation, OperationOutput, OperationRequest
+from service.operations.examples import example
 from solvers.histograms import (
     Bins,
     diffuse_histograms,

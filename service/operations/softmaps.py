@@ -22,14 +22,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from service.errors import InvalidInput, PayloadTooLarge, UnsupportedOperation
-from service.operations.base import (
-    EXAMPLE_ID,
-    Operation,
-    OperationOutput,
-    OperationRequest,
-    ResultFile,
-    example,
-)
+from service.operations.base import Operation, OperationOutput, OperationRequest, ResultFile
+from service.operations.examples import EXAMPLE_ID, example
 
 
 class LandmarkPair(BaseModel):

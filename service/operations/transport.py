@@ -10,8 +10,6 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from service.errors import InvalidInput
 from service.operations.base import (
-    BUMP_A,
-    BUMP_B,
     Distribution,
     DomainView,
     Operation,
@@ -19,10 +17,10 @@ from service.operations.base import (
     OperationRequest,
     check_options,
     check_same_components,
-    example,
     resolve_all,
     view_of_domain,
 )
+from service.operations.examples import BUMP_A, BUMP_B, example
 from solvers.convolutional import (
     barycenter,
     displacement_interpolation,

@@ -9,7 +9,7 @@ from functools import cache
 
 import numpy as np
 
-from service.operations.base import EXAMPLE_ID
+from service.operations.examples import EXAMPLE_ID
 
 
 @cache
