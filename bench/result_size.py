@@ -17,6 +17,12 @@ measure
     result links its arrays (``array_files``), every linked ``.npy`` file (bytes, seconds)
     and one soft-map row (``/arrays/{name}/rows/{i}``). Appends one row per run to
     ``bench/results/result_size.md`` with the code's commit and the load average.
+viewer
+    the same server and Debian's Chromium (Playwright, software WebGL): the viewer page opens,
+    then the seconds from a click on the soft-map job in its job list until the soft-map view
+    is ready (both meshes drawn, "hover the source" shown), and the bytes of the job routes it
+    downloaded meanwhile (Resource Timing), in a fresh browser context each of ``--repeats``
+    times; the best time is recorded.
 
 Run each part under ``cpu run`` / ``cpu bench`` (2 shared cores). To compare with older code,
 run this file from an export of that commit (``git archive``) with ``PYTHONPATH`` pointing at
@@ -140,9 +146,68 @@ def measure(data_dir: Path, repeats: int, label: str, out: Path) -> str:
     return row
 
 
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader",
+                 "--enable-unsafe-swiftshader", "--no-first-run",
+                 "--disable-background-networking"]  # as tests/browser/conftest.py
+
+
+def open_in_viewer(browser, url: str, job_id: str) -> tuple[float, int]:
+    context = browser.new_context(viewport={"width": 1280, "height": 800})
+    try:
+        page = context.new_page()
+        page.goto(url + "/viewer")
+        page.wait_for_selector("body[data-ready='1']", timeout=60_000)
+        item = page.locator(f"#jobs li[data-id='{job_id}']")
+        item.wait_for(timeout=60_000)
+        t0 = time.perf_counter()
+        item.click()
+        page.wait_for_selector("#hover:not([hidden])", timeout=300_000)
+        seconds = time.perf_counter() - t0
+        size = page.evaluate("performance.getEntriesByType('resource')"
+                             f".filter((e) => e.name.includes('/v1/jobs/{job_id}'))"
+                             ".reduce((a, e) => a + e.encodedBodySize, 0)")
+        return seconds, int(size)
+    finally:
+        context.close()
+
+
+def viewer(data_dir: Path, repeats: int, label: str, out: Path) -> str:
+    from liveserver import API
+    from playwright.sync_api import sync_playwright
+
+    job_id = (data_dir / JOB_FILE).read_text().strip()
+    api = API({"OTGEO_DATA_DIR": str(data_dir), "OTGEO_WORKERS": "1"}, data_dir)
+    try:
+        api.wait_healthy(timeout=60)
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path="/usr/bin/chromium",
+                                         args=CHROMIUM_ARGS, headless=True)
+            before = loadavg()
+            runs = [open_in_viewer(browser, api.url, job_id) for _ in range(repeats)]
+            after = loadavg()
+            browser.close()
+    finally:
+        api.stop()
+    seconds, size = min(runs)
+    row = (f"| {datetime.now(UTC):%Y-%m-%d %H:%M} | {label or commit()} | {seconds:.2f} | "
+           f"{size / 1e6:.2f} MB | {', '.join(f'{s:.2f}' for s, _ in runs)} | {before} | "
+           f"{after} |")
+    print(row)
+    text = out.read_text() if out.exists() else ""
+    if "## Opening the job in the viewer" not in text:
+        text += ("\n## Opening the job in the viewer\n\nSeconds from the click on the job "
+                 "until the soft-map view is ready, and the bytes of the job's routes "
+                 "downloaded meanwhile (Resource Timing, body sizes); best of the runs, each "
+                 "in a fresh browser context (Chromium, software WebGL).\n\n"
+                 "| run (UTC) | code | seconds | job bytes | all runs (s) | load before | "
+                 "load after |\n|---|---|---|---|---|---|---|\n")
+    out.write_text(text + row + "\n")
+    return row
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("part", choices=["setup", "measure"])
+    parser.add_argument("part", choices=["setup", "measure", "viewer"])
     parser.add_argument("data_dir", type=Path)
     parser.add_argument("--max-iter", type=int, default=10)
     parser.add_argument("--repeats", type=int, default=3)
@@ -153,6 +218,8 @@ def main() -> None:
     print(f"load {load1():.2f}")
     if args.part == "setup":
         print("job", setup(args.data_dir, args.max_iter))
+    elif args.part == "viewer":
+        viewer(args.data_dir, args.repeats, args.label, args.out)
     else:
         measure(args.data_dir, args.repeats, args.label, args.out)
 
