@@ -56,7 +56,8 @@ class View:
 
 
 def mesh_axes(ax, mesh, values=None, *, view: View | None = None, cmap="viridis",
-              vmin=None, vmax=None, color=(0.8, 0.8, 0.82), title: str | None = None):
+              vmin=None, vmax=None, color=(0.8, 0.8, 0.82), title: str | None = None,
+              alpha: float = 1.0):
     """Draw ``mesh`` on ``ax`` colored by ``values`` (``(V,)`` or ``(F,)``); returns the
     view and the color mapping (for a colorbar)."""
     verts, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
@@ -79,8 +80,9 @@ def mesh_axes(ax, mesh, values=None, *, view: View | None = None, cmap="viridis"
         rgb = mapper.to_rgba(face_values)[:, :3]
     rgb = np.clip(rgb * shade[:, None], 0, 1)
     order = np.argsort(tri[:, :, 2].mean(axis=1))[::-1]  # far faces first
+    edges = rgb[order] if alpha == 1.0 else "none"
     ax.add_collection(PolyCollection(tri[order, :, :2], facecolors=rgb[order],
-                                     edgecolors=rgb[order], linewidths=0.2))
+                                     edgecolors=edges, linewidths=0.2, alpha=alpha))
     ax.set_xlim(p[:, 0].min(), p[:, 0].max())
     ax.set_ylim(p[:, 1].min(), p[:, 1].max())
     ax.set_aspect("equal")
