@@ -3,12 +3,12 @@ VENV ?= .venv
 PYTHON ?= python3
 PY := $(VENV)/bin/python
 
-.PHONY: install browser serve test lint openapi bench
+.PHONY: install browser serve test lint openapi bench docs
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[dev]'
+	$(PY) -m pip install -q -e '.[dev,docs]'
 	touch $@
 
 install: $(VENV)/.installed
@@ -35,3 +35,9 @@ bench: install
 
 openapi: install
 	$(VENV)/bin/otgeo openapi
+
+# The documentation site (Sphinx): warnings are errors and every gallery example runs.
+# MathJax comes from npm (docs/package.json, pinned) so the built pages render math offline.
+docs: install
+	cd docs && npm ci --no-audit --no-fund --silent
+	$(VENV)/bin/sphinx-build -W --keep-going -b html docs docs/_build/html

@@ -84,6 +84,7 @@ def create_app(settings: Settings | None = None, *, start_background: bool = Tru
     install_handlers(app)
     guards.install(app)  # API key before the body is read; storage failures -> 503
     docs.install(app)  # /docs and /redoc with their scripts served from the package
+    docs.install_guide(app, settings.guide_dir)  # the built docs site at /guide/
     auth = [Depends(require_api_key)]
     for router in [*V1_ROUTERS, operations.build_router(runtime.operations),
                    jobs.build_result_router(runtime.operations)]:

@@ -72,6 +72,10 @@ class Settings(BaseSettings):
     color_max_job_pixels: int = Field(100_000_000, gt=0, description="largest total of "
                                       "pixels over a color transfer's images (413 beyond)")
 
+    guide_dir: Path | None = Field(None, description="built documentation served at "
+                                   "/guide/ (default: the checkout's docs/_build/html, "
+                                   "when built by `make docs`)")
+
     @field_validator("api_keys", mode="before")
     @classmethod
     def _split_keys(cls, value):

@@ -1,7 +1,11 @@
 """/docs (Swagger UI) and /redoc served with their scripts from the installed package
 ``fastapi-offline`` (its bundled swagger-ui-dist and redoc standalone files), so the pages
 work without network access to a CDN. Create the app with ``docs_url=None, redoc_url=None``
-and call ``install(app)``."""
+and call ``install(app)``.
+
+``/guide/`` serves the built documentation site (``make docs``: Sphinx, MathJax included)
+from ``OTGEO_GUIDE_DIR`` (default: the checkout's ``docs/_build/html``) when it is there;
+otherwise ``/guide/`` answers 404 saying how to build it."""
 
 from __future__ import annotations
 
@@ -23,6 +27,25 @@ def assets_dir() -> Path:
     import fastapi_offline
 
     return Path(fastapi_offline.__file__).resolve().parent / "static"
+
+
+GUIDE_URL = "/guide"
+DEFAULT_GUIDE_DIR = Path(__file__).resolve().parents[2] / "docs" / "_build" / "html"
+
+
+def install_guide(app: FastAPI, guide_dir: Path | None) -> None:
+    """Mount the built guide at /guide/ (offline, like /docs), or a 404 that says why."""
+    directory = Path(guide_dir) if guide_dir is not None else DEFAULT_GUIDE_DIR
+    if (directory / "index.html").is_file():
+        app.mount(GUIDE_URL, StaticFiles(directory=directory, html=True), name="guide")
+        return
+
+    @app.get(GUIDE_URL + "/{path:path}", include_in_schema=False)
+    async def guide_missing(path: str):
+        from service.errors import NotFound
+
+        raise NotFound("the guide is not built on this server (make docs builds it into "
+                       "docs/_build/html, or set OTGEO_GUIDE_DIR)", field=None)
 
 
 def install(app: FastAPI) -> None:

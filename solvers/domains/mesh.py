@@ -293,8 +293,8 @@ class TriangleMesh(Domain):
     units.  Mass lives on vertices with lumped (barycentric) areas ``areas``
     summing to 1.
 
-    Operators
-    ---------
+    Attributes
+    ----------
     ``cotan_laplacian``
         weak cotangent Laplacian :math:`L_{ij} = -\tfrac12(\cot\alpha_{ij}+\cot\beta_{ij})`,
         PSD with ``L·1 = 0``; equals :math:`G^\top \operatorname{diag}(A_f) G`.

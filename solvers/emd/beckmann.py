@@ -77,14 +77,20 @@ RELAXATION = 1.6
 class EMDResult(SolverResult):
     """W1 between two distributions on a mesh.
 
-    value : W1 (discrete Beckmann objective of ``flow``; lengths at unit total area,
+    Attributes
+    ----------
+    value : float
+        W1 (discrete Beckmann objective of ``flow``; lengths at unit total area,
         multiply by ``mesh.length_scale`` for input units).
-    flow : (F, 3) optimal flow per face, from ``mu0`` to ``mu1``.
-    potential : (V,) dual (Kantorovich) potential ``u``, W1 ≈ ``u @ (m1 - m0)``.
-    lower_bound : certified lower bound of the unrestricted discrete problem (NaN for
-        matrix face weights).
-    iterations, primal_residual, dual_residual, converged : solver report;
-        ``residual`` is the larger of the two relative residuals.
+    flow : (F, 3) ndarray
+        Optimal flow per face, from ``mu0`` to ``mu1``.
+    potential : (V,) ndarray
+        Dual (Kantorovich) potential ``u``, W1 ≈ ``u @ (m1 - m0)``.
+    lower_bound : float
+        Certified lower bound of the unrestricted discrete problem (NaN for matrix face
+        weights).
+    iterations, primal_residual, dual_residual, converged
+        Solver report; ``residual`` is the larger of the two relative residuals.
     """
 
     value: float

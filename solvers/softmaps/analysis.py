@@ -24,7 +24,7 @@ from solvers.validation import check_int
 @dataclass
 class SoftMapBasis:
     """``source_basis`` ``(N, r)``, ``singular_values`` ``(r,)``, ``target_basis`` ``(n, r)``:
-    area-orthonormal columns, the first the constant; ``P ≈ D_{a0}^{-1/2} ... `` see
+    area-orthonormal columns, the first the constant; ``P ≈ D_{a0}^{-1/2} …``, see
     :func:`low_rank_approximation`."""
 
     source_basis: np.ndarray
