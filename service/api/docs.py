@@ -32,6 +32,7 @@ def install(app: FastAPI) -> None:
 
     @app.get("/docs", include_in_schema=False)
     async def swagger_ui():
+        """Swagger UI of the OpenAPI document."""
         return get_swagger_ui_html(
             openapi_url=openapi_url, title=f"{app.title} - Swagger UI",
             oauth2_redirect_url=oauth2_redirect,
@@ -41,10 +42,12 @@ def install(app: FastAPI) -> None:
 
     @app.get(oauth2_redirect, include_in_schema=False)
     async def swagger_ui_redirect():
+        """Swagger UI's OAuth2 redirect page."""
         return get_swagger_ui_oauth2_redirect_html()
 
     @app.get("/redoc", include_in_schema=False)
     async def redoc():
+        """ReDoc of the OpenAPI document."""
         return get_redoc_html(openapi_url=openapi_url, title=f"{app.title} - ReDoc",
                               redoc_js_url=f"{ASSETS_URL}/redoc.standalone.js",
                               redoc_favicon_url=f"{ASSETS_URL}/favicon.png",
