@@ -1,8 +1,10 @@
 """Nothing compiled is left alive at interpreter exit: a process that factors a matrix with
-cholespy (directly, or through an app whose job builds a domain's heat kernel) exits without
-nanobind's "leaked instances" report. The cause once was the docs pages' endpoints closing
-over the app: FastAPI caches endpoint functions in module-level LRU caches, so every app
-(its runtime, its operator cache and the factors in it) lived until exit."""
+cholespy (directly, held by a module-level cache or by a daemon thread that is still running,
+or through an app whose job builds a domain's heat kernel) exits without nanobind's "leaked
+instances" report. Causes found: the docs pages' endpoints closed over the app, and FastAPI
+caches endpoint functions in module-level LRU caches, so every app (its runtime, its operator
+cache and the factors in it) lived until exit; and factors referenced from threads still
+running at exit (solvers.linalg releases every live factor in an atexit hook)."""
 
 from __future__ import annotations
 
@@ -23,6 +25,19 @@ factor = factorize_spd(lap, backend="cholespy")
 CACHE = {"factor": factor}  # held by a module-level cache at exit
 assert np.allclose(lap @ factor.solve(np.ones(n)), 1)
 print(type(factor).__name__)
+"""
+THREAD = FACTOR + """
+import threading, time
+ready = threading.Event()
+
+def hold():
+    held = factorize_spd(lap, backend="cholespy")  # in a frame that never returns
+    ready.set()
+    time.sleep(3600)
+    print(held)
+
+threading.Thread(target=hold, daemon=True).start()
+ready.wait()
 """
 APP = """
 import gc, tempfile, weakref
@@ -54,7 +69,7 @@ def run_python(code: str) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, timeout=120)
 
 
-@pytest.mark.parametrize("code", [FACTOR, APP], ids=["factor", "app-job"])
+@pytest.mark.parametrize("code", [FACTOR, THREAD, APP], ids=["factor", "thread", "app-job"])
 def test_no_nanobind_leak_report_at_exit(code):
     pytest.importorskip("cholespy")
     out = run_python(code)
