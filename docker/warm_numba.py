@@ -1,6 +1,6 @@
 """Compile numba's cached kernels into NUMBA_CACHE_DIR while the image is built, so that a
-new container's first job loads them instead of compiling (a first color transfer compiled
-for 6.7 s in a new container, then took 0.11 s).
+new container's first job loads them instead of compiling (this script as a process in the
+container: 7.7 s with an empty cache, 1.37 s with the image's).
 
 It runs what a worker runs for a color transfer (two small PNGs stored as blobs, the job run
 by the service's runner), in a throw-away data directory."""
