@@ -12,6 +12,7 @@ from pydantic import TypeAdapter
 from service import __version__
 from service.api import docs, domains, guards, health, images, jobs, operations, viewer
 from service.api.deps import require_api_key
+from service.api.routelist import operations_markdown
 from service.errors import ErrorResponse, install_handlers
 from service.jobs.wake import JobWaiters
 from service.runtime import Runtime
@@ -21,8 +22,8 @@ from service.settings import Settings
 DESCRIPTION = """Optimal transport over geometric domains (meshes, grids, graphs, point clouds),
 after J. Solomon, *Transportation Techniques for Geometric Data Processing* (2015).
 
-Upload a domain, then create jobs (distances, barycenters, interpolations, pointwise distances,
-flows) on it; every job is observable, cancellable and keeps its result. Errors are
+Upload a domain, then create jobs on it (or on several domains, or on uploaded images); every
+job is observable, cancellable and keeps its result. Errors are
 `{"error": {"code", "message", "field"}}`."""
 
 # Routers under /v1 (API key checked when configured); add new resource routers here.
@@ -94,8 +95,11 @@ def create_app(settings: Settings | None = None, *, start_background: bool = Tru
 
     def openapi():
         if app.openapi_schema is None:
+            # every operation listed from the route table (service.api.routelist)
+            description = (f"{app.description}\n\n## Operations\n\n"
+                           f"{operations_markdown(app, include_pages=False)}")
             schema = get_openapi(title=app.title, version=app.version,
-                                 description=app.description, routes=app.routes)
+                                 description=description, routes=app.routes)
             components = schema.setdefault("components", {}).setdefault("schemas", {})
             spec = TypeAdapter(DomainSpec).json_schema(
                 ref_template="#/components/schemas/{model}")

@@ -1,4 +1,5 @@
-"""Command line: ``otgeo serve`` (API + embedded workers), ``otgeo worker``, ``otgeo openapi``.
+"""Command line: ``otgeo serve`` (API + embedded workers), ``otgeo worker``, ``otgeo openapi``,
+``otgeo routes`` (the route list of the README and docs).
 
 Nothing numerical is imported at module level: worker processes set their BLAS
 thread limits in the environment before numpy is first imported.
@@ -63,6 +64,27 @@ def cmd_openapi(args) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(openapi_document())
     print(f"wrote {out}")
+
+
+def cmd_routes(args) -> None:
+    """Print the route list (Markdown), or rewrite its generated block in the given files."""
+    import tempfile
+
+    from service.api.routelist import operations_markdown, update_file
+    from service.app import create_app
+    from service.settings import Settings
+
+    with tempfile.TemporaryDirectory() as tmp:
+        app = create_app(Settings(data_dir=tmp, queue="immediate", api_keys=[]),
+                         start_background=False)
+        try:
+            if not args.update:
+                print(operations_markdown(app))
+            for path in args.update:
+                changed = update_file(Path(path), app)
+                print(f"{'updated' if changed else 'unchanged'} {path}")
+        finally:
+            app.state.runtime.close()
 
 
 PARENT_ENV = "OTGEO_PARENT_PID"  # set by `otgeo serve` for its workers
@@ -279,10 +301,14 @@ def main(argv=None) -> None:
                         "short jobs)")
     spec = sub.add_parser("openapi", help="write the OpenAPI document")
     spec.add_argument("--output", "-o", default=str(DEFAULT_OPENAPI))
+    routes = sub.add_parser("routes", help="print every route (Markdown), or --update the "
+                            "generated route list in documentation files")
+    routes.add_argument("--update", nargs="*", default=[], metavar="FILE")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO,
                         format="%(asctime)s %(process)d %(name)s %(levelname)s %(message)s")
-    {"serve": cmd_serve, "worker": cmd_worker, "openapi": cmd_openapi}[args.command](args)
+    {"serve": cmd_serve, "worker": cmd_worker, "openapi": cmd_openapi,
+     "routes": cmd_routes}[args.command](args)
 
 
 if __name__ == "__main__":

@@ -136,4 +136,6 @@ class Runtime:
         self.repo.dispose()
         if self.wake is not None:
             self.wake.close()
+        # the domains and their factorizations go now, not whenever the runtime is collected
+        self.cache.discard_where(lambda key: True)
 

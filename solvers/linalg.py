@@ -11,6 +11,7 @@ extra) is Intel MKL PARDISO's supernodal Cholesky with a METIS ordering, multith
 
 from __future__ import annotations
 
+import atexit
 import ctypes
 import glob
 import os
@@ -52,6 +53,17 @@ def estimated_factor_bytes(matrix: sp.spmatrix) -> int:
     return int(FACTOR_FILL * matrix.nnz * 12)
 
 
+# Every cholespy factor alive; at interpreter exit, before nanobind checks for leaks, the
+# ones still held (by a daemon thread's frame, a cache, a cycle) release their solver.
+_LIVE_FACTORS: weakref.WeakSet = weakref.WeakSet()
+
+
+@atexit.register
+def _release_factors_at_exit() -> None:
+    for factor in list(_LIVE_FACTORS):
+        factor._solver = None
+
+
 class CholespyFactor:
     """Supernodal sparse Cholesky via cholespy (``nbytes``: estimated factor size)."""
 
@@ -72,6 +84,7 @@ class CholespyFactor:
             np.array(csr.data, dtype=np.float64),
             MatrixType.CSR,
         )
+        _LIVE_FACTORS.add(self)
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         b = np.ascontiguousarray(rhs, dtype=np.float64)

@@ -3,11 +3,11 @@
 #   1. the Debian bookworm base (build-base.sh; reused when present),
 #   2. Redis and PostgreSQL on it (reused when present; FORCE=1 rebuilds),
 #   3. the otgeo image from the working tree (always; Docker's layer cache keeps reruns fast).
-# Usage: docker/local/build-images.sh [OTGEO_TAG]   (default otgeo:test)
+# Usage: docker/local/build-images.sh [OTGEO_TAG]   (default otgeo:test; otgeo:latest for compose)
 # apt and pip inside the builds reach their registries through `--network host`.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
-DOCKER=${DOCKER:-docker}
+DOCKER=$(docker/local/docker-client.sh)  # $DOCKER, else a client that can build (BuildKit)
 BASE=${BASE_IMAGE:-otgeo-base:bookworm}
 TAG=${1:-otgeo:test}
 export DOCKER_BUILDKIT=1  # honours docker/Dockerfile.dockerignore (the context is the repo root)

@@ -52,11 +52,16 @@ def install(app: FastAPI) -> None:
     app.mount(ASSETS_URL, StaticFiles(directory=assets_dir()), name="docs-assets")
     openapi_url = app.openapi_url or "/openapi.json"
     oauth2_redirect = "/docs/oauth2-redirect"
+    # The pages close over strings only, never over the app: FastAPI keeps endpoint functions
+    # in module-level caches, and an endpoint holding the app would keep it, its runtime and
+    # the operator cache (cholespy factors among them) alive until interpreter exit.
+    title = app.title
 
     @app.get("/docs", include_in_schema=False)
     async def swagger_ui():
+        """Swagger UI of the OpenAPI document."""
         return get_swagger_ui_html(
-            openapi_url=openapi_url, title=f"{app.title} - Swagger UI",
+            openapi_url=openapi_url, title=f"{title} - Swagger UI",
             oauth2_redirect_url=oauth2_redirect,
             swagger_js_url=f"{ASSETS_URL}/swagger-ui-bundle.js",
             swagger_css_url=f"{ASSETS_URL}/swagger-ui.css",
@@ -64,11 +69,13 @@ def install(app: FastAPI) -> None:
 
     @app.get(oauth2_redirect, include_in_schema=False)
     async def swagger_ui_redirect():
+        """Swagger UI's OAuth2 redirect page."""
         return get_swagger_ui_oauth2_redirect_html()
 
     @app.get("/redoc", include_in_schema=False)
     async def redoc():
-        return get_redoc_html(openapi_url=openapi_url, title=f"{app.title} - ReDoc",
+        """ReDoc of the OpenAPI document."""
+        return get_redoc_html(openapi_url=openapi_url, title=f"{title} - ReDoc",
                               redoc_js_url=f"{ASSETS_URL}/redoc.standalone.js",
                               redoc_favicon_url=f"{ASSETS_URL}/favicon.png",
                               with_google_fonts=False)

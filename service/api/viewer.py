@@ -77,11 +77,13 @@ def _index() -> FileResponse:
 
 @pages.get("/")
 def viewer_root():
+    """The browser viewer."""
     return _index()
 
 
 @pages.get("/viewer")
 def viewer_page():
+    """The browser viewer (the same page)."""
     return _index()
 
 

@@ -110,6 +110,8 @@ class SinkhornSummary(BaseModel):
 class SoftMapValues(BaseModel):
     """Values of a soft-map job."""
 
+    source_id: str = Field(description="the source mesh domain (the request's source_id)")
+    target_id: str = Field(description="the target mesh domain (the request's target_id)")
     energies: SoftMapEnergies
     correspondence: list[int] = Field(description="target vertex of every source vertex")
     samples: int
@@ -241,6 +243,7 @@ def run(ctx, req: SoftMapRequest, progress, should_cancel) -> OperationOutput:
     b, e_vertex = energies.bijectivity_density, energies.dirichlet_vertex_density
     sinkhorn = res.sinkhorn  # refine="sinkhorn...": the projection, else None
     values = SoftMapValues(
+        source_id=req.source_id, target_id=req.target_id,
         energies=SoftMapEnergies(
             dirichlet=energies.dirichlet.total, bijectivity=energies.bijectivity,
             descriptor=energies.descriptor,

@@ -79,7 +79,10 @@ async function geometry(id) {
   return geometryCache.get(id);
 }
 
-async function selectDomain(id, keepPicks = false) {
+// Show a domain. A change of domain closes the job shown (its panel would be stale), except
+// when a job's own result asks for its domain (keepJob).
+async function selectDomain(id, { keepPicks = false, keepJob = false } = {}) {
+  if (!keepJob && (!state.domain || state.domain.id !== id)) closeJob();
   const meta = state.domains.find((d) => d.id === id) || await api.getJSON(`/v1/domains/${id}`);
   status(`loading ${domainLabel(meta)}…`);
   const geom = await geometry(id);
@@ -247,7 +250,7 @@ async function openJob(job) {
   state.jobRequest = null; // not sent by this page: the result tells what it needs
   state.jobInputs = null;
   if (state.domain === null || job.domain_id !== state.domain.id) {
-    if (job.domain_id) await selectDomain(job.domain_id);
+    if (job.domain_id) await selectDomain(job.domain_id, { keepJob: true });
   }
   await followJob(job);
 }
@@ -276,8 +279,19 @@ function setProgress(job) {
   if (p.eta_seconds) parts.push(`≈${p.eta_seconds.toFixed(1)} s left`);
   if (job.duration_seconds) parts.push(`${job.duration_seconds.toFixed(2)} s`);
   $("progress-text").textContent = parts.join(" · ");
-  $("cancel").disabled = !["queued", "running"].includes(job.state);
+  $("cancel").hidden = !["queued", "running"].includes(job.state); // nothing to cancel after
   if (job.error) showError(job.error);
+}
+
+// Stop following the job shown and hide its panels (not the job itself: it goes on).
+function closeJob() {
+  if (state.stream) state.stream.abort();
+  state.stream = null;
+  state.job = null;
+  $("job-panel").hidden = true;
+  $("job-title").textContent = "";
+  clearResultView();
+  for (const li of $("jobs").children) li.classList.remove("active");
 }
 
 async function followJob(job) {
@@ -329,6 +343,7 @@ function clearResultView() {
   $("plots").replaceChildren();
   state.result = null;
   state.display = null;
+  state.softMap = null;
   view.setArrows(null);
   view.onHover = null;
   if (state.second && state.geometry) { view.setDomains([state.geometry]); state.second = null; }
@@ -342,35 +357,22 @@ function shape(a) {
   return s;
 }
 
-// Source and target domains of a result that maps one domain to another (soft maps): from the
-// job, its values or the request this page sent.
+// Source and target domains of a result that maps one domain to another (soft maps): the
+// job's own fields (its result's source_id/target_id, else the request this page sent), never
+// a guess. {} for results on one domain.
 function domainPair(job, result) {
   const v = result.values || {}, req = state.jobRequest || {};
-  const str = (...xs) => xs.find((x) => typeof x === "string" && x);
-  const source = str(job.domain_id, v.source_domain_id, v.source_id, req.source_domain_id,
-                     req.source_id, req.source_domain, req.source);
-  const target = str(v.target_domain_id, v.target_id, req.target_domain_id, req.target_id,
-                     req.target_domain, req.target);
-  return { source, target: target !== source ? target : undefined };
-}
-
-// A result naming a row-served array (values.rows, e.g. a soft map) whose target the job does
-// not name (opened from the list): the mesh domains as long as one row are the candidates.
-async function guessTarget(job, result, source) {
-  const name = (result.values || {}).rows;
-  if (typeof name !== "string") return undefined;
-  const out = await api.getJSON(`/v1/jobs/${job.id}/arrays/${name}/rows/0`);
-  const n = (out.values || []).length;
-  const candidates = state.domains.filter((d) => d.n === n && d.id !== source);
-  return candidates.length ? candidates[0].id : undefined;
+  const id = (x) => (typeof x === "string" && x ? x : undefined);
+  const target = id(v.target_id) || id(req.target_id);
+  if (!target) return {};
+  return { source: id(v.source_id) || id(req.source_id) || id(job.domain_id), target };
 }
 
 async function showResult(job) {
   const result = await api.getJSON(`/v1/jobs/${job.id}/result`);
   const pair = domainPair(job, result);
-  if (!pair.target && pair.source) pair.target = await guessTarget(job, result, pair.source);
   if (pair.target && pair.source && (!state.domain || state.domain.id !== pair.source)) {
-    await selectDomain(pair.source, true);
+    await selectDomain(pair.source, { keepPicks: true, keepJob: true });
   }
   if (pair.target && !job.domain_id) job = { ...job, domain_id: pair.source };
   state.result = result;
@@ -417,6 +419,10 @@ async function showResult(job) {
   $("show-arrows").onchange = () => view.setArrows($("show-arrows").checked ? flow : null);
   if (flow) view.setArrows(flow);
   if (geom && pair.target) await showSoftMap(result, pair.target);
+  else if (typeof (result.values || {}).rows === "string") { // rows served, target unnamed
+    $("hover").hidden = false;
+    $("hover").textContent = "this result does not name its target domain (target_id)";
+  }
   showField(sel.value);
   showFiles(result);
   showDownloads(job, result);
@@ -613,7 +619,7 @@ async function showSoftMap(result, targetId) {
     if (busy) { wanted = point; return; }
     show(point);
   };
-  state.softMap = { name, target };
+  state.softMap = { name, target, targetId };
 }
 
 // Image files of a result (color transfer) side by side over the stage, under the input images

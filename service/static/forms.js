@@ -2,6 +2,8 @@
 // "operations" (domain-scoped /v1/domains/{domain_id}/<name>, or global /v1/<name>) gets a form
 // built from its request body's JSON schema, so operations added to the service appear here
 // without new code. Distribution fields are filled from the vertices picked on the domain.
+// A request carries only what the user set (required fields, picks, fields edited or filled
+// "from picks"): everything left alone takes the server's default, as an API call would.
 
 export function listOperations(openapi) {
   const ops = [];
@@ -84,6 +86,23 @@ export function buildForm(container, root, op, ctx) {
   container.append(main, more);
   const readers = [];
   let distIndex = 0;
+  let binsField = null; // a {lo, hi, count} / edges object field (histogram bins), if any
+  // The value range of the form's bins field ([lo, hi]); filled with DEFAULT_BINS when empty.
+  const binsOf = () => {
+    if (!binsField) return null;
+    const area = binsField.row.querySelector("textarea");
+    let spec = null;
+    try { spec = area && area.value.trim() ? JSON.parse(area.value) : null; } catch (_) { spec = null; }
+    if (!spec && area) {
+      spec = DEFAULT_BINS;
+      area.value = JSON.stringify(spec);
+      area.dispatchEvent(new Event("input", { bubbles: true }));
+    }
+    if (spec && Array.isArray(spec.edges) && spec.edges.length > 1) {
+      return [spec.edges[0], spec.edges[spec.edges.length - 1]];
+    }
+    return spec && Number.isFinite(spec.lo) && Number.isFinite(spec.hi) ? [spec.lo, spec.hi] : null;
+  };
 
   for (const [name, raw] of Object.entries(props)) {
     const isReq = required.has(name);
@@ -95,26 +114,40 @@ export function buildForm(container, root, op, ctx) {
     const info = { ...s, description: desc };
     row.appendChild(label(name, info, isReq));
     let read;
+    let always = isReq; // sent even when left alone (required, or filled from the picks)
+    let touched = false; // the user edited it (or filled it with a button)
+    row.addEventListener("input", () => { touched = true; });
+    row.addEventListener("change", () => { touched = true; });
 
     if (isDistribution(root, raw)) {
       const k = distIndex++;
       const sel = document.createElement("select");
       sel.name = name;
+      // the k-th distribution field takes the k-th pick (another pick only when chosen):
+      // with fewer picks than fields the request is refused here, never sent with mu0 = mu1
       const fill = () => {
         const picks = ctx.picks();
-        const keep = sel.value;
-        sel.replaceChildren(...picks.map((p, i) => new Option(`pick ${i + 1} (vertex ${p.vertex})`, String(i))));
-        sel.value = keep !== "" && keep < picks.length ? keep : String(Math.min(k, picks.length - 1));
+        const keep = sel.dataset.chosen === "1" && Number(sel.value) < picks.length
+          ? sel.value : null;
+        sel.replaceChildren(new Option(`(pick ${k + 1}: click the domain)`, ""),
+          ...picks.map((p, i) => new Option(`pick ${i + 1} (vertex ${p.vertex})`, String(i))));
+        sel.value = keep !== null ? keep : (k < picks.length ? String(k) : "");
+        if (keep === null) sel.dataset.chosen = "";
       };
+      sel.addEventListener("change", () => { sel.dataset.chosen = "1"; });
       fill();
       ctx.onPicksChanged(fill);
       row.appendChild(sel);
       read = () => {
-        const picks = ctx.picks();
-        const p = picks[Number(sel.value)];
-        if (!p) throw fieldError(name, `pick a vertex for ${name} (click on the domain)`);
+        const p = sel.value === "" ? undefined : ctx.picks()[Number(sel.value)];
+        if (!p) {
+          const n = ctx.picks().length;
+          throw fieldError(name, `${name} needs pick ${k + 1} but ${n} vertex${n === 1 ? " is" : "es are"} `
+            + "picked: click the domain once per distribution");
+        }
         return pickToDistribution(p);
       };
+      always = true;
     } else if (s.type === "array" && isDistribution(root, s.items)) {
       const note = document.createElement("span");
       note.className = "note";
@@ -125,8 +158,9 @@ export function buildForm(container, root, op, ctx) {
       read = () => {
         const picks = ctx.picks();
         if (!picks.length && isReq) throw fieldError(name, `pick vertices for ${name}`);
-        return picks.map(pickToDistribution);
+        return picks.length || isReq ? picks.map(pickToDistribution) : undefined;
       };
+      always = true;
     } else if (s.enum) {
       const sel = document.createElement("select");
       sel.name = name;
@@ -135,6 +169,13 @@ export function buildForm(container, root, op, ctx) {
       if (s.default !== undefined) sel.value = String(s.default);
       row.appendChild(sel);
       read = () => (sel.value === "" ? undefined : s.enum.find((v) => String(v) === sel.value));
+    } else if (s.type === "boolean" && (nullable || s.default === undefined)) {
+      // no fixed default (the server decides): "(default)", true or false
+      const sel = document.createElement("select");
+      sel.name = name;
+      sel.append(new Option("(default)", ""), new Option("true", "true"), new Option("false", "false"));
+      row.appendChild(sel);
+      read = () => (sel.value === "" ? undefined : sel.value === "true");
     } else if (s.type === "boolean") {
       const box = document.createElement("input");
       box.type = "checkbox";
@@ -156,7 +197,7 @@ export function buildForm(container, root, op, ctx) {
       read = () => {
         const t = input.value.trim();
         if (t === "") {
-          if (vertexLike && ctx.picks().length) return ctx.picks()[0].vertex;
+          if (vertexLike && ctx.picks().length) { touched = true; return ctx.picks()[0].vertex; }
           if (isReq) throw fieldError(name, `${name} is required`);
           return undefined;
         }
@@ -243,14 +284,19 @@ export function buildForm(container, root, op, ctx) {
         b.textContent = "from picks";
         b.onclick = () => {
           area.value = JSON.stringify(ctx.pairs().map(([a, t]) => ({ source: a, target: t })));
+          area.dispatchEvent(new Event("input", { bubbles: true }));
         };
         row.append(show, b);
-      } else if (template && template !== "pairs") { // e.g. labeled nodes, fixed nodes: one item per pick, to be completed
+      } else if (template && template !== "pairs") { // e.g. labeled nodes, fixed nodes: one complete item per pick
         const b = document.createElement("button");
         b.type = "button";
         b.className = "small";
         b.textContent = "from picks";
-        b.onclick = () => { area.value = JSON.stringify(ctx.picks().map(template)); };
+        b.onclick = () => {
+          const picks = ctx.picks();
+          area.value = JSON.stringify(picks.map((p, i) => template(p, i, picks.length, binsOf)));
+          area.dispatchEvent(new Event("input", { bubbles: true }));
+        };
         row.appendChild(b);
       }
       read = () => {
@@ -266,16 +312,17 @@ export function buildForm(container, root, op, ctx) {
       row.appendChild(help);
     }
     (isReq || isDistribution(root, raw) || name === "weights" ? main : more).appendChild(row);
-    readers.push([name, read]);
+    readers.push([name, read, () => always || touched]);
+    if (isBinsSpec(root, s)) binsField = { row, read };
   }
 
   // The request body: a JSON object, or FormData for multipart operations (files as parts,
   // other values as text: JSON for lists and objects).
   async function collect() {
     const out = {};
-    for (const [name, read] of readers) {
+    for (const [name, read, isSet] of readers) {
       const v = await read();
-      if (v !== undefined) out[name] = v;
+      if (v !== undefined && isSet()) out[name] = v;
     }
     if (!op.multipart) return out;
     const form = new FormData();
@@ -288,9 +335,19 @@ export function buildForm(container, root, op, ctx) {
   return { collect };
 }
 
-// For an array of objects naming a point ("node"/"vertex"), a pick -> item function: items
-// with a distribution property get it from the pick (and their index as the node), others
-// the picked vertex.
+const DEFAULT_BINS = { lo: 0, hi: 1, count: 16 };
+
+// An object schema of histogram bins: lo/hi (and count) or edges.
+function isBinsSpec(root, s) {
+  const props = deref(root, s).properties || {};
+  return Boolean((props.lo && props.hi) || props.edges);
+}
+
+// For an array of objects naming a point ("node"/"vertex"), a function (pick, i, n, binsOf)
+// -> a complete item: items with a distribution property get it from the pick (and their
+// index as the node); items labeled by samples on the form's bins (histogram propagation)
+// get the picked vertex and one sample, spread over the bins' range from the first pick to
+// the last; others the picked vertex alone.
 function pickTemplate(root, s) {
   if (s.type !== "array") return null;
   const item = deref(root, s.items);
@@ -300,7 +357,19 @@ function pickTemplate(root, s) {
   const key = ["node", "vertex"].find((k) => props[k] && deref(root, props[k]).type === "integer");
   if (!key) return null;
   const dist = Object.keys(props).find((k) => isDistribution(root, props[k]));
-  return (p, i) => (dist ? { [key]: i, [dist]: pickToDistribution(p) } : { [key]: p.vertex });
+  if (dist) return (p, i) => ({ [key]: i, [dist]: pickToDistribution(p) });
+  const numbers = (k) => {
+    const { schema } = unwrap(root, props[k] || {});
+    return schema.type === "array" && ["number", "integer"].includes(deref(root, schema.items).type);
+  };
+  if (numbers("samples")) {
+    return (p, i, n, binsOf) => {
+      const range = binsOf() || [DEFAULT_BINS.lo, DEFAULT_BINS.hi];
+      const at = range[0] + (range[1] - range[0]) * (i + 0.5) / Math.max(n, 1);
+      return { [key]: p.vertex, samples: [at] };
+    };
+  }
+  return (p) => ({ [key]: p.vertex });
 }
 
 export function domainLabel(d) {

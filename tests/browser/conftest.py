@@ -11,6 +11,8 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "service"))
 from liveserver import API  # noqa: E402
+from shared_meshes import MESHES_DIR  # noqa: E402
+from viewerpage import TIMEOUT, drop_file, open_viewer  # noqa: E402
 
 API_KEY = "viewer-test-key"  # the live server wants one: every test goes through the key form
 CHROMIUM = Path(os.environ.get("OTGEO_CHROMIUM", "/usr/bin/chromium"))
@@ -67,3 +69,12 @@ def page(browser_context):
     page.js_errors = errors
     yield page
     page.close()
+
+
+@pytest.fixture
+def spot_page(page, live_api):
+    open_viewer(page, live_api)
+    drop_file(page, "#drop", MESHES_DIR / "spot.obj")
+    page.wait_for_selector("#domains li.active", timeout=TIMEOUT)
+    page.wait_for_selector("#empty", state="hidden")
+    return page

@@ -7,96 +7,25 @@ shows the server's error message.
 
 from __future__ import annotations
 
-import base64
 import io
 import json
-import os
 import re
 from pathlib import Path
 
 import numpy as np
-import pytest
 from PIL import Image
 from shared_meshes import MESHES_DIR
-
-SHOTS = os.environ.get("OTGEO_VIEWER_SCREENSHOTS")
-TIMEOUT = 30_000  # ms
-
-
-def canvas_pixels(page) -> np.ndarray:
-    """RGB screenshot of the 3-D canvas without the bands of its overlays (legend and hover box
-    at the top, the frame slider at the bottom)."""
-    png = page.locator("#view canvas").screenshot()
-    img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=np.float64) / 255
-    return img[70: img.shape[0] - 70]
-
-
-def stats(img: np.ndarray) -> dict:
-    """Fractions of pixels that are foreground (not the background) and strongly colored."""
-    background = np.array([0x1C, 0x1E, 0x22]) / 255
-    fg = np.abs(img - background).sum(axis=2) > 0.06
-    sat = img.max(axis=2) - img.min(axis=2)
-    colored = fg & (sat > 0.25)
-    return {"foreground": fg.mean(), "colored": colored.sum() / max(fg.sum(), 1),
-            "fg_mask": fg, "colored_mask": colored}
-
-
-def save(page, name: str) -> None:
-    if SHOTS:
-        Path(SHOTS).mkdir(parents=True, exist_ok=True)
-        page.screenshot(path=str(Path(SHOTS) / name))
-
-
-def drop_file(page, selector: str, path: Path) -> None:
-    """A real drop event carrying the file (what dragging it from a file manager does)."""
-    data = base64.b64encode(path.read_bytes()).decode()
-    transfer = page.evaluate_handle(
-        """([name, b64]) => {
-            const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
-            const dt = new DataTransfer();
-            dt.items.add(new File([bytes], name, {type: "text/plain"}));
-            return dt;
-        }""", [path.name, data])
-    page.dispatch_event(selector, "dragover", {"dataTransfer": transfer})
-    page.dispatch_event(selector, "drop", {"dataTransfer": transfer})
-
-
-def pick_two(page) -> list[str]:
-    """Click the canvas until two vertices are picked; returns the picks' texts."""
-    box = page.locator("#view canvas").bounding_box()
-    cx, cy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
-    for dx, dy in [(0, 0), (0.12, 0.0), (-0.12, 0.0), (0.0, 0.1), (0.08, -0.08), (-0.2, 0.05)]:
-        if page.locator("#picks li").count() >= 2:
-            break
-        page.mouse.click(cx + dx * box["width"], cy + dy * box["height"])
-    texts = page.locator("#picks li").all_inner_texts()
-    assert len(texts) == 2, texts
-    return texts
-
-
-def run_and_wait(page, operation_id: str) -> None:
-    page.select_option("#operation", operation_id)
-    page.click("#run")
-    page.wait_for_selector("#progress[data-state=succeeded]", timeout=TIMEOUT)
-    page.wait_for_selector("#legend:not([hidden])", timeout=TIMEOUT)
-
-
-def open_viewer(page, api, path: str = "/") -> None:
-    """Open the page; it asks for the API key (the server wants one) and lists the domains."""
-    page.goto(api.url + path)
-    page.wait_for_selector("#key-dialog[open]", timeout=TIMEOUT)
-    page.fill("#key-input", api.key)
-    page.click("#key-dialog button[value=ok]")
-    page.wait_for_selector("body[data-ready='1']", timeout=TIMEOUT)
-
-
-@pytest.fixture
-def spot_page(page, live_api):
-    open_viewer(page, live_api)
-    drop_file(page, "#drop", MESHES_DIR / "spot.obj")
-    page.wait_for_selector("#domains li.active", timeout=TIMEOUT)
-    page.wait_for_selector("#empty", state="hidden")
-    return page
+from viewerpage import (
+    TIMEOUT,
+    canvas_pixels,
+    drop_file,
+    open_viewer,
+    pick_two,
+    picked_vertices,
+    run_and_wait,
+    save,
+    stats,
+)
 
 
 def test_page_is_served_with_its_assets(page, live_api):
@@ -185,10 +114,6 @@ def test_failing_request_shows_the_error(spot_page):
     save(page, "viewer-error.png")
 
 
-def picked_vertices(texts: list[str]) -> list[int]:
-    return [int(re.search(r"vertex (\d+)", t).group(1)) for t in texts]
-
-
 def test_flow_arrows_and_histogram_plots(spot_page):
     page = spot_page
     vertices = picked_vertices(pick_two(page))
@@ -210,13 +135,15 @@ def test_flow_arrows_and_histogram_plots(spot_page):
     assert np.abs(faces - with_arrows).sum(axis=2).mean() > 0.02  # not the potential's colors
 
     page.select_option("#operation", "createHistogramPropagationJob")
+    # "from picks" alone makes a valid request: one label per pick (its vertex and a sample
+    # spread over the bins, which it fills when empty)
     page.click("#op-form .field[data-field=labeled] button:text('from picks')")
     labeled = json.loads(page.input_value("#op-form textarea[name=labeled]"))
+    bins = json.loads(page.input_value("#op-form textarea[name=bins]"))
     assert [item["node"] for item in labeled] == vertices
-    labeled[0]["histogram"] = [4, 2, 1, 0, 0, 0, 0, 0]
-    labeled[1]["histogram"] = [0, 0, 0, 0, 0, 1, 2, 4]
-    page.fill("#op-form textarea[name=bins]", json.dumps({"lo": 0, "hi": 1, "count": 8}))
-    page.fill("#op-form textarea[name=labeled]", json.dumps(labeled))
+    samples = [item["samples"] for item in labeled]
+    assert all(len(x) == 1 and bins["lo"] <= x[0] <= bins["hi"] for x in samples), (bins, samples)
+    assert samples[0] != samples[1]  # two different labels
     page.click("#run")
     page.wait_for_function("document.getElementById('job-title').textContent"
                            ".startsWith('histogram-propagations')")
@@ -225,6 +152,7 @@ def test_flow_arrows_and_histogram_plots(spot_page):
     assert page.locator("#field").input_value() == "mean"
     assert page.locator("#plots canvas").count() == 2  # one small histogram per pick
     assert re.search(r"n_nodes\s+2930", page.inner_text("#values"))  # numbers as they are
+    assert re.search(r"n_labeled\s+2", page.inner_text("#values"))
     assert stats(canvas_pixels(page))["colored"] > 0.5
     save(page, "viewer-histograms.png")
     assert page.js_errors == []
@@ -311,7 +239,7 @@ def test_live_progress_and_cancel(spot_page):
     page.click("#cancel")
     page.wait_for_selector("#progress[data-state=cancelled]", timeout=TIMEOUT)
     assert page.locator("#result-panel").is_hidden()
-    assert page.locator("#cancel").is_disabled()
+    assert page.locator("#cancel").is_hidden()  # a finished job has nothing to cancel
     assert page.js_errors == []
 
 
@@ -342,37 +270,52 @@ def test_graph_and_point_cloud_are_points(page, live_api, tmp_path):
     assert page.js_errors == []
 
 
-def test_soft_map_view_with_a_stubbed_job(page, live_api):
+def test_soft_map_view_with_a_stubbed_job(page, live_api, tmp_path):
     """The soft-map view (two meshes side by side, hovering a source vertex colors the target
     with its sample's row). A real soft-map job takes ~50 s here, so the job's routes (events,
     result, jobs list, rows) are stubbed in the browser in the shapes of POST /v1/soft-maps
-    (domain_id = the source, values.rows names the (samples, n_target) array, labels[x] is
-    the row of source vertex x, no target id: the viewer finds the mesh as long as a row);
-    the two meshes and their geometry come from the live server."""
+    (domain_id = the source, values.source_id/target_id name both meshes, values.rows names
+    the (samples, n_target) array, labels[x] is the row of source vertex x); the meshes and
+    their geometry come from the live server. The target is the one the result names, not
+    another mesh with as many vertices (cow.obj, uploaded first); a result that names no
+    target shows the source alone and says why."""
     import httpx
 
     open_viewer(page, live_api)
+    headers = {"X-API-Key": live_api.key}
     ids = {}
     for name in ("spot.obj", "cow.obj"):
         drop_file(page, "#drop", MESHES_DIR / name)
         page.wait_for_function(f"document.getElementById('status').textContent"
                                f".startsWith('{name}')", timeout=TIMEOUT)
         ids[name] = page.evaluate("otgeo.domain.id")
-    headers = {"X-API-Key": live_api.key}
     cow = httpx.get(f"{live_api.url}/v1/domains/{ids['cow.obj']}/geometry", headers=headers,
                     timeout=30).json()
-    cow_points = np.asarray(cow["positions"]).reshape(-1, 3)
-    job_id = "5" * 32
+    cow_points = np.asarray(cow["positions"]).reshape(-1, 3) * [1.6, 1.0, 0.7]
+    target_file = tmp_path / "long-cow.json"  # another mesh with cow's vertex count
+    target_file.write_text(json.dumps({"kind": "mesh", "vertices": cow_points.tolist(),
+                                       "faces": np.reshape(cow["faces"], (-1, 3)).tolist()}))
+    drop_file(page, "#drop", target_file)
+    page.wait_for_function("otgeo.domain.kind === 'mesh' && !otgeo.domain.source.filename",
+                           timeout=TIMEOUT)
+    ids["target"] = page.evaluate("otgeo.domain.id")
+    assert page.evaluate("otgeo.domain.n") == cow["n"]
+    job_id, unnamed_id = "5" * 32, "6" * 32
     job = {"id": job_id, "operation": "soft-maps", "domain_id": ids["spot.obj"],
            "state": "succeeded", "progress": {"iteration": 12, "residual": 1e-6},
            "attempts": 1, "error": None, "cancel_requested": False, "time_limit": 600,
            "created_at": "2026-12-01T19:00:00Z", "duration_seconds": 1.5, "links": {}}
+    unnamed_job = {**job, "id": unnamed_id}
     n_source = page.evaluate("otgeo.domains.find((d) => d.source.filename === 'spot.obj').n")
     labels = [x % 17 for x in range(n_source)]  # 17 source samples
-    result = {"job_id": job_id, "operation": "soft-maps", "domain_id": ids["spot.obj"],
-              "values": {"rows": "soft_map", "iterations": 12, "samples": 17},
-              "arrays": {"labels": labels, "samples": list(range(17))}, "export": {},
-              "files": {}}
+    values = {"rows": "soft_map", "iterations": 12, "samples": 17,
+              "source_id": ids["spot.obj"], "target_id": ids["target"]}
+    results = {jid: {"job_id": jid, "operation": "soft-maps", "domain_id": ids["spot.obj"],
+                     "values": v, "arrays": {"labels": labels, "samples": list(range(17))},
+                     "export": {}, "files": {}}
+               for jid, v in ((job_id, values),
+                              (unnamed_id, {k: x for k, x in values.items()
+                                            if k != "target_id"}))}
     served_rows = []
 
     x = cow_points[:, 0]
@@ -384,12 +327,14 @@ def test_soft_map_view_with_a_stubbed_job(page, live_api):
 
     def handle(route):
         url = route.request.url
+        jid = re.search(r"/v1/jobs/(\w+)/", url).group(1)
         if url.endswith("/events"):
-            body = (f"event: progress\ndata: {json.dumps(job)}\n\n"
+            shown = job if jid == job_id else unnamed_job
+            body = (f"event: progress\ndata: {json.dumps(shown)}\n\n"
                     f"event: end\ndata: {json.dumps({'state': 'succeeded'})}\n\n")
             return route.fulfill(status=200, body=body, content_type="text/event-stream")
         if url.endswith("/result"):
-            return route.fulfill(status=200, json=result)
+            return route.fulfill(status=200, json=results[jid])
         match = re.search(r"/arrays/soft_map/rows/(\d+)$", url)
         if match:
             served_rows.append(int(match.group(1)))
@@ -398,13 +343,22 @@ def test_soft_map_view_with_a_stubbed_job(page, live_api):
         return route.fulfill(status=404, json={"error": {"code": "not_found",
                                                          "message": "stub", "field": None}})
 
-    page.route(f"**/v1/jobs/{job_id}/**", handle)
+    for jid in (job_id, unnamed_id):
+        page.route(f"**/v1/jobs/{jid}/**", handle)
     page.route("**/v1/jobs?*", lambda route: route.fulfill(status=200, json={
-        "jobs": [job, *route.fetch().json()["jobs"]], "next_cursor": None}))
+        "jobs": [job, unnamed_job, *route.fetch().json()["jobs"]], "next_cursor": None}))
+    page.click("#refresh-jobs")
+    page.click(f"#jobs li[data-id='{unnamed_id}']")
+    page.wait_for_function("document.getElementById('hover').textContent"
+                           ".includes('does not name its target')", timeout=TIMEOUT)
+    assert page.evaluate("otgeo.view.items.length") == 1 and served_rows == []
     page.click("#refresh-jobs")
     page.click(f"#jobs li[data-id='{job_id}']")
-    page.wait_for_selector("#hover:not([hidden])", timeout=TIMEOUT)
+    page.wait_for_function("otgeo.softMap && otgeo.result && otgeo.result.job_id === "
+                           f"'{job_id}'", timeout=TIMEOUT)
     assert page.evaluate("otgeo.view.items.length") == 2
+    assert page.evaluate("otgeo.softMap.targetId") == ids["target"]  # named, not cow.obj
+    assert page.evaluate("otgeo.view.items[1].geom.n") == cow["n"]
     before = canvas_pixels(page)
     width = before.shape[1]
     right = slice(width // 2, width)

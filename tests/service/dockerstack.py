@@ -1,7 +1,9 @@
 """Drive a real Docker engine for tests/service/test_docker.py and bench/docker.py: build the
 local images (docker/local/build-images.sh) and run docker/compose.yaml with the test override
-docker/compose.test.yaml through Debian's docker-compose 1.29 (``docker compose`` v2 reads the
-same files). Traffic goes only to the API's port published on 127.0.0.1."""
+docker/compose.test.yaml through docker/compose.sh (the `docker compose` plugin or Debian's
+docker-compose 1.29, found at run time), as the README's route without Docker Hub does: the
+local images through OTGEO_IMAGE, OTGEO_REDIS_IMAGE and OTGEO_POSTGRES_IMAGE. Traffic goes
+only to the API's port published on 127.0.0.1."""
 
 from __future__ import annotations
 
@@ -22,25 +24,23 @@ BASE_IMAGE = "otgeo-base:bookworm"
 BUILD_TIMEOUT = 80 * 60  # a cold machine builds everything within CI's 90 minutes
 
 
+COMPOSE = DOCKER_DIR / "compose.sh"  # finds the compose invocation at run time
+
+
 def docker_cli() -> str | None:
-    """The Docker client: $DOCKER, else Debian's (it builds with BuildKit without the buildx
-    plugin, which the static client some machines carry in /usr/local/bin lacks)."""
-    if os.environ.get("DOCKER"):
-        return os.environ["DOCKER"]
-    if os.access("/usr/bin/docker", os.X_OK):
-        return "/usr/bin/docker"
-    return shutil.which("docker")
+    """The Docker client that can build (docker/local/docker-client.sh: $DOCKER, else one with
+    buildx or BuildKit built in), else any on PATH."""
+    found = subprocess.run([str(DOCKER_DIR / "local" / "docker-client.sh")],
+                           capture_output=True, text=True)
+    return found.stdout.strip() if found.returncode == 0 else shutil.which("docker")
 
 
 def compose_cli() -> list[str] | None:
-    """docker-compose (1.29, Debian) or the compose v2 plugin."""
-    exe = shutil.which("docker-compose")
-    if exe:
-        return [exe]
+    """docker/compose.sh when it finds the compose plugin or docker-compose."""
     cli = docker_cli()
-    if cli and subprocess.run([cli, "compose", "version"], capture_output=True).returncode == 0:
-        return [cli, "compose"]
-    return None
+    plugin = cli and subprocess.run([cli, "compose", "version"],
+                                    capture_output=True).returncode == 0
+    return [str(COMPOSE)] if plugin or shutil.which("docker-compose") else None
 
 
 def engine_problem() -> str | None:
@@ -65,9 +65,10 @@ def engine_problem() -> str | None:
 
 
 def run(args: list[str], timeout: float = 300, env: dict | None = None, check: bool = True,
-        cwd: Path = ROOT) -> subprocess.CompletedProcess:
+        cwd: Path = ROOT, base: dict | None = None) -> subprocess.CompletedProcess:
+    """``args`` with ``env`` over ``base`` (default: this process's environment)."""
     proc = subprocess.run(args, capture_output=True, text=True, timeout=timeout, cwd=cwd,
-                          env={**os.environ, **(env or {})})
+                          env={**(os.environ if base is None else base), **(env or {})})
     if check and proc.returncode != 0:
         raise RuntimeError(f"{' '.join(args)} exited {proc.returncode}:\n"
                            f"{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
@@ -114,7 +115,8 @@ class ComposeStack:
             "OTGEO_HOST_IP": "127.0.0.1",
             "OTGEO_PORT": str(self.port),
             "OTGEO_IMAGE": IMAGE,
-            "COMPOSE_DOCKER_CLI_BUILD": "0",
+            "OTGEO_REDIS_IMAGE": "otgeo-redis:local",
+            "OTGEO_POSTGRES_IMAGE": "otgeo-postgres:local",
         }
         self.docker = docker_cli()
 
@@ -123,8 +125,13 @@ class ComposeStack:
         return [*compose_cli(), "-f", "docker/compose.yaml", "-f", "docker/compose.test.yaml",
                 "-p", self.project, *args]
 
-    def compose(self, *args: str, timeout: float = 300, check: bool = True):
-        return run(self.compose_argv(*args), timeout=timeout, env=self.env, check=check)
+    def compose(self, *args: str, timeout: float = 300, check: bool = True,
+                passwords: bool = True):
+        env = self.env if passwords else {k: v for k, v in self.env.items()
+                                          if not k.endswith("_PASSWORD")}
+        full = None if passwords else {k: v for k, v in os.environ.items()
+                                       if not k.endswith("_PASSWORD")}
+        return run(self.compose_argv(*args), timeout=timeout, env=env, check=check, base=full)
 
     def up(self) -> float:
         """Create and start everything; seconds until /healthz answers and the API, Redis
@@ -134,8 +141,10 @@ class ComposeStack:
         self.wait_healthy(("api", "redis", "postgres"), timeout=180)
         return time.monotonic() - t0
 
-    def down(self) -> None:
-        self.compose("down", "-v", "--remove-orphans", "-t", "5", check=False, timeout=180)
+    def down(self, check: bool = False) -> subprocess.CompletedProcess:
+        """Remove containers, networks and volumes; needs no password (as in the README)."""
+        return self.compose("down", "-v", "--remove-orphans", "-t", "5", check=check,
+                            timeout=180, passwords=False)
 
     def containers(self, service: str) -> list[str]:
         """Container ids of a service, stopped ones included, oldest first (the labels

@@ -40,6 +40,7 @@ def test_soft_map_job_values_rows_and_glb(client, pair):
     assert len(values["correspondence"]) == 162
     assert values["energies"]["bijectivity"] >= 1.0 - 1e-6  # Cauchy-Schwarz at unit area
     assert values["energies"]["dirichlet"] > 0 and values["samples"] == 60
+    assert (values["source_id"], values["target_id"]) == (a, b)  # the viewer reads these
     row = client.get(f"/v1/jobs/{job['id']}/arrays/soft_map/rows/3").json()["values"]
     assert len(row) == 162 and abs(sum(row) - 1.0) < 1e-4
     glb = client.get(f"/v1/jobs/{job['id']}/result.glb")

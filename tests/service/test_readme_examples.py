@@ -1,0 +1,161 @@
+"""Every shell, Python and JSON example of the documentation runs, against a live
+``otgeo serve`` (one API process with one worker, on a free port).
+
+The examples are read from DOCUMENTS by tests/doc_examples.py (Markdown fences and includes,
+reStructuredText code blocks and literalinclude, so a later docs/ tree is read the same
+way). Shell examples run with ``bash -e -o pipefail`` and ``OTGEO_URL`` pointing at the live
+server; Python examples with this interpreter; JSON examples are domain bodies, each line
+POSTed to ``/v1/domains``. Each runs in a scratch folder laid out like a checkout (links to
+the repository's top-level entries, ``../shared`` beside it), so relative paths work and
+nothing is written into the repository.
+
+A block that cannot run here is listed in SKIP with the reason (and not collected); a block
+made smaller to keep the suite fast is listed in SMALLER, and the document must say so."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import httpx
+import pytest
+from doc_examples import ROOT, Example, extract
+from liveserver import API
+from shared_meshes import MESHES_DIR
+
+DOCUMENTS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("**/*.md")),
+             *sorted((ROOT / "docs").glob("**/*.rst"))]
+# substring of the block -> why it does not run in this test
+SKIP = {
+    "make serve": "installs into .venv and runs a server until stopped, and `make test` runs "
+                  "the whole suite (this test among it)",
+    "up --build --scale worker=4": "pulls from Docker Hub, builds and runs containers for "
+                                   "minutes: tests/service/test_docker.py runs the same "
+                                   "compose file",
+    "build-images.sh otgeo:latest": "needs a Docker engine and minutes: "
+                                    "tests/service/test_docker.py runs these commands (with "
+                                    "the tag otgeo:test and its own project name)",
+    "build-images.sh otgeo:test": "the commands tests/service/test_docker.py runs "
+                                  "(tests/service/dockerstack.py), with placeholders",
+}
+# substring of the block -> (text, replacement run instead, what the document says about it)
+SMALLER = {
+    "soft_map(lion, cat, pairs)": ("soft_map(lion, cat, pairs)",
+                                   "soft_map(lion, cat, pairs, samples=64, k=20, "
+                                   "refine='none')",
+                                   "the test suite runs it with `samples=64, k=20, "
+                                   "refine=\"none\"`"),
+}
+# substring of the block -> patterns its standard output must match (what the text claims)
+OUTPUT = {
+    "quickstart.py": [r"^2930 vertices, genus 0$", r"^W2\^2 = \d", r"converged=True"],
+    "propagate_histograms": [r"^\[0\.2\d*\s", r"\s0\.8\d*\s*\]$"],
+    "soft_map(lion, cat": [r"^\(5000,\)$", r"^1\.0\d*$|^0\.99\d*$"],
+}
+TIMEOUT = 300
+
+
+def examples() -> list[Example]:
+    return [e for doc in DOCUMENTS for e in extract(doc)]
+
+
+def matching(table: dict, example: Example):
+    keys = [k for k in table if k in example.code or (example.include and k in
+                                                       str(example.include))]
+    assert len(keys) <= 1, (example.id, keys)
+    return table[keys[0]] if keys else None
+
+
+RUNNABLE = [e for e in examples() if e.runnable]
+RUN = [e for e in RUNNABLE if matching(SKIP, e) is None]
+
+
+def test_every_code_block_is_an_example_or_named():
+    """No block escapes: each has a language, and each entry of SKIP/SMALLER/OUTPUT matches
+    exactly one block (no stale entries)."""
+    blocks = examples()
+    assert blocks, DOCUMENTS
+    for e in blocks:
+        assert e.language, f"{e.document.name}:{e.line}: a code block without a language"
+    for table in (SKIP, SMALLER, OUTPUT):
+        for key in table:
+            hits = [e.id for e in RUNNABLE if key in e.code
+                    or (e.include and key in str(e.include))]
+            assert len(hits) == 1, (key, hits)
+    for e in RUNNABLE:
+        if e.include is not None:  # a Markdown block standing for a file holds its text
+            assert e.code == e.include.read_text(), f"{e.id}: differs from {e.include}"
+    for key, (_, new, says) in SMALLER.items():
+        doc = next(e.document for e in RUNNABLE if key in e.code)
+        text = " ".join(doc.read_text().split())  # across line breaks
+        assert says in text, f"{doc.name} must say that the suite runs {new}"
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("readme")
+    api = API({"OTGEO_DATA_DIR": str(tmp / "data"), "OTGEO_WORKERS": "1",
+               "OTGEO_REAPER_INTERVAL": "1"}, tmp)
+    try:
+        api.wait_healthy(60)
+        yield api
+    finally:
+        api.stop(timeout=5)
+
+
+@pytest.fixture
+def checkout(tmp_path) -> Path:
+    """A scratch folder laid out like the checkout: ``work/<entry>`` links to the repository's
+    top-level entries and ``shared`` to the shared data, so ``../shared/...`` resolves."""
+    work = tmp_path / "work"
+    work.mkdir()
+    for entry in ROOT.iterdir():
+        if entry.name not in (".git", "data"):
+            (work / entry.name).symlink_to(entry)
+    (tmp_path / "shared").symlink_to(MESHES_DIR.parent)
+    return work
+
+
+def environment(live) -> dict:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("OTGEO_")}
+    env["OTGEO_URL"] = live.url
+    env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
+    return env
+
+
+def run_example(e: Example, cwd: Path, env: dict, live) -> str:
+    code = e.code
+    change = matching(SMALLER, e)
+    if change is not None:
+        old, new, _ = change
+        assert old in code
+        code = code.replace(old, new)
+    if e.language == "json":
+        for line in filter(None, map(str.strip, code.splitlines())):
+            spec = json.loads(line)
+            assert "kind" in spec, f"{e.id}: a JSON example that is not a domain: {line}"
+            r = httpx.post(f"{live.url}/v1/domains", json=spec, timeout=60)
+            assert r.status_code == 201, (line, r.text)
+        return ""
+    if e.include is not None and change is None:
+        argv = [sys.executable, str(cwd / e.include.relative_to(ROOT))]
+    elif e.language == "python":
+        argv = [sys.executable, "-c", code]
+    else:
+        argv = ["bash", "-e", "-o", "pipefail", "-c", code]
+    out = subprocess.run(argv, cwd=cwd, env=env, capture_output=True, text=True,
+                         timeout=TIMEOUT)
+    assert out.returncode == 0, f"{e.id} exited {out.returncode}:\n{out.stdout[-2000:]}\n" \
+                                f"{out.stderr[-3000:]}\n{live.log()}"
+    return out.stdout
+
+
+@pytest.mark.parametrize("example", RUN, ids=[e.id for e in RUN])
+def test_example_runs(example, live, checkout):
+    stdout = run_example(example, checkout, environment(live), live)
+    for pattern in matching(OUTPUT, example) or []:
+        assert re.search(pattern, stdout, re.M), (example.id, pattern, stdout)
