@@ -17,8 +17,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from solvers import Graph
-from solvers.histograms import make_bins, propagate_circular
-from solvers.histograms import summaries
+from solvers.histograms import make_bins, propagate_circular, summaries
 
 bins = make_bins(lo=0.0, hi=2 * np.pi, count=36, periodic=True)
 
