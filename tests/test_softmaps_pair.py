@@ -42,7 +42,8 @@ def _error(cat, gt, corr, picks):
 def test_lion_to_cat_with_five_landmarks(pair):
     cat, lion, gt, landmarks = pair
     res = soft_map(lion, cat, landmarks[:5, ::-1], samples=128)
-    assert res.target_points == 128 and res.soft_map.shape[0] == 128  # coarse target
+    assert res.soft_map.shape == (128, res.target_points)  # the coarse target's points
+    assert abs(res.target_points - 128) <= 4
     rows = res.target_rows()
     assert rows.shape == (128, cat.n) and np.isfinite(res.residual)
     np.testing.assert_allclose(rows.sum(axis=1), 1.0, atol=1e-4)

@@ -20,6 +20,7 @@ Wasserstein propagation (Alg. 4) on the target's heat kernel with batched sweeps
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -133,10 +134,11 @@ class SoftMapResult(SolverResult):
 
     ``samples`` ``(N,)`` source vertices; ``labels`` ``(n_source,)`` sample of each source
     vertex's cell; ``cell_areas`` ``(N,)``; ``edges``/``edge_weights`` the source graph.
-    ``target_points``: the number of coarse target points eq. 3.18 was solved over
-    (:mod:`solvers.softmaps.coarse_target`), ``None`` when it was solved over every target
-    vertex.  ``soft_map`` ``(N, target_points or n_target)`` float32 masses per sample on
-    the points solved over (rows sum to 1); ``prolongation`` (with a coarse target) takes
+    ``target_points``: the number of coarse target points eq. 3.18 was solved over (the
+    decimated target's vertices, :mod:`solvers.softmaps.coarse_target`; about the number
+    asked for), ``None`` when it was solved over every target vertex.  ``soft_map``
+    ``(N, target_points or n_target)`` float32 masses per sample on the points solved over
+    (rows sum to 1); ``prolongation`` (with a coarse target) takes
     them to every target vertex: :meth:`row` and :meth:`target_rows` do.  With ``top_k``,
     ``soft_map`` is ``None`` and ``top_indices``/``top_masses`` ``(N, k)`` keep the ``k``
     largest masses per row over the target's vertices, ``dropped_mass`` ``(N,)`` the rest.
@@ -220,6 +222,22 @@ def descriptors_for_pair(source, target, landmarks, *, k: int = 100, n_energies:
     return np.concatenate(blocks0, axis=1), np.concatenate(blocks1, axis=1)
 
 
+def _one_blas_thread(fn):
+    """Run ``fn`` with BLAS on one thread: the soft map parallelizes its own loops
+    (propagation chunks, nearest rows) over the cores, and BLAS threads on top of those
+    oversubscribed them (ad hoc: a cold default call took 51 s unpinned at load 4.8 against
+    18 s pinned)."""
+    @functools.wraps(fn)
+    def pinned(*args, **kwargs):
+        from threadpoolctl import threadpool_limits
+
+        with threadpool_limits(limits=1, user_api="blas"):
+            return fn(*args, **kwargs)
+
+    return pinned
+
+
+@_one_blas_thread
 def soft_map(
     source,
     target,
@@ -375,7 +393,7 @@ def soft_map(
         dropped_mass=dropped, correspondence=corr, sample_correspondence=sample_corr,
         dirichlet=dirichlet, descriptor_energy=descriptor, gamma=gamma, tau=tau,
         timings=timings, n_target=target.n, sinkhorn=extracted.sinkhorn,
-        target_points=points, prolongation=prolongation)
+        target_points=None if coarse is None else coarse.n, prolongation=prolongation)
 
 
 def _zoomout_queries(source, target, pairs):
