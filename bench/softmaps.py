@@ -110,6 +110,18 @@ class Evaluator:
                               if g >= 0]))
 
 
+HELD_OUT = slice(5, None)  # landmark lines 6-20: never given to a method, scored only
+
+
+def held_out_misses(target, corr, held_target, held_source) -> np.ndarray:
+    """Geodesic distance on the target between where ``corr`` sends each held-out source
+    landmark and its target landmark."""
+    from solvers.softmaps.descriptors import geodesic_distances_from
+
+    d = geodesic_distances_from(target, held_target)
+    return d[np.asarray(corr)[held_source], np.arange(len(held_target))]
+
+
 def reverse_truth(gt, n_cat: int) -> np.ndarray:
     """Cat -> lion ground truth from the lion -> cat map: for every cat vertex hit by the map,
     the first lion vertex mapped to it (-1 elsewhere)."""
@@ -134,6 +146,97 @@ def _timed_soft_map(method: str, ev, source, target, pairs, **options):
            "load_before": before, "load_after": loadavg()}
     print(row, flush=True)
     return row, res
+
+
+def _peak_rss_mb() -> float:
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+COARSE_SIZES = (128, 1024)
+
+
+def _one_coarse(direction: str, n: int) -> dict:
+    """A warm default soft map (a first call builds the caches), ``direction`` "lion->cat"
+    or "cat->lion", ``n`` samples; errors with and without refinement, held-out landmarks,
+    the process's peak RSS."""
+    from solvers.softmaps import soft_map
+
+    cat, lion, gt, lm = load()
+    every = np.loadtxt(PAIRS / "cat-lion-landmarks.txt", dtype=np.int64)
+    held = every[HELD_OUT]
+    if direction == "lion->cat":
+        source, target, ev, pairs = lion, cat, Evaluator(cat, gt), lm[:, ::-1]
+        held_t, held_s = held[:, 0], held[:, 1]
+    else:
+        source, target, ev, pairs = cat, lion, Evaluator(lion, reverse_truth(gt, cat.n)), lm
+        held_t, held_s = held[:, 1], held[:, 0]
+    soft_map(source, target, pairs, samples=n)  # caches: eigenpairs, samples, coarse target
+    before = loadavg()
+    t0 = time.perf_counter()
+    res = soft_map(source, target, pairs, samples=n)
+    seconds = time.perf_counter() - t0
+    after = loadavg()
+    misses = held_out_misses(target, res.correspondence, held_t, held_s)
+    return {"direction": direction, "samples": n, "target_points": res.target_points,
+            "seconds": seconds, "timings": res.timings, "iterations": res.iterations,
+            "residual": res.residual, "converged": res.converged, "gamma": res.gamma,
+            "error": ev(res.correspondence),
+            "error_mode": ev(res.sample_correspondence[res.labels]),
+            "held_out_median": float(np.median(misses)), "held_out_max": float(misses.max()),
+            "peak_rss_mb": _peak_rss_mb(), "code": _code(), "load_before": before,
+            "load_after": after}
+
+
+def part_coarse():
+    """The defaults (coarse target, symmetric ZoomOut) at 128 and 1,024 samples, both
+    directions, each in a fresh process, warm; pyFM in the same run."""
+    rows = []
+    for direction in ("lion->cat", "cat->lion"):
+        for n in COARSE_SIZES:
+            out = subprocess.run([sys.executable, __file__, "_coarse", direction, str(n)],
+                                 check=True, capture_output=True, text=True).stdout
+            rows.append(json.loads(out.strip().splitlines()[-1]))
+            print(rows[-1], flush=True)
+    cat, lion, gt, lm = load()
+    for row in _pyfm_rows(Evaluator(cat, gt), lm):
+        rows.append({"direction": "lion->cat", **row})
+    for row in _pyfm_rows(Evaluator(lion, reverse_truth(gt, cat.n)), lm[:, ::-1],
+                          target="lion-00.off", source="cat-00.off"):
+        rows.append({"direction": "cat->lion", **row})
+    return rows
+
+
+GROWTH_SIZES = tuple(int(x) for x in os.environ.get(
+    "SOFTMAPS_GROWTH", "128,256,512,1024,2048,4096").split(","))
+
+
+def _one_growth(n: int) -> dict:
+    from solvers.softmaps import soft_map
+
+    cat, lion, gt, lm = load()
+    pairs = lm[:, ::-1]
+    soft_map(lion, cat, pairs, samples=n)  # caches
+    before = loadavg()
+    t0 = time.perf_counter()
+    res = soft_map(lion, cat, pairs, samples=n)
+    seconds = time.perf_counter() - t0
+    return {"samples": n, "target_points": res.target_points, "seconds": seconds,
+            "propagation": res.timings["propagation"], "iterations": res.iterations,
+            "converged": res.converged, "edges": int(len(res.edges)),
+            "error": Evaluator(cat, gt)(res.correspondence), "peak_rss_mb": _peak_rss_mb(),
+            "code": _code(), "load_before": before, "load_after": loadavg()}
+
+
+def part_growth():
+    rows = []
+    for n in GROWTH_SIZES:
+        out = subprocess.run([sys.executable, __file__, "_growth", str(n)], check=True,
+                             capture_output=True, text=True).stdout
+        rows.append(json.loads(out.strip().splitlines()[-1]))
+        print(rows[-1], flush=True)
+    return rows
 
 
 def _pyfm_rows(ev, lm, **meshes) -> list[dict]:
@@ -577,6 +680,40 @@ def render(data) -> str:
            "load average (1/5/15 min) before and after it. The machine has 2 cores shared with "
            "other sessions: a load above ~1.5 means the times are inflated (by up to load/2).",
            ""]
+    out += _table(
+        data.get("coarse"), "Defaults: coarse target, both directions, pyFM in the same run",
+        "Warm default soft maps (each in a fresh process after a first call; eq. 3.18 over "
+        "the target decimated to about as many points as samples, rows prolonged; symmetric "
+        "ZoomOut (20, 80, 2)), and pyFM (basic, ICP, ZoomOut; settings as in the accuracy "
+        "part). Error: mean geodesic error on the target / sqrt(area) (lion -> cat over all "
+        "5,000 lion vertices; cat -> lion over the cat vertices the ground truth hits), with "
+        "and without refinement (the soft map's modes). Held out: the geodesic miss of the "
+        "15 landmark pairs never given to any method (lines 6-20 of cat-lion-landmarks.txt), "
+        "median / largest, unit-area target. Peak RSS: the process's (it includes the "
+        "first call).",
+        ["direction", "method", "target points", "error", "error before refinement",
+         "held out median / max", "seconds", "propagation s", "sweeps", "peak RSS MB",
+         "load before", "load after"],
+        lambda r: [r["direction"], r.get("method", f"otgeo soft map, {r.get('samples')} "
+                                                   "samples, defaults"),
+                   r.get("target_points", ""), f"{1e3 * r['error']:.2f}e-3",
+                   f"{1e3 * r['error_mode']:.1f}e-3" if "error_mode" in r else "",
+                   f"{r['held_out_median']:.4f} / {r['held_out_max']:.4f}"
+                   if "held_out_median" in r else "", f"{r['seconds']:.2f}",
+                   f"{r['timings']['propagation']:.2f}" if "timings" in r else "",
+                   r["iterations"] + 1 if "iterations" in r else "",
+                   f"{r['peak_rss_mb']:.0f}" if "peak_rss_mb" in r else "",
+                   r["load_before"], r["load_after"]])
+    out += _table(
+        data.get("growth"), "Growth with the number of samples (defaults, coarse target)",
+        "lion -> cat with the defaults, warm (second call in a fresh process): seconds end to "
+        "end, of the propagation, sweeps, error as above, the process's peak RSS.",
+        ["samples", "target points", "source edges", "seconds", "propagation s", "sweeps",
+         "converged", "error", "peak RSS MB", "code", "load before", "load after"],
+        lambda r: [r["samples"], r["target_points"], r["edges"], f"{r['seconds']:.2f}",
+                   f"{r['propagation']:.2f}", r["iterations"] + 1, r["converged"],
+                   f"{1e3 * r['error']:.2f}e-3", f"{r['peak_rss_mb']:.0f}", r["code"],
+                   r["load_before"], r["load_after"]])
     out += _accuracy_table(data.get("accuracy"), "Accuracy",
                            "Mean geodesic error on the cat / sqrt(cat area), all 5,000 lion "
                            "vertices, 5 landmarks, same evaluator (heat-method distances) for "
@@ -780,6 +917,12 @@ def main(argv):
     if argv[:1] == ["_sweep_cost"]:
         sys.path.insert(0, argv[1])  # the solvers package to measure
         print(json.dumps(_one_sweep_cost(int(argv[2]))))
+        return
+    if argv[:1] == ["_coarse"]:
+        print(json.dumps(_one_coarse(argv[1], int(argv[2])), default=float))
+        return
+    if argv[:1] == ["_growth"]:
+        print(json.dumps(_one_growth(int(argv[1])), default=float))
         return
     if argv[:1] == ["_convergence"]:
         print(json.dumps(_one_convergence(int(argv[1]))))
