@@ -125,3 +125,15 @@ def test_symmetric_zoomout_keeps_an_exact_map(sphere):
         out = zoomout(sphere, sphere, ident, k_start=10, k_end=20, step=2,
                       symmetric=symmetric)
         assert np.mean(out == ident) > 0.99
+
+
+def test_multiscale_start_reaches_the_same_fixed_point(sphere):
+    """A start from a 128-sample solve prolonged (start_masses of the propagation, its
+    log-scalings centred at free nodes) ends where the cold start ends."""
+    pairs = _landmarks(sphere)
+    options = dict(samples=200, k=30, refine="none", tol=1e-6)
+    cold = soft_map(sphere, sphere, pairs, **options)
+    warm = soft_map(sphere, sphere, pairs, multiscale=True, **options)
+    assert cold.converged and warm.converged and warm.target_points == cold.target_points
+    gap = np.abs(cold.soft_map.astype(float) - warm.soft_map).sum(axis=1).max()
+    assert gap < 1e-4

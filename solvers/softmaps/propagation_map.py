@@ -44,6 +44,8 @@ from solvers.softmaps.extraction import EXTRACTIONS, REFINEMENTS, extract_corres
 from solvers.softmaps.sampling import farthest_point_samples
 from solvers.validation import check_int, check_positive
 
+# Samples (and coarse target points) of the first solve of ``multiscale=True``.
+MULTISCALE_SAMPLES = 128
 # ZoomOut's steps before the last read out this many farthest-point source vertices (None:
 # all of them); the last one reads out every vertex (bench/results/softmaps.md).
 ZOOMOUT_QUERIES = 1024
@@ -263,6 +265,7 @@ def soft_map(
     refine: str = "symmetric-zoomout",
     zoomout_range: tuple[int, int, int] = (20, 80, 2),
     max_bytes: int | None = None,
+    multiscale: bool = False,
     progress: Callable[[int, float], None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
 ) -> SoftMapResult:
@@ -302,6 +305,9 @@ def soft_map(
         (:func:`~solvers.softmaps.extraction.extract_correspondence`).
     max_bytes : refuse (``InputError`` on ``samples``) a problem whose estimated peak memory
         exceeds this.
+    multiscale : start the propagation from a solve with :data:`MULTISCALE_SAMPLES` samples
+        over as many coarse target points, prolonged (``start_masses`` of the propagation;
+        same fixed point; off by default: bench/results/softmaps.md measures it).
 
     Returns
     -------
@@ -356,8 +362,15 @@ def soft_map(
     timings["descriptors"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
+    start = None
+    if multiscale and coarse is not None and n_samples > MULTISCALE_SAMPLES:
+        start = _multiscale_start(source, target, pairs, graph, coarse, f0, f1, norm=norm,
+                                  tau=tau, tol=tol, max_iter=max_iter)
+    timings["multiscale"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
     prop, rows, descriptor = _propagate(solved, coarse, graph, cells, pairs, cost, tau=tau,
                                         gamma=gamma, substeps=substeps, tol=tol,
+                                        start_masses=start,
                                         max_iter=max_iter, acceleration=acceleration,
                                         progress=progress, should_cancel=should_cancel)
     timings["propagation"] = time.perf_counter() - t0
@@ -396,6 +409,26 @@ def soft_map(
         target_points=None if coarse is None else coarse.n, prolongation=prolongation)
 
 
+def _multiscale_start(source, target, pairs, graph, coarse, f0, f1, *, norm, tau, tol,
+                      max_iter):
+    """``(coarse.n, N)`` guesses for the nodes of ``graph``: eq. 3.18 solved with
+    :data:`MULTISCALE_SAMPLES` samples over as many coarse points (default gamma there),
+    each row prolonged to the target, read at ``coarse``'s points, and given to the nodes
+    of its cell."""
+    small = farthest_point_samples(source, MULTISCALE_SAMPLES, pairs[:, 0])
+    cells = np.bincount(small.labels, weights=source.areas, minlength=small.n)
+    below = coarse_target(target, MULTISCALE_SAMPLES)
+    cost = compatibility_cost(f0, f1, areas0=source.areas, areas1=target.areas,
+                              rows=small.indices, norm=norm, columns=below.restrict(f1))
+    _, rows, _ = _propagate(below.mesh, below, small, cells, pairs, cost, tau=tau,
+                            gamma=default_gamma(small.n, below.mesh), tol=tol,
+                            max_iter=max_iter, acceleration="over-relaxation")
+    density = below.prolongation.apply(rows.astype(np.float64)) / target.areas  # (n_s, n)
+    guess = coarse.restrict(density.T) * coarse.mesh.areas[:, None]  # (coarse.n, n_s)
+    guess /= guess.sum(axis=0, keepdims=True)
+    return guess[:, small.labels[graph.indices]]
+
+
 def _zoomout_queries(source, target, pairs):
     """ZoomOut's intermediate vertices and their cell areas on the source and the target
     (``None``: all), farthest-point samples seeded with the landmarks."""
@@ -408,7 +441,8 @@ def _zoomout_queries(source, target, pairs):
     return on(source, pairs[:, 0]), on(target, np.unique(pairs[:, 1]))
 
 
-def _propagate(solved, coarse, graph, cells, pairs, cost, *, tau, gamma, **options):
+def _propagate(solved, coarse, graph, cells, pairs, cost, *, tau, gamma, start_masses=None,
+               **options):
     """eq. 3.18 over ``solved`` (the target, or ``coarse.mesh``): the propagation result,
     the ``(N, solved.n)`` float32 rows and the descriptor energy (eq. 4.6).  ``cost`` is
     consumed (turned into the node log-rescalings in place)."""
@@ -423,8 +457,12 @@ def _propagate(solved, coarse, graph, cells, pairs, cost, *, tau, gamma, **optio
             fixed[j][y] = 1.0
         else:
             fixed[j] = coarse.landmark_masses(int(y))
+    if start_masses is not None:
+        for j, m in fixed.items():
+            start_masses[:, j] = m
     prop = wasserstein_propagation(solved, graph.n, graph.edges, fixed, edge_weights=w,
-                                   node_scalings=log_d, gamma=gamma, **options)
+                                   node_scalings=log_d, gamma=gamma,
+                                   start_masses=start_masses, **options)
     # Descriptor energy (eq. 4.6) with the normalized cost c = -log_d * gamma * W_u / tau.
     descriptor = -(gamma / tau) * float((cells * wu) @ np.einsum("ij,ji->i", log_d,
                                                                   prop.masses))
