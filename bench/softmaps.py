@@ -848,7 +848,55 @@ def render(data) -> str:
     return "\n".join(out)
 
 
-READING = """## Reading
+READING = """## Reading: the coarse target (runs of 2026-12-03)
+
+All figures of 2026-12-03 were taken at load 2.6-3.1 (five other sessions' tests on the two
+cores, and `cpu bench` could not hold them off), so the times are inflated; the earlier
+full-resolution figures below were taken at load 1.6-2.1.
+
+- What changed: eq. 3.18 is solved by default over the target decimated to about as many
+  points as samples (1,025 cat points at 1,024 samples, 130 at 128), rows prolonged to all
+  7,207 vertices; the default refinement is symmetric ZoomOut (20, 80, 2) with the steps
+  before the last on 1,024 farthest-point vertices of each mesh.
+- Time (defaults table, warm): 1,024 samples lion -> cat 8.88 s end to end, 7.59 s of
+  propagation (68 sweeps); cat -> lion 10.87 s, 9.60 s (100 sweeps).  128 samples: 1.17 s
+  and 1.10 s end to end.  The full-resolution 1,024-sample solve took 85-116 s (tables
+  below): the coarse problem is 7x smaller per sweep and needs 68 sweeps instead of 261
+  (its default gamma is 4 h^2 of the coarse mesh, ~2.2x the full-resolution one).
+- Accuracy (same table, pyFM in the same run): lion -> cat 19.36e-3 (1,024 samples) and
+  20.20e-3 (128) against pyFM ZoomOut 21.56e-3 (ratios 0.898, 0.937); cat -> lion 16.61e-3
+  at both sizes against 21.20e-3 (0.783).  Held-out landmarks (15 pairs never given):
+  median miss 0.020 / largest 0.077 (lion -> cat), 0.013 / 0.038 (cat -> lion), unit-area
+  target.  Before refinement the modes are worse than at full resolution (91.2e-3 against
+  77.4e-3 at 1,024 samples; 192.8e-3 at 128): the coarse rows are blurrier (larger gamma);
+  the refinement starts from their functional map, which does not suffer.
+- Where the accuracy gain comes from (ad hoc, lion -> cat / cat -> lion, load ~2.5): the
+  coarse target alone gave 21.58e-3 / 21.36e-3 at 1,024 samples with the former one-way
+  ZoomOut (20, 50, 1) -- level with pyFM, as at full resolution (21.54e-3 / 21.37e-3).
+  Tying the reverse map in (symmetric ZoomOut) gave 19.8e-3 / 17.6e-3 with (20, 60, 1) and
+  19.4-20.2e-3 / 16.6e-3 with (20, 80, 2) at 128-1,024 samples; one-way ZoomOut to k 80 or
+  100 was worse (22.7e-3, 25.7e-3 at 128 samples).  The range (20, 80, 2) was chosen on
+  this pair (both directions).
+- Subsampled ZoomOut steps (ad hoc, one-way ZoomOut, 128 samples): 0.68 s instead of 2.61
+  s of extraction, error 21.78e-3 against 21.60e-3.
+- Multiscale start (table above): starting the 1,024-sample propagation from a 128-sample
+  solve prolonged reaches the same fixed point (same errors) but does not save sweeps
+  (70 against 68, 107 against 100) and costs more time (8.9-9.2 s against 7.7 s; 12.3-12.5
+  s against 9.8 s).  It stays an option (`multiscale=True`), off by default.  Without
+  centring the log-scalings at free nodes the same start converged to another point
+  (error 64e-3 against 19.4e-3 at 256 samples, ad hoc): Alg. 4's fixed point needs their
+  weighted mean at a free node to be 0.
+- Memory at 1,024 samples (ad hoc, `/proc/self/status`): 132 MB after imports, 180 MB
+  with both meshes, 377 MB resident (443 MB peak) after the first call built the caches
+  (eigenpairs, geodesic solvers, coarse target and its factor, compiled kernels); the
+  timed call then peaks at 454 MB, its own arrays at 135 MB (tracemalloc).  So the
+  process's peak RSS (427-446 MB in the table) misses the 300 MB target; the soft map's
+  arrays are within it (full resolution: 684 MiB traced).
+- BLAS threads: `soft_map` now runs BLAS on one thread (threadpoolctl).  Unpinned, a cold
+  default call took 51 s at load 4.8 (descriptors 12.4 s, ZoomOut 29 s: BLAS threads on
+  top of the solver's own threads), pinned 18 s.
+
+## Reading: the full-resolution target (runs of 2026-12-01/02)
 
 - Accuracy (run of 2026-12-02 15:17, load 1.9-2.1): the converged 1,024-sample soft map,
   refined by ZoomOut (20, 50, 1) started from its own functional map, scores 21.54e-3
