@@ -859,10 +859,15 @@ full-resolution figures below were taken at load 1.6-2.1.
   7,207 vertices; the default refinement is symmetric ZoomOut (20, 80, 2) with the steps
   before the last on 1,024 farthest-point vertices of each mesh.
 - Time (defaults table, warm): 1,024 samples lion -> cat 8.88 s end to end, 7.59 s of
-  propagation (68 sweeps); cat -> lion 10.87 s, 9.60 s (100 sweeps).  128 samples: 1.17 s
+  propagation (69 sweeps); cat -> lion 10.87 s, 9.60 s (101 sweeps).  128 samples: 1.17 s
   and 1.10 s end to end.  The full-resolution 1,024-sample solve took 85-116 s (tables
-  below): the coarse problem is 7x smaller per sweep and needs 68 sweeps instead of 261
+  below): the coarse problem is 7x smaller per sweep and needs 69 sweeps instead of 262
   (its default gamma is 4 h^2 of the coarse mesh, ~2.2x the full-resolution one).
+- Growth (table above, load 3.0-5.2): 128 / 256 / 512 / 1,024 samples take 1.4 / 1.5 /
+  2.9 / 9.4 s (22 / 31 / 50 / 69 sweeps); 2,048 samples 66.9 s (262 sweeps, 712 MB);
+  4,096 samples hit the 1,000-sweep cap unconverged after 603 s (1.9 GB; error still
+  19.58e-3).  The slow tail of the full-resolution solve comes back as the samples grow:
+  gamma shrinks with them and the coarse target is as fine as the samples.
 - Accuracy (same table, pyFM in the same run): lion -> cat 19.36e-3 (1,024 samples) and
   20.20e-3 (128) against pyFM ZoomOut 21.56e-3 (ratios 0.898, 0.937); cat -> lion 16.61e-3
   at both sizes against 21.20e-3 (0.783).  Held-out landmarks (15 pairs never given):
@@ -881,7 +886,7 @@ full-resolution figures below were taken at load 1.6-2.1.
   s of extraction, error 21.78e-3 against 21.60e-3.
 - Multiscale start (table above): starting the 1,024-sample propagation from a 128-sample
   solve prolonged reaches the same fixed point (same errors) but does not save sweeps
-  (70 against 68, 107 against 100) and costs more time (8.9-9.2 s against 7.7 s; 12.3-12.5
+  (71 against 69, 108 against 101) and costs more time (8.9-9.2 s against 7.7 s; 12.3-12.5
   s against 9.8 s).  It stays an option (`multiscale=True`), off by default.  Without
   centring the log-scalings at free nodes the same start converged to another point
   (error 64e-3 against 19.4e-3 at 256 samples, ad hoc): Alg. 4's fixed point needs their
@@ -892,6 +897,9 @@ full-resolution figures below were taken at load 1.6-2.1.
   timed call then peaks at 454 MB, its own arrays at 135 MB (tracemalloc).  So the
   process's peak RSS (427-446 MB in the table) misses the 300 MB target; the soft map's
   arrays are within it (full resolution: 684 MiB traced).
+- Viewer (ad hoc, /work/scratch script, Playwright + Chromium against `otgeo serve`, load
+  ~3): a default lion -> cat job run from the page took 9.5 s cold; from "succeeded" to
+  the soft-map view ready to hover 0.86 s; a hovered row (prolonged on the server) 0.05 s.
 - BLAS threads: `soft_map` now runs BLAS on one thread (threadpoolctl).  Unpinned, a cold
   default call took 51 s at load 4.8 (descriptors 12.4 s, ZoomOut 29 s: BLAS threads on
   top of the solver's own threads), pinned 18 s.
