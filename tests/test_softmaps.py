@@ -144,7 +144,8 @@ def test_symmetric_self_map_splits_then_one_landmark_breaks_symmetry():
     assert near > 0.2 and far > 0.2 and 0.67 < near / far < 1.5
     landmark = int(np.argmax(v[:, 0] - 2 * np.abs(v[:, 1]) - 2 * np.abs(v[:, 2] - 0.3)))
     res = soft_map(mesh, mesh, [[landmark, landmark]], samples=120, tau=0.05, gamma=0.004,
-                   k=40, landmark_weight=0.0, max_iter=150, refine="none")
+                   k=40, landmark_weight=0.0, max_iter=150, refine="none",
+                   target_points=None)
     dist = np.linalg.norm(v[res.samples] - v[landmark], axis=1)
     for i in np.argsort(dist)[1:4]:  # the samples next to the landmark
         near, far = split(res.row(i), res.samples[i])

@@ -16,6 +16,10 @@ from solvers.softmaps import soft_map
 from solvers.softmaps.descriptors import geodesic_distances_from
 
 PAIRS = MESHES_DIR / "pairs"
+# Held-out landmarks, geodesic miss on the unit-area cat: measured median 0.020, largest
+# 0.077 (128 samples, defaults); the mean error of the whole map is ~0.020.
+HELD_OUT_MEDIAN = 0.04
+HELD_OUT_MAX = 0.12
 
 
 @pytest.fixture(scope="module")
@@ -24,8 +28,8 @@ def pair():
     cat = load_mesh(PAIRS / "cat-00.off", weld=False)
     lion = load_mesh(PAIRS / "lion-00.off", weld=False)
     gt = np.loadtxt(PAIRS / "lion-to-cat.txt", dtype=np.int64)
-    landmarks = np.loadtxt(PAIRS / "cat-lion-landmarks.txt", dtype=np.int64)[:5]
-    return cat, lion, gt, landmarks
+    landmarks = np.loadtxt(PAIRS / "cat-lion-landmarks.txt", dtype=np.int64)
+    return cat, lion, gt, landmarks  # the first 5 are given, the other 15 held out
 
 
 def _error(cat, gt, corr, picks):
@@ -37,14 +41,24 @@ def _error(cat, gt, corr, picks):
 
 def test_lion_to_cat_with_five_landmarks(pair):
     cat, lion, gt, landmarks = pair
-    res = soft_map(lion, cat, landmarks[:, ::-1], samples=128, max_iter=30,
-                   zoomout_range=(20, 100, 5))
-    assert res.soft_map.shape == (128, cat.n) and np.isfinite(res.residual)
-    np.testing.assert_allclose(res.soft_map.sum(axis=1), 1.0, atol=1e-4)
+    res = soft_map(lion, cat, landmarks[:5, ::-1], samples=128)
+    assert res.soft_map.shape == (128, res.target_points)  # the coarse target's points
+    assert abs(res.target_points - 128) <= 4
+    rows = res.target_rows()
+    assert rows.shape == (128, cat.n) and np.isfinite(res.residual)
+    np.testing.assert_allclose(rows.sum(axis=1), 1.0, atol=1e-4)
     picks = np.arange(0, lion.n, 25)  # 200 lion vertices
     unrefined = _error(cat, gt, res.sample_correspondence[res.labels], picks)
     refined = _error(cat, gt, res.correspondence, picks)
-    # Measured (all 5,000 vertices): 0.082 extracted modes, 0.0227 after ZoomOut.
-    assert unrefined < 0.11
+    # The 128-point coarse target's default gamma (4 h^2 there) blurs the rows: measured
+    # 0.193 for the extracted modes here (0.094 over all lion vertices with the full-
+    # resolution target, ad hoc); ZoomOut is what makes the map accurate.
+    assert unrefined < 0.25
     assert refined < 0.03
     assert refined < unrefined
+    # Held-out landmarks (lines 6-20 of the file): geodesic distance on the cat between
+    # where the map sends each lion landmark and its cat landmark.
+    held = landmarks[5:]
+    d = geodesic_distances_from(cat, held[:, 0])
+    misses = d[res.correspondence[held[:, 1]], np.arange(len(held))]
+    assert np.median(misses) < HELD_OUT_MEDIAN and misses.max() < HELD_OUT_MAX

@@ -122,6 +122,12 @@ class JobService:
         from service.store import jsonable
 
         self.result(job_id, include_arrays=False)  # state checks
+        op = self.rt.operations.get_operation(self.get(job_id).operation)
+        if op.result_row is not None:  # e.g. a soft map's rows, prolonged when asked for
+            derived = op.result_row(lambda n: self.rt.store.get_result_array(job_id, n),
+                                    name, row)
+            if derived is not None:
+                return jsonable(derived)
         stored = self.rt.store.result_array_index(job_id).get(name)
         if stored is None:
             raise NotFound(f"job {job_id} has no array {name!r}", field="name")

@@ -207,6 +207,10 @@ class Operation:
     # bytes of working memory a job needs, estimated from (view, request) at submission
     # (default: ``estimate_job_bytes``); checked against ``job_memory_bytes``
     estimate_bytes: Callable[..., int] | None = None
+    # rows of arrays the operation derives from its stored ones on demand:
+    # ``result_row(array, name, row)`` (``array(name)`` reads a stored result array) returns
+    # row ``row`` of ``name``, or ``None`` when ``name`` is served as stored
+    result_row: Callable[..., np.ndarray | None] | None = None
 
     def check_kind(self, view: DomainView, field: str = "domain_id") -> None:
         if view.kind not in self.kinds:

@@ -1,10 +1,14 @@
 """Soft maps between two uploaded meshes (thesis ch. 4, §3.7): ``POST /v1/soft-maps``.
 
 A global operation over two stored mesh domains; thin over :func:`solvers.softmaps.soft_map`.
-Results: energies and the extracted correspondence (JSON values); the soft map as the
-array ``soft_map`` (samples x target vertices, float32; one row, the distribution of a
-source sample, at ``GET /v1/jobs/{id}/arrays/soft_map/rows/{i}`` -- ``labels[x]`` is the
-row of source vertex ``x``), ``samples``, ``labels``, ``correspondence``; the densities as
+Results: energies and the extracted correspondence (JSON values); the soft map's rows, one
+per source sample, at ``GET /v1/jobs/{id}/arrays/soft_map/rows/{i}`` (the distribution over
+every target vertex; ``labels[x]`` is the row of source vertex ``x``).  Solved over a coarse
+target (``target_points``, default ``"auto"``), the map is stored as ``soft_map_coarse``
+(samples x coarse points, float32) with the prolongation ``prolongation_indices`` /
+``prolongation_weights`` (target vertices x 3-4), and each row asked for is prolonged then
+(:func:`result_row`); at full resolution it is stored as ``soft_map`` (samples x target
+vertices).  Also ``samples``, ``labels``, ``correspondence``; the densities as
 one-row arrays (``.../arrays/bijectivity_density/rows/0``: :math:`b(y)` per target vertex,
 eq. 4.5; ``dirichlet_vertex_density``: the Dirichlet energy density per source vertex;
 ``dirichlet_density`` per sample); and ``result.glb``: the source colored by target
@@ -44,6 +48,10 @@ class SoftMapRequest(OperationRequest):
                                           "descriptors")
     samples: int = Field(1024, ge=2, le=100_000, description="farthest-point source samples "
                          "(>= source vertices: all of them)")
+    target_points: int | Literal["auto"] | None = Field(
+        "auto", description="solve over the target decimated to about this many points, "
+        "then prolong each row to every target vertex; 'auto': as many as the samples when "
+        "that is at most 2/3 of the target's vertices; null: every target vertex")
     tau: float = Field(0.05, gt=0, le=1e6, description="compatibility weight (cost of mean 1)")
     gamma: float | None = Field(None, gt=0, le=100, description="entropic regularization on "
                                 "the target (unit area); default: twice the squared sample "
@@ -59,9 +67,11 @@ class SoftMapRequest(OperationRequest):
     top_k: int | None = Field(None, ge=1, description="store only the k largest masses per "
                               "row (arrays top_indices/top_masses, dropped_mass)")
     extraction: Literal["mode", "barycentric", "path"] = "mode"
-    refine: Literal["zoomout", "sinkhorn", "sinkhorn+zoomout", "none"] = Field(
-        "zoomout", description="zoomout: spectral upsampling (ZoomOut) started from the soft "
-        "map's own functional map; sinkhorn: "
+    refine: Literal["symmetric-zoomout", "zoomout", "sinkhorn", "sinkhorn+zoomout",
+                    "none"] = Field(
+        "symmetric-zoomout", description="symmetric-zoomout: ZoomOut with the reverse map "
+        "tied in (C of the reverse map = C^T); zoomout: spectral upsampling (ZoomOut) started "
+        "from the soft map's own functional map; sinkhorn: "
         "project the soft map onto the doubly-stochastic set (source/target areas) before "
         "extraction; sinkhorn+zoomout: both; none")
     show_vertices: list[int] = Field(default_factory=list, max_length=8, description="source "
@@ -115,6 +125,8 @@ class SoftMapValues(BaseModel):
     energies: SoftMapEnergies
     correspondence: list[int] = Field(description="target vertex of every source vertex")
     samples: int
+    target_points: int | None = Field(description="coarse target points the map was solved "
+                                      "over (null: every target vertex)")
     gamma: float
     tau: float
     iterations: int
@@ -142,7 +154,7 @@ def _mesh_view(ctx, domain_id: str, field: str):
 
 
 def validate(ctx, req: SoftMapRequest) -> list[dict]:
-    from solvers.softmaps.propagation_map import estimated_bytes
+    from solvers.softmaps.propagation_map import estimated_bytes, solved_points
 
     src = _mesh_view(ctx, req.source_id, "source_id")
     tgt = _mesh_view(ctx, req.target_id, "target_id")
@@ -165,7 +177,12 @@ def validate(ctx, req: SoftMapRequest) -> list[dict]:
         raise InvalidInput(f"k must be below {min(src.n, tgt.n) - 2}", field="k")
     if req.top_k is not None and req.top_k > tgt.n:
         raise InvalidInput(f"top_k must be at most {tgt.n}", field="top_k")
-    need = estimated_bytes(min(req.samples, src.n), tgt.n)
+    if isinstance(req.target_points, int) and req.target_points < 4:
+        raise InvalidInput("target_points must be at least 4 (or 'auto', or null)",
+                           field="target_points")
+    n_samples = min(req.samples, src.n)
+    need = estimated_bytes(n_samples, tgt.n,
+                           target_points=solved_points(req.target_points, n_samples, tgt.n))
     limit = int(ctx.settings.job_memory_bytes)
     if need > limit:
         raise PayloadTooLarge(f"{min(req.samples, src.n)} samples over {tgt.n} target "
@@ -190,7 +207,9 @@ def _glb(source, target, res, show_rows, rows_of, densities) -> bytes:
 
     colors = coordinate_colors(target)
     if res.soft_map is not None:
-        pulled = pull_back(res.soft_map, colors, res.labels)
+        on_rows = colors if res.prolongation is None else \
+            res.prolongation.transpose_apply(colors)  # P^T: the rows stay coarse
+        pulled = pull_back(res.soft_map, on_rows, res.labels)
     else:
         pulled = pull_back_top_k(res.top_indices, res.top_masses, colors, res.labels)
     width = float(np.ptp(source.vertices[:, 0]) + np.ptp(target.vertices[:, 0]))
@@ -233,7 +252,8 @@ def run(ctx, req: SoftMapRequest, progress, should_cancel) -> OperationOutput:
     source = ctx.domain(req.source_id, "source_id")
     target = ctx.domain(req.target_id, "target_id")
     pairs = [[p.source, p.target] for p in req.landmarks]
-    res = soft_map(source, target, pairs, samples=req.samples, tau=req.tau, gamma=req.gamma,
+    res = soft_map(source, target, pairs, samples=req.samples,
+                   target_points=req.target_points, tau=req.tau, gamma=req.gamma,
                    k=req.k, n_energies=req.n_energies, wks_weight=req.wks_weight,
                    landmark_weight=req.landmark_weight, landmark_route=req.landmark_route,
                    norm=req.norm, tol=req.tol, max_iter=req.max_iter, top_k=req.top_k,
@@ -250,6 +270,7 @@ def run(ctx, req: SoftMapRequest, progress, should_cancel) -> OperationOutput:
             bijectivity_density=_summary("bijectivity_density", b, target.areas),
             dirichlet_density=_summary("dirichlet_vertex_density", e_vertex, source.areas)),
         correspondence=res.correspondence.tolist(), samples=int(len(res.samples)),
+        target_points=res.target_points,
         gamma=res.gamma, tau=res.tau, iterations=res.iterations, residual=res.residual,
         converged=res.converged,
         dropped_mass_max=None if res.dropped_mass is None else float(res.dropped_mass.max()),
@@ -264,7 +285,11 @@ def run(ctx, req: SoftMapRequest, progress, should_cancel) -> OperationOutput:
               # One-row arrays: GET .../arrays/<name>/rows/0 returns them without the map.
               "bijectivity_density": b[None, :],
               "dirichlet_vertex_density": e_vertex[None, :]}
-    if res.soft_map is not None:
+    if res.prolongation is not None:
+        arrays.update(soft_map_coarse=res.soft_map,
+                      prolongation_indices=res.prolongation.indices.astype(np.int32),
+                      prolongation_weights=res.prolongation.weights.astype(np.float32))
+    elif res.soft_map is not None:
         arrays["soft_map"] = res.soft_map
     else:
         arrays.update(top_indices=res.top_indices, top_masses=res.top_masses,
@@ -284,6 +309,25 @@ def run(ctx, req: SoftMapRequest, progress, should_cancel) -> OperationOutput:
     return OperationOutput(values=values, arrays=arrays, files=files)
 
 
+def result_row(array, name: str, row: int) -> np.ndarray | None:
+    """Row ``row`` of ``soft_map`` prolonged from ``soft_map_coarse`` (a map solved over a
+    coarse target), ``None`` for any other array or a full-resolution map."""
+    from service.errors import NotFound
+    from solvers.softmaps.coarse_target import Prolongation
+
+    if name != "soft_map":
+        return None
+    try:
+        coarse = array("soft_map_coarse")
+    except NotFound:
+        return None  # stored at full resolution
+    if not 0 <= row < coarse.shape[0]:
+        raise InvalidInput(f"row {row} out of range [0, {coarse.shape[0] - 1}]", field="row")
+    p = Prolongation(array("prolongation_indices"), array("prolongation_weights"),
+                     coarse.shape[1])
+    return p.apply(coarse[row].astype(np.float64))
+
+
 OPERATIONS = [
     Operation(
         name="soft-maps",
@@ -297,5 +341,6 @@ OPERATIONS = [
         scope="global",
         domain_field="source_id",
         result_model=SoftMapValues,
+        result_row=result_row,
     ),
 ]

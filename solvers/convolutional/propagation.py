@@ -231,6 +231,7 @@ def wasserstein_propagation(
     threads: int | None = None,
     initial: PropagationResult | None = None,
     keep_scalings: bool = False,
+    start_masses=None,
 ) -> PropagationResult:
     r"""Propagate distributions from fixed graph nodes to the others (Alg. 4, eq. 3.17).
 
@@ -267,6 +268,10 @@ def wasserstein_propagation(
         another start.
     keep_scalings : return the final edge log-scalings in ``scalings`` (``2m x n`` floats,
         the solver's largest array, handed over without a copy).
+    start_masses : optional ``(n, n_nodes)`` guesses of the distributions (e.g. a coarser
+        solve prolonged): before the first sweep every edge takes one Sinkhorn step
+        towards the guesses at its two ends (first ends, then second ends; one kernel
+        application per edge end).  Same fixed point, another start.
 
     Returns
     -------
@@ -319,6 +324,15 @@ def wasserstein_propagation(
                        fixed_m, threads)
     by_color = [np.flatnonzero(color == c) for c in range(int(color.max()) + 1)]
     free = np.flatnonzero(~is_fixed)
+    if start_masses is not None:
+        if initial is not None:
+            raise InputError("give initial or start_masses, not both", field="start_masses")
+        _sinkhorn_start(sweeper, start_masses, end_side, end_node, opposite, n_nodes, a)
+        # Alg. 4's fixed point needs the weighted mean of the log-scalings at a free node to
+        # be 0 (its dual constraint, kept by every barycenter update): centre them.
+        own = _own_side_logs(log_p, log_q, log_d, end_edge, end_side, end_node, n)
+        _centre_free_nodes(T, own, sweeper.end_weight, end_node, is_fixed)
+        del own
 
     it = 0
     residual = np.inf
@@ -394,6 +408,38 @@ def wasserstein_propagation(
                              kernel_columns=sweeper.columns,
                              scalings=T if keep_scalings else None,
                              end_order=end_order)
+
+
+def _sinkhorn_start(sweeper, start_masses, end_side, end_node, opposite, n_nodes, a) -> None:
+    """One Sinkhorn step per edge towards ``start_masses`` at its ends, in place in ``T``:
+    the first ends' marginals are set to their guesses, then the second ends'."""
+    m = np.asarray(start_masses, np.float64)
+    if m.shape != (len(a), n_nodes) or not np.all(np.isfinite(m)) or np.any(m < 0):
+        raise InputError(f"start_masses must be ({len(a)}, {n_nodes}) finite non-negative "
+                         "masses", field="start_masses")
+    T = sweeper.T
+    floor = 1e-300
+    for side in (0, 1):
+        rows = np.flatnonzero(end_side == side)
+        for r0 in range(0, len(rows), 256):
+            r = rows[r0:r0 + 256]
+            guess = np.log(np.maximum(m[:, end_node[r]].T, floor) / a[None, :])
+            with np.errstate(over="ignore", under="ignore", invalid="ignore",
+                             divide="ignore"):
+                T[r] += guess - (T[r] + sweeper._log_kernel(opposite[r]))
+
+
+def _centre_free_nodes(T, own, end_weight, end_node, is_fixed) -> None:
+    """Subtract from the log-scalings ``T - own`` of every free node's ends their weighted
+    mean (``end_weight`` sums to 1 over a node's ends; a node's ends are contiguous)."""
+    starts = np.flatnonzero(np.r_[True, end_node[1:] != end_node[:-1]])
+    bounds = np.r_[starts, len(end_node)]
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        if is_fixed[end_node[a]]:
+            continue
+        S = T[a:b] - own[a:b]
+        S = np.where(np.isfinite(S), S, 0.0)
+        T[a:b] -= end_weight[a:b] @ S
 
 
 def _warm_start(T, initial, end_order, gamma) -> None:

@@ -8,6 +8,7 @@ landmark distances)
 compatibility cost :math:`c(x, y)`         :mod:`~solvers.softmaps.compatibility`
 §4.5.2 descriptor soft map                 :mod:`~solvers.softmaps.descriptor_map`
 source graph: samples, weights             :mod:`~solvers.softmaps.sampling`
+coarse target and prolongation             :mod:`~solvers.softmaps.coarse_target`
 §3.7 eq. 3.17-3.18 soft map by             :mod:`~solvers.softmaps.propagation_map`
 Wasserstein propagation
 eq. 4.1-4.6 Dirichlet, potential,          :mod:`~solvers.softmaps.energies`

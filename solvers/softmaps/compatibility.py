@@ -91,13 +91,16 @@ def mean_cost(f0, f1, areas0, areas1, norm: str = "l1") -> float:
     return total
 
 
-def compatibility_cost(f0, f1, *, areas0, areas1, rows=None, norm: str = "l1",
+def compatibility_cost(f0, f1, *, areas0, areas1, rows=None, columns=None, norm: str = "l1",
                        dtype=np.float64) -> np.ndarray:
     r"""Normalized cost :math:`c(x, y) / \bar c` (mean 1 over :math:`M_0 \times M`).
 
     ``f0`` ``(n0, d)`` source descriptors, ``f1`` ``(n1, d)`` target descriptors, ``areas0``
     and ``areas1`` their vertex areas; ``rows``: optional source vertices to return (the
-    mean is still over all of :math:`M_0`).  Returns ``(len(rows) or n0, n1)``.
+    mean is still over all of :math:`M_0`); ``columns``: optional ``(m, d)`` target
+    descriptors where the cost is evaluated instead of ``f1`` (e.g. at the points of a
+    coarse target; the mean is still over :math:`M`).  Returns ``(len(rows) or n0,
+    len(columns) or n1)``.
     """
     f0, f1 = _check_pair(f0, f1)
     a0 = np.asarray(areas0, dtype=np.float64)
@@ -110,6 +113,7 @@ def compatibility_cost(f0, f1, *, areas0, areas1, rows=None, norm: str = "l1",
     if not mean > 0:
         raise InputError("descriptors do not distinguish any pair of points",
                          field="descriptors")
-    c = pairwise_cost(f0 if rows is None else f0[np.asarray(rows)], f1, norm, dtype)
+    at = f1 if columns is None else _check_descriptors(columns, "columns")
+    c = pairwise_cost(f0 if rows is None else f0[np.asarray(rows)], at, norm, dtype)
     c /= mean
     return c

@@ -212,10 +212,15 @@ def soft_map_energies(target, result) -> SoftMapEnergies:
 
     The Dirichlet energy and descriptor energy are those the propagation measured
     (``result.dirichlet``, ``result.descriptor_energy``); :math:`b` and :math:`E_B =
-    \int_M b^2` (eq. 4.5) are computed from the rows (dense, or the kept top-k masses,
+    \int_M b^2` (eq. 4.5) are computed from the rows on the target's vertices (dense --
+    prolonged from a coarse target --, or the kept top-k masses,
     :func:`bijectivity_density_top_k`).
     """
-    if result.soft_map is not None:
+    if result.soft_map is not None and result.prolongation is not None:
+        # b is linear in the rows: prolong the cell-weighted coarse masses once.
+        cells = np.asarray(result.cell_areas, np.float64)
+        b = result.prolongation.apply(cells @ result.soft_map.astype(np.float64)) / target.areas
+    elif result.soft_map is not None:
         b = bijectivity_density(target, result.soft_map, result.cell_areas)
     else:
         b = bijectivity_density_top_k(target, result.top_indices, result.top_masses,

@@ -10,7 +10,10 @@ r"""Point-to-point correspondences from a soft map (thesis §4.5.1) and their re
 * :func:`zoomout` -- spectral upsampling (Melzi et al. 2019, "ZoomOut"): a point map gives
   a functional map :math:`C = \Phi_0^\top A_0 \Phi[T]` in ``k`` eigenfunctions, ``k`` grows
   step by step and the map is re-read as nearest neighbours of the rows of :math:`\Phi_0`
-  among the rows of :math:`\Phi C^\top`.  Used as the optional refinement after extraction.
+  among the rows of :math:`\Phi C^\top`; ``symmetric=True`` also reads out the reverse
+  map and ties the two functional maps by :math:`C_{M\to M_0} = C^\top` (the adjoint of an
+  area-preserving map, as in the bijective ZoomOut of Ren et al. 2021).  Used as the
+  optional refinement after extraction.
 * :func:`sinkhorn_projection` -- the soft map's plan :math:`\pi = D_{c}P` (``c`` the
   source cell areas) scaled by rows and columns, :math:`\pi \leftarrow D_u \pi D_v`, until its
   target marginal is the target's area :math:`a` as well (the doubly-stochastic set w.r.t.
@@ -36,7 +39,7 @@ from solvers.softmaps.descriptors import eigenpairs
 from solvers.validation import check_indices, check_int, check_positive
 
 EXTRACTIONS = ("mode", "barycentric", "path")
-REFINEMENTS = ("zoomout", "sinkhorn", "sinkhorn+zoomout", "none")
+REFINEMENTS = ("symmetric-zoomout", "zoomout", "sinkhorn", "sinkhorn+zoomout", "none")
 SINKHORN_ITERATIONS = 50  # at most: stops at SINKHORN_TOL (bench/results/softmaps_refinement.md)
 SINKHORN_TOL = 1e-3  # L1 target-marginal violation (the plan's total mass is 1)
 
@@ -117,7 +120,8 @@ def trace_path(source_edges, n_nodes: int, rows: np.ndarray, target, seed: tuple
 
 
 def zoomout(source, target, correspondence=None, *, k_start: int = 20, k_end: int = 100,
-            step: int = 1, soft=None) -> np.ndarray:
+            step: int = 1, soft=None, queries=None, symmetric: bool = False,
+            target_queries=None) -> np.ndarray:
     r"""Refine a point map ``source vertex -> target vertex`` by spectral upsampling.
 
     At each size ``k`` in ``k_start, k_start + step, ..., k_end``:
@@ -127,17 +131,29 @@ def zoomout(source, target, correspondence=None, *, k_start: int = 20, k_end: in
     pull-back :math:`C = \Phi_{0,k}^\top A_0 P \Phi_k` with :math:`P_{x,y} =`
     ``rows[labels[x], y]`` (``rows`` ``(N, n_target)`` masses, ``labels`` ``(n_source,)``),
     so the first read-out sees the whole distributions, not one extracted point per row.
-    Returns the ``(n_source,)`` refined map.
+    ``queries=(vertices, weights)``: the steps before the last read out only these source
+    vertices, and :math:`C_k` is the quadrature :math:`\sum_x w_x \Phi_{0,k}(x)^\top
+    \Phi_k(T(x))` over them (``weights`` their areas, e.g. farthest-point cells); the
+    final :math:`C` reads out every source vertex.
+
+    ``symmetric=True`` runs ZoomOut in both directions at once, tied by the adjoint
+    relation of an area-preserving map, :math:`C_{M \to M_0} = C_k^\top` (A-orthonormal
+    bases): each step reads out :math:`T` and the reverse map :math:`S` (at
+    ``target_queries``, default every target vertex; started from :math:`C^\top`) and
+    takes :math:`C_k = \tfrac12(\Phi_{0,k}^\top A_0 \Phi_k[T] + (\Phi_k^\top A
+    \Phi_{0,k}[S])^\top)`.  Returns the ``(n_source,)`` refined map.
     """
     k_start = check_int(k_start, "k_start", low=2)
     k_end = check_int(k_end, "k_end", low=k_start)
     step = check_int(step, "step", low=1)
     _, phi0 = eigenpairs(source, k_end)
     _, phi1 = eigenpairs(target, k_end)
-    a0 = source.areas
+    at, w = _queries(source, queries)
+    back, wb = _queries(target, target_queries)
     if soft is not None:
         rows, labels = soft
-        pulled = (np.asarray(rows) @ phi1[:, :k_start])[np.asarray(labels)]  # (n0, k_start)
+        pulled = (np.asarray(rows) @ phi1[:, :k_start])[np.asarray(labels)[at]]
+        C = (phi0[at, :k_start] * w[:, None]).T @ pulled
         corr = None
     else:
         if correspondence is None:
@@ -147,12 +163,27 @@ def zoomout(source, target, correspondence=None, *, k_start: int = 20, k_end: in
         if corr.shape != (source.n,) or corr.min() < 0 or corr.max() >= target.n:
             raise InputError(f"correspondence must be {source.n} target vertices",
                              field="correspondence")
-    for k in list(range(k_start, k_end, step)) + [k_end]:
-        mapped = pulled if corr is None else phi1[corr, :k]  # the soft map only at k_start
-        C = (phi0[:, :k] * a0[:, None]).T @ mapped
+        corr = corr[at]
+    reverse = None
+    ks = list(range(k_start, k_end, step)) + [k_end]
+    for i, k in enumerate(ks):
+        if corr is not None:  # the soft map's C at k_start, else the current maps'
+            C = (phi0[at, :k] * w[:, None]).T @ phi1[corr, :k]
+            if reverse is not None:
+                C = 0.5 * (C + ((phi1[back, :k] * wb[:, None]).T @ phi0[reverse, :k]).T)
         # Adjoint read-out (as ZoomOut): source rows against the target rows mapped by C^T.
-        corr = nearest_rows(phi1[:, :k] @ C.T, phi0[:, :k])
+        last = i == len(ks) - 1
+        corr = nearest_rows(phi1[:, :k] @ C.T, phi0[:, :k] if last else phi0[at, :k])
+        if symmetric and not last:
+            reverse = nearest_rows(phi0[:, :k] @ C, phi1[back, :k])
     return corr
+
+
+def _queries(mesh, queries):
+    """``(vertices, weights)``: the given ones, or every vertex with its area."""
+    if queries is None:
+        return np.arange(mesh.n), mesh.areas
+    return np.asarray(queries[0], np.int64), np.asarray(queries[1], np.float64)
 
 
 def nearest_rows(points: np.ndarray, queries: np.ndarray, chunk: int = 256) -> np.ndarray:
@@ -262,7 +293,8 @@ def extract_correspondence(source, target, rows, *, labels, samples, cell_areas,
                            fixed=None, seed_target: int | None = None, extraction: str = "mode",
                            refine: str = "zoomout",
                            zoomout_range: tuple[int, int, int] = (20, 50, 1),
-                           sinkhorn_iterations: int = SINKHORN_ITERATIONS) -> Correspondence:
+                           sinkhorn_iterations: int = SINKHORN_ITERATIONS,
+                           zoomout_queries=None) -> Correspondence:
     r"""Point map ``source vertex -> target vertex`` from soft-map rows (§4.5.1 + refinement).
 
     ``rows`` ``(N, n)`` masses of the ``N`` source nodes ``samples`` (source vertex ids),
@@ -273,8 +305,11 @@ def extract_correspondence(source, target, rows, *, labels, samples, cell_areas,
     landmark deltas -- left out), ``"zoomout"`` refines
     with :func:`zoomout` over ``zoomout_range``, started from the rows' own functional map
     (the extraction is then only the unrefined ``sample_correspondence``),
-    ``"sinkhorn+zoomout"`` both, ``"none"`` neither.  Each node's match is spread to the
-    vertices of its cell.
+    ``"symmetric-zoomout"`` the same with the reverse map tied in (:func:`zoomout`,
+    ``symmetric=True``), ``"sinkhorn+zoomout"`` both, ``"none"`` neither;
+    ``zoomout_queries``: ``(source, target)`` vertices and weights of ZoomOut's
+    intermediate steps (``queries``/``target_queries`` of :func:`zoomout`).  Each node's
+    match is spread to the vertices of its cell.
     """
     if extraction not in EXTRACTIONS:
         raise InputError(f"extraction must be one of {EXTRACTIONS}", field="extraction")
@@ -299,6 +334,9 @@ def extract_correspondence(source, target, rows, *, labels, samples, cell_areas,
     corr[samples] = sample_corr
     if refine.endswith("zoomout"):
         ks, ke, st = zoomout_range
-        corr = zoomout(source, target, k_start=ks, k_end=ke, step=st, soft=(rows, labels))
+        src_q, tgt_q = zoomout_queries or (None, None)
+        corr = zoomout(source, target, k_start=ks, k_end=ke, step=st, soft=(rows, labels),
+                       queries=src_q, symmetric=refine == "symmetric-zoomout",
+                       target_queries=tgt_q)
     return Correspondence(sample_correspondence=np.asarray(sample_corr, np.int64),
                           correspondence=corr, sinkhorn=projection)

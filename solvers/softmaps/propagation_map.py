@@ -20,6 +20,7 @@ Wasserstein propagation (Alg. 4) on the target's heat kernel with batched sweeps
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -28,6 +29,7 @@ import numpy as np
 from solvers.convolutional import wasserstein_propagation
 from solvers.errors import InputError, UnsupportedDomainError
 from solvers.monitor import SolverResult
+from solvers.softmaps.coarse_target import Prolongation, coarse_target
 from solvers.softmaps.compatibility import NORMS, compatibility_cost
 from solvers.softmaps.descriptors import (
     LANDMARK_ROUTES,
@@ -41,6 +43,14 @@ from solvers.softmaps.energies import dirichlet_from_edge_values
 from solvers.softmaps.extraction import EXTRACTIONS, REFINEMENTS, extract_correspondence
 from solvers.softmaps.sampling import farthest_point_samples
 from solvers.validation import check_int, check_positive
+
+# Samples (and coarse target points) of the first solve of ``multiscale=True``.
+MULTISCALE_SAMPLES = 128
+# ZoomOut's steps before the last read out this many farthest-point source vertices (None:
+# all of them); the last one reads out every vertex (bench/results/softmaps.md).
+ZOOMOUT_QUERIES = 1024
+# "auto" solves over a coarse target when it has at most 1/AUTO_COARSENING of the vertices.
+AUTO_COARSENING = 1.5
 
 
 def check_mesh_for_soft_map(mesh, field: str) -> None:
@@ -76,15 +86,42 @@ def check_landmark_pairs(landmarks, n_source: int, n_target: int) -> np.ndarray:
     return x
 
 
-def estimated_bytes(n_samples: int, n_target: int, edges_per_sample: float = 3.0) -> int:
-    """Peak bytes of :func:`soft_map` for ``n_samples`` over ``n_target`` target vertices.
+def estimated_bytes(n_samples: int, n_target: int, edges_per_sample: float = 3.0,
+                    target_points: int | None = None) -> int:
+    """Peak bytes of :func:`soft_map` for ``n_samples`` over ``n_target`` target vertices,
+    solved over ``target_points`` coarse points (``None``: all ``n_target`` vertices).
 
-    Per (sample, target vertex): the edge-end log-scalings (2 per edge, float64), the node
+    Per (sample, solved point): the edge-end log-scalings (2 per edge, float64), the node
     log-rescalings, barycenters and masses with two temporaries of the final normalization
     (float64), and the float32 soft map; the propagation's chunk temporaries are small.
+    With a coarse target, the prolonged rows the extraction reads (float32, and float64
+    inside the optional Sinkhorn projection: 12 bytes per sample and target vertex).
     Measured peaks are in bench/results/softmaps.md.
     """
-    return int(n_samples * n_target * (2 * edges_per_sample * 8 + 6 * 8 + 4))
+    solved = n_target if target_points is None else target_points
+    total = n_samples * solved * (2 * edges_per_sample * 8 + 6 * 8 + 4)
+    if target_points is not None:
+        total += n_samples * n_target * 12
+    return int(total)
+
+
+def solved_points(target_points, n_samples: int, n_target: int) -> int | None:
+    """The number of coarse target points a soft map solves over, or ``None`` for all
+    ``n_target`` vertices.
+
+    ``"auto"``: as many as the source samples, when that is at most ``n_target /``
+    :data:`AUTO_COARSENING` (else the coarse target would save too little); an integer:
+    that many (``None`` when it is at least ``n_target``); ``None``: all vertices.
+    """
+    if target_points is None:
+        return None
+    if isinstance(target_points, str):
+        if target_points != "auto":
+            raise InputError("target_points must be 'auto', an integer or None",
+                             field="target_points")
+        return n_samples if n_samples * AUTO_COARSENING <= n_target else None
+    points = check_int(target_points, "target_points", low=4)
+    return None if points >= n_target else points
 
 
 def default_gamma(n_samples: int, target) -> float:
@@ -99,15 +136,21 @@ class SoftMapResult(SolverResult):
 
     ``samples`` ``(N,)`` source vertices; ``labels`` ``(n_source,)`` sample of each source
     vertex's cell; ``cell_areas`` ``(N,)``; ``edges``/``edge_weights`` the source graph.
-    ``soft_map`` ``(N, n_target)`` float32 target masses per sample (rows sum to 1), or with
-    ``top_k`` ``None`` and ``top_indices``/``top_masses`` ``(N, k)`` plus ``dropped_mass``
-    ``(N,)`` (mass outside the kept entries).  ``correspondence`` ``(n_source,)`` the target
-    vertex of every source vertex (extracted, then refined if asked);
-    ``sample_correspondence`` ``(N,)`` the extraction before refinement; ``dirichlet`` the
-    Dirichlet energy from the final edge plans (convolutional :math:`W^2`, not debiased);
-    ``descriptor_energy`` eq. 4.6 with the normalized cost; ``sinkhorn`` the projection of
-    ``refine="sinkhorn"`` (:class:`~solvers.softmaps.extraction.SinkhornProjection` without
-    its rows; ``soft_map`` stays the unprojected map), else ``None``.
+    ``target_points``: the number of coarse target points eq. 3.18 was solved over (the
+    decimated target's vertices, :mod:`solvers.softmaps.coarse_target`; about the number
+    asked for), ``None`` when it was solved over every target vertex.  ``soft_map``
+    ``(N, target_points or n_target)`` float32 masses per sample on the points solved over
+    (rows sum to 1); ``prolongation`` (with a coarse target) takes
+    them to every target vertex: :meth:`row` and :meth:`target_rows` do.  With ``top_k``,
+    ``soft_map`` is ``None`` and ``top_indices``/``top_masses`` ``(N, k)`` keep the ``k``
+    largest masses per row over the target's vertices, ``dropped_mass`` ``(N,)`` the rest.
+    ``correspondence`` ``(n_source,)`` the target vertex of every source vertex (extracted,
+    then refined if asked); ``sample_correspondence`` ``(N,)`` the extraction before
+    refinement; ``dirichlet`` the Dirichlet energy from the final edge plans (convolutional
+    :math:`W^2` on the points solved over, not debiased); ``descriptor_energy`` eq. 4.6
+    with the normalized cost; ``sinkhorn`` the projection of ``refine="sinkhorn"``
+    (:class:`~solvers.softmaps.extraction.SinkhornProjection` without its rows;
+    ``soft_map`` stays the unprojected map), else ``None``.
     """
 
     samples: np.ndarray
@@ -127,16 +170,28 @@ class SoftMapResult(SolverResult):
     tau: float = 0.0
     timings: dict = field(default_factory=dict)
     sinkhorn: object = None
+    n_target: int = 0
+    target_points: int | None = None
+    prolongation: Prolongation | None = None
 
     def row(self, i: int) -> np.ndarray:
-        """Dense ``(n_target,)`` masses of sample ``i`` (zeros outside the top-k)."""
+        """Dense ``(n_target,)`` masses of sample ``i`` on every target vertex (prolonged
+        from the coarse target; zeros outside the top-k)."""
         if self.soft_map is not None:
-            return np.asarray(self.soft_map[i], dtype=np.float64)
+            r = np.asarray(self.soft_map[i], dtype=np.float64)
+            return r if self.prolongation is None else self.prolongation.apply(r)
         out = np.zeros(self.n_target)
         out[self.top_indices[i]] = self.top_masses[i]
         return out
 
-    n_target: int = 0
+    def target_rows(self) -> np.ndarray:
+        """``(N, n_target)`` float32 masses of every sample on every target vertex."""
+        if self.soft_map is None:
+            out = np.zeros((len(self.top_indices), self.n_target), np.float32)
+            np.put_along_axis(out, self.top_indices, self.top_masses, axis=1)
+            return out
+        return self.soft_map if self.prolongation is None else \
+            self.prolongation.apply(self.soft_map)
 
 
 def descriptors_for_pair(source, target, landmarks, *, k: int = 100, n_energies: int = 100,
@@ -169,12 +224,29 @@ def descriptors_for_pair(source, target, landmarks, *, k: int = 100, n_energies:
     return np.concatenate(blocks0, axis=1), np.concatenate(blocks1, axis=1)
 
 
+def _one_blas_thread(fn):
+    """Run ``fn`` with BLAS on one thread: the soft map parallelizes its own loops
+    (propagation chunks, nearest rows) over the cores, and BLAS threads on top of those
+    oversubscribed them (ad hoc: a cold default call took 51 s unpinned at load 4.8 against
+    18 s pinned)."""
+    @functools.wraps(fn)
+    def pinned(*args, **kwargs):
+        from threadpoolctl import threadpool_limits
+
+        with threadpool_limits(limits=1, user_api="blas"):
+            return fn(*args, **kwargs)
+
+    return pinned
+
+
+@_one_blas_thread
 def soft_map(
     source,
     target,
     landmarks=None,
     *,
     samples: int = 1024,
+    target_points: int | str | None = "auto",
     tau: float = 0.05,
     gamma: float | None = None,
     substeps: int = 1,
@@ -190,9 +262,10 @@ def soft_map(
     acceleration: str = "over-relaxation",
     top_k: int | None = None,
     extraction: str = "mode",
-    refine: str = "zoomout",
-    zoomout_range: tuple[int, int, int] = (20, 50, 1),
+    refine: str = "symmetric-zoomout",
+    zoomout_range: tuple[int, int, int] = (20, 80, 2),
     max_bytes: int | None = None,
+    multiscale: bool = False,
     progress: Callable[[int, float], None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
 ) -> SoftMapResult:
@@ -204,25 +277,37 @@ def soft_map(
     landmarks : ``(L, 2)`` pairs ``(source vertex, target vertex)``: fixed nodes
         :math:`\mu = \delta_y` and landmark descriptors (geodesic distances).
     samples : number of farthest-point source samples ``N`` (``>= n_source``: all vertices).
+    target_points : ``"auto"`` (default: eq. 3.18 solved over a coarse target of about
+        ``N`` points -- the target decimated, :mod:`solvers.softmaps.coarse_target` -- when
+        that is at most 2/3 of its vertices; :func:`solved_points`), an integer (that many
+        coarse points) or ``None`` (every target vertex).  The compatibility cost is
+        evaluated at the coarse points, landmark deltas are their barycentric weights there,
+        and the rows are prolonged to every target vertex for the extraction
+        (``result.target_points`` says which ran).
     tau : compatibility weight :math:`\tau` (cost of mean 1); gamma : entropic
-        regularization of the target's heat kernel (``t = gamma/4``; default
-        :func:`default_gamma`).
+        regularization of the heat kernel on the target solved over (``t = gamma/4``;
+        default :func:`default_gamma`).
     k, n_energies, wks_weight, landmark_weight, landmark_route, norm : descriptors
         (:func:`descriptors_for_pair`) and cost (:func:`compatibility_cost`); or pass
-        ``descriptors=(f0, f)`` directly.
+        ``descriptors=(f0, f)`` directly (per source and target vertex).
     tol, max_iter : stopping of the propagation (largest L1 marginal violation).
     acceleration : ``"over-relaxation"`` (default: adaptive over-relaxation of the sweeps,
         same fixed point) or ``"none"`` (plain Alg. 4 sweeps); see
         :func:`~solvers.convolutional.wasserstein_propagation`.
-    top_k : keep only the ``k`` largest masses per row (``dropped_mass`` reports the rest).
+    top_k : keep only the ``k`` largest masses per row over the target vertices
+        (``dropped_mass`` reports the rest).
     extraction : ``"mode"``, ``"barycentric"`` or ``"path"`` (eq. 4.7, seeded with the first
-        landmark); refine : ``"zoomout"`` (spectral upsampling over ``zoomout_range =
-        (k_start, k_end, step)``, started from the soft map's own functional map),
+        landmark); refine : ``"symmetric-zoomout"`` (default: spectral upsampling over
+        ``zoomout_range = (k_start, k_end, step)`` started from the soft map's own
+        functional map, the reverse map tied in), ``"zoomout"`` (the same one way),
         ``"sinkhorn"`` (doubly-stochastic projection of the rows before extraction),
         ``"sinkhorn+zoomout"`` or ``"none"``
         (:func:`~solvers.softmaps.extraction.extract_correspondence`).
     max_bytes : refuse (``InputError`` on ``samples``) a problem whose estimated peak memory
         exceeds this.
+    multiscale : start the propagation from a solve with :data:`MULTISCALE_SAMPLES` samples
+        over as many coarse target points, prolonged (``start_masses`` of the propagation;
+        same fixed point; off by default: bench/results/softmaps.md measures it).
 
     Returns
     -------
@@ -238,14 +323,13 @@ def soft_map(
                          "fixed node)", field="landmarks")
     samples = check_int(samples, "samples", low=max(2, len(pairs)))
     n_samples = min(samples, source.n)
-    if max_bytes is not None and estimated_bytes(n_samples, target.n) > max_bytes:
-        raise InputError(f"{n_samples} samples over {target.n} target vertices need about "
-                         f"{estimated_bytes(n_samples, target.n) / 2**20:.0f} MiB, more than "
-                         f"the {max_bytes / 2**20:.0f} MiB allowed", field="samples")
+    points = solved_points(target_points, n_samples, target.n)
+    need = estimated_bytes(n_samples, target.n, target_points=points)
+    if max_bytes is not None and need > max_bytes:
+        raise InputError(f"{n_samples} samples over {points or target.n} target points need "
+                         f"about {need / 2**20:.0f} MiB, more than the "
+                         f"{max_bytes / 2**20:.0f} MiB allowed", field="samples")
     tau = check_positive(tau, "tau")
-    if gamma is None:
-        gamma = default_gamma(n_samples, target)
-    gamma = check_positive(gamma, "gamma")
     if norm not in NORMS:
         raise InputError(f"norm must be one of {NORMS}", field="norm")
     if extraction not in EXTRACTIONS:
@@ -258,7 +342,12 @@ def soft_map(
     t0 = time.perf_counter()
     graph = farthest_point_samples(source, n_samples, pairs[:, 0])
     cells = np.bincount(graph.labels, weights=source.areas, minlength=graph.n)
+    coarse = None if points is None else coarse_target(target, points)
+    solved = target if coarse is None else coarse.mesh
     timings["sampling"] = time.perf_counter() - t0
+    if gamma is None:
+        gamma = default_gamma(n_samples, solved)
+    gamma = check_positive(gamma, "gamma")
 
     t0 = time.perf_counter()
     if descriptors is None:
@@ -268,56 +357,116 @@ def soft_map(
     else:
         f0, f1 = descriptors
     cost = compatibility_cost(f0, f1, areas0=source.areas, areas1=target.areas,
-                              rows=graph.indices, norm=norm)
+                              rows=graph.indices, norm=norm,
+                              columns=None if coarse is None else coarse.restrict(f1))
     timings["descriptors"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
+    start = None
+    if multiscale and coarse is not None and n_samples > MULTISCALE_SAMPLES:
+        start = _multiscale_start(source, target, pairs, graph, coarse, f0, f1, norm=norm,
+                                  tau=tau, tol=tol, max_iter=max_iter)
+    timings["multiscale"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    prop, rows, descriptor = _propagate(solved, coarse, graph, cells, pairs, cost, tau=tau,
+                                        gamma=gamma, substeps=substeps, tol=tol,
+                                        start_masses=start,
+                                        max_iter=max_iter, acceleration=acceleration,
+                                        progress=progress, should_cancel=should_cancel)
+    timings["propagation"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    prolongation = None if coarse is None else coarse.prolongation
+    on_target = rows if prolongation is None else prolongation.apply(rows)
+    extracted = extract_correspondence(source, target, on_target, labels=graph.labels,
+                                       samples=graph.indices, cell_areas=cells,
+                                       edges=graph.edges, fixed=np.arange(len(pairs)),
+                                       seed_target=int(pairs[0, 1]),
+                                       extraction=extraction, refine=refine,
+                                       zoomout_range=zoomout_range,
+                                       zoomout_queries=_zoomout_queries(source, target, pairs))
+    sample_corr, corr = extracted.sample_correspondence, extracted.correspondence
+    if extracted.sinkhorn is not None:
+        extracted.sinkhorn.rows = None  # the projected copy is not kept
+    timings["extraction"] = time.perf_counter() - t0
+    dirichlet = dirichlet_from_edge_values(prop.edge_values, graph.edges, graph.weights,
+                                           graph.n, cells)
+
+    top_idx = top_m = dropped = None
+    if top_k is not None:
+        top_idx = np.argpartition(-on_target, top_k - 1, axis=1)[:, :top_k]
+        top_m = np.take_along_axis(on_target, top_idx, axis=1)
+        dropped = np.maximum(1.0 - top_m.sum(axis=1, dtype=np.float64), 0.0)
+        rows = prolongation = None
+    del on_target
+    return SoftMapResult(
+        iterations=prop.iterations, residual=prop.residual, converged=prop.converged,
+        samples=graph.indices, labels=graph.labels, cell_areas=cells, edges=graph.edges,
+        edge_weights=graph.weights, soft_map=rows, top_indices=top_idx, top_masses=top_m,
+        dropped_mass=dropped, correspondence=corr, sample_correspondence=sample_corr,
+        dirichlet=dirichlet, descriptor_energy=descriptor, gamma=gamma, tau=tau,
+        timings=timings, n_target=target.n, sinkhorn=extracted.sinkhorn,
+        target_points=None if coarse is None else coarse.n, prolongation=prolongation)
+
+
+def _multiscale_start(source, target, pairs, graph, coarse, f0, f1, *, norm, tau, tol,
+                      max_iter):
+    """``(coarse.n, N)`` guesses for the nodes of ``graph``: eq. 3.18 solved with
+    :data:`MULTISCALE_SAMPLES` samples over as many coarse points (default gamma there),
+    each row prolonged to the target, read at ``coarse``'s points, and given to the nodes
+    of its cell."""
+    small = farthest_point_samples(source, MULTISCALE_SAMPLES, pairs[:, 0])
+    cells = np.bincount(small.labels, weights=source.areas, minlength=small.n)
+    below = coarse_target(target, MULTISCALE_SAMPLES)
+    cost = compatibility_cost(f0, f1, areas0=source.areas, areas1=target.areas,
+                              rows=small.indices, norm=norm, columns=below.restrict(f1))
+    _, rows, _ = _propagate(below.mesh, below, small, cells, pairs, cost, tau=tau,
+                            gamma=default_gamma(small.n, below.mesh), tol=tol,
+                            max_iter=max_iter, acceleration="over-relaxation")
+    density = below.prolongation.apply(rows.astype(np.float64)) / target.areas  # (n_s, n)
+    guess = coarse.restrict(density.T) * coarse.mesh.areas[:, None]  # (coarse.n, n_s)
+    guess /= guess.sum(axis=0, keepdims=True)
+    return guess[:, small.labels[graph.indices]]
+
+
+def _zoomout_queries(source, target, pairs):
+    """ZoomOut's intermediate vertices and their cell areas on the source and the target
+    (``None``: all), farthest-point samples seeded with the landmarks."""
+    def on(mesh, seeds):
+        if ZOOMOUT_QUERIES is None or ZOOMOUT_QUERIES >= mesh.n:
+            return None
+        g = farthest_point_samples(mesh, max(ZOOMOUT_QUERIES, len(seeds)), seeds)
+        return g.indices, np.bincount(g.labels, weights=mesh.areas, minlength=g.n)
+
+    return on(source, pairs[:, 0]), on(target, np.unique(pairs[:, 1]))
+
+
+def _propagate(solved, coarse, graph, cells, pairs, cost, *, tau, gamma, start_masses=None,
+               **options):
+    """eq. 3.18 over ``solved`` (the target, or ``coarse.mesh``): the propagation result,
+    the ``(N, solved.n)`` float32 rows and the descriptor energy (eq. 4.6).  ``cost`` is
+    consumed (turned into the node log-rescalings in place)."""
     w = graph.weights
     wu = np.bincount(graph.edges.ravel(), weights=np.repeat(w, 2), minlength=graph.n)
     log_d = cost
     log_d *= -tau / gamma / wu[:, None]  # in place: the cost is not needed any more
     fixed = {}
-    for j, (_, y) in enumerate(pairs):
-        m = np.zeros(target.n)
-        m[y] = 1.0
-        fixed[j] = m  # landmark j is sample j (seeds first)
-    prop = wasserstein_propagation(target, graph.n, graph.edges, fixed, edge_weights=w,
+    for j, (_, y) in enumerate(pairs):  # landmark j is sample j (seeds first)
+        if coarse is None:
+            fixed[j] = np.zeros(solved.n)
+            fixed[j][y] = 1.0
+        else:
+            fixed[j] = coarse.landmark_masses(int(y))
+    if start_masses is not None:
+        for j, m in fixed.items():
+            start_masses[:, j] = m
+    prop = wasserstein_propagation(solved, graph.n, graph.edges, fixed, edge_weights=w,
                                    node_scalings=log_d, gamma=gamma,
-                                   substeps=substeps, acceleration=acceleration,
-                                   tol=tol, max_iter=max_iter, progress=progress,
-                                   should_cancel=should_cancel)
+                                   start_masses=start_masses, **options)
     # Descriptor energy (eq. 4.6) with the normalized cost c = -log_d * gamma * W_u / tau.
     descriptor = -(gamma / tau) * float((cells * wu) @ np.einsum("ij,ji->i", log_d,
                                                                   prop.masses))
     del log_d, cost
     rows = np.ascontiguousarray(prop.masses.T, dtype=np.float32)
-    del prop.masses
-    timings["propagation"] = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
-    extracted = extract_correspondence(source, target, rows, labels=graph.labels,
-                                       samples=graph.indices, cell_areas=cells,
-                                       edges=graph.edges, fixed=np.arange(len(pairs)),
-                                       seed_target=int(pairs[0, 1]),
-                                       extraction=extraction, refine=refine,
-                                       zoomout_range=zoomout_range)
-    sample_corr, corr = extracted.sample_correspondence, extracted.correspondence
-    if extracted.sinkhorn is not None:
-        extracted.sinkhorn.rows = None  # the projected copy is not kept
-    timings["extraction"] = time.perf_counter() - t0
-    dirichlet = dirichlet_from_edge_values(prop.edge_values, graph.edges, w, graph.n, cells)
-
-    top_idx = top_m = dropped = None
-    dense = rows
-    if top_k is not None:
-        top_idx = np.argpartition(-rows, top_k - 1, axis=1)[:, :top_k]
-        top_m = np.take_along_axis(rows, top_idx, axis=1)
-        dropped = np.maximum(1.0 - top_m.sum(axis=1, dtype=np.float64), 0.0)
-        dense = None
-    return SoftMapResult(
-        iterations=prop.iterations, residual=prop.residual, converged=prop.converged,
-        samples=graph.indices, labels=graph.labels, cell_areas=cells, edges=graph.edges,
-        edge_weights=w, soft_map=dense, top_indices=top_idx, top_masses=top_m,
-        dropped_mass=dropped, correspondence=corr, sample_correspondence=sample_corr,
-        dirichlet=dirichlet, descriptor_energy=descriptor, gamma=gamma, tau=tau,
-        timings=timings, n_target=target.n, sinkhorn=extracted.sinkhorn)
+    prop.masses = None
+    return prop, rows, descriptor

@@ -46,13 +46,7 @@ SKIP = {
                      "API/worker split",
 }
 # substring of the block -> (text, replacement run instead, what the document says about it)
-SMALLER = {
-    "soft_map(lion, cat, pairs)": ("soft_map(lion, cat, pairs)",
-                                   "soft_map(lion, cat, pairs, samples=64, k=20, "
-                                   "refine='none')",
-                                   "the test suite runs it with `samples=64, k=20, "
-                                   "refine=\"none\"`"),
-}
+SMALLER: dict[str, tuple[str, str, str]] = {}
 # substring of the block -> patterns its standard output must match (what the text claims)
 OUTPUT = {
     "quickstart.py": [r"^2930 vertices, genus 0$", r"^W2\^2 = \d", r"converged=True"],

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 from service_testing import assert_error, upload_mesh
+from shared_meshes import MESHES_DIR
 
 from service.export import parse_glb
 
@@ -41,8 +42,20 @@ def test_soft_map_job_values_rows_and_glb(client, pair):
     assert values["energies"]["bijectivity"] >= 1.0 - 1e-6  # Cauchy-Schwarz at unit area
     assert values["energies"]["dirichlet"] > 0 and values["samples"] == 60
     assert (values["source_id"], values["target_id"]) == (a, b)  # the viewer reads these
+    # Solved over a coarse target ("auto": about 60 points), stored coarse with the
+    # prolongation; a row asked for is prolonged to every target vertex.
+    assert 50 <= values["target_points"] <= 70
+    arrays = result["arrays"]
+    assert "soft_map" not in arrays
+    assert np.shape(arrays["soft_map_coarse"]) == (60, values["target_points"])
+    assert np.shape(arrays["prolongation_indices"])[0] == 162
     row = client.get(f"/v1/jobs/{job['id']}/arrays/soft_map/rows/3").json()["values"]
     assert len(row) == 162 and abs(sum(row) - 1.0) < 1e-4
+    weights = np.asarray(arrays["prolongation_weights"])
+    coarse = np.asarray(arrays["soft_map_coarse"][3])
+    np.testing.assert_allclose(row, (weights * coarse[np.asarray(
+        arrays["prolongation_indices"])]).sum(1), rtol=1e-5, atol=1e-9)
+    assert_error(client.get(f"/v1/jobs/{job['id']}/arrays/soft_map/rows/60"), 422, "row")
     glb = client.get(f"/v1/jobs/{job['id']}/result.glb")
     assert glb.status_code == 200
     doc, _ = parse_glb(glb.content)
@@ -122,3 +135,43 @@ def test_soft_map_refuses_bad_input_naming_the_field(client, pair, make_client, 
     a2 = upload_mesh(small, _sphere_obj(tmp_path, "c.obj")).json()["id"]
     assert_error(small.post("/v1/soft-maps", json={**body, "source_id": a2, "target_id": a2,
                                                    "samples": 160}), 413, "samples")
+
+
+def test_soft_map_full_resolution_on_request(client, pair):
+    a, b = pair
+    body = {"source_id": a, "target_id": b, **BODY, "target_points": None, "max_iter": 5,
+            "refine": "none"}
+    job = client.post("/v1/soft-maps?wait=60", json=body).json()
+    assert job["state"] == "succeeded", job
+    result = client.get(f"/v1/jobs/{job['id']}/result").json()
+    assert result["values"]["target_points"] is None
+    assert np.shape(result["arrays"]["soft_map"]) == (60, 162)
+    assert "soft_map_coarse" not in result["arrays"]
+    row = client.get(f"/v1/jobs/{job['id']}/arrays/soft_map/rows/3").json()["values"]
+    assert row == pytest.approx(result["arrays"]["soft_map"][3])
+    bad = {**body, "target_points": 3}
+    assert_error(client.post("/v1/soft-maps", json=bad), 422, "target_points")
+
+
+def test_soft_map_of_the_tosca_pair_with_defaults_within_the_wait(client):
+    """The cat/lion pair with the defaults (1,024 samples over a coarse target of about as
+    many points) inside ``?wait=60``, from cold domains."""
+    pairs = MESHES_DIR / "pairs"
+    cat = upload_mesh(client, pairs / "cat-00.off", weld="false").json()["id"]
+    lion = upload_mesh(client, pairs / "lion-00.off", weld="false").json()["id"]
+    landmarks = np.loadtxt(pairs / "cat-lion-landmarks.txt", dtype=np.int64)[:5]
+    body = {"source_id": lion, "target_id": cat,
+            "landmarks": [{"source": int(lv), "target": int(cv)} for cv, lv in landmarks]}
+    job = client.post("/v1/soft-maps?wait=60", json=body).json()
+    assert job["state"] == "succeeded", job
+    values = client.get(f"/v1/jobs/{job['id']}/result?arrays=false").json()["values"]
+    assert values["samples"] == 1024 and values["converged"]
+    assert abs(values["target_points"] - 1024) <= 16
+    truth = np.loadtxt(pairs / "lion-to-cat.txt", dtype=np.int64)
+    # Exact vertex hits of the approximate ground truth (the benchmark scores geodesic
+    # error; here a cheap check that the map is the right one, not a flip).
+    corr = np.asarray(values["correspondence"])
+    cat_mesh = trimesh.load(pairs / "cat-00.off", process=False)
+    miss = np.linalg.norm(cat_mesh.vertices[corr] - cat_mesh.vertices[truth], axis=1)
+    scale = np.sqrt(cat_mesh.area)
+    assert np.median(miss) / scale < 0.03
