@@ -1,0 +1,456 @@
+"""The default decision of a W2 distance: cost models, route coverage and accuracy.
+
+Parts (``.venv/bin/python bench/distance_routes.py PART [--mesh=NAME,...]``):
+
+* ``calibrate`` (timing: run under ``cpu bench`` with BLAS threads pinned) — bounded MMP
+  solves (tvb-gdist) on meshes from 700 to 50k vertices at several reach fractions, and
+  network-simplex LPs (``ot.emd``) of several sizes; fits the constants of
+  ``solvers.geodesics.mmp_solve_seconds`` and ``solvers.convolutional.exact.LP_COEF`` and
+  prints them (they are committed by hand: a decision never reads timings at run time).
+* ``validate`` (timing) — the exact route run end to end where the default decision takes it
+  (25 + 25 point masses on every mesh, the bench's bumps on the small meshes): measured time
+  against the modelled ``exact_seconds``.
+* ``coverage`` — the decision only (cheap): route and modelled seconds for bumps of radius
+  0.05 / 0.1 / 0.2 near / middle / far and for 25 + 25 points on every shared mesh.
+* ``accuracy`` (``cpu run``) — the default ``wasserstein_distance(mesh, mu0, mu1)`` against
+  the exact LP with squared exact (MMP) geodesics, cached per mesh and case in
+  ``bench/results/convolutional_oracles.json`` (``oracles`` computes missing ones).
+* ``render`` — rewrite ``bench/results/distance_routes.md`` from the json.
+
+Cases (as in ``bench/convolutional.py``): bumps of the README's kind (``{"vertex": i,
+"radius": 0.1}``) at vertex 0 and at the vertices at 15 / 50 / 90 % of the largest geodesic
+distance from it, and 25 + 25 scattered point masses.  Meshes with several components
+(suzanne, beetle, teapot): the cases live on the largest component (vertex 0 is replaced by
+its first vertex whose bump stays on it, targets likewise; points drawn on it).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+MESHES = ROOT.parent / "shared" / "meshes"
+
+from _common import load1, service_bump  # noqa: E402
+
+from solvers import load_mesh  # noqa: E402
+
+ALL_MESHES = ["woody.obj", "suzanne.obj", "beetle.obj", "cow.obj", "spot.obj", "alligator.obj",
+              "teapot.obj", "homer.obj", "fandisk.obj", "cheburashka.obj", "rocker-arm.obj",
+              "stanford-bunny.obj", "nefertiti.obj"]
+CALIBRATION_MESHES = ["woody.obj", "cow.obj", "homer.obj", "rocker-arm.obj",
+                      "stanford-bunny.obj", "nefertiti.obj"]
+REACHES = (0.01, 0.05, 0.2, 0.5, 1.0)
+LP_SIZES = (25, 100, 300, 1000, 2000)
+ORDER = ("near", "middle", "far", "points")
+STORE = ROOT / "bench" / "results" / "distance_routes.json"
+ORACLES = ROOT / "bench" / "results" / "convolutional_oracles.json"
+
+
+def _timed(fn, *args, **kwargs):
+    start = time.perf_counter()
+    out = fn(*args, **kwargs)
+    return out, time.perf_counter() - start
+
+
+# -- calibration ----------------------------------------------------------------------------
+def mmp_rows(names):
+    """Bounded MMP solves at the REACHES fractions (edge-path quantiles) from two sources."""
+    from solvers.geodesics import edge_path_distances, geodesic_distances_within
+
+    rows = []
+    for name in names:
+        mesh = load_mesh(MESHES / name)
+        geodesic_distances_within(mesh, 0, 0.0)  # junction closure, fan split: one-time
+        sources = [0] if mesh.n > 20_000 else [0, mesh.n // 2]
+        for s in sources:
+            paths = edge_path_distances(mesh, [s])[0]
+            finite = np.sort(paths[np.isfinite(paths)])
+            for reach in REACHES:
+                bound = np.inf if reach >= 1 else float(finite[int(reach * (len(finite) - 1))])
+                d, seconds = _timed(geodesic_distances_within, mesh, s, bound)
+                rows.append(dict(name=name, n=mesh.n, source=s, want=reach,
+                                 reach=float(np.isfinite(d).mean()), seconds=seconds,
+                                 load=load1()))
+                print(rows[-1], flush=True)
+    return rows
+
+
+def lp_rows(sizes):
+    import ot
+
+    rng = np.random.default_rng(0)
+    rows = []
+    for k in sizes:
+        x, y = rng.random((k, 3)), rng.random((k, 3))
+        cost = ((x[:, None, :] - y[None, :, :]) ** 2).sum(axis=2)
+        a = np.full(k, 1.0 / k)
+        _, seconds = _timed(ot.emd, a, a, cost, numItermax=10**8)
+        rows.append(dict(k=k, seconds=seconds, load=load1()))
+        print(rows[-1], flush=True)
+    return rows
+
+
+def fit_mmp(rows):
+    """Least squares on log seconds: ``s n + c n^p reach^q``."""
+    from scipy.optimize import least_squares
+
+    n = np.array([r["n"] for r in rows], dtype=float)
+    reach = np.array([max(r["reach"], 1e-6) for r in rows])
+    t = np.array([r["seconds"] for r in rows])
+
+    def model(x):
+        s, c, p, q = np.exp(x[0]), np.exp(x[1]), x[2], x[3]
+        return s * n + c * n**p * reach**q
+
+    fit = least_squares(lambda x: np.log(model(x)) - np.log(t),
+                        x0=[np.log(1.4e-5), np.log(3e-7), 1.7, 1.1])
+    s, c, p, q = np.exp(fit.x[0]), np.exp(fit.x[1]), fit.x[2], fit.x[3]
+    ratio = t / model(fit.x)
+    return dict(setup=float(s), coef=float(c), power=float(p), reach_power=float(q),
+                ratio_min=float(ratio.min()), ratio_max=float(ratio.max()),
+                ratio_median=float(np.median(ratio)))
+
+
+def fit_lp(rows):
+    k = np.array([r["k"] for r in rows], dtype=float)
+    t = np.array([r["seconds"] for r in rows])
+    unit = k * k * np.log2(k * k)
+    big = k >= 300  # small LPs are dominated by call overhead
+    return dict(coef=float(np.max(t[big] / unit[big])),
+                ratios=[float(x) for x in t / unit])
+
+
+# -- cases ----------------------------------------------------------------------------------
+def _largest_component(mesh):
+    labels = np.asarray(mesh.component_labels)
+    return labels == np.bincount(labels).argmax()
+
+
+def _bump_inside(mesh, inside, i):
+    m = service_bump(mesh, i)
+    return m if np.all(inside[m > 0]) else None
+
+
+def cases(mesh, name):
+    """``{label: (mu0, mu1, target)}``: the module docstring's cases."""
+    from solvers.geodesics import geodesic_distances
+
+    inside = _largest_component(mesh)
+    base = 0
+    if not inside.all():
+        base = next(int(i) for i in np.flatnonzero(inside)
+                    if _bump_inside(mesh, inside, int(i)) is not None)
+    d0 = geodesic_distances(mesh, [base])[0]
+    d0 = np.where(inside & np.isfinite(d0), d0, np.nan)
+    top = np.nanmax(d0)
+    out = {}
+    for label, frac in (("near", 0.15), ("middle", 0.5), ("far", 0.9)):
+        order = np.argsort(np.abs(np.nan_to_num(d0, nan=np.inf) - frac * top), kind="stable")
+        j = next(int(k) for k in order if _bump_inside(mesh, inside, int(k)) is not None)
+        out[label] = (service_bump(mesh, base), service_bump(mesh, j), j)
+    rng = np.random.default_rng(len(name))
+    pool = np.flatnonzero(inside)
+    p0, p1 = np.zeros(mesh.n), np.zeros(mesh.n)
+    p0[rng.choice(pool, 25, replace=False)] = 1 / 25
+    p1[rng.choice(pool, 25, replace=False)] = 1 / 25
+    out["points"] = (p0, p1, None)
+    return out
+
+
+def _bump_pair(mesh, name, radius, label):
+    """A coverage case: the bench's vertex pair of ``label`` with bumps of ``radius``."""
+    m0, m1, j = cases(mesh, name)[label]
+    base = int(np.argmax(m0))
+    inside = _largest_component(mesh)
+    b0, b1 = service_bump(mesh, base, radius), service_bump(mesh, j, radius)
+    if not (np.all(inside[b0 > 0]) and np.all(inside[b1 > 0])):
+        return None
+    return b0, b1
+
+
+# -- coverage and validation ---------------------------------------------------------------------
+def coverage_rows(names, radii=(0.05, 0.1, 0.2)):
+    from solvers.convolutional.decision import decide_distance
+
+    rows = []
+    for name in names:
+        mesh = load_mesh(MESHES / name)
+        for label in ORDER:
+            for radius in (radii if label != "points" else (None,)):
+                if label == "points":
+                    m0, m1, _ = cases(mesh, name)["points"]
+                else:
+                    pair = _bump_pair(mesh, name, radius, label)
+                    if pair is None:
+                        continue
+                    m0, m1 = pair
+                dec, seconds = _timed(decide_distance, mesh, m0, m1)
+                rows.append(dict(name=name, n=mesh.n, case=label, radius=radius,
+                                 support=[int(np.count_nonzero(m0)), int(np.count_nonzero(m1))],
+                                 route=dec.route, exact_seconds=dec.exact_seconds,
+                                 estimated_seconds=dec.estimated_seconds,
+                                 substeps=dec.substeps, decide_seconds=seconds))
+                print(rows[-1], flush=True)
+    return rows
+
+
+def validate_rows(names, labels=ORDER):
+    """The exact route, timed, where the default decision takes it."""
+    from solvers.convolutional.decision import decide_distance
+    from solvers.convolutional.exact import exact_wasserstein_distance
+
+    rows = []
+    for name in names:
+        mesh = load_mesh(MESHES / name)
+        exact_wasserstein_distance(mesh, *cases(mesh, name)["points"][:2])  # warm: fan split
+        for label, (m0, m1, _) in cases(mesh, name).items():
+            if label not in labels:
+                continue
+            dec = decide_distance(mesh, m0, m1)
+            if dec.route != "exact":
+                continue
+            before = load1()
+            res, seconds = _timed(exact_wasserstein_distance, mesh, m0, m1)
+            rows.append(dict(name=name, case=label, estimate=dec.exact_seconds,
+                             seconds=seconds, cost_seconds=res.cost_seconds,
+                             lp_seconds=res.lp_seconds, load_before=before,
+                             load_after=load1()))
+            print(rows[-1], flush=True)
+    return rows
+
+
+# -- accuracy -----------------------------------------------------------------------------------
+def _lp(mesh, m0, m1, points=None):
+    import ot
+
+    from solvers.geodesics import geodesic_distances
+    from solvers.regularization import quantize
+
+    i0, i1 = np.flatnonzero(m0), np.flatnonzero(m1)
+    w0, w1 = m0[i0], m1[i1]
+    if points is not None:
+        i0, w0 = quantize(mesh.vertices, m0, points)
+        i1, w1 = quantize(mesh.vertices, m1, points)
+    cost = geodesic_distances(mesh, i0, i1) ** 2
+    return float(ot.emd2(w0 / w0.sum(), w1 / w1.sum(), cost, numItermax=10**8))
+
+
+LP_FULL_SUPPORT = 400  # bump supports above this are quantized for the oracle ...
+LP_POINTS = 64  # ... to this many points (mass-weighted farthest points)
+
+
+def oracle(mesh, m0, m1, label):
+    """``(lp, kind)``: the exact LP between the supports with squared exact (MMP) geodesics;
+    supports above LP_FULL_SUPPORT points quantized to LP_POINTS; point masses: the exact
+    route itself (its bounded solves certify the same LP value)."""
+    from solvers.convolutional.exact import exact_wasserstein_distance
+
+    if label == "points":
+        return exact_wasserstein_distance(mesh, m0, m1).value, "exact route (certified)"
+    big = max(np.count_nonzero(m0), np.count_nonzero(m1)) > LP_FULL_SUPPORT
+    return (_lp(mesh, m0, m1, LP_POINTS if big else None),
+            f"quantized to {LP_POINTS}" if big else "full")
+
+
+def accuracy_rows(names, oracles, labels=ORDER):
+    from solvers.convolutional import wasserstein_distance
+
+    rows = []
+    for name in names:
+        mesh = load_mesh(MESHES / name)
+        for label, (m0, m1, j) in cases(mesh, name).items():
+            if label not in labels:
+                continue
+            key = f"{name}|{label}"
+            if key not in oracles:
+                (lp, kind), lp_s = _timed(oracle, mesh, m0, m1, label)
+                oracles[key] = dict(lp=lp, lp_kind=kind, lp_s=lp_s, load_before=load1())
+                _save_oracles(oracles)
+            before = load1()
+            res, seconds = _timed(wasserstein_distance, mesh, m0, m1)
+            dec = res.decision
+            rows.append(dict(name=name, n=mesh.n, case=label, target=j,
+                             support=[int(np.count_nonzero(m0)), int(np.count_nonzero(m1))],
+                             value=res.value, route=res.route, seconds=seconds,
+                             gamma=dec.gamma, substeps=dec.substeps,
+                             exact_seconds=dec.exact_seconds, converged=bool(res.converged),
+                             lp=oracles[key]["lp"], lp_kind=oracles[key]["lp_kind"],
+                             load_before=before, load_after=load1()))
+            print(rows[-1], flush=True)
+            yield rows
+
+
+def _save_oracles(oracles):
+    merged = json.loads(ORACLES.read_text()) if ORACLES.exists() else {}
+    merged.update(oracles)
+    ORACLES.write_text(json.dumps(merged, indent=1))
+
+
+# -- rendering ----------------------------------------------------------------------------------
+def _merge(old, new, key):
+    fresh = {key(r) for r in new}
+    return [r for r in old if key(r) not in fresh] + new
+
+
+def render(data) -> str:
+    lines = ["# Default W2 distances: route decision, cost models, accuracy", "",
+             "The default `wasserstein_distance(domain, mu0, mu1)` (and `POST .../distances` "
+             "without options) decides its route and regularization from the request and the "
+             "stored domain alone (`solvers/convolutional/decision.py`).  Script: "
+             "`bench/distance_routes.py` (module docstring: parts and cases)."]
+    lines += _calibration_lines(data.get("calibration"))
+    lines += _validation_lines(data.get("validation", []))
+    lines += _coverage_lines(data.get("coverage", []))
+    lines += _accuracy_lines(data.get("accuracy", []))
+    return "\n".join(lines) + "\n"
+
+
+def _calibration_lines(cal):
+    if not cal:
+        return []
+    f, lp = cal["fit"], cal["lp_fit"]
+    lines = ["", "## Cost models (calibration)", "",
+             f"Command: `{cal['command']}`; load {cal['load_before']:.2f} before, "
+             f"{cal['load_after']:.2f} after.", "",
+             f"MMP solve (tvb-gdist) fit: `{f['setup']:.3g} n + {f['coef']:.3g} n^"
+             f"{f['power']:.3f} reach^{f['reach_power']:.3f}` seconds; measured/model "
+             f"{f['ratio_min']:.2f}-{f['ratio_max']:.2f} (median {f['ratio_median']:.2f}).  "
+             f"LP (`ot.emd`): `{lp['coef']:.3g} n0 n1 log2(n0 n1)` (largest ratio of the "
+             "sizes >= 300).", "",
+             "| mesh | n | source | reach | seconds | load |", "|---|---|---|---|---|---|"]
+    for r in cal["mmp"]:
+        lines.append(f"| {r['name']} | {r['n']} | {r['source']} | {r['reach']:.3f} | "
+                     f"{r['seconds']:.3f} | {r['load']:.2f} |")
+    lines += ["", "| LP size | seconds |", "|---|---|"]
+    lines += [f"| {r['k']} x {r['k']} | {r['seconds']:.3f} |" for r in cal["lp"]]
+    return lines
+
+
+def _validation_lines(rows):
+    if not rows:
+        return []
+    lines = ["", "## Exact route: modelled against measured time", "",
+             "Command: `cpu bench env OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 "
+             ".venv/bin/python bench/distance_routes.py validate` (warm: fan split and "
+             "junction closure built).", "",
+             "| mesh | case | modelled s | measured s | measured/modelled | geodesics s | "
+             "LP s | load |", "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['name']} | {r['case']} | {r['estimate']:.1f} | {r['seconds']:.1f}"
+                     f" | {r['seconds'] / r['estimate']:.2f} | {r['cost_seconds']:.1f} | "
+                     f"{r['lp_seconds']:.2f} | {r['load_before']:.2f}/{r['load_after']:.2f} |")
+    return lines
+
+
+def _coverage_lines(rows):
+    if not rows:
+        return []
+    from solvers.convolutional.decision import EXACT_BUDGET_SECONDS
+
+    lines = ["", "## Which inputs take the exact route", "",
+             "Command: `.venv/bin/python bench/distance_routes.py coverage` (the decision "
+             f"only).  Exact when the modelled time is at most {EXACT_BUDGET_SECONDS:.0f} s.  "
+             "Cells: route (modelled exact seconds; supports).", "",
+             "| mesh | n | case | r = 0.05 | r = 0.1 | r = 0.2 | 25 + 25 points |",
+             "|---|---|---|---|---|---|---|"]
+    by = {}
+    for r in rows:
+        by.setdefault((r["name"], r["n"], r["case"]), {})[r["radius"]] = r
+    for (name, n, case), cells in by.items():
+        def cell(r):
+            if r is None:
+                return "-"
+            est = "-" if r["exact_seconds"] is None else f"{r['exact_seconds']:.3g} s"
+            return f"{r['route']} ({est}; {r['support'][0]}/{r['support'][1]})"
+        if case == "points":
+            lines.append(f"| {name} | {n} | points | | | | {cell(cells.get(None))} |")
+        else:
+            lines.append(f"| {name} | {n} | {case} | {cell(cells.get(0.05))} | "
+                         f"{cell(cells.get(0.1))} | {cell(cells.get(0.2))} | |")
+    return lines
+
+
+def _accuracy_lines(rows):
+    if not rows:
+        return []
+    lines = ["", "## Accuracy of the default against the exact LP (exact geodesics)", "",
+             "Command: `cpu run env OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python "
+             "bench/distance_routes.py accuracy [--mesh=...]`.  LP = `ot.emd2` on squared exact "
+             "(MMP, `solvers.geodesics`) geodesics between the supports (bump supports above "
+             f"{LP_FULL_SUPPORT} points quantized to mass-weighted farthest points: 'LP "
+             "oracle' column), cached in `bench/results/convolutional_oracles.json`; point "
+             "masses: the exact route itself (certified).  Times: wall clock of the default "
+             "call, warm after the first case of a mesh; load: 1-minute load average "
+             "before/after.", "",
+             "| mesh | case | supports | route | default | exact LP | error | default s | "
+             "gamma (substeps) | LP oracle | load |", "|" + "---|" * 11]
+    for r in rows:
+        reg = "-" if r["gamma"] is None else f"{r['gamma']:.4g} ({r['substeps']})"
+        lines.append(f"| {r['name']} | {r['case']} | {r['support'][0]}/{r['support'][1]} | "
+                     f"{r['route']} | {r['value']:.5g} | {r['lp']:.5g} | "
+                     f"{r['value'] / r['lp'] - 1:+.2%} | {r['seconds']:.2f} | {reg} | "
+                     f"{r['lp_kind']} | {r['load_before']:.1f}/{r['load_after']:.1f} |")
+    worst = {}
+    for r in rows:
+        err = abs(r["value"] / r["lp"] - 1)
+        if err > worst.get(r["route"], (0.0, None))[0]:
+            worst[r["route"]] = (err, f"{r['name']} {r['case']}")
+    lines += ["", "Worst error by route: " + ", ".join(
+        f"{route} {err:.2%} ({where})" for route, (err, where) in worst.items()) + "."]
+    return lines
+
+
+def main(argv):
+    parts = [a for a in argv if not a.startswith("--")] or ["render"]
+    names = [n for a in argv if a.startswith("--mesh=") for n in a[7:].split(",")]
+    labels = [c for a in argv if a.startswith("--cases=") for c in a[8:].split(",")] or ORDER
+    data = json.loads(STORE.read_text()) if STORE.exists() else {}
+
+    def save():
+        STORE.write_text(json.dumps(data, indent=1))
+
+    if "calibrate" in parts:
+        before = load1()
+        mmp = mmp_rows(names or CALIBRATION_MESHES)
+        lp = lp_rows(LP_SIZES)
+        data["calibration"] = dict(mmp=mmp, lp=lp, fit=fit_mmp(mmp), lp_fit=fit_lp(lp),
+                                   load_before=before, load_after=load1(),
+                                   command="cpu bench env OMP_NUM_THREADS=1 "
+                                   "OPENBLAS_NUM_THREADS=1 .venv/bin/python "
+                                   "bench/distance_routes.py calibrate")
+        print(json.dumps(data["calibration"]["fit"]), json.dumps(data["calibration"]["lp_fit"]))
+        save()
+    if "validate" in parts:
+        fresh = validate_rows(names or ALL_MESHES, labels)
+        data["validation"] = _merge(data.get("validation", []), fresh,
+                                    lambda r: (r["name"], r["case"]))
+        save()
+    if "coverage" in parts:
+        fresh = coverage_rows(names or ALL_MESHES)
+        data["coverage"] = _merge(data.get("coverage", []), fresh,
+                                  lambda r: (r["name"], r["case"], r["radius"]))
+        save()
+    if "accuracy" in parts:
+        oracles = json.loads(ORACLES.read_text()) if ORACLES.exists() else {}
+        old = data.get("accuracy", [])
+        for rows in accuracy_rows(names or ALL_MESHES, oracles, labels):
+            data["accuracy"] = _merge(old, rows, lambda r: (r["name"], r["case"]))
+            data["accuracy"].sort(key=lambda r: (ALL_MESHES.index(r["name"]),
+                                                 ORDER.index(r["case"])))
+            save()
+    out = ROOT / "bench" / "results" / "distance_routes.md"
+    out.write_text(render(data))
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    os.chdir(ROOT)
+    main(sys.argv[1:])
