@@ -13,8 +13,8 @@ Parts (``.venv/bin/python bench/distance_routes.py PART [--mesh=NAME,...]``):
 * ``coverage`` — the decision only (cheap): route and modelled seconds for bumps of radius
   0.05 / 0.1 / 0.2 near / middle / far and for 25 + 25 points on every shared mesh.
 * ``accuracy`` (``cpu run``) — the default ``wasserstein_distance(mesh, mu0, mu1)`` against
-  the exact LP with squared exact (MMP) geodesics, cached per mesh and case in
-  ``bench/results/convolutional_oracles.json`` (``oracles`` computes missing ones).
+  the exact LP with squared exact (MMP) geodesics (:func:`oracle`), cached per mesh and case
+  in ``bench/results/distance_routes_oracles.json`` (``oracles`` computes missing ones).
 * ``render`` — rewrite ``bench/results/distance_routes.md`` from the json.
 
 Cases (as in ``bench/convolutional.py``): bumps of the README's kind (``{"vertex": i,
@@ -51,7 +51,7 @@ REACHES = (0.01, 0.05, 0.2, 0.5, 1.0)
 LP_SIZES = (25, 100, 300, 1000, 2000)
 ORDER = ("near", "middle", "far", "points")
 STORE = ROOT / "bench" / "results" / "distance_routes.json"
-ORACLES = ROOT / "bench" / "results" / "convolutional_oracles.json"
+ORACLES = ROOT / "bench" / "results" / "distance_routes_oracles.json"
 
 
 def _timed(fn, *args, **kwargs):
@@ -243,21 +243,54 @@ def _lp(mesh, m0, m1, points=None):
     return float(ot.emd2(w0 / w0.sum(), w1 / w1.sum(), cost, numItermax=10**8))
 
 
-LP_FULL_SUPPORT = 400  # bump supports above this are quantized for the oracle ...
-LP_POINTS = 64  # ... to this many points (mass-weighted farthest points)
+FULL_ROWS = 600  # the oracle solves from every point of the smaller support up to this ...
+QUANTIZED = (64, 256)  # ... else the exact LP between quantizations of these sizes (the last
+# is the oracle; the first shows how far the quantization still moves it)
 
 
-def oracle(mesh, m0, m1, label):
-    """``(lp, kind)``: the exact LP between the supports with squared exact (MMP) geodesics;
-    supports above LP_FULL_SUPPORT points quantized to LP_POINTS; point masses: the exact
-    route itself (its bounded solves certify the same LP value)."""
+def _quantized(mesh, m, k):
+    from solvers.regularization import quantize
+
+    idx, w = quantize(mesh.vertices, m, k)
+    out = np.zeros(mesh.n)
+    out[idx] = w
+    return out / out.sum()
+
+
+def oracle(mesh, m0, m1):
+    """The exact LP with squared exact (MMP) geodesics: ``ot.emd2`` on the full cost matrix
+    between the supports (``solvers.geodesics.geodesic_distances``: one solve per point of
+    the smaller support, independent of the exact route's bounded plan) when that support
+    has at most FULL_ROWS points; else the exact route between the QUANTIZED-point
+    quantizations (mass-weighted farthest points, each point's mass moved to its nearest
+    representative)."""
     from solvers.convolutional.exact import exact_wasserstein_distance
 
-    if label == "points":
-        return exact_wasserstein_distance(mesh, m0, m1).value, "exact route (certified)"
-    big = max(np.count_nonzero(m0), np.count_nonzero(m1)) > LP_FULL_SUPPORT
-    return (_lp(mesh, m0, m1, LP_POINTS if big else None),
-            f"quantized to {LP_POINTS}" if big else "full")
+    rows = min(np.count_nonzero(m0), np.count_nonzero(m1))
+    if rows <= FULL_ROWS:
+        return {"lp": _lp(mesh, m0, m1), "lp_kind": "full"}
+    out = {}
+    for k in QUANTIZED:
+        out[f"lp_q{k}"] = exact_wasserstein_distance(mesh, _quantized(mesh, m0, k),
+                                                     _quantized(mesh, m1, k)).value
+    return {**out, "lp": out[f"lp_q{QUANTIZED[-1]}"],
+            "lp_kind": f"quantized to {QUANTIZED[-1]} (q{QUANTIZED[0]}: "
+                       f"{out[f'lp_q{QUANTIZED[0]}'] / out[f'lp_q{QUANTIZED[-1]}'] - 1:+.2%})"}
+
+
+def oracle_rows(names, oracles, labels=ORDER):
+    for name in names:
+        mesh = load_mesh(MESHES / name)
+        for label, (m0, m1, _) in cases(mesh, name).items():
+            key = f"{name}|{label}"
+            if label not in labels or key in oracles:
+                continue
+            before = load1()
+            entry, seconds = _timed(oracle, mesh, m0, m1)
+            oracles[key] = {**entry, "lp_s": seconds, "load_before": before,
+                            "load_after": load1()}
+            print(key, oracles[key], flush=True)
+            _save_oracles(oracles)
 
 
 def accuracy_rows(names, oracles, labels=ORDER):
@@ -271,9 +304,7 @@ def accuracy_rows(names, oracles, labels=ORDER):
                 continue
             key = f"{name}|{label}"
             if key not in oracles:
-                (lp, kind), lp_s = _timed(oracle, mesh, m0, m1, label)
-                oracles[key] = dict(lp=lp, lp_kind=kind, lp_s=lp_s, load_before=load1())
-                _save_oracles(oracles)
+                oracle_rows([name], oracles, [label])
             before = load1()
             res, seconds = _timed(wasserstein_distance, mesh, m0, m1)
             dec = res.decision
@@ -383,11 +414,13 @@ def _accuracy_lines(rows):
         return []
     lines = ["", "## Accuracy of the default against the exact LP (exact geodesics)", "",
              "Command: `cpu run env OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python "
-             "bench/distance_routes.py accuracy [--mesh=...]`.  LP = `ot.emd2` on squared exact "
-             "(MMP, `solvers.geodesics`) geodesics between the supports (bump supports above "
-             f"{LP_FULL_SUPPORT} points quantized to mass-weighted farthest points: 'LP "
-             "oracle' column), cached in `bench/results/convolutional_oracles.json`; point "
-             "masses: the exact route itself (certified).  Times: wall clock of the default "
+             "bench/distance_routes.py accuracy [--mesh=...]`.  LP = `ot.emd2` on the full matrix "
+             "of squared exact (MMP, `solvers.geodesics`) geodesics between the supports when "
+             f"the smaller one has at most {FULL_ROWS} points (independent of the exact "
+             "route's bounded solves); else the exact route between "
+             f"{QUANTIZED[-1]}-point quantizations of both inputs (the 'LP oracle' column "
+             f"gives the {QUANTIZED[0]}-point value against it); cached in "
+             "`bench/results/distance_routes_oracles.json`.  Times: wall clock of the default "
              "call, warm after the first case of a mesh; load: 1-minute load average "
              "before/after.", "",
              "| mesh | case | supports | route | default | exact LP | error | default s | "
@@ -438,6 +471,9 @@ def main(argv):
         data["coverage"] = _merge(data.get("coverage", []), fresh,
                                   lambda r: (r["name"], r["case"], r["radius"]))
         save()
+    if "oracles" in parts:
+        oracles = json.loads(ORACLES.read_text()) if ORACLES.exists() else {}
+        oracle_rows(names or ALL_MESHES, oracles, labels)
     if "accuracy" in parts:
         oracles = json.loads(ORACLES.read_text()) if ORACLES.exists() else {}
         old = data.get("accuracy", [])
