@@ -140,8 +140,7 @@ def test_decision_is_a_pure_function_of_the_stored_domain(shared_mesh, monkeypat
     assert floor < first.exact_seconds == exact_route_estimate(stored, m0, m1)
     res = wasserstein_distance(mesh, m0, m1)
     assert res.route == "exact" and res.decision == first
-    assert set(mesh.operators.keys()) - built <= {("sketch",), ("geodesic-pieces",),
-                                                  ("edge-length-graph",)}
+    assert set(mesh.operators.keys()) - built <= {("geodesic-pieces",), ("edge-length-graph",)}
     assert decide_distance(mesh, m0, m1) == first  # after solves: the same decision
     with pytest.raises(CancelledError):
         exact_wasserstein_distance(mesh, m0, m1, should_cancel=lambda: True)

@@ -19,10 +19,14 @@ and point clouds).
 from __future__ import annotations
 
 import math
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
+
+
+_SKETCHES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def mesh_edges(faces: np.ndarray) -> np.ndarray:
@@ -76,7 +80,7 @@ class DomainSketch:
 
     @classmethod
     def of(cls, domain) -> DomainSketch:
-        """The sketch of a built domain (memoized in its operator store)."""
+        """The sketch of a built domain (memoized per domain object; not an operator)."""
         def build():
             points = getattr(domain, "vertices", None)
             if points is None and domain.kind != "graph":
@@ -86,8 +90,14 @@ class DomainSketch:
                                    domain.component_labels,
                                    getattr(diagnostics, "nonmanifold_vertices", 0))
 
-        store = getattr(domain, "operators", None)
-        return build() if store is None else store.get(("sketch",), build)
+        try:
+            return _SKETCHES[domain]
+        except KeyError:
+            pass
+        except TypeError:  # not weakly referenceable: no memo
+            return build()
+        sketch = _SKETCHES[domain] = build()
+        return sketch
 
     # -- what estimates read ------------------------------------------------------------
     @property
