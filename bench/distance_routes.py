@@ -134,8 +134,17 @@ def _largest_component(mesh):
     return labels == np.bincount(labels).argmax()
 
 
+RADIUS = [0.1]  # bump radius of the cases (``--radius=``; 0.1 is the README's)
+
+
+def key_of(name: str, label: str) -> str:
+    """Oracle cache key of a case (the radius is named when it is not 0.1)."""
+    r = RADIUS[0]
+    return f"{name}|{label}" if r == 0.1 or label == "points" else f"{name}|{label}|r{r:g}"
+
+
 def _bump_inside(mesh, inside, i):
-    m = service_bump(mesh, i)
+    m = service_bump(mesh, i, RADIUS[0])
     return m if np.all(inside[m > 0]) else None
 
 
@@ -155,7 +164,7 @@ def cases(mesh, name):
     for label, frac in (("near", 0.15), ("middle", 0.5), ("far", 0.9)):
         order = np.argsort(np.abs(np.nan_to_num(d0, nan=np.inf) - frac * top), kind="stable")
         j = next(int(k) for k in order if _bump_inside(mesh, inside, int(k)) is not None)
-        out[label] = (service_bump(mesh, base), service_bump(mesh, j), j)
+        out[label] = (service_bump(mesh, base, RADIUS[0]), service_bump(mesh, j, RADIUS[0]), j)
     rng = np.random.default_rng(len(name))
     pool = np.flatnonzero(inside)
     p0, p1 = np.zeros(mesh.n), np.zeros(mesh.n)
@@ -243,7 +252,8 @@ def _lp(mesh, m0, m1, points=None):
     return float(ot.emd2(w0 / w0.sum(), w1 / w1.sum(), cost, numItermax=10**8))
 
 
-FULL_ROWS = 600  # the oracle solves from every point of the smaller support up to this ...
+FULL_ROWS = 1500  # the oracle solves from every point of the smaller support up to this,
+FULL_MESH = 20_000  # on meshes up to this many vertices ...
 QUANTIZED = (64, 256)  # ... else the exact LP between quantizations of these sizes (the last
 # is the oracle; the first shows how far the quantization still moves it)
 
@@ -261,13 +271,13 @@ def oracle(mesh, m0, m1):
     """The exact LP with squared exact (MMP) geodesics: ``ot.emd2`` on the full cost matrix
     between the supports (``solvers.geodesics.geodesic_distances``: one solve per point of
     the smaller support, independent of the exact route's bounded plan) when that support
-    has at most FULL_ROWS points; else the exact route between the QUANTIZED-point
-    quantizations (mass-weighted farthest points, each point's mass moved to its nearest
-    representative)."""
+    has at most FULL_ROWS points and the mesh at most FULL_MESH vertices; else the exact
+    route between the QUANTIZED-point quantizations (mass-weighted farthest points, each
+    point's mass moved to its nearest representative)."""
     from solvers.convolutional.exact import exact_wasserstein_distance
 
     rows = min(np.count_nonzero(m0), np.count_nonzero(m1))
-    if rows <= FULL_ROWS:
+    if rows <= FULL_ROWS and mesh.n <= FULL_MESH:
         return {"lp": _lp(mesh, m0, m1), "lp_kind": "full"}
     out = {}
     for k in QUANTIZED:
@@ -282,7 +292,7 @@ def oracle_rows(names, oracles, labels=ORDER):
     for name in names:
         mesh = load_mesh(MESHES / name)
         for label, (m0, m1, _) in cases(mesh, name).items():
-            key = f"{name}|{label}"
+            key = key_of(name, label)
             if label not in labels or key in oracles:
                 continue
             before = load1()
@@ -302,13 +312,13 @@ def accuracy_rows(names, oracles, labels=ORDER):
         for label, (m0, m1, j) in cases(mesh, name).items():
             if label not in labels:
                 continue
-            key = f"{name}|{label}"
+            key = key_of(name, label)
             if key not in oracles:
                 oracle_rows([name], oracles, [label])
             before = load1()
             res, seconds = _timed(wasserstein_distance, mesh, m0, m1)
             dec = res.decision
-            rows.append(dict(name=name, n=mesh.n, case=label, target=j,
+            rows.append(dict(name=name, n=mesh.n, case=label, target=j, radius=RADIUS[0],
                              support=[int(np.count_nonzero(m0)), int(np.count_nonzero(m1))],
                              value=res.value, route=res.route, seconds=seconds,
                              gamma=dec.gamma, substeps=dec.substeps,
@@ -317,6 +327,43 @@ def accuracy_rows(names, oracles, labels=ORDER):
                              load_before=before, load_after=load1()))
             print(rows[-1], flush=True)
             yield rows
+
+
+SWEEP_FACTORS = (0.5, 1.0, 2.0, 4.0)
+
+
+def sweep_rows(names, oracles, labels=("near", "middle", "far")):
+    """The debiased convolutional value at ``c`` x the policy's gamma (substeps by the
+    policy's rule for that gamma), against the exact LP: is extrapolation in gamma
+    (Richardson) of any use?"""
+    from solvers.convolutional import wasserstein_distance
+    from solvers.convolutional.decision import decide_distance
+    from solvers.kernels import heat_time
+    from solvers.regularization import VALUE_MIN_H, value_substeps
+
+    rows = []
+    for name in names:
+        mesh = load_mesh(MESHES / name)
+        for label, (m0, m1, _) in cases(mesh, name).items():
+            if label not in labels:
+                continue
+            if key_of(name, label) not in oracles:
+                oracle_rows([name], oracles, [label])
+            policy = decide_distance(mesh, m0, m1, route="convolutional")
+            reg = policy.regularization
+            d_eff = max(reg.distance, 4 * max(reg.h, VALUE_MIN_H))  # as the policy
+            row = dict(name=name, case=label, lp=oracles[key_of(name, label)]["lp"],
+                       gamma=reg.gamma, values={}, load_before=load1())
+            for c in SWEEP_FACTORS:
+                gamma = c * reg.gamma
+                steps, _ = value_substeps(mesh, d_eff, heat_time(gamma))
+                res = wasserstein_distance(mesh, m0, m1, gamma=gamma, substeps=steps,
+                                           debiased=True)
+                row["values"][str(c)] = [res.value, steps]
+            row["load_after"] = load1()
+            rows.append(row)
+            print(row, flush=True)
+    return rows
 
 
 def _save_oracles(oracles):
@@ -341,6 +388,7 @@ def render(data) -> str:
     lines += _validation_lines(data.get("validation", []))
     lines += _coverage_lines(data.get("coverage", []))
     lines += _accuracy_lines(data.get("accuracy", []))
+    lines += _sweep_lines(data.get("sweep", []))
     return "\n".join(lines) + "\n"
 
 
@@ -416,8 +464,9 @@ def _accuracy_lines(rows):
              "Command: `cpu run env OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python "
              "bench/distance_routes.py accuracy [--mesh=...]`.  LP = `ot.emd2` on the full matrix "
              "of squared exact (MMP, `solvers.geodesics`) geodesics between the supports when "
-             f"the smaller one has at most {FULL_ROWS} points (independent of the exact "
-             "route's bounded solves); else the exact route between "
+             f"the smaller one has at most {FULL_ROWS} points and the mesh at most "
+             f"{FULL_MESH} vertices (independent of the exact route's bounded solves); else "
+             "the exact route between "
              f"{QUANTIZED[-1]}-point quantizations of both inputs (the 'LP oracle' column "
              f"gives the {QUANTIZED[0]}-point value against it); cached in "
              "`bench/results/distance_routes_oracles.json`.  Times: wall clock of the default "
@@ -427,7 +476,8 @@ def _accuracy_lines(rows):
              "gamma (substeps) | LP oracle | load |", "|" + "---|" * 11]
     for r in rows:
         reg = "-" if r["gamma"] is None else f"{r['gamma']:.4g} ({r['substeps']})"
-        lines.append(f"| {r['name']} | {r['case']} | {r['support'][0]}/{r['support'][1]} | "
+        case = r["case"] if r.get("radius", 0.1) == 0.1 else f"{r['case']} (r {r['radius']:g})"
+        lines.append(f"| {r['name']} | {case} | {r['support'][0]}/{r['support'][1]} | "
                      f"{r['route']} | {r['value']:.5g} | {r['lp']:.5g} | "
                      f"{r['value'] / r['lp'] - 1:+.2%} | {r['seconds']:.2f} | {reg} | "
                      f"{r['lp_kind']} | {r['load_before']:.1f}/{r['load_after']:.1f} |")
@@ -435,9 +485,33 @@ def _accuracy_lines(rows):
     for r in rows:
         err = abs(r["value"] / r["lp"] - 1)
         if err > worst.get(r["route"], (0.0, None))[0]:
-            worst[r["route"]] = (err, f"{r['name']} {r['case']}")
+            worst[r["route"]] = (err, f"{r['name']} {r['case']} r {r.get('radius', 0.1):g}")
     lines += ["", "Worst error by route: " + ", ".join(
         f"{route} {err:.2%} ({where})" for route, (err, where) in worst.items()) + "."]
+    return lines
+
+
+def _sweep_lines(rows):
+    if not rows:
+        return []
+    head = " | ".join(f"{c:g} gamma" for c in SWEEP_FACTORS)
+    lines = ["", "## Extrapolation in gamma (convolutional route)", "",
+             "Command: `cpu run .venv/bin/python bench/distance_routes.py sweep`.  The debiased "
+             "value at c x the policy's gamma (substeps by the policy's rule), error against "
+             "the exact LP; R(1,2) = 2 V(gamma) - V(2 gamma), R(2,4) = 2 V(2 gamma) - V(4 "
+             "gamma) (Richardson, first order).", "",
+             f"| mesh | case | {head} | R(1,2) | R(2,4) |", "|---|---|" + "---|" * 6]
+    worst = {}
+    for r in rows:
+        v = {float(c): x[0] for c, x in r["values"].items()}
+        errs = {f"{c:g}": v[c] / r["lp"] - 1 for c in SWEEP_FACTORS}
+        errs["R(1,2)"] = (2 * v[1.0] - v[2.0]) / r["lp"] - 1
+        errs["R(2,4)"] = (2 * v[2.0] - v[4.0]) / r["lp"] - 1
+        for k, e in errs.items():
+            worst[k] = max(worst.get(k, 0.0), abs(e))
+        lines.append(f"| {r['name']} | {r['case']} | " + " | ".join(
+            f"{e:+.1%}" for e in errs.values()) + " |")
+    lines.append("| worst | | " + " | ".join(f"{e:.1%}" for e in worst.values()) + " |")
     return lines
 
 
@@ -445,6 +519,7 @@ def main(argv):
     parts = [a for a in argv if not a.startswith("--")] or ["render"]
     names = [n for a in argv if a.startswith("--mesh=") for n in a[7:].split(",")]
     labels = [c for a in argv if a.startswith("--cases=") for c in a[8:].split(",")] or ORDER
+    RADIUS[0] = next((float(a[9:]) for a in argv if a.startswith("--radius=")), 0.1)
     data = json.loads(STORE.read_text()) if STORE.exists() else {}
 
     def save():
@@ -474,12 +549,21 @@ def main(argv):
     if "oracles" in parts:
         oracles = json.loads(ORACLES.read_text()) if ORACLES.exists() else {}
         oracle_rows(names or ALL_MESHES, oracles, labels)
+    if "sweep" in parts:
+        oracles = json.loads(ORACLES.read_text()) if ORACLES.exists() else {}
+        fresh = sweep_rows(names or ["cow.obj", "spot.obj", "alligator.obj", "homer.obj",
+                                     "fandisk.obj", "cheburashka.obj"], oracles)
+        data["sweep"] = _merge(data.get("sweep", []), fresh, lambda r: (r["name"], r["case"]))
+        save()
     if "accuracy" in parts:
         oracles = json.loads(ORACLES.read_text()) if ORACLES.exists() else {}
-        old = data.get("accuracy", [])
         for rows in accuracy_rows(names or ALL_MESHES, oracles, labels):
-            data["accuracy"] = _merge(old, rows, lambda r: (r["name"], r["case"]))
-            data["accuracy"].sort(key=lambda r: (ALL_MESHES.index(r["name"]),
+            # merged into the file as it is now: another accuracy run may be writing it
+            data = json.loads(STORE.read_text()) if STORE.exists() else {}
+            data["accuracy"] = _merge(data.get("accuracy", []), rows,
+                                      lambda r: (r["name"], r["case"], r.get("radius", 0.1)))
+            data["accuracy"].sort(key=lambda r: (r.get("radius", 0.1),
+                                                 ALL_MESHES.index(r["name"]),
                                                  ORDER.index(r["case"])))
             save()
     out = ROOT / "bench" / "results" / "distance_routes.md"
