@@ -174,40 +174,28 @@ def cases(mesh, name):
     return out
 
 
-def _bump_pair(mesh, name, radius, label):
-    """A coverage case: the bench's vertex pair of ``label`` with bumps of ``radius``."""
-    m0, m1, j = cases(mesh, name)[label]
-    base = int(np.argmax(m0))
-    inside = _largest_component(mesh)
-    b0, b1 = service_bump(mesh, base, radius), service_bump(mesh, j, radius)
-    if not (np.all(inside[b0 > 0]) and np.all(inside[b1 > 0])):
-        return None
-    return b0, b1
-
-
 # -- coverage and validation ---------------------------------------------------------------------
 def coverage_rows(names, radii=(0.05, 0.1, 0.2)):
+    """The decision on the cases at each bump radius (and the points)."""
     from solvers.convolutional.decision import decide_distance
 
-    rows = []
+    rows, kept = [], RADIUS[0]
     for name in names:
         mesh = load_mesh(MESHES / name)
-        for label in ORDER:
-            for radius in (radii if label != "points" else (None,)):
-                if label == "points":
-                    m0, m1, _ = cases(mesh, name)["points"]
-                else:
-                    pair = _bump_pair(mesh, name, radius, label)
-                    if pair is None:
-                        continue
-                    m0, m1 = pair
+        for radius in radii:
+            RADIUS[0] = radius
+            for label, (m0, m1, _) in cases(mesh, name).items():
+                if label == "points" and radius != radii[0]:
+                    continue
                 dec, seconds = _timed(decide_distance, mesh, m0, m1)
-                rows.append(dict(name=name, n=mesh.n, case=label, radius=radius,
+                rows.append(dict(name=name, n=mesh.n, case=label,
+                                 radius=None if label == "points" else radius,
                                  support=[int(np.count_nonzero(m0)), int(np.count_nonzero(m1))],
                                  route=dec.route, exact_seconds=dec.exact_seconds,
                                  estimated_seconds=dec.estimated_seconds,
                                  substeps=dec.substeps, decide_seconds=seconds))
                 print(rows[-1], flush=True)
+    RADIUS[0] = kept
     return rows
 
 

@@ -50,10 +50,10 @@ VALUE_MIN_H = 0.012
 VALUE_SUBSTEPS = 64
 MAX_SUBSTEPS = 512
 SUBSTEP_FACTOR = 2.0
-# Time budget (estimated seconds) of a default distance; substeps are reduced to fit.  At
-# 60 s nefertiti's far bump got 64 substeps and came out 13.5 % low; 256 substeps give -5 %
-# (bench/results/convolutional.md), and the budget plus the exact route's own 300 s stays
-# inside the service's 600 s job limit.
+# Time budget (modelled seconds) of a default convolutional distance; substeps are reduced
+# to fit.  At 60 s nefertiti's far bump got 64 substeps and came out 13.5 % low (an earlier
+# run); at 90 s it gets 256 (bench/results/distance_routes.md), well inside the service's
+# 600 s job limit.
 VALUE_SECONDS = 90.0
 # Kernel applications of a debiased distance solve (Sinkhorn + symmetric passes, measured)
 # and seconds per substep solve per mesh vertex: nefertiti (50k) took 15.5 / 31.2 / 54.4 s
