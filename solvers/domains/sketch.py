@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-
 _SKETCHES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
