@@ -480,6 +480,8 @@ def _accuracy_lines(rows):
             worst[r["route"]] = (err, f"{r['name']} {r['case']} r {r.get('radius', 0.1):g}")
     lines += ["", "Worst error by route: " + ", ".join(
         f"{route} {err:.2%} ({where})" for route, (err, where) in worst.items()) + "."]
+    from solvers.convolutional.decision import EXACT_BUDGET_SECONDS as budget
+
     exact = [(r["seconds"] / r["exact_seconds"], r) for r in rows
              if r["route"] == "exact" and r["exact_seconds"] and r["seconds"] > 1.0]
     if exact:
@@ -489,10 +491,10 @@ def _accuracy_lines(rows):
                   f"{top['name']} {top['case']} r {top.get('radius', 0.1):g}, load "
                   f"{top['load_before']:.1f}).  The model prices the first round of bounded "
                   "solves (times ROUNDS_FACTOR); on near and wide bumps the loop regrows many "
-                  "rows' bounds several times (more rounds than modelled).  Every measured run "
-                  "stayed far inside the 600 s job limit, but a run modelled near the 120 s "
-                  "budget at the worst ratio seen would not: a first bound that covers more "
-                  "of each row's candidates, or a model of the later rounds, is still to do."]
+                  "rows' bounds several times (more rounds than modelled), and a loaded "
+                  f"machine slows every run.  A run modelled at the {budget:.0f} s budget "
+                  f"would take {budget * hi:.0f} s at the worst ratio seen (job limit 600 s); "
+                  "a model of the later rounds is still to do."]
     return lines
 
 
