@@ -16,7 +16,8 @@ Usage: ``.venv/bin/python bench/convolutional.py [--quick] [meshes] [small_t] [a
 [grids]`` (all
 parts by default; ``render`` only rewrites the markdown); each part's rows are kept in
 ``bench/results/convolutional.json`` and ``bench/results/convolutional.md`` is rendered
-from all recorded parts.
+from all recorded parts.  The accuracy of the *default* distance (route decision and
+regularization) on every shared mesh: ``bench/distance_routes.py``.
 """
 
 from __future__ import annotations
@@ -33,13 +34,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 MESHES = ROOT.parent / "shared" / "meshes"
 
-from _common import load1, service_bump  # noqa: E402
 
 from solvers import Grid, load_mesh  # noqa: E402
 from solvers.convolutional import barycenter, wasserstein_distance  # noqa: E402
 from solvers.convolutional.distance import ANDERSON_MEMORY  # noqa: E402
 from solvers.kernels import heat_time  # noqa: E402
-from solvers.regularization import VALUE_MIN_H  # noqa: E402
 
 GAMMA = 0.01
 
@@ -241,294 +240,7 @@ def _opt(row, key, scale, fmt):
     return "-" if row.get(key) is None else format(row[key] * scale, fmt)
 
 
-# -- accuracy of the defaults (issue: values users can trust by default) -------------------
-SINGLE_COMPONENT = ["woody.obj", "cow.obj", "spot.obj", "alligator.obj", "homer.obj",
-                    "fandisk.obj", "cheburashka.obj", "rocker-arm.obj", "stanford-bunny.obj",
-                    "nefertiti.obj"]
-LP_FULL_SUPPORT = 400  # bump supports above this are quantized for the LP oracle
-LP_POINTS = 64  # ... to this many points (mass-weighted farthest points)
-LP_POINTS_LARGE = 24  # ... or this many on meshes above LARGE_MESH vertices
-LP_POINTS_FAR = 12  # ... and this many for their far bumps
-LARGE_MESH = 20_000
-ORDER = ("near", "middle", "far", "points")
-EXACT_BENCH_SECONDS = 30.0  # the forced exact route is skipped above this estimate
-# Meshes with mean edge length below VALUE_MIN_H (their policy rows changed with the floor).
-FINE_MESHES = ("rocker-arm.obj", "stanford-bunny.obj", "nefertiti.obj")
-
-
-
-
-def _timed(fn, *args, **kwargs):
-    start = time.perf_counter()
-    out = fn(*args, **kwargs)
-    return out, time.perf_counter() - start
-
-
-def _rule(mesh, m0, m1):
-    """The README's expert rule: first pass at gamma 0.05, then gamma = 2.5 h d."""
-    first = wasserstein_distance(mesh, m0, m1, gamma=0.05, substeps=16, debiased=True)
-    gamma = 2.5 * mesh.mean_edge_length * np.sqrt(max(first.value, 0.0))
-    return wasserstein_distance(mesh, m0, m1, gamma=gamma, substeps=64, debiased=True).value
-
-
-def _oracle_points(mesh, support: int, label: str) -> int | None:
-    """Quantization of a bump for the LP oracle: None (full support) up to LP_FULL_SUPPORT
-    points, else LP_POINTS; on meshes above LARGE_MESH vertices (one exact one-to-all solve
-    ~10-25 s) LP_POINTS_LARGE, and LP_POINTS_FAR for the far bumps (whose solves cover the
-    whole mesh).  The coarser quantizations' error is measured on smaller meshes
-    (``quantization`` part)."""
-    if support <= LP_FULL_SUPPORT:
-        return None
-    if mesh.n <= LARGE_MESH:
-        return LP_POINTS
-    return LP_POINTS_FAR if label == "far" else LP_POINTS_LARGE
-
-
-def _lp_between(mesh, m0, m1, points=None):
-    import ot
-
-    from solvers.geodesics import geodesic_distances
-    from solvers.regularization import _quantize
-
-    i0, i1 = np.flatnonzero(m0), np.flatnonzero(m1)
-    w0, w1 = m0[i0], m1[i1]
-    if points is not None:
-        i0, w0 = _quantize(mesh.vertices, m0, points)
-        i1, w1 = _quantize(mesh.vertices, m1, points)
-    cost = geodesic_distances(mesh, i0, i1) ** 2
-    return float(ot.emd2(w0 / w0.sum(), w1 / w1.sum(), cost, numItermax=10**8))
-
-
-def _oracle(mesh, m0, m1, label):
-    """``(lp, kind)``: the exact LP (ot.emd2) with squared exact (MMP) geodesics between the
-    supports (each solve stopped past the farthest vertex of the other side), bumps
-    quantized by :func:`_oracle_points`.  Point masses on meshes above LARGE_MESH: the
-    exact route (its bounded solves certify the same LP, module docstring of
-    solvers.convolutional.exact; equal to the full-matrix LP in tests/test_exact_route.py
-    and on the smaller meshes here), cross-checked with the edge-flip LP."""
-    if label == "points" and mesh.n > LARGE_MESH:
-        from solvers.convolutional.exact import exact_wasserstein_distance
-
-        return exact_wasserstein_distance(mesh, m0, m1).value, "exact route (certified)"
-    points = _oracle_points(mesh, max(np.count_nonzero(m0), np.count_nonzero(m1)), label)
-    lp = _lp_between(mesh, m0, m1, points)
-    return lp, "full" if points is None else f"quantized to {points}"
-
-
-def quantization_rows(names, cases=("middle", "far")):
-    """Error of the coarse oracle quantizations: the LP at LP_POINTS_LARGE and LP_POINTS_FAR
-    points against the LP at LP_POINTS on smaller meshes."""
-    rows = []
-    for name in names:
-        mesh = load_mesh(MESHES / name)
-        for label, (m0, m1, _) in _cases(mesh, name).items():
-            if label not in cases:
-                continue
-            row = dict(name=name, case=label, load_before=load1())
-            for k in (LP_POINTS, LP_POINTS_LARGE, LP_POINTS_FAR):
-                row[f"q{k}"], row[f"q{k}_s"] = _timed(_lp_between, mesh, m0, m1, k)
-            row["load_after"] = load1()
-            print(row, flush=True)
-            rows.append(row)
-    return rows
-
-
-def _cases(mesh, name):
-    """The four cases of a mesh: bumps near/middle/far from vertex 0, 25 + 25 points."""
-    from solvers.geodesics import geodesic_distances
-
-    d0 = geodesic_distances(mesh, [0])[0]
-    rng = np.random.default_rng(len(name))
-    cases = {}
-    for label, frac in (("near", 0.15), ("middle", 0.5), ("far", 0.9)):
-        j = int(np.argmin(np.abs(d0 - frac * d0.max())))
-        cases[label] = (service_bump(mesh, 0), service_bump(mesh, j), j)
-    p0, p1 = np.zeros(mesh.n), np.zeros(mesh.n)
-    p0[rng.choice(mesh.n, 25, replace=False)] = 1 / 25
-    p1[rng.choice(mesh.n, 25, replace=False)] = 1 / 25
-    cases["points"] = (p0, p1, None)
-    return cases
-
-
-def _flip_lp(mesh, m0, m1):
-    """LP on squared edge-flip geodesics (potpourri3d; manifold meshes only): an upper bound
-    of the exact LP by an independent algorithm."""
-    import ot
-
-    from solvers.geodesics import geodesic_distances
-
-    i0, i1 = np.flatnonzero(m0), np.flatnonzero(m1)
-    flip = geodesic_distances(mesh, i0, i1, route="edge-flip")
-    return float(ot.emd2(m0[i0], m1[i1], flip**2))
-
-
-def oracle_rows(names, cache, cases=None):
-    """LP oracles only (accuracy, not timing): cached per mesh and case in the json so that
-    the slow ones (bunny, nefertiti) can be computed apart from the timed rows."""
-    for name in names:
-        mesh = load_mesh(MESHES / name)
-        for label, (m0, m1, _) in _cases(mesh, name).items():
-            key = f"{name}|{label}"
-            if key in cache or (cases and label not in cases):
-                continue
-            entry = dict(load_before=load1())
-            (lp, kind), entry["lp_s"] = _timed(_oracle, mesh, m0, m1, label)
-            entry.update(lp=lp, lp_kind=kind)
-            if label == "points" and mesh.diagnostics.nonmanifold_vertices == 0:
-                entry["lp_flip"], entry["flip_s"] = _timed(_flip_lp, mesh, m0, m1)
-            entry["load_after"] = load1()
-            cache[key] = entry
-            print(key, entry, flush=True)
-            yield cache
-
-
-def defaults_rows(names, recorded, cache, cases=None):
-    """Default vs expert rule vs convolutional policy vs exact route vs LP, per mesh and case
-    (bumps near/middle/far from vertex 0, and 25 + 25 scattered point masses).  The LP
-    oracle comes from ``cache`` (``oracles`` part) when there, else is computed here."""
-    from solvers.convolutional.exact import exact_route_estimate
-
-    rows = [r for r in recorded if r["name"] not in names]
-    for name in names:
-        mesh = load_mesh(MESHES / name)
-        large_points = mesh.n > LARGE_MESH and f"{name}|points" not in cache
-        for _ in oracle_rows([name], cache, [c for c in (cases or ORDER) if not (
-                c == "points" and large_points)]):
-            pass
-        for label, (m0, m1, j) in _cases(mesh, name).items():
-            if cases and label not in cases:
-                continue
-            row = dict(name=name, n=mesh.n, case=label, target=j, load_before=load1(),
-                       support=[int(np.count_nonzero(m0)), int(np.count_nonzero(m1))],
-                       h=mesh.mean_edge_length, value_min_h=VALUE_MIN_H)
-            res, row["default_s"] = _timed(wasserstein_distance, mesh, m0, m1)
-            if label == "points" and large_points:  # the oracle is the exact route itself
-                if res.route != "exact":
-                    res_exact = wasserstein_distance(mesh, m0, m1, route="exact")
-                else:
-                    res_exact = res
-                cache[f"{name}|points"] = dict(lp=res_exact.value, lp_kind="exact route "
-                                               "(certified)", lp_s=None)
-                if "--no-flip" not in sys.argv:
-                    cache[f"{name}|points"]["lp_flip"] = _flip_lp(mesh, m0, m1)
-            oracle = cache[f"{name}|{label}"]
-            row.update({k: oracle.get(k) for k in ("lp", "lp_kind", "lp_flip", "lp_s",
-                                                   "lp_from")})
-            row.update(default=res.value, default_route=res.route,
-                       default_substeps=getattr(res, "substeps", None),
-                       default_gamma=getattr(res, "gamma", None))
-            if res.route == "convolutional":
-                row.update(conv=res.value, conv_s=row["default_s"])
-            else:
-                conv, row["conv_s"] = _timed(wasserstein_distance, mesh, m0, m1,
-                                             route="convolutional")
-                row.update(conv=conv.value, conv_substeps=conv.substeps)
-            row["rule"], row["rule_s"] = _timed(_rule, mesh, m0, m1)
-            est = exact_route_estimate(mesh, m0, m1)
-            row["exact_estimate_s"] = est
-            if res.route == "exact":
-                row.update(exact=res.value, exact_s=row["default_s"])
-            elif est <= EXACT_BENCH_SECONDS:
-                ex, row["exact_s"] = _timed(wasserstein_distance, mesh, m0, m1, route="exact")
-                row["exact"] = ex.value
-            row["load_after"] = load1()
-            rows.append(row)
-            print(row, flush=True)
-            yield rows
-
-
-def _rel(value, ref):
-    return "-" if value is None else f"{value:.4f} ({value / ref - 1:+.1%})"
-
-
-def defaults_lines(rows):
-    lines = ["", "## Accuracy of the defaults vs the exact LP (squared exact geodesics)", "",
-             "Command: `OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 flock /tmp/otgeo-timing.lock "
-             ".venv/bin/python bench/convolutional.py defaults` (rows of a mesh: "
-             "`defaults --mesh=cow.obj [--cases=near,points]`; the 2026-12-01 rows ran without "
-             "the lock, which another job held, several meshes at once, at load 6-15: times are "
-             "inflated, values are not affected; LP oracles alone, cached in "
-             "`bench/results/convolutional_oracles.json`: `oracles --mesh=...`).  Cases: bumps "
-             "of the README's kind (`{\"vertex\": 0, \"radius\": 0.1}` and the vertex at 15 % "
-             "/ 50 % / 90 % of the largest geodesic distance from vertex 0), and 25 + 25 "
-             "scattered point masses.  LP = `ot.emd2` on squared exact (MMP, "
-             "`solvers.geodesics`) geodesics between the supports; bump supports above "
-             f"{LP_FULL_SUPPORT} points quantized to {LP_POINTS} mass-weighted farthest points, "
-             f"on the meshes above {LARGE_MESH} vertices to {LP_POINTS_LARGE} ({LP_POINTS_FAR} "
-             "for the far bump; error of these quantizations: next table); point masses on "
-             "those meshes: the exact route itself (its bounded solves certify the LP value, "
-             "`solvers/convolutional/exact.py`), cross-checked by the LP on edge-flip "
-             "geodesics (an upper bound).  LP values marked * were computed in the run of "
-             "commit 0a14fe3 (same cases, same oracle code; not re-run).  default = "
-             "`wasserstein_distance(mesh, mu0, mu1)` (route auto); policy = the same with "
-             "`route=\"convolutional\"`; rule = the README's expert rule (first pass at gamma "
-             "0.05 debiased 16 substeps, then debiased, 64 substeps, gamma = 2.5 h "
-             "sqrt(first)); exact = `route=\"exact\"` (skipped when estimated above "
-             f"{EXACT_BENCH_SECONDS:.0f} s); exact est = `exact_route_estimate` before the "
-             f"run.  † = convolutional policy measured before its h floor (`VALUE_MIN_H`: gamma "
-             f"= 2.5 max(h, {VALUE_MIN_H}) d on meshes; changes only the meshes with h < "
-             f"{VALUE_MIN_H}: rocker-arm, bunny, nefertiti), '(h floor x)' = measured with a "
-             "trial floor x.  Times in "
-             "seconds (wall clock, warm after the first case of a mesh); load = "
-             "1-minute load average before/after the row.", "",
-             "| mesh | case | supports | LP | default (route, substeps) | default s | policy "
-             "(convolutional) | policy s | rule | rule s | exact | exact s | exact est s | "
-             "LP oracle | load |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        sub = "" if r.get("default_substeps") is None else f", {r['default_substeps']}"
-        flip = (f"; edge-flip LP {r['lp_flip']:.4f} ({r['lp_flip'] / r['lp'] - 1:+.1%})"
-                if r.get("lp_flip") is not None else "")
-        ex_s = "-" if r.get("exact_s") is None else f"{r['exact_s']:.2f}"
-        est = "-" if r.get("exact_estimate_s") is None else f"{r['exact_estimate_s']:.1f}"
-        star = "*" if r.get("lp_from") else ""
-        floor = r.get("value_min_h")
-        old = ("" if r["name"] not in FINE_MESHES or floor == VALUE_MIN_H else
-               " †" if floor is None else f" (h floor {floor})")
-        lines.append(
-            f"| {r['name']} | {r['case']} | {r['support'][0]}/{r['support'][1]} | "
-            f"{r['lp']:.4f}{star} | {_rel(r['default'], r['lp'])} ({r['default_route']}{sub})"
-            f"{old if r['default_route'] == 'convolutional' else ''} | {r['default_s']:.2f} | "
-            f"{_rel(r['conv'], r['lp'])}{old} | {r['conv_s']:.2f} | "
-            f"{_rel(r['rule'], r['lp'])} | {r['rule_s']:.2f} | {_rel(r.get('exact'), r['lp'])}"
-            f" | {ex_s} | {est} | {r['lp_kind']}{flip} | {r['load_before']:.1f}/"
-            f"{r['load_after']:.1f} |")
-    worst = {}
-    for r in rows:
-        if r["case"] == "points":
-            continue
-        err = abs(r["default"] / r["lp"] - 1)
-        if err > worst.get(r["name"], (-1,))[0]:
-            worst[r["name"]] = (err, r["case"], r["default"] / r["lp"] - 1)
-    if worst:
-        lines += ["", "Worst default error on bumps per mesh: " + ", ".join(
-            f"{k} {v[2]:+.1%} ({v[1]})" for k, v in worst.items()) + "."]
-    points = [r for r in rows if r["case"] == "points"]
-    if points:
-        lines += ["", "Point masses, default vs LP: " + ", ".join(
-            f"{r['name']} {r['default'] / r['lp'] - 1:+.2%} ({r['default_route']}, "
-            f"{r['default_s']:.0f} s)" for r in points) + "."]
-    return lines
-
-
-def quantization_lines(rows):
-    if not rows:
-        return []
-    lines = ["", "## Error of the LP oracle's coarse quantizations", "",
-             "Command: `.venv/bin/python bench/convolutional.py quantization --mesh=NAME`.  The "
-             f"bench's bumps; LP at {LP_POINTS_LARGE} and {LP_POINTS_FAR} points against the LP "
-             f"at {LP_POINTS} points (the quantization of the meshes below {LARGE_MESH} "
-             "vertices).", "",
-             f"| mesh | case | LP {LP_POINTS} | LP {LP_POINTS_LARGE} | LP {LP_POINTS_FAR} | "
-             "load |", "|---|---|---|---|---|---|"]
-    for r in rows:
-        ref = r[f"q{LP_POINTS}"]
-        lines.append(f"| {r['name']} | {r['case']} | {ref:.4f} | "
-                     f"{_rel(r[f'q{LP_POINTS_LARGE}'], ref)} | {_rel(r[f'q{LP_POINTS_FAR}'], ref)}"
-                     f" | {r['load_before']:.1f}/{r['load_after']:.1f} |")
-    return lines
-
-
-def write(mesh, grids, path, small_t=(), accuracy=(), defaults=(), quantization=()):
+def write(mesh, grids, path, small_t=(), accuracy=()):
     lines = ["# Convolutional toolkit benchmark", "",
              "Command: `.venv/bin/python bench/convolutional.py` (2-core machine shared with "
              "other jobs; times are wall clock).", "",
@@ -550,9 +262,10 @@ def write(mesh, grids, path, small_t=(), accuracy=(), defaults=(), quantization=
         lines += small_t_lines(small_t)
     if accuracy:
         lines += accuracy_lines(accuracy)
-    if defaults:
-        lines += defaults_lines(defaults)
-    lines += quantization_lines(quantization)
+    lines += ["", "## Accuracy of the defaults", "",
+              "The default distance (route decision, regularization) against the exact LP "
+              "with exact geodesics on every shared mesh: `bench/results/distance_routes.md` "
+              "(`bench/distance_routes.py`)."]
     lines += ["", "## Grid barycenters, 4 inputs, reg 0.004, tol/stopThr 1e-6", "",
               "Our solver always runs on log-scalings (the grid kernel's exact `log_apply`: "
               "row-blocked max-shifted BLAS products, no underflow at any t).  'plain "
@@ -600,8 +313,7 @@ def write(mesh, grids, path, small_t=(), accuracy=(), defaults=(), quantization=
 if __name__ == "__main__":
     quick = "--quick" in sys.argv
     parts = [a for a in sys.argv[1:] if a in ("meshes", "small_t", "accuracy", "grids",
-                                             "render", "defaults", "oracles",
-                                             "quantization")] or [
+                                             "render")] or [
         "meshes", "small_t", "accuracy", "grids"]
     store = ROOT / "bench" / "results" / "convolutional.json"
     recorded = json.loads(store.read_text()) if store.exists() else {}
@@ -624,45 +336,9 @@ if __name__ == "__main__":
             if g["pot_log"] is None and old:
                 g["pot_log"] = old[0].get("pot_log")
         recorded["grids"] = sorted(kept + fresh, key=lambda g: g["n"])
-    names = [a.split("=")[1] for a in sys.argv[1:] if a.startswith("--mesh=")]
-    oracle_store = ROOT / "bench" / "results" / "convolutional_oracles.json"
-    cache = json.loads(oracle_store.read_text()) if oracle_store.exists() else {}
-
-    def save_oracles():  # merged: an oracles run may be going on in another process
-        merged = json.loads(oracle_store.read_text()) if oracle_store.exists() else {}
-        merged.update(cache)
-        cache.update(merged)
-        oracle_store.write_text(json.dumps(merged, indent=1))
-
-    quant_store = ROOT / "bench" / "results" / "convolutional_quantization.json"
-    if "quantization" in parts:  # error of the coarse oracle quantizations (own file)
-        quant_store.write_text(json.dumps(quantization_rows(names or ["homer.obj"]), indent=1))
-        sys.exit(0)
-    if "oracles" in parts:  # LP oracles only (accuracy), cached for the defaults part
-        for _ in oracle_rows(names or SINGLE_COMPONENT, cache):
-            save_oracles()
-    if "defaults" in parts:  # recorded row by row (a long run keeps what it measured)
-        cases = [c for a in sys.argv[1:] if a.startswith("--cases=")
-                 for c in a.split("=")[1].split(",")] or None
-        previous = recorded.get("defaults", [])
-        kept = len([r for r in previous if r["name"] not in (names or SINGLE_COMPONENT)])
-        for rows in defaults_rows(names or SINGLE_COMPONENT, previous, cache, cases):
-            save_oracles()
-            # Merged: another defaults run (other meshes) may be writing the same file.
-            latest = json.loads(store.read_text()) if store.exists() else {}
-            mine = {(r["name"], r["case"]) for r in rows[kept:]}
-            others = [r for r in latest.get("defaults", []) if (r["name"], r["case"]) not in mine]
-            recorded["defaults"] = sorted(
-                others + rows[kept:],
-                key=lambda r: (SINGLE_COMPONENT.index(r["name"])
-                               if r["name"] in SINGLE_COMPONENT else 99,
-                               ORDER.index(r["case"])))
-            store.write_text(json.dumps(recorded, indent=1))
-    if parts == ["oracles"]:  # nothing else recorded (a defaults run may be writing)
-        sys.exit(0)
+    recorded.pop("defaults", None)  # superseded by bench/distance_routes.py
     store.parent.mkdir(parents=True, exist_ok=True)
     store.write_text(json.dumps(recorded, indent=1))
     write(recorded.get("meshes", []), recorded.get("grids", []),
           ROOT / "bench" / "results" / "convolutional.md", recorded.get("small_t", []),
-          recorded.get("accuracy", []), recorded.get("defaults", []),
-          json.loads(quant_store.read_text()) if quant_store.exists() else [])
+          recorded.get("accuracy", []))

@@ -150,6 +150,10 @@ class JobOut(BaseModel):
     error: ErrorBody | None = None
     cancel_requested: bool
     time_limit: float
+    decision: dict | None = Field(None, description="the operation's automatic choices (e.g. "
+                                  "a distance's route and regularization), taken at "
+                                  "submission from the request and the stored data alone "
+                                  "and executed by every attempt of the job")
     created_at: datetime
     started_at: datetime | None = None
     finished_at: datetime | None = None
@@ -168,7 +172,8 @@ class JobOut(BaseModel):
             queue_position=getattr(row, "queue_position", None),
             attempts=row.attempts, error=ErrorBody(**row.error) if row.error else None,
             cancel_requested=bool(row.cancel_requested), time_limit=row.time_limit,
-            created_at=timestamp(row.created_at), started_at=timestamp(row.started_at),
+            decision=getattr(row, "decision", None), created_at=timestamp(row.created_at),
+            started_at=timestamp(row.started_at),
             finished_at=timestamp(row.finished_at), duration_seconds=row.duration,
             links={"self": base, "result": f"{base}/result", "result_glb": f"{base}/result.glb",
                    "events": f"{base}/events", "domain": f"/v1/domains/{row.domain_id}"})
@@ -233,6 +238,8 @@ class JobResult(BaseModel):
     job_id: str
     operation: str
     domain_id: str
+    decision: dict | None = Field(None, description="the job's decision (as in the job "
+                                  "JSON), executed by the worker")
     values: dict = Field(description="scalars: value, iterations, residual, converged, "
                          "normalization of the inputs, ...")
     arrays: dict[str, list | None] = Field(

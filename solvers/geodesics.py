@@ -27,7 +27,6 @@ overestimate of at most the length of the shared edge's detour; none on hourglas
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -154,50 +153,23 @@ def _check_indices(mesh: TriangleMesh, values, name: str) -> np.ndarray:
     return idx
 
 
-def mmp_timing(mesh: TriangleMesh) -> dict:
-    """Measured MMP solves on this mesh so far: ``{"solves": count, "seconds": total}``."""
-    return mesh.operators.get(("mmp-timing",), lambda: {"solves": 0, "seconds": 0.0})
+# Model of one MMP solve (tvb-gdist, one core of the 2-core machine), calibrated offline by
+# ``bench/distance_routes.py calibrate`` (fit and data: bench/results/distance_routes.md) and
+# committed: the mesh setup of every call, MMP_SETUP_PER_VERTEX * n, plus MMP_FULL_COEF *
+# n ** MMP_FULL_POWER for a one-to-all solve, of which a solve stopped at a bound pays about
+# (fraction of vertices reached) ** MMP_REACH_POWER.  A pure function of the sizes: never of
+# timings measured in the process (a default decision must not depend on a worker's history).
+MMP_SETUP_PER_VERTEX = 1.15e-6
+MMP_FULL_COEF = 2.87e-7
+MMP_FULL_POWER = 1.458
+MMP_REACH_POWER = 1.204
 
 
-# Model of one MMP solve (tvb-gdist on the shared 2-core machine, fitted on spot, rocker-arm
-# and stanford-bunny under load ~1-10): the mesh setup of every call, MMP_SETUP_PER_VERTEX
-# * n, plus MMP_FULL_COEF * n ** MMP_FULL_POWER for a one-to-all solve, of which a solve
-# stopped at a bound pays about (fraction of vertices reached) ** MMP_REACH_POWER.  The
-# measured/model ratio of the solves on a mesh corrects later estimates there.
-MMP_SETUP_PER_VERTEX = 1.4e-5
-MMP_FULL_COEF = 3e-7
-MMP_FULL_POWER = 1.7
-MMP_REACH_POWER = 1.1
-
-
-def _bounded_timing(mesh: TriangleMesh) -> dict:
-    return mesh.operators.get(("mmp-bounded-timing",), lambda: {"seconds": 0.0, "model": 0.0})
-
-
-def _mmp_model(n: int, reach: float) -> float:
+def mmp_solve_seconds(n: int, reach: float = 1.0) -> float:
+    """Modelled seconds of one MMP solve on an ``n``-vertex mesh reaching the fraction
+    ``reach`` of the vertices (constants above)."""
     return (MMP_SETUP_PER_VERTEX * n
             + MMP_FULL_COEF * n ** MMP_FULL_POWER * min(max(reach, 0.0), 1.0) ** MMP_REACH_POWER)
-
-
-def mmp_solve_seconds(mesh: TriangleMesh, reach: float = 1.0) -> float:
-    """Estimated seconds of one MMP solve reaching the fraction ``reach`` of the vertices:
-    the model above times the measured/model ratio of the bounded solves on this mesh so
-    far (clipped to [0.25, 8])."""
-    timing = mesh.operators.peek(("mmp-bounded-timing",))
-    ratio = timing["seconds"] / timing["model"] if timing and timing["model"] > 0 else 1.0
-    return _mmp_model(mesh.n, reach) * min(max(ratio, 0.25), 8.0)
-
-
-def cost_estimate(mesh: TriangleMesh, n_sources: int, n_targets: int, route: str) -> float:
-    """Rough seconds for a (sources × targets) matrix by ``route``: for ``"mmp"`` one
-    one-to-all solve per point of the smaller side (the measured mean on this mesh when
-    there is one, else :func:`mmp_solve_seconds`), for ``"edge-flip"`` a per-pair model."""
-    if route == "mmp":
-        timing = mesh.operators.peek(("mmp-timing",))
-        per = (timing["seconds"] / timing["solves"] if timing and timing["solves"]
-               else mmp_solve_seconds(mesh))
-        return min(n_sources, n_targets) * per
-    return n_sources * n_targets * (6e-4 + 2e-6 * mesh.n)
 
 
 def edge_path_distances(mesh: TriangleMesh, sources) -> np.ndarray:
@@ -212,18 +184,12 @@ def edge_path_distances(mesh: TriangleMesh, sources) -> np.ndarray:
 def geodesic_distances_within(mesh: TriangleMesh, source: int, bound: float) -> np.ndarray:
     """``(n,)`` exact geodesic distances from ``source`` where they are at most ``bound``,
     ``inf`` where they are larger (MMP stops propagating past ``bound``; ``bound=inf``: a
-    one-to-all solve).  The measured time and the model's time at the fraction of vertices
-    reached are recorded for :func:`mmp_solve_seconds`."""
+    one-to-all solve)."""
     pieces = _pieces(mesh)
     finite = bool(np.isfinite(bound))
-    start = time.perf_counter()
     d = _one_to_all(pieces, int(source), float(bound) if finite else None)
-    seconds = time.perf_counter() - start
     if finite:
         d = np.where(d <= bound, d, np.inf)
-    timing = _bounded_timing(mesh)
-    timing["seconds"] += seconds
-    timing["model"] += _mmp_model(mesh.n, float(np.isfinite(d).mean()))
     return d
 
 
@@ -247,7 +213,6 @@ def geodesic_distances(mesh: TriangleMesh, sources, targets=None, *, route: str 
         raise InputError("the edge-flip route needs a manifold mesh; use route='mmp'",
                          field="route")
     if route == "mmp":
-        timing = mmp_timing(mesh)
         flip = len(dst) < len(src)  # symmetric: solve from the smaller side
         rows, cols = (dst, src) if flip else (src, dst)
         out = np.zeros((len(rows), len(cols)))
@@ -261,14 +226,11 @@ def geodesic_distances(mesh: TriangleMesh, sources, targets=None, *, route: str 
 
                 raise CancelledError("cancelled between geodesic solves")
             bound = None
-            start = time.perf_counter()
             if len(cols) < mesh.n:
                 reach = dijkstra(graph, directed=False, indices=int(s))[cols]
                 finite = reach[np.isfinite(reach)]
                 bound = float(finite.max()) if finite.size else 0.0
             out[i] = _one_to_all(pieces, int(s), bound)[cols]
-            timing["solves"] += 1
-            timing["seconds"] += time.perf_counter() - start
         return out.T if flip else out
     solver = _edge_flip_solver(mesh, pieces)
     labels = mesh.component_labels

@@ -10,16 +10,18 @@ distance and W2² values come out far too small.  Hence two purposes:
 * ``purpose="values"`` (distances): debiased Sinkhorn divergence, ``substeps =``
   :data:`VALUE_SUBSTEPS`, :math:`\gamma = c\,h\,d` with ``d`` the typical transport
   distance of the inputs, estimated cheaply by :func:`transport_distance_estimate` (an exact
-  LP between few-point quantizations of the two inputs, with heat-method geodesics on
-  meshes), and :math:`c` = :data:`VALUE_FACTOR` (the README's expert rule).
+  LP between few-point quantizations of the two inputs, with shortest edge paths on meshes),
+  and :math:`c` = :data:`VALUE_FACTOR` (the README's expert rule).
 * ``purpose="shapes"`` (barycenters, interpolations, propagation): the support of the result
   matters, not the value; :math:`\gamma = (2h)^2` (``t = h^2``, sharp) with
   :data:`SHAPE_SUBSTEPS` substeps so that mass travels along geodesics.
 
-Measured accuracy against the exact LP (squared exact geodesics): ``bench/results/
-convolutional.md`` ("Accuracy of the defaults").  Grids (exact Gaussian kernel) use the
-grid spacing for ``h``; graphs use hops (``h = 1``); point clouds the mean neighbour
-spacing at unit area.
+Every input of the policy comes from the stored domain through a
+:class:`~solvers.domains.sketch.DomainSketch` (sizes, coordinates, edges: no operator is
+built) and from the masses, and every constant is fixed: the same request gets the same
+choice in any process.  Measured accuracy against the exact LP (squared exact geodesics):
+``bench/results/distance_routes.md``.  Grids (exact Gaussian kernel) use the grid spacing for
+``h``; graphs use hops (``h = 1``); point clouds ``sqrt(1/n)`` at unit area.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from solvers.domains.sketch import DomainSketch
 from solvers.errors import InputError
 from solvers.kernels import heat_time
 
@@ -47,10 +50,10 @@ VALUE_MIN_H = 0.012
 VALUE_SUBSTEPS = 64
 MAX_SUBSTEPS = 512
 SUBSTEP_FACTOR = 2.0
-# Time budget (estimated seconds) of a default distance; substeps are reduced to fit.  At
-# 60 s nefertiti's far bump got 64 substeps and came out 13.5 % low; 256 substeps give -5 %
-# (bench/results/convolutional.md), and the budget plus the exact route's own 300 s stays
-# inside the service's 600 s job limit.
+# Time budget (modelled seconds) of a default convolutional distance; substeps are reduced
+# to fit.  At 60 s nefertiti's far bump got 64 substeps and came out 13.5 % low (an earlier
+# run); at 90 s it gets 256 (bench/results/distance_routes.md), well inside the service's
+# 600 s job limit.
 VALUE_SECONDS = 90.0
 # Kernel applications of a debiased distance solve (Sinkhorn + symmetric passes, measured)
 # and seconds per substep solve per mesh vertex: nefertiti (50k) took 15.5 / 31.2 / 54.4 s
@@ -84,21 +87,17 @@ class Regularization:
         return asdict(self)
 
 
+def sketch_of(domain) -> DomainSketch:
+    """``domain`` itself when it is a :class:`DomainSketch`, else its sketch."""
+    return domain if isinstance(domain, DomainSketch) else DomainSketch.of(domain)
+
+
 def length_scale(domain) -> float:
-    """``h``: mean edge length (meshes, unit area), largest grid spacing, 1 hop on graphs,
-    or ``sqrt(1/n)`` (unit area, ``n`` points) otherwise."""
-    kind = getattr(domain, "kind", None)
-    h = getattr(domain, "mean_edge_length", None)
-    if h is not None:
-        return float(h)
-    if kind == "grid" or hasattr(domain, "spacing"):
-        return float(max(domain.spacing))
-    if kind == "graph":
-        return 1.0
-    return float(math.sqrt(1.0 / max(int(domain.n), 1)))
+    """``h`` of a domain or sketch (:attr:`DomainSketch.length_scale`)."""
+    return sketch_of(domain).length_scale
 
 
-def _quantize(points: np.ndarray, masses: np.ndarray, k: int):
+def quantize(points: np.ndarray, masses: np.ndarray, k: int):
     """``k`` representatives of a weighted point set (mass-weighted farthest points, each
     point's mass moved to its nearest representative): ``(indices, masses)``."""
     support = np.flatnonzero(masses > 0)
@@ -118,57 +117,23 @@ def _quantize(points: np.ndarray, masses: np.ndarray, k: int):
     return support[chosen], np.bincount(owner, weights=m, minlength=len(chosen))
 
 
-def _distances_from(domain, sources: np.ndarray, targets: np.ndarray) -> np.ndarray:
-    """Approximate ground distances ``(len(sources), len(targets))`` for the estimate."""
-    kind = getattr(domain, "kind", None)
-    if kind == "mesh":
-        def build():
-            import potpourri3d as pp3d
-
-            return pp3d.MeshHeatMethodDistanceSolver(np.asarray(domain.vertices, np.float64),
-                                                     np.asarray(domain.faces))
-
-        solver = domain.operators.get(("heat-method-distance",), build)
-        labels = domain.component_labels
-        out = np.stack([solver.compute_distance(int(s))[targets] for s in sources])
-        return np.where(labels[sources][:, None] == labels[targets][None, :], out, np.inf)
-    if kind == "graph":
-        from scipy.sparse.csgraph import dijkstra
-
-        return dijkstra(_graph_lengths(domain), indices=sources)[:, targets]
-    pts = np.asarray(domain.points, dtype=np.float64)
-    return np.linalg.norm(pts[sources][:, None, :] - pts[targets][None, :, :], axis=2)
-
-
-def _graph_lengths(domain):
-    """Hop graph of a graph domain (unit edge lengths)."""
-    import scipy.sparse as sp
-
-    lap = sp.csr_matrix(domain.laplacian)
-    adj = (lap - sp.diags(lap.diagonal())).tocoo()
-    return sp.csr_matrix((np.ones(adj.nnz), (adj.row, adj.col)), shape=lap.shape)
-
-
 def transport_distance_estimate(domain, m0: np.ndarray, m1: np.ndarray,
                                 points: int = ESTIMATE_POINTS) -> float:
     r"""Cheap estimate of :math:`W_2(\mu_0, \mu_1)`: the exact LP between ``points``-point
-    quantizations of the two inputs, with heat-method geodesics on meshes (Crane et al.
-    2013), hop distances on graphs and Euclidean distances otherwise."""
+    quantizations of the two inputs, with the sketch's ground distances
+    (:meth:`DomainSketch.distances`: shortest edge paths on meshes, hops on graphs,
+    straight lines otherwise).  ``domain``: a domain or its sketch."""
     import ot
 
-    if getattr(domain, "kind", None) == "graph":
-        coords = None
-    else:
-        coords = np.asarray(domain.vertices if hasattr(domain, "vertices") else domain.points,
-                            dtype=np.float64)
-    if coords is None:  # graphs: no coordinates; quantize by mass only
-        i0 = np.argsort(m0)[::-1][:points]
-        i1 = np.argsort(m1)[::-1][:points]
+    sketch = sketch_of(domain)
+    if sketch.points is None:  # graphs: no coordinates; quantize by mass only
+        i0 = np.argsort(m0, kind="stable")[::-1][:points]
+        i1 = np.argsort(m1, kind="stable")[::-1][:points]
         w0, w1 = m0[i0], m1[i1]
     else:
-        i0, w0 = _quantize(coords, m0, points)
-        i1, w1 = _quantize(coords, m1, points)
-    cost = _distances_from(domain, i0, i1) ** 2
+        i0, w0 = quantize(sketch.points, m0, points)
+        i1, w1 = quantize(sketch.points, m1, points)
+    cost = sketch.distances(i0, i1) ** 2
     if not np.all(np.isfinite(cost)):  # different components: per-component masses match
         cost = np.where(np.isfinite(cost), cost, 1e6 * np.nanmax(np.where(np.isfinite(cost),
                                                                           cost, 0.0)) + 1.0)
@@ -180,7 +145,7 @@ def value_substeps(domain, distance: float, t: float) -> tuple[int, str]:
     """Substeps for values: ``SUBSTEP_FACTOR * d^2 / t`` rounded up to a power of two in
     ``[VALUE_SUBSTEPS, MAX_SUBSTEPS]``, lowered (not below VALUE_SUBSTEPS) until the
     estimated solve time fits ``VALUE_SECONDS``; returns ``(substeps, why)``."""
-    if getattr(domain, "kind", None) == "grid":  # exact Gaussian: substeps are unused
+    if domain.kind == "grid":  # exact Gaussian: substeps are unused
         return 1, "exact grid kernel"
     want = SUBSTEP_FACTOR * distance * distance / t
     steps = VALUE_SUBSTEPS
@@ -201,11 +166,13 @@ def choose_regularization(domain, m0=None, m1=None, *, purpose: str = "values",
 
     ``m0, m1``: normalized ``(n,)`` masses (needed for ``purpose="values"`` unless ``gamma``
     is given).  ``gamma``: a number, or None/``"auto"`` for the policy's choice; ``t``,
-    ``substeps``, ``debiased``: None for the policy's choice.
+    ``substeps``, ``debiased``: None for the policy's choice.  ``domain``: a domain or its
+    :class:`DomainSketch` (the same choice either way).
     """
     if purpose not in PURPOSES:
         raise InputError(f"purpose must be one of {PURPOSES}, got {purpose!r}", field="purpose")
-    h = length_scale(domain)
+    domain = sketch_of(domain)
+    h = domain.length_scale
     auto = gamma is None or (isinstance(gamma, str) and gamma == "auto")
     if isinstance(gamma, str) and not auto:
         raise InputError(f"gamma must be a positive number or 'auto', got {gamma!r}",
@@ -218,7 +185,7 @@ def choose_regularization(domain, m0=None, m1=None, *, purpose: str = "values",
                 raise InputError("gamma='auto' for values needs both distributions",
                                  field="gamma")
             distance = transport_distance_estimate(domain, np.asarray(m0), np.asarray(m1))
-            h_value = max(h, VALUE_MIN_H) if getattr(domain, "kind", None) == "mesh" else h
+            h_value = max(h, VALUE_MIN_H) if domain.kind == "mesh" else h
             # Identical or nearly identical inputs: resolve at least a few edges.
             d_eff = max(distance, 4.0 * h_value)
             value = VALUE_FACTOR * h_value * d_eff

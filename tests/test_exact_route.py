@@ -113,28 +113,43 @@ def test_bounded_solves_give_the_full_lp(shared_mesh, name, size, seeds):
         assert np.all(np.isfinite(res.plan)) and np.allclose(res.plan.sum(axis=0), m1[i1])
 
 
-def test_exact_route_estimate_budget_and_cancel(shared_mesh, monkeypatch):
-    """The estimate is taken before the run, a budget below it stops the route, route auto
-    then falls back to the convolutional route and says why; cancel stops it too."""
-    import solvers.convolutional.distance as distance
-    from solvers.convolutional.exact import (
-        AUTO_SECONDS,
-        RouteTimeout,
-        exact_route_estimate,
-        exact_route_seconds,
-    )
+def test_decision_is_a_pure_function_of_the_stored_domain(shared_mesh, monkeypatch):
+    """The default decision reads the inputs and the stored domain only: the library's sketch
+    of the built mesh and the service's sketch of the stored arrays give the same decision,
+    solves run in between (process history) change nothing, no operator is built for it; a
+    budget below the model takes the convolutional route and says why; no clock fallback."""
+    import solvers.convolutional.decision as decision
+    from solvers.convolutional.decision import EXACT_BUDGET_SECONDS, decide_distance
+    from solvers.convolutional.exact import exact_route_estimate, lp_seconds
+    from solvers.domains.sketch import DomainSketch
     from solvers.errors import CancelledError
+    from solvers.geodesics import mmp_solve_seconds
 
-    mesh = shared_mesh("woody.obj")
+    mesh = shared_mesh("cow.obj")  # one junction vertex: its closure is in the model
     rng = np.random.default_rng(5)
     m0 = _points(mesh.n, rng.choice(mesh.n, 25, replace=False))
     m1 = _points(mesh.n, rng.choice(mesh.n, 25, replace=False))
-    estimate = exact_route_estimate(mesh, m0, m1)
-    assert exact_route_seconds(mesh, 25, 25) <= estimate < AUTO_SECONDS
-    with pytest.raises(RouteTimeout):
-        exact_wasserstein_distance(mesh, m0, m1, time_budget=0.0)
+    stored = DomainSketch.from_stored("mesh", mesh.to_arrays(), mesh.vertices.copy(),
+                                      mesh.component_labels.copy(),
+                                      mesh.diagnostics.nonmanifold_vertices)
+    built = set(mesh.operators.keys())  # (the fixture's mesh is shared between tests)
+    first = decide_distance(stored, m0, m1)
+    assert set(mesh.operators.keys()) == built  # a sketch of stored arrays builds nothing
+    assert first.route == "exact" and first.exact_seconds <= EXACT_BUDGET_SECONDS
+    floor = 25 * mmp_solve_seconds(mesh.n, 0.0) + lp_seconds(25, 25)
+    assert floor < first.exact_seconds == exact_route_estimate(stored, m0, m1)
+    res = wasserstein_distance(mesh, m0, m1)
+    assert res.route == "exact" and res.decision == first
+    assert set(mesh.operators.keys()) - built <= {("geodesic-pieces",), ("edge-length-graph",)}
+    assert decide_distance(mesh, m0, m1) == first  # after solves: the same decision
     with pytest.raises(CancelledError):
         exact_wasserstein_distance(mesh, m0, m1, should_cancel=lambda: True)
-    monkeypatch.setattr(distance, "AUTO_BUDGET_SECONDS", 0.0)
-    res = wasserstein_distance(mesh, m0, m1)
-    assert res.route == "convolutional" and "budget" in res.regularization.reason
+    monkeypatch.setattr(decision, "EXACT_BUDGET_SECONDS", 0.0)
+    conv = decide_distance(mesh, m0, m1)
+    assert conv.route == "convolutional" and "above its 0 s budget" in conv.reason
+    # above the budget the size-only lower bound is enough (no planning)
+    assert conv.exact_seconds == pytest.approx(floor + mesh.diagnostics.nonmanifold_vertices
+                                               * mmp_solve_seconds(mesh.n, 1.0))
+    assert conv.regularization is not None
+    assert (conv.gamma, conv.substeps, conv.debiased) == (
+        conv.regularization.gamma, conv.regularization.substeps, True)

@@ -68,6 +68,8 @@ class JobRow(Base):
     finished_at: Mapped[float | None] = mapped_column(Float, nullable=True)
     duration: Mapped[float | None] = mapped_column(Float, nullable=True)
     result_location: Mapped[str | None] = mapped_column(String(256), nullable=True)
+    # automatic choices taken at submission (Operation.decide), executed by every attempt
+    decision: Mapped[dict | None] = mapped_column(JSON, nullable=True)
 
 
 class WorkerRow(Base):
@@ -84,7 +86,8 @@ class WorkerRow(Base):
 
 JOBS = JobRow.__table__
 # columns added after the first release: created on an existing table at start-up
-ADDED_COLUMNS = {"fraction": "FLOAT", "queue": "VARCHAR(16)", "cost": "FLOAT"}
+ADDED_COLUMNS = {"fraction": "FLOAT", "queue": "VARCHAR(16)", "cost": "FLOAT",
+                 "decision": "JSON"}
 
 
 def worker_identity() -> str:

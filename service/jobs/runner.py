@@ -162,14 +162,15 @@ class JobRunner:
             max_iter = getattr(params, "max_iter", None)
             hb.max_iter = max_iter if isinstance(max_iter, int) and max_iter > 0 else None
             try:
-                output = ctx.run(op, params, hb.on_progress, should_cancel)
+                output = ctx.run(op, params, hb.on_progress, should_cancel, job.decision)
             finally:
                 built = ctx.operator_builds()
                 self.cache.operator_builds += built
             if should_cancel():
                 raise CancelledError("cancelled")
             payload = {"job_id": job_id, "operation": job.operation,
-                       "domain_id": job.domain_id, "values": output.values,
+                       "domain_id": job.domain_id, "decision": job.decision,
+                       "values": output.values,
                        "arrays": {k: {"shape": list(v.shape), "dtype": str(v.dtype)}
                                   for k, v in output.arrays.items()},
                        "export": output.export}

@@ -34,7 +34,8 @@ class JobService:
     def create(self, operation: str, domain_id: str | None, request: OperationRequest
                ) -> JobRow:
         """Validate (against the stored domain, or the stored inputs of a global operation),
-        record the job, enqueue its id."""
+        take the operation's automatic decisions (``Operation.decide``), record the job with
+        them, enqueue its id."""
         op = self.rt.operations.get_operation(operation)
         size = None  # points of the job's domain (its cost estimate picks the queue)
         if op.scope == "domain":
@@ -43,8 +44,11 @@ class JobService:
             op.check_kind(view)
             op.validate(view, request)
             check_job_memory(op, view, request, self.rt.settings.job_memory_bytes)
+            decision = op.decide(view, request) if op.decide is not None else None
         else:
-            op.validate(SubmitContext(self.rt.store, self.rt.settings), request)
+            ctx = SubmitContext(self.rt.store, self.rt.settings)
+            op.validate(ctx, request)
+            decision = op.decide(ctx, request) if op.decide is not None else None
             domain_id = op.primary_domain(request)
         limit = self.rt.settings.job_time_limit
         if request.time_limit is not None:
@@ -61,7 +65,7 @@ class JobService:
                      queue=queue, cost=cost,
                      params=request.model_dump(mode="json"), state=QUEUED, attempts=0,
                      max_attempts=self.rt.settings.max_attempts, cancel_requested=False,
-                     time_limit=limit, created_at=now, enqueued_at=now,
+                     time_limit=limit, created_at=now, enqueued_at=now, decision=decision,
                      **{c: None for c in UNSET_AT_CREATION})
         self.rt.repo.create(job)
         try:

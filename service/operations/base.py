@@ -80,6 +80,14 @@ class DomainView:
     edges: np.ndarray | None = None
     n_faces: int | None = None
     memo: dict = field(default_factory=dict)  # lives on the source object: built once
+    sketch_builder: Callable[[], object] | None = None
+
+    def sketch(self):
+        """The domain's :class:`~solvers.domains.sketch.DomainSketch` (what default decisions
+        read: stored arrays, no operator), memoized on the view's source."""
+        if "sketch" not in self.memo:
+            self.memo["sketch"] = self.sketch_builder()
+        return self.memo["sketch"]
 
     def point_tree(self):
         """k-d tree of ``points`` (bumps touch only the points within their radius)."""
@@ -165,11 +173,16 @@ class RunContext(SubmitContext):
         """Operators (factorizations, ...) built in the job's domains since first use."""
         return sum(d.operators.builds - self._builds_before[i] for i, d in self.domains.items())
 
-    def run(self, op: Operation, request, progress, should_cancel) -> OperationOutput:
-        """Run ``op``: a domain-scoped one on ``request``'s domain, a global one on this."""
+    def run(self, op: Operation, request, progress, should_cancel,
+            decision: dict | None = None) -> OperationOutput:
+        """Run ``op``: a domain-scoped one on ``request``'s domain, a global one on this;
+        an operation that decides at submission (``op.decide``) gets the job's stored
+        ``decision`` (None for a job recorded before it had one: ``run`` then decides)."""
+        extra = {} if op.decide is None else {"decision": decision}
         if op.scope == "domain":
-            return op.run(self.domain(self.domain_id), request, progress, should_cancel)
-        return op.run(self, request, progress, should_cancel)
+            return op.run(self.domain(self.domain_id), request, progress, should_cancel,
+                          **extra)
+        return op.run(self, request, progress, should_cancel, **extra)
 
 
 ALL_KINDS = ("mesh", "grid", "graph", "pointcloud")
@@ -191,6 +204,15 @@ class Operation:
     ``JobService.create``.
 
     ``result_model``: pydantic model of the result's ``values`` (typed SDK results).
+
+    ``decide`` (optional): the operation's automatic choices (a route, a regularization, an
+    algorithm...), taken once at submission from the request and the stored data alone
+    (``decide(view, req)``, or ``decide(ctx: SubmitContext, req)`` for a global operation;
+    cheap: no operator is built) and returned as a JSON-ready dict.  The job stores it
+    (``decision``), the 202 and the job JSON show it, the result carries it, and every
+    attempt of the job (a re-run after a worker died too) gets it as ``run(...,
+    decision=...)`` and executes exactly it: the same request gives the same answer on any
+    worker.
     """
 
     name: str  # URL segment, e.g. "pointwise-distances"
@@ -211,6 +233,7 @@ class Operation:
     # ``result_row(array, name, row)`` (``array(name)`` reads a stored result array) returns
     # row ``row`` of ``name``, or ``None`` when ``name`` is served as stored
     result_row: Callable[..., np.ndarray | None] | None = None
+    decide: Callable[..., dict | None] | None = None
 
     def check_kind(self, view: DomainView, field: str = "domain_id") -> None:
         if view.kind not in self.kinds:
@@ -342,20 +365,31 @@ _DOMAIN_MEMOS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 def view_of_domain(domain) -> DomainView:
     from service.store import domain_points
+    from solvers.domains.sketch import DomainSketch
 
     memo = _DOMAIN_MEMOS.setdefault(domain, {})
     return DomainView(kind=domain.kind, n=int(domain.n), areas=np.asarray(domain.areas),
                       component_labels=np.asarray(domain.component_labels),
                       points=domain_points(domain), edges=getattr(domain, "edges", None),
-                      n_faces=getattr(domain, "n_faces", None), memo=memo)
+                      n_faces=getattr(domain, "n_faces", None), memo=memo,
+                      sketch_builder=lambda: DomainSketch.of(domain))
 
 
 def view_of_info(info) -> DomainView:
+    from solvers.domains.sketch import DomainSketch
+
     edges = info.arrays.get("edges") if info.kind == "graph" else None
-    n_faces = info.meta["summary"].get("faces")
+    summary = info.meta["summary"]
+    junctions = (summary.get("diagnostics") or {}).get("nonmanifold_vertices", 0)
+
+    def sketch():  # the same sketch DomainSketch.of gives for the built domain
+        return DomainSketch.from_stored(info.kind, info.arrays, info.points,
+                                        info.component_labels, junctions)
+
     return DomainView(kind=info.kind, n=info.n, areas=info.areas,
                       component_labels=info.component_labels, points=info.points,
-                      edges=edges, n_faces=n_faces, memo=info.memo)
+                      edges=edges, n_faces=summary.get("faces"), memo=info.memo,
+                      sketch_builder=sketch)
 
 
 # -- sizes and scalar options, checked at submission and again in the worker -------------

@@ -27,8 +27,11 @@ from solvers.convolutional import (
     wasserstein_distance,
     wasserstein_propagation,
 )
+from solvers.convolutional.decision import DistanceDecision as SolverDecision
+from solvers.convolutional.decision import decide_distance
 from solvers.convolutional.exact import EXACT_KINDS, MAX_SUPPORT_PRODUCT
 from solvers.emd import earth_movers_distance, pointwise_distances
+from solvers.emd.beckmann import resolve_method
 from solvers.emd.green import GREEN_MAX_VERTICES
 from solvers.emd.pointwise import check_cost
 from solvers.errors import InputError
@@ -72,8 +75,10 @@ class DistanceRequest(SinkhornOptions):
     route: Literal["auto", "convolutional", "exact"] = Field(
         "auto", description="W2 only. exact: geodesic cost matrix between the supports and "
         "the transport LP (meshes, grids, point clouds; sparse supports); convolutional: "
-        "entropic W2 with heat kernels (thesis Alg. 1); auto: exact when its estimated time "
-        "is small, else convolutional (always convolutional when gamma is given)")
+        "entropic W2 with heat kernels (thesis Alg. 1); auto: exact when its modelled time "
+        "fits its budget, else convolutional (always convolutional when gamma is given); "
+        "decided at submission from the request and the stored domain alone, shown in the "
+        "job's `decision`")
     debiased: bool | None = Field(None, description="W2 convolutional: Sinkhorn divergence "
                                   "(default: the policy's choice, true; false when gamma is "
                                   "given)")
@@ -97,12 +102,35 @@ class Regularization(BaseModel):
     reason: str
 
 
+class DistanceDecision(BaseModel):
+    """What a distance job runs, decided at submission from the request and the stored
+    domain alone (solvers.convolutional.decision) and executed by every attempt."""
+
+    metric: Literal["w2", "w1"]
+    route: Literal["convolutional", "exact", "beckmann"]
+    reason: str
+    gamma: float | None = Field(None, description="convolutional: entropic regularization")
+    t: float | None = Field(None, description="convolutional: heat time")
+    substeps: int | None = Field(None, description="convolutional: implicit Euler substeps")
+    debiased: bool | None = Field(None, description="convolutional: Sinkhorn divergence")
+    estimated_seconds: float | None = Field(None, description="modelled run time of the "
+                                            "route (one core, unloaded machine)")
+    exact_seconds: float | None = Field(None, description="modelled run time of the exact "
+                                        "route (null where it is not available)")
+    regularization: Regularization | None = Field(None, description="the policy's choice "
+                                                  "(convolutional, gamma left out)")
+    algorithm: Literal["ipm", "admm", "weiszfeld"] | None = Field(None, description="w1: "
+                                                                  "the solver")
+    basis: Literal["flow", "full", "spectral"] | None = Field(None, description="w1: the "
+                                                              "flow space")
+
+
 class DistanceResult(BaseModel):
     """Values of a distance job."""
 
     value: float = Field(description="W2^2 (metric w2) or W1 (metric w1)")
     metric: Literal["w2", "w1"]
-    route: Literal["convolutional", "exact", "beckmann"]
+    route: Literal["convolutional", "exact", "beckmann"] = Field(description="what ran")
     gamma: float | None = None
     t: float | None = None
     substeps: int | None = None
@@ -112,9 +140,15 @@ class DistanceResult(BaseModel):
     support_sizes: list[int] | None = Field(None, description="exact route: support sizes")
     cost_seconds: float | None = Field(None, description="exact route: geodesic cost matrix")
     lp_seconds: float | None = Field(None, description="exact route: transport LP")
-    algorithm: str | None = Field(None, description="W1 solver")
+    algorithm: Literal["ipm", "admm", "weiszfeld"] | None = Field(
+        None, description="W1: the solver that ran")
+    decision: DistanceDecision | None = Field(None, description="the job's decision (taken "
+                                              "at submission)")
     iterations: int
-    residual: float
+    residual: float = Field(description="w2 convolutional: L1 marginal violation; exact: "
+                            "marginal violation of the plan; w1: the solver's stopping "
+                            "quantity (ipm: certified relative duality gap; admm: larger "
+                            "relative primal/dual residual; weiszfeld: relative change)")
     converged: bool
     normalization: list[dict]
 
@@ -272,33 +306,64 @@ def _validate_distance(view: DomainView, req: DistanceRequest) -> list[dict]:
     return reports
 
 
-def run_distance(domain, req: DistanceRequest, progress, should_cancel) -> OperationOutput:
-    masses, reports = _pair(view_of_domain(domain), req)
+def decide_distance_job(view: DomainView, req: DistanceRequest) -> dict:
+    """The job's decision at submission (``Operation.decide``): the W2 route and
+    regularization (:func:`solvers.convolutional.decision.decide_distance` on the stored
+    domain's sketch), or the W1 solver and flow space."""
     if req.metric == "w1":
-        res = _w1(domain, masses, req, progress, should_cancel)
+        try:
+            algorithm, basis = resolve_method(req.algorithm, req.basis)
+        except InputError as exc:
+            raise InvalidInput(str(exc), field=exc.field or "algorithm") from exc
+        why = "requested" if req.algorithm != "auto" else (
+            "auto: the interior point over all flows" if algorithm == "ipm" else
+            f"auto: ADMM for the {basis} basis")
+        return DistanceDecision(metric="w1", route="beckmann", reason=why,
+                                algorithm=algorithm, basis=basis).model_dump(mode="json")
+    masses, _ = _pair(view, req)
+    decision = decide_distance(view.sketch(), masses["mu0"], masses["mu1"], route=req.route,
+                               gamma="auto" if req.gamma is None else float(req.gamma),
+                               substeps=req.substeps, debiased=req.debiased)
+    return {"metric": "w2", **decision.as_dict()}
+
+
+def run_distance(domain, req: DistanceRequest, progress, should_cancel,
+                 decision: dict | None = None) -> OperationOutput:
+    """Execute the job's stored ``decision`` (taken at submission; decided here only for a
+    job recorded without one): explicit solver arguments, so every worker and every
+    attempt runs the same thing."""
+    view = view_of_domain(domain)
+    masses, reports = _pair(view, req)
+    if decision is None:
+        decision = decide_distance_job(view, req)
+    stored = DistanceDecision.model_validate(decision)
+    if req.metric == "w1":
+        res = earth_movers_distance(domain, masses["mu0"], masses["mu1"],
+                                    algorithm=stored.algorithm, basis=stored.basis, k=req.k,
+                                    progress=progress, should_cancel=should_cancel,
+                                    **_optional(req))
         values = {"value": float(res.value), "metric": "w1", "route": "beckmann",
-                  "algorithm": req.algorithm, "iterations": int(res.iterations),
-                  "residual": float(max(res.primal_residual, res.dual_residual)),
-                  "converged": bool(res.converged)}
+                  "algorithm": res.algorithm, **_convergence(res)}
         arrays = {"flow": np.asarray(res.flow), "potential": np.asarray(res.potential)}
         export = {"fields": ["potential"], "flow": "flow", "color": "potential"}
-        return OperationOutput({**values, "normalization": reports}, arrays, export)
-    kwargs = {"gamma": "auto" if req.gamma is None else float(req.gamma), "route": req.route,
-              "debiased": req.debiased, **_optional(req), "progress": progress,
-              "should_cancel": should_cancel}
-    if req.substeps is not None:
-        kwargs["substeps"] = req.substeps
-    res = wasserstein_distance(domain, masses["mu0"], masses["mu1"], **kwargs)
+        return OperationOutput({**values, "decision": decision, "normalization": reports},
+                               arrays, export)
+    plan = SolverDecision.from_dict({k: v for k, v in decision.items()
+                                     if k not in ("metric", "algorithm", "basis")})
+    res = wasserstein_distance(domain, masses["mu0"], masses["mu1"], **plan.solver_arguments(),
+                               **_optional(req), progress=progress,
+                               should_cancel=should_cancel)
     values = {"value": float(res.value), "metric": "w2", "route": res.route}
     if res.route == "exact":
         values.update(support_sizes=[len(res.sources), len(res.targets)],
                       cost_seconds=float(res.cost_seconds), lp_seconds=float(res.lp_seconds))
     else:
-        reg = res.regularization
+        reg = plan.regularization
         values.update(gamma=float(res.gamma), t=float(res.t), substeps=int(res.substeps),
                       debiased=bool(res.debiased),
                       regularization=None if reg is None else reg.as_dict())
-    return OperationOutput({**values, **_convergence(res), "normalization": reports})
+    return OperationOutput({**values, **_convergence(res), "decision": decision,
+                            "normalization": reports})
 
 
 # -- barycenters --------------------------------------------------------------
@@ -454,7 +519,8 @@ OPERATIONS = [
     Operation("distances", "createDistanceJob",
               "Transport distance between two distributions (W2^2: exact LP for sparse "
               "supports or convolutional; or W1)",
-              DistanceRequest, run_distance, _validate_distance, result_model=DistanceResult),
+              DistanceRequest, run_distance, _validate_distance, result_model=DistanceResult,
+              decide=decide_distance_job),
     Operation("barycenters", "createBarycenterJob",
               "Wasserstein barycenter of distributions (convolutional, optional sharpening)",
               BarycenterRequest, run_barycenter, _validate_barycenter,

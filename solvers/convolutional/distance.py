@@ -16,7 +16,7 @@ thesis writes :math:`2t` for :math:`\gamma` because its kernel is
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -31,24 +31,11 @@ from solvers.convolutional.common import (
     log_density,
     prepare,
 )
-from solvers.convolutional.exact import (
-    AUTO_BUDGET_SECONDS,
-    AUTO_DENSE_SECONDS,
-    AUTO_SECONDS,
-    MAX_SUPPORT_PRODUCT,
-    SPARSE_SUPPORT,
-    ExactTransportResult,
-    RouteTimeout,
-    exact_route_estimate,
-    exact_route_seconds,
-    exact_wasserstein_distance,
-    supports_exact,
-)
-from solvers.errors import InputError
+from solvers.convolutional.decision import DistanceDecision, decide_distance
+from solvers.convolutional.exact import ExactTransportResult, exact_wasserstein_distance
 from solvers.monitor import SolverResult
-from solvers.regularization import Regularization, choose_regularization
+from solvers.regularization import Regularization
 
-ROUTES = ("auto", "convolutional", "exact")
 # Window (iterations) over which the convolutional solvers measure their convergence rate:
 # they stop as stalled (converged=False with the measured residual) when the best residual
 # has not fallen by 0.1 % over a window, or when at the rate of the last window ``tol``
@@ -92,6 +79,7 @@ class SinkhornResult(SolverResult):
     debiased: bool = False
     route: str = "convolutional"
     regularization: Regularization | None = None
+    decision: DistanceDecision | None = None
 
 
 
@@ -312,21 +300,21 @@ def wasserstein_distance(
     W(\mu_1,\mu_1)` is returned, which vanishes for ``mu0 == mu1`` and removes the
     first-order entropic bias.
 
-    Defaults (``gamma="auto"``, ``route="auto"``): values users can trust.  When the
-    exact route is estimated below :data:`~solvers.convolutional.exact.AUTO_SECONDS`
-    for sparse inputs (the smaller support at most
-    :data:`~solvers.convolutional.exact.SPARSE_SUPPORT` points: point masses, a few
-    scattered points) or below :data:`~solvers.convolutional.exact.AUTO_DENSE_SECONDS`
-    otherwise (small meshes), the exact discrete W2² is computed instead
-    (:func:`~solvers.convolutional.exact.exact_wasserstein_distance`: exact geodesic cost
-    matrix between the supports, network-simplex LP).  Otherwise the regularization comes
-    from :func:`solvers.regularization.choose_regularization` with ``purpose="values"``
-    (debiased, ``gamma`` proportional to the mesh resolution times the estimated transport
-    distance, substeps enough for implicit Euler to follow the Gaussian out to that
-    distance); its choice is in ``result.regularization``.  Measured accuracy of both
-    routes against the exact LP: ``bench/results/convolutional.md``.  A numeric ``gamma``
-    runs Alg. 1 exactly as specified (``substeps=1``, ``debiased=False`` unless given;
-    ``route="auto"`` then means convolutional).
+    Defaults (``gamma="auto"``, ``route="auto"``): values users can trust, decided by
+    :func:`~solvers.convolutional.decision.decide_distance` from the inputs and the stored
+    domain alone (never the clock or the process's history; the service takes the same
+    decision at submission): the exact discrete W2² (:func:`~solvers.convolutional.exact.
+    exact_wasserstein_distance`: exact geodesic cost matrix between the supports,
+    network-simplex LP) when its modelled time fits
+    :data:`~solvers.convolutional.decision.EXACT_BUDGET_SECONDS`, else Alg. 1 with the
+    regularization of :func:`solvers.regularization.choose_regularization` (``purpose=
+    "values"``: debiased, ``gamma`` proportional to the mesh resolution times the estimated
+    transport distance, substeps enough for implicit Euler to follow the Gaussian out to
+    that distance).  The decision is in ``result.decision`` (and the policy's choice in
+    ``result.regularization``).  Measured accuracy against the exact LP with exact
+    geodesics: ``bench/results/distance_routes.md``.  A numeric ``gamma`` runs Alg. 1
+    exactly as specified (``substeps=1``, ``debiased=False`` unless given; ``route="auto"``
+    then means convolutional).
 
     Parameters
     ----------
@@ -353,36 +341,20 @@ def wasserstein_distance(
     Returns
     -------
     SinkhornResult(value, v, w, iterations, residual, converged, log_v, log_w, gamma, t,
-    substeps, debiased, route="convolutional", regularization, ...), or an
-    ExactTransportResult(value, ..., route="exact") when the exact route is taken.
+    substeps, debiased, route="convolutional", regularization, decision, ...), or an
+    ExactTransportResult(value, ..., route="exact", decision) when the exact route is taken.
     """
     m0, m1 = distribution_pair(domain, mu0, mu1)
     acceleration = check_acceleration(acceleration, ACCELERATIONS)
-    if route not in ROUTES:
-        raise InputError(f"route must be one of {', '.join(map(repr, ROUTES))}, got "
-                         f"{route!r}", field="route")
-    auto = isinstance(gamma, str) and gamma == "auto"
-    if route == "exact":
-        return exact_wasserstein_distance(domain, m0, m1, progress=progress,
-                                          should_cancel=should_cancel)
-    fallback = None
-    if route == "auto" and auto and _exact_fits(domain, m0, m1):
-        try:
-            return exact_wasserstein_distance(domain, m0, m1, time_budget=AUTO_BUDGET_SECONDS,
-                                              progress=progress, should_cancel=should_cancel)
-        except RouteTimeout:
-            fallback = (f"; the exact route ran past its {AUTO_BUDGET_SECONDS:.0f} s budget "
-                        "(route auto fell back to convolutional)")
-    if auto:
-        reg = choose_regularization(domain, m0, m1, purpose="values", t=t,
-                                    substeps=substeps, debiased=debiased)
-        if fallback:
-            reg = replace(reg, reason=reg.reason + fallback)
-        gamma, t, substeps, debiased = reg.gamma, reg.t, reg.substeps, reg.debiased
-    else:  # an explicit gamma: the solver as specified (one substep, biased by default)
-        reg = None
-        substeps = 1 if substeps is None else substeps
-        debiased = False if debiased is None else bool(debiased)
+    decision = decide_distance(domain, m0, m1, route=route, gamma=gamma, t=t,
+                               substeps=substeps, debiased=debiased)
+    if decision.route == "exact":
+        res = exact_wasserstein_distance(domain, m0, m1, progress=progress,
+                                         should_cancel=should_cancel)
+        res.decision = decision
+        return res
+    gamma, t, substeps, debiased = (decision.gamma, decision.t, decision.substeps,
+                                    decision.debiased)
     setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
                     progress=progress, should_cancel=should_cancel)
     check_components(domain, np.stack([m0, m1], axis=1), setup.tol, "mu1")
@@ -414,19 +386,7 @@ def wasserstein_distance(
                           converged=bool(conv), log_v=f, log_w=g, gamma=setup.gamma,
                           t=setup.t, omega=float(omega), self_values=self_values,
                           substeps=setup.substeps, debiased=bool(debiased),
-                          regularization=reg)
-
-
-def _exact_fits(domain, m0: np.ndarray, m1: np.ndarray) -> bool:
-    """route='auto': the exact route when available and estimated below AUTO_SECONDS
-    (sparse supports) or AUTO_DENSE_SECONDS (larger ones)."""
-    if not supports_exact(domain):
-        return False
-    n0, n1 = int(np.count_nonzero(m0)), int(np.count_nonzero(m1))
-    limit = AUTO_SECONDS if min(n0, n1) <= SPARSE_SUPPORT else AUTO_DENSE_SECONDS
-    if n0 * n1 > MAX_SUPPORT_PRODUCT or exact_route_seconds(domain, n0, n1) > limit:
-        return False
-    return exact_route_estimate(domain, m0, m1) <= limit
+                          regularization=decision.regularization, decision=decision)
 
 
 def _finite_max(x: np.ndarray) -> float:

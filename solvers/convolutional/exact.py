@@ -22,11 +22,11 @@ beat (``L <= d`` entrywise): it is the exact W2².  Otherwise the bounds of the 
 an unknown entry grow to cover it and the loop repeats (at most until every entry is known).
 
 The cost is one (bounded) geodesic solve per point of the smaller support and an LP of size
-``n0 × n1``, so the route is for sparse inputs (point masses, few scattered points);
-:func:`exact_route_estimate` estimates it before it runs and
-:func:`~solvers.convolutional.distance.wasserstein_distance` (``route="auto"``) takes it when
-the estimate is below :data:`AUTO_SECONDS`.  Measured accuracy and times against the
-convolutional route: ``bench/results/convolutional.md``.
+``n0 × n1``, so the route is for sparse inputs (point masses, few scattered points) and small
+meshes; :func:`exact_route_estimate` models its time from the stored domain alone (sizes,
+edge paths, constants calibrated offline by ``bench/distance_routes.py``), and the default
+decision of a distance (:mod:`solvers.convolutional.decision`) takes the route when that
+estimate fits its budget.  Measured accuracy and times: ``bench/results/distance_routes.md``.
 """
 
 from __future__ import annotations
@@ -40,37 +40,24 @@ import numpy as np
 from solvers.errors import InputError
 from solvers.monitor import Monitor, SolverResult
 
-# route="auto" takes the exact route when its estimated time is below this (seconds), and
-# falls back to the convolutional route when the cost matrix takes longer than
-# AUTO_BUDGET_SECONDS after all: with the convolutional fallback's own VALUE_SECONDS budget
-# (solvers.regularization) this stays well inside the service's 600 s job limit
-# (service.settings job_time_limit); 25 + 25 point masses on the 35k-50k shared meshes fit:
-# the estimate is pessimistic there (stanford-bunny 86 s estimated / 27 s measured,
-# nefertiti 273 s / 72 s at load 1, bench/results/convolutional.md) ...
-AUTO_SECONDS = 300.0
-AUTO_BUDGET_SECONDS = 300.0
-# ... for sparse inputs (the smaller support at most SPARSE_SUPPORT points: there the
-# convolutional route is 9-15 % low); larger supports (bumps, within 10 % by the
-# convolutional route) take the exact route only when it is estimated below
-# AUTO_DENSE_SECONDS.
-SPARSE_SUPPORT = 64
-AUTO_DENSE_SECONDS = 10.0
-# ... and refuses route="exact" above this (the LP's dense n0 x n1 cost matrix).
+# The route refuses supports whose LP has more entries than this (its dense n0 x n1 cost
+# matrix).
 MAX_SUPPORT_PRODUCT = 25_000_000
-# Meshes: each solve bound is the edge-path length it must cover times BOUND_MARGIN (fewer
-# second rounds, bench/results/convolutional.md); the triangle-inequality lower bounds are
-# used while rows^2 x columns stays below TRIANGLE_ENTRIES.
+# Meshes: each solve bound is the edge-path length it must cover times BOUND_MARGIN; the
+# triangle-inequality lower bounds are used while rows^2 x columns stays below
+# TRIANGLE_ENTRIES (homer's near bumps, 435 x 492: 14 LP rounds and 1096 solves with them,
+# 107 rounds and 1709 solves without).
 BOUND_MARGIN = 1.0
-TRIANGLE_ENTRIES = 20_000_000
-# The later rounds (rows whose bound grows) took 0.5-0.8 x the first round's time on 25 + 25
-# scattered points (rocker-arm, stanford-bunny): estimates count the first round this much.
+TRIANGLE_ENTRIES = 200_000_000
+# Estimates (exact_route_estimate, constants fitted by bench/distance_routes.py calibrate):
+# the later rounds of the bounded-solve loop (rows whose bound grows) took 0.5-0.8 x the
+# first round's time on 25 + 25 scattered points: the first round counts this much; the
+# network simplex takes about LP_COEF * n0 n1 log2(n0 n1) seconds; the plan of the first
+# round is estimated on at most PLAN_POINTS representatives of the smaller support.
 ROUNDS_FACTOR = 1.8
+LP_COEF = 4.7e-9
+PLAN_POINTS = 32
 EXACT_KINDS = ("mesh", "grid", "pointcloud")
-
-
-class RouteTimeout(Exception):
-    """The exact route's cost matrix ran past its ``time_budget`` (route="auto" then falls
-    back to the convolutional route)."""
 
 
 @dataclass(kw_only=True)
@@ -90,6 +77,7 @@ class ExactTransportResult(SolverResult):
     cost_seconds: float = 0.0
     lp_seconds: float = 0.0
     route: str = "exact"
+    decision: object = None  # the DistanceDecision of a wasserstein_distance call
 
 
 def supports_exact(domain) -> bool:
@@ -97,20 +85,9 @@ def supports_exact(domain) -> bool:
     return getattr(domain, "kind", None) in EXACT_KINDS
 
 
-def _lp_seconds(n0: int, n1: int) -> float:
-    return 2e-8 * float(n0) * float(n1) * np.log2(max(n0 * n1, 2))
-
-
-def exact_route_seconds(domain, n0: int, n1: int) -> float:
-    """Size-only estimate of the exact route for supports of ``n0`` and ``n1`` points:
-    on meshes a *lower bound* (one MMP mesh setup per point of the smaller side), else the
-    cost matrix and the network simplex.  :func:`exact_route_estimate` looks at the
-    supports themselves."""
-    if getattr(domain, "kind", None) == "mesh":
-        from solvers.geodesics import mmp_solve_seconds
-
-        return min(n0, n1) * mmp_solve_seconds(domain, 0.0) + _lp_seconds(n0, n1)
-    return _lp_seconds(n0, n1) + 1e-8 * float(n0) * float(n1)
+def lp_seconds(n0: int, n1: int) -> float:
+    """Modelled seconds of the transport LP between supports of ``n0`` and ``n1`` points."""
+    return LP_COEF * float(n0) * float(n1) * np.log2(max(n0 * n1, 2))
 
 
 @dataclass
@@ -124,8 +101,6 @@ class _MeshPlan:
     col_mass: np.ndarray
     upper: np.ndarray  # (r, c) edge-path lengths between rows and cols (>= geodesic)
     need: np.ndarray  # (r,) the bound of each row's first solve
-    reach: np.ndarray  # (r,) fraction of vertices within need (edge paths)
-    seconds: float  # estimated seconds of the bounded solves
 
 
 def _finite_cost(cost: np.ndarray) -> np.ndarray:
@@ -137,51 +112,65 @@ def _finite_cost(cost: np.ndarray) -> np.ndarray:
     return np.where(finite, cost, 10.0 * float(cost[finite].max(initial=0.0)) * cost.size + 1.0)
 
 
-def _mesh_plan(mesh, src, dst, a, b) -> _MeshPlan:
+def _first_bounds(paths: np.ndarray, cols: np.ndarray, row_mass, col_mass):
+    """``(upper, need)``: edge-path lengths from the rows (``paths``, rows x n) to ``cols``
+    and, per row, the longest of them that the LP on their squares uses."""
     import ot
 
-    from solvers.geodesics import edge_path_distances, mmp_solve_seconds
+    upper = paths[:, cols]
+    guess = ot.emd(row_mass, col_mass, _finite_cost(upper**2), numItermax=10_000_000)
+    return upper, np.where(guess > 0, upper, 0.0).max(axis=1)
+
+
+def _mesh_plan(mesh, src, dst, a, b) -> _MeshPlan:
+    from solvers.geodesics import edge_path_distances
 
     flipped = len(dst) < len(src)
     rows, cols, ra, cb = (dst, src, b, a) if flipped else (src, dst, a, b)
-    paths = edge_path_distances(mesh, rows)  # (r, n)
-    upper = paths[:, cols]
-    guess = ot.emd(ra, cb, _finite_cost(upper**2), numItermax=10_000_000)
-    need = np.where(guess > 0, upper, 0.0).max(axis=1)
-    reach = (paths <= need[:, None]).mean(axis=1)
-    seconds = ROUNDS_FACTOR * float(sum(mmp_solve_seconds(mesh, r) for r in reach))
-    return _MeshPlan(flipped, rows, cols, ra, cb, upper, need, reach, seconds)
+    upper, need = _first_bounds(edge_path_distances(mesh, rows), cols, ra, cb)
+    return _MeshPlan(flipped, rows, cols, ra, cb, upper, need)
 
 
-def _cached_plan(mesh, src, dst, a, b) -> _MeshPlan:
-    """:func:`_mesh_plan`, kept for the next call on the same supports (the estimate of
-    route="auto" is followed by the run).  Any plan gives the exact value (its bounds only
-    decide how much is solved), so masses equal to 12 digits share one."""
-    import hashlib
+def exact_route_estimate(sketch, m0, m1, budget: float | None = None) -> float:
+    """Modelled seconds of :func:`exact_wasserstein_distance` between the masses ``m0`` and
+    ``m1`` on the domain of ``sketch`` (a :class:`~solvers.domains.sketch.DomainSketch`): a
+    pure function of the stored domain and the inputs.  Meshes: one MMP solve
+    (:func:`solvers.geodesics.mmp_solve_seconds`) per point of the smaller support, out to the
+    bound its first round needs (edge-path plan, module docstring; on at most
+    :data:`PLAN_POINTS` representatives, each standing for the rows nearest to it) times
+    :data:`ROUNDS_FACTOR`, the exact distances from the junction vertices of non-manifold
+    meshes, and the LP; grids and point clouds: the cost matrix and the LP.  When the
+    size-only lower bound (every solve at its setup cost) is above ``budget`` that bound is
+    returned without planning."""
+    from solvers.geodesics import mmp_solve_seconds
 
-    digest = hashlib.sha1(b"".join(np.ascontiguousarray(x).tobytes() for x in (
-        src, dst, np.round(a, 12), np.round(b, 12)))).hexdigest()
-    last = mesh.operators.peek(("exact-plan",))
-    if last is not None and last[0] == digest:
-        return last[1]
-    plan = _mesh_plan(mesh, src, dst, a, b)
-    mesh.operators.discard(("exact-plan",))
-    mesh.operators.get(("exact-plan",), lambda: (digest, plan))
-    return plan
-
-
-def exact_route_estimate(domain, mu0, mu1) -> float:
-    """Estimated seconds of :func:`exact_wasserstein_distance` on these inputs.  Meshes:
-    the solve bounds of the first round (edge-path plan, module docstring) through the MMP
-    timing model of :mod:`solvers.geodesics`; supports whose setup alone is past
-    ``AUTO_BUDGET_SECONDS`` get the size-only lower bound."""
-    m0, m1 = np.asarray(mu0), np.asarray(mu1)
+    m0, m1 = np.asarray(m0), np.asarray(m1)
     src, dst = np.flatnonzero(m0 > 0), np.flatnonzero(m1 > 0)
-    floor = exact_route_seconds(domain, len(src), len(dst))
-    if getattr(domain, "kind", None) != "mesh" or floor > AUTO_BUDGET_SECONDS:
+    lp = lp_seconds(len(src), len(dst))
+    if sketch.kind != "mesh":
+        return lp + 1e-8 * float(len(src)) * float(len(dst))
+    rows, cols, rmass, cmass = (dst, src, m1, m0) if len(dst) < len(src) else (src, dst, m0, m1)
+    closure = sketch.junctions * mmp_solve_seconds(sketch.n, 1.0)
+    floor = len(rows) * mmp_solve_seconds(sketch.n, 0.0) + lp + closure
+    if budget is not None and floor > budget:
         return floor
-    plan = _cached_plan(domain, src, dst, m0[src] / m0.sum(), m1[dst] / m1.sum())
-    return plan.seconds + _lp_seconds(len(src), len(dst))
+    from solvers.regularization import quantize
+
+    reps, weight = quantize(sketch.points, rmass, PLAN_POINTS)
+    counts = np.bincount(_nearest(sketch.points, rows, reps), minlength=len(reps))
+    paths = sketch.path_lengths(reps)
+    _, need = _first_bounds(paths, cols, weight / weight.sum(), cmass[cols] / cmass[cols].sum())
+    reach = (paths <= need[:, None]).mean(axis=1)
+    solves = sum(int(c) * mmp_solve_seconds(sketch.n, float(r))
+                 for c, r in zip(counts, reach, strict=True))
+    return ROUNDS_FACTOR * solves + lp + closure
+
+
+def _nearest(points: np.ndarray, rows: np.ndarray, reps: np.ndarray) -> np.ndarray:
+    """Index (into ``reps``) of the representative nearest to each row (straight lines)."""
+    from scipy.spatial import cKDTree
+
+    return cKDTree(points[reps]).query(points[rows])[1]
 
 
 def _triangle_bounds(near: np.ndarray, dist: np.ndarray) -> np.ndarray:
@@ -256,7 +245,6 @@ def exact_wasserstein_distance(
     mu1,
     *,
     max_iter: int = 10_000_000,
-    time_budget: float | None = None,
     progress: Callable[[int, float], None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
 ) -> ExactTransportResult:
@@ -267,9 +255,6 @@ def exact_wasserstein_distance(
     domain : a TriangleMesh, Grid or PointCloud.
     mu0, mu1 : ``(n,)`` masses (normalized here); their supports set the LP size.
     max_iter : network-simplex iteration cap; when hit, ``converged`` is False.
-    time_budget : seconds; a cost matrix running, or estimated (the MMP timing model,
-        corrected by the solves measured so far) to run, past it raises
-        :class:`RouteTimeout` (``route="auto"`` falls back to the convolutional route).
     progress, should_cancel : called between the geodesic solves and before the LP.
 
     Returns
@@ -295,28 +280,13 @@ def exact_wasserstein_distance(
     monitor(0, float("nan"))
     start = time.perf_counter()
     a, b = m0[src], m1[dst]
-    solves = [0]
 
-    def stop() -> None:  # before each geodesic solve: the caller's cancel, then the budget
+    def stop() -> None:  # before each geodesic solve
         if should_cancel is not None and should_cancel():
             raise CancelledError("cancelled between geodesic solves")
-        if time_budget is not None:
-            from solvers.geodesics import mmp_solve_seconds
 
-            elapsed = time.perf_counter() - start
-            left = len(plan.rows) - solves[0] if plan is not None else 0
-            projected = elapsed + left * mmp_solve_seconds(domain, float(np.mean(plan.reach)))
-            if elapsed > time_budget or (solves[0] >= 2 and projected > time_budget):
-                raise RouteTimeout(f"exact route projected past its {time_budget:.0f} s "
-                                   "budget")
-        solves[0] += 1
-
-    plan = None
     if domain.kind == "mesh":
-        plan = _cached_plan(domain, src, dst, a, b)
-        if time_budget is not None and plan.seconds > time_budget:
-            raise RouteTimeout(f"exact route estimated at {plan.seconds:.0f} s, past its "
-                               f"{time_budget:.0f} s budget")
+        plan = _mesh_plan(domain, src, dst, a, b)
         coupling, cost, log, lp_seconds = _mesh_exact(domain, plan, stop, max_iter)
         cost_seconds = time.perf_counter() - start - lp_seconds
         if plan.flipped:

@@ -195,6 +195,22 @@ ADMM_PATIENCE = 2000
 WEISZFELD_PATIENCE = 50
 
 
+def resolve_method(algorithm: str, basis: str, matrix: bool = False) -> tuple[str, str]:
+    """``(algorithm, basis)`` that ``earth_movers_distance`` runs for these arguments
+    (``matrix``: matrix ``face_weights``): ``"auto"`` resolved, impossible pairs refused."""
+    if algorithm not in ALGORITHMS:
+        raise InputError(f"algorithm must be one of {ALGORITHMS}, got {algorithm!r}",
+                         field="algorithm")
+    if basis == "auto":
+        basis = "full" if matrix else "flow"
+    if algorithm == "auto":
+        algorithm = "ipm" if basis == "flow" and not matrix else "admm"
+    if algorithm == "ipm" and (basis != "flow" or matrix):
+        raise InputError("algorithm='ipm' solves over all flows (basis 'flow' or 'auto') with "
+                         "scalar face weights", field="algorithm")
+    return algorithm, basis
+
+
 def earth_movers_distance(mesh, mu0, mu1, *, algorithm: str = "auto", basis: str = "auto",
                           k: int | None = None, harmonic: bool = True, face_weights=None,
                           tol: float | None = None, max_iter: int | None = None,
@@ -250,13 +266,7 @@ def earth_movers_distance(mesh, mu0, mu1, *, algorithm: str = "auto", basis: str
     m0, m1 = check_pair(mesh, mu0, mu1)
     weights = check_face_weights(face_weights, ops.n_faces)
     matrix = weights is not None and weights.ndim == 3
-    if basis == "auto":
-        basis = "full" if matrix else "flow"
-    if algorithm == "auto":
-        algorithm = "ipm" if basis == "flow" and not matrix else "admm"
-    if algorithm == "ipm" and (basis != "flow" or matrix):
-        raise InputError("algorithm='ipm' solves over all flows (basis 'flow' or 'auto') with "
-                         "scalar face weights", field="algorithm")
+    algorithm, basis = resolve_method(algorithm, basis, matrix)
     if tol is None:
         tol = DEFAULT_TOL.get((algorithm, basis), 1e-4)
     if not (np.isfinite(tol) and tol > 0):
