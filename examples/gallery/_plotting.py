@@ -57,9 +57,10 @@ class View:
 
 def mesh_axes(ax, mesh, values=None, *, view: View | None = None, cmap="viridis",
               vmin=None, vmax=None, color=(0.8, 0.8, 0.82), title: str | None = None,
-              alpha: float = 1.0):
-    """Draw ``mesh`` on ``ax`` colored by ``values`` (``(V,)`` or ``(F,)``); returns the
-    view and the color mapping (for a colorbar)."""
+              alpha: float = 1.0, colors=None):
+    """Draw ``mesh`` on ``ax`` colored by ``values`` (``(V,)`` or ``(F,)``), or by RGB
+    ``colors`` ``(V, 3)`` in [0, 1]; returns the view and the color mapping (for a
+    colorbar)."""
     verts, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     view = view or View(verts)
     p = view(verts)
@@ -69,7 +70,9 @@ def mesh_axes(ax, mesh, values=None, *, view: View | None = None, cmap="viridis"
     light = np.array([-0.4, 0.6, -0.7]) / np.linalg.norm([-0.4, 0.6, -0.7])
     shade = 0.3 + 0.7 * np.abs(normal @ light)
     mapper = None
-    if values is None:
+    if colors is not None:
+        rgb = np.asarray(colors, float)[faces].mean(axis=1)
+    elif values is None:
         rgb = np.tile(np.asarray(color, float), (len(faces), 1))
     else:
         values = np.asarray(values, float)
