@@ -5,7 +5,14 @@ factory and every worker's runtime build their own (nothing is registered at imp
 Add a family by listing its module in ``FAMILIES``.
 """
 
-from service.operations import applications, color, histograms, softmaps, transport
+from service.operations import (
+    applications,
+    color,
+    histograms,
+    softmaps,
+    transport,
+    volumetric,
+)
 from service.operations.base import (
     Operation,
     OperationOutput,
@@ -14,7 +21,7 @@ from service.operations.base import (
     SubmitContext,
 )
 
-FAMILIES = (transport, histograms, color, softmaps, applications)
+FAMILIES = (transport, histograms, color, softmaps, applications, volumetric)
 
 
 class Registry(dict):

@@ -80,6 +80,8 @@ class DomainView:
     edges: np.ndarray | None = None
     n_faces: int | None = None
     memo: dict = field(default_factory=dict)  # lives on the source object: built once
+    summary: dict = field(default_factory=dict)  # the stored domain's summary (API side)
+    load_faces: Callable[[], np.ndarray] | None = None  # a mesh's (F, 3) faces, on demand
 
     def point_tree(self):
         """k-d tree of ``points`` (bumps touch only the points within their radius)."""
@@ -207,6 +209,9 @@ class Operation:
     # bytes of working memory a job needs, estimated from (view, request) at submission
     # (default: ``estimate_job_bytes``); checked against ``job_memory_bytes``
     estimate_bytes: Callable[..., int] | None = None
+    # the job's cost from (points of its domain, request), which picks its queue (default:
+    # ``service.jobs.queue.estimate_cost``, points x iterations x distributions)
+    estimate_cost: Callable[..., float] | None = None
 
     def check_kind(self, view: DomainView, field: str = "domain_id") -> None:
         if view.kind not in self.kinds:
@@ -343,7 +348,8 @@ def view_of_domain(domain) -> DomainView:
     return DomainView(kind=domain.kind, n=int(domain.n), areas=np.asarray(domain.areas),
                       component_labels=np.asarray(domain.component_labels),
                       points=domain_points(domain), edges=getattr(domain, "edges", None),
-                      n_faces=getattr(domain, "n_faces", None), memo=memo)
+                      n_faces=getattr(domain, "n_faces", None), memo=memo,
+                      load_faces=(lambda: domain.faces) if domain.kind == "mesh" else None)
 
 
 def view_of_info(info) -> DomainView:
@@ -351,7 +357,9 @@ def view_of_info(info) -> DomainView:
     n_faces = info.meta["summary"].get("faces")
     return DomainView(kind=info.kind, n=info.n, areas=info.areas,
                       component_labels=info.component_labels, points=info.points,
-                      edges=edges, n_faces=n_faces, memo=info.memo)
+                      edges=edges, n_faces=n_faces, memo=info.memo,
+                      summary=info.meta["summary"],
+                      load_faces=(lambda: info.arrays["faces"]) if info.kind == "mesh" else None)
 
 
 # -- sizes and scalar options, checked at submission and again in the worker -------------

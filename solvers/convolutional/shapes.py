@@ -81,6 +81,7 @@ class ShapeResult(SolverResult):
     enclosed_volume: float
     origin: np.ndarray
     scale: float
+    gamma: float = float("nan")
 
 
 def _as_trimesh(shape, field: str):
@@ -352,6 +353,7 @@ def _interpolate(prepared: PreparedShapes, weights: np.ndarray, gamma: float,
         converged=bool(result.converged),
         origin=np.asarray(origin, dtype=np.float64),
         scale=float(scale),
+        gamma=float(gamma),
     )
 
 
@@ -415,7 +417,7 @@ def shape_interpolations(
     shapes: Sequence,
     weights,
     *,
-    gamma: float,
+    gamma: float | None = None,
     resolution: int = 64,
     padding: int = 2,
     t: float | None = None,
@@ -429,8 +431,14 @@ def shape_interpolations(
     r""":func:`shape_interpolation` for each row of ``weights`` ``(T, k)`` (frames of an
     interpolation: for two shapes, rows ``(1 - t, t)``), voxelizing the shapes once.
 
+    ``gamma``: default the ``"shapes"`` regularization policy of the grid,
+    :math:`(2h)^2` with ``h`` its spacing (:func:`solvers.regularization.choose_regularization`);
     ``progress(iteration, residual)`` counts iterations over all frames."""
+    from solvers.regularization import choose_regularization
+
     prepared = prepare_shapes(shapes, resolution=resolution, padding=padding)
+    if gamma is None:
+        gamma = choose_regularization(prepared.grid, purpose="shapes").gamma
     k = len(prepared.arrays)
     rows = np.asarray(weights, dtype=np.float64)
     if rows.ndim != 2 or rows.shape[1] != k or len(rows) == 0:

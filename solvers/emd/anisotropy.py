@@ -70,7 +70,8 @@ def mean_curvature_weights(mesh, strength: float = 1.0) -> np.ndarray:
     return 1.0 + alpha * h / mean
 
 
-def _tangent_factors(frames: np.ndarray, matrices: np.ndarray) -> np.ndarray:
+def _tangent_factors(frames: np.ndarray, matrices: np.ndarray,
+                     field: str = "face_weights") -> np.ndarray:
     """``(F, 2, 2)`` upper-triangular :math:`R_t` with :math:`M_t E_t^\\top = Q_t R_t`."""
     B = np.einsum("fij,fdj->fid", matrices, frames)  # (F, 3, 2) = M_t E_t^T
     R = np.linalg.qr(B, mode="r")
@@ -78,9 +79,24 @@ def _tangent_factors(frames: np.ndarray, matrices: np.ndarray) -> np.ndarray:
     top = float(sv[:, 0].max())
     bad = np.flatnonzero(~(sv[:, 1] > MIN_TANGENT_STRETCH * top))
     if len(bad):
-        raise InputError(f"face_weights[{int(bad[0])}] collapses the face's tangent plane (a "
-                         "matrix must be injective on it)", field="face_weights")
+        raise InputError(f"{field}[{int(bad[0])}] collapses the face's tangent plane (a "
+                         "matrix must be injective on it)", field=field)
     return R
+
+
+def check_face_matrices(vertices, faces, matrices, field: str = "face_weights") -> None:
+    """Refuse (F, 3, 3) matrices that collapse the tangent plane of their face (the check
+    :func:`anisotropic_w1` makes, from the geometry alone: for validation at submission)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    m = np.asarray(matrices, dtype=np.float64)
+    if m.shape != (len(f), 3, 3) or not np.all(np.isfinite(m)):
+        raise InputError(f"{field} must be finite ({len(f)}, 3, 3) matrices", field=field)
+    e1 = v[f[:, 1]] - v[f[:, 0]]
+    normal = np.cross(e1, v[f[:, 2]] - v[f[:, 0]])
+    e1 /= np.linalg.norm(e1, axis=1)[:, None]
+    normal /= np.linalg.norm(normal, axis=1)[:, None]
+    _tangent_factors(np.stack([e1, np.cross(normal, e1)], axis=1), m, field)
 
 
 def _matrix_ipm(mesh, m0, m1, matrices, tol, max_iter, monitor) -> EMDResult:
