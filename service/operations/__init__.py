@@ -6,8 +6,10 @@ Add a family by listing its module in ``FAMILIES``.
 """
 
 from service.operations import (
+    anisotropy,
     applications,
     color,
+    features,
     histograms,
     softmaps,
     transport,
@@ -21,7 +23,8 @@ from service.operations.base import (
     SubmitContext,
 )
 
-FAMILIES = (transport, histograms, color, softmaps, applications, volumetric)
+FAMILIES = (transport, histograms, color, softmaps, applications, volumetric, features,
+            anisotropy)
 
 
 class Registry(dict):
