@@ -11,6 +11,7 @@ from service.operations import (
     color,
     features,
     histograms,
+    shapes,
     softmaps,
     transport,
     volumetric,
@@ -24,7 +25,7 @@ from service.operations.base import (
 )
 
 FAMILIES = (transport, histograms, color, softmaps, applications, volumetric, features,
-            anisotropy)
+            anisotropy, shapes)
 
 
 class Registry(dict):
