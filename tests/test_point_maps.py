@@ -18,6 +18,7 @@ from solvers.kernels import heat_time
 from solvers.softmaps import low_rank_approximation
 from solvers.softmaps.point_maps import (
     analyze_point_map,
+    captured_energy,
     point_map_soft_map,
     point_maps_collection_basis,
 )
@@ -113,22 +114,16 @@ def test_collection_basis_of_isometries_spans_the_low_harmonics(sphere):
     # measured 0.9973: the rotation is snapped to the nearest vertices
     assert subspace_cosines(basis, linear, sphere.areas).min() > 0.995
     # Eckart-Young on the stacked, de-meaned weighted kernels
-    a = sphere.areas
-
     def captured(B):
-        total = 0.0
-        for m in maps:
-            a0 = m.soft_map.cell_areas
-            K = np.sqrt(a0)[:, None] * (m.soft_map.rows / a) * np.sqrt(a) - np.outer(
-                np.sqrt(a0), np.sqrt(a))
-            q = np.linalg.qr(np.sqrt(a)[:, None] * B[:, 1:])[0]
-            total += np.linalg.norm(K @ q) ** 2
-        return total
+        return sum(captured_energy(m.soft_map, sphere.areas, B) for m in maps)
 
-    rotated = rotation_map(sphere, 2.0)
-    third = analyze_point_map(sphere, sphere, rotated, **opts)
+    third = analyze_point_map(sphere, sphere, rotation_map(sphere, 2.0), **opts)
     for other in (maps[0].basis.target_basis, third.basis.target_basis):
         assert captured(basis) >= captured(other) - 1e-12
+    # a map's own SVD basis captures the most of it
+    own = captured_energy(maps[0].soft_map, sphere.areas, maps[0].basis.target_basis)
+    assert own >= captured_energy(maps[0].soft_map, sphere.areas, basis) - 1e-12
+    assert captured_energy(maps[0].soft_map, sphere.areas, np.ones((sphere.n, 1))) == 0.0
 
 
 def test_point_maps_are_validated(sphere):

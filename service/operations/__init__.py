@@ -12,6 +12,7 @@ from service.operations import (
     features,
     histograms,
     shapes,
+    soft_map_analyses,
     softmaps,
     transport,
     volumetric,
@@ -25,7 +26,7 @@ from service.operations.base import (
 )
 
 FAMILIES = (transport, histograms, color, softmaps, applications, volumetric, features,
-            anisotropy, shapes)
+            anisotropy, shapes, soft_map_analyses)
 
 
 class Registry(dict):

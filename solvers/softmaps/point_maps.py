@@ -166,3 +166,19 @@ def point_maps_collection_basis(target, analyses, rank: int) -> np.ndarray:
     (:func:`solvers.softmaps.analysis.collection_basis`)."""
     return collection_basis([a.soft_map.rows for a in analyses],
                             [a.soft_map.cell_areas for a in analyses], target.areas, rank)
+
+
+def captured_energy(soft_map: PointSoftMap, target_areas, basis: np.ndarray) -> float:
+    r"""Fraction of a soft map's de-meaned weighted kernel (§4.6:
+    :math:`\tilde P - \sqrt{a_0}\sqrt{a}^\top`, Frobenius norm) in the span of the non-constant
+    columns of a target ``basis`` ``(n, r)`` (constant first): 1 when the basis holds the whole
+    map, and by Eckart–Young at most the map's own rank-``r`` SVD basis's share."""
+    a = np.asarray(target_areas, np.float64) / np.sum(target_areas)
+    a0 = soft_map.cell_areas
+    K = np.sqrt(a0)[:, None] * (soft_map.rows / a[None, :]) * np.sqrt(a)[None, :] \
+        - np.outer(np.sqrt(a0), np.sqrt(a))
+    total = float(np.linalg.norm(K) ** 2)
+    if basis.shape[1] < 2 or total <= 0:
+        return 0.0 if total > 0 else 1.0
+    q = np.linalg.qr(np.sqrt(a)[:, None] * np.asarray(basis, np.float64)[:, 1:])[0]
+    return float(np.linalg.norm(K @ q) ** 2 / total)
