@@ -11,6 +11,7 @@ from service.operations import (
     color,
     features,
     histograms,
+    metric_histograms,
     shapes,
     soft_map_analyses,
     softmaps,
@@ -26,7 +27,7 @@ from service.operations.base import (
 )
 
 FAMILIES = (transport, histograms, color, softmaps, applications, volumetric, features,
-            anisotropy, shapes, soft_map_analyses)
+            anisotropy, shapes, soft_map_analyses, metric_histograms)
 
 
 class Registry(dict):
