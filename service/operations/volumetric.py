@@ -10,7 +10,7 @@ as a colored plane).
 
 ``POST /v1/domains/{id}/volumetric-paths``: gradient descent of the volumetric distance to a
 ``target`` (:func:`solvers.emd.volumetric_path`); ``result.glb`` draws the path as lines
-inside the translucent surface.
+inside the translucent surface, ``path.png`` over the mesh's silhouette.
 
 Points are in the stored unit-area frame (``units="mesh"``, the default) or in the uploaded
 file's coordinates (``units="input"``); distances are in unit-area units either way.
@@ -143,9 +143,29 @@ class VolumetricPathValues(BaseModel):
     iterations: int
     residual: float = Field(description="the final distance")
     converged: bool = Field(description="the target was reached within one step")
+    image: str = Field("path.png", description="result file: the path over the mesh's "
+                       "silhouette")
 
 
 # -- validation -------------------------------------------------------------------------
+FAR = 100.0  # points farther than this many bounding-box diagonals are refused
+
+
+def _check_near(view: DomainView, points, field: str, units: str) -> None:
+    """Points within ``FAR`` bounding-box diagonals of the mesh (mean value coordinates of
+    farther points lose their precision)."""
+    if view.points is None or (units == "input" and "length_scale" not in view.summary):
+        return  # (a worker's view: checked at submission)
+    scale = float(view.summary["length_scale"]) if units == "input" else 1.0
+    lo, hi = view.points.min(axis=0), view.points.max(axis=0)
+    center, diag = 0.5 * (lo + hi), float(np.linalg.norm(hi - lo))
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3) / scale
+    far = np.flatnonzero(np.linalg.norm(p - center, axis=1) > FAR * diag)
+    if len(far):
+        raise InvalidInput(f"{field} lies more than {FAR:g} mesh sizes away from the mesh",
+                           field=field)
+
+
 def _check_closed(view: DomainView, req: VolumetricOptions) -> None:
     if not view.summary.get("closed", True):
         raise UnsupportedOperation("volumetric distances need a closed (watertight) mesh: "
@@ -191,6 +211,9 @@ def _slice_size(view: DomainView, spec: SlicePlane | None) -> int:
 
 def validate_distances(view: DomainView, req: VolumetricDistanceRequest) -> list[dict]:
     _check_closed(view, req)
+    _check_near(view, req.source, "source", req.units)
+    if req.points is not None:
+        _check_near(view, req.points, "points", req.units)
     if req.points is None and req.slice is None:
         raise InvalidInput("give points, a slice or both", field="points")
     total = len(req.points or ()) + _slice_size(view, req.slice)
@@ -202,6 +225,8 @@ def validate_distances(view: DomainView, req: VolumetricDistanceRequest) -> list
 
 def validate_path(view: DomainView, req: VolumetricPathRequest) -> list[dict]:
     _check_closed(view, req)
+    _check_near(view, req.start, "start", req.units)
+    _check_near(view, req.target, "target", req.units)
     return []
 
 
@@ -304,6 +329,41 @@ def run_distances(mesh, req: VolumetricDistanceRequest, progress, should_cancel
     return OperationOutput(values=values, arrays=arrays, files=files)
 
 
+def _path_png(mesh, path: np.ndarray, pixels: int = 320) -> bytes:
+    """The path (red; start green, target blue) over the mesh's silhouette (grey), seen
+    along the mesh's shortest bounding-box axis, rows upwards."""
+    from solvers.convolutional.brdf import png_bytes
+
+    v = mesh.vertices
+    drop = int(np.argmin(np.ptp(v, axis=0)))
+    axes = [a for a in range(3) if a != drop]
+    lo, hi = v[:, axes].min(axis=0), v[:, axes].max(axis=0)
+    span = float(max(hi - lo)) * 1.1
+    lo = 0.5 * (lo + hi) - 0.5 * span
+    size = np.maximum((pixels * (hi - lo + 0.1 * span) / span).astype(int), 2)
+
+    def pix(points):
+        uv = (points[:, axes] - lo) / span * (pixels - 1)
+        ij = np.clip(np.rint(uv).astype(int), 0, size - 1)
+        return size[1] - 1 - ij[:, 1], ij[:, 0]
+
+    image = np.ones((size[1], size[0], 3))
+    # the silhouette: points sampled on every face (corners, edge midpoints, centroid)
+    f = v[mesh.faces]
+    samples = np.concatenate([f.reshape(-1, 3), 0.5 * (f + np.roll(f, 1, axis=1)).reshape(-1, 3),
+                              f.mean(axis=1)])
+    image[pix(samples)] = 0.82
+    t = np.linspace(0.0, 1.0, 64)[:, None, None]
+    segments = (path[:-1][None] * (1 - t) + path[1:][None] * t).reshape(-1, 3)
+    for di in (-1, 0, 1):  # a 3-pixel wide line
+        r, c = pix(segments)
+        image[np.clip(r + di, 0, size[1] - 1), c] = (0.85, 0.1, 0.1)
+    for point, color in ((path[0], (0.1, 0.6, 0.1)), (path[-1], (0.1, 0.2, 0.85))):
+        r, c = pix(point[None])
+        image[max(r[0] - 3, 0):r[0] + 4, max(c[0] - 3, 0):c[0] + 4] = color
+    return png_bytes(np.clip(255 * image, 0, 255).round())
+
+
 def run_path(mesh, req: VolumetricPathRequest, progress, should_cancel) -> OperationOutput:
     from service.export import meshes_glb
     from service.operations.base import view_of_domain
@@ -327,8 +387,9 @@ def run_path(mesh, req: VolumetricPathRequest, progress, should_cancel) -> Opera
     part = {**_translucent(mesh), "lines": np.stack([path[:-1], path[1:]], axis=1)}
     glb = meshes_glb([part], metadata={"operation": "volumetric-paths",
                                        "path": "surface lines"})
-    return OperationOutput(values=values, arrays={"points": P, "distances": d},
-                           files={"result.glb": ResultFile("model/gltf-binary", glb)})
+    files = {"result.glb": ResultFile("model/gltf-binary", glb),
+             "path.png": ResultFile("image/png", _path_png(mesh, np.asarray(res.points)))}
+    return OperationOutput(values=values, arrays={"points": P, "distances": d}, files=files)
 
 
 MESH = ("mesh",)

@@ -102,6 +102,10 @@ def test_descent_path_follows_the_axis_to_the_target(client, capsule):
     assert v["length"] == pytest.approx(v["straight"], rel=0.02)
     doc, _ = parse_glb(client.get(f"/v1/jobs/{job}/result.glb").content)
     assert [n["name"] for n in doc["nodes"]] == ["surface", "surface lines"]
+    png = np.asarray(Image.open(io.BytesIO(client.get(f"/v1/jobs/{job}/files/path.png")
+                                           .content)))
+    red = (png[..., 0] > 180) & (png[..., 1] < 80)
+    assert red.sum() > 50  # the path is drawn
 
 
 @pytest.mark.parametrize("route, body, field", [
@@ -128,3 +132,13 @@ def test_open_meshes_are_refused(client, tmp_path):
     r = client.post(f"/v1/domains/{mid}/volumetric-paths",
                     json={"start": [0, 0, 0], "target": [0, 0, 0.1]})
     assert_error(r, 422, "domain_id", "unsupported_operation")
+
+
+def test_far_points_are_refused(client, capsule):
+    cid, _ = capsule
+    r = client.post(f"/v1/domains/{cid}/volumetric-distances",
+                    json={"source": [0, 0, 0], "points": [[1e9, 0, 0]], "units": "input"})
+    assert_error(r, 422, "points")
+    r = client.post(f"/v1/domains/{cid}/volumetric-paths",
+                    json={"start": [0, 0, 0], "target": [0, 0, -1e9], "units": "input"})
+    assert_error(r, 422, "target")
