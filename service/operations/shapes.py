@@ -138,16 +138,20 @@ def estimate_cost(n: int, req: ShapeInterpolationRequest) -> float:
 
 
 def _picture(results, axis: str) -> bytes:
+    """The frames' shaded views in a grid of about square shape, row by row."""
     from solvers.convolutional.brdf import png_bytes
     from solvers.convolutional.shapes import shaded_view
 
     images = [shaded_view(r.volume, r.level, axis="xyz".index(axis)) for r in results]
-    h = max(i.shape[0] for i in images)
-    gap = np.ones((h, 6))
-    row = np.concatenate([np.concatenate([np.pad(i, ((0, h - i.shape[0]), (0, 0)),
-                                                 constant_values=1.0), gap], axis=1)
-                          for i in images], axis=1)
-    return png_bytes(np.repeat(np.clip(255 * row, 0, 255).round()[..., None], 3, axis=2))
+    h = max(i.shape[0] for i in images) + 6
+    w = max(i.shape[1] for i in images) + 6
+    cols = int(np.ceil(np.sqrt(len(images) * h / w)))
+    rows = int(np.ceil(len(images) / cols))
+    sheet = np.ones((rows * h, cols * w))
+    for j, image in enumerate(images):
+        r, c = divmod(j, cols)
+        sheet[r * h:r * h + image.shape[0], c * w:c * w + image.shape[1]] = image
+    return png_bytes(np.repeat(np.clip(255 * sheet, 0, 255).round()[..., None], 3, axis=2))
 
 
 def run(ctx, req: ShapeInterpolationRequest, progress, should_cancel) -> OperationOutput:

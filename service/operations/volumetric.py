@@ -338,26 +338,33 @@ def _path_png(mesh, path: np.ndarray, pixels: int = 320) -> bytes:
     drop = int(np.argmin(np.ptp(v, axis=0)))
     axes = [a for a in range(3) if a != drop]
     lo, hi = v[:, axes].min(axis=0), v[:, axes].max(axis=0)
-    span = float(max(hi - lo)) * 1.1
-    lo = 0.5 * (lo + hi) - 0.5 * span
-    size = np.maximum((pixels * (hi - lo + 0.1 * span) / span).astype(int), 2)
+    box = (hi - lo) + 0.1 * float(max(hi - lo))  # a margin around the mesh
+    lo = 0.5 * (lo + hi) - 0.5 * box
+    per_unit = (pixels - 1) / float(max(box))
+    size = np.maximum(np.ceil(box * per_unit).astype(int) + 1, 2)
 
     def pix(points):
-        uv = (points[:, axes] - lo) / span * (pixels - 1)
-        ij = np.clip(np.rint(uv).astype(int), 0, size - 1)
+        ij = np.clip(np.rint((points[:, axes] - lo) * per_unit).astype(int), 0, size - 1)
         return size[1] - 1 - ij[:, 1], ij[:, 0]
 
     image = np.ones((size[1], size[0], 3))
-    # the silhouette: points sampled on every face (corners, edge midpoints, centroid)
+    # the silhouette: faces below two pixels as their corners and centroid, larger ones
+    # filled (at most image area / 4 of them)
+    from skimage.draw import polygon
+
     f = v[mesh.faces]
-    samples = np.concatenate([f.reshape(-1, 3), 0.5 * (f + np.roll(f, 1, axis=1)).reshape(-1, 3),
-                              f.mean(axis=1)])
-    image[pix(samples)] = 0.82
+    large = np.ptp(f[..., axes], axis=1).max(axis=1) * per_unit >= 2.0
+    image[pix(np.concatenate([f[~large].reshape(-1, 3), f[~large].mean(axis=1)]))] = 0.82
+    for tri in f[large]:
+        r, c = pix(tri)
+        image[polygon(r, c, shape=image.shape[:2])] = 0.82
     t = np.linspace(0.0, 1.0, 64)[:, None, None]
     segments = (path[:-1][None] * (1 - t) + path[1:][None] * t).reshape(-1, 3)
+    r, c = pix(segments)
     for di in (-1, 0, 1):  # a 3-pixel wide line
-        r, c = pix(segments)
-        image[np.clip(r + di, 0, size[1] - 1), c] = (0.85, 0.1, 0.1)
+        for dj in (-1, 0, 1):
+            image[np.clip(r + di, 0, size[1] - 1), np.clip(c + dj, 0, size[0] - 1)] = (
+                0.85, 0.1, 0.1)
     for point, color in ((path[0], (0.1, 0.6, 0.1)), (path[-1], (0.1, 0.2, 0.85))):
         r, c = pix(point[None])
         image[max(r[0] - 3, 0):r[0] + 4, max(c[0] - 3, 0):c[0] + 4] = color
