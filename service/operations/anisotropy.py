@@ -30,7 +30,9 @@ from service.operations.base import (
     view_of_domain,
 )
 
-IPM_SOLVE_COST = 450  # an interior-point W1 in estimate_cost units per vertex (see volumetric)
+# One interior-point W1 solve in the units of service.jobs.queue.estimate_cost (points x
+# iterations) per vertex: about 30 iterations, each a factorization worth ~15 solves.
+IPM_SOLVE_COST = 450
 
 
 class CurvatureWeights(BaseModel):
@@ -126,7 +128,8 @@ def validate(view: DomainView, req: AnisotropicDistanceRequest) -> list[dict]:
     return _inputs(view, req)[2]
 
 
-def estimate_cost(n: int, req: AnisotropicDistanceRequest) -> float:
+def estimate_cost(n: int, req) -> float:
+    """One W1 solve: the interior point's cost, or the ADMM/Weiszfeld iteration cap."""
     if req.algorithm in ("auto", "ipm") and req.basis in ("auto", "flow"):
         return float(IPM_SOLVE_COST) * float(max(n, 1))
     return float(max(n, 1)) * float(req.max_iter or 20_000)

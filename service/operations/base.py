@@ -429,7 +429,8 @@ def check_job_memory(op: Operation, view: DomainView, req, limit: int) -> int:
 
     estimate = (op.estimate_bytes or estimate_job_bytes)(view, req)
     if estimate > limit:
-        field = next((f for f in ("distributions", "times", "edges", "n_nodes", "k")
+        field = next((f for f in ("distributions", "times", "edges", "n_nodes", "k",
+                                  "points", "slice", "face_weights", "cost", "circle")
                       if getattr(req, f, None)), None)
         raise PayloadTooLarge(f"this job would need about {estimate / 2**30:.3g} GiB of "
                               f"working memory, more than the limit of {limit / 2**30:.3g} GiB "

@@ -16,11 +16,11 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from service.errors import InvalidInput
+from service.operations.anisotropy import estimate_cost  # one W1 solve
 from service.operations.base import DomainView, Operation, OperationOutput, OperationRequest
 from solvers.validation import check_indices
 
 MAX_FEATURE_VERTICES = 1_000_000
-IPM_SOLVE_COST = 450  # see service.operations.volumetric.SOLVE_COST
 
 
 class FeatureCurve(BaseModel):
@@ -77,12 +77,6 @@ def validate(view: DomainView, req: FeatureDistanceRequest) -> list[dict]:
         raise InvalidInput("algorithm 'ipm' solves over all flows (basis 'auto' or 'flow')",
                            field="basis")
     return []
-
-
-def estimate_cost(n: int, req: FeatureDistanceRequest) -> float:
-    if req.algorithm in ("auto", "ipm") and req.basis in ("auto", "flow"):
-        return float(IPM_SOLVE_COST) * float(max(n, 1))
-    return float(max(n, 1)) * float(req.max_iter or 20_000)
 
 
 def run(mesh, req: FeatureDistanceRequest, progress, should_cancel) -> OperationOutput:

@@ -21,8 +21,9 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from service.errors import InvalidInput, PayloadTooLarge, UnsupportedOperation
+from service.errors import InvalidInput, PayloadTooLarge
 from service.operations.base import Operation, OperationOutput, OperationRequest, ResultFile
+from service.operations.softmaps import _mesh_view  # meshes of one component
 
 MAX_MAPS = 8
 MAX_SINGULAR_VALUES = 64  # reported per map (all are in no array: the rank kept is)
@@ -105,17 +106,6 @@ class SoftMapAnalysisValues(BaseModel):
     maps: list[PointMapAnalysisValues]
     collection: CollectionBasisValues | None = Field(None, description="with two maps or "
                                                      "more")
-
-
-def _mesh_view(ctx, domain_id: str, field: str):
-    view = ctx.view(domain_id, field)
-    if view.kind != "mesh":
-        raise UnsupportedOperation(f"{field} is a {view.kind} domain; soft maps are between "
-                                   "meshes", field=field)
-    if view.n_components > 1:
-        raise UnsupportedOperation(f"{field} has {view.n_components} connected components: "
-                                   "upload a connected mesh", field=field)
-    return view
 
 
 def estimated_bytes(req: SoftMapAnalysisRequest, n_target: int, sources: list[int]) -> int:

@@ -24,6 +24,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from service.errors import InvalidInput, UnsupportedOperation
+from service.operations.anisotropy import IPM_SOLVE_COST
 from service.operations.base import (
     DomainView,
     Operation,
@@ -34,10 +35,8 @@ from service.operations.base import (
 from solvers.emd.exact import MAX_VERTICES
 
 MAX_POINTS = 4096  # W1 solves of one job (listed points + slice nodes)
-# Cost of one W1 solve in the units of service.jobs.queue.estimate_cost (points x
-# iterations): about 30 interior-point iterations, each a factorization worth ~15 solves.
-SOLVE_COST = 450
-MVC_CHUNK_BYTES = 8 * 30 * 4_000_000  # temporaries of the vectorized mean value coordinates
+MVC_CHUNK_ENTRIES = 4_000_000  # points x faces of one block of mean value coordinates
+MVC_TEMPORARIES = 30  # (points, faces) float64 temporaries of a block
 
 Point3 = list[float]
 
@@ -239,15 +238,17 @@ def _solves(view_n: int, req) -> int:
 
 def estimate_cost(n: int, req) -> float:
     """Each point (or path step) is one W1 problem on the mesh."""
-    return float(SOLVE_COST) * float(max(n, 1)) * float(_solves(n, req))
+    return float(IPM_SOLVE_COST) * float(max(n, 1)) * float(_solves(n, req))
 
 
 def estimate_bytes(view: DomainView, req) -> int:
-    """Mean value coordinates of every point (P x V, twice) plus their chunk temporaries,
-    and the conic program of one solve (~40 vectors per face)."""
+    """Mean value coordinates of every point (P x V, twice) plus the temporaries of one
+    block of them (at most ``MVC_CHUNK_ENTRIES`` points x faces), and the conic program of
+    one solve (~40 vectors per face)."""
     n, faces = int(view.n), int(view.n_faces or 2 * view.n)
     points = 7 if isinstance(req, VolumetricPathRequest) else _solves(n, req)
-    return 16 * points * n + MVC_CHUNK_BYTES + 40 * 8 * faces
+    block = min(points * faces, MVC_CHUNK_ENTRIES)
+    return 16 * points * n + 8 * MVC_TEMPORARIES * block + 40 * 8 * faces
 
 
 # -- run --------------------------------------------------------------------------------

@@ -142,3 +142,24 @@ def test_far_points_are_refused(client, capsule):
     r = client.post(f"/v1/domains/{cid}/volumetric-paths",
                     json={"start": [0, 0, 0], "target": [0, 0, -1e9], "units": "input"})
     assert_error(r, 422, "target")
+
+
+def test_cost_and_memory_estimates_count_the_points(make_client, tmp_path):
+    """One W1 solve per point: the job's cost (its queue) and memory (413) grow with them."""
+    c = trimesh.creation.capsule(height=1.0, radius=0.5, count=[12, 12])
+    path = tmp_path / "capsule.obj"
+    path.write_text(trimesh.exchange.obj.export_obj(c))
+    client = make_client(long_job_cost=1e6)
+    cid = upload_mesh(client, path).json()["id"]
+    one = {"source": [0, 0, 0], "points": [[0.1, 0, 0]], "units": "input"}
+    r = client.post(f"/v1/domains/{cid}/volumetric-distances?wait=30", json=one)
+    assert r.json()["queue"] == "short", r.text
+    many = {**one, "points": [[0.1, 0, 0]] * 20}
+    r = client.post(f"/v1/domains/{cid}/volumetric-distances?wait=30", json=many)
+    assert r.json()["queue"] == "long", r.text  # 20 x 450 x 146 vertices > 1e6
+    small = make_client(job_memory_bytes=2**20, data_dir=tmp_path / "small")
+    cid = upload_mesh(small, path).json()["id"]
+    assert small.post(f"/v1/domains/{cid}/volumetric-distances", json=one).status_code == 200
+    crowd = {**one, "points": [[0.1, 0, 0]] * 200}  # their coordinates' temporaries: ~14 MB
+    assert_error(small.post(f"/v1/domains/{cid}/volumetric-distances", json=crowd), 413,
+                 "points")
