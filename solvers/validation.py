@@ -343,3 +343,31 @@ def check_size(shape, limit: int, field: str = "shape") -> int:
         raise InputError(f"{field} {dims} gives {total} points, more than the limit of {limit}",
                          field=field)
     return total
+
+
+def check_cost_matrix(cost, field: str = "cost", *, max_size: int | None = None) -> np.ndarray:
+    """``(B, B)`` ground cost of a small metric space: finite, non-negative, symmetric (to
+    1e-12 of its largest entry; the exact mean is returned) with a zero diagonal, ``B >= 2``.
+
+    Symmetry and a zero diagonal make a transport cost between histograms on the space
+    independent of direction and zero between equal histograms."""
+    try:
+        c = np.asarray(cost, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{field} must be a square matrix of numbers", field=field) from exc
+    if c.ndim != 2 or c.shape[0] != c.shape[1] or c.shape[0] < 2:
+        raise InputError(f"{field} must be a square matrix of at least 2 x 2, got shape "
+                         f"{c.shape}", field=field)
+    if max_size is not None and c.shape[0] > max_size:
+        raise InputError(f"{field} has {c.shape[0]} points, more than {max_size}", field=field)
+    if not np.all(np.isfinite(c)) or np.any(c < 0):
+        raise InputError(f"{field} must be finite and non-negative", field=field)
+    if np.any(np.diag(c) != 0):
+        raise InputError(f"{field} must have a zero diagonal (a point is at distance 0 from "
+                         "itself)", field=field)
+    scale = float(c.max())
+    if np.abs(c - c.T).max() > 1e-12 * max(scale, 1e-300):
+        i, j = (int(v) for v in np.unravel_index(np.argmax(np.abs(c - c.T)), c.shape))
+        raise InputError(f"{field} must be symmetric: {field}[{i}][{j}] != {field}[{j}][{i}]",
+                         field=field)
+    return 0.5 * (c + c.T)

@@ -8,7 +8,13 @@ import trimesh
 from scipy import ndimage
 
 from solvers import Grid, InputError
-from solvers.convolutional.shapes import iso_surface, shape_interpolation, voxelize
+from solvers.convolutional.shapes import (
+    iso_surface,
+    shaded_view,
+    shape_interpolation,
+    shape_interpolations,
+    voxelize,
+)
 
 GAMMA = 0.002
 
@@ -146,3 +152,34 @@ def test_real_mesh_interpolated_with_itself(shared_mesh):
     assert (inside & core).sum() >= 0.98 * core.sum()
     np.testing.assert_allclose(mesh.center_mass, exact.center_mass,
                                atol=0.5 * result.scale * result.grid.spacing[0])
+
+
+def test_frames_of_an_interpolation_share_one_grid(ball):
+    """Frames t = 0, 1/4, 1/2 between a ball and its translate: centroids move linearly."""
+    frames = [[1.0, 0.0], [0.75, 0.25], [0.5, 0.5]]
+    results = shape_interpolations([ball, shifted(ball, 3.0)], frames, gamma=GAMMA,
+                                   resolution=32)
+    assert len(results) == 3 and all(r.converged for r in results)
+    assert len({id(r.grid) for r in results}) == 1  # voxelized once
+    cell = results[0].scale * results[0].grid.spacing[0]
+    for r, (_, t) in zip(results, frames, strict=True):
+        mesh = assert_closed_surface(r)
+        np.testing.assert_allclose(mesh.center_mass, [3.0 * t, 0.0, 0.0], atol=0.1 * cell)
+    with pytest.raises(InputError) as err:
+        shape_interpolations([ball, ball], [[1.0, 0.0], [-1.0, 2.0]], gamma=GAMMA,
+                             resolution=16)
+    assert err.value.field == "weights[1]"
+
+
+def test_shaded_view_shows_the_silhouette():
+    """A ball of radius 0.3 in the unit cube: a disk of that radius, shaded, on white."""
+    grid = Grid((40, 40, 40))
+    pts = grid.points - 0.5
+    inside = (np.linalg.norm(pts, axis=1) <= 0.3).reshape(grid.shape).astype(float)
+    image = shaded_view(inside, 0.5, axis=2, pixels=40)
+    assert image.shape == (40, 40)
+    disk = image < 1.0
+    h = 1.0 / 39
+    np.testing.assert_allclose(disk.sum() * h * h, np.pi * 0.3**2, rtol=0.05)
+    assert image[20, 20] < 1.0 and image[0, 0] == 1.0
+    assert image[disk].std() > 0.02  # shaded, not flat

@@ -58,7 +58,7 @@ class JobService:
                 size = self.rt.store.domain_info(domain_id).n
             except NotFound:
                 size = None
-        cost = estimate_cost(size or 1, request)
+        cost = (op.estimate_cost or estimate_cost)(size or 1, request)
         queue = queue_for_cost(self.rt.settings, cost)
         now = time.time()
         job = JobRow(id=uuid.uuid4().hex, operation=operation, domain_id=domain_id,

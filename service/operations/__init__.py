@@ -5,7 +5,19 @@ factory and every worker's runtime build their own (nothing is registered at imp
 Add a family by listing its module in ``FAMILIES``.
 """
 
-from service.operations import applications, color, histograms, softmaps, transport
+from service.operations import (
+    anisotropy,
+    applications,
+    color,
+    features,
+    histograms,
+    metric_histograms,
+    shapes,
+    soft_map_analyses,
+    softmaps,
+    transport,
+    volumetric,
+)
 from service.operations.base import (
     Operation,
     OperationOutput,
@@ -14,7 +26,8 @@ from service.operations.base import (
     SubmitContext,
 )
 
-FAMILIES = (transport, histograms, color, softmaps, applications)
+FAMILIES = (transport, histograms, color, softmaps, applications, volumetric, features,
+            anisotropy, shapes, soft_map_analyses, metric_histograms)
 
 
 class Registry(dict):

@@ -80,6 +80,8 @@ class DomainView:
     edges: np.ndarray | None = None
     n_faces: int | None = None
     memo: dict = field(default_factory=dict)  # lives on the source object: built once
+    summary: dict = field(default_factory=dict)  # the stored domain's summary (API side)
+    load_faces: Callable[[], np.ndarray] | None = None  # a mesh's (F, 3) faces, on demand
     sketch_builder: Callable[[], object] | None = None
 
     def sketch(self):
@@ -234,6 +236,9 @@ class Operation:
     # row ``row`` of ``name``, or ``None`` when ``name`` is served as stored
     result_row: Callable[..., np.ndarray | None] | None = None
     decide: Callable[..., dict | None] | None = None
+    # the job's cost from (points of its domain, request), which picks its queue (default:
+    # ``service.jobs.queue.estimate_cost``, points x iterations x distributions)
+    estimate_cost: Callable[..., float] | None = None
 
     def check_kind(self, view: DomainView, field: str = "domain_id") -> None:
         if view.kind not in self.kinds:
@@ -372,7 +377,8 @@ def view_of_domain(domain) -> DomainView:
                       component_labels=np.asarray(domain.component_labels),
                       points=domain_points(domain), edges=getattr(domain, "edges", None),
                       n_faces=getattr(domain, "n_faces", None), memo=memo,
-                      sketch_builder=lambda: DomainSketch.of(domain))
+                      sketch_builder=lambda: DomainSketch.of(domain),
+                      load_faces=(lambda: domain.faces) if domain.kind == "mesh" else None)
 
 
 def view_of_info(info) -> DomainView:
@@ -389,7 +395,8 @@ def view_of_info(info) -> DomainView:
     return DomainView(kind=info.kind, n=info.n, areas=info.areas,
                       component_labels=info.component_labels, points=info.points,
                       edges=edges, n_faces=summary.get("faces"), memo=info.memo,
-                      sketch_builder=sketch)
+                      sketch_builder=sketch, summary=summary,
+                      load_faces=(lambda: info.arrays["faces"]) if info.kind == "mesh" else None)
 
 
 # -- sizes and scalar options, checked at submission and again in the worker -------------
@@ -459,7 +466,8 @@ def check_job_memory(op: Operation, view: DomainView, req, limit: int) -> int:
 
     estimate = (op.estimate_bytes or estimate_job_bytes)(view, req)
     if estimate > limit:
-        field = next((f for f in ("distributions", "times", "edges", "n_nodes", "k")
+        field = next((f for f in ("distributions", "times", "edges", "n_nodes", "k",
+                                  "points", "slice", "face_weights", "cost", "circle")
                       if getattr(req, f, None)), None)
         raise PayloadTooLarge(f"this job would need about {estimate / 2**30:.3g} GiB of "
                               f"working memory, more than the limit of {limit / 2**30:.3g} GiB "

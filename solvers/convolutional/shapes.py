@@ -81,6 +81,7 @@ class ShapeResult(SolverResult):
     enclosed_volume: float
     origin: np.ndarray
     scale: float
+    gamma: float = float("nan")
 
 
 def _as_trimesh(shape, field: str):
@@ -290,6 +291,80 @@ def _volumes_from_meshes(shapes, resolution: int, padding: int):
     return arrays, grid, origin, scale, sizes
 
 
+def _check_weights(weights, k: int, field: str = "weights") -> np.ndarray:
+    if weights is None:
+        return np.full(k, 1.0 / k)
+    weights = np.asarray(weights, dtype=np.float64)
+    if weights.shape != (k,) or not np.all(np.isfinite(weights)) or np.any(weights < 0) \
+            or weights.sum() <= 0:
+        raise InputError(f"{field} must be {k} non-negative numbers, not all zero",
+                         field=field)
+    return weights / weights.sum()
+
+
+@dataclass
+class PreparedShapes:
+    """Input volumes on one grid: ``arrays`` (k volumes of ``grid.shape``), their sizes
+    ``sizes`` (k,) in grid units, and the frame (``origin``, ``scale``) back to input units."""
+
+    arrays: list
+    grid: Grid
+    origin: np.ndarray
+    scale: float
+    sizes: np.ndarray
+
+
+def prepare_shapes(shapes: Sequence, *, resolution: int = 64, grid: Grid | None = None,
+                   padding: int = 2) -> PreparedShapes:
+    """Voxelize meshes onto one grid framing them all (or check volumes on ``grid``): the
+    first step of :func:`shape_interpolation`, done once for several weight vectors."""
+    shapes = list(shapes)
+    if not shapes:
+        raise InputError("need at least one shape", field="shapes")
+    if all(isinstance(s, np.ndarray) for s in shapes):
+        parts = _volumes_from_arrays(shapes, grid)
+    else:
+        parts = _volumes_from_meshes(shapes, resolution, padding)
+    return PreparedShapes(*parts)
+
+
+def _interpolate(prepared: PreparedShapes, weights: np.ndarray, gamma: float,
+                 options: dict) -> ShapeResult:
+    from solvers.convolutional import barycenter
+
+    grid, origin, scale = prepared.grid, prepared.origin, prepared.scale
+    target = float(weights @ prepared.sizes)
+    mus = np.stack([v.ravel() / v.sum() for v in prepared.arrays], axis=1)
+    result = barycenter(grid, mus, weights, gamma=gamma, **options)
+    volume = np.asarray(result.masses, dtype=np.float64).reshape(grid.shape)
+
+    level, verts, faces, enclosed = iso_surface(volume, grid, target)
+    d = grid.ndim
+    return ShapeResult(
+        volume=volume,
+        grid=grid,
+        vertices=origin + scale * verts,
+        faces=faces,
+        level=level,
+        target_volume=target * scale**d,
+        enclosed_volume=enclosed * scale**d,
+        iterations=int(result.iterations),
+        residual=float(result.residual),
+        converged=bool(result.converged),
+        origin=np.asarray(origin, dtype=np.float64),
+        scale=float(scale),
+        gamma=float(gamma),
+    )
+
+
+def _barycenter_options(t, substeps, sharpen, tol, max_iter, progress, should_cancel) -> dict:
+    options = {"t": t, "substeps": substeps, "sharpen": sharpen, "tol": tol,
+               "progress": progress, "should_cancel": should_cancel}
+    if max_iter is not None:
+        options["max_iter"] = max_iter
+    return options
+
+
 def shape_interpolation(
     shapes: Sequence,
     weights=None,
@@ -331,48 +406,85 @@ def shape_interpolation(
     ``enclosed_volume`` and the barycenter's ``iterations``, ``residual``,
     ``converged``.
     """
-    from solvers.convolutional import barycenter
+    prepared = prepare_shapes(shapes, resolution=resolution, grid=grid, padding=padding)
+    weights = _check_weights(weights, len(prepared.arrays))
+    options = _barycenter_options(t, substeps, sharpen, tol, max_iter, progress,
+                                  should_cancel)
+    return _interpolate(prepared, weights, gamma, options)
 
-    shapes = list(shapes)
-    if not shapes:
-        raise InputError("need at least one shape", field="shapes")
-    if all(isinstance(s, np.ndarray) for s in shapes):
-        arrays, grid, origin, scale, sizes = _volumes_from_arrays(shapes, grid)
-    else:
-        arrays, grid, origin, scale, sizes = _volumes_from_meshes(shapes, resolution, padding)
-    k = len(arrays)
-    if weights is None:
-        weights = np.full(k, 1.0 / k)
-    weights = np.asarray(weights, dtype=np.float64)
-    if weights.shape != (k,) or not np.all(np.isfinite(weights)) or np.any(weights < 0) \
-            or weights.sum() <= 0:
-        raise InputError(f"weights must be {k} non-negative numbers, not all zero",
+
+def shape_interpolations(
+    shapes: Sequence,
+    weights,
+    *,
+    gamma: float | None = None,
+    resolution: int = 64,
+    padding: int = 2,
+    t: float | None = None,
+    substeps: int = 1,
+    sharpen: bool = False,
+    tol: float = 1e-5,
+    max_iter: int | None = None,
+    progress: Callable[[int, float], None] | None = None,
+    should_cancel: Callable[[], bool] | None = None,
+) -> list[ShapeResult]:
+    r""":func:`shape_interpolation` for each row of ``weights`` ``(T, k)`` (frames of an
+    interpolation: for two shapes, rows ``(1 - t, t)``), voxelizing the shapes once.
+
+    ``gamma``: default the ``"shapes"`` regularization policy of the grid,
+    :math:`(2h)^2` with ``h`` its spacing (:func:`solvers.regularization.choose_regularization`);
+    ``progress(iteration, residual)`` counts iterations over all frames."""
+    from solvers.regularization import choose_regularization
+
+    prepared = prepare_shapes(shapes, resolution=resolution, padding=padding)
+    if gamma is None:
+        gamma = choose_regularization(prepared.grid, purpose="shapes").gamma
+    k = len(prepared.arrays)
+    rows = np.asarray(weights, dtype=np.float64)
+    if rows.ndim != 2 or rows.shape[1] != k or len(rows) == 0:
+        raise InputError(f"weights must be a (T, {k}) array, one row per frame",
                          field="weights")
-    weights = weights / weights.sum()
+    rows = [_check_weights(row, k, f"weights[{i}]") for i, row in enumerate(rows)]
+    done = 0
 
-    target = float(weights @ sizes)
-    mus = np.stack([v.ravel() / v.sum() for v in arrays], axis=1)
+    def frame_progress(iteration, residual, *rest):
+        if progress is not None:
+            progress(done + iteration, residual)
 
-    options = {"t": t, "substeps": substeps, "sharpen": sharpen, "tol": tol,
-               "progress": progress, "should_cancel": should_cancel}
-    if max_iter is not None:
-        options["max_iter"] = max_iter
-    result = barycenter(grid, mus, weights, gamma=gamma, **options)
-    volume = np.asarray(result.masses, dtype=np.float64).reshape(grid.shape)
+    out = []
+    for row in rows:
+        options = _barycenter_options(t, substeps, sharpen, tol, max_iter, frame_progress,
+                                      should_cancel)
+        out.append(_interpolate(prepared, row, gamma, options))
+        done += out[-1].iterations
+    return out
 
-    level, verts, faces, enclosed = iso_surface(volume, grid, target)
-    d = grid.ndim
-    return ShapeResult(
-        volume=volume,
-        grid=grid,
-        vertices=origin + scale * verts,
-        faces=faces,
-        level=level,
-        target_volume=target * scale**d,
-        enclosed_volume=enclosed * scale**d,
-        iterations=int(result.iterations),
-        residual=float(result.residual),
-        converged=bool(result.converged),
-        origin=np.asarray(origin, dtype=np.float64),
-        scale=float(scale),
-    )
+
+def shaded_view(volume: np.ndarray, level: float, *, axis: int = 2, pixels: int = 160
+                ) -> np.ndarray:
+    """``(H, W)`` gray image in [0, 1] of the super-level set ``{volume >= level}`` seen along
+    ``axis`` (from its low end): depth of the first crossing along each ray (linear between
+    grid nodes), shaded by the normals of that depth map under a fixed light, background 1.
+    Nearest-neighbour upsampled so the longest side has about ``pixels`` pixels."""
+    v = np.moveaxis(np.asarray(volume, dtype=np.float64), axis, -1)
+    if v.ndim != 3:
+        raise InputError("shaded_view needs a 3-D volume", field="volume")
+    inside = v >= level
+    hit = inside.any(axis=-1)
+    first = np.argmax(inside, axis=-1)
+    before = np.take_along_axis(v, np.maximum(first - 1, 0)[..., None], -1)[..., 0]
+    at = np.take_along_axis(v, first[..., None], -1)[..., 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        frac = np.where(first > 0, (level - before) / (at - before), 1.0)
+    depth = first - 1.0 + np.clip(np.nan_to_num(frac, nan=1.0), 0.0, 1.0)
+    depth = np.where(hit, depth, np.nan)
+    filled = np.where(hit, depth, np.nanmax(depth) if hit.any() else 0.0)
+    gx, gy = np.gradient(filled)
+    normal = np.stack([gx, gy, -np.ones_like(gx)], axis=-1)
+    normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    light = np.array([-0.45, -0.35, -0.82])
+    light /= np.linalg.norm(light)
+    shade = 0.15 + 0.85 * np.clip(normal @ light, 0.0, 1.0)
+    image = np.where(hit, shade, 1.0).T  # first remaining axis horizontal
+    zoom = max(1, int(round(pixels / max(image.shape))))
+    return np.kron(image, np.ones((zoom, zoom)))
