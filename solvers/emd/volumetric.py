@@ -29,6 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from solvers.domains.mesh import TriangleMesh
+from solvers.emd.beckmann import earth_movers_distance
 from solvers.emd.exact import MAX_VERTICES, kantorovich_rubinstein_norm
 from solvers.errors import InputError, UnsupportedDomainError
 from solvers.monitor import Monitor, SolverResult
@@ -48,6 +49,7 @@ class VolumetricDistanceResult(SolverResult):
     weights_x: np.ndarray
     weights_y: np.ndarray
     potential: np.ndarray
+    algorithm: str = "exact"
 
 
 @dataclass
@@ -213,23 +215,19 @@ def _kr_distance(mesh, difference, algorithm, tol, max_iter, max_vertices, basis
                                           max_vertices=max_vertices)
         return res.value, res.potential, res.iterations, res.residual, res.converged
     if algorithm == "admm":
-        try:
-            from solvers.emd import earth_movers_distance
-        except ImportError as exc:  # pragma: no cover - depends on solvers.emd landing
-            raise InputError("algorithm='admm' needs solvers.emd", field="algorithm") from exc
         pos = np.clip(difference, 0.0, None)
         neg = np.clip(-difference, 0.0, None)
         mass = pos.sum()
         if mass <= 0:
             return 0.0, np.zeros(mesh.n), 0, 0.0, True
-        kwargs = {"basis": basis} if tol is None else {"basis": basis, "tol": tol}
+        kwargs = {"algorithm": "admm", "basis": basis}
+        if tol is not None:
+            kwargs["tol"] = tol
         if max_iter is not None:
             kwargs["max_iter"] = max_iter
         res = earth_movers_distance(mesh, pos / mass, neg / mass, **kwargs)
-        potential = getattr(res, "potential", None)
-        potential = np.zeros(mesh.n) if potential is None else np.asarray(potential)
-        return (mass * float(res.value), potential, int(res.iterations),
-                float(getattr(res, "primal_residual", np.nan)), bool(res.converged))
+        return (mass * float(res.value), np.asarray(res.potential), int(res.iterations),
+                float(res.residual), bool(res.converged))
     raise InputError(f"algorithm must be 'exact' or 'admm', got {algorithm!r}", field="algorithm")
 
 
@@ -265,7 +263,8 @@ def volumetric_distance(
         mesh, W[0] - W[1], algorithm, tol, max_iter, max_vertices, basis)
     return VolumetricDistanceResult(value=value, weights_x=W[0], weights_y=W[1],
                                     potential=potential, iterations=iterations,
-                                    residual=residual, converged=converged)
+                                    residual=residual, converged=converged,
+                                    algorithm=algorithm)
 
 
 def volumetric_distances(
