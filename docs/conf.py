@@ -34,8 +34,8 @@ extensions = [
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 exclude_patterns = ["_build", "node_modules", "**/node_modules", "gallery/*.ipynb"]
-templates_path = ["_templates"]
-html_static_path = ["_static"]
+templates_path: list[str] = []
+html_static_path: list[str] = []  # MathJax is copied into the output's _static by _ext
 
 autosummary_generate = True
 autodoc_default_options = {"members": False, "show-inheritance": False}

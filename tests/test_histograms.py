@@ -311,15 +311,15 @@ def test_factorization_is_cached_per_labeled_set():
     assert g.operators.builds == before + 1
 
 
-def test_readme_snippet_runs_and_prints_linear_means():
+def test_guide_snippet_runs_and_prints_linear_means():
     import re
     import subprocess
     import sys
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
-    text = (root / "README.md").read_text()
-    section = text.split("### Propagating histograms", 1)[1]
+    text = (root / "docs" / "guide" / "details.md").read_text()
+    section = text.split("## Propagating histograms", 1)[1]
     code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=120, cwd=root)

@@ -51,3 +51,20 @@ density = row / cat.areas
 mesh_axes(axes[2], cat, density, view=cat_view, cmap="magma", vmax=np.percentile(density, 99.5),
           title="distribution of the red vertex")
 plt.show()
+
+# %%
+# The same soft map from the service
+# ----------------------------------
+# ``POST /v1/soft-maps`` runs this call in a worker (defaults as here). Upload both meshes
+# with ``POST /v1/domains/upload`` (they keep their vertex order), then send, with their ids
+# and the same landmark pairs::
+#
+#     {"source_id": "<lion id>", "target_id": "<cat id>",
+#      "landmarks": [{"source": 123, "target": 456}, ...]}
+#
+# The job's result holds the energies and the correspondence; the distribution of one lion
+# vertex, as drawn on the right, is ``GET /v1/jobs/{id}/arrays/soft_map/rows/{labels[x]}``.
+# :doc:`/guide/softmaps` explains the parameters, and the browser viewer draws the same
+# picture when a source vertex is hovered.
+print({"source_id": "<lion id>", "target_id": "<cat id>",
+       "landmarks": [{"source": int(s), "target": int(t)} for s, t in landmarks]})

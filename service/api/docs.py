@@ -42,6 +42,7 @@ def install_guide(app: FastAPI, guide_dir: Path | None) -> None:
 
     @app.get(GUIDE_URL + "/{path:path}", include_in_schema=False)
     async def guide_missing(path: str):
+        """The user guide (the built docs site)."""
         from service.errors import NotFound
 
         raise NotFound("the guide is not built on this server (make docs builds it into "

@@ -15,6 +15,7 @@ from service.api.deps import JobSvc, RuntimeDep
 from service.api.operations import ROUTE_RESPONSES, WAIT_DESCRIPTION, finish_submission
 from service.errors import InvalidInput, PayloadTooLarge, responses
 from service.operations.color import ColorTransferRequest, check_header
+from service.operations.guide_pages import openapi_extra
 from service.schemas import JobOut
 
 router = APIRouter(prefix="/v1", tags=["operations"])
@@ -48,6 +49,7 @@ def _store_images(rt, uploads: list[bytes], media: list[str]) -> list[str]:
 @router.post(
     "/color-transfers", operation_id="createColorTransfer", status_code=202,
     response_model=JobOut, responses={**ROUTE_RESPONSES, **responses(413)},
+    openapi_extra=openapi_extra("color-transfers"),
     summary="Color transfer between 2-16 uploaded images by Wasserstein barycenters of their "
             "chrominance histograms (thesis §3.7)")
 async def create_color_transfer(

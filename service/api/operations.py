@@ -16,6 +16,7 @@ from service.api.deps import JobSvc, RuntimeDep
 from service.errors import InvalidInput, responses
 from service.jobs.db import QUEUED, TERMINAL
 from service.operations import Operation, Registry
+from service.operations.guide_pages import openapi_extra
 from service.schemas import RETRY_AFTER_HEADERS, JobOut, retry_after
 
 WAIT_DESCRIPTION = ("seconds to wait for the job to finish: if it ends in time the finished job "
@@ -114,7 +115,7 @@ def _domain_route(router: APIRouter, op: Operation) -> None:
     router.add_api_route(
         f"/domains/{{domain_id}}/{op.name}", create_job, methods=["POST"],
         operation_id=op.operation_id, summary=op.summary, status_code=202,
-        response_model=JobOut, responses=ROUTE_RESPONSES)
+        response_model=JobOut, responses=ROUTE_RESPONSES, openapi_extra=openapi_extra(op.name))
 
 
 def _global_route(router: APIRouter, op: Operation) -> None:
@@ -128,7 +129,7 @@ def _global_route(router: APIRouter, op: Operation) -> None:
     router.add_api_route(
         f"/{op.name}", create_job, methods=["POST"], operation_id=op.operation_id,
         summary=op.summary, status_code=202, response_model=JobOut,
-        responses=ROUTE_RESPONSES)
+        responses=ROUTE_RESPONSES, openapi_extra=openapi_extra(op.name))
 
 
 def build_router(registry: Registry) -> APIRouter:

@@ -29,6 +29,10 @@ class RouteDoc:
     operation_id: str | None
     text: str
     tag: str | None  # None: not in the OpenAPI document (pages, docs, static files)
+    extra: tuple = ()  # the operation's ``x-`` fields (guide page, thesis, function)
+
+    def x(self, key: str) -> str:
+        return dict(self.extra).get(f"x-{key}", "")
 
     @property
     def in_schema(self) -> bool:
@@ -74,18 +78,22 @@ def route_docs(app: FastAPI) -> list[RouteDoc]:
         if not path:
             continue
         original = getattr(route, "original_route", route)
-        if isinstance(original, Mount):
-            out.append(RouteDoc("GET", path.rstrip("/") + "/{path}", None, "static files", None))
+        if isinstance(original, Mount):  # the guide's text is the same built or not
+            text = ("The user guide (the built docs site)" if original.name == "guide"
+                    else "static files")
+            out.append(RouteDoc("GET", path.rstrip("/") + "/{path}", None, text, None))
             continue
+        path = path.replace(":path}", "}")  # Starlette's converter is not part of the route
         if path == app.openapi_url:
             out.append(RouteDoc("GET", path, None, "the OpenAPI document", None))
             continue
         in_schema = bool(getattr(route, "include_in_schema", False))
         tags = list(getattr(route, "tags", None) or []) if in_schema else []
         for method in sorted(set(getattr(route, "methods", None) or ()) - {"HEAD"}):
+            extra = tuple(sorted((getattr(route, "openapi_extra", None) or {}).items()))
             out.append(RouteDoc(method, path, getattr(route, "operation_id", None) if in_schema
                                 else None, _text(route), (tags or ["other"])[0]
-                                if in_schema else None))
+                                if in_schema else None, extra))
     return out
 
 
@@ -110,8 +118,32 @@ def operations_markdown(app: FastAPI, include_pages: bool = True) -> str:
     return "\n\n".join(blocks)
 
 
+def _guide_link(r: RouteDoc) -> str:
+    """The guide page in the repository (``/guide/guide/emd.html`` -> ``docs/guide/emd.rst``)."""
+    if not r.x("guide"):
+        return ""
+    page = r.x("guide").removeprefix("/guide/").removesuffix(".html")
+    return f"[{page.rsplit('/', 1)[-1]}](docs/{page}.rst)"
+
+
+def readme_markdown(app: FastAPI) -> str:
+    """The README's compact form: a table of the operations (what, route, guide page), then
+    one line per other section naming its routes (the full list: docs, OpenAPI)."""
+    sections = _sections(route_docs(app))
+    out = []
+    for title, items in sections:
+        if title == TAG_TITLES["operations"]:
+            rows = [f"| {r.x('thesis')} | {r.text} | `{r.x('function')}` | `{r.method} {r.path}` "
+                    f"| {_guide_link(r)} |" for r in items]
+            out.append("| thesis | operation (each creates a job) | function | route | guide |\n"
+                       "|---|---|---|---|---|\n" + "\n".join(rows))
+        else:
+            out.append(f"- **{title}**: " + " · ".join(f"`{r.method} {r.path}`" for r in items))
+    return "\n\n".join(out)
+
+
 def readme_block(app: FastAPI) -> str:
-    return f"{BEGIN}\n{operations_markdown(app)}\n{END}"
+    return f"{BEGIN}\n{readme_markdown(app)}\n{END}"
 
 
 def update_file(path: Path, app: FastAPI) -> bool:

@@ -19,6 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from service.errors import InvalidInput, PayloadTooLarge, UnsupportedOperation
 from service.operations.base import Operation, OperationOutput, OperationRequest, ResultFile
+from service.operations.examples import EXAMPLE_ID
 
 MAX_SHAPES = 8
 MAX_FRAMES = 16
@@ -32,8 +33,7 @@ GRID_NODE_COST = 0.1
 
 class ShapeInterpolationRequest(OperationRequest):
     model_config = ConfigDict(json_schema_extra={"examples": [
-        {"shapes": ["<mesh domain id>", "<another mesh domain id>"],
-         "times": [0.0, 0.5, 1.0], "resolution": 32}]})
+        {"shapes": [EXAMPLE_ID, EXAMPLE_ID], "times": [0.0, 0.5, 1.0], "resolution": 16}]})
     shapes: list[str] = Field(min_length=2, max_length=MAX_SHAPES, description="closed mesh "
                               "domain ids (voxelized in their uploaded coordinates)")
     times: list[float] | None = Field(None, min_length=1, max_length=MAX_FRAMES,

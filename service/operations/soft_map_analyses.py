@@ -23,6 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from service.errors import InvalidInput, PayloadTooLarge
 from service.operations.base import Operation, OperationOutput, OperationRequest, ResultFile
+from service.operations.examples import EXAMPLE_ID
 from service.operations.softmaps import _mesh_view  # meshes of one component
 
 MAX_MAPS = 8
@@ -45,8 +46,8 @@ class PointMap(BaseModel):
 
 class SoftMapAnalysisRequest(OperationRequest):
     model_config = ConfigDict(json_schema_extra={"examples": [
-        {"target_id": "<target mesh domain id>",
-         "maps": [{"source_id": "<source mesh domain id>", "correspondence": [0, 2, 1, 3]}],
+        {"target_id": EXAMPLE_ID,
+         "maps": [{"source_id": EXAMPLE_ID, "correspondence": [0, 2, 1, 3]}],
          "samples": 64, "rank": 6, "dirichlet": "potential"}]})
     target_id: str = Field(description="target mesh domain id (the job's domain)")
     maps: list[PointMap] = Field(min_length=1, max_length=MAX_MAPS, description="point maps "

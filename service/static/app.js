@@ -199,6 +199,12 @@ function selectOperation() {
   showError(null);
   if (!op) return;
   $("op-summary").textContent = op.summary;
+  const guide = $("op-guide");
+  guide.hidden = !op.guide;  // the user-guide page that explains the operation (x-guide)
+  if (op.guide) {
+    guide.href = op.guide;
+    guide.textContent = `guide${op.thesis ? ` (thesis ${op.thesis})` : ""}`;
+  }
   state.form = buildForm($("op-form"), state.openapi, op, formCtx);
   state.op = op;
 }

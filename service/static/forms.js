@@ -17,6 +17,7 @@ export function listOperations(openapi) {
     const scoped = path.includes("{domain_id}");
     ops.push({
       path, scoped, id: op.operationId, summary: op.summary || op.operationId,
+      guide: op["x-guide"] || null, thesis: op["x-thesis"] || null,
       name: path.split("/").pop(), schema: (json || multipart).schema, multipart: !json,
     });
   }

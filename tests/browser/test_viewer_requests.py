@@ -75,3 +75,15 @@ def test_distance_with_one_pick_is_refused(spot_page):
     pick_two(page)  # a second pick fills mu1
     page.wait_for_function("document.querySelector('#op-form select[name=mu1]').value === '1'")
     assert page.js_errors == []
+
+
+def test_the_selected_operation_links_its_guide_page(spot_page):
+    """The form of an operation links the user-guide page that explains it (``x-guide``)."""
+    page = spot_page
+    for op_id, page_name in (("createFlowJob", "emd"), ("createSoftMapJob", "softmaps")):
+        page.select_option("#operation", op_id)
+        link = page.locator("#op-guide")
+        assert link.is_visible()
+        assert link.get_attribute("href") == f"/guide/guide/{page_name}.html"
+        assert "thesis" in link.text_content()
+    assert page.js_errors == []

@@ -43,9 +43,16 @@ def names_blobs(field: str) -> bool:
     return "image" in field or "blob" in field
 
 
+SPHERE_VERTICES = 642  # of sphere_obj(), the mesh every example runs on
+
+
 def substitute_ids(example, domain_id: str, blob_ids: list[str] | None = None, field: str = ""):
     """``example`` with every ``EXAMPLE_ID`` replaced: by the i-th of ``blob_ids`` in a list
-    field naming blobs (``images``), by ``domain_id`` elsewhere (``source_id``, ...)."""
+    field naming blobs (``images``), by ``domain_id`` elsewhere (``source_id``, ...). A point
+    map (``correspondence``, one target vertex per source vertex) becomes the identity of the
+    sphere the examples run on, since the example's stands for a mesh of its own length."""
+    if field == "correspondence" and isinstance(example, list):
+        return list(range(SPHERE_VERTICES))
     if isinstance(example, dict):
         return {k: substitute_ids(v, domain_id, blob_ids, k) for k, v in example.items()}
     if isinstance(example, list):
@@ -66,7 +73,18 @@ def schema_example(schema: dict) -> dict:
     return examples[0]
 
 
-def at_defaults(schema: dict) -> dict:
-    """The request's example reduced to its required fields: every size at its default."""
+def at_defaults(schema: dict, accepts=None) -> dict:
+    """The request's example reduced to its required fields: every size at its default. When
+    the required fields alone are refused (one of several fields must be given, e.g.
+    ``face_weights`` or ``curvature``), the example's other fields are dropped one at a time
+    while ``accepts(body)`` (validation at submission) still holds."""
     example = schema_example(schema)
-    return {k: v for k, v in example.items() if k in schema.get("required", [])}
+    required = {k: v for k, v in example.items() if k in schema.get("required", [])}
+    if accepts is None or accepts(required):
+        return required
+    body = dict(example)
+    for key in [k for k in example if k not in required]:
+        trial = {k: v for k, v in body.items() if k != key}
+        if accepts(trial):
+            body = trial
+    return body

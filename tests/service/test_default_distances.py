@@ -132,7 +132,9 @@ def test_decision_is_taken_at_submission_and_kept_by_a_rerun(make_client, meshes
     from service.jobs.db import JobRow
     from solvers.convolutional.decision import decide_distance
 
-    client = make_client(queue="sqlite", stale_after=1.0)  # no consumer: jobs stay queued
+    # no consumer: jobs stay queued; the reaper runs only when called (a background pass could
+    # take the re-run for dead under load: heartbeats every 2 s against stale_after 1 s)
+    client = make_client(queue="sqlite", stale_after=1.0, reaper_interval=3600)
     rt = client.app.state.runtime
     rt.reaper.enqueue = lambda job_id, queue=None: None
     mesh = shared_mesh("spot.obj")

@@ -18,11 +18,14 @@ import numpy as np
 import pytest
 from example_inputs import at_defaults, png_images, sphere_obj, substitute_ids
 from fastapi.testclient import TestClient
+from pydantic import ValidationError
 
 from service.app import create_app
+from service.errors import ApiError
 from service.export import NPY_MEDIA_TYPE, to_jsonable
 from service.jobs.service import JobService
 from service.operations import build_registry
+from service.operations.base import SubmitContext, view_of_info
 from service.settings import Settings
 
 BUDGET = Settings.model_fields["result_json_bytes"].default
@@ -43,10 +46,22 @@ def env(tmp_path_factory):
                               blobs=blobs)
 
 
+def accepted(env, op, body: dict) -> bool:
+    """Whether ``body`` passes the operation's validation at submission (nothing runs)."""
+    try:
+        request = op.request_model.model_validate(substitute_ids(body, env.mesh, env.blobs))
+        target = (view_of_info(env.rt.store.domain_info(env.mesh)) if op.scope == "domain"
+                  else SubmitContext(env.rt.store, env.rt.settings))
+        op.validate(target, request)
+    except (ValidationError, ApiError):
+        return False
+    return True
+
+
 def run_at_defaults(env, name: str) -> str:
     op = env.rt.operations[name]
-    body = substitute_ids(at_defaults(op.request_model.model_json_schema()), env.mesh,
-                          env.blobs)
+    body = substitute_ids(at_defaults(op.request_model.model_json_schema(),
+                                      lambda b: accepted(env, op, b)), env.mesh, env.blobs)
     job = JobService(env.rt).create(name, env.mesh if op.scope == "domain" else None,
                                     op.request_model.model_validate(body))
     assert job.state == "succeeded", job.error

@@ -4,6 +4,8 @@ block is the current one (`otgeo routes --update README.md` rewrites it)."""
 
 from __future__ import annotations
 
+import importlib
+import importlib.util
 import json
 import re
 from pathlib import Path
@@ -54,8 +56,26 @@ def test_every_route_is_listed_in_the_readme_and_the_description(tmp_path):
     for ops in schema["paths"].values():
         for op in ops.values():
             assert f"(`{op['operationId']}`)" in description
-    # each line says what the route does (never empty)
-    assert not re.search(r"`: *$", readme, re.M)
+    # each line of the description says what the route does (never empty)
+    assert not re.search(r"`: *$", description, re.M)
+
+
+def test_every_operation_links_its_guide_page(tmp_path):
+    """Each operation names the guide page that explains it (README table, ``x-guide`` in
+    the OpenAPI document for the viewer), and that page exists."""
+    app = make_app(tmp_path)
+    for path, methods in app.openapi()["paths"].items():
+        for op in methods.values():
+            if "operations" in op.get("tags", []):
+                page = op.get("x-guide", "")
+                assert page.startswith("/guide/guide/"), (path, page)
+                rst = ROOT / "docs" / page.removeprefix("/guide/").replace(".html", ".rst")
+                assert rst.exists(), (path, rst)
+                assert f"({rst.relative_to(ROOT)})" in block_in((ROOT / "README.md").read_text())
+                module, _, name = op["x-function"].rpartition(".")
+                assert callable(getattr(importlib.import_module(module), name, None)) or \
+                    importlib.util.find_spec(op["x-function"]), op["x-function"]
+                assert op["x-thesis"], path
 
 
 def test_a_new_route_appears_in_both_without_editing_them(tmp_path):
@@ -72,7 +92,7 @@ def test_a_new_route_appears_in_both_without_editing_them(tmp_path):
     assert line in app.openapi()["info"]["description"]
     doc = tmp_path / "doc.md"
     doc.write_text((ROOT / "README.md").read_text())
-    assert update_file(doc, app) and line in block_in(doc.read_text())
+    assert update_file(doc, app) and "`GET /v1/extras/{x}`" in block_in(doc.read_text())
     assert not update_file(doc, app)  # idempotent
 
 
