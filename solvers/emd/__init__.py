@@ -6,7 +6,8 @@
 * :func:`pointwise_distances` — ``d_W^k`` from one source to every vertex (§2.5).
 * :func:`distance_to_features` — geodesic-like distance to points/curves (§2.7).
 * :func:`beckmann_w1_exact` — the Beckmann problem (eq. 2.1) solved exactly as an SOCP;
-  :func:`w1_barycenter` (eq. 2.6) and :func:`w1_path_planning` (eq. 2.7) on the same program.
+  on the same program :func:`w1_barycenter` (eq. 2.7, squared W1), :func:`w1_median`
+  (unsquared) and :func:`w1_path_planning` (a multi-step chain with capacities).
 * :mod:`solvers.emd.volumetric` — mean value coordinates, volumetric distances and descent
   paths (§2.6).
 
@@ -23,6 +24,7 @@ from solvers.emd.exact import (
     beckmann_w1_exact,
     kantorovich_rubinstein_norm,
     w1_barycenter,
+    w1_median,
     w1_path_planning,
 )
 from solvers.emd.features import FeatureDistanceResult, distance_to_features
@@ -61,6 +63,7 @@ __all__ = [
     "volumetric_distances",
     "volumetric_path",
     "w1_barycenter",
+    "w1_median",
     "w1_path_planning",
     "winding_number",
 ]
