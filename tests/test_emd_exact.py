@@ -14,7 +14,7 @@ from solvers.emd.exact import (
     kantorovich_rubinstein_norm,
     w1_barycenter,
     w1_median,
-    w1_path_planning,
+    w1_multistep_paths,
 )
 from solvers.errors import CancelledError, InputError, UnsupportedDomainError
 from solvers.geodesics import polyhedral_geodesic_distances
@@ -229,14 +229,14 @@ def test_barycenter_of_diracs_against_exact_geodesics(shared_mesh):
     assert res.masses[near].sum() >= 0.9
 
 
-def test_path_planning_unconstrained_and_capacity(sphere):
+def test_multistep_paths_unconstrained_and_capacity(sphere):
     a, b = _bump(sphere, 0, 0.2), _bump(sphere, 80, 0.2)
     w = beckmann_w1_exact(sphere, a, b).value
-    free = w1_path_planning(sphere, a, b, 3)
+    free = w1_multistep_paths(sphere, a, b, 3)
     assert free.converged
     assert free.value == pytest.approx(w, rel=1e-5)  # triangle inequality is tight
     cap = 0.6 * a.max()
-    capped = w1_path_planning(sphere, a, b, 3, capacity=cap)
+    capped = w1_multistep_paths(sphere, a, b, 3, capacity=cap)
     assert capped.converged
     assert capped.masses[:, 1:-1].max() <= cap + 1e-7
     assert np.allclose(capped.masses[:, 1:-1].sum(axis=0), 1.0)
@@ -250,7 +250,7 @@ def test_path_planning_unconstrained_and_capacity(sphere):
     a, b = _cap(sphere, [0.87, 0.5, 0]), _cap(sphere, [0.87, -0.5, 0])
     near = np.flatnonzero(V @ [1.0, 0.0, 0.0] > 0.93)
     w = beckmann_w1_exact(sphere, a, b).value
-    detour = w1_path_planning(sphere, a, b, 2, obstacle_vertices=near)
+    detour = w1_multistep_paths(sphere, a, b, 2, obstacle_vertices=near)
     assert detour.converged
     assert np.abs(detour.masses[near]).max() < 1e-7
     blocked = np.isin(sphere.faces, near).any(axis=1)
@@ -259,7 +259,7 @@ def test_path_planning_unconstrained_and_capacity(sphere):
     assert detour.value == pytest.approx(beckmann_w1_exact(
         sphere, a, b, face_weights=np.where(blocked, np.inf, 1.0)).value, rel=1e-5)
     with pytest.raises(InputError):
-        w1_path_planning(sphere, a, b, 2, obstacle_vertices=np.flatnonzero(a > 0)[:1])
+        w1_multistep_paths(sphere, a, b, 2, obstacle_vertices=np.flatnonzero(a > 0)[:1])
 
 
 def test_input_validation(sphere):
@@ -270,9 +270,9 @@ def test_input_validation(sphere):
     with pytest.raises(InputError):
         beckmann_w1_exact(sphere, a, a, max_vertices=100)
     with pytest.raises(InputError):
-        w1_path_planning(sphere, a, a, 0)
+        w1_multistep_paths(sphere, a, a, 0)
     with pytest.raises(InputError) as err:  # 2 * 40 - 1 blocks x 162 vertices > 12000
-        w1_path_planning(sphere, a, a, 40)
+        w1_multistep_paths(sphere, a, a, 40)
     assert err.value.field == "domain"
     with pytest.raises(InputError) as err:
         w1_barycenter(sphere, np.stack([a, a], 1), [1.0, -1.0])

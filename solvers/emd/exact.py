@@ -24,10 +24,13 @@ to interior-point accuracy with Clarabel, which makes it the ground truth for th
 iterative ADMM solver of :mod:`solvers.emd`, and lets the same machinery solve the
 convex W1 problems of §2.7:
 
-* :func:`w1_barycenter` – eq. (2.6), :math:`\min_\mu \sum_i \alpha_i W_1(\mu, \mu_i)`;
-* :func:`w1_path_planning` – eq. (2.7), a sequence of distributions from a start to
-  a goal minimizing :math:`\sum_k W_1(\mu_k, \mu_{k+1})` under per-vertex capacities,
-  forbidden vertices and per-face travel costs (obstacles).
+* :func:`w1_barycenter` – eq. (2.7), :math:`\min_\rho \sum_i \alpha_i W_1(\rho_i, \rho)^2`,
+  and :func:`w1_median`, the unsquared :math:`\sum_i \alpha_i W_1` (a geometric median);
+* :func:`w1_multistep_paths` – not in the thesis: a sequence of distributions from a start
+  to a goal minimizing :math:`\sum_k W_1(\mu_k, \mu_{k+1})` under per-vertex capacities,
+  forbidden vertices and per-face travel costs (obstacles);
+* :func:`solvers.emd.path_planning.w1_path_planning` (eq. 2.6) builds on the same
+  assembler.
 
 Interior-point cost grows superlinearly, so every entry point refuses problems above
 ``max_vertices`` (default 5,000) mesh vertices (use :mod:`solvers.emd` beyond that), and
@@ -90,10 +93,10 @@ class W1BarycenterResult(SolverResult):
 
 
 @dataclass
-class W1PathResult(SolverResult):
-    """W1 path (eq. 2.7): ``masses`` ``(V, n_steps + 1)`` from start to goal, the cost
-    ``step_costs`` ``(n_steps,)`` of every step, their sum ``value`` and the step flows
-    ``(n_steps, F, 3)``."""
+class W1MultistepResult(SolverResult):
+    """Multi-step W1 chain (:func:`w1_multistep_paths`): ``masses`` ``(V, n_steps + 1)``
+    from start to goal, the cost ``step_costs`` ``(n_steps,)`` of every step, their sum
+    ``value`` and the step flows ``(n_steps, F, 3)``."""
 
     masses: np.ndarray
     value: float
@@ -569,7 +572,7 @@ def _barycenter(mesh, mus, weights, *, squared, face_weights, tol, max_iter, max
     )
 
 
-def w1_path_planning(
+def w1_multistep_paths(
     mesh: TriangleMesh,
     mu_start,
     mu_goal,
@@ -584,8 +587,12 @@ def w1_path_planning(
     time_limit: float | None = None,
     progress=None,
     should_cancel=None,
-) -> W1PathResult:
-    r"""Path planning for a distribution (eq. 2.7) as one convex program.
+) -> W1MultistepResult:
+    r"""A capacitated multi-step W1 chain from a start to a goal, as one convex program.
+
+    Not the thesis' path planning (eq. 2.6, :func:`solvers.emd.path_planning.w1_path_planning`,
+    which sends occupants to a set of exits): this moves one distribution to a given goal
+    through ``n_steps - 1`` intermediate distributions under congestion constraints.
 
     .. math::
         \min_{\mu_1..\mu_{K-1},\,J_0..J_{K-1}} \sum_{k<K} \sum_t w_t A_t \lVert J_{k,t}\rVert
@@ -634,7 +641,7 @@ def w1_path_planning(
     costs = np.array([_flow_cost(geo, xb) for xb in xs])
     residual = max(float(np.abs(geo.div @ xb - (masses[:, k] - masses[:, k + 1])).max())
                    for k, xb in enumerate(xs))
-    return W1PathResult(
+    return W1MultistepResult(
         masses=masses,
         value=float(costs.sum()),
         step_costs=costs,
@@ -672,7 +679,7 @@ def _path_constraints(mesh, m0, m1, capacity, obstacle_vertices, face_weights):
 
 
 def _path_program(mesh, geo, m0, m1, K, upper, forbidden):
-    """The conic program of eq. 2.7: ``K`` flow blocks chained through ``K - 1``
+    """The conic program of :func:`w1_multistep_paths`: ``K`` flow blocks chained through ``K - 1``
     intermediate distributions; returns ``(program, mid variables, flow variables)``."""
     keep = _kept_rows(mesh)
     restrict = sp.identity(mesh.n, format="csr")[keep]

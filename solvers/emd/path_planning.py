@@ -1,0 +1,171 @@
+r"""Path planning by W1 (thesis §2.7, eq. 2.6).
+
+Occupants with density :math:`\rho_0` leave through a set of exits :math:`S`:
+
+.. math::
+    \inf_{\rho_1} \; W_1(\rho_0, \rho_1) + \varepsilon \int \rho_1^2
+    \quad\text{s.t.}\quad \rho_1 \ge 0,\ \operatorname{supp}\rho_1 \subseteq S,\
+    \int \rho_1 = 1 .
+
+With :math:`\varepsilon = 0` every unit of mass goes to its nearest exit (the value is
+:math:`\int d(x, S)\, \rho_0`); :math:`\varepsilon > 0` spreads the arrivals over the exits
+(congestion).  In Beckmann form (eq. 2.3) this is one convex program in the face flow
+:math:`J` and the exit masses :math:`m_1 = A\rho_1` (lumped vertex areas :math:`A`):
+
+.. math::
+    \min_{J,\ m_1 \ge 0 \text{ on } S} \sum_t w_t A_t \lVert J_t\rVert
+    + \varepsilon \sum_{v\in S} m_{1,v}^2 / A_v
+    \quad\text{s.t.}\quad \operatorname{div} J = m_0 - m_1 ,
+
+solved by Clarabel (a second-order cone QP).  The flow and its Hodge decomposition
+:math:`J = \nabla f + R\nabla g` (:mod:`solvers.emd.hodge`) are what Fig. 2.12 shows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from solvers.emd.exact import (
+    MAX_VERTICES,
+    _check_mesh,
+    _ConicProgram,
+    _converged,
+    _face_weights,
+    _flow_cost,
+    _flow_geometry,
+    _flow_vectors,
+    _masses,
+)
+from solvers.emd.hodge import HodgeDecomposition, hodge_decomposition
+from solvers.errors import InputError
+from solvers.monitor import Monitor, SolverResult
+
+
+@dataclass
+class PathPlanningResult(SolverResult):
+    """Eq. 2.6: ``value`` = W1(rho0, rho1) of the returned flow, ``objective`` = value +
+    ε ∫ρ1², ``target_masses`` (V,) the arrivals m1 (zero off the exits), ``flow`` J (F, 3)
+    from rho0 to the exits, ``potential`` (V,) the dual of ``div J = m0 - m1`` (with ε = 0,
+    ``value == potential @ (m1 - m0)``), ``hodge`` the decomposition J = ∇f + R∇g + h.
+    ``residual`` is the max violation of the divergence constraint."""
+
+    value: float
+    objective: float
+    target_masses: np.ndarray
+    flow: np.ndarray
+    potential: np.ndarray
+    hodge: HodgeDecomposition
+    status: str
+    solve_time: float
+
+
+def _target_mask(mesh, targets, m0) -> np.ndarray:
+    t = np.asarray(targets)
+    mask = np.zeros(mesh.n, dtype=bool)
+    if t.dtype == bool:
+        if t.shape != (mesh.n,):
+            raise InputError(f"a boolean targets mask must have shape ({mesh.n},)",
+                             field="targets")
+        mask = t.copy()
+    else:
+        idx = np.asarray(t, dtype=np.int64).ravel()
+        if idx.size and (idx.min() < 0 or idx.max() >= mesh.n):
+            raise InputError(f"targets must be vertex indices in [0, {mesh.n - 1}]",
+                             field="targets")
+        mask[idx] = True
+    if not mask.any():
+        raise InputError("targets must name at least one vertex", field="targets")
+    labels = mesh.component_labels
+    reachable = np.bincount(labels[mask], minlength=mesh.n_components) > 0
+    stranded = np.bincount(labels, m0, minlength=mesh.n_components)[~reachable]
+    if np.any(stranded > 0):
+        raise InputError("rho0 has mass on a connected component without any target vertex",
+                         field="targets")
+    return mask
+
+
+def w1_path_planning(
+    mesh,
+    rho0,
+    targets,
+    *,
+    epsilon: float = 0.0,
+    face_weights=None,
+    tol: float = 1e-8,
+    max_iter: int = 200,
+    max_vertices: int = MAX_VERTICES,
+    time_limit: float | None = None,
+    progress=None,
+    should_cancel=None,
+) -> PathPlanningResult:
+    r"""Path planning, thesis eq. (2.6): :math:`\inf_{\rho_1} W_1(\rho_0,\rho_1) +
+    \varepsilon\int\rho_1^2` over :math:`\rho_1 \ge 0` of unit mass supported on the
+    targets (module docstring).
+
+    Parameters
+    ----------
+    mesh : TriangleMesh with at most ``max_vertices`` vertices.
+    rho0 : (V,) masses of the occupants (non-negative, normalized to sum 1).
+    targets : vertex indices of the exits S, or a (V,) boolean mask.
+    epsilon : weight ε >= 0 of the congestion term ∫ρ1² (ρ1 = m1 / A per vertex).
+    face_weights : optional (F,) travel cost per unit length (``np.inf`` = wall).
+    tol, max_iter, time_limit, progress, should_cancel : as in
+        :func:`solvers.emd.exact.beckmann_w1_exact`.
+
+    Returns
+    -------
+    PathPlanningResult (value, objective, target_masses (V,), flow (F, 3), potential (V,),
+    hodge).
+    """
+    _check_mesh(mesh, max_vertices)
+    m0 = _masses(mesh, rho0, "rho0")
+    if m0.ndim != 1:
+        raise InputError("rho0 must be a single (V,) distribution", field="rho0")
+    mask = _target_mask(mesh, targets, m0)
+    eps = float(epsilon)
+    if not (np.isfinite(eps) and eps >= 0):
+        raise InputError("epsilon must be a finite number >= 0", field="epsilon")
+    geo = _flow_geometry(mesh, _face_weights(mesh, face_weights))
+    # one divergence row per component is redundant unless the component holds targets
+    labels = mesh.component_labels
+    _, first = np.unique(labels, return_index=True)
+    has_target = np.bincount(labels[mask], minlength=mesh.n_components) > 0
+    keep = np.setdiff1d(np.arange(mesh.n), first[~has_target])
+    exits = np.flatnonzero(mask)
+    Monitor(progress, should_cancel).check_cancel("before the conic solve")
+
+    prog = _ConicProgram()
+    flow = prog.flow_block(geo)
+    m1 = prog.variables(len(exits))
+    if eps > 0:
+        prog.quadratic(m1, 2.0 * eps / mesh.areas[exits])
+    place = sp.csr_matrix((np.ones(len(exits)), (exits, np.arange(len(exits)))),
+                          shape=(mesh.n, len(exits)))
+    prog.constrain("eq", [(flow, geo.div[keep]), (m1, place[keep])], m0[keep])
+    prog.constrain("nonneg", [(m1, -sp.identity(len(exits), format="csr"))],
+                   np.zeros(len(exits)))
+    x, z, iterations, status, elapsed = prog.solve(
+        tol, max_iter, time_limit, progress, should_cancel)
+    target = np.zeros(mesh.n)
+    target[exits] = np.clip(x[m1], 0.0, None)
+    xb = x[flow]
+    potential = np.zeros(mesh.n)
+    potential[keep] = z[: len(keep)]
+    value = _flow_cost(geo, xb)
+    J = _flow_vectors(mesh, geo, xb)
+    return PathPlanningResult(
+        value=value,
+        objective=value + eps * float(np.sum(target[exits] ** 2 / mesh.areas[exits])),
+        target_masses=target,
+        flow=J,
+        potential=potential,
+        hodge=hodge_decomposition(mesh, J),
+        iterations=iterations,
+        residual=float(np.abs(geo.div @ xb - (m0 - target)).max()),
+        converged=_converged(status),
+        status=status,
+        solve_time=elapsed,
+    )
