@@ -31,6 +31,7 @@ from solvers.emd.exact import (
     w1_multistep_paths,
 )
 from solvers.emd.features import FeatureDistanceResult, distance_to_features
+from solvers.emd.fuzzy import FuzzyGeodesicResult, fuzzy_geodesic
 from solvers.emd.hodge import HodgeDecomposition, hodge_decomposition
 from solvers.emd.operators import EMDOperators, mesh_operators
 from solvers.emd.path_planning import PathPlanningResult, w1_path_planning
@@ -51,6 +52,7 @@ __all__ = [
     "EMDOperators",
     "EMDResult",
     "FeatureDistanceResult",
+    "FuzzyGeodesicResult",
     "PointwiseDistanceResult",
     "VolumetricDistanceResult",
     "VolumetricFieldResult",
@@ -62,6 +64,7 @@ __all__ = [
     "beckmann_w1_exact",
     "distance_to_features",
     "earth_movers_distance",
+    "fuzzy_geodesic",
     "hodge_decomposition",
     "kantorovich_rubinstein_norm",
     "mean_value_coordinates",
