@@ -3,6 +3,7 @@
 * :class:`TriangleMesh` (§2.2: cotangent / intrinsic-Delaunay Laplacian, lumped areas,
   per-face gradient and divergence), :class:`Grid` (§3.4: separable Gaussian kernels),
   :class:`Graph`, :class:`PointCloud` — each in its own module;
+* ``maze`` — :func:`maze_mesh`, planar maze meshes for path planning (Fig. 2.12);
 * ``operators`` — :class:`~solvers.domains.operators.OperatorStore`, the one explicit
   store of every prefactored operator a domain owns (built once under a lock, sized).
 """
@@ -14,6 +15,7 @@ import numpy as np
 from solvers.domains.base import Domain
 from solvers.domains.graph import Graph
 from solvers.domains.grid import Grid
+from solvers.domains.maze import Maze, maze_mesh
 from solvers.domains.mesh import MESH_FORMATS, MeshDiagnostics, TriangleMesh
 from solvers.domains.pointcloud import PointCloud
 from solvers.errors import DomainError
@@ -49,9 +51,11 @@ __all__ = [
     "Domain",
     "Graph",
     "Grid",
+    "Maze",
     "MeshDiagnostics",
     "PointCloud",
     "TriangleMesh",
     "domain_from_arrays",
     "load_mesh",
+    "maze_mesh",
 ]

@@ -24,10 +24,13 @@ to interior-point accuracy with Clarabel, which makes it the ground truth for th
 iterative ADMM solver of :mod:`solvers.emd`, and lets the same machinery solve the
 convex W1 problems of §2.7:
 
-* :func:`w1_barycenter` – eq. (2.6), :math:`\min_\mu \sum_i \alpha_i W_1(\mu, \mu_i)`;
-* :func:`w1_path_planning` – eq. (2.7), a sequence of distributions from a start to
-  a goal minimizing :math:`\sum_k W_1(\mu_k, \mu_{k+1})` under per-vertex capacities,
-  forbidden vertices and per-face travel costs (obstacles).
+* :func:`w1_barycenter` – eq. (2.7), :math:`\min_\rho \sum_i \alpha_i W_1(\rho_i, \rho)^2`,
+  and :func:`w1_median`, the unsquared :math:`\sum_i \alpha_i W_1` (a geometric median);
+* :func:`w1_multistep_paths` – not in the thesis: a sequence of distributions from a start
+  to a goal minimizing :math:`\sum_k W_1(\mu_k, \mu_{k+1})` under per-vertex capacities,
+  forbidden vertices and per-face travel costs (obstacles);
+* :func:`solvers.emd.path_planning.w1_path_planning` (eq. 2.6) builds on the same
+  assembler.
 
 Interior-point cost grows superlinearly, so every entry point refuses problems above
 ``max_vertices`` (default 5,000) mesh vertices (use :mod:`solvers.emd` beyond that), and
@@ -76,8 +79,10 @@ class BeckmannResult(SolverResult):
 
 @dataclass
 class W1BarycenterResult(SolverResult):
-    """W1 barycenter (eq. 2.6): ``masses`` ``(V,)``, objective ``value`` and the
-    distances ``(k,)`` from the barycenter to each input, with their flows ``(k, F, 3)``."""
+    r"""W1 barycenter (eq. 2.7, :func:`w1_barycenter`) or median (:func:`w1_median`):
+    ``masses`` ``(V,)``, the solved objective ``value`` (:math:`\sum_i \alpha_i W_1^2`
+    or :math:`\sum_i \alpha_i W_1`) and the distances ``(k,)`` from the result to each
+    input, with their flows ``(k, F, 3)``."""
 
     masses: np.ndarray
     value: float
@@ -88,10 +93,10 @@ class W1BarycenterResult(SolverResult):
 
 
 @dataclass
-class W1PathResult(SolverResult):
-    """W1 path (eq. 2.7): ``masses`` ``(V, n_steps + 1)`` from start to goal, the cost
-    ``step_costs`` ``(n_steps,)`` of every step, their sum ``value`` and the step flows
-    ``(n_steps, F, 3)``."""
+class W1MultistepResult(SolverResult):
+    """Multi-step W1 chain (:func:`w1_multistep_paths`): ``masses`` ``(V, n_steps + 1)``
+    from start to goal, the cost ``step_costs`` ``(n_steps,)`` of every step, their sum
+    ``value`` and the step flows ``(n_steps, F, 3)``."""
 
     masses: np.ndarray
     value: float
@@ -192,6 +197,7 @@ class _ConicProgram:
     def __init__(self):
         self.n = 0
         self.q: list[tuple[int, np.ndarray]] = []
+        self.p_diag: list[tuple[int, np.ndarray]] = []  # objective 1/2 x^T diag(p) x
         self.blocks = {"eq": [], "nonneg": [], "soc": []}
         self.rows = {"eq": 0, "nonneg": 0, "soc": 0}
         self.soc_sizes: list[int] = []
@@ -202,6 +208,11 @@ class _ConicProgram:
         if cost is not None:
             self.q.append((s.start, np.broadcast_to(np.asarray(cost, dtype=float), (k,))))
         return s
+
+    def quadratic(self, s: slice, diag) -> None:
+        r"""Add :math:`\tfrac12 \sum_j d_j x_j^2` over the variables ``s`` to the objective."""
+        self.p_diag.append((s.start, np.broadcast_to(np.asarray(diag, dtype=float),
+                                                     (s.stop - s.start,))))
 
     def constrain(self, kind: str, terms: list[tuple[slice, sp.spmatrix]], b) -> int:
         """Add rows ``sum_j M_j x[s_j] + slack = b`` with slack in cone ``kind``."""
@@ -258,7 +269,10 @@ class _ConicProgram:
         settings.max_iter = int(max_iter)
         if time_limit is not None:
             settings.time_limit = float(time_limit)
-        P = sp.csc_matrix((self.n, self.n))
+        p = np.zeros(self.n)
+        for start, d in self.p_diag:
+            p[start:start + len(d)] += d
+        P = sp.diags(p, format="csc")
         solver = clarabel.DefaultSolver(P, q, A, np.concatenate(b), cones, settings)
         cancelled, stalled = [], []
         monitor = Monitor(progress, should_cancel, tol=tol, patience=IPM_PATIENCE)
@@ -435,18 +449,64 @@ def w1_barycenter(
     progress=None,
     should_cancel=None,
 ) -> W1BarycenterResult:
-    r"""W1 barycenter (eq. 2.6): :math:`\min_{\mu\ge0,\ \sum\mu=1} \sum_i \alpha_i W_1(\mu, \mu_i)`.
+    r"""W1 barycenter, thesis eq. (2.7):
+    :math:`\min_{\rho\ge0,\ \int\rho=1} \sum_i \alpha_i W_1(\rho_i, \rho)^2`.
 
-    One convex program in :math:`\mu` and k Beckmann flows :math:`J_i` with
-    ``div J_i = mu - mu_i``.  Like a geometric median, the W1 barycenter need not be
-    unique and tends to be sparse; with two inputs and :math:`\alpha_1 \ge \alpha_2`,
-    :math:`\mu_1` itself is optimal.
+    One convex program in :math:`\rho` (vertex masses), k Beckmann flows :math:`J_i` with
+    ``div J_i = rho - rho_i`` and epigraph variables
+    :math:`t_i \ge \sum_t w_t A_t \lVert J_{i,t}\rVert`; the objective
+    :math:`\sum_i \alpha_i t_i^2` is a diagonal quadratic, so the program is a convex QP
+    over second-order cones (Clarabel).  For Dirac inputs the optimum is (close to) a Dirac
+    at a point minimizing :math:`\sum_i \alpha_i d(x_i, p)^2` (the thesis' remark after
+    Fig. 2.16); :func:`w1_median` solves the unsquared problem instead.
 
     Parameters
     ----------
-    mus : (V, k) masses, one column per input.
+    mesh : TriangleMesh with at most ``max_vertices`` vertices.
+    mus : (V, k) masses, one column per input :math:`\rho_i` (normalized per column).
     weights : (k,) non-negative weights :math:`\alpha` (normalized to sum 1), default uniform.
+    face_weights, tol, max_iter, time_limit, progress, should_cancel : as in
+        :func:`beckmann_w1_exact`.
+
+    Returns
+    -------
+    W1BarycenterResult: ``masses`` (V,), ``value`` :math:`\sum_i \alpha_i W_1^2`,
+    ``distances`` (k,) the W1 of each input's flow, ``flows`` (k, F, 3).
     """
+    return _barycenter(mesh, mus, weights, squared=True, face_weights=face_weights, tol=tol,
+                       max_iter=max_iter, max_vertices=max_vertices, time_limit=time_limit,
+                       progress=progress, should_cancel=should_cancel)
+
+
+def w1_median(
+    mesh: TriangleMesh,
+    mus,
+    weights=None,
+    *,
+    face_weights=None,
+    tol: float = 1e-8,
+    max_iter: int = 200,
+    max_vertices: int = MAX_VERTICES,
+    time_limit: float | None = None,
+    progress=None,
+    should_cancel=None,
+) -> W1BarycenterResult:
+    r"""W1 geometric median: :math:`\min_{\rho\ge0,\ \int\rho=1} \sum_i \alpha_i
+    W_1(\rho, \rho_i)` (*not* eq. 2.7, which squares the distances: :func:`w1_barycenter`).
+
+    One linear program over second-order cones in :math:`\rho` and k Beckmann flows
+    :math:`J_i` with ``div J_i = rho - rho_i``.  Like a geometric median it need not be
+    unique and tends to be sparse; with two inputs and :math:`\alpha_1 \ge \alpha_2`,
+    :math:`\rho_1` itself is optimal.  Parameters and result as in :func:`w1_barycenter`,
+    with ``value`` :math:`= \sum_i \alpha_i W_1(\rho, \rho_i)`.
+    """
+    return _barycenter(mesh, mus, weights, squared=False, face_weights=face_weights, tol=tol,
+                       max_iter=max_iter, max_vertices=max_vertices, time_limit=time_limit,
+                       progress=progress, should_cancel=should_cancel)
+
+
+def _barycenter_inputs(mesh, mus, weights, max_vertices):
+    """Validated ``(M (V, k) normalized columns, alpha (k,) summing to 1)``."""
     x_in = check_masses(mus, mesh.n, "mus")
     if x_in.ndim != 2:
         raise InputError("mus must be a (V, k) array, one column per input", field="mus")
@@ -458,21 +518,36 @@ def w1_barycenter(
             or alpha.sum() <= 0:
         raise InputError(f"weights must be {k} non-negative numbers, not all zero",
                          field="weights")
-    alpha = alpha / alpha.sum()
     mesh.require_matching_component_masses(M, _BALANCE_TOL, "mus")
-    fw = _face_weights(mesh, face_weights)
-    geo = _flow_geometry(mesh, fw)
+    return M, alpha / alpha.sum()
+
+
+def _barycenter(mesh, mus, weights, *, squared, face_weights, tol, max_iter, max_vertices,
+                time_limit, progress, should_cancel) -> W1BarycenterResult:
+    """Eq. 2.7 (``squared``) or the W1 median as one conic program."""
+    M, alpha = _barycenter_inputs(mesh, mus, weights, max_vertices)
+    k = M.shape[1]
+    geo = _flow_geometry(mesh, _face_weights(mesh, face_weights))
     keep = _kept_rows(mesh)
     Monitor(progress, should_cancel).check_cancel("before the conic solve")
 
     prog = _ConicProgram()
     mu = prog.variables(mesh.n)
     restrict = sp.identity(mesh.n, format="csr")[keep]
+    nf = len(geo.faces)
+    # row vector picking sum_t w_t s_t out of an interleaved flow block
+    cost_row = sp.csr_matrix((geo.weights, (np.zeros(nf, dtype=np.int64), 3 * np.arange(nf))),
+                             shape=(1, 3 * nf))
     flows = []
     for i in range(k):
-        fl = prog.flow_block(geo, cost_scale=alpha[i])
+        fl = prog.flow_block(geo, cost_scale=0.0 if squared else alpha[i])
         # div J_i - mu = -mu_i   (J_i carries mu towards mu_i)
         prog.constrain("eq", [(fl, geo.div[keep]), (mu, -restrict)], -M[keep, i])
+        if squared:  # epigraph t_i >= sum_t w_t s_t, objective alpha_i t_i^2
+            t = prog.variables(1)
+            prog.quadratic(t, 2.0 * alpha[i])
+            prog.constrain("nonneg", [(fl, cost_row), (t, -sp.identity(1, format="csr"))],
+                           np.zeros(1))
         flows.append(fl)
     prog.constrain("eq", [(mu, _component_sum_matrix(mesh))], mesh.component_masses(M[:, 0]))
     prog.constrain("nonneg", [(mu, -sp.identity(mesh.n, format="csr"))], np.zeros(mesh.n))
@@ -486,7 +561,7 @@ def w1_barycenter(
                    for i, xb in enumerate(xs))
     return W1BarycenterResult(
         masses=masses,
-        value=float(alpha @ distances),
+        value=float(alpha @ (distances ** 2 if squared else distances)),
         distances=distances,
         flows=np.stack([_flow_vectors(mesh, geo, xb) for xb in xs]),
         iterations=iterations,
@@ -497,7 +572,7 @@ def w1_barycenter(
     )
 
 
-def w1_path_planning(
+def w1_multistep_paths(
     mesh: TriangleMesh,
     mu_start,
     mu_goal,
@@ -512,8 +587,12 @@ def w1_path_planning(
     time_limit: float | None = None,
     progress=None,
     should_cancel=None,
-) -> W1PathResult:
-    r"""Path planning for a distribution (eq. 2.7) as one convex program.
+) -> W1MultistepResult:
+    r"""A capacitated multi-step W1 chain from a start to a goal, as one convex program.
+
+    Not the thesis' path planning (eq. 2.6, :func:`solvers.emd.path_planning.w1_path_planning`,
+    which sends occupants to a set of exits): this moves one distribution to a given goal
+    through ``n_steps - 1`` intermediate distributions under congestion constraints.
 
     .. math::
         \min_{\mu_1..\mu_{K-1},\,J_0..J_{K-1}} \sum_{k<K} \sum_t w_t A_t \lVert J_{k,t}\rVert
@@ -562,7 +641,7 @@ def w1_path_planning(
     costs = np.array([_flow_cost(geo, xb) for xb in xs])
     residual = max(float(np.abs(geo.div @ xb - (masses[:, k] - masses[:, k + 1])).max())
                    for k, xb in enumerate(xs))
-    return W1PathResult(
+    return W1MultistepResult(
         masses=masses,
         value=float(costs.sum()),
         step_costs=costs,
@@ -600,7 +679,7 @@ def _path_constraints(mesh, m0, m1, capacity, obstacle_vertices, face_weights):
 
 
 def _path_program(mesh, geo, m0, m1, K, upper, forbidden):
-    """The conic program of eq. 2.7: ``K`` flow blocks chained through ``K - 1``
+    """The conic program of :func:`w1_multistep_paths`: ``K`` flow blocks chained through ``K - 1``
     intermediate distributions; returns ``(program, mid variables, flow variables)``."""
     keep = _kept_rows(mesh)
     restrict = sp.identity(mesh.n, format="csr")[keep]

@@ -203,26 +203,38 @@ def _interior(x: np.ndarray) -> bool:
     return bool(np.all(np.isfinite(x)) and np.all(x[:, 0] > 0) and np.all(_jdot(x, x) > 0))
 
 
-def _iterate(x, z, st, newton, backend, factor):
-    """One Mehrotra predictor-corrector step: ``(factor, Δx, Δy, Δz, α)``."""
-    scaling = _nt_scaling(x, z)
-    lam = scaling.lam
-    mu = float(_dot(x, z).sum()) / len(x)
-    # normal matrix D W⁻² Dᵀ on the kept vertices, from a 3×3 block per face
+def normal_matrix_data(scaling: _Scaling, st: _Structure) -> np.ndarray:
+    """CSR data (on ``st.pattern``) of the normal matrix ``D W⁻² Dᵀ`` on the kept vertices,
+    from a 3×3 block per face."""
     t11, t12, t22 = (t[:, None, None] for t in scaling.inverse_square_tangent())
     l0, l1 = st.local[:, :, 0], st.local[:, :, 1]
     a0, a1 = l0[:, :, None], l1[:, :, None]
     b0, b1 = l0[:, None, :], l1[:, None, :]
     blocks = t11 * a0 * b0 + t12 * (a0 * b1 + a1 * b0) + t22 * a1 * b1
-    data = np.bincount(st.slots, blocks.reshape(-1)[st.kept], minlength=st.pattern.nnz)
+    return np.bincount(st.slots, blocks.reshape(-1)[st.kept], minlength=st.pattern.nnz)
+
+
+def _factor_normal(data: np.ndarray, st: _Structure, factor, backend: str):
+    """Factor (or refactor in place) the normal matrix with CSR ``data``; None if it is not
+    finite."""
     if not np.all(np.isfinite(data)):
         return None
     normal = sp.csr_matrix((data, st.pattern.indices, st.pattern.indptr),
                            shape=st.pattern.shape)
     if factor is not None and hasattr(factor, "refactor"):
         factor.refactor(normal)
-    else:
-        factor = factorize_spd(normal, _backend(backend))
+        return factor
+    return factorize_spd(normal, _backend(backend))
+
+
+def _iterate(x, z, st, newton, backend, factor):
+    """One Mehrotra predictor-corrector step: ``(factor, Δx, Δy, Δz, α)``."""
+    scaling = _nt_scaling(x, z)
+    lam = scaling.lam
+    mu = float(_dot(x, z).sum()) / len(x)
+    factor = _factor_normal(normal_matrix_data(scaling, st), st, factor, backend)
+    if factor is None:
+        return None
     dx_a, _, dz_a = newton(scaling, -_jordan(lam, lam), factor)
     alpha_a = min(1.0, _max_step(x, dx_a), _max_step(z, dz_a))
     mu_a = float(_dot(x + alpha_a * dx_a, z + alpha_a * dz_a).sum()) / len(x)

@@ -1,0 +1,186 @@
+r"""Path planning (eq. 2.6) by the primal-dual interior-point method of
+:mod:`solvers.emd.interior_point`, with vertex-sized Newton systems.
+
+The program of :mod:`solvers.emd.path_planning`,
+
+.. math::
+    \min_{x_t = (s_t, u_t) \in \mathcal Q^3,\ m \ge 0} \sum_t w_t s_t
+    + \tfrac12 m^\top P m
+    \quad\text{s.t.}\quad D u + E m = m_0 ,
+
+(``E`` places the exit masses ``m`` on their vertices, ``P = diag(2 ε / A_v)``), adds one
+non-negative variable per exit to the Beckmann cones.  Its dual is
+:math:`\max_y\ y^\top m_0 - \tfrac12 m^\top P m` with :math:`\lVert(D^\top y)_t\rVert \le
+w_t` and :math:`z_m = P m - E^\top y \ge 0`.  Eliminating the face and exit variables
+leaves the normal equations :math:`(D W^{-2} D^\top + E\,\mathrm{diag}(d / (1 + dP))
+E^\top)\,\Delta y = r` with :math:`d = m / z_m`: the weighted Laplacian of the Beckmann
+solver plus a diagonal on the exits.
+
+The start is primal and dual feasible (exit masses spread evenly over each component's
+exits, the Poisson flow that carries them, ``y = -δ`` on components with exits), and the
+steps keep both feasible, so ``value - lower_bound`` (the duality gap) certifies the
+objective, as for W1.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from solvers.emd.interior_point import (
+    STEP_FRACTION,
+    _dot,
+    _factor_normal,
+    _interior,
+    _jordan,
+    _jordan_solve,
+    _max_step,
+    _nt_scaling,
+    _Structure,
+    normal_matrix_data,
+)
+
+
+@dataclass
+class ExitsOutput:
+    u: np.ndarray  # (F, 2) flow A_t J_t in the tangent frames
+    m: np.ndarray  # (S,) exit masses
+    y: np.ndarray  # (V,) dual potential
+    value: float  # Σ w ‖u‖ + ½ mᵀPm
+    lower_bound: float
+    gap: float
+    iterations: int
+    feasibility: float  # max |D u + E m − m0|
+    converged: bool
+
+
+def _diagonal_slots(st: _Structure, rows: np.ndarray) -> np.ndarray:
+    """CSR data indices of the diagonal entries ``(r, r)`` of ``st.pattern``."""
+    indptr, indices = st.pattern.indptr, st.pattern.indices
+    return np.array([indptr[r] + int(np.searchsorted(indices[indptr[r]:indptr[r + 1]], r))
+                     for r in rows], dtype=np.int64)
+
+
+def _nonneg_max_step(x: np.ndarray, d: np.ndarray) -> float:
+    neg = d < 0
+    return float((-x[neg] / d[neg]).min(initial=np.inf))
+
+
+class _ExitNewton:
+    """Newton directions for fixed scalings (cones: NT scaling; exits: ``d = m / z_m``)."""
+
+    def __init__(self, st, div_local, faces, n, exits_pos, exits, p_diag, scaling, m, zm,
+                 factor, backend):
+        self.st, self.faces, self.n = st, faces, n
+        self.l0, self.l1 = div_local
+        self.exits, self.p = exits, p_diag
+        self.scaling, self.m, self.zm = scaling, m, zm
+        d = m / zm
+        self.d = d
+        self.shrink = 1.0 / (1.0 + d * p_diag)
+        data = normal_matrix_data(scaling, st)
+        data[exits_pos] += d * self.shrink
+        self.factor = _factor_normal(data, st, factor, backend)
+
+    def __call__(self, rc, rc_m):
+        sc, st, n = self.scaling, self.st, self.n
+        wq = sc.apply_inverse(_jordan_solve(sc.lam, rc))
+        lam_m = np.sqrt(self.m * self.zm)
+        wq_m = (rc_m / lam_m) * np.sqrt(self.m / self.zm)
+        rhs = np.bincount(self.faces.ravel(), (self.l0 * wq[:, 1:2] + self.l1 * wq[:, 2:3])
+                          .ravel(), minlength=n)
+        rhs[self.exits] += wq_m * self.shrink
+        dy = np.zeros(n)
+        dy[st.keep] = self.factor.solve(-rhs[st.keep])
+        yf = dy[self.faces]
+        dz = np.zeros_like(wq)
+        dz[:, 1] = -(self.l0 * yf).sum(axis=1)
+        dz[:, 2] = -(self.l1 * yf).sum(axis=1)
+        dx = wq - sc.apply_inverse_square(dz)
+        dm = (wq_m + self.d * dy[self.exits]) * self.shrink
+        dzm = self.p * dm - dy[self.exits]
+        return dx, dm, dy, dz, dzm
+
+
+def _step(x, m, z, zm, newton):
+    """Mehrotra predictor-corrector: ``(dx, dm, dy, dz, dzm, α)``."""
+    lam, lam_m = newton.scaling.lam, np.sqrt(m * zm)
+    degree = len(x) + len(m)
+    mu = (float(_dot(x, z).sum()) + float(m @ zm)) / degree
+    dx, dm, _, dz, dzm = newton(-_jordan(lam, lam), -lam_m**2)
+    alpha = min(1.0, _max_step(x, dx), _max_step(z, dz), _nonneg_max_step(m, dm),
+                _nonneg_max_step(zm, dzm))
+    mu_a = (float(_dot(x + alpha * dx, z + alpha * dz).sum())
+            + float((m + alpha * dm) @ (zm + alpha * dzm))) / degree
+    sigma = (max(mu_a, 0.0) / mu) ** 3
+    sc = newton.scaling
+    rc = -_jordan(lam, lam) - _jordan(sc.apply_inverse(dz), sc.apply(dx))
+    rc[:, 0] += sigma * mu
+    rc_m = -lam_m**2 - dzm * dm + sigma * mu
+    dx, dm, dy, dz, dzm = newton(rc, rc_m)
+    alpha = min(1.0, STEP_FRACTION * min(_max_step(x, dx), _max_step(z, dz),
+                                         _nonneg_max_step(m, dm), _nonneg_max_step(zm, dzm)))
+    return dx, dm, dy, dz, dzm, alpha
+
+
+def exits_interior_point(div, st: _Structure, weights, m0, exits, p_diag, u0, m_start,
+                         y_start, tol, max_iter, monitor, backend="auto") -> ExitsOutput:
+    """The primal-dual loop (module docstring).  ``div`` (V, 3F) interleaved divergence,
+    ``st`` its structure on the kept rows, ``exits`` (S,) vertex indices, ``p_diag`` (S,)
+    the diagonal of P, ``u0`` (F, 2) and ``m_start`` (S,) > 0 with ``D u0 + E m_start =
+    m0``, ``y_start`` (V,) constant per component with ``y < 0`` on the exits."""
+    faces, n = st.faces, div.shape[0]
+    norms = np.linalg.norm(u0, axis=1)
+    x = np.empty((len(faces), 3))
+    x[:, 1:] = u0
+    x[:, 0] = norms + max(float(weights @ norms) / max(float(weights.sum()), 1e-300), 1e-300)
+    m, y = m_start.copy(), y_start.copy()
+    z = np.zeros_like(x)
+    z[:, 0] = weights
+    zm = p_diag * m - y[exits]
+    position = np.full(n, -1, dtype=np.int64)
+    position[st.keep] = np.arange(len(st.keep))
+    exits_pos = _diagonal_slots(st, position[exits])
+    local = (st.local[:, :, 0], st.local[:, :, 1])
+
+    def objective(x, m, y):
+        quad = 0.5 * float(p_diag @ m**2)
+        return float(weights @ np.linalg.norm(x[:, 1:], axis=1)) + quad, \
+            float(y[st.keep] @ m0[st.keep]) - quad
+
+    value, lower = objective(x, m, y)
+    factor, it, converged = None, 0, False
+    for it in range(1, max_iter + 1):
+        try:
+            newton = _ExitNewton(st, local, faces, n, exits_pos, exits, p_diag,
+                                 _nt_scaling(x, z), m, zm, factor, backend)
+            step = None if newton.factor is None else _step(x, m, z, zm, newton)
+        except (ValueError, RuntimeError, ZeroDivisionError, FloatingPointError):
+            step = None  # a factorization failed at the end of the path (rounding)
+        if step is None:
+            it -= 1
+            break
+        factor = newton.factor
+        dx, dm, dy, dz, dzm, alpha = step
+        new = (x + alpha * dx, m + alpha * dm, y + alpha * dy, z + alpha * dz, zm + alpha * dzm)
+        if not (_interior(new[0]) and _interior(new[3]) and np.all(new[1] > 0)
+                and np.all(new[4] > 0) and np.all(np.isfinite(new[2]))):
+            it -= 1  # rounding left the cone: keep the last certified iterate
+            break
+        x, m, y, z, zm = new
+        value, lower = objective(x, m, y)
+        gap = (value - lower) / max(abs(value), 1e-300)
+        monitor(it, gap)
+        if gap <= tol:
+            converged = True
+            break
+        if monitor.stalled:
+            break
+    u = x[:, 1:].copy()
+    flow = div @ np.column_stack([np.zeros(len(faces)), u]).ravel()
+    flow[exits] += m
+    return ExitsOutput(u=u, m=m, y=y, value=value, lower_bound=lower,
+                       gap=(value - lower) / max(abs(value), 1e-300), iterations=it,
+                       feasibility=float(np.abs(flow - m0)[st.keep].max()),
+                       converged=converged)
