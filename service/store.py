@@ -278,6 +278,16 @@ class Store:
         out.sort(key=lambda m: m.get("created_at", 0))
         return out
 
+    def domain_bytes(self, domain_id: str) -> int:
+        """Bytes the stored domain takes (its arrays, validation arrays and metadata)."""
+        total = 0
+        for suffix in (".npz", ".aux.npz", ".json"):
+            try:
+                total += (self.domain_dir / f"{domain_id}{suffix}").stat().st_size
+            except FileNotFoundError:
+                pass
+        return total
+
     def delete_domain(self, domain_id: str) -> None:
         """Remove a domain: metadata first (it disappears atomically), then its arrays.
 
