@@ -3,13 +3,14 @@ optional API-key auth and the ``Idempotency-Key`` header."""
 
 from __future__ import annotations
 
+import re
 from typing import Annotated
 
 from fastapi import Depends, Header, Request, Security
 from fastapi.security import APIKeyHeader
 
 from service.domains import DomainService
-from service.errors import Unauthorized
+from service.errors import InvalidInput, Unauthorized
 from service.idempotency import DESCRIPTION as IDEMPOTENCY_DESCRIPTION
 from service.idempotency import HEADER as IDEMPOTENCY_HEADER
 from service.idempotency import KEY_PATTERN
@@ -72,8 +73,14 @@ async def require_metrics_key(request: Request,
 
 
 async def idempotency_key(key: Annotated[str | None, Header(
-        alias=IDEMPOTENCY_HEADER, pattern=KEY_PATTERN, max_length=255,
-        description=IDEMPOTENCY_DESCRIPTION)] = None) -> str | None:
+        alias=IDEMPOTENCY_HEADER, description=IDEMPOTENCY_DESCRIPTION,
+        json_schema_extra={"pattern": KEY_PATTERN, "minLength": 1, "maxLength": 255})] = None
+        ) -> str | None:
+    # checked here, not by Header(pattern=...): the error names the header (the generic
+    # handler takes a capitalized location part for a union member)
+    if key is not None and not re.fullmatch(KEY_PATTERN, key):
+        raise InvalidInput(f"{IDEMPOTENCY_HEADER} must be 1 to 255 printable ASCII characters",
+                           field=IDEMPOTENCY_HEADER)
     return key
 
 
