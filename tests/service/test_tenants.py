@@ -331,3 +331,20 @@ def test_stored_bytes_quota_counts_shared_content_once(make_client, tmp_path):
     assert client.delete(f"/v1/domains/{one}", headers=A).status_code == 204
     assert client.post("/v1/domains", json=OTHER_GRID,
                        headers=A).status_code == 201
+
+
+def test_hash_key_prints_a_key_file_line(monkeypatch, capsys):
+    import io
+
+    from service.cli import main
+    from service.tenants import parse_key_file
+
+    monkeypatch.setattr("sys.stdin", io.StringIO("s3cret\n"))
+    main(["hash-key", "--tenant", "acme", "--admin"])
+    line = capsys.readouterr().out
+    assert parse_key_file(line) == [("acme", key_digest("s3cret"), True)]
+    assert "s3cret" not in line
+    main(["hash-key", "--tenant", "acme", "--new"])
+    out = capsys.readouterr()
+    key = out.err.rsplit(": ", 1)[1].strip()
+    assert parse_key_file(out.out) == [("acme", key_digest(key), False)] and len(key) >= 40
