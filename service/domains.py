@@ -110,10 +110,12 @@ class DomainService:
                 check_bytes_quota(self.settings, self.tenant,
                                   tenancy.stored_bytes(self.tenant.id), size)
             except QuotaExceeded:
-                if stored_now and not tenancy.holders("domain", domain_id):
-                    self._remove_stored(domain_id)
+                if stored_now:
+                    self._drop_if_unheld(domain_id)
                 raise
             held = tenancy.hold(self.tenant.id, "domain", domain_id, size, source)
+            if not store.has_domain(domain_id):  # the last other holder deleted it meanwhile
+                store.put_domain(domain, source)
             created = True
         else:
             created = False
@@ -168,19 +170,31 @@ class DomainService:
         deletes the domain for every tenant."""
         self._holding(domain_id)
         if self.tenant.admin:
-            self.rt.tenancy.release(None, "domain", domain_id)
-            self._remove_stored(domain_id)
+            released = self.rt.tenancy.release(None, "domain", domain_id)
+            if not self._drop_if_unheld(domain_id) and not released:
+                raise NotFound(f"unknown domain {domain_id!r}", field="domain_id")
             return
         self.rt.tenancy.release(self.tenant.id, "domain", domain_id)
-        if not self.rt.tenancy.holders("domain", domain_id):
-            try:
-                self._remove_stored(domain_id)
-            except NotFound:
-                pass  # removed by a concurrent delete
+        self._drop_if_unheld(domain_id)
 
-    def _remove_stored(self, domain_id: str) -> None:
-        self.rt.store.delete_domain(domain_id)
+    def _drop_if_unheld(self, domain_id: str) -> bool:
+        """Remove the stored domain if no tenant holds it; True if removed.
+
+        Safe against a concurrent upload of the same content: the files are moved aside, then
+        the holdings counted again; an upload that took a holding meanwhile gets them back
+        (and one that looked after the move stores the domain again, see ``_put``)."""
+        tenancy, store = self.rt.tenancy, self.rt.store
+        if tenancy.holders("domain", domain_id):
+            return False
+        folder = store.retire_domain(domain_id)
+        if folder is None:
+            return False
+        if tenancy.holders("domain", domain_id):
+            store.restore_domain(domain_id, folder)
+            return False
+        store.purge_retired(folder)
         self.rt.cache.discard(("domain", domain_id))
+        return True
 
 
 def _as_held(meta: dict, held) -> dict:

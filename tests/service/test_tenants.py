@@ -348,3 +348,45 @@ def test_hash_key_prints_a_key_file_line(monkeypatch, capsys):
     out = capsys.readouterr()
     key = out.err.rsplit(": ", 1)[1].strip()
     assert parse_key_file(out.out) == [("acme", key_digest(key), False)] and len(key) >= 40
+
+
+def test_deleting_while_another_tenant_uploads_the_same_content_loses_nothing(
+        two_tenants, monkeypatch):
+    """The two interleavings of 'alpha deletes its last holding' with 'beta uploads the same
+    grid': either way beta keeps a readable domain."""
+    client, owned = two_tenants
+    rt = client.app.state.runtime
+    grid = owned["grid"]
+    # beta gives the grid up, alpha holds it alone
+    assert client.post("/v1/domains", json=GRID, headers=A).status_code == 201
+    assert client.delete(f"/v1/domains/{grid}", headers=B).status_code == 204
+    # 1. beta's holding lands between alpha's two counts: the moved files come back
+    retire = rt.store.retire_domain
+
+    def retire_then_beta_holds(domain_id):
+        folder = retire(domain_id)
+        rt.tenancy.hold("beta", "domain", domain_id, 1, {"format": "json"})
+        return folder
+
+    monkeypatch.setattr(rt.store, "retire_domain", retire_then_beta_holds)
+    assert client.delete(f"/v1/domains/{grid}", headers=A).status_code == 204
+    monkeypatch.setattr(rt.store, "retire_domain", retire)
+    assert client.get(f"/v1/domains/{grid}", headers=B).status_code == 200
+    assert (rt.store.domain_dir / f"{grid}.npz").exists()
+    # 2. beta's upload finds the files, then alpha's delete removes them before beta holds:
+    # beta's upload stores the domain again
+    assert client.post("/v1/domains", json=GRID, headers=A).status_code == 201
+    assert client.delete(f"/v1/domains/{grid}", headers=B).status_code == 204
+    hold = rt.tenancy.hold
+
+    def alpha_deletes_then_hold(tenant, *args):
+        if tenant == "beta":
+            assert client.delete(f"/v1/domains/{grid}", headers=A).status_code == 204
+            assert not rt.store.has_domain(grid)
+        return hold(tenant, *args)
+
+    monkeypatch.setattr(rt.tenancy, "hold", alpha_deletes_then_hold)
+    assert client.post("/v1/domains", json=GRID, headers=B).status_code == 201
+    monkeypatch.setattr(rt.tenancy, "hold", hold)
+    assert client.get(f"/v1/domains/{grid}", headers=B).status_code == 200
+    assert client.get(f"/v1/domains/{grid}/geometry", headers=B).status_code == 200
