@@ -158,33 +158,52 @@ def test_keys_last_their_ttl_then_expire(make_client):
     assert rt.tenancy.prune_keys(rt.settings.idempotency_key_ttl, force=True) == 0
 
 
-def test_concurrent_requests_with_one_key_make_one_job(make_client):
-    from service.idempotency import fingerprint
+def race_one_key(rt, tenant: str, domain_id: str, threads: int = 4) -> list[str]:
+    """Submit the same request with one key from ``threads`` threads that all pass the
+    look-up before any inserts (a barrier), so every insert but one hits the key's unique
+    constraint; returns the job ids they got."""
+    from service.idempotency import Idempotency, fingerprint
     from service.jobs.service import JobService
     from service.operations.transport import DistanceRequest
+    from service.tenants import Tenant
 
-    client = make_client(queue="sqlite")
-    grid = _grid(client)
-    rt = client.app.state.runtime
-    from service.idempotency import Idempotency
+    barrier = threading.Barrier(threads)
+
+    class AllMissFirst(Idempotency):
+        looked = False
+
+        def previous(self):
+            found = super().previous()
+            if not self.looked:
+                self.looked = True
+                barrier.wait(timeout=30)
+            return found
 
     ids, errors = [], []
 
     def submit():
-        idem = Idempotency(rt.tenancy, "anonymous", "race", fingerprint("r", BODY), 86400)
+        idem = AllMissFirst(rt.tenancy, tenant, "race", fingerprint("r", BODY), 86400)
         try:
-            ids.append(JobService(rt).create("distances", grid,
-                                             DistanceRequest(**BODY), idem).id)
+            ids.append(JobService(rt, Tenant(tenant, admin=tenant == "anonymous")).create(
+                "distances", domain_id, DistanceRequest(**BODY), idem).id)
         except Exception as exc:  # pragma: no cover - reported below
             errors.append(exc)
 
-    threads = [threading.Thread(target=submit) for _ in range(4)]
-    for t in threads:
+    workers = [threading.Thread(target=submit) for _ in range(threads)]
+    for t in workers:
         t.start()
-    for t in threads:
+    for t in workers:
         t.join()
-    assert not errors and len(ids) == 4
-    assert len(set(ids)) == 1
+    assert not errors, errors
+    return ids
+
+
+def test_concurrent_requests_with_one_key_make_one_job(make_client):
+    client = make_client(queue="sqlite")
+    grid = _grid(client)
+    rt = client.app.state.runtime
+    ids = race_one_key(rt, "anonymous", grid)
+    assert len(ids) == 4 and len(set(ids)) == 1
     assert len(rt.repo.list(10)) == 1
 
 
@@ -215,3 +234,49 @@ def test_a_key_survives_an_api_restart(tmp_path):
         assert len(httpx.get(api.url + "/v1/jobs").json()["jobs"]) == 1
     finally:
         api.stop()
+
+
+@pytest.fixture
+def postgres_url():
+    """A fresh PostgreSQL database (the server .ci/run starts), dropped afterwards."""
+    import uuid
+
+    from test_scale import _admin
+
+    admin = _admin()
+    dbname = f"otgeo_idem_{uuid.uuid4().hex[:12]}"
+    with admin.cursor() as cur:
+        cur.execute(f'CREATE DATABASE "{dbname}"')
+    try:
+        yield f"postgresql://postgres@127.0.0.1:5432/{dbname}"
+    finally:
+        with admin.cursor() as cur:
+            cur.execute(f'DROP DATABASE IF EXISTS "{dbname}" WITH (FORCE)')
+        admin.close()
+
+
+def test_keys_and_tenants_on_postgresql(make_client, postgres_url):
+    keys = [{"tenant": "alpha", "sha256": key_digest("ka")},
+            {"tenant": "beta", "sha256": key_digest("kb")}]
+    client = make_client(tenant_keys=keys, queue="sqlite", database_url=postgres_url)
+    a, b = {"X-API-Key": "ka"}, {"X-API-Key": "kb"}
+    grid = _grid(client, a)
+    assert _grid(client, b) == grid
+    first = client.post(f"/v1/domains/{grid}/distances", json=BODY, headers={**a, HEADER: "p"})
+    again = client.post(f"/v1/domains/{grid}/distances", json=BODY, headers={**a, HEADER: "p"})
+    assert first.status_code == again.status_code == 202
+    assert again.json()["id"] == first.json()["id"]
+    assert_error(client.post(f"/v1/domains/{grid}/flows", json=BODY, headers={**a, HEADER: "p"}),
+                 422, HEADER)
+    assert_error(client.get(f"/v1/jobs/{first.json()['id']}", headers=b), 404, "job_id")
+    # concurrent submissions with one key: one job (the losers of the insert find it)
+    rt = client.app.state.runtime
+    ids = race_one_key(rt, "beta", grid)
+    assert len(ids) == 4 and len(set(ids)) == 1
+    assert len(client.get("/v1/jobs", headers=b).json()["jobs"]) == 1
+    # shared content counted once per tenant, deleted with the last holding
+    assert rt.tenancy.stored_bytes("alpha") == rt.store.domain_bytes(grid) > 0
+    assert client.delete(f"/v1/domains/{grid}", headers=a).status_code == 204
+    assert client.get(f"/v1/domains/{grid}", headers=b).status_code == 200
+    assert client.delete(f"/v1/domains/{grid}", headers=b).status_code == 204
+    assert not rt.store.has_domain(grid)
