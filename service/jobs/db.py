@@ -90,6 +90,7 @@ JOBS = JobRow.__table__
 # columns added after the first release: created on an existing table at start-up
 ADDED_COLUMNS = {"fraction": "FLOAT", "queue": "VARCHAR(16)", "cost": "FLOAT",
                  "decision": "JSON", "tenant": "VARCHAR(64)"}
+ADDED_INDEXES = {"tenant": "ix_jobs_tenant"}
 
 
 def worker_identity() -> str:
@@ -156,6 +157,9 @@ class JobRepository:
             try:
                 with self.engine.begin() as conn:
                     conn.execute(text(f"ALTER TABLE jobs ADD COLUMN {name} {sql_type}"))
+                    if name in ADDED_INDEXES:  # the index a new table gets from the model
+                        conn.execute(text(f"CREATE INDEX IF NOT EXISTS {ADDED_INDEXES[name]} "
+                                          f"ON jobs ({name})"))
             except SQLAlchemyError:  # added by another process meanwhile (duplicate column)
                 present = {c["name"] for c in inspect(self.engine).get_columns("jobs")}
                 if name not in present:

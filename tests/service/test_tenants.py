@@ -390,3 +390,16 @@ def test_deleting_while_another_tenant_uploads_the_same_content_loses_nothing(
     monkeypatch.setattr(rt.tenancy, "hold", hold)
     assert client.get(f"/v1/domains/{grid}", headers=B).status_code == 200
     assert client.get(f"/v1/domains/{grid}/geometry", headers=B).status_code == 200
+
+
+def test_jobs_from_before_tenants_are_seen_by_admins_only(two_tenants):
+    client, owned = two_tenants
+    rt = client.app.state.runtime
+    from sqlalchemy import update
+
+    from service.jobs.db import JOBS
+
+    with rt.repo.engine.begin() as conn:  # as an older release recorded it: no tenant
+        conn.execute(update(JOBS).where(JOBS.c.id == owned["job"]).values(tenant=None))
+    assert_error(client.get(f"/v1/jobs/{owned['job']}", headers=B), 404, "job_id")
+    assert client.get(f"/v1/jobs/{owned['job']}", headers=ADMIN).status_code == 200
