@@ -284,6 +284,23 @@ def cmd_serve(args) -> None:
             pool.stop()
 
 
+def cmd_hash_key(args) -> None:
+    """Print a key-file line (``<tenant> <sha256> [admin]``) for a key read from stdin (kept
+    out of the shell history), or for a new random key (``--new``, shown on stderr once)."""
+    import secrets
+
+    from service.settings import TenantKey
+    from service.tenants import key_digest
+
+    key = secrets.token_urlsafe(32) if args.new else sys.stdin.readline().rstrip("\r\n")
+    if not key:
+        raise SystemExit("no key on stdin (or use --new)")
+    TenantKey(tenant=args.tenant, sha256=key_digest(key))  # a valid tenant name
+    if args.new:
+        print(f"new key for {args.tenant}: {key}", file=sys.stderr)
+    print(f"{args.tenant} {key_digest(key)}" + (" admin" if args.admin else ""))
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(prog="otgeo", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -304,11 +321,16 @@ def main(argv=None) -> None:
     routes = sub.add_parser("routes", help="print every route (Markdown), or --update the "
                             "generated route list in documentation files")
     routes.add_argument("--update", nargs="*", default=[], metavar="FILE")
+    hashed = sub.add_parser("hash-key", help="print the key-file line of an API key (read "
+                            "from stdin) for OTGEO_TENANT_KEY_FILE / OTGEO_TENANT_KEYS")
+    hashed.add_argument("--tenant", required=True, help="the tenant the key belongs to")
+    hashed.add_argument("--admin", action="store_true", help="an admin key (sees everything)")
+    hashed.add_argument("--new", action="store_true", help="generate a random key")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO,
                         format="%(asctime)s %(process)d %(name)s %(levelname)s %(message)s")
     {"serve": cmd_serve, "worker": cmd_worker, "openapi": cmd_openapi,
-     "routes": cmd_routes}[args.command](args)
+     "routes": cmd_routes, "hash-key": cmd_hash_key}[args.command](args)
 
 
 if __name__ == "__main__":

@@ -12,9 +12,10 @@ import os
 
 import numpy as np
 
-from service.errors import InvalidInput, PayloadTooLarge
+from service.errors import InvalidInput, NotFound, PayloadTooLarge
 from service.runtime import Runtime
 from service.schemas import GraphSpec, GridSpec, MeshSpec, PointCloudSpec
+from service.tenants import ANONYMOUS, QuotaExceeded, Tenant, check_bytes_quota
 from solvers.domains import MESH_FORMATS, Graph, Grid, PointCloud, TriangleMesh, load_mesh
 from solvers.errors import InputError
 from solvers.validation import check_size
@@ -36,9 +37,14 @@ def parse_weld(value) -> bool | None:
 
 
 class DomainService:
-    def __init__(self, runtime: Runtime):
+    """Domains as one tenant sees them. Stored data is content-addressed and shared; a tenant
+    sees the domains it holds (service.jobs.tenancy), with its own upload record, and an admin
+    every stored domain. Another tenant's domain is "unknown" (404), so ids do not leak."""
+
+    def __init__(self, runtime: Runtime, tenant: Tenant = ANONYMOUS):
         self.rt = runtime
         self.settings = runtime.settings
+        self.tenant = tenant
 
     def _check_points(self, n: int, field: str) -> None:
         if n > self.settings.max_vertices:
@@ -92,20 +98,108 @@ class DomainService:
         return self._put(domain, {"format": "json"})
 
     def _put(self, domain, source: dict) -> tuple[dict, bool]:
-        meta, created = self.rt.store.put_domain(domain, source)
+        """Store the domain (once, whoever uploads it) and record the caller's holding.
+        ``created``: new to the caller (an admin: new to the store)."""
+        store, tenancy = self.rt.store, self.rt.tenancy
+        meta, stored_now = store.put_domain(domain, source)
+        domain_id = meta["id"]
+        held = tenancy.holding(self.tenant.id, "domain", domain_id)
+        if held is None:
+            size = store.domain_bytes(domain_id)
+            try:
+                check_bytes_quota(self.settings, self.tenant,
+                                  tenancy.stored_bytes(self.tenant.id), size)
+            except QuotaExceeded:
+                if stored_now:
+                    self._drop_if_unheld(domain_id)
+                raise
+            held = tenancy.hold(self.tenant.id, "domain", domain_id, size, source)
+            if not store.has_domain(domain_id):  # the last other holder deleted it meanwhile
+                store.put_domain(domain, source)
+            created = True
+        else:
+            created = False
+        if self.tenant.admin:
+            created = stored_now
+        else:
+            meta = _as_held(meta, held)
         if not created:  # say so, and from which upload the stored domain came
             meta = {**meta, "already_existed": True, "upload": source}
         return meta, created
 
+    # -- what the tenant sees ---------------------------------------------------
+    def holds(self, kind: str, object_id: str) -> bool:
+        """Whether the tenant may see and use a stored object (an admin: every one)."""
+        return self.tenant.admin or \
+            self.rt.tenancy.holding(self.tenant.id, kind, object_id) is not None
+
+    def _holding(self, domain_id: str, field: str = "domain_id"):
+        """The tenant's holding of the domain (None for an admin); 404 when it has none."""
+        self.rt.store.check_id(domain_id, field)
+        if self.tenant.admin:
+            return None
+        held = self.rt.tenancy.holding(self.tenant.id, "domain", domain_id)
+        if held is None:
+            raise NotFound(f"unknown domain {domain_id!r}", field=field)
+        return held
+
+    def info(self, domain_id: str, field: str = "domain_id"):
+        """The stored domain's validation view (``Store.domain_info``), if the tenant holds it."""
+        self._holding(domain_id, field)
+        return self.rt.store.domain_info(domain_id)
+
     def get(self, domain_id: str) -> dict:
-        return self.rt.store.get_domain_meta(domain_id)
+        held = self._holding(domain_id)
+        meta = self.rt.store.get_domain_meta(domain_id)
+        return meta if held is None else _as_held(meta, held)
 
     def list(self) -> list[dict]:
-        return self.rt.store.list_domains()
+        if self.tenant.admin:
+            return self.rt.store.list_domains()
+        out = []
+        for held in self.rt.tenancy.holdings(self.tenant.id, "domain"):
+            try:
+                out.append(_as_held(self.rt.store.get_domain_meta(held.object_id), held))
+            except NotFound:
+                continue  # removed meanwhile
+        out.sort(key=lambda m: m.get("created_at", 0))
+        return out
 
     def delete(self, domain_id: str) -> None:
-        self.rt.store.delete_domain(domain_id)
+        """Drop the caller's holding; the stored domain goes with the last holding. An admin
+        deletes the domain for every tenant."""
+        self._holding(domain_id)
+        if self.tenant.admin:
+            released = self.rt.tenancy.release(None, "domain", domain_id)
+            if not self._drop_if_unheld(domain_id) and not released:
+                raise NotFound(f"unknown domain {domain_id!r}", field="domain_id")
+            return
+        self.rt.tenancy.release(self.tenant.id, "domain", domain_id)
+        self._drop_if_unheld(domain_id)
+
+    def _drop_if_unheld(self, domain_id: str) -> bool:
+        """Remove the stored domain if no tenant holds it; True if removed.
+
+        Safe against a concurrent upload of the same content: the files are moved aside, then
+        the holdings counted again; an upload that took a holding meanwhile gets them back
+        (and one that looked after the move stores the domain again, see ``_put``)."""
+        tenancy, store = self.rt.tenancy, self.rt.store
+        if tenancy.holders("domain", domain_id):
+            return False
+        folder = store.retire_domain(domain_id)
+        if folder is None:
+            return False
+        if tenancy.holders("domain", domain_id):
+            store.restore_domain(domain_id, folder)
+            return False
+        store.purge_retired(folder)
         self.rt.cache.discard(("domain", domain_id))
+        return True
+
+
+def _as_held(meta: dict, held) -> dict:
+    """A stored domain's metadata as its holder sees it: its own upload and time."""
+    return {**meta, "source": held.source or {}, "created_at": held.created_at}
 
 
 def _array(values, field: str, dtype=np.float64) -> np.ndarray:

@@ -42,6 +42,7 @@ class ApiError(Exception):
 
     status_code = 400
     code = "bad_request"
+    headers: dict[str, str] | None = None  # sent with the error response (e.g. Retry-After)
 
     def __init__(self, message: str, *, field: str | None = None, code: str | None = None):
         super().__init__(message)
@@ -180,6 +181,10 @@ ERROR_RESPONSES = {
     404: {"model": ErrorResponse, "description": "unknown domain or job"},
     413: {"model": ErrorResponse, "description": "upload or domain too large"},
     422: {"model": ErrorResponse, "description": "invalid input (the field is named)"},
+    429: {"model": ErrorResponse, "description": "a quota of the caller's tenant is reached "
+          "(`quota_exceeded`: queued jobs or stored bytes); retry after `Retry-After` seconds",
+          "headers": {"Retry-After": {"description": "seconds to wait before retrying",
+                                      "schema": {"type": "integer"}}}},
 }
 
 
@@ -212,7 +217,7 @@ class _BodyLimit:
 def install_handlers(app: FastAPI) -> None:
     @app.exception_handler(ApiError)
     async def _api_error(request: Request, exc: ApiError):
-        return JSONResponse(exc.body(), status_code=exc.status_code)
+        return JSONResponse(exc.body(), status_code=exc.status_code, headers=exc.headers)
 
     @app.exception_handler(OTGeoError)
     async def _library_error(request: Request, exc: OTGeoError):

@@ -12,11 +12,13 @@ from service.jobs.db import JobRepository, worker_identity
 from service.jobs.queue import QUEUES, make_queues, register_task
 from service.jobs.reaper import Reaper
 from service.jobs.runner import JobRunner
+from service.jobs.tenancy import TenancyRepository
 from service.jobs.wake import WakeSender
 from service.operations import build_registry
 from service.settings import Settings
 from service.storage_probe import STORAGE_ERRNOS, storage_reason, storage_status  # noqa: F401
 from service.store import Store
+from service.tenants import TenantDirectory
 
 log = logging.getLogger("otgeo")
 
@@ -29,6 +31,8 @@ class Runtime:
         self.started_at = time.time()
         self.store = Store(settings.data_dir)
         self.repo = JobRepository(settings.job_database_url)
+        self.tenancy = TenancyRepository(self.repo)  # holdings and idempotency keys
+        self.tenants = TenantDirectory(settings)  # API keys -> tenants
         self.cache = OperatorCache(settings.cache_bytes)
         self.operations = build_registry()
         self.hueys = make_queues(settings)  # "short" and "long" (service.jobs.queue)

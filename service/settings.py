@@ -10,8 +10,26 @@ import os
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import Field, field_validator
+from pydantic import BaseModel, Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+TENANT_NAME = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
+
+
+class TenantKey(BaseModel):
+    """One accepted key, known by its SHA-256 only (``otgeo hash-key`` prints it)."""
+
+    tenant: str = Field(pattern=TENANT_NAME, description="the tenant the key belongs to")
+    sha256: str = Field(pattern=r"^[0-9a-f]{64}$", description="hex SHA-256 of the key")
+    admin: bool = Field(False, description="an admin key sees every tenant's jobs and domains")
+
+
+class TenantQuota(BaseModel):
+    """Limits of one tenant (``None``: no limit)."""
+
+    queued_jobs: int | None = Field(None, ge=0, description="jobs waiting in the queue")
+    stored_bytes: int | None = Field(None, ge=0, description="bytes of the domains and images "
+                                     "the tenant holds")
 
 
 class Settings(BaseSettings):
@@ -44,7 +62,28 @@ class Settings(BaseSettings):
     reaper_interval: float = Field(5.0, gt=0)
     api_keys: Annotated[list[str], NoDecode] = Field(
         default_factory=list, description="comma-separated accepted X-API-Key values; "
-        "empty = no authentication")
+        "empty = no authentication. Each key is its own tenant (see OTGEO_TENANT_KEYS for "
+        "named tenants, hashed keys and admin keys)")
+    tenant_keys: list[TenantKey] = Field(
+        default_factory=list, description="JSON list of keys by their SHA-256, each with its "
+        "tenant: ``[{\"tenant\": \"acme\", \"sha256\": \"<hex>\", \"admin\": false}]``. "
+        "Several keys may name one tenant (key rotation keeps the tenant); an ``admin`` key "
+        "sees every tenant's jobs and domains")
+    tenant_key_file: Path | None = Field(
+        None, description="file of keys, one per line ``<tenant> <sha256-hex> [admin]`` "
+        "(``#`` comments); re-read when it changes, so keys rotate without a restart")
+    quota_queued_jobs: int | None = Field(
+        None, ge=0, description="per-tenant limit of queued jobs (429 with Retry-After "
+        "beyond); none = no limit")
+    quota_stored_bytes: int | None = Field(
+        None, ge=0, description="per-tenant limit of stored bytes: the domains and images the "
+        "tenant holds, each counted once however often uploaded (429 beyond); none = no limit")
+    tenant_quotas: dict[str, TenantQuota] = Field(
+        default_factory=dict, description="JSON object of per-tenant quotas overriding the two "
+        "above: ``{\"acme\": {\"queued_jobs\": 100, \"stored_bytes\": 10000000000}}``")
+    idempotency_key_ttl: float = Field(
+        86400.0, ge=86400.0, description="seconds an Idempotency-Key is remembered (at least a "
+        "day); a POST repeating a key within this time returns the first job or domain")
     workers: int = Field(default_factory=lambda: cpu_count(), ge=0,
                          description="worker processes started by `otgeo serve` (default: "
                          "the cores this process may run on)")
@@ -82,6 +121,15 @@ class Settings(BaseSettings):
         if isinstance(value, str):
             return [k.strip() for k in value.split(",") if k.strip()]
         return value
+
+    def quota(self, tenant: str) -> TenantQuota:
+        """The quotas of ``tenant``: what its entry of ``tenant_quotas`` sets, the defaults
+        (``quota_queued_jobs``, ``quota_stored_bytes``) for the rest."""
+        own = self.tenant_quotas.get(tenant)
+        values = {"queued_jobs": self.quota_queued_jobs, "stored_bytes": self.quota_stored_bytes}
+        if own is not None:
+            values.update({name: getattr(own, name) for name in own.model_fields_set})
+        return TenantQuota(**values)
 
     @property
     def job_database_url(self) -> str:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import struct
 import tempfile
 import threading
@@ -278,23 +279,67 @@ class Store:
         out.sort(key=lambda m: m.get("created_at", 0))
         return out
 
+    def domain_bytes(self, domain_id: str) -> int:
+        """Bytes the stored domain takes (its arrays, validation arrays and metadata)."""
+        total = 0
+        for suffix in (".npz", ".aux.npz", ".json"):
+            try:
+                total += (self.domain_dir / f"{domain_id}{suffix}").stat().st_size
+            except FileNotFoundError:
+                pass
+        return total
+
+    # the domain's files, metadata first: it marks the domain complete, so it goes first and
+    # comes back last
+    DOMAIN_SUFFIXES = (".json", ".aux.npz", ".npz")
+
+    def has_domain(self, domain_id: str) -> bool:
+        return self._meta_path(domain_id).exists()
+
     def delete_domain(self, domain_id: str) -> None:
         """Remove a domain: metadata first (it disappears atomically), then its arrays.
 
         Processes that already opened or cached the domain keep working on their copy.
         """
+        folder = self.retire_domain(domain_id)
+        if folder is None:
+            raise NotFound(f"unknown domain {domain_id!r}", field="domain_id")
+        self.purge_retired(folder)
+
+    def retire_domain(self, domain_id: str) -> Path | None:
+        """Move the domain's files into a folder of their own (it disappears at once, as by
+        ``delete_domain``); returns the folder, for ``restore_domain`` or ``purge_retired``,
+        or None if the domain is not stored."""
         self.check_id(domain_id)
         with self._lock:
             self._infos.pop(domain_id, None)
-        try:
-            self._meta_path(domain_id).unlink()
-        except FileNotFoundError:
-            raise NotFound(f"unknown domain {domain_id!r}", field="domain_id") from None
-        for suffix in (".aux.npz", ".npz"):
+        folder = self.domain_dir / f".retired-{domain_id}-{os.urandom(8).hex()}"
+        folder.mkdir()
+        moved = []
+        for suffix in self.DOMAIN_SUFFIXES:
             try:
-                (self.domain_dir / f"{domain_id}{suffix}").unlink()
+                os.replace(self.domain_dir / f"{domain_id}{suffix}", folder / suffix[1:])
+                moved.append(suffix)
             except FileNotFoundError:
                 pass
+        if ".json" not in moved:  # not stored (or removed meanwhile)
+            self.purge_retired(folder)
+            return None
+        return folder
+
+    def restore_domain(self, domain_id: str, folder: Path) -> None:
+        """Put retired files back (metadata last); a file stored again meanwhile has the same
+        content (content addressing) and is simply replaced."""
+        for suffix in reversed(self.DOMAIN_SUFFIXES):
+            try:
+                os.replace(folder / suffix[1:], self.domain_dir / f"{domain_id}{suffix}")
+            except FileNotFoundError:
+                pass
+        self.purge_retired(folder)
+
+    @staticmethod
+    def purge_retired(folder: Path) -> None:
+        shutil.rmtree(folder, ignore_errors=True)
 
     # -- results --------------------------------------------------------
     def put_result(self, job_id: str, payload: dict, arrays: dict[str, np.ndarray],

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import hashlib
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query, Request, Response
@@ -10,7 +11,7 @@ from fastapi.concurrency import run_in_threadpool
 from pydantic import TypeAdapter
 
 from service.api.bodies import parse_spec
-from service.api.deps import DomainSvc, get_runtime
+from service.api.deps import DomainSvc, IdempotencyKeyDep, get_runtime
 from service.api.paging import decode_cursor, encode_cursor
 from service.errors import (
     ApiError,
@@ -20,6 +21,7 @@ from service.errors import (
     UnsupportedMediaType,
     responses,
 )
+from service.idempotency import REPLAYED, for_request
 from service.schemas import DomainList, DomainOut, DomainSpec
 
 router = APIRouter(prefix="/v1/domains", tags=["domains"])
@@ -98,19 +100,25 @@ def _parse_multipart(body: bytes, headers, limit: int) -> tuple:
 
 
 async def _create(request: Request, response: Response, svc, allow_json: bool,
-                  allow_multipart: bool):
+                  allow_multipart: bool, idempotency_key: str | None = None):
     limit = get_runtime(request).settings.max_upload_bytes
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if ctype == "multipart/form-data" and allow_multipart:
         body = await _read_body(request, limit)
         data, filename, fmt, laplacian, weld = await run_in_threadpool(
             _parse_multipart, body, request.headers, limit)
-        meta, created = await run_in_threadpool(svc.from_file, data, filename, fmt, laplacian,
-                                                weld)
+        content = {"file_sha256": hashlib.sha256(data).hexdigest(), "filename": filename,
+                   "format": fmt, "laplacian": laplacian, "weld": weld}
+
+        def build():
+            return svc.from_file(data, filename, fmt, laplacian, weld)
     elif ctype in ("application/json", "") and allow_json:
         body = await _read_body(request, limit)
-        spec = await parse_spec(body)
-        meta, created = await run_in_threadpool(svc.from_spec, spec)
+        content = {"json_sha256": hashlib.sha256(body).hexdigest()}
+        spec = None
+
+        def build():
+            return svc.from_spec(spec)
     elif allow_json:
         raise UnsupportedMediaType(f"content type {ctype!r}: send application/json (or a mesh "
                                    "file as multipart/form-data to /v1/domains/upload)",
@@ -119,8 +127,23 @@ async def _create(request: Request, response: Response, svc, allow_json: bool,
         raise UnsupportedMediaType(f"content type {ctype!r}: send multipart/form-data with a "
                                    "'file' part (JSON domains go to POST /v1/domains)",
                                    field="content-type")
-    if not created:
-        response.status_code = 200
+    idempotency = for_request(svc.rt, svc.tenant.id, idempotency_key,
+                              f"POST {request.url.path}", content)
+    earlier = None if idempotency is None else \
+        await run_in_threadpool(idempotency.previous)
+    if earlier is not None:  # the same request again: what it created then
+        meta = await run_in_threadpool(svc.get, earlier.resource_id)
+        response.status_code = earlier.status_code or 201
+        response.headers[REPLAYED] = "true"
+    else:
+        if "json_sha256" in content:
+            spec = await parse_spec(body)
+        meta, created = await run_in_threadpool(build)
+        if not created:
+            response.status_code = 200
+        if idempotency is not None:
+            await run_in_threadpool(svc.rt.tenancy.put_key, idempotency.record(
+                "domain", meta["id"], response.status_code or 201))
     response.headers["Location"] = f"/v1/domains/{meta['id']}"
     return DomainOut.from_meta(meta)
 
@@ -133,19 +156,23 @@ CREATED = {200: {"model": DomainOut, "description": "already stored (same id)"},
 @router.post("", operation_id="createDomain", status_code=201, response_model=DomainOut,
              summary="Create a domain from JSON (grid, graph, point cloud or mesh arrays)",
              openapi_extra={"requestBody": JSON_BODY},
-             responses={**CREATED, **responses(400, 401, 413, 415, 422)})
-async def create_domain(request: Request, response: Response, svc: DomainSvc):
+             responses={**CREATED, **responses(400, 401, 413, 415, 422, 429)})
+async def create_domain(request: Request, response: Response, svc: DomainSvc,
+                        idempotency_key: IdempotencyKeyDep):
     """A JSON domain (``{"kind": "grid" | "graph" | "pointcloud" | "mesh", ...}``). A mesh
     file sent here as multipart/form-data is accepted too (as by ``/v1/domains/upload``)."""
-    return await _create(request, response, svc, allow_json=True, allow_multipart=True)
+    return await _create(request, response, svc, allow_json=True, allow_multipart=True,
+                         idempotency_key=idempotency_key)
 
 
 @router.post("/upload", operation_id="uploadDomain", status_code=201, response_model=DomainOut,
              summary="Upload a mesh file (OBJ, PLY, STL, OFF, GLB, glTF) as multipart/form-data",
              openapi_extra={"requestBody": UPLOAD_BODY},
-             responses={**CREATED, **responses(401, 413, 415, 422)})
-async def upload_domain(request: Request, response: Response, svc: DomainSvc):
-    return await _create(request, response, svc, allow_json=False, allow_multipart=True)
+             responses={**CREATED, **responses(401, 413, 415, 422, 429)})
+async def upload_domain(request: Request, response: Response, svc: DomainSvc,
+                        idempotency_key: IdempotencyKeyDep):
+    return await _create(request, response, svc, allow_json=False, allow_multipart=True,
+                         idempotency_key=idempotency_key)
 
 
 @router.get("", operation_id="listDomains", response_model=DomainList,

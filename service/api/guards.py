@@ -7,7 +7,6 @@ the routers so the OpenAPI document declares the key.
 
 from __future__ import annotations
 
-import hmac
 import logging
 
 from fastapi import FastAPI, Request
@@ -20,40 +19,37 @@ log = logging.getLogger("otgeo.service")
 PROTECTED_PREFIXES = ("/v1/", "/v1")
 
 
-def key_ok(presented: str | None, keys: list[str]) -> bool:
-    if not keys:
-        return True
-    return presented is not None and any(hmac.compare_digest(presented, k) for k in keys)
-
-
-def needs_key(path: str, settings) -> bool:
-    if not settings.api_keys:
+def needs_key(path: str, runtime) -> bool:
+    if not runtime.tenants.enabled:
         return False
     if path == "/metrics":
-        return not settings.metrics_open
+        return not runtime.settings.metrics_open
     return path == "/v1" or path.startswith("/v1/")
 
 
 class ApiKeyFirst:
     """401 for a protected path without a valid ``X-API-Key`` before the body is read (plain
-    ASGI middleware: the request body of a refused request is never parsed)."""
+    ASGI middleware: the request body of a refused request is never parsed). The key's tenant
+    goes into the request state (``request.state.tenant``, read by service.api.deps)."""
 
     def __init__(self, app):
         self.app = app
 
     async def __call__(self, scope, receive, send):
         if scope["type"] == "http":
-            settings = scope["app"].state.runtime.settings
-            if needs_key(scope.get("path", ""), settings):
+            runtime = scope["app"].state.runtime
+            if needs_key(scope.get("path", ""), runtime):
                 presented = None
                 for name, value in scope["headers"]:
                     if name == b"x-api-key":
                         presented = value.decode("latin-1")
                         break
-                if not key_ok(presented, settings.api_keys):
+                tenant = runtime.tenants.resolve(presented)
+                if tenant is None:
                     err = Unauthorized("missing or invalid X-API-Key header", field="X-API-Key")
                     await JSONResponse(err.body(), status_code=401)(scope, receive, send)
                     return
+                scope.setdefault("state", {})["tenant"] = tenant
         await self.app(scope, receive, send)
 
 

@@ -5,18 +5,20 @@ limits) and the job is created over their ids by the same path as every other op
 (:func:`service.api.operations.finish_submission`), whose validation decodes them fully.
 """
 
+import hashlib
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, File, Form, Query, Response, UploadFile
 from fastapi.concurrency import run_in_threadpool
 from pydantic import ValidationError
 
-from service.api.deps import JobSvc, RuntimeDep
+from service.api.deps import IdempotencyKeyDep, JobSvc, RuntimeDep
 from service.api.operations import ROUTE_RESPONSES, WAIT_DESCRIPTION, finish_submission
 from service.errors import InvalidInput, PayloadTooLarge, responses
 from service.operations.color import ColorTransferRequest, check_header
 from service.operations.guide_pages import openapi_extra
 from service.schemas import JobOut
+from service.tenants import check_bytes_quota
 
 router = APIRouter(prefix="/v1", tags=["operations"])
 
@@ -35,13 +37,21 @@ def _json_list(text: str | None, field: str):
     return value
 
 
-def _store_images(rt, uploads: list[bytes], media: list[str]) -> list[str]:
+def _store_images(rt, tenant, uploads: list[bytes], media: list[str]) -> list[str]:
+    """Store the images as blobs (shared, content-addressed) held by ``tenant``, within its
+    stored-bytes quota."""
     ids = []
-    for i, (data, media_type) in enumerate(zip(uploads, media, strict=True)):
-        info = check_header(data, f"images[{i}]", rt.settings)
+    infos = [check_header(data, f"images[{i}]", rt.settings) for i, data in enumerate(uploads)]
+    new = {hashlib.sha256(d).hexdigest(): len(d) for d in uploads}
+    adding = sum(size for blob_id, size in new.items()
+                 if rt.tenancy.holding(tenant.id, "blob", blob_id) is None)
+    check_bytes_quota(rt.settings, tenant, rt.tenancy.stored_bytes(tenant.id), adding)
+    for data, media_type, info in zip(uploads, media, infos, strict=True):
         meta, _ = rt.store.put_blob(data, media_type or "application/octet-stream",
                                     {"width": info.width, "height": info.height,
                                      "format": info.format})
+        rt.tenancy.hold(tenant.id, "blob", meta["id"], meta["bytes"],
+                        {"media_type": meta["media_type"]})
         ids.append(meta["id"])
     return ids
 
@@ -53,7 +63,7 @@ def _store_images(rt, uploads: list[bytes], media: list[str]) -> list[str]:
     summary="Color transfer between 2-16 uploaded images by Wasserstein barycenters of their "
             "chrominance histograms (thesis §3.7)")
 async def create_color_transfer(
-    response: Response, svc: JobSvc, rt: RuntimeDep,
+    response: Response, svc: JobSvc, rt: RuntimeDep, idempotency_key: IdempotencyKeyDep,
     images: Annotated[list[UploadFile], File(description="2 to 16 image files (PNG, JPEG, "
                                              "TIFF, WebP; 8 or 16 bits; alpha kept)")],
     weights: str | None = Form(None, description="JSON list: one weight per image"),
@@ -87,7 +97,7 @@ async def create_color_transfer(
                                   field=f"images[{i}]")
         datas.append(data)
         media.append(upload.content_type or "")
-    ids = await run_in_threadpool(_store_images, rt, datas, media)
+    ids = await run_in_threadpool(_store_images, rt, svc.tenant, datas, media)
     try:
         body = ColorTransferRequest(
             images=ids, weights=_json_list(weights, "weights"),
@@ -98,4 +108,5 @@ async def create_color_transfer(
         err = exc.errors()[0]
         field = ".".join(str(p) for p in err.get("loc", ())) or None
         raise InvalidInput(f"{field}: {err.get('msg')}", field=field) from None
-    return await finish_submission("color-transfers", None, body, wait, response, svc, rt)
+    return await finish_submission("color-transfers", None, body, wait, response, svc, rt,
+                                   idempotency_key)

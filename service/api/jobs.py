@@ -37,8 +37,8 @@ def list_jobs(svc: JobSvc,
               cursor: Annotated[str | None, Query(
                   description="`next_cursor` of the previous page")] = None):
     """Jobs, newest first, a page at a time (follow `next_cursor` until it is null)."""
-    rows = svc.rt.repo.list(limit + 1, state, after=decode_cursor(cursor),
-                            operation=operation, domain_id=domain_id)
+    rows = svc.list(limit + 1, state, after=decode_cursor(cursor), operation=operation,
+                    domain_id=domain_id)
     page = rows[:limit]
     for row in page:
         _with_position(svc, row)

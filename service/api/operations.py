@@ -12,8 +12,9 @@ import time
 from fastapi import APIRouter, Query, Response
 from fastapi.concurrency import run_in_threadpool
 
-from service.api.deps import JobSvc, RuntimeDep
+from service.api.deps import IdempotencyKeyDep, JobSvc, RuntimeDep
 from service.errors import InvalidInput, responses
+from service.idempotency import REPLAYED, for_request
 from service.jobs.db import QUEUED, TERMINAL
 from service.operations import Operation, Registry
 from service.operations.guide_pages import openapi_extra
@@ -72,19 +73,28 @@ async def wait_for(svc, job_id: str, seconds: float, job=None):
     return job
 
 
-def submit_job(op_name: str, domain_id: str | None, body, wait: float, svc, rt):
+def submit_job(op_name: str, domain_id: str | None, body, wait: float, svc, rt,
+               idempotency_key: str | None = None):
     """Shared by every operation route (sync part)."""
     if wait > rt.settings.wait_max:
         raise InvalidInput(f"wait must be at most {rt.settings.wait_max:g} seconds",
                            field="wait")
-    return svc.create(op_name, domain_id, body)
+    route = f"POST {op_name}" + (f" on {domain_id}" if domain_id else "")
+    idempotency = for_request(rt, svc.tenant.id, idempotency_key, route,
+                              body.model_dump(mode="json"))
+    return svc.create(op_name, domain_id, body, idempotency)
 
 
 async def finish_submission(op_name: str, domain_id: str | None, body, wait: float,
-                            response: Response, svc, rt) -> JobOut:
-    """Create the job, wait up to ``wait`` seconds, set 200/202 and ``Location``; also for
-    families with their own routes (``Operation(route=False)``)."""
-    job = await run_in_threadpool(submit_job, op_name, domain_id, body, wait, svc, rt)
+                            response: Response, svc, rt,
+                            idempotency_key: str | None = None) -> JobOut:
+    """Create the job (or, for a repeated ``Idempotency-Key``, find the first one), wait up to
+    ``wait`` seconds, set 200/202 and ``Location``; also for families with their own routes
+    (``Operation(route=False)``)."""
+    job = await run_in_threadpool(submit_job, op_name, domain_id, body, wait, svc, rt,
+                                  idempotency_key)
+    if getattr(job, "replayed", False):
+        response.headers[REPLAYED] = "true"
     if wait > 0 and job.state not in TERMINAL:
         job = await wait_for(svc, job.id, wait, job)
     if job.state == QUEUED:  # read by JobOut.from_row
@@ -100,16 +110,17 @@ async def finish_submission(op_name: str, domain_id: str | None, body, wait: flo
 ROUTE_RESPONSES = {200: {"model": JobOut, "description": "the job finished within `wait`"},
                    202: {"description": "the job, not finished (yet): poll `Location` after "
                          "`Retry-After` seconds", "headers": RETRY_AFTER_HEADERS},
-                   **responses(401, 404, 422)}
+                   **responses(401, 404, 422, 429)}
 
 
 def _domain_route(router: APIRouter, op: Operation) -> None:
     model = op.request_model
 
     async def create_job(domain_id: str, body: model, response: Response, svc: JobSvc,
-                         rt: RuntimeDep,
+                         rt: RuntimeDep, idempotency_key: IdempotencyKeyDep,
                          wait: float = Query(0.0, ge=0, description=WAIT_DESCRIPTION)):
-        return await finish_submission(op.name, domain_id, body, wait, response, svc, rt)
+        return await finish_submission(op.name, domain_id, body, wait, response, svc, rt,
+                                       idempotency_key)
 
     create_job.__name__ = op.operation_id
     router.add_api_route(
@@ -122,8 +133,10 @@ def _global_route(router: APIRouter, op: Operation) -> None:
     model = op.request_model
 
     async def create_job(body: model, response: Response, svc: JobSvc, rt: RuntimeDep,
+                         idempotency_key: IdempotencyKeyDep,
                          wait: float = Query(0.0, ge=0, description=WAIT_DESCRIPTION)):
-        return await finish_submission(op.name, None, body, wait, response, svc, rt)
+        return await finish_submission(op.name, None, body, wait, response, svc, rt,
+                                       idempotency_key)
 
     create_job.__name__ = op.operation_id
     router.add_api_route(

@@ -15,7 +15,7 @@ from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, Field
 
-from service.api.deps import RuntimeDep
+from service.api.deps import DomainSvc
 from service.errors import responses
 
 STATIC_DIR = Path(__file__).resolve().parents[1] / "static"
@@ -49,9 +49,9 @@ def _flat(a: np.ndarray | None, dtype) -> list | None:
 
 @router.get("/{domain_id}/geometry", operation_id="getDomainGeometry",
             response_model=DomainGeometry, responses=responses(401, 404))
-def get_domain_geometry(domain_id: str, rt: RuntimeDep):
+def get_domain_geometry(domain_id: str, svc: DomainSvc):
     """Positions, faces, edges or grid shape of a stored domain (for drawing it)."""
-    info = rt.store.domain_info(domain_id)
+    info = svc.info(domain_id)
     arrays, summary = info.arrays, info.meta["summary"]
     out = DomainGeometry(id=domain_id, kind=info.kind, n=info.n)
     points = None if info.kind == "grid" else info.points

@@ -70,6 +70,8 @@ class JobRow(Base):
     result_location: Mapped[str | None] = mapped_column(String(256), nullable=True)
     # automatic choices taken at submission (Operation.decide), executed by every attempt
     decision: Mapped[dict | None] = mapped_column(JSON, nullable=True)
+    # who submitted it (service.tenants); NULL for jobs from before tenants: admin-only
+    tenant: Mapped[str | None] = mapped_column(String(64), nullable=True, index=True)
 
 
 class WorkerRow(Base):
@@ -87,7 +89,8 @@ class WorkerRow(Base):
 JOBS = JobRow.__table__
 # columns added after the first release: created on an existing table at start-up
 ADDED_COLUMNS = {"fraction": "FLOAT", "queue": "VARCHAR(16)", "cost": "FLOAT",
-                 "decision": "JSON"}
+                 "decision": "JSON", "tenant": "VARCHAR(64)"}
+ADDED_INDEXES = {"tenant": "ix_jobs_tenant"}
 
 
 def worker_identity() -> str:
@@ -123,20 +126,25 @@ def make_engine(url: str):
 CREATE_ATTEMPTS = 5  # create_all tries when processes start together on a fresh database
 
 
+def create_tables(metadata, engine) -> None:
+    """``metadata.create_all`` that tolerates other processes creating the same tables."""
+    for attempt in range(CREATE_ATTEMPTS):
+        try:
+            metadata.create_all(engine)
+            return
+        except (OperationalError, IntegrityError, ProgrammingError):
+            # another process (API or worker) is creating it at the same moment: SQLite
+            # reports a lock, PostgreSQL a duplicate table or a unique violation in its
+            # type catalogue; the next create_all sees the finished table
+            if attempt == CREATE_ATTEMPTS - 1:
+                raise
+            time.sleep(0.05 * (attempt + 1))
+
+
 class JobRepository:
     def __init__(self, url: str):
         self.engine = make_engine(url)
-        for attempt in range(CREATE_ATTEMPTS):
-            try:
-                Base.metadata.create_all(self.engine)
-                break
-            except (OperationalError, IntegrityError, ProgrammingError):
-                # another process (API or worker) is creating it at the same moment: SQLite
-                # reports a lock, PostgreSQL a duplicate table or a unique violation in its
-                # type catalogue; the next create_all sees the finished table
-                if attempt == CREATE_ATTEMPTS - 1:
-                    raise
-                time.sleep(0.05 * (attempt + 1))
+        create_tables(Base.metadata, self.engine)
         self._add_columns()
         self.Session = sessionmaker(self.engine, expire_on_commit=False)
 
@@ -149,6 +157,9 @@ class JobRepository:
             try:
                 with self.engine.begin() as conn:
                     conn.execute(text(f"ALTER TABLE jobs ADD COLUMN {name} {sql_type}"))
+                    if name in ADDED_INDEXES:  # the index a new table gets from the model
+                        conn.execute(text(f"CREATE INDEX IF NOT EXISTS {ADDED_INDEXES[name]} "
+                                          f"ON jobs ({name})"))
             except SQLAlchemyError:  # added by another process meanwhile (duplicate column)
                 present = {c["name"] for c in inspect(self.engine).get_columns("jobs")}
                 if name not in present:
@@ -158,9 +169,11 @@ class JobRepository:
         self.engine.dispose()
 
     # -- creation / reading ---------------------------------------------
-    def create(self, job: JobRow) -> JobRow:
+    def create(self, job: JobRow, *also) -> JobRow:
+        """Insert the job, and ``also`` (e.g. its idempotency key) in the same transaction."""
         with self.Session.begin() as s:
             s.add(job)
+            s.add_all(also)
         return job
 
     def get(self, job_id: str) -> JobRow | None:
@@ -171,10 +184,13 @@ class JobRepository:
 
     def list(self, limit: int = 100, state: str | None = None, *,
              after: tuple[float, str] | None = None, operation: str | None = None,
-             domain_id: str | None = None) -> list[JobRow]:
+             domain_id: str | None = None, tenant: str | None = None) -> list[JobRow]:
         """Newest first (``created_at``, then ``id``, descending); ``after``: the
-        ``(created_at, id)`` of the last job of the previous page (cursor paging)."""
+        ``(created_at, id)`` of the last job of the previous page (cursor paging);
+        ``tenant``: only that tenant's jobs (None: every job)."""
         q = select(JOBS).order_by(JOBS.c.created_at.desc(), JOBS.c.id.desc()).limit(limit)
+        if tenant is not None:
+            q = q.where(JOBS.c.tenant == tenant)
         if state:
             q = q.where(JOBS.c.state == state)
         if operation:
@@ -325,6 +341,13 @@ class JobRepository:
             rows = s.execute(select(JobRow.operation, JobRow.state, func.count())
                              .group_by(JobRow.operation, JobRow.state))
             return {(op, st): int(n) for op, st, n in rows}
+
+    def queued_of(self, tenant: str) -> int:
+        """Queued jobs of one tenant (its queued-jobs quota)."""
+        q = select(func.count()).select_from(JOBS).where(JOBS.c.state == QUEUED,
+                                                         JOBS.c.tenant == tenant)
+        with self.engine.connect() as conn:
+            return int(conn.execute(q).scalar() or 0)
 
     def queued_by_queue(self) -> dict[str, int]:
         """Queued jobs per queue (``short`` / ``long``)."""

@@ -7,8 +7,10 @@ import time
 import uuid
 
 import numpy as np
+from sqlalchemy.exc import IntegrityError
 
 from service.errors import Conflict, NotFound
+from service.idempotency import Idempotency
 from service.jobs.db import QUEUED, TERMINAL, JobRow
 from service.jobs.queue import estimate_cost, queue_for_cost
 from service.operations.base import (
@@ -18,6 +20,7 @@ from service.operations.base import (
     view_of_info,
 )
 from service.runtime import Runtime
+from service.tenants import ANONYMOUS, Tenant, check_queued_quota
 
 log = logging.getLogger("otgeo.jobs")
 
@@ -28,25 +31,70 @@ UNSET_AT_CREATION = ("iteration", "residual", "fraction", "error", "worker", "st
 
 
 class JobService:
-    def __init__(self, runtime: Runtime):
-        self.rt = runtime
+    """Jobs as one tenant sees them: its own (every job for an admin); another tenant's job
+    is "unknown" (404), so ids do not leak."""
 
-    def create(self, operation: str, domain_id: str | None, request: OperationRequest
-               ) -> JobRow:
+    def __init__(self, runtime: Runtime, tenant: Tenant = ANONYMOUS):
+        self.rt = runtime
+        self.tenant = tenant
+
+    @property
+    def domains(self):
+        from service.domains import DomainService
+
+        return DomainService(self.rt, self.tenant)
+
+    def create(self, operation: str, domain_id: str | None, request: OperationRequest,
+               idempotency: Idempotency | None = None) -> JobRow:
         """Validate (against the stored domain, or the stored inputs of a global operation),
         take the operation's automatic decisions (``Operation.decide``), record the job with
-        them, enqueue its id."""
+        them, enqueue its id. With ``idempotency``: the job an earlier request with the same
+        key created, if any (``job.replayed``), else a new job recorded with the key."""
+        if idempotency is not None:
+            earlier = idempotency.previous()
+            if earlier is not None:
+                return self._replayed(earlier.resource_id)
+        check_queued_quota(self.rt.settings, self.tenant, self.rt.repo.queued_of(self.tenant.id))
+        job = self._new_job(operation, domain_id, request)
+        also = [idempotency.record("job", job.id)] if idempotency is not None else []
+        try:
+            self.rt.repo.create(job, *also)
+        except IntegrityError:
+            if idempotency is None:
+                raise
+            earlier = idempotency.previous()  # a concurrent request with the key won
+            if earlier is None:
+                raise
+            return self._replayed(earlier.resource_id)
+        if idempotency is not None:
+            self.rt.tenancy.prune_keys(self.rt.settings.idempotency_key_ttl)
+        try:
+            self.rt.enqueue(job.id, job.queue)
+        except Exception:  # broker unreachable: the job is recorded, the reaper re-sends it
+            log.exception("could not enqueue job %s; it stays queued", job.id)
+        if self.rt.settings.queue == "immediate":  # it has run inside enqueue
+            return self.get(job.id)
+        return job  # as recorded (a worker may have claimed it already: not re-read)
+
+    def _replayed(self, job_id: str) -> JobRow:
+        job = self.get(job_id)
+        job.replayed = True  # read by the route (Idempotent-Replayed header)
+        return job
+
+    def _new_job(self, operation: str, domain_id: str | None, request: OperationRequest
+                 ) -> JobRow:
+        """The validated job row, not yet recorded."""
         op = self.rt.operations.get_operation(operation)
         size = None  # points of the job's domain (its cost estimate picks the queue)
         if op.scope == "domain":
-            view = view_of_info(self.rt.store.domain_info(domain_id))
+            view = view_of_info(self.domains.info(domain_id))
             size = view.n
             op.check_kind(view)
             op.validate(view, request)
             check_job_memory(op, view, request, self.rt.settings.job_memory_bytes)
             decision = op.decide(view, request) if op.decide is not None else None
         else:
-            ctx = SubmitContext(self.rt.store, self.rt.settings)
+            ctx = SubmitContext(self.rt.store, self.rt.settings, holds=self.domains.holds)
             op.validate(ctx, request)
             decision = op.decide(ctx, request) if op.decide is not None else None
             domain_id = op.primary_domain(request)
@@ -66,26 +114,21 @@ class JobService:
                      params=request.model_dump(mode="json"), state=QUEUED, attempts=0,
                      max_attempts=self.rt.settings.max_attempts, cancel_requested=False,
                      time_limit=limit, created_at=now, enqueued_at=now, decision=decision,
-                     **{c: None for c in UNSET_AT_CREATION})
-        self.rt.repo.create(job)
-        try:
-            self.rt.enqueue(job.id, queue)
-        except Exception:  # broker unreachable: the job is recorded, the reaper re-sends it
-            log.exception("could not enqueue job %s; it stays queued", job.id)
-        if self.rt.settings.queue == "immediate":  # it has run inside enqueue
-            return self.get(job.id)
-        return job  # as recorded (a worker may have claimed it already: not re-read)
+                     tenant=self.tenant.id, **{c: None for c in UNSET_AT_CREATION})
+        return job
 
     def get(self, job_id: str) -> JobRow:
         job = self.rt.repo.get(job_id)
-        if job is None:
+        if job is None or not (self.tenant.admin or job.tenant == self.tenant.id):
             raise NotFound(f"unknown job {job_id!r}", field="job_id")
         if job.state == QUEUED:  # read by JobOut.from_row
             job.queue_position = self.rt.repo.queue_position(job)
         return job
 
-    def list(self, limit: int, state: str | None) -> list[JobRow]:
-        return self.rt.repo.list(limit=limit, state=state)
+    def list(self, limit: int, state: str | None = None, **filters) -> list[JobRow]:
+        """The tenant's jobs (every job for an admin), newest first (``JobRepository.list``)."""
+        tenant = None if self.tenant.admin else self.tenant.id
+        return self.rt.repo.list(limit, state, tenant=tenant, **filters)
 
     def cancel(self, job_id: str) -> JobRow:
         job = self.get(job_id)

@@ -131,23 +131,35 @@ class OperationOutput:
 class SubmitContext:
     """What a global operation's ``validate`` may look at: stored domains and blobs."""
 
-    def __init__(self, store, settings):
+    def __init__(self, store, settings, holds: Callable[[str, str], bool] | None = None):
         self.store = store
         self.settings = settings
+        # holds(kind, id): whether the submitting tenant may use the stored object
+        # (service.tenants); None: every object (workers, tests)
+        self._holds = holds
+
+    def _check_held(self, kind: str, object_id: str, field: str) -> None:
+        if self._holds is not None and not self._holds(kind, object_id):
+            raise NotFound(f"unknown {kind} {object_id!r}", field=field)
 
     def view(self, domain_id: str, field: str) -> DomainView:
         """The validation view of a stored domain; 404 naming ``field`` when unknown."""
         try:
+            self.store.check_id(domain_id)
+            self._check_held("domain", domain_id, field)
             return view_of_info(self.store.domain_info(domain_id))
         except NotFound as exc:
             raise NotFound(f"unknown domain {domain_id!r}", field=field) from exc
 
     def blob(self, blob_id: str, field: str) -> bytes:
         """The bytes of an uploaded blob; 404 naming ``field`` when unknown."""
+        self.blob_meta(blob_id, field)
         return self.store.get_blob(blob_id, field=field)
 
     def blob_meta(self, blob_id: str, field: str) -> dict:
-        return self.store.blob_meta(blob_id, field=field)
+        meta = self.store.blob_meta(blob_id, field=field)
+        self._check_held("blob", blob_id, field)
+        return meta
 
 
 class RunContext(SubmitContext):

@@ -150,7 +150,7 @@ def test_cost_chooses_the_queue(tmp_path):
 def test_older_job_table_gains_the_new_columns(tmp_path):
     import sqlalchemy as sa
 
-    from service.jobs.db import ADDED_COLUMNS, JobRepository
+    from service.jobs.db import ADDED_COLUMNS, ADDED_INDEXES, JobRepository
 
     url = f"sqlite:///{tmp_path / 'old.sqlite3'}"
     engine = sa.create_engine(url)
@@ -171,6 +171,8 @@ def test_older_job_table_gains_the_new_columns(tmp_path):
     try:
         columns = {c["name"] for c in sa.inspect(repo.engine).get_columns("jobs")}
         assert set(ADDED_COLUMNS) <= columns
+        indexes = {i["name"] for i in sa.inspect(repo.engine).get_indexes("jobs")}
+        assert set(ADDED_INDEXES.values()) <= indexes
         job = repo.get("j1")
         assert job.queue is None and repo.queue_position(job) == 1
         JobRepository(url).dispose()  # a second process starting on it: nothing to add
