@@ -58,8 +58,9 @@ def _check_layout(layout: Sequence[str], subdivisions: int) -> tuple[int, int]:
 
 
 def maze_mesh(layout: Sequence[str] = FIG_2_12_LAYOUT, subdivisions: int = 2) -> Maze:
-    """Triangulate the open cells of ``layout`` (row 0 at the top), each as
-    ``subdivisions``² squares split into two triangles, welded along shared sides.
+    """Triangulate the open cells of ``layout`` (row 0 at the top), each as a grid of
+    ``subdivisions`` × ``subdivisions`` squares split into two triangles, welded along
+    shared sides.
 
     Two open cells touching only at a corner would pinch the surface into a non-manifold
     vertex; the Fig. 2.12 layout has none.
