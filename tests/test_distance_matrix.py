@@ -117,7 +117,7 @@ def test_progress_over_pairs_and_cancel_keeps_finished_rows(woody):
     mesh, wide = woody
     seen = []
     distance_matrix(mesh, wide, gamma=0.01, substeps=8, debiased=True,
-                          progress=lambda done, worst, frac: seen.append((done, frac)))
+                    progress=lambda done, worst, frac: seen.append((done, frac)))
     assert [d for d, _ in seen] == list(range(1, 11)) and seen[-1][1] == 1.0
 
     # One pair per row first: cancel once row 0's four pairs are done.

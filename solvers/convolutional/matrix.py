@@ -241,7 +241,7 @@ def distance_matrix(
     if metric == "w1":
         _w1_pairs(domain, A, B, pairs, table, w1_options or {}, stop)
         return table.result()
-    sketch = sketch_of(domain)
+    sketch = sketch_of(domain).remembering_paths()
     decisions = [decide_distance(sketch, A[:, i], B[:, j], route=route, gamma=gamma, t=t,
                                  substeps=substeps, debiased=debiased) for i, j in pairs]
     exact = [p for p, d in zip(pairs, decisions, strict=True) if d.route == "exact"]
