@@ -9,10 +9,11 @@ Sinkhorn divergence, the exact W2 and W1).
   (:func:`~solvers.convolutional.decision.decide_distance`: route and regularization from
   the data alone), so every entry equals ``wasserstein_distance(domain, mu_i, nu_j, ...)``:
 
-  - **exact route** (sparse supports): the cost matrix between *all* supports of the exact
-    pairs is computed once (squared exact geodesics on meshes, one MMP solve per support
-    point; squared straight/periodic distances on grids and point clouds) and each pair is
-    the transport LP (thesis eq. 1.1) on its sub-matrix;
+  - **exact route** (sparse supports): the cost matrix between all row supports and all
+    column supports of the exact pairs is computed once (squared exact geodesics on meshes,
+    one MMP solve per point of the smaller side; squared straight/periodic distances on
+    grids and point clouds) and each pair is the transport LP (thesis eq. 1.1) on its
+    sub-matrix;
   - **convolutional route** (Alg. 1 / eq. 3.10, debiased as the defaults are): pairs that
     share a heat kernel (same ``t`` and ``substeps``) run as one block.  Every solver step
     gathers the log-inputs of all active pairs into one ``n x k`` block and applies the
@@ -271,20 +272,16 @@ def _kernel_key(d: DistanceDecision) -> tuple:
 
 
 def _exact_pairs(domain, A, B, pairs, table: _Table, stop) -> None:
-    """The exact route: one cost matrix between every support of the exact pairs, then
-    one transport LP per pair on its sub-matrix."""
+    """The exact route: one cost matrix between the supports of the exact pairs' rows and
+    those of their columns, then one transport LP per pair on its sub-matrix."""
     import ot
 
-    rows = sorted({i for i, _ in pairs})
-    cols = sorted({j for _, j in pairs})
-    support = np.zeros(A.shape[0], dtype=bool)
-    support |= (A[:, rows] > 0).any(axis=1)
-    support |= (B[:, cols] > 0).any(axis=1)
-    points = np.flatnonzero(support)
-    position = np.full(A.shape[0], -1)
-    position[points] = np.arange(len(points))
+    rows = np.flatnonzero((A[:, sorted({i for i, _ in pairs})] > 0).any(axis=1))
+    cols = np.flatnonzero((B[:, sorted({j for _, j in pairs})] > 0).any(axis=1))
+    at_row, at_col = np.full(A.shape[0], -1), np.full(A.shape[0], -1)
+    at_row[rows], at_col[cols] = np.arange(len(rows)), np.arange(len(cols))
     stop("before the cost matrix")
-    cost = _support_costs(domain, points, stop)
+    cost = _support_costs(domain, rows, cols, stop)
     for i, j in pairs:
         stop(f"before pair ({i}, {j})")
         src, dst = np.flatnonzero(A[:, i] > 0), np.flatnonzero(B[:, j] > 0)
@@ -292,7 +289,7 @@ def _exact_pairs(domain, A, B, pairs, table: _Table, stop) -> None:
             raise InputError(f"the exact route's LP of pair ({i}, {j}) has {len(src)} x "
                              f"{len(dst)} entries, above its limit of {MAX_SUPPORT_PRODUCT}",
                              field="route")
-        sub = cost[np.ix_(position[src], position[dst])]
+        sub = cost[np.ix_(at_row[src], at_col[dst])]
         a, b = A[src, i], B[dst, j]
         plan, log = ot.emd(a, b, _finite_cost(sub), numItermax=10_000_000, log=True)
         used = plan > 0
@@ -301,10 +298,11 @@ def _exact_pairs(domain, A, B, pairs, table: _Table, stop) -> None:
                   int(log.get("result_code", 0)) == 1, "exact")
 
 
-def _support_costs(domain, points: np.ndarray, stop) -> np.ndarray:
-    """Squared ground distances between ``points`` (exact geodesics on meshes)."""
+def _support_costs(domain, rows: np.ndarray, cols: np.ndarray, stop) -> np.ndarray:
+    """Squared ground distances between ``rows`` and ``cols`` (exact geodesics on meshes:
+    one MMP solve per point of the smaller side)."""
     if domain.kind != "mesh":
-        return _cost_matrix(domain, points, points)
+        return _cost_matrix(domain, rows, cols)
     from solvers.geodesics import geodesic_distances
 
     def cancelled() -> bool:
@@ -315,11 +313,10 @@ def _support_costs(domain, points: np.ndarray, stop) -> np.ndarray:
         return False
 
     try:
-        d = geodesic_distances(domain, points, points, should_cancel=cancelled)
+        d = geodesic_distances(domain, rows, cols, should_cancel=cancelled)
     except CancelledError:
         stop("between geodesic solves")  # re-raise with the partial result
         raise
-    d = np.minimum(d, d.T)  # exact both ways; symmetrize the solver's rounding
     return d * d
 
 
