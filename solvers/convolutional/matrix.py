@@ -13,7 +13,8 @@ Sinkhorn divergence, the exact W2 and W1).
     column supports of the exact pairs is computed once (squared exact geodesics on meshes,
     one MMP solve per point of the smaller side; squared straight/periodic distances on
     grids and point clouds) and each pair is the transport LP (thesis eq. 1.1) on its
-    sub-matrix;
+    sub-matrix (beyond :data:`SHARED_COST_ENTRIES` entries each pair computes its own, as
+    a single-pair call does);
   - **convolutional route** (Alg. 1 / eq. 3.10, debiased as the defaults are): pairs that
     share a heat kernel (same ``t`` and ``substeps``) run as one block.  Every solver step
     gathers the log-inputs of all active pairs into one ``n x k`` block and applies the
@@ -58,6 +59,9 @@ METRICS = ("w2", "w1")
 MAX_BLOCK_PAIRS = 64
 BLOCK_WORK_BYTES = 256 * 2**20
 _PAIR_VECTORS = 2 * ANDERSON_MEMORY + 12
+# Largest shared cost matrix of the exact pairs (entries; 256 MB): beyond it each exact pair
+# computes its own costs as a single-pair call does (bounded geodesic solves).
+SHARED_COST_ENTRIES = 2**25
 
 
 def pair_state_bytes(n: int) -> int:
@@ -278,6 +282,9 @@ def _exact_pairs(domain, A, B, pairs, table: _Table, stop) -> None:
 
     rows = np.flatnonzero((A[:, sorted({i for i, _ in pairs})] > 0).any(axis=1))
     cols = np.flatnonzero((B[:, sorted({j for _, j in pairs})] > 0).any(axis=1))
+    if len(rows) * len(cols) > SHARED_COST_ENTRIES:
+        _exact_single_pairs(domain, A, B, pairs, table, stop)
+        return
     at_row, at_col = np.full(A.shape[0], -1), np.full(A.shape[0], -1)
     at_row[rows], at_col[cols] = np.arange(len(rows)), np.arange(len(cols))
     stop("before the cost matrix")
@@ -296,6 +303,28 @@ def _exact_pairs(domain, A, B, pairs, table: _Table, stop) -> None:
         residual = float(np.abs(plan.sum(axis=1) - a).sum() + np.abs(plan.sum(axis=0) - b).sum())
         table.put(i, j, float(np.sum(plan[used] * sub[used])), 1, residual,
                   int(log.get("result_code", 0)) == 1, "exact")
+
+
+def _exact_single_pairs(domain, A, B, pairs, table: _Table, stop) -> None:
+    """Exact pairs one at a time (:func:`~solvers.convolutional.exact.
+    exact_wasserstein_distance`): when the shared cost matrix would be too large."""
+    from solvers.convolutional.exact import exact_wasserstein_distance
+
+    def cancelled() -> bool:
+        try:
+            stop("between geodesic solves")
+        except CancelledError:
+            return True
+        return False
+
+    for i, j in pairs:
+        stop(f"before pair ({i}, {j})")
+        try:
+            res = exact_wasserstein_distance(domain, A[:, i], B[:, j], should_cancel=cancelled)
+        except CancelledError:
+            stop(f"in pair ({i}, {j})")
+            raise
+        table.put(i, j, res.value, res.iterations, res.residual, res.converged, "exact")
 
 
 def _support_costs(domain, rows: np.ndarray, cols: np.ndarray, stop) -> np.ndarray:
