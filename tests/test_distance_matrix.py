@@ -160,3 +160,30 @@ def test_input_errors(woody):
     with pytest.raises(InputError) as info:
         distance_matrix(mesh, wide, -wide)
     assert info.value.field == "others"
+
+
+def test_quick_route_decision_agrees_with_the_default(woody):
+    from solvers.convolutional.decision import decide_distance, decide_route
+    from solvers.regularization import sketch_of
+
+    mesh, wide = woody
+    small = [_bump(mesh, i, 0.08) for i in (0, 650)]
+    sketch = sketch_of(mesh)
+    for m0, m1 in ((small[0], small[1]), (wide[:, 0], wide[:, 4]), (small[0], wide[:, 2])):
+        quick, full = decide_route(sketch, m0, m1), decide_distance(sketch, m0, m1)
+        assert quick.route == full.route
+        if full.route == "exact":
+            assert quick.estimated_seconds >= full.estimated_seconds
+        else:
+            assert quick == full
+
+
+def test_exact_matrix_over_most_vertices_keeps_the_geodesic_matrix():
+    mesh = load_shared_mesh("woody.obj")
+    masses = np.stack([_bump(mesh, i, 0.15) for i in range(0, 694, 30)], axis=1)
+    assert 2 * np.count_nonzero(masses.sum(axis=1)) >= mesh.n
+    res = distance_matrix(mesh, masses, route="exact")
+    assert mesh.operators.peek(("exact_geodesics",)) is not None
+    for i, j in ((0, 5), (3, 17)):
+        single = wasserstein_distance(mesh, masses[:, i], masses[:, j], route="exact")
+        assert _relative_gap(res.values[i, j], single.value) <= 1e-9

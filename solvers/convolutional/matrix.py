@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from solvers.convolutional.common import masses_block, prepare
-from solvers.convolutional.decision import DistanceDecision, decide_distance
+from solvers.convolutional.decision import DistanceDecision, decide_distance, decide_route
 from solvers.convolutional.distance import (
     ANDERSON_MEMORY,
     PairSolve,
@@ -62,6 +62,10 @@ _PAIR_VECTORS = 2 * ANDERSON_MEMORY + 12
 # Largest shared cost matrix of the exact pairs (entries; 256 MB): beyond it each exact pair
 # computes its own costs as a single-pair call does (bounded geodesic solves).
 SHARED_COST_ENTRIES = 2**25
+# Meshes up to this many vertices keep their all-pairs exact geodesic matrix in the operator
+# store (at most 128 MB) when a matrix's supports cover at least half of the vertices:
+# the next matrix on the domain reuses it.
+STORED_GEODESICS_VERTICES = 4096
 
 
 def pair_state_bytes(n: int) -> int:
@@ -247,8 +251,8 @@ def distance_matrix(
         _w1_pairs(domain, A, B, pairs, table, w1_options or {}, stop)
         return table.result()
     sketch = sketch_of(domain).remembering_paths()
-    decisions = [decide_distance(sketch, A[:, i], B[:, j], route=route, gamma=gamma, t=t,
-                                 substeps=substeps, debiased=debiased) for i, j in pairs]
+    decisions = [decide_route(sketch, A[:, i], B[:, j], route=route, gamma=gamma, t=t,
+                              substeps=substeps, debiased=debiased) for i, j in pairs]
     exact = [p for p, d in zip(pairs, decisions, strict=True) if d.route == "exact"]
     if exact:
         _exact_pairs(domain, A, B, exact, table, stop)
@@ -329,7 +333,7 @@ def _exact_single_pairs(domain, A, B, pairs, table: _Table, stop) -> None:
 
 def _support_costs(domain, rows: np.ndarray, cols: np.ndarray, stop) -> np.ndarray:
     """Squared ground distances between ``rows`` and ``cols`` (exact geodesics on meshes:
-    one MMP solve per point of the smaller side)."""
+    one MMP solve per point of the smaller side, or the stored all-pairs matrix)."""
     if domain.kind != "mesh":
         return _cost_matrix(domain, rows, cols)
     from solvers.geodesics import geodesic_distances
@@ -341,8 +345,14 @@ def _support_costs(domain, rows: np.ndarray, cols: np.ndarray, stop) -> np.ndarr
             return True
         return False
 
+    stored = domain.n <= STORED_GEODESICS_VERTICES and 2 * min(len(rows), len(cols)) >= domain.n
     try:
-        d = geodesic_distances(domain, rows, cols, should_cancel=cancelled)
+        if stored:
+            every = domain.operators.get(("exact_geodesics",), lambda: geodesic_distances(
+                domain, np.arange(domain.n), should_cancel=cancelled))
+            d = every[np.ix_(rows, cols)]
+        else:
+            d = geodesic_distances(domain, rows, cols, should_cancel=cancelled)
     except CancelledError:
         stop("between geodesic solves")  # re-raise with the partial result
         raise
