@@ -31,6 +31,7 @@ from service.operations.transport import SinkhornOptions
 from solvers.convolutional.exact import EXACT_KINDS
 from solvers.convolutional.matrix import (
     SHARED_COST_ENTRIES,
+    STORED_GEODESICS_VERTICES,
     block_pairs,
     distance_matrix,
     pair_state_bytes,
@@ -124,7 +125,8 @@ def _sizes(req: DistanceMatrixRequest) -> tuple[int, int, int]:
 def estimate_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
     """Inputs (one float per point and distribution), the block's per-pair solver state,
     the matrix and its per-pair arrays, and for exact pairs the largest shared cost matrix
-    (:data:`~solvers.convolutional.matrix.SHARED_COST_ENTRIES`)."""
+    (:data:`~solvers.convolutional.matrix.SHARED_COST_ENTRIES`) and the stored all-pairs
+    geodesics of small meshes."""
     n, m, _ = _sizes(req)
     points = int(view.n)
     total = 8 * points * (n + (m if req.others is not None else 0))
@@ -135,6 +137,8 @@ def estimate_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
     exact = req.route == "exact" or (req.route == "auto" and req.gamma is None)
     if exact and view.kind in EXACT_KINDS:  # the exact pairs' shared cost matrix, at most
         total += 8 * min(SHARED_COST_ENTRIES, points * points)
+        if view.kind == "mesh" and points <= STORED_GEODESICS_VERTICES:
+            total += 8 * points * points  # the stored all-pairs geodesics it is cut from
     return total
 
 
