@@ -20,6 +20,8 @@ bench/distance_matrix.py PART``; each writes its section of
   the per-pair default decisions of ``SAMPLE`` pairs (routes, gamma, substeps, modelled
   seconds), and one shared regularization's block of 16 pairs against 2 single-pair calls,
   extrapolated to the 10,000 pairs.
+* ``iteration`` — one convolutional W2 iteration (Anderson) at 50k vertices (nefertiti, one
+  substep) against the time of its two kernel solves.
 * ``render`` — rewrite the markdown from the json.
 
 Timings are wall-clock seconds of one run (these runs are minutes long), with the 1-minute load
@@ -199,6 +201,39 @@ def part_nefertiti() -> dict:
             "load": [load_before, load1()]}
 
 
+def part_iteration() -> dict:
+    """One convolutional W2 iteration (Anderson, two kernel applications) at 50k vertices
+    against the time of its two kernel solves (one substep)."""
+    from solvers.convolutional.common import LogKernel
+
+    mesh = load_mesh(MESHES / "nefertiti.obj")
+    m0, m1 = service_bump(mesh, 0, 0.3), service_bump(mesh, 20_000, 0.3)
+    gamma = 0.01
+    kernel = mesh.heat_kernel(gamma / 4, 1)
+    x = np.random.default_rng(0).random(mesh.n)
+    logk = LogKernel(kernel)
+    solve, log_apply = [], []
+    for _ in range(20):
+        begin = time.perf_counter()
+        kernel.apply(x)
+        solve.append(time.perf_counter() - begin)
+        begin = time.perf_counter()
+        logk(np.log(x))
+        log_apply.append(time.perf_counter() - begin)
+    load_before = load1()
+    runs = []
+    for _ in range(3):
+        begin = time.perf_counter()
+        res = wasserstein_distance(mesh, m0, m1, gamma=gamma, substeps=1, tol=1e-12,
+                                   max_iter=60, debiased=False)
+        runs.append((time.perf_counter() - begin) / max(res.iterations, 1))
+    per_iteration = min(runs)
+    return {"mesh": "nefertiti.obj", "n": mesh.n, "gamma": gamma, "substeps": 1,
+            "iterations": int(res.iterations), "iteration_ms": 1e3 * per_iteration,
+            "solve_ms": 1e3 * min(solve), "log_apply_ms": 1e3 * min(log_apply),
+            "ratio": per_iteration / (2 * min(solve)), "load": [load_before, load1()]}
+
+
 def _fmt(seconds: float) -> str:
     if seconds >= 3600:
         return f"{seconds / 3600:.1f} h"
@@ -208,7 +243,8 @@ def _fmt(seconds: float) -> str:
 def render(data: dict) -> str:
     out = ["# Distance matrices", "",
            "Command: `cpu bench env OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python "
-           "bench/distance_matrix.py PART` (PART = spot, blocks, nefertiti; module docstring). "
+           "bench/distance_matrix.py PART` (PART = spot, blocks, nefertiti, iteration; "
+           "module docstring). "
            "Wall-clock seconds of one run; load = 1-minute load average (2 shared cores) "
            "before / after.", ""]
     s = data.get("spot")
@@ -234,9 +270,10 @@ def render(data: dict) -> str:
                 f"{best['seconds_per_pair'] * 4950 / s['matrix_seconds']:.1f} |", "",
                 f"Target <= 5 s: {'met' if s['matrix_seconds'] <= 5 else 'NOT met'}. Largest "
                 f"relative gap matrix vs single pair on the sample: "
-                f"{s['worst_relative_gap_to_single']:.1e}. Decision per pair: "
-                f"{1e3 * s['decision_seconds_per_pair']:.1f} ms. POT ladder (reg factor: worst "
-                "relative error, s per pair): " + ", ".join(
+                f"{s['worst_relative_gap_to_single']:.1e}. Single-pair `decide_distance` on the "
+                f"sample (first calls on a fresh sketch): "
+                f"{1e3 * s['decision_seconds_per_pair']:.1f} ms per pair. POT ladder (reg "
+                "factor: worst relative error, s per pair): " + ", ".join(
                     f"{p['factor']:g}: {100 * p['worst_relative_error']:.2f} % / "
                     f"{p['seconds_per_pair']:.3g} s" for p in s["pot"]) + ".", ""]
     b = data.get("blocks")
@@ -276,6 +313,20 @@ def render(data: dict) -> str:
                 f"Target <= 60 s: {'met' if n['blocks_extrapolated'] <= 60 else 'NOT met'}. "
                 f"Largest relative gap block vs single: "
                 f"{n['worst_relative_gap_to_single']:.1e}.", ""]
+    it = data.get("iteration")
+    if it:
+        out += ["## One convolutional W2 iteration at 50k vertices (nefertiti, one substep)", "",
+                f"gamma {it['gamma']}, Anderson, {it['iterations']} iterations per run, best "
+                f"of 3 runs (includes the per-call setup); load {it['load'][0]:.1f} / "
+                f"{it['load'][1]:.1f}.", "",
+                "| one kernel solve | one log-domain application | one iteration | iteration / "
+                "two solves |", "|---|---|---|---|",
+                f"| {it['solve_ms']:.2f} ms | {it['log_apply_ms']:.2f} ms | "
+                f"{it['iteration_ms']:.2f} ms | {it['ratio']:.2f} |", "",
+                "Target <= 2x: " + ("met" if it["ratio"] <= 2 else "NOT met") + " without "
+                "fusing the element-wise work (no numba kernel was added: a fused l1-gap + "
+                "Anderson-residual pass measured 0.71 ms against numpy's 0.93 ms at 50k, "
+                "`cpu run`, not a bench figure).", ""]
     return "\n".join(out)
 
 
@@ -285,8 +336,8 @@ def main(argv: list[str]) -> None:
     if part != "render":
         if os.environ.get("OPENBLAS_NUM_THREADS") != "1":
             print("note: BLAS threads not pinned (OPENBLAS_NUM_THREADS=1)", file=sys.stderr)
-        data[part] = {"spot": part_spot, "blocks": part_blocks,
-                      "nefertiti": part_nefertiti}[part]()
+        data[part] = {"spot": part_spot, "blocks": part_blocks, "nefertiti": part_nefertiti,
+                      "iteration": part_iteration}[part]()
         JSON.write_text(json.dumps(data, indent=1))
     text = render(data)
     (RESULTS / "distance_matrix.md").write_text(text + "\n")
