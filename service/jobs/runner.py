@@ -168,15 +168,12 @@ class JobRunner:
                 self.cache.operator_builds += built
             if should_cancel():
                 raise CancelledError("cancelled")
-            payload = {"job_id": job_id, "operation": job.operation,
-                       "domain_id": job.domain_id, "decision": job.decision,
-                       "values": output.values,
-                       "arrays": {k: {"shape": list(v.shape), "dtype": str(v.dtype)}
-                                  for k, v in output.arrays.items()},
-                       "export": output.export}
-            location = self.store.put_result(job_id, payload, output.arrays, output.files)
+            location = self._store_output(job_id, job, output)
             state = SUCCEEDED
-        except CancelledError:
+        except CancelledError as exc:
+            partial = getattr(exc, "partial_output", None)
+            if partial is not None:  # e.g. a distance matrix's finished rows
+                location = self._store_output(job_id, job, partial)
             if timed_out.is_set():
                 error = {"code": "time_limit_exceeded", "field": "time_limit",
                          "message": f"job exceeded its time limit of {limit:g} s"}
@@ -215,6 +212,16 @@ class JobRunner:
                 self.on_finished()
             except Exception:
                 log.exception("after-job hook failed")
+
+    def _store_output(self, job_id: str, job, output) -> str:
+        """Store an operation's output as the job's result; returns its location."""
+        payload = {"job_id": job_id, "operation": job.operation,
+                   "domain_id": job.domain_id, "decision": job.decision,
+                   "values": output.values,
+                   "arrays": {k: {"shape": list(v.shape), "dtype": str(v.dtype)}
+                              for k, v in output.arrays.items()},
+                   "export": output.export}
+        return self.store.put_result(job_id, payload, output.arrays, output.files)
 
     def release_current(self) -> str | None:
         """On worker shutdown: hand the running job back to the queue (not an attempt)."""

@@ -139,7 +139,9 @@ class JobService:
 
     def result(self, job_id: str, include_arrays: bool = True) -> dict:
         job = self.get(job_id)
-        if job.state != "succeeded":
+        # A cancelled or timed-out job may have kept a partial result (finished rows).
+        kept = job.state in TERMINAL and job.result_location is not None
+        if job.state != "succeeded" and not kept:
             if job.state in TERMINAL:
                 raise Conflict(f"job {job_id} {job.state}; it has no result", field="job_id",
                                code="job_" + job.state)

@@ -11,6 +11,7 @@ from service.operations import (
     color,
     features,
     histograms,
+    matrices,
     metric_histograms,
     shapes,
     soft_map_analyses,
@@ -26,7 +27,7 @@ from service.operations.base import (
     SubmitContext,
 )
 
-FAMILIES = (transport, histograms, color, softmaps, applications, volumetric, features,
+FAMILIES = (transport, matrices, histograms, color, softmaps, applications, volumetric, features,
             anisotropy, shapes, soft_map_analyses, metric_histograms)
 
 

@@ -19,6 +19,8 @@ class OperationDoc:
 OPERATION_DOCS = {
     "distances": OperationDoc("convolutional", "eq. 3.10, Alg. 1; W1 eq. 2.1",
                               "solvers.convolutional.wasserstein_distance"),
+    "distance-matrices": OperationDoc("convolutional", "eq. 3.10, Alg. 1; W1 eq. 2.1 (pairwise)",
+                                      "solvers.convolutional.distance_matrix"),
     "barycenters": OperationDoc("convolutional", "eq. 3.13, Alg. 2-3",
                                 "solvers.convolutional.barycenter"),
     "interpolations": OperationDoc("convolutional", "eq. 3.16, Alg. 2",

@@ -33,6 +33,7 @@ import numpy as np
 from solvers.convolutional.exact import (
     MAX_SUPPORT_PRODUCT,
     exact_route_estimate,
+    exact_route_upper_bound,
     supports_exact,
 )
 from solvers.errors import InputError
@@ -142,6 +143,26 @@ def decide_distance(domain, m0, m1, *, route: str = "auto", gamma="auto", t=None
                             None if t is None else float(t), steps,
                             False if debiased is None else bool(debiased),
                             convolutional_seconds(sketch, steps), exact)
+
+
+def decide_route(sketch, m0, m1, *, route: str = "auto", gamma="auto", t=None, substeps=None,
+                 debiased=None) -> DistanceDecision:
+    """:func:`decide_distance`'s route and regularization, taken without planning the exact
+    route when its size-only upper bound (:func:`~solvers.convolutional.exact.
+    exact_route_upper_bound`) already fits :data:`EXACT_BUDGET_SECONDS` (then the estimate
+    fits too: the same route; ``estimated_seconds`` is that bound).  Many decisions on small
+    supports (a distance matrix) skip the planning LP this way."""
+    auto = gamma is None or (isinstance(gamma, str) and gamma == "auto")
+    if route == "auto" and auto and supports_exact(sketch):
+        n0, n1 = int(np.count_nonzero(m0)), int(np.count_nonzero(m1))
+        if n0 * n1 <= MAX_SUPPORT_PRODUCT:
+            bound = float(exact_route_upper_bound(sketch, m0, m1))
+            if bound <= EXACT_BUDGET_SECONDS:
+                return DistanceDecision("exact", f"exact route bounded by {bound:.3g} s, "
+                                        f"within its {EXACT_BUDGET_SECONDS:.0f} s budget",
+                                        estimated_seconds=bound)
+    return decide_distance(sketch, m0, m1, route=route, gamma=gamma, t=t, substeps=substeps,
+                           debiased=debiased)
 
 
 def _convolutional_reason(sketch, route: str, exact: float | None, entries: int) -> str:

@@ -85,9 +85,21 @@ class SinkhornResult(SolverResult):
 
 def sinkhorn_log(logk: LogKernel, areas, m0, m1, *, tol, max_iter, monitor: Monitor,
                  acceleration: str = "anderson", init=None):
-    r"""Log-domain Sinkhorn (Alg. 1), accelerated.
+    r"""Log-domain Sinkhorn (Alg. 1), accelerated: :func:`sinkhorn_steps` driven by ``logk``.
 
-    ``acceleration``: ``"anderson"`` (default, :func:`_sinkhorn_anderson`),
+    Returns ``(f, g, iterations, residual, converged, omega)`` with ``f = log v``,
+    ``g = log w`` (``-inf`` where the mass is zero).
+    """
+    return run_steps(sinkhorn_steps(areas, m0, m1, tol=tol, max_iter=max_iter,
+                                    monitor=monitor, acceleration=acceleration, init=init),
+                     logk)
+
+
+def sinkhorn_steps(areas, m0, m1, *, tol, max_iter, monitor: Monitor,
+                   acceleration: str = "anderson", init=None):
+    r"""Log-domain Sinkhorn (Alg. 1) as a step generator (:func:`run_steps`).
+
+    ``acceleration``: ``"anderson"`` (default, :func:`anderson_steps`),
     ``"over-relaxation"`` (adaptive SOR, :class:`OverRelaxation`) or ``"none"``
     (plain Alg. 1).  All three have the same fixed point.
 
@@ -101,34 +113,33 @@ def sinkhorn_log(logk: LogKernel, areas, m0, m1, *, tol, max_iter, monitor: Moni
     else:
         f = np.where(s0, init[0], -np.inf)
     if acceleration == "anderson":
-        return _sinkhorn_anderson(logk, areas, m0, l0, l1, f, tol=tol, max_iter=max_iter,
-                                  monitor=monitor)
+        return (yield from anderson_steps(areas, m0, l0, l1, f, tol=tol, max_iter=max_iter,
+                                          monitor=monitor))
     g = np.where(s1, 0.0 if init is None else init[1], -np.inf)
     # Full supports (the common case) update whole arrays, without gathers/scatters.
     s0 = slice(None) if s0.all() else s0
     s1 = slice(None) if s1.all() else s1
     sor = OverRelaxation(enabled=acceleration == "over-relaxation")
-    lg = logk(g)
+    lg = yield g
     res2 = 0.0
     residual = np.inf
     it = 0
-    with np.errstate(over="ignore", under="ignore"):
-        while True:
-            # Marginal violations from the kernel outputs already at hand (no extra
-            # application): after the g update the second marginal is exact unless relaxed.
-            res1 = _l1_gap(m0, areas, f, lg)
-            residual = res1 + res2
-            monitor(it, residual)
-            if residual <= tol or it >= max_iter or not np.isfinite(residual) \
-                    or monitor.stalled:
-                break
-            omega = sor.update(residual)
-            f[s0] += omega * (l0[s0] - lg[s0] - f[s0])
-            lf = logk(f)
-            g[s1] += omega * (l1[s1] - lf[s1] - g[s1])
-            res2 = _l1_gap(m1, areas, g, lf) if omega != 1.0 else 0.0
-            lg = logk(g)
-            it += 1
+    while True:
+        # Marginal violations from the kernel outputs already at hand (no extra
+        # application): after the g update the second marginal is exact unless relaxed.
+        res1 = _l1_gap(m0, areas, f, lg)
+        residual = res1 + res2
+        monitor(it, residual)
+        if residual <= tol or it >= max_iter or not np.isfinite(residual) \
+                or monitor.stalled:
+            break
+        omega = sor.update(residual)
+        f[s0] += omega * (l0[s0] - lg[s0] - f[s0])
+        lf = yield f
+        g[s1] += omega * (l1[s1] - lf[s1] - g[s1])
+        res2 = _l1_gap(m1, areas, g, lf) if omega != 1.0 else 0.0
+        lg = yield g
+        it += 1
     return f, g, it, residual, bool(residual <= tol), sor.omega
 
 
@@ -141,6 +152,25 @@ _ANDERSON_RESTART = 10.0
 
 def _sinkhorn_anderson(logk: LogKernel, areas, m0, l0, l1, f, *, tol, max_iter,
                        monitor: Monitor, memory: int = ANDERSON_MEMORY):
+    """:func:`anderson_steps` driven by ``logk`` (one problem)."""
+    return run_steps(anderson_steps(areas, m0, l0, l1, f, tol=tol, max_iter=max_iter,
+                                    monitor=monitor, memory=memory), logk)
+
+
+def run_steps(steps, logk: LogKernel):
+    """Drive a step generator (``anderson_steps``, ``symmetric_steps``, ``pair_steps``):
+    each log-block it yields is answered with ``logk(block)``; returns its return value."""
+    with np.errstate(over="ignore", under="ignore"):
+        try:
+            block = next(steps)
+            while True:
+                block = steps.send(logk(block))
+        except StopIteration as stop:
+            return stop.value
+
+
+def anderson_steps(areas, m0, l0, l1, f, *, tol, max_iter, monitor: Monitor,
+                   memory: int = ANDERSON_MEMORY):
     r"""Sinkhorn as a fixed point ``f = T(f)`` solved with Anderson acceleration.
 
     One Sinkhorn iteration is the map :math:`T(f) = \log\mu_0 - \log H(a \otimes
@@ -154,6 +184,11 @@ def _sinkhorn_anderson(logk: LogKernel, areas, m0, l0, l1, f, *, tol, max_iter,
     the best seen, or the fit is singular, the history is dropped and a plain
     Sinkhorn step is taken.  The second marginal is exact after every step
     (``g = g(f)``), so the reported residual is the L1 violation of the first.
+
+    A generator: it yields each log-input whose kernel application it needs and is sent
+    :math:`\log H(a \otimes e^x)` back (:func:`run_steps` for one problem; the distance
+    matrix answers many problems' inputs with one block solve).  Returns ``(f, g,
+    iterations, residual, converged, 1.0)``.
     """
     support = np.flatnonzero(m0 > 0)
     full = len(support) == len(f)
@@ -163,25 +198,24 @@ def _sinkhorn_anderson(logk: LogKernel, areas, m0, l0, l1, f, *, tol, max_iter,
     best = np.inf
     residual = np.inf
     it = 0
-    with np.errstate(over="ignore", under="ignore"):
-        while True:
-            g = l1 - logk(f)
-            lg = logk(g)
-            residual = _l1_gap(m0, areas, f, lg)
-            monitor(it, residual)
-            if residual <= tol or it >= max_iter or not np.isfinite(residual) \
-                    or monitor.stalled:
-                break
-            if residual > _ANDERSON_RESTART * best:
-                mixer.reset()
-            best = min(best, residual)
-            t_f = (l0 - lg) if full else (l0[support] - lg[support])
-            step = mixer.step(t_f, t_f - (f if full else f[support]))
-            if full:
-                f = step
-            else:  # off the support f stays -inf
-                f[support] = step
-            it += 1
+    while True:
+        g = l1 - (yield f)
+        lg = yield g
+        residual = _l1_gap(m0, areas, f, lg)
+        monitor(it, residual)
+        if residual <= tol or it >= max_iter or not np.isfinite(residual) \
+                or monitor.stalled:
+            break
+        if residual > _ANDERSON_RESTART * best:
+            mixer.reset()
+        best = min(best, residual)
+        t_f = (l0 - lg) if full else (l0[support] - lg[support])
+        step = mixer.step(t_f, t_f - (f if full else f[support]))
+        if full:
+            f = step
+        else:  # off the support f stays -inf
+            f[support] = step
+        it += 1
     return f, g, it, residual, bool(residual <= tol), 1.0
 
 
@@ -242,29 +276,73 @@ def _l1_gap(m, areas, f, lk) -> float:
 
 
 def symmetric_sinkhorn_log(logk: LogKernel, areas, m, *, tol, max_iter, monitor: Monitor):
+    """:func:`symmetric_steps` driven by ``logk``."""
+    return run_steps(symmetric_steps(areas, m, tol=tol, max_iter=max_iter, monitor=monitor),
+                     logk)
+
+
+def symmetric_steps(areas, m, *, tol, max_iter, monitor: Monitor):
     r"""Self-transport :math:`W^2_{2,H_t}(\mu,\mu)`: symmetric scaling ``f = log v = log w``.
 
     Averaged update :math:`f \leftarrow \tfrac12 (f + \log\mu - \log H(e^f))`
     (Feydy et al. 2019), which converges in a few dozen iterations.  ``m`` may be
-    ``(n, k)``: the ``k`` problems run as one block.
+    ``(n, k)``: the ``k`` problems run as one block.  A step generator
+    (:func:`run_steps`); returns ``(f, iterations, residual, converged)``.
     """
     lm = log_density(m, areas)
     s = m > 0
     f = np.where(s, 0.0, -np.inf)
-    lf = logk(f)
+    lf = yield f
     a = areas if m.ndim == 1 else areas[:, None]
     it = 0
-    with np.errstate(over="ignore", under="ignore"):
-        while True:
-            residual = float(np.max(np.abs(m - a * np.exp(f + lf)).sum(axis=0)))
-            monitor(it, residual)
-            if residual <= tol or it >= max_iter or not np.isfinite(residual) \
-                    or monitor.stalled:
-                break
-            f[s] = 0.5 * (f[s] + lm[s] - lf[s])
-            lf = logk(f)
-            it += 1
+    while True:
+        residual = float(np.max(np.abs(m - a * np.exp(f + lf)).sum(axis=0)))
+        monitor(it, residual)
+        if residual <= tol or it >= max_iter or not np.isfinite(residual) \
+                or monitor.stalled:
+            break
+        f[s] = 0.5 * (f[s] + lm[s] - lf[s])
+        lf = yield f
+        it += 1
     return f, it, residual, bool(residual <= tol)
+
+
+@dataclass
+class PairSolve:
+    """What :func:`pair_steps` returns: the (debiased) value and its convergence data."""
+
+    value: float
+    f: np.ndarray
+    g: np.ndarray
+    iterations: int
+    residual: float
+    converged: bool
+    omega: float
+    self_values: tuple[float, float] | None
+
+
+def pair_steps(areas, m0, m1, *, gamma, debiased, tol, max_iter, monitor: Monitor,
+               acceleration: str = "anderson", init=None):
+    """The whole convolutional distance of one pair as a step generator (:func:`run_steps`):
+    Sinkhorn (Alg. 1, eq. 3.10), then, if ``debiased``, both self-transports as one
+    two-column block.  Returns a :class:`PairSolve`."""
+    f, g, it, res, conv, omega = yield from sinkhorn_steps(
+        areas, m0, m1, tol=tol, max_iter=max_iter, monitor=monitor,
+        acceleration=acceleration, init=init)
+    value = _value(gamma, m0, f, m1, g)
+    self_values = None
+    if debiased:
+        mon = monitor.next_stage()  # second stage: its own stagnation record
+        mon.offset += it + 1
+        h, it_s, res_s, conv_s = yield from symmetric_steps(
+            areas, np.stack([m0, m1], axis=1), tol=tol, max_iter=max_iter, monitor=mon)
+        self_values = (_value(gamma, m0, h[:, 0], m0, h[:, 0]),
+                       _value(gamma, m1, h[:, 1], m1, h[:, 1]))
+        it += it_s
+        res = max(res, res_s)
+        conv = conv and conv_s
+        value = value - 0.5 * self_values[0] - 0.5 * self_values[1]
+    return PairSolve(value, f, g, int(it), float(res), bool(conv), float(omega), self_values)
 
 
 def _value(gamma, m0, f, m1, g) -> float:
@@ -358,25 +436,12 @@ def wasserstein_distance(
     setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
                     progress=progress, should_cancel=should_cancel)
     check_components(domain, np.stack([m0, m1], axis=1), setup.tol, "mu1")
-    a, logk, mon = setup.areas, setup.logk, watch_stagnation(setup, project=max_iter is None)
-    f, g, it, res, conv, omega = sinkhorn_log(logk, a, m0, m1, tol=setup.tol,
-                                              max_iter=setup.max_iter, monitor=mon,
-                                              acceleration=acceleration, init=init)
-    value = _value(setup.gamma, m0, f, m1, g)
-    self_values = None
-    if debiased:
-        mon = mon.next_stage()  # second stage: its own stagnation record
-        mon.offset += it + 1
-        both = np.stack([m0, m1], axis=1)
-        h, it_s, res_s, conv_s = symmetric_sinkhorn_log(
-            logk, a, both, tol=setup.tol, max_iter=setup.max_iter, monitor=mon)
-        selfs = (_value(setup.gamma, m0, h[:, 0], m0, h[:, 0]),
-                 _value(setup.gamma, m1, h[:, 1], m1, h[:, 1]))
-        it += it_s
-        res = max(res, res_s)
-        conv = conv and conv_s
-        self_values = selfs
-        value = value - 0.5 * selfs[0] - 0.5 * selfs[1]
+    mon = watch_stagnation(setup, project=max_iter is None)
+    solve = run_steps(pair_steps(setup.areas, m0, m1, gamma=setup.gamma, debiased=debiased,
+                                 tol=setup.tol, max_iter=setup.max_iter, monitor=mon,
+                                 acceleration=acceleration, init=init), setup.logk)
+    f, g, it, res, conv = solve.f, solve.g, solve.iterations, solve.residual, solve.converged
+    omega, self_values, value = solve.omega, solve.self_values, solve.value
     # Balance the scaling ambiguity (v, w) -> (c v, w / c) for readable v, w.
     shift = 0.5 * (_finite_max(f) - _finite_max(g))
     f, g = f - shift, g + shift

@@ -166,6 +166,20 @@ def exact_route_estimate(sketch, m0, m1, budget: float | None = None) -> float:
     return ROUNDS_FACTOR * solves + lp + closure
 
 
+def exact_route_upper_bound(sketch, m0, m1) -> float:
+    """An upper bound of :func:`exact_route_estimate` (every solve of the smaller support
+    reaching the whole mesh), from the support sizes alone: when it fits a budget, so does
+    the estimate, with no planning."""
+    from solvers.geodesics import mmp_solve_seconds
+
+    n0, n1 = int(np.count_nonzero(m0)), int(np.count_nonzero(m1))
+    lp = lp_seconds(n0, n1)
+    if sketch.kind != "mesh":
+        return lp + 1e-8 * float(n0) * float(n1)
+    closure = sketch.junctions * mmp_solve_seconds(sketch.n, 1.0)
+    return ROUNDS_FACTOR * min(n0, n1) * mmp_solve_seconds(sketch.n, 1.0) + lp + closure
+
+
 def _nearest(points: np.ndarray, rows: np.ndarray, reps: np.ndarray) -> np.ndarray:
     """Index (into ``reps``) of the representative nearest to each row (straight lines)."""
     from scipy.spatial import cKDTree

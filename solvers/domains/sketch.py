@@ -138,7 +138,27 @@ class DomainSketch:
         from scipy.sparse.csgraph import dijkstra
 
         src = np.asarray(sources, dtype=np.int64)
-        return np.atleast_2d(dijkstra(self.edge_graph, directed=True, indices=src))
+        rows = self._memo.get("path_rows")
+        if rows is None:
+            return np.atleast_2d(dijkstra(self.edge_graph, directed=True, indices=src))
+        missing = [int(s) for s in dict.fromkeys(src.tolist()) if int(s) not in rows]
+        if missing:  # one Dijkstra per source: the same rows as a batched call
+            found = np.atleast_2d(dijkstra(self.edge_graph, directed=True, indices=missing))
+            rows.update(zip(missing, found, strict=True))
+            while len(rows) > self._memo["path_rows_limit"]:
+                rows.pop(next(iter(rows)))
+        return np.stack([rows[int(s)] for s in src]) if len(src) else np.zeros((0, self.n))
+
+    def remembering_paths(self, budget_bytes: int = 256 * 2**20) -> DomainSketch:
+        """A copy of this sketch that keeps the edge-path rows it computes (up to
+        ``budget_bytes``, oldest dropped first): many decisions over the same distributions
+        (a distance matrix) then search each source once.  Same values as the sketch."""
+        from dataclasses import replace
+
+        copy = replace(self, _memo=dict(self._memo))
+        copy._memo["path_rows"] = {}
+        copy._memo["path_rows_limit"] = max(1, int(budget_bytes) // max(8 * self.n, 1))
+        return copy
 
     def distances(self, sources, targets) -> np.ndarray:
         """``(len(sources), len(targets))`` cheap ground distances for estimates (module

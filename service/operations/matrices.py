@@ -1,0 +1,207 @@
+"""Distance matrices: every pair of a collection, or a collection against templates, as one
+job (thin adapter over :func:`solvers.convolutional.distance_matrix`).
+
+Each W2 pair takes the single-pair default's decision (route and regularization, computed in
+the worker from the request and the stored domain alone, so every attempt gets the same
+answer); pairs sharing a heat kernel run as one multi-column block, exact pairs share one
+geodesic cost matrix.  Progress counts pairs; a cancelled (or timed-out) job keeps the
+entries finished so far as its result (``complete: false``, ``finished_rows``).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, Field
+
+from service.errors import InvalidInput, UnsupportedOperation
+from service.operations.base import (
+    Distribution,
+    DomainView,
+    Operation,
+    OperationOutput,
+    check_options,
+    check_same_components,
+    resolve_all,
+    view_of_domain,
+)
+from service.operations.examples import BUMP_A, BUMP_B, example
+from service.operations.transport import SinkhornOptions
+from solvers.convolutional.exact import EXACT_KINDS
+from solvers.convolutional.matrix import (
+    SHARED_COST_ENTRIES,
+    STORED_GEODESICS_VERTICES,
+    block_pairs,
+    distance_matrix,
+    pair_state_bytes,
+)
+from solvers.errors import CancelledError
+
+MAX_DISTRIBUTIONS = 2000  # per side of a matrix (the request JSON stays a few MB)
+ROUTE_CODES = {"": -1, "identical": 0, "exact": 1, "convolutional": 2, "w1": 3}
+
+
+class DistanceMatrixRequest(SinkhornOptions):
+    model_config = example({"distributions": [BUMP_A, BUMP_B, {"vertex": 50, "radius": 0.2}]})
+    distributions: list[Distribution] = Field(
+        min_length=1, max_length=MAX_DISTRIBUTIONS, description="the collection (rows)")
+    others: list[Distribution] | None = Field(
+        None, min_length=1, max_length=MAX_DISTRIBUTIONS, description="optional second set "
+        "(columns, e.g. templates); left out: the symmetric matrix of `distributions` (pairs "
+        "i < j solved, mirrored; zero diagonal for debiased and exact values)")
+    metric: Literal["w2", "w1"] = Field(
+        "w2", description="w2: squared 2-Wasserstein distance per pair, as /distances computes "
+        "it by default; w1: earth mover's distance (Beckmann problem), meshes only")
+    route: Literal["auto", "convolutional", "exact"] = Field(
+        "auto", description="W2 only, per pair as for /distances: auto (exact for sparse "
+        "supports when its modelled time fits, else convolutional), convolutional or exact")
+    debiased: bool | None = Field(None, description="W2 convolutional: Sinkhorn divergence "
+                                  "(default: true; false when gamma is given)")
+    algorithm: Literal["auto", "ipm", "admm", "weiszfeld"] = Field(
+        "auto", description="W1 solver (as for /distances)")
+
+
+class KernelGroup(BaseModel):
+    """Pairs solved as one block: they share this heat kernel."""
+
+    gamma: float
+    t: float
+    substeps: int
+    debiased: bool
+
+
+class DistanceMatrixValues(BaseModel):
+    """Values of a distance-matrix job; the matrix itself is the array ``matrix`` (inline
+    when it fits the result's JSON budget, always as ``.npy`` in ``array_files``)."""
+
+    metric: Literal["w2", "w1"]
+    shape: list[int] = Field(description="[rows, columns] of the matrix")
+    symmetric: bool = Field(description="one collection against itself")
+    complete: bool = Field(description="false when the job was cancelled or timed out: "
+                           "unfinished entries are NaN (null inline)")
+    finished_rows: list[int] = Field(description="rows whose every entry is computed")
+    pairs_solved: int = Field(description="pairs computed (diagonal not counted)")
+    routes: dict[str, int] = Field(description="pairs per route (exact, convolutional, w1)")
+    route_codes: dict[str, int] = Field(description="legend of the `route_codes` array")
+    kernels: list[KernelGroup] = Field(description="the heat kernels of convolutional pairs")
+    iterations: int = Field(description="sum over pairs")
+    residual: float | None = Field(description="largest pair residual (each solver's "
+                                   "measured stopping quantity)")
+    converged: bool = Field(description="every pair computed and converged")
+    normalization: list[dict]
+
+
+def _inputs(view: DomainView, req: DistanceMatrixRequest):
+    check_options(view, req)
+    if req.metric == "w1" and view.kind != "mesh":
+        raise UnsupportedOperation("metric 'w1' is available on triangle meshes only",
+                                   field="metric")
+    if req.metric == "w2" and req.route == "exact" and view.kind not in EXACT_KINDS:
+        raise UnsupportedOperation(f"route 'exact' is available on {', '.join(EXACT_KINDS)} "
+                                   "domains; use route 'convolutional'", field="route")
+    specs = {f"distributions[{i}]": d for i, d in enumerate(req.distributions)}
+    specs.update({f"others[{j}]": d for j, d in enumerate(req.others or [])})
+    masses, reports = resolve_all(view, specs, req.input)
+    check_same_components(view, masses, req.tol)
+    columns = list(masses.values())
+    rows = np.stack(columns[:len(req.distributions)], axis=1)
+    others = None if req.others is None else np.stack(columns[len(req.distributions):], axis=1)
+    return rows, others, reports
+
+
+def validate(view: DomainView, req: DistanceMatrixRequest) -> list[dict]:
+    return _inputs(view, req)[2]
+
+
+def _sizes(req: DistanceMatrixRequest) -> tuple[int, int, int]:
+    """``(rows, columns, pairs solved)``."""
+    n = len(req.distributions)
+    if req.others is None:
+        return n, n, n * (n + 1) // 2
+    return n, len(req.others), n * len(req.others)
+
+
+def estimate_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
+    """Inputs (one float per point and distribution), the block's per-pair solver state,
+    the matrix and its per-pair arrays, and for exact pairs the largest shared cost matrix
+    (:data:`~solvers.convolutional.matrix.SHARED_COST_ENTRIES`) and the stored all-pairs
+    geodesics of small meshes."""
+    n, m, _ = _sizes(req)
+    points = int(view.n)
+    total = 8 * points * (n + (m if req.others is not None else 0))
+    total += 40 * n * m
+    if req.metric == "w1":
+        return total + 8 * 120 * points  # Beckmann operators and interior-point state
+    total += block_pairs(points) * (pair_state_bytes(points) + 8 * 8 * points)
+    exact = req.route == "exact" or (req.route == "auto" and req.gamma is None)
+    if exact and view.kind in EXACT_KINDS:  # the exact pairs' shared cost matrix, at most
+        total += 8 * min(SHARED_COST_ENTRIES, points * points)
+        if view.kind == "mesh" and points <= STORED_GEODESICS_VERTICES:
+            total += 8 * points * points  # the stored all-pairs geodesics it is cut from
+    return total
+
+
+def estimate_cost(points: int, req: DistanceMatrixRequest) -> float:
+    """Points x pairs x a typical solve's kernel applications (queue choice only)."""
+    return float(max(points, 1)) * float(max(_sizes(req)[2], 1)) * 60.0
+
+
+def _output(res, reports, complete: bool) -> OperationOutput:
+    codes = np.vectorize(ROUTE_CODES.get, otypes=[np.int8])(res.routes)
+    solved = (res.routes != "") & (res.routes != "identical")
+    if res.symmetric:
+        solved = np.triu(solved)
+    kinds, counts = np.unique(res.routes[solved], return_counts=True)
+    residual = float(res.residual)
+    values = DistanceMatrixValues(
+        metric=res.metric, shape=list(res.values.shape), symmetric=res.symmetric,
+        complete=complete, finished_rows=res.finished_rows.tolist(),
+        pairs_solved=int(solved.sum()), routes={str(k): int(c) for k, c in zip(kinds, counts,
+                                                                           strict=True)},
+        route_codes={k or "none": v for k, v in ROUTE_CODES.items()},
+        kernels=[KernelGroup(gamma=g, t=t, substeps=s, debiased=d) for g, t, s, d in
+                 res.kernels],
+        iterations=int(res.iterations), residual=residual if np.isfinite(residual) else None,
+        converged=bool(res.converged and complete), normalization=reports)
+    arrays = {"matrix": np.asarray(res.values, dtype=np.float64),
+              "pair_iterations": np.asarray(res.pair_iterations, dtype=np.int64),
+              "pair_residuals": np.asarray(res.pair_residuals, dtype=np.float64),
+              "pair_converged": np.asarray(res.pair_converged, dtype=bool),
+              "route_codes": codes}
+    return OperationOutput(values.model_dump(), arrays)
+
+
+def run(domain, req: DistanceMatrixRequest, progress, should_cancel) -> OperationOutput:
+    rows, others, reports = _inputs(view_of_domain(domain), req)
+    optional = {k: getattr(req, k) for k in ("tol", "max_iter") if getattr(req, k) is not None}
+    if req.metric == "w1":
+        kwargs = {"w1_options": {"algorithm": req.algorithm, **optional}}
+    else:
+        kwargs = {"gamma": "auto" if req.gamma is None else float(req.gamma),
+                  "substeps": req.substeps, "debiased": req.debiased, "route": req.route,
+                  **optional}
+    try:
+        res = distance_matrix(domain, rows, others, metric=req.metric, progress=progress,
+                              should_cancel=should_cancel, **kwargs)
+    except CancelledError as exc:
+        partial = getattr(exc, "partial", None)
+        if partial is not None:  # the runner stores it as the cancelled job's result
+            exc.partial_output = _output(partial, reports, complete=False)
+        raise
+    except ValueError as exc:  # an input the library refused: name the request's field
+        field = getattr(exc, "field", None)
+        if field in ("distributions", "others", "route", "metric"):
+            raise InvalidInput(str(exc), field=field) from exc
+        raise
+    return _output(res, reports, complete=True)
+
+
+OPERATIONS = [
+    Operation("distance-matrices", "createDistanceMatrixJob",
+              "Distances between every pair of a collection, or between a collection and "
+              "templates (W2^2 per pair as /distances by default, or W1): the matrix, with "
+              "progress over pairs; a cancelled job keeps its finished rows",
+              DistanceMatrixRequest, run, validate, result_model=DistanceMatrixValues,
+              estimate_bytes=estimate_bytes, estimate_cost=estimate_cost),
+]

@@ -1,0 +1,453 @@
+r"""Distance matrices: every pair of a collection (or against a second set) in one call.
+
+:func:`distance_matrix` computes :math:`D_{ij} = W(\mu_i, \nu_j)` for ``n`` distributions
+``mu`` against ``m`` distributions ``nu`` (``others``), or the symmetric ``n x n`` matrix of
+one collection (only the pairs ``i < j`` are solved; the diagonal is zero for the debiased
+Sinkhorn divergence, the exact W2 and W1).
+
+* ``metric="w2"`` — each pair gets exactly the decision of the single-pair default
+  (:func:`~solvers.convolutional.decision.decide_distance`: route and regularization from
+  the data alone), so every entry equals ``wasserstein_distance(domain, mu_i, nu_j, ...)``:
+
+  - **exact route** (sparse supports): the cost matrix between all row supports and all
+    column supports of the exact pairs is computed once (squared exact geodesics on meshes,
+    one MMP solve per point of the smaller side; squared straight/periodic distances on
+    grids and point clouds) and each pair is the transport LP (thesis eq. 1.1) on its
+    sub-matrix (beyond :data:`SHARED_COST_ENTRIES` entries each pair computes its own, as
+    a single-pair call does);
+  - **convolutional route** (Alg. 1 / eq. 3.10, debiased as the defaults are): pairs that
+    share a heat kernel (same ``t`` and ``substeps``) run as one block.  Every solver step
+    gathers the log-inputs of all active pairs into one ``n x k`` block and applies the
+    kernel once (one multi-column sparse solve per substep,
+    :class:`~solvers.convolutional.common.LogKernel`); each pair keeps its own Anderson
+    history, stopping rule and stagnation record (:func:`~solvers.convolutional.distance.
+    pair_steps`, the very iteration of the single-pair solver), leaves the block when it
+    stops, and the next pair enters.
+
+* ``metric="w1"`` — :func:`solvers.emd.earth_movers_distance` (Beckmann problem, eq. 2.1)
+  per pair, on the mesh's shared operators.
+
+Progress is reported over pairs and cancellation keeps the finished entries: on
+cancellation :class:`~solvers.errors.CancelledError` is raised with the partial
+:class:`DistanceMatrixResult` in its ``partial`` attribute (pairs run in row order, so
+finished rows come first).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from solvers.convolutional.common import masses_block, prepare
+from solvers.convolutional.decision import DistanceDecision, decide_distance, decide_route
+from solvers.convolutional.distance import (
+    ANDERSON_MEMORY,
+    PairSolve,
+    pair_steps,
+    watch_stagnation,
+)
+from solvers.convolutional.exact import MAX_SUPPORT_PRODUCT, _cost_matrix, _finite_cost
+from solvers.errors import CancelledError, InputError
+from solvers.monitor import SolverResult, _arity
+from solvers.regularization import sketch_of
+
+METRICS = ("w2", "w1")
+# Pairs advanced together: at most MAX_BLOCK_PAIRS, and as many as fit BLOCK_WORK_BYTES of
+# per-pair state (Anderson history 2 x ANDERSON_MEMORY columns plus ~12 work vectors of n).
+MAX_BLOCK_PAIRS = 64
+BLOCK_WORK_BYTES = 256 * 2**20
+_PAIR_VECTORS = 2 * ANDERSON_MEMORY + 12
+# Largest shared cost matrix of the exact pairs (entries; 256 MB): beyond it each exact pair
+# computes its own costs as a single-pair call does (bounded geodesic solves).
+SHARED_COST_ENTRIES = 2**25
+# Meshes up to this many vertices keep their all-pairs exact geodesic matrix in the operator
+# store (at most 128 MB) when a matrix's supports cover at least half of the vertices:
+# the next matrix on the domain reuses it.
+STORED_GEODESICS_VERTICES = 4096
+
+
+def pair_state_bytes(n: int) -> int:
+    """Bytes of one active convolutional pair's state on an ``n``-vertex domain."""
+    return 8 * int(n) * _PAIR_VECTORS
+
+
+def block_pairs(n: int) -> int:
+    """Pairs advanced as one block on an ``n``-vertex domain (a function of ``n`` only)."""
+    return int(max(1, min(MAX_BLOCK_PAIRS, BLOCK_WORK_BYTES // pair_state_bytes(n))))
+
+
+@dataclass(kw_only=True)
+class DistanceMatrixResult(SolverResult):
+    r"""Result of :func:`distance_matrix`.
+
+    ``values``: ``(n, m)`` distances (:math:`W_2^2` / Sinkhorn divergence in squared
+    distance units, or :math:`W_1`), ``nan`` where not computed (cancelled);
+    per pair, same shape: ``pair_iterations``, ``pair_residuals`` (each solver's measured
+    stopping quantity), ``pair_converged``, ``routes`` (``"exact"``, ``"convolutional"``,
+    ``"w1"`` or ``"identical"`` for the diagonal of a symmetric matrix, ``""`` when not
+    computed) and ``computed``; ``symmetric``: one collection against itself;
+    ``kernels``: the ``(gamma, t, substeps, debiased)`` groups solved as blocks.
+    ``iterations`` (sum), ``residual`` (max) and ``converged`` (every pair computed and
+    converged) summarize the pairs.
+    """
+
+    values: np.ndarray
+    pair_iterations: np.ndarray
+    pair_residuals: np.ndarray
+    pair_converged: np.ndarray
+    routes: np.ndarray
+    computed: np.ndarray
+    metric: str = "w2"
+    symmetric: bool = False
+    kernels: list = field(default_factory=list)
+
+    @property
+    def finished_rows(self) -> np.ndarray:
+        """Indices of the rows whose every entry is computed."""
+        return np.flatnonzero(self.computed.all(axis=1))
+
+
+class _Table:
+    """The matrix being filled, pair by pair (mirrored when symmetric)."""
+
+    def __init__(self, n: int, m: int, symmetric: bool, metric: str, progress, total: int):
+        self.values = np.full((n, m), np.nan)
+        self.iterations = np.zeros((n, m), dtype=np.int64)
+        self.residuals = np.full((n, m), np.nan)
+        self.converged = np.zeros((n, m), dtype=bool)
+        self.routes = np.full((n, m), "", dtype=object)
+        self.symmetric, self.metric = symmetric, metric
+        self.progress = progress
+        self.with_fraction = progress is not None and _arity(progress) >= 3
+        self.total, self.done, self.worst = max(total, 1), 0, 0.0
+        self.kernels: list = []
+
+    def put(self, i: int, j: int, value, iterations, residual, converged, route) -> None:
+        cells = [(i, j), (j, i)] if self.symmetric and i != j else [(i, j)]
+        for r, c in cells:
+            self.values[r, c] = value
+            self.iterations[r, c] = iterations
+            self.residuals[r, c] = residual
+            self.converged[r, c] = converged
+            self.routes[r, c] = route
+        if route == "identical":
+            return
+        self.done += 1
+        if np.isfinite(residual):
+            self.worst = max(self.worst, float(residual))
+        if self.progress is not None:
+            if self.with_fraction:
+                self.progress(self.done, self.worst, self.done / self.total)
+            else:
+                self.progress(self.done, self.worst)
+
+    def result(self) -> DistanceMatrixResult:
+        computed = self.routes != ""
+        return DistanceMatrixResult(
+            values=self.values, pair_iterations=self.iterations,
+            pair_residuals=self.residuals, pair_converged=self.converged, routes=self.routes,
+            computed=computed, metric=self.metric, symmetric=self.symmetric,
+            kernels=list(self.kernels), iterations=int(self.iterations.sum()),
+            residual=float(np.nanmax(self.residuals)) if computed.any() else float("nan"),
+            converged=bool(computed.all() and self.converged[computed].all()))
+
+
+def _collection(domain, values, name: str) -> np.ndarray:
+    """``(n_vertices, k)`` normalized masses from an array of columns or a list of vectors."""
+    if isinstance(values, (list, tuple)):
+        try:
+            values = np.stack([np.asarray(v, dtype=np.float64) for v in values], axis=1)
+        except ValueError as exc:
+            raise InputError(f"{name} must be distributions of {domain.n} values each",
+                             field=name) from exc
+    m = masses_block(domain, values, name)
+    if m.ndim == 1:
+        m = m[:, None]
+    return m
+
+
+def _pairs(n: int, m: int, symmetric: bool) -> list[tuple[int, int]]:
+    """Row-major pairs (only ``i < j`` of a symmetric matrix)."""
+    if symmetric:
+        return [(i, j) for i in range(n) for j in range(i + 1, n)]
+    return [(i, j) for i in range(n) for j in range(m)]
+
+
+def distance_matrix(
+    domain,
+    distributions,
+    others=None,
+    *,
+    metric: str = "w2",
+    gamma: float | str = "auto",
+    t: float | None = None,
+    substeps: int | None = None,
+    tol: float = 1e-5,
+    max_iter: int | None = None,
+    debiased: bool | None = None,
+    route: str = "auto",
+    w1_options: dict | None = None,
+    progress: Callable[..., None] | None = None,
+    should_cancel: Callable[[], bool] | None = None,
+) -> DistanceMatrixResult:
+    r"""Pairwise distances of a collection (``n x n``) or against ``others`` (``n x m``).
+
+    Objective, per pair: with ``metric="w2"`` the value of
+    :func:`~solvers.convolutional.distance.wasserstein_distance` (thesis Alg. 1 / eq. 3.10,
+    or the exact LP eq. 1.1 on sparse supports) with the same arguments, decided per pair
+    exactly as the single-pair default (module docstring); with ``metric="w1"`` the
+    Beckmann W1 of :func:`solvers.emd.earth_movers_distance` (eq. 2.1).
+
+    Parameters
+    ----------
+    domain : any domain (``"w1"``: a triangle mesh).
+    distributions : ``(n_vertices, n)`` masses (one distribution per column) or a list of
+        ``n`` vectors; normalized here.
+    others : optional second set ``(n_vertices, m)``; None: the symmetric matrix of
+        ``distributions`` (pairs ``i < j`` solved and mirrored).
+    gamma, t, substeps, tol, max_iter, debiased, route : as in ``wasserstein_distance``
+        (``"w2"`` only).
+    w1_options : keyword arguments of ``earth_movers_distance`` (``"w1"`` only).
+    progress : ``progress(pairs_done, worst_residual[, fraction])`` after each pair.
+    should_cancel : checked before every block step, LP and W1 solve; when it returns True
+        :class:`~solvers.errors.CancelledError` is raised with ``partial``, the result so
+        far (finished entries kept, the rest ``nan``).
+
+    Returns
+    -------
+    DistanceMatrixResult(values (n, m), pair_iterations, pair_residuals, pair_converged,
+    routes, computed, iterations, residual, converged, ...).
+    """
+    if metric not in METRICS:
+        raise InputError(f"metric must be one of {', '.join(map(repr, METRICS))}, got "
+                         f"{metric!r}", field="metric")
+    if should_cancel is not None and not callable(should_cancel):
+        raise InputError("should_cancel must be callable", field="should_cancel")
+    if progress is not None and not callable(progress):
+        raise InputError("progress must be callable", field="progress")
+    A = _collection(domain, distributions, "distributions")
+    symmetric = others is None
+    B = A if symmetric else _collection(domain, others, "others")
+    domain.require_matching_component_masses(np.hstack([A, B]), max(tol, 1e-9),
+                                             "distributions" if symmetric else "others")
+    pairs = _pairs(A.shape[1], B.shape[1], symmetric)
+    table = _Table(A.shape[1], B.shape[1], symmetric, metric, progress, len(pairs))
+
+    def stop(where: str) -> None:
+        if should_cancel is not None and should_cancel():
+            error = CancelledError(f"cancelled {where}")
+            error.partial = table.result()
+            raise error
+
+    if symmetric and (metric == "w1" or _zero_diagonal(domain, A, gamma, debiased, route)):
+        for i in range(A.shape[1]):
+            table.put(i, i, 0.0, 0, 0.0, True, "identical")
+    elif symmetric:
+        pairs = [(i, i) for i in range(A.shape[1])] + pairs
+        table.total = len(pairs)
+    if metric == "w1":
+        _w1_pairs(domain, A, B, pairs, table, w1_options or {}, stop)
+        return table.result()
+    sketch = sketch_of(domain).remembering_paths()
+    decisions = [decide_route(sketch, A[:, i], B[:, j], route=route, gamma=gamma, t=t,
+                              substeps=substeps, debiased=debiased) for i, j in pairs]
+    exact = [p for p, d in zip(pairs, decisions, strict=True) if d.route == "exact"]
+    if exact:
+        _exact_pairs(domain, A, B, exact, table, stop)
+    groups: dict[tuple, list] = {}
+    for p, d in zip(pairs, decisions, strict=True):
+        if d.route != "exact":
+            groups.setdefault(_kernel_key(d), []).append((p, d))
+    for members in groups.values():
+        _convolutional_pairs(domain, A, B, members, table, tol=tol, max_iter=max_iter,
+                             stop=stop)
+    return table.result()
+
+
+def _zero_diagonal(domain, A, gamma, debiased, route) -> bool:
+    """Whether ``D(mu_i, mu_i) = 0`` by definition: the pair's own decision is the exact
+    route or a debiased divergence (decided on the first distribution; a numeric ``gamma``
+    decides the same for every pair)."""
+    d = decide_distance(domain, A[:, 0], A[:, 0], route=route, gamma=gamma,
+                        debiased=debiased)
+    return d.route == "exact" or bool(d.debiased)
+
+
+def _kernel_key(d: DistanceDecision) -> tuple:
+    return (d.t if d.t is not None else d.gamma / 4.0, int(d.substeps))
+
+
+def _exact_pairs(domain, A, B, pairs, table: _Table, stop) -> None:
+    """The exact route: one cost matrix between the supports of the exact pairs' rows and
+    those of their columns, then one transport LP per pair on its sub-matrix."""
+    import ot
+
+    rows = np.flatnonzero((A[:, sorted({i for i, _ in pairs})] > 0).any(axis=1))
+    cols = np.flatnonzero((B[:, sorted({j for _, j in pairs})] > 0).any(axis=1))
+    if len(rows) * len(cols) > SHARED_COST_ENTRIES:
+        _exact_single_pairs(domain, A, B, pairs, table, stop)
+        return
+    at_row, at_col = np.full(A.shape[0], -1), np.full(A.shape[0], -1)
+    at_row[rows], at_col[cols] = np.arange(len(rows)), np.arange(len(cols))
+    stop("before the cost matrix")
+    cost = _support_costs(domain, rows, cols, stop)
+    for i, j in pairs:
+        stop(f"before pair ({i}, {j})")
+        src, dst = np.flatnonzero(A[:, i] > 0), np.flatnonzero(B[:, j] > 0)
+        if len(src) * len(dst) > MAX_SUPPORT_PRODUCT:
+            raise InputError(f"the exact route's LP of pair ({i}, {j}) has {len(src)} x "
+                             f"{len(dst)} entries, above its limit of {MAX_SUPPORT_PRODUCT}",
+                             field="route")
+        sub = cost[np.ix_(at_row[src], at_col[dst])]
+        a, b = A[src, i], B[dst, j]
+        plan, log = ot.emd(a, b, _finite_cost(sub), numItermax=10_000_000, log=True)
+        used = plan > 0
+        residual = float(np.abs(plan.sum(axis=1) - a).sum() + np.abs(plan.sum(axis=0) - b).sum())
+        table.put(i, j, float(np.sum(plan[used] * sub[used])), 1, residual,
+                  int(log.get("result_code", 0)) == 1, "exact")
+
+
+def _exact_single_pairs(domain, A, B, pairs, table: _Table, stop) -> None:
+    """Exact pairs one at a time (:func:`~solvers.convolutional.exact.
+    exact_wasserstein_distance`): when the shared cost matrix would be too large."""
+    from solvers.convolutional.exact import exact_wasserstein_distance
+
+    def cancelled() -> bool:
+        try:
+            stop("between geodesic solves")
+        except CancelledError:
+            return True
+        return False
+
+    for i, j in pairs:
+        stop(f"before pair ({i}, {j})")
+        try:
+            res = exact_wasserstein_distance(domain, A[:, i], B[:, j], should_cancel=cancelled)
+        except CancelledError:
+            stop(f"in pair ({i}, {j})")
+            raise
+        table.put(i, j, res.value, res.iterations, res.residual, res.converged, "exact")
+
+
+def _support_costs(domain, rows: np.ndarray, cols: np.ndarray, stop) -> np.ndarray:
+    """Squared ground distances between ``rows`` and ``cols`` (exact geodesics on meshes:
+    one MMP solve per point of the smaller side, or the stored all-pairs matrix)."""
+    if domain.kind != "mesh":
+        return _cost_matrix(domain, rows, cols)
+    from solvers.geodesics import geodesic_distances
+
+    def cancelled() -> bool:
+        try:
+            stop("between geodesic solves")
+        except CancelledError:
+            return True
+        return False
+
+    stored = domain.n <= STORED_GEODESICS_VERTICES and 2 * min(len(rows), len(cols)) >= domain.n
+    try:
+        if stored:
+            every = domain.operators.get(("exact_geodesics",), lambda: geodesic_distances(
+                domain, np.arange(domain.n), should_cancel=cancelled))
+            d = every[np.ix_(rows, cols)]
+        else:
+            d = geodesic_distances(domain, rows, cols, should_cancel=cancelled)
+    except CancelledError:
+        stop("between geodesic solves")  # re-raise with the partial result
+        raise
+    return d * d
+
+
+def _convolutional_pairs(domain, A, B, members, table: _Table, *, tol, max_iter, stop) -> None:
+    """Pairs sharing one heat kernel, advanced as blocks (module docstring)."""
+    first = members[0][1]
+    setups = {}
+
+    def setup_of(d: DistanceDecision):
+        key = (d.gamma, d.t, d.substeps)
+        if key not in setups:
+            setups[key] = prepare(domain, gamma=d.gamma, t=d.t, substeps=d.substeps, tol=tol,
+                                  max_iter=max_iter, progress=None, should_cancel=None)
+        return setups[key]
+
+    base = setup_of(first)
+    table.kernels.append((first.gamma, base.t, base.substeps, bool(first.debiased)))
+
+    def jobs() -> Iterator:
+        for (i, j), d in members:
+            setup = setup_of(d)
+            monitor = watch_stagnation(setup, project=max_iter is None)
+            yield (i, j), pair_steps(setup.areas, np.ascontiguousarray(A[:, i]),
+                                     np.ascontiguousarray(B[:, j]), gamma=setup.gamma,
+                                     debiased=bool(d.debiased), tol=setup.tol,
+                                     max_iter=setup.max_iter, monitor=monitor)
+
+    def done(key, solve: PairSolve) -> None:
+        table.put(key[0], key[1], solve.value, solve.iterations, solve.residual,
+                  solve.converged, "convolutional")
+
+    run_block(base.logk, jobs(), block_pairs(domain.n), done, stop)
+
+
+def run_block(logk, jobs: Iterator, capacity: int, done, stop) -> None:
+    """Advance step generators (``yield`` a log-input, receive ``logk`` of it) as blocks.
+
+    At most ``capacity`` generators are active; every step stacks their pending inputs
+    (a vector or an ``(n, c)`` block each) into one Fortran-ordered block, applies ``logk``
+    once and sends each its columns.  A finished generator's return value goes to
+    ``done(key, value)`` and the next job enters.  ``stop(where)`` runs before each step.
+    """
+    active: list[list] = []
+
+    def admit() -> None:
+        while len(active) < capacity:
+            job = next(jobs, None)
+            if job is None:
+                return
+            key, steps = job
+            active.append([key, steps, next(steps)])
+
+    with np.errstate(over="ignore", under="ignore"):
+        admit()
+        while active:
+            stop("between block steps")
+            widths = [1 if x.ndim == 1 else x.shape[1] for _, _, x in active]
+            block = np.empty((active[0][2].shape[0], sum(widths)), order="F")
+            start = 0
+            for (_, _, x), w in zip(active, widths, strict=True):
+                block[:, start:start + w] = x[:, None] if x.ndim == 1 else x
+                start += w
+            out = logk(block)
+            still = []
+            start = 0
+            for (key, steps, x), w in zip(active, widths, strict=True):
+                answer = out[:, start] if x.ndim == 1 else out[:, start:start + w]
+                start += w
+                try:
+                    still.append([key, steps, steps.send(np.array(answer))])
+                except StopIteration as finished:
+                    done(key, finished.value)
+            active[:] = still
+            admit()
+
+
+def _w1_pairs(domain, A, B, pairs, table: _Table, options: dict, stop) -> None:
+    from solvers.emd import earth_movers_distance
+
+    def cancelled() -> bool:
+        try:
+            stop("in a W1 solve")
+        except CancelledError:
+            return True
+        return False
+
+    for i, j in pairs:
+        stop(f"before pair ({i}, {j})")
+        try:
+            res = earth_movers_distance(domain, A[:, i], B[:, j], should_cancel=cancelled,
+                                        **options)
+        except CancelledError:
+            stop(f"in pair ({i}, {j})")
+            raise
+        table.put(i, j, res.value, res.iterations, res.residual, res.converged, "w1")

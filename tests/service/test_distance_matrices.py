@@ -1,0 +1,139 @@
+"""``/distance-matrices``: the matrix through HTTP equals the library's single pairs, its
+.npy file, progress over pairs, cancellation keeping finished rows, refusals at submission."""
+
+from __future__ import annotations
+
+import io
+import threading
+import time
+
+import numpy as np
+import pytest
+from service_testing import assert_error, upload_mesh
+
+from solvers.convolutional import wasserstein_distance
+
+BUMPS = [{"vertex": v, "radius": 0.3} for v in (0, 100, 300, 500)]
+SHARED = {"gamma": 0.01, "substeps": 8, "debiased": True}
+
+
+def _bump(mesh, vertex, radius):
+    d = np.linalg.norm(mesh.vertices - mesh.vertices[vertex], axis=1)
+    m = mesh.areas * np.clip(1 - d / radius, 0, None)
+    return m / m.sum()
+
+
+@pytest.fixture
+def woody(client, meshes_dir, shared_mesh):
+    return shared_mesh("woody.obj"), upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
+
+
+def _matrix(client, job_id) -> np.ndarray:
+    r = client.get(f"/v1/jobs/{job_id}/arrays/matrix.npy")
+    assert r.status_code == 200 and r.headers["content-type"] == "application/x-npy"
+    return np.load(io.BytesIO(r.content))
+
+
+def test_symmetric_matrix_equals_single_pairs(client, woody):
+    mesh, mid = woody
+    job = client.post(f"/v1/domains/{mid}/distance-matrices",
+                      json={"distributions": BUMPS, **SHARED}).json()
+    assert job["state"] == "succeeded", job
+    result = client.get(f"/v1/jobs/{job['id']}/result").json()
+    values = result["values"]
+    assert values["shape"] == [4, 4] and values["symmetric"] and values["complete"]
+    assert values["finished_rows"] == [0, 1, 2, 3] and values["pairs_solved"] == 6
+    assert values["routes"] == {"convolutional": 6} and values["converged"]
+    assert values["kernels"] == [{"gamma": 0.01, "t": 0.0025, "substeps": 8, "debiased": True}]
+    inline = np.array(result["arrays"]["matrix"])
+    D = _matrix(client, job["id"])
+    assert np.array_equal(inline, D) and np.array_equal(D, D.T) and np.all(np.diag(D) == 0)
+    masses = [_bump(mesh, b["vertex"], b["radius"]) for b in BUMPS]
+    for i, j in ((0, 1), (1, 3), (2, 3)):
+        single = wasserstein_distance(mesh, masses[i], masses[j], **SHARED)
+        assert abs(D[i, j] - single.value) <= 1e-6 * abs(single.value)
+    assert client.get(f"/v1/jobs/{job['id']}").json()["progress"]["iteration"] == 6
+
+
+def test_templates_default_route_and_large_result_as_file(make_client, meshes_dir,
+                                                           shared_mesh):
+    client = make_client(result_json_bytes=2000)  # the matrix only as .npy
+    mesh = shared_mesh("woody.obj")
+    mid = upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
+    rows = [{"vertex": v, "radius": 0.08} for v in (0, 200, 400)]
+    templates = [{"vertex": v, "radius": 0.08} for v in (650, 50)]
+    job = client.post(f"/v1/domains/{mid}/distance-matrices",
+                      json={"distributions": rows, "others": templates}).json()
+    assert job["state"] == "succeeded", job
+    result = client.get(f"/v1/jobs/{job['id']}/result").json()
+    assert "matrix" not in result["arrays"] and result["array_files"]["matrix"]["shape"] == [3, 2]
+    assert result["values"]["routes"] == {"exact": 6} and not result["values"]["symmetric"]
+    D = _matrix(client, job["id"])
+    m0 = _bump(mesh, 200, 0.08)
+    m1 = _bump(mesh, 50, 0.08)
+    single = wasserstein_distance(mesh, m0, m1)
+    assert single.route == "exact"
+    assert abs(D[1, 1] - single.value) <= 1e-6 * single.value
+
+
+def test_w1_matrix_triangle_inequality(client, woody):
+    _, mid = woody
+    job = client.post(f"/v1/domains/{mid}/distance-matrices",
+                      json={"distributions": BUMPS[:3], "metric": "w1"}).json()
+    assert job["state"] == "succeeded", job
+    D = _matrix(client, job["id"])
+    assert D[0, 2] <= (D[0, 1] + D[1, 2]) * (1 + 3e-4)
+    assert D[0, 1] <= (D[0, 2] + D[2, 1]) * (1 + 3e-4)
+    assert np.all(D[np.triu_indices(3, 1)] > 0)
+
+
+def test_cancelled_matrix_keeps_finished_rows(make_client, meshes_dir):
+    client = make_client(queue="sqlite", heartbeat_interval=0.05)
+    rt = client.app.state.runtime
+    mid = upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
+    body = {"distributions": [{"vertex": v, "radius": 0.3} for v in range(0, 690, 23)],
+            "metric": "w1"}  # 30 distributions, 435 W1 pairs in row order
+    job = client.post(f"/v1/domains/{mid}/distance-matrices", json=body).json()
+    worker = threading.Thread(target=rt.runner.run, args=(job["id"],))
+    worker.start()
+    deadline = time.monotonic() + 60
+    while (client.get(f"/v1/jobs/{job['id']}").json()["progress"]["iteration"] or 0) < 60:
+        assert time.monotonic() < deadline and worker.is_alive()
+        time.sleep(0.02)
+    assert client.delete(f"/v1/jobs/{job['id']}").status_code == 200
+    worker.join(timeout=60)
+    done = client.get(f"/v1/jobs/{job['id']}").json()
+    assert done["state"] == "cancelled" and done["error"]["code"] == "cancelled"
+    result = client.get(f"/v1/jobs/{job['id']}/result").json()
+    values = result["values"]
+    assert not values["complete"] and not values["converged"]
+    assert values["finished_rows"][:2] == [0, 1]  # rows 0 and 1: 29 + 28 pairs
+    assert 57 <= values["pairs_solved"] < 435
+    D = _matrix(client, job["id"])
+    assert np.all(np.isfinite(D[0])) and np.all(np.isfinite(D[:, 0]))
+    assert np.isnan(D[-2, -1])
+
+
+def test_memory_refused_at_submission_naming_the_size(make_client, meshes_dir):
+    client = make_client(job_memory_bytes=50 * 2**20)
+    mid = upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
+    small = client.post(f"/v1/domains/{mid}/distance-matrices",
+                        json={"distributions": BUMPS[:2], **SHARED})
+    assert small.status_code in (200, 202), small.text
+    many = [{"vertex": v % 690, "radius": 0.3} for v in range(2000)]
+    r = client.post(f"/v1/domains/{mid}/distance-matrices",
+                    json={"distributions": many, "others": many[:1500], **SHARED})
+    err = assert_error(r, 413, "distributions")
+    assert "GiB" in err["message"]
+
+
+def test_bad_inputs_name_the_field(client, woody):
+    _, mid = woody
+    url = f"/v1/domains/{mid}/distance-matrices"
+    assert_error(client.post(url, json={"distributions": [{"vertex": 10_000, "radius": 0.2}]}),
+                 422, "distributions[0].vertex")
+    assert_error(client.post(url, json={"distributions": []}), 422, "distributions")
+    grid = client.post("/v1/domains", json={"kind": "grid", "shape": [8, 8]}).json()["id"]
+    assert_error(client.post(f"/v1/domains/{grid}/distance-matrices",
+                             json={"distributions": [[1.0] * 64], "metric": "w1"}),
+                 422, "metric")

@@ -1,0 +1,189 @@
+"""Distance matrices: equal to single-pair calls, symmetric, W1 metric, progress, cancel."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from shared_meshes import load_shared_mesh
+
+from solvers import Grid
+from solvers.convolutional import distance_matrix, wasserstein_distance
+from solvers.emd import earth_movers_distance
+from solvers.errors import CancelledError, InputError
+
+
+def _bump(mesh, i: int, r: float) -> np.ndarray:
+    d = np.linalg.norm(mesh.vertices - mesh.vertices[i], axis=1)
+    m = mesh.areas * np.clip(1 - d / r, 0, None)
+    return m / m.sum()
+
+
+@pytest.fixture(scope="module")
+def woody():
+    mesh = load_shared_mesh("woody.obj")
+    wide = np.stack([_bump(mesh, i, 0.3) for i in (0, 100, 300, 500, 650)], axis=1)
+    return mesh, wide
+
+
+def _relative_gap(a: float, b: float) -> float:
+    return abs(a - b) / max(abs(b), 1e-300)
+
+
+def test_block_matrix_equals_single_pairs_one_kernel(woody):
+    """Explicit gamma: all 10 pairs share one kernel and run as one block."""
+    mesh, wide = woody
+    args = dict(gamma=0.01, substeps=8, debiased=True)
+    res = distance_matrix(mesh, wide, **args)
+    assert res.kernels == [(0.01, 0.0025, 8, True)]
+    for i in range(5):
+        for j in range(i + 1, 5):
+            single = wasserstein_distance(mesh, wide[:, i], wide[:, j], **args)
+            assert _relative_gap(res.values[i, j], single.value) <= 1e-6
+            assert res.pair_iterations[i, j] == single.iterations
+            assert res.pair_converged[i, j] == single.converged
+    assert np.array_equal(res.values, res.values.T)
+    assert np.all(np.diag(res.values) == 0.0)
+    assert set(np.diag(res.routes)) == {"identical"}
+    assert res.converged and res.residual <= 1e-5
+
+
+def test_default_matrix_equals_default_single_pairs(woody):
+    """Defaults: each pair takes its own single-pair decision (per-pair gamma on the
+    convolutional route; the exact LP for sparse supports from one shared cost matrix)."""
+    mesh, wide = woody
+    small = np.stack([_bump(mesh, i, 0.08) for i in (0, 300, 650)], axis=1)
+    for masses, route in ((wide[:, :3], "convolutional"), (small, "auto")):
+        res = distance_matrix(mesh, masses, route=route)
+        for i in range(3):
+            for j in range(i + 1, 3):
+                single = wasserstein_distance(mesh, masses[:, i], masses[:, j], route=route)
+                assert res.routes[i, j] == single.route
+                assert _relative_gap(res.values[i, j], single.value) <= 1e-6
+        assert np.array_equal(res.values, res.values.T)
+        assert np.all(np.diag(res.values) == 0.0)
+    assert set(res.routes[np.triu_indices(3, 1)]) == {"exact"}
+
+
+def test_rectangular_matrix_against_templates(woody):
+    mesh, wide = woody
+    args = dict(gamma=0.01, substeps=8, debiased=False)
+    res = distance_matrix(mesh, wide[:, :3], wide[:, 3:], **args)
+    assert res.values.shape == (3, 2) and not res.symmetric
+    for i in range(3):
+        for j in range(2):
+            single = wasserstein_distance(mesh, wide[:, i], wide[:, 3 + j], **args)
+            assert _relative_gap(res.values[i, j], single.value) <= 1e-6
+
+
+def test_not_debiased_diagonal_is_solved(woody):
+    mesh, wide = woody
+    res = distance_matrix(mesh, wide[:, :2], gamma=0.01, substeps=8, debiased=False)
+    own = wasserstein_distance(mesh, wide[:, 0], wide[:, 0], gamma=0.01, substeps=8)
+    assert res.routes[0, 0] == "convolutional"
+    assert _relative_gap(res.values[0, 0], own.value) <= 1e-6
+
+
+def test_grid_exact_matrix_matches_lp():
+    grid = Grid((12, 12))
+    rng = np.random.default_rng(3)
+    masses = np.zeros((grid.n, 4))
+    for k in range(4):
+        masses[rng.choice(grid.n, 5, replace=False), k] = rng.random(5) + 0.1
+    res = distance_matrix(grid, masses)
+    for i in range(4):
+        for j in range(i + 1, 4):
+            single = wasserstein_distance(grid, masses[:, i], masses[:, j])
+            assert single.route == "exact" and res.routes[i, j] == "exact"
+            assert _relative_gap(res.values[i, j], single.value) <= 1e-9
+
+
+def test_w1_matrix_triangle_inequality_and_single_pairs():
+    mesh = load_shared_mesh("woody.obj")
+    masses = np.stack([_bump(mesh, i, 0.2) for i in (0, 200, 400, 650)], axis=1)
+    res = distance_matrix(mesh, masses, metric="w1")
+    assert set(res.routes[np.triu_indices(4, 1)]) == {"w1"}
+    single = earth_movers_distance(mesh, masses[:, 1], masses[:, 2])
+    assert _relative_gap(res.values[1, 2], single.value) <= 1e-6
+    D = res.values
+    assert np.all(D[np.triu_indices(4, 1)] > 0)
+    for i in range(4):
+        for j in range(4):
+            for k in range(4):
+                # solver tolerance: certified relative gap 1e-4 per value
+                assert D[i, k] <= (D[i, j] + D[j, k]) * (1 + 3e-4)
+
+
+def test_progress_over_pairs_and_cancel_keeps_finished_rows(woody):
+    mesh, wide = woody
+    seen = []
+    distance_matrix(mesh, wide, gamma=0.01, substeps=8, debiased=True,
+                    progress=lambda done, worst, frac: seen.append((done, frac)))
+    assert [d for d, _ in seen] == list(range(1, 11)) and seen[-1][1] == 1.0
+
+    # One pair per row first: cancel once row 0's four pairs are done.
+    done = []
+    with pytest.raises(CancelledError) as info:
+        distance_matrix(mesh, wide, metric="w1", progress=lambda d, w: done.append(d),
+                        should_cancel=lambda: len(done) >= 4)
+    partial = info.value.partial
+    assert 0 in partial.finished_rows and partial.computed[0].all()
+    assert np.isnan(partial.values[2, 3]) and not partial.computed[2, 3]
+    assert np.all(np.isfinite(partial.values[0]))
+    assert not partial.converged
+
+
+def test_block_cancellation_keeps_finished_pairs(woody):
+    mesh, wide = woody
+    calls = []
+
+    def cancel() -> bool:
+        calls.append(1)
+        return len(calls) > 3
+
+    with pytest.raises(CancelledError) as info:
+        distance_matrix(mesh, wide, gamma=0.01, substeps=8, debiased=True,
+                        should_cancel=cancel)
+    partial = info.value.partial
+    assert partial.values.shape == (5, 5)
+    assert np.all(np.diag(partial.values) == 0.0)
+    assert np.isnan(partial.values[0, 1])  # nothing finished in three steps
+
+
+def test_input_errors(woody):
+    mesh, wide = woody
+    with pytest.raises(InputError) as info:
+        distance_matrix(mesh, wide, metric="w3")
+    assert info.value.field == "metric"
+    with pytest.raises(InputError) as info:
+        distance_matrix(mesh, wide[:-1])
+    assert info.value.field == "distributions"
+    with pytest.raises(InputError) as info:
+        distance_matrix(mesh, wide, -wide)
+    assert info.value.field == "others"
+
+
+def test_quick_route_decision_agrees_with_the_default(woody):
+    from solvers.convolutional.decision import decide_distance, decide_route
+    from solvers.regularization import sketch_of
+
+    mesh, wide = woody
+    small = [_bump(mesh, i, 0.08) for i in (0, 650)]
+    sketch = sketch_of(mesh)
+    for m0, m1 in ((small[0], small[1]), (wide[:, 0], wide[:, 4]), (small[0], wide[:, 2])):
+        quick, full = decide_route(sketch, m0, m1), decide_distance(sketch, m0, m1)
+        assert quick.route == full.route
+        if full.route == "exact":
+            assert quick.estimated_seconds >= full.estimated_seconds
+        else:
+            assert quick == full
+
+
+def test_exact_matrix_over_most_vertices_keeps_the_geodesic_matrix():
+    mesh = load_shared_mesh("woody.obj")
+    masses = np.stack([_bump(mesh, i, 0.15) for i in range(0, 694, 30)], axis=1)
+    assert 2 * np.count_nonzero(masses.sum(axis=1)) >= mesh.n
+    res = distance_matrix(mesh, masses, route="exact")
+    assert mesh.operators.peek(("exact_geodesics",)) is not None
+    for i, j in ((0, 5), (3, 17)):
+        single = wasserstein_distance(mesh, masses[:, i], masses[:, j], route="exact")
+        assert _relative_gap(res.values[i, j], single.value) <= 1e-9
