@@ -11,7 +11,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from solvers.color._kernels import _jit, _nearest_node, _rgb_of
+from solvers.color._kernels import _finv, _jit, _nearest_node, _rgb_of
 
 
 @_jit(inline="always")
@@ -110,44 +110,157 @@ def assign(key, row, lo, hi, start, offsets, ends, disp, scale, out):
         out[p, 1] = disp[t, 1] * scale
 
 
+GUIDE_SCALE = 0.01  # guide channels: Lab / 100
+
+
+def n_moments(c: int) -> int:
+    """Block moments of a ``c``-channel guide: I, I_i I_j (i <= j), Da, Db, I_i D, count."""
+    return c + c * (c + 1) // 2 + 2 + 2 * c + 1
+
+
 @_jit(parallel=True)
-def block_moments(lab, disp, width, s, out):
-    """Sums over each ``s × s`` block of: I, I², Da, Db, I·Da, I·Db, count (``I = L/100``),
-    into ``out`` ``(7, h, w)``."""
+def block_moments(lab, disp, width, s, nguide, out):
+    """Sums over each ``s × s`` block of the moments :func:`n_moments` lists, guide
+    ``I = lab[:, :nguide] / 100``, into ``out`` ``(n_moments, h, w)``."""
     hl = out.shape[1]
     wl = out.shape[2]
     height = lab.shape[0] // width
+    c = nguide
+    g = np.empty(3)
     for by in numba.prange(hl):
+        g = np.empty(3)
         for y in range(by * s, min(height, (by + 1) * s)):
             for x in range(width):
                 p = y * width + x
                 bx = x // s
                 if bx >= wl:
                     bx = wl - 1
-                g = np.float64(lab[p, 0]) * 0.01
+                for u in range(c):
+                    g[u] = np.float64(lab[p, u]) * GUIDE_SCALE
                 da = np.float64(disp[p, 0])
                 db = np.float64(disp[p, 1])
-                out[0, by, bx] += g
-                out[1, by, bx] += g * g
-                out[2, by, bx] += da
-                out[3, by, bx] += db
-                out[4, by, bx] += g * da
-                out[5, by, bx] += g * db
-                out[6, by, bx] += 1.0
+                k = 0
+                for u in range(c):
+                    out[k, by, bx] += g[u]
+                    k += 1
+                for u in range(c):
+                    for v in range(u, c):
+                        out[k, by, bx] += g[u] * g[v]
+                        k += 1
+                out[k, by, bx] += da
+                out[k + 1, by, bx] += db
+                k += 2
+                for u in range(c):
+                    out[k, by, bx] += g[u] * da
+                    out[k + 1, by, bx] += g[u] * db
+                    k += 2
+                out[k, by, bx] += 1.0
 
 
 @_jit(parallel=True)
-def apply_field(lab, src, out, width, lut_l, lstep, disp, coef, s, m, scale, offset):
+def guided_solve(mom, nguide, eps, coef):
+    """Per cell of the box-filtered means ``mom``: ``a_d = (cov(I) + eps)^{-1} cov(I, D_d)``
+    and ``b_d = mean D_d - a_d · mean I``; ``coef`` ``(2 nguide + 2, h, w)`` holds
+    ``a_a (nguide), a_b (nguide), b_a, b_b``."""
+    c = nguide
+    hl = mom.shape[1]
+    wl = mom.shape[2]
+    for y in numba.prange(hl):
+        S = np.empty((3, 3))
+        r = np.empty((3, 2))
+        mi = np.empty(3)
+        for x in range(wl):
+            for u in range(c):
+                mi[u] = mom[u, y, x]
+            k = c
+            for u in range(c):
+                for v in range(u, c):
+                    S[u, v] = mom[k, y, x] - mi[u] * mi[v]
+                    S[v, u] = S[u, v]
+                    k += 1
+            for u in range(c):
+                S[u, u] += eps
+            md0 = mom[k, y, x]
+            md1 = mom[k + 1, y, x]
+            k += 2
+            for u in range(c):
+                r[u, 0] = mom[k, y, x] - mi[u] * md0
+                r[u, 1] = mom[k + 1, y, x] - mi[u] * md1
+                k += 2
+            a = np.linalg.solve(S[:c, :c], r[:c])
+            ba = md0
+            bb = md1
+            for u in range(c):
+                coef[u, y, x] = a[u, 0]
+                coef[c + u, y, x] = a[u, 1]
+                ba -= a[u, 0] * mi[u]
+                bb -= a[u, 1] * mi[u]
+            coef[2 * c, y, x] = ba
+            coef[2 * c + 1, y, x] = bb
+
+
+@_jit(inline="always")
+def _linear_rgb(L, a, b, m):
+    y = (L + 16.0) / 116.0
+    x = _finv(a / 500.0 + y)
+    z = _finv(y - b / 200.0)
+    y = _finv(y)
+    return (m[0, 0] * x + m[0, 1] * y + m[0, 2] * z,
+            m[1, 0] * x + m[1, 1] * y + m[1, 2] * z,
+            m[2, 0] * x + m[2, 1] * y + m[2, 2] * z)
+
+
+@_jit(inline="always")
+def _in_gamut(L, a, b, m):
+    r, g, bb = _linear_rgb(L, a, b, m)
+    t = GAMUT_TOL
+    return -t <= r <= 1 + t and -t <= g <= 1 + t and -t <= bb <= 1 + t
+
+
+GAMUT_TOL = 1e-3
+GAMUT_STEP = 2.0
+
+
+@_jit()
+def gamut_lightness(L, a, b, m, reach):
+    """The L* nearest to ``L`` at which ``(L*, a, b)`` is inside the sRGB gamut (scan in
+    steps of ``GAMUT_STEP``, then bisection), if one lies within ``reach`` of ``L``;
+    ``L`` itself otherwise."""
+    if _in_gamut(L, a, b, m):
+        return L
+    for step in range(1, int(reach / GAMUT_STEP) + 1):
+        for sign in (-1.0, 1.0):
+            Lc = L + sign * step * GAMUT_STEP
+            if Lc < 0.0 or Lc > 100.0 or not _in_gamut(Lc, a, b, m):
+                continue
+            bad = Lc - sign * GAMUT_STEP
+            good = Lc
+            for _ in range(10):
+                mid = 0.5 * (bad + good)
+                if _in_gamut(mid, a, b, m):
+                    good = mid
+                else:
+                    bad = mid
+            return good
+    return L
+
+
+@_jit(parallel=True)
+def apply_field(lab, src, out, width, lut_l, lstep, disp, coef, nguide, s, m, scale,
+                offset, reach):
     """Recolor every pixel: ``L -> lut_l[bin]`` (empty: keep), ``ab += D`` with ``D`` the
-    per-pixel ``disp`` or, when ``coef`` ``(4, h, w)`` is given, the guided-filter output
-    ``coef[0:2]·I + coef[2:4]`` (``I = L/100`` of the input, coefficients bilinear);
-    Lab -> sRGB, ``out = v * scale + offset``; a fourth channel of ``src`` is copied."""
+    per-pixel ``disp`` or, when ``coef`` (from :func:`guided_solve`, box-filtered) is
+    given, the guided filter ``a · I + b`` (``I = lab[:, :nguide]/100`` of the input,
+    coefficients bilinear); an out-of-gamut colour moves to the nearest in-gamut L* within
+    ``reach`` L* units (:func:`gamut_lightness`), else it is clipped in RGB; Lab -> sRGB,
+    ``out = v * scale + offset``; a fourth channel of ``src`` is copied."""
     n = lab.shape[0]
     use_l = lut_l.shape[0] > 0
     nl = max(lut_l.shape[0], 1)
     guided = coef.shape[0] > 0
     alpha = src.shape[1] > 3 and out.shape[1] > 3
     inv_l = 1.0 / lstep
+    c = nguide
     for p in numba.prange(n):
         L0 = np.float64(lab[p, 0])
         A = np.float64(lab[p, 1])
@@ -155,9 +268,14 @@ def apply_field(lab, src, out, width, lut_l, lstep, disp, coef, s, m, scale, off
         if guided:
             y = p // width
             x = p - y * width
-            g = L0 * 0.01
-            A += _sample(coef[0], y, x, s) * g + _sample(coef[2], y, x, s)
-            B += _sample(coef[1], y, x, s) * g + _sample(coef[3], y, x, s)
+            da = _sample(coef[2 * c], y, x, s)
+            db = _sample(coef[2 * c + 1], y, x, s)
+            for u in range(c):
+                g = np.float64(lab[p, u]) * GUIDE_SCALE
+                da += _sample(coef[u], y, x, s) * g
+                db += _sample(coef[c + u], y, x, s) * g
+            A += da
+            B += db
         else:
             A += disp[p, 0]
             B += disp[p, 1]
@@ -170,6 +288,8 @@ def apply_field(lab, src, out, width, lut_l, lstep, disp, coef, s, m, scale, off
             if k > nl - 1:
                 k = nl - 1
             L = lut_l[k]
+        if reach > 0:
+            L = gamut_lightness(L, A, B, m, reach)
         r, g2, b = _rgb_of(L, A, B, m)
         out[p, 0] = r * scale + offset
         out[p, 1] = g2 * scale + offset

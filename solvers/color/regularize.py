@@ -29,22 +29,17 @@ from solvers.color import _split_kernels as K
 
 
 def guided_coefficients(lab: np.ndarray, disp: np.ndarray, shape: tuple[int, int], *,
-                        strength: float, s: int, radius: int) -> np.ndarray:
-    """Coefficients ``(4, h, w)`` float64 ``(a_a, a_b, b_a, b_b)`` of the guided filter of
-    ``disp`` ``(N, 2)`` guided by ``L/100`` of ``lab`` ``(N, 3)``, on ``s × s`` blocks,
-    window radius ``radius`` blocks, regularization ``strength``."""
+                        strength: float, s: int, radius: int, nguide: int = 3) -> np.ndarray:
+    """Box-filtered coefficients ``(2 nguide + 2, h, w)`` of the guided filter of ``disp``
+    ``(N, 2)`` with guide ``lab[:, :nguide] / 100`` (``lab`` ``(N, 3)``), on ``s × s``
+    blocks, window radius ``radius`` blocks, regularization ``strength``."""
     H, W = shape
     h, w = -(-H // s), -(-W // s)
-    mom = np.zeros((7, h, w))
-    K.block_moments(lab, disp, W, s, mom)
-    mom[:6] /= mom[6]
+    mom = np.zeros((K.n_moments(nguide), h, w))
+    K.block_moments(lab, disp, W, s, nguide, mom)
+    mom[:-1] /= mom[-1]
     size = 2 * radius + 1
-    m = [ndimage.uniform_filter(mom[c], size, mode="nearest") for c in range(6)]
-    mi, mii, mda, mdb, mida, midb = m
-    var = np.maximum(mii - mi * mi, 0.0) + strength
-    aa = (mida - mi * mda) / var
-    ab = (midb - mi * mdb) / var
-    ba = mda - aa * mi
-    bb = mdb - ab * mi
-    return np.stack([ndimage.uniform_filter(c, size, mode="nearest")
-                     for c in (aa, ab, ba, bb)])
+    means = np.stack([ndimage.uniform_filter(m, size, mode="nearest") for m in mom[:-1]])
+    coef = np.empty((2 * nguide + 2, h, w))
+    K.guided_solve(means, nguide, float(strength), coef)
+    return np.stack([ndimage.uniform_filter(c, size, mode="nearest") for c in coef])

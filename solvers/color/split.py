@@ -20,7 +20,9 @@ gets a third colour neither image has.  Here the plan itself is kept:
   coherent key (the box-smoothed ab around the pixel, projected on the principal
   direction of its targets; ties in raster order) and the node's targets by their
   projection on the same direction, and gives consecutive runs of ``n_ij`` pixels the
-  displacement :math:`y_j - x_i`.  No random draw: equal inputs give equal outputs.
+  displacement :math:`y_j - x_i` (node points: the mean ab of each node's pixels, so
+  the output's mean colour within every target node is the target's).  No random draw:
+  equal inputs give equal outputs.
 
 Every pixel then lands at the target node the plan sends it to, so the output histogram
 is the target's up to the binning and the integer rounding (before regularization,
@@ -44,12 +46,15 @@ KEY_LEVELS = 4096
 @dataclass
 class ExactPlan:
     """A plan between two node histograms: ``rows`` / ``cols`` the occupied source /
-    target node indices (flat, a* major), ``plan`` ``(len(rows), len(cols))`` masses,
-    ``cost`` :math:`\\sum \\pi_{ij} |x_i - y_j|^2`, ``residual`` the L1 violation of
-    both marginals, ``converged`` the network simplex reported an optimum."""
+    target node indices (flat, a* major), ``sources`` / ``targets`` their ab points
+    ``(R, 2)`` / ``(C, 2)`` (the mean ab of each node's pixels), ``plan`` ``(R, C)``
+    masses, ``cost`` :math:`\\sum \\pi_{ij} |x_i - y_j|^2`, ``residual`` the L1 violation
+    of both marginals, ``converged`` the network simplex reported an optimum."""
 
     rows: np.ndarray
     cols: np.ndarray
+    sources: np.ndarray
+    targets: np.ndarray
     plan: np.ndarray
     cost: float
     residual: float
@@ -61,20 +66,26 @@ def node_points(grid: AbGrid, index: np.ndarray) -> np.ndarray:
     return np.stack([nodes[index // grid.bins], nodes[index % grid.bins]], axis=1)
 
 
-def exact_plan(source: np.ndarray, target: np.ndarray, grid: AbGrid) -> ExactPlan:
-    """Optimal plan (squared ab distance) between two ``(bins, bins)`` histograms."""
+def exact_plan(source: np.ndarray, target: np.ndarray, grid: AbGrid,
+               source_means: np.ndarray | None = None,
+               target_means: np.ndarray | None = None) -> ExactPlan:
+    """Optimal plan (squared ab distance) between two ``(bins, bins)`` histograms; each
+    node's mass sits at its ``(2, bins²)`` mean ab (default: the node itself)."""
     import ot
 
     mu = np.asarray(source, dtype=np.float64).ravel()
     nu = np.asarray(target, dtype=np.float64).ravel()
     rows, cols = np.flatnonzero(mu > 0), np.flatnonzero(nu > 0)
     a, b = mu[rows] / mu[rows].sum(), nu[cols] / nu[cols].sum()
-    M = ot.dist(node_points(grid, rows), node_points(grid, cols))
+    xs = node_points(grid, rows) if source_means is None else source_means[:, rows].T
+    ys = node_points(grid, cols) if target_means is None else target_means[:, cols].T
+    M = ot.dist(xs, ys)
     plan, log = ot.emd(a, b, M, numItermax=50_000_000, log=True)
     residual = float(np.abs(plan.sum(1) - a).sum() + np.abs(plan.sum(0) - b).sum())
     if not np.all(np.isfinite(plan)):
         raise ConvergenceError("the network simplex returned a non-finite plan")
-    return ExactPlan(rows=rows, cols=cols, plan=plan, cost=float((plan * M).sum()),
+    return ExactPlan(rows=rows, cols=cols, sources=xs, targets=ys, plan=plan,
+                     cost=float((plan * M).sum()),
                      residual=residual, converged=int(log["result_code"]) == 1)
 
 
@@ -131,11 +142,13 @@ def split_displacements(lab: np.ndarray, shape: tuple[int, int], plan: ExactPlan
     R = len(plan.rows)
     row_of = np.full(grid.bins**2, -1, dtype=np.int64)
     row_of[plan.rows] = np.arange(R)
-    targets = node_points(grid, plan.cols)
+    targets = plan.targets
     dirs = _principal_directions(targets, plan.plan)
     key = np.empty(lab.shape[0], dtype=np.float32)
     row = np.empty(lab.shape[0], dtype=np.int64)
-    K.keys(lab, W, s, sa, sb, grid.nodes[0], grid.spacing, grid.bins, row_of, dirs, key, row)
+    # the same float32 grid constants as the histogram pass, so both bin pixels alike
+    K.keys(lab, W, s, sa, sb, np.float32(grid.nodes[0]), np.float32(grid.spacing), grid.bins,
+           row_of, dirs, key, row)
     if row.min() < 0:  # the plan was built from this image's own histogram
         raise RuntimeError("a pixel's ab node is missing from the plan's support")
     counts = np.bincount(row, minlength=R)
@@ -152,8 +165,7 @@ def split_displacements(lab: np.ndarray, shape: tuple[int, int], plan: ExactPlan
         offsets[r + 1] = offsets[r] + len(nz)
     cols = np.concatenate(cols_list)
     ends = np.concatenate(ends_list).astype(np.int64)
-    sources = node_points(grid, plan.rows)
-    disp = targets[cols] - np.repeat(sources, np.diff(offsets), axis=0)
+    disp = targets[cols] - np.repeat(plan.sources, np.diff(offsets), axis=0)
     lo, hi = K.key_ranges(key, row, R)
     levels = np.zeros((R, KEY_LEVELS), dtype=np.int64)
     K.level_counts(key, row, lo, hi, levels)

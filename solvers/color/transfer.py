@@ -52,15 +52,19 @@ from solvers.validation import check_positive, check_weights
 DEFAULT_GAMMA = 16.0
 MAX_IMAGES = 16
 MODES = ("split", "barycentric")
-DEFAULT_BINS = {"split": 64, "barycentric": 256}
+# odd: a* = b* = 0 (every grey) is a node, not a boundary between nodes
+DEFAULT_BINS = {"split": 65, "barycentric": 256}
 # guided filter epsilon (squared units of L*/100); chosen in bench/color.py
-DEFAULT_REGULARIZATION = 1e-3
+DEFAULT_REGULARIZATION = 1e-5
 # window radii as fractions of sqrt(H W): guided filter, and the smoothing of the key
 # that orders a bin's pixels (the split is coherent over about this scale)
 FILTER_RADIUS = 0.01
 KEY_RADIUS = 0.02
 # images are reduced by s x s blocks for the filters' moments above this many pixels
 REDUCED_PIXELS = 2**19
+GUIDE_CHANNELS = 3
+# an out-of-gamut result moves to the nearest in-gamut L* up to this far (keeps its ab)
+GAMUT_REACH = 100.0
 
 
 @dataclass(kw_only=True)
@@ -165,7 +169,7 @@ def color_transfer(
         uniform.  ``(0, 1)`` recolors image 0 with image 1's colors; ``(1 - s, s)`` for a
         sequence of ``s`` interpolates (Fig. 3.12).
     mode : ``"split"`` or ``"barycentric"``.
-    bins : nodes per axis of the ab grid over ``[-128, 128]^2`` (8..1024; default 64 for
+    bins : nodes per axis of the ab grid over ``[-128, 128]^2`` (8..1024; default 65 for
         ``split``, 256 for ``barycentric``).
     gamma : entropic regularization in squared ab units (kernel ``exp(-|x-y|^2/gamma)``,
         blur of standard deviation ``sqrt(gamma/2)``) of the entropic barycenters.
@@ -225,19 +229,22 @@ def check_regularization(value) -> float:
 
 
 def _analyze_all(images, bins, luminance, todo, nearest):
+    """Lab of the images to recolor, ab histograms, L* counts (and with ``nearest`` the
+    mean ab at each node, ``(k, 2, bins²)``)."""
     grid = AbGrid(bins)
     lbins = LBINS if luminance else 0
-    labs, hists, lcounts = [], [], []
+    labs, hists, lcounts, means = [], [], [], []
     for i, img in enumerate(images):
         px = pixels(img)
         lut, scale = lut_for(px.dtype)
-        lab, counts, lc = _kernels.analyze(px, lut, scale, bins, -128.0, grid.spacing,
-                                           lbins, L_MAX, keep_lab=i in todo,
-                                           nearest=nearest)
+        lab, counts, lc, *mean = _kernels.analyze(px, lut, scale, bins, -128.0,
+                                                  grid.spacing, lbins, L_MAX,
+                                                  keep_lab=i in todo, nearest=nearest)
         labs.append(lab)
         hists.append(counts.reshape(bins, bins) / px.shape[0])
         lcounts.append(lc)
-    return labs, np.stack(hists), lcounts
+        means.extend(mean)
+    return labs, np.stack(hists), lcounts, (np.stack(means) if nearest else None)
 
 
 def _barycentric(images, A, bins, luminance, todo, t0, opts) -> ColorTransferResult:
@@ -245,7 +252,7 @@ def _barycentric(images, A, bins, luminance, todo, t0, opts) -> ColorTransferRes
     times: dict[str, float] = {}
     k = len(images)
     grid = AbGrid(bins)
-    labs, H, lcounts = _analyze_all(images, bins, luminance, todo, nearest=False)
+    labs, H, lcounts, _ = _analyze_all(images, bins, luminance, todo, nearest=False)
     times["analyze"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
@@ -282,10 +289,8 @@ def _barycentric(images, A, bins, luminance, todo, t0, opts) -> ColorTransferRes
 
 def _mccann(plan: ExactPlan, grid: AbGrid, s: float) -> np.ndarray:
     """Histogram of the plan pushed through ``(1 - s) x + s y`` (bilinear on the nodes)."""
-    from solvers.color.split import node_points
-
     i, j = np.nonzero(plan.plan)
-    pts = (1 - s) * node_points(grid, plan.rows[i]) + s * node_points(grid, plan.cols[j])
+    pts = (1 - s) * plan.sources[i] + s * plan.targets[j]
     index, weight = grid.splat(pts)
     m = plan.plan[i, j]
     out = sum(np.bincount(q, weights=w * m, minlength=grid.bins**2)
@@ -320,7 +325,7 @@ def _split(images, A, bins, luminance, regularization, todo, t0, opts) -> ColorT
     times: dict[str, float] = {}
     k = len(images)
     grid = AbGrid(bins)
-    labs, H, lcounts = _analyze_all(images, bins, luminance, todo, nearest=True)
+    labs, H, lcounts, means = _analyze_all(images, bins, luminance, todo, nearest=True)
     times["analyze"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
@@ -328,13 +333,13 @@ def _split(images, A, bins, luminance, regularization, todo, t0, opts) -> ColorT
     lmaps = luminance_maps(np.stack(lcounts), A) if luminance else None
     plans: dict = {}
 
-    def plan(i, key, target):
+    def plan(i, key, target, target_means=None):
         if key not in plans:
-            plans[key] = exact_plan(H[i], target, grid)
+            plans[key] = exact_plan(H[i], target, grid, means[i], target_means)
         return plans[key]
 
     if k == 2 and any(kind == "pair" for kind, _ in kinds):
-        p01 = plan(0, (0, 1), H[1])
+        p01 = plan(0, (0, 1), H[1], means[1])
     for b, (kind, _) in enumerate(kinds):
         if kind == "pair":
             targets[b] = _mccann(p01, grid, float(A[b, 1]))
@@ -348,10 +353,10 @@ def _split(images, A, bins, luminance, regularization, todo, t0, opts) -> ColorT
                 out_images[b][i] = images[i].copy()
                 continue
             if kind == "vertex":
-                p, scale = plan(i, (i, data), H[data]), 1.0
+                p, scale = plan(i, (i, data), H[data], means[data]), 1.0
             elif kind == "pair":
                 j = 1 - i
-                p, scale = plan(i, (i, j), H[j]), float(A[b, j])
+                p, scale = plan(i, (i, j), H[j], means[j]), float(A[b, j])
             else:
                 p, scale = plan(i, (i, f"b{data}"), targets[b]), 1.0
             lut_l = None if lmaps is None else lmaps[b, i]
@@ -387,12 +392,12 @@ def _recolor_split(img, lab, plan, grid, scale, lut_l, regularization):
     coef = np.zeros((0, 1, 1))
     if regularization > 0:
         coef = guided_coefficients(lab, disp, shape, strength=regularization, s=s,
-                                   radius=filter_radius)
+                                   radius=filter_radius, nguide=GUIDE_CHANNELS)
     src = pixels(img)
     out = np.empty_like(src)
     lut = np.zeros(0, dtype=np.float32) if lut_l is None else lut_l.astype(np.float32)
     scale_out = code_scale(img.dtype)
     offset = 0.5 if img.dtype.kind in "ui" else 0.0
-    SK.apply_field(lab, src, out, shape[1], lut, L_MAX / LBINS, disp, coef, s,
-                   _kernels._M_INV, scale_out, offset)
+    SK.apply_field(lab, src, out, shape[1], lut, L_MAX / LBINS, disp, coef, GUIDE_CHANNELS,
+                   s, _kernels._M_INV, scale_out, offset, float(GAMUT_REACH))
     return out.reshape(img.shape).astype(img.dtype, copy=False)
