@@ -60,6 +60,7 @@ DEFAULT_REGULARIZATION = 1e-5
 # that orders a bin's pixels (the split is coherent over about this scale)
 FILTER_RADIUS = 0.01
 KEY_RADIUS = 0.02
+MIN_FILTER_RADIUS = 4  # pixels: small images still get a window that can smooth a step
 # images are reduced by s x s blocks for the filters' moments above this many pixels
 REDUCED_PIXELS = 2**19
 GUIDE_CHANNELS = 3
@@ -382,7 +383,8 @@ def reduction(shape: tuple[int, int]) -> tuple[int, int, int]:
     H, W = shape
     side = float(np.sqrt(H * W))
     s = max(1, int(np.sqrt(H * W / REDUCED_PIXELS)))
-    return (s, max(1, round(KEY_RADIUS * side / s)), max(1, round(FILTER_RADIUS * side / s)))
+    filter_px = max(MIN_FILTER_RADIUS, FILTER_RADIUS * side)
+    return (s, max(1, round(KEY_RADIUS * side / s)), max(1, round(filter_px / s)))
 
 
 def _recolor_split(img, lab, plan, grid, scale, lut_l, regularization):
