@@ -45,11 +45,13 @@ def test_two_colour_source_split_reproduces_the_target_histogram():
     q1 = rgb_to_lab_reference(out[:, 30:])[..., 1] < -30  # the Q1 pixels of the right half
     assert q1.sum() == 600
     changes = np.count_nonzero(np.diff(q1, axis=0)) + np.count_nonzero(np.diff(q1, axis=1))
-    assert changes <= 40  # one straight boundary across the 30 columns (+ slack)
+    # a random split would change label between ~half of all 2 x 1200 neighbour pairs
+    # (~1200); two solid blocks: one boundary, at most ~2 region sides long
+    assert changes <= 2 * 40
 
 
 def test_constant_image_stays_constant_towards_a_constant_target():
-    src = flat((40, 10, 10), (30, 40))
+    src = flat((40, 12, 8), (30, 40))
     tgt = flat((70, -20, 30), (25, 25))
     for reg in (0.0, None):
         kw = {} if reg is None else {"regularization": reg}

@@ -203,8 +203,9 @@ def _analyze(px, lut, m, lab, nbins, lo, h, lbins, lmax, hist, lhist, nearest, s
                 lab[p, 1] = A
                 lab[p, 2] = B
             if nbins > 0 and nearest:
-                q = (_nearest_node(A, lo, inv_h, nbins) * nbins
-                     + _nearest_node(B, lo, inv_h, nbins))
+                # bin the stored (float32) values, as every later pass reads them
+                q = (_nearest_node(np.float64(np.float32(A)), lo, inv_h, nbins) * nbins
+                     + _nearest_node(np.float64(np.float32(B)), lo, inv_h, nbins))
                 hist[c, q] += 1.0
                 sums[c, 0, q] += A
                 sums[c, 1, q] += B

@@ -157,6 +157,29 @@ def block_moments(lab, disp, width, s, nguide, out):
                 out[k, by, bx] += 1.0
 
 
+@_jit(inline="always")
+def _solve_small(S, r, c):
+    """``S[:c, :c]^{-1} r[:c]`` for ``c`` in (1, 3), symmetric positive definite ``S``
+    (closed form: a LAPACK call per cell costs more than the whole filter)."""
+    a = np.empty((3, 2))
+    if c == 1:
+        a[0, 0] = r[0, 0] / S[0, 0]
+        a[0, 1] = r[0, 1] / S[0, 0]
+        return a
+    c00 = S[1, 1] * S[2, 2] - S[1, 2] * S[2, 1]
+    c01 = S[1, 2] * S[2, 0] - S[1, 0] * S[2, 2]
+    c02 = S[1, 0] * S[2, 1] - S[1, 1] * S[2, 0]
+    c11 = S[0, 0] * S[2, 2] - S[0, 2] * S[2, 0]
+    c12 = S[0, 2] * S[1, 0] - S[0, 0] * S[1, 2]
+    c22 = S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0]
+    det = S[0, 0] * c00 + S[0, 1] * c01 + S[0, 2] * c02
+    for d in range(2):
+        a[0, d] = (c00 * r[0, d] + c01 * r[1, d] + c02 * r[2, d]) / det
+        a[1, d] = (c01 * r[0, d] + c11 * r[1, d] + c12 * r[2, d]) / det
+        a[2, d] = (c02 * r[0, d] + c12 * r[1, d] + c22 * r[2, d]) / det
+    return a
+
+
 @_jit(parallel=True)
 def guided_solve(mom, nguide, eps, coef):
     """Per cell of the box-filtered means ``mom``: ``a_d = (cov(I) + eps)^{-1} cov(I, D_d)``
@@ -187,7 +210,7 @@ def guided_solve(mom, nguide, eps, coef):
                 r[u, 0] = mom[k, y, x] - mi[u] * md0
                 r[u, 1] = mom[k + 1, y, x] - mi[u] * md1
                 k += 2
-            a = np.linalg.solve(S[:c, :c], r[:c])
+            a = _solve_small(S, r, c)
             ba = md0
             bb = md1
             for u in range(c):
