@@ -125,8 +125,8 @@ def test_constant_shift_is_recovered():
     bins = 129  # h = 2 ab units; the shift is a multiple of it
     shift = (12.0, -8.0)
     src, tgt, lab_s, lab_t = _shifted_pair(shift)
-    r = color_transfer([src, tgt], [0.0, 1.0], bins=bins, gamma=8.0, luminance=False,
-                       recolor=[0])
+    r = color_transfer([src, tgt], [0.0, 1.0], mode="barycentric", bins=bins, gamma=8.0,
+                       luminance=False, recolor=[0])
     assert r.converged and r.residual <= 1e-4
     h = AbGrid(bins).spacing
     # T_0 is the shift at every node of the source's support (to the grid resolution)
@@ -147,9 +147,10 @@ def test_constant_shift_is_recovered():
     assert np.abs(lab_o[..., 0] - lab_s[..., 0]).max() < 1e-3
 
 
-def test_identity_weights_return_the_input(photos):
+def test_identity_weights_barycentric_mode(photos):
     imgs = [photos["coffee"], photos["chelsea"]]
-    r = color_transfer(imgs, [1.0, 0.0], bins=128, gamma=16.0, recolor=[0])
+    r = color_transfer(imgs, [1.0, 0.0], mode="barycentric", bins=128, gamma=16.0,
+                       recolor=[0])
     out = r.images[0][0]
     assert out.shape == imgs[0].shape and out.dtype == np.uint8
     # Measured: T_0 moves ab by < 0.05 units (entropic blur of a Gaussian kernel has zero
@@ -197,14 +198,17 @@ def test_interpolation_sequence_sharpen_and_debiased(photos):
     imgs = [photos["coffee"][::2, ::2], photos["astronaut"][::2, ::2]]
     s = [0.0, 0.5, 1.0]
     alphas = [[1 - x, x] for x in s]
-    plain = color_transfer(imgs, alphas, bins=64, gamma=32.0, luminance=False)
+    plain = color_transfer(imgs, alphas, mode="barycentric", bins=64, gamma=32.0,
+                           luminance=False)
     assert plain.barycenters.shape == (3, 64, 64) and len(plain.images) == 3
     # image 0's mean chroma moves monotonically along the sequence
     means = [rgb_to_lab(plain.images[b][0])[..., 1:].reshape(-1, 2).mean(0) for b in range(3)]
     d = [np.linalg.norm(m - means[0]) for m in means]
     assert d[0] < d[1] < d[2]
-    sharp = color_transfer(imgs, alphas[1], bins=64, gamma=32.0, sharpen=True)
-    deb = color_transfer(imgs, alphas[1], bins=64, gamma=32.0, debiased=True)
+    sharp = color_transfer(imgs, alphas[1], mode="barycentric", bins=64, gamma=32.0,
+                           sharpen=True)
+    deb = color_transfer(imgs, alphas[1], mode="barycentric", bins=64, gamma=32.0,
+                         debiased=True)
     from solvers.convolutional.common import entropy
 
     n = 64 * 64
@@ -241,7 +245,8 @@ def test_flat_image_goes_to_the_target_means(photos):
     barycentric projection of a Dirac's plan), in L* and in ab."""
     gray = np.full((40, 50, 3), 128, np.uint8)
     tgt = photos["coffee"][::4, ::4]
-    r = color_transfer([gray, tgt], [0.0, 1.0], bins=64, gamma=16.0, recolor=[0])
+    r = color_transfer([gray, tgt], [0.0, 1.0], mode="barycentric", bins=64, gamma=16.0,
+                       recolor=[0])
     out = rgb_to_lab_reference(r.images[0][0]).reshape(-1, 3)
     assert out.std(axis=0).max() < 1e-6
     mean = rgb_to_lab_reference(tgt).reshape(-1, 3).mean(axis=0)

@@ -15,7 +15,11 @@ from pydantic import ValidationError
 from service.api.deps import IdempotencyKeyDep, JobSvc, RuntimeDep
 from service.api.operations import ROUTE_RESPONSES, WAIT_DESCRIPTION, finish_submission
 from service.errors import InvalidInput, PayloadTooLarge, responses
-from service.operations.color import ColorTransferRequest, check_header
+from service.operations.color import (
+    DEFAULT_REGULARIZATION,
+    ColorTransferRequest,
+    check_header,
+)
 from service.operations.guide_pages import openapi_extra
 from service.schemas import JobOut
 from service.tenants import check_bytes_quota
@@ -60,8 +64,8 @@ def _store_images(rt, tenant, uploads: list[bytes], media: list[str]) -> list[st
     "/color-transfers", operation_id="createColorTransfer", status_code=202,
     response_model=JobOut, responses={**ROUTE_RESPONSES, **responses(413)},
     openapi_extra=openapi_extra("color-transfers"),
-    summary="Color transfer between 2-16 uploaded images by Wasserstein barycenters of their "
-            "chrominance histograms (thesis §3.7)")
+    summary="Color transfer between 2-16 uploaded images by optimal transport of their "
+            "chrominance histograms (exact split plans, or the thesis' barycentric map, §3.7)")
 async def create_color_transfer(
     response: Response, svc: JobSvc, rt: RuntimeDep, idempotency_key: IdempotencyKeyDep,
     images: Annotated[list[UploadFile], File(description="2 to 16 image files (PNG, JPEG, "
@@ -69,9 +73,16 @@ async def create_color_transfer(
     weights: str | None = Form(None, description="JSON list: one weight per image"),
     alphas: str | None = Form(None, description="JSON list of weight vectors (a sequence, "
                               "e.g. [[1,0],[0.5,0.5],[0,1]])"),
-    bins: int = Form(128, description="nodes per axis of the ab grid (8..512)"),
+    mode: Literal["split", "barycentric"] = Form(
+        "split", description="split: exact plan, each color's pixels split among its "
+        "targets, guided filter; barycentric: the thesis' map (Fig. 3.12)"),
+    bins: int | None = Form(None, description="nodes per axis of the ab grid (8..512; default "
+                            "65 split, 256 barycentric)"),
     gamma: float = Form(16.0, description="entropic regularization (squared ab units)"),
-    luminance: bool = Form(True, description="also transfer L* (1-D OT)"),
+    regularization: float = Form(DEFAULT_REGULARIZATION, description="split mode: guided "
+                                 "filter strength (0..1; 0 = off)"),
+    luminance: bool = Form(True, description="also transfer L* (1-D OT); false: "
+                           "chrominance only"),
     sharpen: bool = Form(False, description="entropic sharpening of the barycenters"),
     debiased: bool = Form(False, description="debiased barycenters"),
     recolor: str | None = Form(None, description="JSON list of image indices to recolor"),
@@ -80,7 +91,8 @@ async def create_color_transfer(
     wait: float = Query(0.0, ge=0, description=WAIT_DESCRIPTION),
 ):
     """Upload the images and create the job; results at `/v1/jobs/{id}/result`, images at
-    `/v1/jobs/{id}/files/image-{b}-{i}.png` and `barycenter-{b}.png`."""
+    `/v1/jobs/{id}/files/image-{b}-{i}.png`, `barycenter-{b}.png`, `histogram-{i}.png`
+    and `histogram-{b}-{i}.png`."""
     if len(images) < 2:
         raise InvalidInput(f"color transfer needs at least 2 images, got {len(images)}",
                            field="images")
@@ -101,7 +113,8 @@ async def create_color_transfer(
     try:
         body = ColorTransferRequest(
             images=ids, weights=_json_list(weights, "weights"),
-            alphas=_json_list(alphas, "alphas"), bins=bins, gamma=gamma, luminance=luminance,
+            alphas=_json_list(alphas, "alphas"), mode=mode, bins=bins, gamma=gamma,
+            regularization=regularization, luminance=luminance,
             sharpen=sharpen, debiased=debiased, recolor=_json_list(recolor, "recolor"),
             format=format, time_limit=time_limit)
     except ValidationError as exc:

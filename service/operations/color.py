@@ -8,10 +8,17 @@ files, no decompression bombs) within the per-image and per-job pixel limits
 ``bins`` and ``gamma`` pass the library's validators, so an accepted job can fail only for
 numerical reasons.
 
-Result: ``values`` (solver metrics, per-output chrominance statistics, file names), arrays
-``histograms`` ``(k, bins²)`` and ``barycenters`` ``(B, bins²)``, and files
-``image-{b}-{i}.png`` (or ``.jpg``; input ``i`` recolored for weight vector ``b``) and
-``barycenter-{b}.png`` (the barycenter histogram as a picture, Fig. 3.12).
+``mode`` picks the transfer: ``split`` (default; exact plan, pixels split in its
+proportions, guided-filter regularization of strength ``regularization``) or
+``barycentric`` (the thesis' map, Fig. 3.12); ``luminance=false`` transfers chrominance
+only.
+
+Result: ``values`` (solver metrics, per-output chrominance statistics, the exact plans'
+costs in split mode, file names), arrays ``histograms`` ``(k, bins²)`` and
+``barycenters`` ``(B, bins²)``, and files ``image-{b}-{i}.png`` (or ``.jpg``; input ``i``
+recolored for weight vector ``b``), ``barycenter-{b}.png`` (the histogram the inputs go
+to, as a picture, Fig. 3.12), ``histogram-{i}.png`` (input ``i``'s ab histogram) and
+``histogram-{b}-{i}.png`` (the output's), so inputs, outputs and target can be compared.
 """
 
 from __future__ import annotations
@@ -25,6 +32,7 @@ from service.errors import InvalidInput, PayloadTooLarge
 from service.operations.base import Operation, OperationOutput, OperationRequest, ResultFile
 from service.operations.examples import EXAMPLE_ID, example
 from solvers.color import (
+    ab_histogram,
     color_transfer,
     histogram_picture,
     probe_image,
@@ -33,7 +41,13 @@ from solvers.color import (
     write_image,
 )
 from solvers.color.chrominance import check_bins
-from solvers.color.transfer import DEFAULT_GAMMA, MAX_IMAGES, check_alphas
+from solvers.color.transfer import (
+    DEFAULT_BINS,
+    DEFAULT_GAMMA,
+    DEFAULT_REGULARIZATION,
+    MAX_IMAGES,
+    check_alphas,
+)
 from solvers.validation import check_positive
 
 MAX_ALPHAS = 32
@@ -43,7 +57,7 @@ EXT = {"png": "png", "jpeg": "jpg"}
 
 class ColorTransferRequest(OperationRequest):
     model_config = example({"images": [EXAMPLE_ID, EXAMPLE_ID], "weights": [0.5, 0.5],
-                                  "bins": 64})
+                            "mode": "split", "regularization": DEFAULT_REGULARIZATION})
     images: list[str] = Field(min_length=2, max_length=MAX_IMAGES,
                               description="blob ids of the uploaded images (2 to 16)")
     weights: list[float] | None = Field(None, description="one barycentric weight per image "
@@ -51,11 +65,24 @@ class ColorTransferRequest(OperationRequest):
     alphas: list[list[float]] | None = Field(
         None, min_length=1, max_length=MAX_ALPHAS, description="several weight vectors "
         "(e.g. (1 - s, s) for a sequence of s, thesis Fig. 3.12); exclusive with weights")
-    bins: int = Field(128, ge=8, le=512, description="nodes per axis of the ab histogram "
-                      "grid over [-128, 128]^2")
+    mode: Literal["split", "barycentric"] = Field(
+        "split", description="split: exact plan between the ab histograms, each color's "
+        "pixels split among its targets in the plan's proportions (spatially coherent), "
+        "then a guided filter on the color shift; barycentric: the thesis' barycentric "
+        "projection of the entropic plans (Fig. 3.12)")
+    bins: int | None = Field(None, ge=8, le=512, description="nodes per axis of the ab "
+                             "histogram grid over [-128, 128]^2 (default "
+                             f"{DEFAULT_BINS['split']} for split, "
+                             f"{DEFAULT_BINS['barycentric']} for barycentric)")
     gamma: float = Field(DEFAULT_GAMMA, gt=0, description="entropic regularization in "
-                         "squared ab units (blur of standard deviation sqrt(gamma/2))")
-    luminance: bool = Field(True, description="also transfer L* (1-D optimal transport)")
+                         "squared ab units (blur of standard deviation sqrt(gamma/2)) of the "
+                         "entropic barycenters (barycentric mode; split mode with 3+ images)")
+    regularization: float = Field(
+        DEFAULT_REGULARIZATION, ge=0, le=1, description="split mode: strength (epsilon) of "
+        "the edge-aware guided filter of the color shift, guided by the input's Lab; "
+        "0 turns it off (exact histogram, possible banding)")
+    luminance: bool = Field(True, description="also transfer L* (1-D optimal transport); "
+                            "false transfers chrominance only")
     sharpen: bool = Field(False, description="entropic sharpening of the barycenters")
     debiased: bool = Field(False, description="debiased barycenters (less entropic blur)")
     recolor: list[int] | None = Field(None, description="indices of the images to recolor "
@@ -75,21 +102,34 @@ class ColorOutputInfo(BaseModel):
     mean_ab_after: list[float]
 
 
+class ColorPlanInfo(BaseModel):
+    image_index: int
+    target: str = Field(description="index of the target image, or b<k> for barycenter k")
+    cost: float = Field(description="squared W2 of the plan (ab units²)")
+    residual: float = Field(description="L1 violation of the plan's marginals")
+    converged: bool
+
+
 class ColorTransferValues(BaseModel):
     """``values`` of a color-transfer result."""
 
     n_images: int
     alphas: list[list[float]]
+    mode: str
+    regularization: float
     bins: int
     gamma: float
-    iterations: int
+    iterations: int = Field(description="iterations of the entropic barycenter (0 if none ran)")
     residual: float = Field(description="largest L1 marginal violation over all plans")
+    plans: list[ColorPlanInfo] = Field(description="split mode: the exact plans used")
     converged: bool
     window: list[list[int]] = Field(description="[[a_start, a_stop], [b_start, b_stop]]: "
                                     "grid nodes the barycenter was computed on")
     timings: dict[str, float]
     outputs: list[ColorOutputInfo]
     barycenter_pictures: list[str]
+    histogram_pictures: list[str] = Field(description="histogram-{i}.png: input i's ab "
+                                          "histogram; histogram-{b}-{i}.png: output's")
     arrays: list[str]
 
 
@@ -129,7 +169,8 @@ def check_header(data: bytes, field: str, settings):
 
 def validate(ctx, req: ColorTransferRequest) -> list[dict]:
     A = _alphas(req)
-    check_bins(req.bins)
+    if req.bins is not None:
+        check_bins(req.bins)
     check_positive(req.gamma, "gamma")
     _recolor(req)
     blobs = [ctx.blob(blob_id, f"images[{i}]") for i, blob_id in enumerate(req.images)]
@@ -148,12 +189,21 @@ def run(ctx, req: ColorTransferRequest, progress, should_cancel) -> OperationOut
     images = [read_image(ctx.blob(b, f"images[{i}]"), f"images[{i}]")
               for i, b in enumerate(req.images)]
     A = _alphas(req)
-    r = color_transfer(images, A, bins=req.bins, gamma=req.gamma, luminance=req.luminance,
+    r = color_transfer(images, A, mode=req.mode, bins=req.bins, gamma=req.gamma,
+                       luminance=req.luminance, regularization=req.regularization,
                        sharpen=req.sharpen, debiased=req.debiased, recolor=_recolor(req),
                        tol=req.tol, max_iter=req.max_iter, progress=progress,
                        should_cancel=should_cancel)
     files: dict[str, ResultFile] = {}
     outputs = []
+    pictures = []
+
+    def picture(name, masses):
+        files[name] = ResultFile("image/png", write_image(histogram_picture(masses)))
+        pictures.append(name)
+
+    for i in range(len(images)):
+        picture(f"histogram-{i}.png", r.histograms[i])
     before = [rgb_to_lab(img)[..., 1:].reshape(-1, 2).mean(axis=0) for img in images]
     for b in range(A.shape[0]):
         for i, out in enumerate(r.images[b]):
@@ -161,7 +211,9 @@ def run(ctx, req: ColorTransferRequest, progress, should_cancel) -> OperationOut
                 continue
             name = f"image-{b}-{i}.{EXT[req.format]}"
             files[name] = ResultFile(MEDIA[req.format], write_image(out, req.format))
-            after = rgb_to_lab(out)[..., 1:].reshape(-1, 2).mean(axis=0)
+            ab = rgb_to_lab(out)[..., 1:]
+            after = ab.reshape(-1, 2).mean(axis=0)
+            picture(f"histogram-{b}-{i}.png", ab_histogram(ab, r.bins))
             outputs.append(ColorOutputInfo(
                 file=name, alpha_index=b, image_index=i, width=int(out.shape[1]),
                 height=int(out.shape[0]), mean_ab_before=[float(x) for x in before[i]],
@@ -169,12 +221,17 @@ def run(ctx, req: ColorTransferRequest, progress, should_cancel) -> OperationOut
         pic = f"barycenter-{b}.png"
         files[pic] = ResultFile("image/png", write_image(histogram_picture(r.barycenters[b])))
     rows, cols = r.window
+    plans = [ColorPlanInfo(image_index=int(i), target=str(t), cost=p.cost,
+                           residual=p.residual, converged=p.converged).model_dump()
+             for (i, t), p in r.plans.items()]
     values = ColorTransferValues(
-        n_images=len(images), alphas=A.tolist(), bins=r.bins, gamma=r.gamma,
-        iterations=r.iterations, residual=r.residual, converged=r.converged,
+        n_images=len(images), alphas=A.tolist(), mode=r.mode,
+        regularization=r.regularization, bins=r.bins, gamma=r.gamma,
+        iterations=r.iterations, residual=r.residual, converged=r.converged, plans=plans,
         window=[[int(rows.start), int(rows.stop)], [int(cols.start), int(cols.stop)]],
         timings={k: float(v) for k, v in r.timings.items()}, outputs=outputs,
         barycenter_pictures=[f"barycenter-{b}.png" for b in range(A.shape[0])],
+        histogram_pictures=pictures,
         arrays=["histograms", "barycenters"]).model_dump()
     arrays = {"histograms": r.histograms.reshape(len(images), -1).astype(np.float32),
               "barycenters": r.barycenters.reshape(A.shape[0], -1).astype(np.float32)}
@@ -185,8 +242,9 @@ OPERATIONS = [
     Operation(
         name="color-transfers",
         operation_id="createColorTransfer",
-        summary="Color transfer between 2-16 uploaded images by Wasserstein barycenters of "
-                "their chrominance histograms (thesis §3.7)",
+        summary="Color transfer between 2-16 uploaded images by optimal transport of their "
+                "chrominance histograms (exact split plans, or the thesis' barycentric "
+                "map, §3.7)",
         request_model=ColorTransferRequest,
         run=run,
         validate=validate,

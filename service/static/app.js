@@ -655,8 +655,15 @@ function showFiles(result) {
   };
   const inputs = state.jobInputs && state.jobInputs.jobId === result.job_id ? state.jobInputs.files : [];
   if (inputs.length) strip("inputs", inputs.map((f) => [f.name, URL.createObjectURL(f)]));
-  strip("results", images.map((f) => [f.name, api.request(`/v1/jobs/${result.job_id}/files/${f.name}`)
-    .then((r) => r.blob()).then((b) => URL.createObjectURL(b))]));
+  // color transfer: outputs, then the ab histograms (inputs', outputs', the barycenters')
+  // in one row so the match can be compared at a glance
+  const fetched = (f) => [f.name, api.request(`/v1/jobs/${result.job_id}/files/${f.name}`)
+    .then((r) => r.blob()).then((b) => URL.createObjectURL(b))];
+  const isHistogram = (f) => /^(histogram|barycenter)-/.test(f.name);
+  const outputs = images.filter((f) => !isHistogram(f));
+  const histograms = images.filter(isHistogram);
+  if (outputs.length) strip("results", outputs.map(fetched));
+  if (histograms.length) strip("ab histograms (a* right, b* up)", histograms.map(fetched));
   box.hidden = false;
 }
 

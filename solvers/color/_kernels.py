@@ -162,18 +162,30 @@ def _cell(u, v, n1, n2):
     return i, j, fu, fv
 
 
+@_jit(inline="always")
+def _nearest_node(v, lo, inv_h, n):
+    """Index of the node ``lo + h*k`` (``k < n``) nearest to ``v``."""
+    u = (v - lo) * inv_h + 0.5
+    if u < 0.0:
+        return 0
+    k = int(u)
+    return n - 1 if k > n - 1 else k
+
+
 def _chunks(n: int) -> int:
     return max(1, min(4 * numba.get_num_threads(), n // 4096 + 1))
 
 
 @_jit(parallel=True, fastmath=False)
-def _analyze(px, lut, m, lab, nbins, lo, h, lbins, lmax, hist, lhist):
+def _analyze(px, lut, m, lab, nbins, lo, h, lbins, lmax, hist, lhist, nearest, sums):
     """Lab of every pixel (into ``lab``) and the ab / L histograms of the block.
 
     ``px`` (N, C) uint8/uint16 (``lut``: the linear value of each code) or float in
     [0, 1] (``lut`` unused).  ``hist`` (chunks, nbins*nbins) receives each pixel's unit
     mass split bilinearly over the 4 ab nodes ``lo + h*k`` around it (the weights
-    :func:`_apply` looks the map up with); ``lhist`` (chunks, lbins) counts L over [0, lmax].
+    :func:`_apply` looks the map up with), or with ``nearest`` all of it to the nearest
+    node, and ``sums`` (chunks, 2, nbins*nbins) the a*, b* of the pixels at each node;
+    ``lhist`` (chunks, lbins) counts L over [0, lmax].
     """
     n = px.shape[0]
     chunks = hist.shape[0]
@@ -190,7 +202,14 @@ def _analyze(px, lut, m, lab, nbins, lo, h, lbins, lmax, hist, lhist):
                 lab[p, 0] = L
                 lab[p, 1] = A
                 lab[p, 2] = B
-            if nbins > 0:  # bilinear ("cloud in cell") splat onto the 4 nearest nodes
+            if nbins > 0 and nearest:
+                # bin the stored (float32) values, as every later pass reads them
+                q = (_nearest_node(np.float64(np.float32(A)), lo, inv_h, nbins) * nbins
+                     + _nearest_node(np.float64(np.float32(B)), lo, inv_h, nbins))
+                hist[c, q] += 1.0
+                sums[c, 0, q] += A
+                sums[c, 1, q] += B
+            elif nbins > 0:  # bilinear ("cloud in cell") splat onto the 4 nearest nodes
                 i, j, fu, fv = _cell((A - lo) * inv_h, (B - lo) * inv_h, nbins, nbins)
                 q = i * nbins + j
                 hist[c, q] += (1.0 - fu) * (1.0 - fv)
@@ -204,17 +223,24 @@ def _analyze(px, lut, m, lab, nbins, lo, h, lbins, lmax, hist, lhist):
 
 
 def analyze(px: np.ndarray, lut: np.ndarray, scale: float, nbins: int, lo: float, h: float,
-            lbins: int, lmax: float, keep_lab: bool = True):
+            lbins: int, lmax: float, keep_lab: bool = True, nearest: bool = False):
     """Run :func:`_analyze`; returns ``(lab (N, 3) float32, ab counts, L counts)`` (``lab``
-    empty unless ``keep_lab``: images that only contribute histograms need no Lab copy)."""
+    empty unless ``keep_lab``: images that only contribute histograms need no Lab copy;
+    ``nearest``: each pixel counted at its nearest ab node instead of split bilinearly, and
+    then a fourth item, the mean ``(2, nbins²)`` a*, b* of the pixels at each node)."""
     n = px.shape[0]
     chunks = _chunks(n)
     lab = np.empty((n if keep_lab else 0, 3), dtype=np.float32)
     hist = np.zeros((chunks, max(nbins, 1) ** 2), dtype=np.float64)
     lhist = np.zeros((chunks, max(lbins, 1)), dtype=np.int64)
+    sums = np.zeros((chunks, 2, max(nbins, 1) ** 2) if nearest else (1, 2, 1))
     _analyze(px, lut, _M_FWD, lab, nbins, np.float32(lo), np.float32(h),
-             lbins, np.float32(lmax), hist, lhist)
-    return lab, hist.sum(axis=0), lhist.sum(axis=0)
+             lbins, np.float32(lmax), hist, lhist, bool(nearest), sums)
+    counts = hist.sum(axis=0)
+    if not nearest:
+        return lab, counts, lhist.sum(axis=0)
+    means = sums.sum(axis=0) / np.maximum(counts, 1.0)
+    return lab, counts, lhist.sum(axis=0), means
 
 
 @_jit(parallel=True, fastmath=False)

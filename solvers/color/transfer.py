@@ -2,7 +2,19 @@ r"""Color transfer between images by Wasserstein barycenters of chrominance (the
 
 :func:`color_transfer` recolors each of ``k >= 2`` images towards the barycenter of all
 their color distributions, for one or several weight vectors :math:`\alpha`
-(Fig. 3.12: :math:`\alpha = (1 - s, s)` interpolates between two palettes):
+(Fig. 3.12: :math:`\alpha = (1 - s, s)` interpolates between two palettes).
+
+``mode="split"`` (default): chrominance by the exact plan between nearest-node ab
+histograms, each source node's pixels split among its targets in the plan's proportions
+by a spatially coherent order (:mod:`solvers.color.split`), then the displacement field
+regularized by a guided filter on the input's luminance (:mod:`solvers.color.regularize`).
+Towards a vertex of the simplex (``alphas`` with a single 1) the plan goes to that image's
+histogram; for ``k = 2`` and :math:`\alpha = (1 - s, s)` every pixel moves the fraction
+:math:`s` of its displacement (McCann's interpolation, the exact W2 geodesic between the
+binned histograms); for ``k > 2`` the plan goes to the entropic barycenter (Alg. 2) on the
+same grid.  An image of weight 1 is returned unchanged.
+
+``mode="barycentric"``: the thesis' method (Fig. 3.12):
 
 * chrominance (a*, b*): histograms on a regular grid over :math:`[-128, 128]^2`, their
   barycenter :math:`\mu_\alpha` by Alg. 2 with the exact Gaussian kernel, and the
@@ -27,15 +39,33 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from solvers.color import _kernels
+from solvers.color import _split_kernels as SK
 from solvers.color.chrominance import AbGrid, check_bins, chrominance_barycenters
 from solvers.color.lab import check_image, code_scale, lut_for, pixels
 from solvers.color.luminance import L_MAX, LBINS, luminance_maps
+from solvers.color.regularize import guided_coefficients
+from solvers.color.split import ExactPlan, exact_plan, split_displacements
 from solvers.errors import InputError
 from solvers.monitor import SolverResult
 from solvers.validation import check_positive, check_weights
 
 DEFAULT_GAMMA = 16.0
 MAX_IMAGES = 16
+MODES = ("split", "barycentric")
+# odd: a* = b* = 0 (every grey) is a node, not a boundary between nodes
+DEFAULT_BINS = {"split": 65, "barycentric": 256}
+# guided filter epsilon (squared units of L*/100); chosen in bench/color.py
+DEFAULT_REGULARIZATION = 1e-5
+# window radii as fractions of sqrt(H W): guided filter, and the smoothing of the key
+# that orders a bin's pixels (the split is coherent over about this scale)
+FILTER_RADIUS = 0.01
+KEY_RADIUS = 0.02
+MIN_FILTER_RADIUS = 4  # pixels: small images still get a window that can smooth a step
+# images are reduced by s x s blocks for the filters' moments above this many pixels
+REDUCED_PIXELS = 2**19
+GUIDE_CHANNELS = 3
+# an out-of-gamut result moves to the nearest in-gamut L* up to this far (keeps its ab)
+GAMUT_REACH = 100.0
 
 
 @dataclass(kw_only=True)
@@ -50,17 +80,27 @@ class ColorTransferResult(SolverResult):
     the computed ``window``); ``luminance_maps`` ``(B, k, lbins)`` the L* each L bin
     goes to (``None`` with ``luminance=False``); ``residual``: largest L1 marginal
     violation over all plans; ``timings``: seconds per stage.
+
+    ``mode="split"``: ``histograms`` count pixels at their nearest node; ``barycenters``
+    are the histograms the plans go to (an input's, McCann's interpolant for ``k = 2``,
+    the entropic barycenter for ``k > 2``); ``maps`` is ``None``; ``plans`` maps
+    ``(i, j)`` (``j`` an input index, or ``"b{b}"`` for barycenter ``b``) to the
+    :class:`~solvers.color.split.ExactPlan` used; ``residual`` the largest marginal
+    violation of those plans (and of the barycenter's, if any).
     """
 
     images: list[list[np.ndarray | None]]
     alphas: np.ndarray
     barycenters: np.ndarray
     histograms: np.ndarray
-    maps: np.ndarray
+    maps: np.ndarray | None
     luminance_maps: np.ndarray | None
     window: tuple[slice, slice]
     bins: int
     gamma: float
+    mode: str = "barycentric"
+    regularization: float = 0.0
+    plans: dict = field(default_factory=dict)
     entropy_bounds: np.ndarray | None = None
     timings: dict = field(default_factory=dict)
 
@@ -86,9 +126,11 @@ def color_transfer(
     images: Sequence[np.ndarray],
     alphas=None,
     *,
-    bins: int = 256,
+    mode: str = "split",
+    bins: int | None = None,
     gamma: float = DEFAULT_GAMMA,
     luminance: bool = True,
+    regularization: float = DEFAULT_REGULARIZATION,
     sharpen: bool = False,
     debiased: bool = False,
     recolor: Sequence[int] | None = None,
@@ -99,13 +141,26 @@ def color_transfer(
 ) -> ColorTransferResult:
     r"""Recolor ``images`` towards Wasserstein barycenters of their colors (thesis §3.7).
 
+    ``mode="split"`` (default): for the exact plan :math:`\pi` between the ab histograms
+    :math:`\mu_i` and the target :math:`\nu` (an input, McCann's interpolant or the
+    barycenter; module doc)
+
+    .. math::  \min_{\pi \ge 0} \sum_{xy} \pi(x, y) |x - y|^2, \quad
+               \pi 1 = \mu_i, \; \pi^T 1 = \nu,
+
+    the :math:`n_i(x)` pixels at node :math:`x` are split into runs of
+    :math:`n_i(x) \pi(x, y) / \mu_i(x)` pixels (integer, largest remainders) moved by
+    :math:`y - x`, in a spatially coherent order; the displacement field is then guided-
+    filtered by the input's luminance (``regularization`` = its :math:`\varepsilon`;
+    0 turns the filter off).  This is not the thesis' map; ``mode="barycentric"`` is:
+
     .. math::  f_i^\alpha = (T^L_{i}, T^{ab}_{i}) \circ f_i, \qquad
                T^{ab}_i(y) = \frac{1}{\mu_i(y)} \int \pi_i(x, y)\, x\, dx,
 
     :math:`\pi_i = D_{v_i} K D_{w_i}` the plan between the ab histogram :math:`\mu_i` and
     the barycenter :math:`\arg\min_\mu \sum_j \alpha_j W^2_{2,\gamma}(\mu, \mu_j)`
-    (eq. 3.13, Alg. 2) and :math:`T^L_i = (\sum_j \alpha_j Q_j) \circ F_i` the 1-D
-    optimal map of the L* channel.
+    (eq. 3.13, Alg. 2).  In both modes :math:`T^L_i = (\sum_j \alpha_j Q_j) \circ F_i`
+    is the 1-D optimal map of the L* channel.
 
     Parameters
     ----------
@@ -114,22 +169,25 @@ def color_transfer(
     alphas : ``(k,)`` weights or a ``(B, k)`` list of them (each row normalized); default
         uniform.  ``(0, 1)`` recolors image 0 with image 1's colors; ``(1 - s, s)`` for a
         sequence of ``s`` interpolates (Fig. 3.12).
-    bins : nodes per axis of the ab grid over ``[-128, 128]^2`` (8..1024).
+    mode : ``"split"`` or ``"barycentric"``.
+    bins : nodes per axis of the ab grid over ``[-128, 128]^2`` (8..1024; default 65 for
+        ``split``, 256 for ``barycentric``).
     gamma : entropic regularization in squared ab units (kernel ``exp(-|x-y|^2/gamma)``,
-        blur of standard deviation ``sqrt(gamma/2)``).
-    luminance : also transfer L* (1-D OT); ``False`` keeps each pixel's L*.
+        blur of standard deviation ``sqrt(gamma/2)``) of the entropic barycenters.
+    luminance : also transfer L* (1-D OT); ``False`` transfers chrominance only and keeps
+        each pixel's L*.
+    regularization : ``split`` only: guided-filter epsilon (>= 0; 0: no filter).
     sharpen, debiased : entropic sharpening (Alg. 3) / debiased barycenters, against the
         desaturation by entropic blur.
     recolor : indices of the images to recolor (default all); the others only contribute
         their histograms.
-    tol, max_iter : stopping rule of the barycenter (L1 marginal violation of every plan).
+    tol, max_iter : stopping rule of the entropic barycenter (L1 marginal violation).
     progress, should_cancel : called every barycenter iteration.
 
     Returns
     -------
     ColorTransferResult
     """
-    times: dict[str, float] = {}
     t0 = time.perf_counter()
     if isinstance(images, np.ndarray) and images.ndim == 3:
         images = [images]
@@ -139,31 +197,67 @@ def color_transfer(
         raise InputError(f"color transfer needs 2 to {MAX_IMAGES} images, got {k}",
                          field="images")
     images = [check_image(img, f"images[{i}]") for i, img in enumerate(images)]
+    mode = check_mode(mode)
     A = check_alphas(alphas, k)
-    bins = check_bins(bins)
+    bins = check_bins(DEFAULT_BINS[mode] if bins is None else bins)
     gamma = check_positive(gamma, "gamma")
+    regularization = check_regularization(regularization)
     todo = list(range(k)) if recolor is None else sorted({int(i) for i in recolor})
     if any(not 0 <= i < k for i in todo):
         raise InputError(f"recolor indices must lie in [0, {k})", field="recolor")
+    opts = dict(gamma=gamma, sharpen=sharpen, debiased=debiased, tol=tol,
+                max_iter=max_iter, progress=progress, should_cancel=should_cancel)
+    if mode == "barycentric":
+        return _barycentric(images, A, bins, luminance, todo, t0, opts)
+    return _split(images, A, bins, luminance, regularization, todo, t0, opts)
+
+
+def check_mode(mode) -> str:
+    if mode not in MODES:
+        raise InputError(f"mode must be one of {', '.join(MODES)}, got {mode!r}", field="mode")
+    return str(mode)
+
+
+def check_regularization(value) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError) as exc:
+        raise InputError("regularization must be a number", field="regularization") from exc
+    if not np.isfinite(v) or v < 0:
+        raise InputError(f"regularization must be finite and >= 0, got {value!r}",
+                         field="regularization")
+    return v
+
+
+def _analyze_all(images, bins, luminance, todo, nearest):
+    """Lab of the images to recolor, ab histograms, L* counts (and with ``nearest`` the
+    mean ab at each node, ``(k, 2, bins²)``)."""
     grid = AbGrid(bins)
     lbins = LBINS if luminance else 0
-
-    labs, hists, lcounts = [], [], []
+    labs, hists, lcounts, means = [], [], [], []
     for i, img in enumerate(images):
         px = pixels(img)
         lut, scale = lut_for(px.dtype)
-        lab, counts, lc = _kernels.analyze(px, lut, scale, bins, -128.0, grid.spacing,
-                                           lbins, L_MAX, keep_lab=i in todo)
+        lab, counts, lc, *mean = _kernels.analyze(px, lut, scale, bins, -128.0,
+                                                  grid.spacing, lbins, L_MAX,
+                                                  keep_lab=i in todo, nearest=nearest)
         labs.append(lab)
         hists.append(counts.reshape(bins, bins) / px.shape[0])
         lcounts.append(lc)
-    H = np.stack(hists)
+        means.extend(mean)
+    return labs, np.stack(hists), lcounts, (np.stack(means) if nearest else None)
+
+
+def _barycentric(images, A, bins, luminance, todo, t0, opts) -> ColorTransferResult:
+    """The thesis' transfer: barycentric projections of the entropic plans."""
+    times: dict[str, float] = {}
+    k = len(images)
+    grid = AbGrid(bins)
+    labs, H, lcounts, _ = _analyze_all(images, bins, luminance, todo, nearest=False)
     times["analyze"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
-    cb = chrominance_barycenters(H, A, gamma=gamma, sharpen=sharpen, debiased=debiased,
-                                 tol=tol, max_iter=max_iter, progress=progress,
-                                 should_cancel=should_cancel)
+    cb = chrominance_barycenters(H, A, **opts)
     lmaps = luminance_maps(np.stack(lcounts), A) if luminance else None
     times["barycenter"] = time.perf_counter() - t1
 
@@ -190,5 +284,122 @@ def color_transfer(
     return ColorTransferResult(
         images=out_images, alphas=A, barycenters=cb.barycenters, histograms=H, maps=cb.maps,
         luminance_maps=lmaps, window=cb.window, bins=bins, gamma=cb.gamma,
-        entropy_bounds=cb.entropy_bounds, timings=times, iterations=cb.iterations,
-        residual=cb.residual, converged=cb.converged)
+        mode="barycentric", entropy_bounds=cb.entropy_bounds, timings=times,
+        iterations=cb.iterations, residual=cb.residual, converged=cb.converged)
+
+
+def _mccann(plan: ExactPlan, grid: AbGrid, s: float) -> np.ndarray:
+    """Histogram of the plan pushed through ``(1 - s) x + s y`` (bilinear on the nodes)."""
+    i, j = np.nonzero(plan.plan)
+    pts = (1 - s) * plan.sources[i] + s * plan.targets[j]
+    index, weight = grid.splat(pts)
+    m = plan.plan[i, j]
+    out = sum(np.bincount(q, weights=w * m, minlength=grid.bins**2)
+              for q, w in zip(index, weight, strict=True))
+    return out.reshape(grid.bins, grid.bins)
+
+
+def _targets(H, A, grid, opts):
+    """For each weight row: ``(kind, data)`` with kind ``"vertex"`` (index), ``"pair"``
+    (k = 2 interior) or ``"bary"`` (row of the entropic barycenters); the histograms the
+    plans go to; the barycenter solve (or ``None``)."""
+    k = H.shape[0]
+    kinds, targets = [], np.zeros((A.shape[0],) + H.shape[1:])
+    inner = [b for b in range(A.shape[0])
+             if k > 2 and not np.any(A[b] == 1.0)]
+    cb = chrominance_barycenters(H, A[inner], **opts) if inner else None
+    for b in range(A.shape[0]):
+        if np.any(A[b] == 1.0):
+            j = int(np.flatnonzero(A[b] == 1.0)[0])
+            kinds.append(("vertex", j))
+            targets[b] = H[j]
+        elif k == 2:
+            kinds.append(("pair", None))
+        else:
+            targets[b] = cb.barycenters[inner.index(b)]
+            kinds.append(("bary", b))
+    return kinds, targets, cb
+
+
+def _split(images, A, bins, luminance, regularization, todo, t0, opts) -> ColorTransferResult:
+    """The split transfer (module doc), towards each weight row's target."""
+    times: dict[str, float] = {}
+    k = len(images)
+    grid = AbGrid(bins)
+    labs, H, lcounts, means = _analyze_all(images, bins, luminance, todo, nearest=True)
+    times["analyze"] = time.perf_counter() - t0
+
+    t1 = time.perf_counter()
+    kinds, targets, cb = _targets(H, A, grid, opts)
+    lmaps = luminance_maps(np.stack(lcounts), A) if luminance else None
+    plans: dict = {}
+
+    def plan(i, key, target, target_means=None):
+        if key not in plans:
+            plans[key] = exact_plan(H[i], target, grid, means[i], target_means)
+        return plans[key]
+
+    if k == 2 and any(kind == "pair" for kind, _ in kinds):
+        p01 = plan(0, (0, 1), H[1], means[1])
+    for b, (kind, _) in enumerate(kinds):
+        if kind == "pair":
+            targets[b] = _mccann(p01, grid, float(A[b, 1]))
+    times["plans"] = time.perf_counter() - t1
+
+    t2 = time.perf_counter()
+    out_images: list[list[np.ndarray | None]] = [[None] * k for _ in range(A.shape[0])]
+    for b, (kind, data) in enumerate(kinds):
+        for i in todo:
+            if A[b, i] == 1.0:
+                out_images[b][i] = images[i].copy()
+                continue
+            if kind == "vertex":
+                p, scale = plan(i, (i, data), H[data], means[data]), 1.0
+            elif kind == "pair":
+                j = 1 - i
+                p, scale = plan(i, (i, j), H[j], means[j]), float(A[b, j])
+            else:
+                p, scale = plan(i, (i, f"b{data}"), targets[b]), 1.0
+            lut_l = None if lmaps is None else lmaps[b, i]
+            out_images[b][i] = _recolor_split(images[i], labs[i], p, grid, scale, lut_l,
+                                              regularization)
+    times["apply"] = time.perf_counter() - t2
+    times["total"] = time.perf_counter() - t0
+    residuals = [p.residual for p in plans.values()] + ([cb.residual] if cb else [])
+    converged = all(p.converged for p in plans.values()) and (cb is None or cb.converged)
+    full = (slice(0, bins), slice(0, bins))
+    return ColorTransferResult(
+        images=out_images, alphas=A, barycenters=targets, histograms=H, maps=None,
+        luminance_maps=lmaps, window=full, bins=bins, gamma=opts["gamma"], mode="split",
+        regularization=regularization, plans=plans,
+        entropy_bounds=None if cb is None else cb.entropy_bounds, timings=times,
+        iterations=0 if cb is None else cb.iterations,
+        residual=float(max(residuals, default=0.0)), converged=converged)
+
+
+def reduction(shape: tuple[int, int]) -> tuple[int, int, int]:
+    """``(s, key radius, filter radius)``: block size of the reduced image and the two
+    window radii in blocks (depend on the image size only)."""
+    H, W = shape
+    side = float(np.sqrt(H * W))
+    s = max(1, int(np.sqrt(H * W / REDUCED_PIXELS)))
+    filter_px = max(MIN_FILTER_RADIUS, FILTER_RADIUS * side)
+    return (s, max(1, round(KEY_RADIUS * side / s)), max(1, round(filter_px / s)))
+
+
+def _recolor_split(img, lab, plan, grid, scale, lut_l, regularization):
+    shape = img.shape[:2]
+    s, key_radius, filter_radius = reduction(shape)
+    disp = split_displacements(lab, shape, plan, grid, scale=scale, s=s, radius=key_radius)
+    coef = np.zeros((0, 1, 1))
+    if regularization > 0:
+        coef = guided_coefficients(lab, disp, shape, strength=regularization, s=s,
+                                   radius=filter_radius, nguide=GUIDE_CHANNELS)
+    src = pixels(img)
+    out = np.empty_like(src)
+    lut = np.zeros(0, dtype=np.float32) if lut_l is None else lut_l.astype(np.float32)
+    scale_out = code_scale(img.dtype)
+    offset = 0.5 if img.dtype.kind in "ui" else 0.0
+    SK.apply_field(lab, src, out, shape[1], lut, L_MAX / LBINS, disp, coef, GUIDE_CHANNELS,
+                   s, _kernels._M_INV, scale_out, offset, float(GAMUT_REACH))
+    return out.reshape(img.shape).astype(img.dtype, copy=False)

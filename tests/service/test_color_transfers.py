@@ -43,7 +43,7 @@ def assert_error(resp, status, field):
 def test_transfer_sequence_with_files(client, photos):
     src, tgt = photos["coffee"], photos["astronaut"]
     r = post(client, [("a.png", png(src)), ("b.png", png(tgt))],
-             alphas=[[1, 0], [0.5, 0.5], [0, 1]], bins=64, gamma=32)
+             alphas=[[1, 0], [0.5, 0.5], [0, 1]], bins=64, gamma=32, mode="barycentric")
     assert r.status_code == 200, r.text
     job = r.json()
     assert job["state"] == "succeeded", job
@@ -69,6 +69,35 @@ def test_transfer_sequence_with_files(client, photos):
     assert np.linalg.norm(after - target) < 0.5 * np.linalg.norm(before - target)
     pic = client.get(f"/v1/jobs/{job['id']}/files/barycenter-1.png")
     assert read_image(pic.content).shape == (64, 64, 3)
+
+
+def test_split_default_with_histograms(client, photos):
+    src, tgt = photos["coffee"], photos["chelsea"]
+    r = post(client, [("a.png", png(src)), ("b.png", png(tgt))], weights=[0, 1], recolor=[0])
+    assert r.status_code == 200 and r.json()["state"] == "succeeded", r.text
+    jid = r.json()["id"]
+    v = client.get(f"/v1/jobs/{jid}/result").json()["values"]
+    assert v["mode"] == "split" and v["bins"] == 65 and v["regularization"] > 0
+    assert v["converged"] and v["residual"] < 1e-9 and v["iterations"] == 0
+    assert [(p["image_index"], p["target"]) for p in v["plans"]] == [(0, "1")]
+    assert v["plans"][0]["cost"] > 0
+    assert v["histogram_pictures"] == ["histogram-0.png", "histogram-1.png",
+                                       "histogram-0-0.png"]
+    pics = {n: read_image(client.get(f"/v1/jobs/{jid}/files/{n}").content)
+            for n in v["histogram_pictures"]}
+    assert all(p.shape == (65, 65, 3) for p in pics.values())
+    # the output's histogram picture looks like the target's, not like the input's
+    out, inp, target = (pics[n].astype(float) for n in
+                        ("histogram-0-0.png", "histogram-0.png", "histogram-1.png"))
+    assert np.abs(out - target).mean() < 0.5 * np.abs(inp - target).mean()
+    # chrominance only: L* kept
+    r = post(client, [("a.png", png(src)), ("b.png", png(tgt))], weights=[0, 1], recolor=[0],
+             luminance="false")
+    out = read_image(client.get(f"/v1/jobs/{r.json()['id']}/files/image-0-0.png").content)
+    from solvers.color import rgb_to_lab
+
+    dL = np.abs(rgb_to_lab(out)[..., 0] - rgb_to_lab(src)[..., 0])
+    assert np.median(dL) < 0.5
 
 
 def test_alpha_jpeg_and_exif_orientation(client, photos):
@@ -125,6 +154,9 @@ def test_refusals_name_the_field(client, make_client, photos):
     assert_error(post(client, [("a.png", good), ("b.png", good)], weights=[1, 0],
                       alphas=[[1, 0]]), 422, "alphas")
     assert_error(post(client, [("a.png", good), ("b.png", good)], bins=4), 422, "bins")
+    assert_error(post(client, [("a.png", good), ("b.png", good)], mode="nearest"), 422, "mode")
+    assert_error(post(client, [("a.png", good), ("b.png", good)], regularization=-1), 422,
+                 "regularization")
     assert_error(post(client, [("a.png", good), ("b.png", good)], format="gif"), 422, "format")
     # nothing was queued by the refused submissions
     assert client.get("/v1/jobs?operation=color-transfers").json()["jobs"] == []

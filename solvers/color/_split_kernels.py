@@ -1,0 +1,321 @@
+"""numba kernels of the plan-splitting transfer (:mod:`solvers.color.split`).
+
+Pixels are flat ``(N,)`` rows of an ``H × W`` image in C order.  Low-resolution fields
+(``(h, w)``, one cell per ``s × s`` block of pixels) are sampled bilinearly at pixel
+centres.  The passes that hand out ranks run sequentially (a running counter per source
+bin and key level), so the assignment is deterministic.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from solvers.color._kernels import _finv, _jit, _nearest_node, _rgb_of
+
+
+@_jit(inline="always")
+def _sample(field, y, x, s):
+    """Bilinear value of the low-resolution ``field`` at the centre of pixel ``(y, x)``."""
+    fy = (y + 0.5) / s - 0.5
+    fx = (x + 0.5) / s - 0.5
+    h = field.shape[0]
+    w = field.shape[1]
+    if fy < 0.0:
+        fy = 0.0
+    if fx < 0.0:
+        fx = 0.0
+    if fy > h - 1:
+        fy = h - 1.0
+    if fx > w - 1:
+        fx = w - 1.0
+    i = int(fy)
+    j = int(fx)
+    if i > h - 2:
+        i = max(h - 2, 0)
+    if j > w - 2:
+        j = max(w - 2, 0)
+    u = fy - i
+    v = fx - j
+    i1 = min(i + 1, h - 1)
+    j1 = min(j + 1, w - 1)
+    return ((1 - u) * ((1 - v) * field[i, j] + v * field[i, j1])
+            + u * ((1 - v) * field[i1, j] + v * field[i1, j1]))
+
+
+@_jit(parallel=True)
+def keys(lab, width, s, smooth_a, smooth_b, lo, h, nbins, row_of, dirs, key, row):
+    """Each pixel's source row (``row_of`` its nearest ab node) and its ordering key: the
+    smoothed ab around it, relative to its node, projected on its row's direction."""
+    inv_h = 1.0 / h
+    for p in numba.prange(lab.shape[0]):
+        y = p // width
+        x = p - y * width
+        i = _nearest_node(np.float64(lab[p, 1]), lo, inv_h, nbins)
+        j = _nearest_node(np.float64(lab[p, 2]), lo, inv_h, nbins)
+        r = row_of[i * nbins + j]
+        row[p] = r
+        ma = _sample(smooth_a, y, x, s) - (lo + h * i)
+        mb = _sample(smooth_b, y, x, s) - (lo + h * j)
+        key[p] = ma * dirs[r, 0] + mb * dirs[r, 1]
+
+
+@_jit()
+def key_ranges(key, row, nrows):
+    lo = np.full(nrows, np.inf)
+    hi = np.full(nrows, -np.inf)
+    for p in range(key.shape[0]):
+        r = row[p]
+        k = key[p]
+        if k < lo[r]:
+            lo[r] = k
+        if k > hi[r]:
+            hi[r] = k
+    return lo, hi
+
+
+@_jit(inline="always")
+def _level(k, lo, hi, levels):
+    span = hi - lo
+    if span <= 0.0:
+        return 0
+    q = int((k - lo) / span * (levels - 1) + 0.5)
+    return min(max(q, 0), levels - 1)
+
+
+@_jit()
+def level_counts(key, row, lo, hi, counts):
+    levels = counts.shape[1]
+    for p in range(key.shape[0]):
+        r = row[p]
+        counts[r, _level(key[p], lo[r], hi[r], levels)] += 1
+
+
+@_jit()
+def assign(key, row, lo, hi, start, offsets, ends, disp, scale, out):
+    """Rank every pixel within its row (key level, then raster order) and give it the
+    displacement of the target its rank falls in: targets ``offsets[r]..offsets[r+1]``
+    of row ``r`` hold ``ends`` (cumulative pixel counts) and ``disp`` ``(T, 2)``."""
+    levels = start.shape[1]
+    for p in range(key.shape[0]):
+        r = row[p]
+        q = _level(key[p], lo[r], hi[r], levels)
+        rank = start[r, q]
+        start[r, q] = rank + 1
+        t = offsets[r]
+        last = offsets[r + 1] - 1
+        while t < last and rank >= ends[t]:
+            t += 1
+        out[p, 0] = disp[t, 0] * scale
+        out[p, 1] = disp[t, 1] * scale
+
+
+GUIDE_SCALE = 0.01  # guide channels: Lab / 100
+
+
+def n_moments(c: int) -> int:
+    """Block moments of a ``c``-channel guide: I, I_i I_j (i <= j), Da, Db, I_i D, count."""
+    return c + c * (c + 1) // 2 + 2 + 2 * c + 1
+
+
+@_jit(parallel=True)
+def block_moments(lab, disp, width, s, nguide, out):
+    """Sums over each ``s × s`` block of the moments :func:`n_moments` lists, guide
+    ``I = lab[:, :nguide] / 100``, into ``out`` ``(n_moments, h, w)``."""
+    hl = out.shape[1]
+    wl = out.shape[2]
+    height = lab.shape[0] // width
+    c = nguide
+    g = np.empty(3)
+    for by in numba.prange(hl):
+        g = np.empty(3)
+        for y in range(by * s, min(height, (by + 1) * s)):
+            for x in range(width):
+                p = y * width + x
+                bx = x // s
+                if bx >= wl:
+                    bx = wl - 1
+                for u in range(c):
+                    g[u] = np.float64(lab[p, u]) * GUIDE_SCALE
+                da = np.float64(disp[p, 0])
+                db = np.float64(disp[p, 1])
+                k = 0
+                for u in range(c):
+                    out[k, by, bx] += g[u]
+                    k += 1
+                for u in range(c):
+                    for v in range(u, c):
+                        out[k, by, bx] += g[u] * g[v]
+                        k += 1
+                out[k, by, bx] += da
+                out[k + 1, by, bx] += db
+                k += 2
+                for u in range(c):
+                    out[k, by, bx] += g[u] * da
+                    out[k + 1, by, bx] += g[u] * db
+                    k += 2
+                out[k, by, bx] += 1.0
+
+
+@_jit(inline="always")
+def _solve_small(S, r, c):
+    """``S[:c, :c]^{-1} r[:c]`` for ``c`` in (1, 3), symmetric positive definite ``S``
+    (closed form: a LAPACK call per cell costs more than the whole filter)."""
+    a = np.empty((3, 2))
+    if c == 1:
+        a[0, 0] = r[0, 0] / S[0, 0]
+        a[0, 1] = r[0, 1] / S[0, 0]
+        return a
+    c00 = S[1, 1] * S[2, 2] - S[1, 2] * S[2, 1]
+    c01 = S[1, 2] * S[2, 0] - S[1, 0] * S[2, 2]
+    c02 = S[1, 0] * S[2, 1] - S[1, 1] * S[2, 0]
+    c11 = S[0, 0] * S[2, 2] - S[0, 2] * S[2, 0]
+    c12 = S[0, 2] * S[1, 0] - S[0, 0] * S[1, 2]
+    c22 = S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0]
+    det = S[0, 0] * c00 + S[0, 1] * c01 + S[0, 2] * c02
+    for d in range(2):
+        a[0, d] = (c00 * r[0, d] + c01 * r[1, d] + c02 * r[2, d]) / det
+        a[1, d] = (c01 * r[0, d] + c11 * r[1, d] + c12 * r[2, d]) / det
+        a[2, d] = (c02 * r[0, d] + c12 * r[1, d] + c22 * r[2, d]) / det
+    return a
+
+
+@_jit(parallel=True)
+def guided_solve(mom, nguide, eps, coef):
+    """Per cell of the box-filtered means ``mom``: ``a_d = (cov(I) + eps)^{-1} cov(I, D_d)``
+    and ``b_d = mean D_d - a_d · mean I``; ``coef`` ``(2 nguide + 2, h, w)`` holds
+    ``a_a (nguide), a_b (nguide), b_a, b_b``."""
+    c = nguide
+    hl = mom.shape[1]
+    wl = mom.shape[2]
+    for y in numba.prange(hl):
+        S = np.empty((3, 3))
+        r = np.empty((3, 2))
+        mi = np.empty(3)
+        for x in range(wl):
+            for u in range(c):
+                mi[u] = mom[u, y, x]
+            k = c
+            for u in range(c):
+                for v in range(u, c):
+                    S[u, v] = mom[k, y, x] - mi[u] * mi[v]
+                    S[v, u] = S[u, v]
+                    k += 1
+            for u in range(c):
+                S[u, u] += eps
+            md0 = mom[k, y, x]
+            md1 = mom[k + 1, y, x]
+            k += 2
+            for u in range(c):
+                r[u, 0] = mom[k, y, x] - mi[u] * md0
+                r[u, 1] = mom[k + 1, y, x] - mi[u] * md1
+                k += 2
+            a = _solve_small(S, r, c)
+            ba = md0
+            bb = md1
+            for u in range(c):
+                coef[u, y, x] = a[u, 0]
+                coef[c + u, y, x] = a[u, 1]
+                ba -= a[u, 0] * mi[u]
+                bb -= a[u, 1] * mi[u]
+            coef[2 * c, y, x] = ba
+            coef[2 * c + 1, y, x] = bb
+
+
+@_jit(inline="always")
+def _linear_rgb(L, a, b, m):
+    y = (L + 16.0) / 116.0
+    x = _finv(a / 500.0 + y)
+    z = _finv(y - b / 200.0)
+    y = _finv(y)
+    return (m[0, 0] * x + m[0, 1] * y + m[0, 2] * z,
+            m[1, 0] * x + m[1, 1] * y + m[1, 2] * z,
+            m[2, 0] * x + m[2, 1] * y + m[2, 2] * z)
+
+
+@_jit(inline="always")
+def _in_gamut(L, a, b, m):
+    r, g, bb = _linear_rgb(L, a, b, m)
+    t = GAMUT_TOL
+    return -t <= r <= 1 + t and -t <= g <= 1 + t and -t <= bb <= 1 + t
+
+
+GAMUT_TOL = 1e-3
+GAMUT_STEP = 2.0
+
+
+@_jit()
+def gamut_lightness(L, a, b, m, reach):
+    """The L* nearest to ``L`` at which ``(L*, a, b)`` is inside the sRGB gamut (scan in
+    steps of ``GAMUT_STEP``, then bisection), if one lies within ``reach`` of ``L``;
+    ``L`` itself otherwise."""
+    if _in_gamut(L, a, b, m):
+        return L
+    for step in range(1, int(reach / GAMUT_STEP) + 1):
+        for sign in (-1.0, 1.0):
+            Lc = L + sign * step * GAMUT_STEP
+            if Lc < 0.0 or Lc > 100.0 or not _in_gamut(Lc, a, b, m):
+                continue
+            bad = Lc - sign * GAMUT_STEP
+            good = Lc
+            for _ in range(10):
+                mid = 0.5 * (bad + good)
+                if _in_gamut(mid, a, b, m):
+                    good = mid
+                else:
+                    bad = mid
+            return good
+    return L
+
+
+@_jit(parallel=True)
+def apply_field(lab, src, out, width, lut_l, lstep, disp, coef, nguide, s, m, scale,
+                offset, reach):
+    """Recolor every pixel: ``L -> lut_l[bin]`` (empty: keep), ``ab += D`` with ``D`` the
+    per-pixel ``disp`` or, when ``coef`` (from :func:`guided_solve`, box-filtered) is
+    given, the guided filter ``a · I + b`` (``I = lab[:, :nguide]/100`` of the input,
+    coefficients bilinear); an out-of-gamut colour moves to the nearest in-gamut L* within
+    ``reach`` L* units (:func:`gamut_lightness`), else it is clipped in RGB; Lab -> sRGB,
+    ``out = v * scale + offset``; a fourth channel of ``src`` is copied."""
+    n = lab.shape[0]
+    use_l = lut_l.shape[0] > 0
+    nl = max(lut_l.shape[0], 1)
+    guided = coef.shape[0] > 0
+    alpha = src.shape[1] > 3 and out.shape[1] > 3
+    inv_l = 1.0 / lstep
+    c = nguide
+    for p in numba.prange(n):
+        L0 = np.float64(lab[p, 0])
+        A = np.float64(lab[p, 1])
+        B = np.float64(lab[p, 2])
+        if guided:
+            y = p // width
+            x = p - y * width
+            da = _sample(coef[2 * c], y, x, s)
+            db = _sample(coef[2 * c + 1], y, x, s)
+            for u in range(c):
+                g = np.float64(lab[p, u]) * GUIDE_SCALE
+                da += _sample(coef[u], y, x, s) * g
+                db += _sample(coef[c + u], y, x, s) * g
+            A += da
+            B += db
+        else:
+            A += disp[p, 0]
+            B += disp[p, 1]
+        L = L0
+        if use_l:
+            u = L0 * inv_l
+            if u < 0.0:
+                u = 0.0
+            k = int(u)
+            if k > nl - 1:
+                k = nl - 1
+            L = lut_l[k]
+        if reach > 0:
+            L = gamut_lightness(L, A, B, m, reach)
+        r, g2, b = _rgb_of(L, A, B, m)
+        out[p, 0] = r * scale + offset
+        out[p, 1] = g2 * scale + offset
+        out[p, 2] = b * scale + offset
+        if alpha:
+            out[p, 3] = src[p, 3]

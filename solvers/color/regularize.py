@@ -1,0 +1,45 @@
+r"""Edge-aware regularization of a colour displacement field (guided filter).
+
+The split transfer (:mod:`solvers.color.split`) gives each pixel an ab displacement
+:math:`D(p)` that is piecewise constant and jumps where a pixel's ab crosses a bin
+boundary or where a source bin's pixels are split between targets.  Following the
+transport-map regularization of Rabin, Delon and Gousseau (colour and contrast transfer),
+the field is replaced by its guided filter (He, Sun and Tang) with the input's
+luminance :math:`I = L^*/100` as guide: in every window :math:`\omega` of radius ``r``
+
+.. math::  D(p) \approx a_\omega I(p) + b_\omega, \qquad
+           a_\omega = \frac{\operatorname{cov}_\omega(I, D)}{\operatorname{var}_\omega(I)
+           + \varepsilon}, \quad b_\omega = \bar D_\omega - a_\omega \bar I_\omega,
+
+and :math:`\tilde D(p) = \bar a(p) I(p) + \bar b(p)` with the coefficients averaged over
+the windows holding ``p``.  So the displacement varies only where the luminance does
+(flat regions get one colour shift, edges stay where the input has them), and
+:math:`\varepsilon` (``strength``, in squared units of :math:`I`) sets how much of the
+field's variation that :math:`I` does not explain is smoothed away.  Large images use the
+fast guided filter (moments and coefficients on ``s × s`` block means, coefficients
+bilinear at full resolution, :func:`solvers.color._split_kernels.apply_field`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+from solvers.color import _split_kernels as K
+
+
+def guided_coefficients(lab: np.ndarray, disp: np.ndarray, shape: tuple[int, int], *,
+                        strength: float, s: int, radius: int, nguide: int = 3) -> np.ndarray:
+    """Box-filtered coefficients ``(2 nguide + 2, h, w)`` of the guided filter of ``disp``
+    ``(N, 2)`` with guide ``lab[:, :nguide] / 100`` (``lab`` ``(N, 3)``), on ``s × s``
+    blocks, window radius ``radius`` blocks, regularization ``strength``."""
+    H, W = shape
+    h, w = -(-H // s), -(-W // s)
+    mom = np.zeros((K.n_moments(nguide), h, w))
+    K.block_moments(lab, disp, W, s, nguide, mom)
+    mom[:-1] /= mom[-1]
+    size = 2 * radius + 1
+    means = np.stack([ndimage.uniform_filter(m, size, mode="nearest") for m in mom[:-1]])
+    coef = np.empty((2 * nguide + 2, h, w))
+    K.guided_solve(means, nguide, float(strength), coef)
+    return np.stack([ndimage.uniform_filter(c, size, mode="nearest") for c in coef])

@@ -1,0 +1,175 @@
+r"""Exact plans between ab histograms, and pixels split in the plans' proportions.
+
+The barycentric projection of a plan (thesis §3.7, :mod:`solvers.color.chrominance`)
+sends all pixels of one ab bin to one colour, the mean of the target colours the plan
+gives that bin: when the plan splits a source colour between two targets, the output
+gets a third colour neither image has.  Here the plan itself is kept:
+
+* the histograms count every pixel at its nearest node of a ``bins × bins`` ab grid
+  (:class:`~solvers.color.chrominance.AbGrid`);
+* :func:`exact_plan` solves the discrete problem
+
+  .. math::  \min_{\pi \ge 0} \sum_{ij} \pi_{ij} |x_i - y_j|^2 \quad
+             \text{s.t. } \pi 1 = \mu, \; \pi^T 1 = \nu
+
+  between the occupied nodes by the network simplex (POT ``ot.emd``), and measures its
+  marginal violation;
+* :func:`integer_split` turns row ``i`` of the plan into pixel counts ``n_ij`` summing to
+  the ``n_i`` pixels of node ``i`` (largest remainders);
+* :func:`split_displacements` orders the pixels of each source node by a spatially
+  coherent key (the box-smoothed ab around the pixel, projected on the principal
+  direction of its targets; ties in raster order) and the node's targets by their
+  projection on the same direction, and gives consecutive runs of ``n_ij`` pixels the
+  displacement :math:`y_j - x_i` (node points: the mean ab of each node's pixels, so
+  the output's mean colour within every target node is the target's).  No random draw:
+  equal inputs give equal outputs.
+
+Every pixel then lands at the target node the plan sends it to, so the output histogram
+is the target's up to the binning and the integer rounding (before regularization,
+:mod:`solvers.color.regularize`, and the clipping to the sRGB gamut).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from solvers.color import _split_kernels as K
+from solvers.color.chrominance import AbGrid
+from solvers.errors import ConvergenceError
+
+KEY_LEVELS = 4096
+
+
+@dataclass
+class ExactPlan:
+    """A plan between two node histograms: ``rows`` / ``cols`` the occupied source /
+    target node indices (flat, a* major), ``sources`` / ``targets`` their ab points
+    ``(R, 2)`` / ``(C, 2)`` (the mean ab of each node's pixels), ``plan`` ``(R, C)``
+    masses, ``cost`` :math:`\\sum \\pi_{ij} |x_i - y_j|^2`, ``residual`` the L1 violation
+    of both marginals, ``converged`` the network simplex reported an optimum."""
+
+    rows: np.ndarray
+    cols: np.ndarray
+    sources: np.ndarray
+    targets: np.ndarray
+    plan: np.ndarray
+    cost: float
+    residual: float
+    converged: bool
+
+
+def node_points(grid: AbGrid, index: np.ndarray) -> np.ndarray:
+    nodes = grid.nodes
+    return np.stack([nodes[index // grid.bins], nodes[index % grid.bins]], axis=1)
+
+
+def exact_plan(source: np.ndarray, target: np.ndarray, grid: AbGrid,
+               source_means: np.ndarray | None = None,
+               target_means: np.ndarray | None = None) -> ExactPlan:
+    """Optimal plan (squared ab distance) between two ``(bins, bins)`` histograms; each
+    node's mass sits at its ``(2, bins²)`` mean ab (default: the node itself)."""
+    import ot
+
+    mu = np.asarray(source, dtype=np.float64).ravel()
+    nu = np.asarray(target, dtype=np.float64).ravel()
+    rows, cols = np.flatnonzero(mu > 0), np.flatnonzero(nu > 0)
+    a, b = mu[rows] / mu[rows].sum(), nu[cols] / nu[cols].sum()
+    xs = node_points(grid, rows) if source_means is None else source_means[:, rows].T
+    ys = node_points(grid, cols) if target_means is None else target_means[:, cols].T
+    M = ot.dist(xs, ys)
+    plan, log = ot.emd(a, b, M, numItermax=50_000_000, log=True)
+    residual = float(np.abs(plan.sum(1) - a).sum() + np.abs(plan.sum(0) - b).sum())
+    if not np.all(np.isfinite(plan)):
+        raise ConvergenceError("the network simplex returned a non-finite plan")
+    return ExactPlan(rows=rows, cols=cols, sources=xs, targets=ys, plan=plan,
+                     cost=float((plan * M).sum()),
+                     residual=residual, converged=int(log["result_code"]) == 1)
+
+
+def integer_split(plan: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Integer pixel counts ``(R, C)`` whose rows sum to ``counts`` ``(R,)`` and that are
+    the plan's rows scaled to ``counts`` rounded by largest remainders."""
+    row = plan.sum(axis=1, keepdims=True)
+    share = plan / np.where(row > 0, row, 1.0) * counts[:, None]
+    base = np.floor(share).astype(np.int64)
+    missing = counts.astype(np.int64) - base.sum(axis=1)
+    frac = share - base
+    order = np.argsort(-frac, axis=1, kind="stable")
+    ranks = np.empty_like(order)
+    np.put_along_axis(ranks, order, np.arange(plan.shape[1])[None, :], axis=1)
+    return base + (ranks < missing[:, None])
+
+
+def _principal_directions(points: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Unit principal axis ``(R, 2)`` of each row's weighted target points."""
+    w = weights / np.maximum(weights.sum(axis=1, keepdims=True), 1e-300)
+    mean = w @ points
+    xx = w @ points[:, 0] ** 2 - mean[:, 0] ** 2
+    yy = w @ points[:, 1] ** 2 - mean[:, 1] ** 2
+    xy = w @ (points[:, 0] * points[:, 1]) - mean[:, 0] * mean[:, 1]
+    theta = 0.5 * np.arctan2(2 * xy, xx - yy)
+    return np.stack([np.cos(theta), np.sin(theta)], axis=1)
+
+
+def block_mean(field: np.ndarray, s: int) -> np.ndarray:
+    """Mean over ``s × s`` blocks (the last partial blocks averaged over what they hold)."""
+    if s == 1:
+        return field.astype(np.float64)
+    H, W = field.shape
+    h, w = -(-H // s), -(-W // s)
+    pad = np.pad(field.astype(np.float64), ((0, h * s - H), (0, w * s - W)))
+    ones = np.pad(np.ones((H, W)), ((0, h * s - H), (0, w * s - W)))
+    sums = pad.reshape(h, s, w, s).sum(axis=(1, 3))
+    return sums / ones.reshape(h, s, w, s).sum(axis=(1, 3))
+
+
+def split_displacements(lab: np.ndarray, shape: tuple[int, int], plan: ExactPlan,
+                        grid: AbGrid, *, scale: float, s: int, radius: int) -> np.ndarray:
+    """Per-pixel ab displacements ``(N, 2)`` float32: ``scale`` times ``y_j - x_i`` for the
+    target node ``j`` each pixel of source node ``i`` is given (module doc).
+
+    ``lab`` ``(N, 3)`` the image's Lab (C order over ``shape``); the ordering key smooths
+    ab by a box of ``2 radius + 1`` cells on the image reduced by ``s``."""
+    H, W = shape
+    a = block_mean(lab[:, 1].reshape(H, W), s)
+    b = block_mean(lab[:, 2].reshape(H, W), s)
+    size = 2 * radius + 1
+    sa = ndimage.uniform_filter(a, size, mode="nearest")
+    sb = ndimage.uniform_filter(b, size, mode="nearest")
+    R = len(plan.rows)
+    row_of = np.full(grid.bins**2, -1, dtype=np.int64)
+    row_of[plan.rows] = np.arange(R)
+    targets = plan.targets
+    dirs = _principal_directions(targets, plan.plan)
+    key = np.empty(lab.shape[0], dtype=np.float32)
+    row = np.empty(lab.shape[0], dtype=np.int64)
+    # the same float32 grid constants as the histogram pass, so both bin pixels alike
+    K.keys(lab, W, s, sa, sb, np.float32(grid.nodes[0]), np.float32(grid.spacing), grid.bins,
+           row_of, dirs, key, row)
+    if row.min() < 0:  # the plan was built from this image's own histogram
+        raise RuntimeError("a pixel's ab node is missing from the plan's support")
+    counts = np.bincount(row, minlength=R)
+    split = integer_split(plan.plan, counts)
+    # each row's targets in the order of their projection on the row's direction
+    proj = targets @ dirs.T  # (C, R)
+    offsets = np.zeros(R + 1, dtype=np.int64)
+    cols_list, ends_list = [], []
+    for r in range(R):
+        nz = np.flatnonzero(split[r])
+        nz = nz[np.argsort(proj[nz, r], kind="stable")]
+        cols_list.append(nz)
+        ends_list.append(np.cumsum(split[r, nz]))
+        offsets[r + 1] = offsets[r] + len(nz)
+    cols = np.concatenate(cols_list)
+    ends = np.concatenate(ends_list).astype(np.int64)
+    disp = targets[cols] - np.repeat(plan.sources, np.diff(offsets), axis=0)
+    lo, hi = K.key_ranges(key, row, R)
+    levels = np.zeros((R, KEY_LEVELS), dtype=np.int64)
+    K.level_counts(key, row, lo, hi, levels)
+    start = np.cumsum(levels, axis=1) - levels
+    out = np.empty((lab.shape[0], 2), dtype=np.float32)
+    K.assign(key, row, lo, hi, start, offsets, ends, disp, float(scale), out)
+    return out
