@@ -140,7 +140,9 @@ class JobOut(BaseModel):
     id: str
     operation: str
     domain_id: str
-    state: JobState
+    state: JobState = Field(description="`succeeded` only when the solver converged; a job "
+                            "that stopped without converging is `failed` with error code "
+                            "`not_converged` (its partial result stays readable)")
     progress: JobProgress
     queue: Literal["short", "long"] = Field(
         "short", description="the queue the job was sent to (chosen by its estimated cost)")

@@ -9,7 +9,7 @@ import uuid
 import numpy as np
 
 from service.errors import Conflict, NotFound
-from service.jobs.db import QUEUED, TERMINAL, JobRow
+from service.jobs.db import FAILED, QUEUED, TERMINAL, JobRow
 from service.jobs.queue import estimate_cost, queue_for_cost
 from service.operations.base import (
     OperationRequest,
@@ -25,6 +25,12 @@ log = logging.getLogger("otgeo.jobs")
 # returned by ``create`` is complete without reading it back)
 UNSET_AT_CREATION = ("iteration", "residual", "fraction", "error", "worker", "started_at",
                      "heartbeat_at", "finished_at", "duration", "result_location")
+
+
+def has_partial_result(job: JobRow) -> bool:
+    """A failed job whose solver stopped without converging keeps its (partial) result."""
+    return job.state == FAILED and bool(job.result_location) and \
+        (job.error or {}).get("code") == "not_converged"
 
 
 class JobService:
@@ -96,7 +102,7 @@ class JobService:
 
     def result(self, job_id: str, include_arrays: bool = True) -> dict:
         job = self.get(job_id)
-        if job.state != "succeeded":
+        if job.state != "succeeded" and not has_partial_result(job):
             if job.state in TERMINAL:
                 raise Conflict(f"job {job_id} {job.state}; it has no result", field="job_id",
                                code="job_" + job.state)

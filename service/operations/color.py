@@ -32,9 +32,9 @@ from solvers.color import (
     rgb_to_lab,
     write_image,
 )
-from solvers.color.chrominance import check_bins
+from solvers.color.chrominance import AbGrid, check_bins
 from solvers.color.transfer import DEFAULT_GAMMA, MAX_IMAGES, check_alphas
-from solvers.validation import check_positive
+from solvers.validation import check_gamma_resolved
 
 MAX_ALPHAS = 32
 MEDIA = {"png": "image/png", "jpeg": "image/jpeg"}
@@ -130,7 +130,7 @@ def check_header(data: bytes, field: str, settings):
 def validate(ctx, req: ColorTransferRequest) -> list[dict]:
     A = _alphas(req)
     check_bins(req.bins)
-    check_positive(req.gamma, "gamma")
+    check_gamma_resolved(req.gamma, AbGrid(req.bins).spacing, "gamma")
     _recolor(req)
     blobs = [ctx.blob(blob_id, f"images[{i}]") for i, blob_id in enumerate(req.images)]
     total = 0
