@@ -13,14 +13,12 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
-import multiprocessing
-import threading
-from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
 import numpy as np
 from pydantic import TypeAdapter, ValidationError
 
+from service.child_pool import ChildPool
 from service.errors import ApiError, InvalidInput, field_from_loc
 from service.schemas import DomainSpec, GraphSpec, GridSpec, MeshSpec, PointCloudSpec
 
@@ -131,40 +129,15 @@ def expand_json(value):
     return value
 
 
-def _die_with_parent() -> None:
-    """Parser process initializer: exit when the API process dies (Linux), even by SIGKILL."""
-    import signal
-    import sys
-
-    if sys.platform.startswith("linux"):
-        try:
-            import ctypes
-
-            ctypes.CDLL(None).prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG
-        except (OSError, AttributeError):
-            pass
+PARSER = ChildPool()
 
 
-_pool: ProcessPoolExecutor | None = None
-_pool_lock = threading.Lock()
-
-
-def _executor() -> ProcessPoolExecutor:
-    global _pool
-    with _pool_lock:
-        if _pool is None:
-            _pool = ProcessPoolExecutor(max_workers=1,
-                                        mp_context=multiprocessing.get_context("spawn"),
-                                        initializer=_die_with_parent)
-        return _pool
+def _executor():
+    return PARSER.get()
 
 
 def _discard_pool() -> None:
-    global _pool
-    with _pool_lock:
-        pool, _pool = _pool, None
-    if pool is not None:
-        pool.shutdown(wait=False, cancel_futures=True)
+    PARSER.discard()
 
 
 def _raise(out: tuple) -> None:

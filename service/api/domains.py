@@ -105,12 +105,11 @@ async def _create(request: Request, response: Response, svc, allow_json: bool,
         body = await _read_body(request, limit)
         data, filename, fmt, laplacian, weld = await run_in_threadpool(
             _parse_multipart, body, request.headers, limit)
-        meta, created = await run_in_threadpool(svc.from_file, data, filename, fmt, laplacian,
-                                                weld)
+        meta, created = await svc.create_from_file(data, filename, fmt, laplacian, weld)
     elif ctype in ("application/json", "") and allow_json:
         body = await _read_body(request, limit)
         spec = await parse_spec(body)
-        meta, created = await run_in_threadpool(svc.from_spec, spec)
+        meta, created = await svc.create_from_spec(spec)
     elif allow_json:
         raise UnsupportedMediaType(f"content type {ctype!r}: send application/json (or a mesh "
                                    "file as multipart/form-data to /v1/domains/upload)",

@@ -51,7 +51,7 @@ def test_large_operation_body_is_parsed_in_a_child_process(client, grid, monkeyp
     body = {"mu0": [1.0] * 81, "mu1": [0] * 80 + [3], "route": "exact"}
     r = client.post(f"/v1/domains/{grid}/distances", json=body)
     assert r.status_code == 200, r.text
-    assert bodies._pool is not None  # the parser process was used
+    assert bodies.PARSER.active  # the parser process was used
     status, obj = bodies.compact_json(r.request.content)
     assert status == "ok" and bodies.expand_json(obj) == body
     assert [type(x) for x in bodies.expand_json(obj)["mu1"][-2:]] == [int, int]
