@@ -45,14 +45,14 @@ class JobService:
         op = self.rt.operations.get_operation(operation)
         size = None  # points of the job's domain (its cost estimate picks the queue)
         if op.scope == "domain":
-            view = view_of_info(self.rt.store.domain_info(domain_id))
+            view = context = view_of_info(self.rt.store.domain_info(domain_id))
             size = view.n
             op.check_kind(view)
             op.validate(view, request)
             check_job_memory(op, view, request, self.rt.settings.job_memory_bytes)
             decision = op.decide(view, request) if op.decide is not None else None
         else:
-            ctx = SubmitContext(self.rt.store, self.rt.settings)
+            ctx = context = SubmitContext(self.rt.store, self.rt.settings)
             op.validate(ctx, request)
             decision = op.decide(ctx, request) if op.decide is not None else None
             domain_id = op.primary_domain(request)
@@ -64,7 +64,7 @@ class JobService:
                 size = self.rt.store.domain_info(domain_id).n
             except NotFound:
                 size = None
-        cost = (op.estimate_cost or estimate_cost)(size or 1, request)
+        cost = (op.estimate_cost or estimate_cost)(size or 1, request, context)
         queue = queue_for_cost(self.rt.settings, cost)
         now = time.time()
         job = JobRow(id=uuid.uuid4().hex, operation=operation, domain_id=domain_id,

@@ -237,7 +237,8 @@ class Operation:
     # row ``row`` of ``name``, or ``None`` when ``name`` is served as stored
     result_row: Callable[..., np.ndarray | None] | None = None
     decide: Callable[..., dict | None] | None = None
-    # the job's cost from (points of its domain, request), which picks its queue (default:
+    # the job's cost from (points of its domain, request, context: the domain's view, or the
+    # SubmitContext of a global operation), which picks its queue (default:
     # ``service.jobs.queue.estimate_cost``, points x iterations x distributions)
     estimate_cost: Callable[..., float] | None = None
 
