@@ -271,8 +271,18 @@ class StorageHealth(BaseModel):
     reason: str | None = Field(None, description="why it does not take writes")
 
 
+class BrokerHealth(BaseModel):
+    reachable: bool = Field(description="the queue's broker answers (Redis: PING; the "
+                            "embedded SQLite queue: always)")
+    messages: int | None = Field(None, description="messages waiting in the broker's queues")
+    restarts: int = Field(0, description="broker restarts this process has seen (its queued "
+                          "jobs were re-sent from the job table at once)")
+    reason: str | None = Field(None, description="why it is unreachable")
+
+
 class Health(BaseModel):
     status: Literal["ok", "degraded"]
     queue: str
     version: str
     storage: StorageHealth | None = None
+    broker: BrokerHealth | None = None

@@ -42,6 +42,9 @@ class Settings(BaseSettings):
         300.0, gt=0, description="re-enqueue a job still queued after this many seconds "
         "(queue message lost, e.g. broker restart); duplicates are harmless")
     reaper_interval: float = Field(5.0, gt=0)
+    broker_check_interval: float = Field(
+        1.0, gt=0, description="seconds between comparisons of the broker with the job "
+        "table: queued jobs whose messages were lost (a Redis restart) are re-sent at once")
     api_keys: Annotated[list[str], NoDecode] = Field(
         default_factory=list, description="comma-separated accepted X-API-Key values; "
         "empty = no authentication")
