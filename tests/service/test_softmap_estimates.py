@@ -30,7 +30,7 @@ def test_the_issue_soft_map_is_long_and_above_its_measured_peak():
     assert sizes["cost"] >= 100 * 5e7
     coarse = estimate_sizes(NEFERTITI, NEFERTITI, req.model_copy(update={"target_points":
                                                                          "auto"}))
-    assert coarse["bytes"] < sizes["bytes"] / 10 and coarse["cost"] < sizes["cost"] / 10
+    assert coarse["bytes"] < sizes["bytes"] / 5 and coarse["cost"] < sizes["cost"] / 10
 
 
 def test_queue_follows_samples_and_sweeps(make_client, tmp_path):
