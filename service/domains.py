@@ -8,10 +8,16 @@ upload gets a 4xx naming its field, never a server error.
 
 from __future__ import annotations
 
+import math
 import os
 
 import numpy as np
 
+from service.domain_builder import (
+    IN_PROCESS_FILE_BYTES,
+    IN_PROCESS_POINTS,
+    build_in_child,
+)
 from service.errors import InvalidInput, NotFound, PayloadTooLarge
 from service.runtime import Runtime
 from service.schemas import GraphSpec, GridSpec, MeshSpec, PointCloudSpec
@@ -47,61 +53,61 @@ class DomainService:
         self.tenant = tenant
 
     def _check_points(self, n: int, field: str) -> None:
-        if n > self.settings.max_vertices:
-            raise PayloadTooLarge(f"{n} points exceed the limit of {self.settings.max_vertices}",
-                                  field=field)
+        _check_points(self.settings, n, field)
 
     def from_file(self, data: bytes, filename: str | None, file_type: str | None,
                   laplacian: str = "robust", weld: bool | str | None = None
                   ) -> tuple[dict, bool]:
-        """Store an uploaded mesh file. ``weld``: merge vertices at equal positions (seams);
-        None/"auto": the format's default (see ``solvers.domains.mesh``)."""
-        if not data:
-            raise InvalidInput("the uploaded file is empty", field="file")
-        ext = (file_type or os.path.splitext(filename or "")[1]).lower().lstrip(".")
-        if not ext:
-            raise InvalidInput("cannot tell the mesh format: give a file name with an extension "
-                               f"or a 'format' field ({', '.join(MESH_FORMATS)})", field="format")
-        if ext not in MESH_FORMATS:
-            raise InvalidInput(f"unsupported mesh format {ext[:20]!r}; expected one of "
-                               f"{', '.join(MESH_FORMATS)}", field="format")
-        if laplacian not in ("robust", "cotan"):
-            raise InvalidInput("laplacian must be 'robust' or 'cotan'", field="laplacian")
-        weld = parse_weld(weld)
-        mesh = load_mesh(data, file_type=ext, laplacian=laplacian, weld=weld)
-        self._check_points(mesh.n, "file")
-        source = {"filename": filename, "format": ext, "bytes": len(data)}
-        if weld is not None:
-            source["weld"] = weld
-        return self._put(mesh, source)
+        """Store an uploaded mesh file, built in this process. ``weld``: merge vertices at
+        equal positions (seams); None/"auto": the format's default (see
+        ``solvers.domains.mesh``)."""
+        args = file_arguments(data, filename, file_type, laplacian, weld)
+        return self._put(build_mesh_file(self.settings, *args), args[-1])
 
     def from_spec(self, spec) -> tuple[dict, bool]:
-        if isinstance(spec, GridSpec):
-            try:
-                check_size(spec.shape, self.settings.max_vertices, "shape")
-            except InputError as exc:
-                raise PayloadTooLarge(exc.message, field="shape") from exc
-            domain = Grid(spec.shape, spec.bounds, spec.periodic)
-        elif isinstance(spec, GraphSpec):
-            self._check_points(spec.n_nodes, "n_nodes")
-            domain = Graph(spec.n_nodes, spec.edges, spec.weights, spec.positions)
-        elif isinstance(spec, PointCloudSpec):
-            self._check_points(len(spec.points), "points")
-            domain = PointCloud(_array(spec.points, "points"), n_neighbors=spec.n_neighbors)
-        elif isinstance(spec, MeshSpec):
-            self._check_points(len(spec.vertices), "vertices")
-            domain = TriangleMesh(_array(spec.vertices, "vertices"),
-                                  _array(spec.faces, "faces", np.int64),
-                                  laplacian=spec.laplacian, weld=spec.weld)
-        else:  # pragma: no cover - the request model is a closed union
-            raise InvalidInput("unknown domain kind", field="kind")
-        return self._put(domain, {"format": "json"})
+        """Store a JSON domain, built in this process."""
+        source = {"format": "json"}
+        return self._put(build_domain(self.settings, spec, source), source)
+
+    async def create_from_file(self, data: bytes, filename: str | None, file_type: str | None,
+                               laplacian: str = "robust", weld: bool | str | None = None
+                               ) -> tuple[dict, bool]:
+        """As :meth:`from_file`; a large file is built in the bounded builder process."""
+        from fastapi.concurrency import run_in_threadpool
+
+        if len(data) <= IN_PROCESS_FILE_BYTES:
+            return await run_in_threadpool(self.from_file, data, filename, file_type,
+                                           laplacian, weld)
+        args = file_arguments(data, filename, file_type, laplacian, weld)
+        meta, created = await build_in_child(self.settings, "file", args, "file")
+        return self._stored(meta, created, args[-1])
+
+    async def create_from_spec(self, spec) -> tuple[dict, bool]:
+        """As :meth:`from_spec`; a domain of more than ``IN_PROCESS_POINTS`` points is built
+        in the bounded builder process."""
+        from fastapi.concurrency import run_in_threadpool
+
+        field, n = spec_size(spec)
+        if n <= IN_PROCESS_POINTS:
+            return await run_in_threadpool(self.from_spec, spec)
+        self._check_points(n, field)
+        source = {"format": "json"}
+        meta, created = await build_in_child(self.settings, "spec", (spec, source), field)
+        return self._stored(meta, created, source)
 
     def _put(self, domain, source: dict) -> tuple[dict, bool]:
-        """Store the domain (once, whoever uploads it) and record the caller's holding.
-        ``created``: new to the caller (an admin: new to the store)."""
+        meta, stored_now = self.rt.store.put_domain(domain, source)
+        return self._stored(meta, stored_now, source,
+                            restore=lambda: self.rt.store.put_domain(domain, source))
+
+    def _stored(self, meta: dict, stored_now: bool, source: dict, restore=None
+                ) -> tuple[dict, bool]:
+        """Record the caller's holding of a stored domain (stored once, whoever uploads it).
+        ``created``: new to the caller (an admin: new to the store). ``restore`` stores the
+        domain again if the last other holder deleted it meanwhile (a domain built in the
+        builder process has none: that race then leaves the caller's entry without data,
+        and its next upload stores it again)."""
         store, tenancy = self.rt.store, self.rt.tenancy
-        meta, stored_now = store.put_domain(domain, source)
         domain_id = meta["id"]
         held = tenancy.holding(self.tenant.id, "domain", domain_id)
         if held is None:
@@ -114,8 +120,8 @@ class DomainService:
                     self._drop_if_unheld(domain_id)
                 raise
             held = tenancy.hold(self.tenant.id, "domain", domain_id, size, source)
-            if not store.has_domain(domain_id):  # the last other holder deleted it meanwhile
-                store.put_domain(domain, source)
+            if not store.has_domain(domain_id) and restore is not None:
+                restore()
             created = True
         else:
             created = False
@@ -200,6 +206,73 @@ class DomainService:
 def _as_held(meta: dict, held) -> dict:
     """A stored domain's metadata as its holder sees it: its own upload and time."""
     return {**meta, "source": held.source or {}, "created_at": held.created_at}
+
+
+def _check_points(settings, n: int, field: str) -> None:
+    if n > settings.max_vertices:
+        raise PayloadTooLarge(f"{n} points exceed the limit of {settings.max_vertices}",
+                              field=field)
+
+
+def spec_size(spec) -> tuple[str, int]:
+    """``(field, points)`` of a JSON domain before it is built (Python ints)."""
+    if isinstance(spec, GridSpec):
+        return "shape", math.prod(int(s) for s in spec.shape)
+    if isinstance(spec, GraphSpec):
+        return "n_nodes", int(spec.n_nodes)
+    if isinstance(spec, PointCloudSpec):
+        return "points", len(spec.points)
+    return "vertices", len(spec.vertices)
+
+
+def build_domain(settings, spec, source: dict):
+    """The domain of a validated JSON spec (sizes checked against ``max_vertices`` first)."""
+    if isinstance(spec, GridSpec):
+        try:
+            check_size(spec.shape, settings.max_vertices, "shape")
+        except InputError as exc:
+            raise PayloadTooLarge(exc.message, field="shape") from exc
+        return Grid(spec.shape, spec.bounds, spec.periodic)
+    if isinstance(spec, GraphSpec):
+        _check_points(settings, spec.n_nodes, "n_nodes")
+        return Graph(spec.n_nodes, spec.edges, spec.weights, spec.positions)
+    if isinstance(spec, PointCloudSpec):
+        _check_points(settings, len(spec.points), "points")
+        return PointCloud(_array(spec.points, "points"), n_neighbors=spec.n_neighbors)
+    if isinstance(spec, MeshSpec):
+        _check_points(settings, len(spec.vertices), "vertices")
+        return TriangleMesh(_array(spec.vertices, "vertices"),
+                            _array(spec.faces, "faces", np.int64),
+                            laplacian=spec.laplacian, weld=spec.weld)
+    raise InvalidInput("unknown domain kind", field="kind")  # pragma: no cover - closed union
+
+
+def file_arguments(data: bytes, filename: str | None, file_type: str | None, laplacian: str,
+                   weld) -> tuple:
+    """``(data, ext, laplacian, weld, source)`` of a mesh file upload, checked."""
+    if not data:
+        raise InvalidInput("the uploaded file is empty", field="file")
+    ext = (file_type or os.path.splitext(filename or "")[1]).lower().lstrip(".")
+    if not ext:
+        raise InvalidInput("cannot tell the mesh format: give a file name with an extension "
+                           f"or a 'format' field ({', '.join(MESH_FORMATS)})", field="format")
+    if ext not in MESH_FORMATS:
+        raise InvalidInput(f"unsupported mesh format {ext[:20]!r}; expected one of "
+                           f"{', '.join(MESH_FORMATS)}", field="format")
+    if laplacian not in ("robust", "cotan"):
+        raise InvalidInput("laplacian must be 'robust' or 'cotan'", field="laplacian")
+    weld = parse_weld(weld)
+    source = {"filename": filename, "format": ext, "bytes": len(data)}
+    if weld is not None:
+        source["weld"] = weld
+    return data, ext, laplacian, weld, source
+
+
+def build_mesh_file(settings, data: bytes, ext: str, laplacian: str, weld, source: dict):
+    """The mesh of an uploaded file (``file_arguments``), at most ``max_vertices``."""
+    mesh = load_mesh(data, file_type=ext, laplacian=laplacian, weld=weld)
+    _check_points(settings, mesh.n, "file")
+    return mesh
 
 
 def _array(values, field: str, dtype=np.float64) -> np.ndarray:

@@ -8,6 +8,7 @@ import threading
 import time
 
 from service.cache import OperatorCache
+from service.jobs.broker import BrokerWatch
 from service.jobs.db import JobRepository, worker_identity
 from service.jobs.queue import QUEUES, make_queues, register_task
 from service.jobs.reaper import Reaper
@@ -40,7 +41,8 @@ class Runtime:
         self.runner = JobRunner(settings, self.store, self.repo, self.cache, self.operations)
         self.tasks = {q: register_task(h, self.runner.run) for q, h in self.hueys.items()}
         self.task = self.tasks["short"]
-        self.reaper = Reaper(settings, self.repo, self.enqueue, self.store)
+        self.broker_watch = BrokerWatch(settings, self.repo, self.hueys, self.enqueue)
+        self.reaper = Reaper(settings, self.repo, self.enqueue, self.store, self.broker_watch)
         # wake-up datagrams to this machine's processes (enqueued -> workers, done -> API)
         self.wake = WakeSender(settings.data_dir) if settings.queue != "immediate" else None
         if self.wake is not None:
@@ -68,6 +70,26 @@ class Runtime:
             return sum(int(h.pending_count()) for h in self.hueys.values())
         except Exception:  # broker down
             return None
+
+    _broker_checked = (0.0, None)
+    BROKER_CHECK_EVERY = 1.0  # seconds a broker probe result is reused
+
+    def broker_status(self) -> dict:
+        """Whether the queue's broker answers, its messages and the restarts seen (probed at
+        most once a second)."""
+        at, status = self._broker_checked
+        if status is None or time.monotonic() - at > self.BROKER_CHECK_EVERY:
+            status = {"reachable": True, "messages": None,
+                      "restarts": self.broker_watch.restarts, "reason": None}
+            try:
+                if self.settings.queue == "redis":
+                    self.huey.storage.conn.ping()
+                status["messages"] = self.pending_messages()
+            except Exception as exc:  # the broker is down: no details (they name hosts)
+                status.update(reachable=False, reason=f"{type(exc).__name__}: the broker "
+                              "does not answer")
+            self._broker_checked = (time.monotonic(), status)
+        return status
 
     # -- storage -----------------------------------------------------------
     _storage_checked = (0.0, None)

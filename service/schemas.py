@@ -140,7 +140,9 @@ class JobOut(BaseModel):
     id: str
     operation: str
     domain_id: str
-    state: JobState
+    state: JobState = Field(description="`succeeded` only when the solver converged; a job "
+                            "that stopped without converging is `failed` with error code "
+                            "`not_converged` (its partial result stays readable)")
     progress: JobProgress
     queue: Literal["short", "long"] = Field(
         "short", description="the queue the job was sent to (chosen by its estimated cost)")
@@ -269,8 +271,18 @@ class StorageHealth(BaseModel):
     reason: str | None = Field(None, description="why it does not take writes")
 
 
+class BrokerHealth(BaseModel):
+    reachable: bool = Field(description="the queue's broker answers (Redis: PING; the "
+                            "embedded SQLite queue: always)")
+    messages: int | None = Field(None, description="messages waiting in the broker's queues")
+    restarts: int = Field(0, description="broker restarts this process has seen (its queued "
+                          "jobs were re-sent from the job table at once)")
+    reason: str | None = Field(None, description="why it is unreachable")
+
+
 class Health(BaseModel):
     status: Literal["ok", "degraded"]
     queue: str
     version: str
     storage: StorageHealth | None = None
+    broker: BrokerHealth | None = None

@@ -58,8 +58,12 @@ class Settings(BaseSettings):
                                "job's worker counts as dead")
     requeue_queued_after: float = Field(
         300.0, gt=0, description="re-enqueue a job still queued after this many seconds "
-        "(queue message lost, e.g. broker restart); duplicates are harmless")
+        "(a last resort: lost messages are re-sent within broker_check_interval); "
+        "duplicates are harmless")
     reaper_interval: float = Field(5.0, gt=0)
+    broker_check_interval: float = Field(
+        1.0, gt=0, description="seconds between comparisons of the broker with the job "
+        "table: queued jobs whose messages were lost (a Redis restart) are re-sent at once")
     api_keys: Annotated[list[str], NoDecode] = Field(
         default_factory=list, description="comma-separated accepted X-API-Key values; "
         "empty = no authentication. Each key is its own tenant (see OTGEO_TENANT_KEYS for "

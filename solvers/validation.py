@@ -302,6 +302,29 @@ def check_gamma(gamma, extent: float, field: str = "gamma") -> float:
     return g
 
 
+# Smallest regularization a domain resolves, as a fraction of its squared length scale h:
+# the Gibbs weight exp(-h^2 / gamma) between neighbouring points must stay above machine
+# epsilon relative to a point's own weight, i.e. gamma >= h^2 / ln(1 / eps) (~ h^2 / 36);
+# below it the kernel is the identity in floating point, no mass moves between neighbours and
+# Sinkhorn either stagnates or "converges" to a value that only scales with gamma.
+GAMMA_RESOLUTION = 1.0 / math.log(1.0 / float(np.finfo(np.float64).eps))
+
+
+def check_gamma_resolved(gamma, h: float, field: str = "gamma") -> float:
+    """A regularization the domain resolves: ``gamma >= GAMMA_RESOLUTION * h**2``.
+
+    ``h``: the domain's length scale (``DomainSketch.length_scale``: mean edge length on
+    meshes, grid spacing, one hop on graphs, ``sqrt(1/n)`` on point clouds at unit area)."""
+    g = check_positive(gamma, field)
+    low = GAMMA_RESOLUTION * float(h) ** 2
+    if g < low:
+        raise InputError(f"{field} = {g:g} is below {low:.3g}, the smallest regularization "
+                         f"this domain can resolve (h^2 / {1.0 / GAMMA_RESOLUTION:.1f} with "
+                         f"length scale h = {float(h):.3g}): the kernel between neighbouring "
+                         "points would underflow and no mass could move", field=field)
+    return g
+
+
 def check_entropy_bound(bound, areas: np.ndarray, field: str = "entropy_bound") -> float:
     r"""An entropy bound :math:`H_0` reachable by sharpening: finite and at least
     :math:`\log \min_i a_i`, the entropy of the most concentrated distribution (a point

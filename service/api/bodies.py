@@ -13,14 +13,12 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
-import multiprocessing
-import threading
-from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 
 import numpy as np
 from pydantic import TypeAdapter, ValidationError
 
+from service.child_pool import ChildPool
 from service.errors import ApiError, InvalidInput, field_from_loc
 from service.schemas import DomainSpec, GraphSpec, GridSpec, MeshSpec, PointCloudSpec
 
@@ -34,21 +32,29 @@ ARRAY_FIELDS = {"edges": np.int64, "faces": np.int64, "points": np.float64,
 
 
 def _too_deep() -> ApiError:
-    return ApiError("body is nested too deeply to be a domain", field="body", code="invalid_json")
+    return ApiError("body is nested too deeply to be a request", field="body",
+                    code="invalid_json")
+
+
+def load_json(body: bytes):
+    """``json.loads(body)``; ApiError ``invalid_json`` naming the field ``body`` when the body
+    is empty, not UTF-8, not JSON or nested too deeply."""
+    if not body:
+        raise InvalidInput("empty request body", field="body")
+    try:
+        return json.loads(body)
+    except RecursionError as exc:
+        raise _too_deep() from exc
+    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError
+        where = (f" (line {exc.lineno}, column {exc.colno}, byte {exc.pos})"
+                 if hasattr(exc, "lineno") else "")
+        raise InvalidInput(f"body is not valid JSON{where}", field="body",
+                           code="invalid_json") from exc
 
 
 def spec_from_json(body: bytes):
     """The validated DomainSpec of a JSON body; ApiError naming the field otherwise."""
-    if not body:
-        raise InvalidInput("empty request body", field="body")
-    try:
-        raw = json.loads(body)
-    except RecursionError as exc:
-        raise _too_deep() from exc
-    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError
-        where = f" (line {exc.lineno}, column {exc.colno})" if hasattr(exc, "lineno") else ""
-        raise InvalidInput(f"body is not valid JSON{where}", field="body",
-                           code="invalid_json") from exc
+    raw = load_json(body)
     try:
         return SPEC.validate_python(raw)
     except RecursionError as exc:
@@ -83,40 +89,80 @@ def compact_spec(body: bytes) -> tuple:
     return ("ok", spec.kind, fields)
 
 
-def _die_with_parent() -> None:
-    """Parser process initializer: exit when the API process dies (Linux), even by SIGKILL."""
-    import signal
-    import sys
-
-    if sys.platform.startswith("linux"):
-        try:
-            import ctypes
-
-            ctypes.CDLL(None).prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG
-        except (OSError, AttributeError):
-            pass
+def _numeric(value: list) -> bool:
+    return all(type(x) is float or type(x) is int for x in value)
 
 
-_pool: ProcessPoolExecutor | None = None
-_pool_lock = threading.Lock()
+def compact_json(body: bytes) -> tuple:
+    """In the child: ``("ok", obj)`` with flat numeric lists longer than 64 as numpy arrays
+    (pickled as one buffer), or ``("error", status, code, message, field)``."""
+    try:
+        raw = load_json(body)
+    except ApiError as exc:
+        return ("error", exc.status_code, exc.code, exc.message, exc.field)
+
+    def compact(value):
+        if isinstance(value, dict):
+            return {k: compact(v) for k, v in value.items()}
+        if isinstance(value, list):
+            if len(value) > 64 and _numeric(value):
+                kind = np.float64 if any(type(x) is float for x in value) else np.int64
+                try:
+                    return np.asarray(value, dtype=kind)
+                except OverflowError:  # an int beyond int64: sent as it is
+                    return value
+            return [compact(v) for v in value]
+        return value
+
+    return ("ok", compact(raw))
 
 
-def _executor() -> ProcessPoolExecutor:
-    global _pool
-    with _pool_lock:
-        if _pool is None:
-            _pool = ProcessPoolExecutor(max_workers=1,
-                                        mp_context=multiprocessing.get_context("spawn"),
-                                        initializer=_die_with_parent)
-        return _pool
+def expand_json(value):
+    """The inverse of ``compact_json``'s array packing: the same JSON object (ints stay ints,
+    floats floats)."""
+    if isinstance(value, dict):
+        return {k: expand_json(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [expand_json(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return value
+
+
+PARSER = ChildPool()
+
+
+def _executor():
+    return PARSER.get()
 
 
 def _discard_pool() -> None:
-    global _pool
-    with _pool_lock:
-        pool, _pool = _pool, None
-    if pool is not None:
-        pool.shutdown(wait=False, cancel_futures=True)
+    PARSER.discard()
+
+
+def _raise(out: tuple) -> None:
+    _, status, code, message, field = out
+    err = ApiError(message, field=field, code=code)
+    err.status_code = status
+    raise err
+
+
+async def parse_json(body: bytes):
+    """The JSON object of ``body``, parsed off the event loop (a child process from
+    ``IN_PROCESS_BYTES`` on, else the thread pool); ApiError ``invalid_json`` otherwise."""
+    from fastapi.concurrency import run_in_threadpool
+
+    if len(body) < IN_PROCESS_BYTES:
+        return await run_in_threadpool(load_json, body)
+    try:
+        out = await asyncio.wrap_future(_executor().submit(compact_json, body))
+    except (BrokenProcessPool, OSError, RuntimeError) as exc:  # child died: parse here
+        log.warning("JSON parser process unavailable (%s); parsing in a thread", exc)
+        _discard_pool()
+        return await run_in_threadpool(load_json, body)
+    if out[0] == "error":
+        _raise(out)
+    return await run_in_threadpool(expand_json, out[1])
 
 
 async def parse_spec(body: bytes):
@@ -132,9 +178,6 @@ async def parse_spec(body: bytes):
         _discard_pool()
         return await run_in_threadpool(spec_from_json, body)
     if out[0] == "error":
-        _, status, code, message, field = out
-        err = ApiError(message, field=field, code=code)
-        err.status_code = status
-        raise err
+        _raise(out)
     _, kind, fields = out
     return KINDS[kind].model_construct(**fields)

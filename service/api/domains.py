@@ -110,15 +110,14 @@ async def _create(request: Request, response: Response, svc, allow_json: bool,
         content = {"file_sha256": hashlib.sha256(data).hexdigest(), "filename": filename,
                    "format": fmt, "laplacian": laplacian, "weld": weld}
 
-        def build():
-            return svc.from_file(data, filename, fmt, laplacian, weld)
+        async def build():
+            return await svc.create_from_file(data, filename, fmt, laplacian, weld)
     elif ctype in ("application/json", "") and allow_json:
         body = await _read_body(request, limit)
         content = {"json_sha256": hashlib.sha256(body).hexdigest()}
-        spec = None
 
-        def build():
-            return svc.from_spec(spec)
+        async def build():
+            return await svc.create_from_spec(await parse_spec(body))
     elif allow_json:
         raise UnsupportedMediaType(f"content type {ctype!r}: send application/json (or a mesh "
                                    "file as multipart/form-data to /v1/domains/upload)",
@@ -136,9 +135,7 @@ async def _create(request: Request, response: Response, svc, allow_json: bool,
         response.status_code = earlier.status_code or 201
         response.headers[REPLAYED] = "true"
     else:
-        if "json_sha256" in content:
-            spec = await parse_spec(body)
-        meta, created = await run_in_threadpool(build)
+        meta, created = await build()
         if not created:
             response.status_code = 200
         if idempotency is not None:

@@ -20,14 +20,17 @@ router = APIRouter(tags=["health"])
 
 @router.get("/healthz", operation_id="health", response_model=Health,
             responses={503: {"model": Health, "description": "storage cannot take writes "
-                             "(or is nearly full): `storage` says why"}})
+                             "(or is nearly full), or the queue's broker is unreachable: "
+                             "`storage` and `broker` say why"}})
 async def healthz(rt: RuntimeDep):
-    """Liveness plus storage: the data directory takes writes (a probe file is written and
-    removed, at most once a second) and its free bytes."""
+    """Liveness plus storage (the data directory takes writes: a probe file is written and
+    removed, at most once a second; its free bytes) and the queue's broker (reachable, its
+    messages, restarts seen; probed at most once a second)."""
     storage = await run_in_threadpool(rt.storage_status)
-    ok = storage["writable"] and not storage["low_space"]
+    broker = await run_in_threadpool(rt.broker_status)
+    ok = storage["writable"] and not storage["low_space"] and broker["reachable"]
     health = Health(status="ok" if ok else "degraded", queue=rt.settings.queue,
-                    version=__version__, storage=storage)
+                    version=__version__, storage=storage, broker=broker)
     if ok:
         return health
     return JSONResponse(health.model_dump(mode="json"), status_code=503)

@@ -102,7 +102,8 @@ def build_result_router(operations) -> APIRouter:
         """The result: `values` typed per operation (see each `...Result` schema), the files
         produced, every array as a linked .npy file (`array_files`) and, within the result's
         size budget (OTGEO_RESULT_JSON_BYTES), smallest first, also inline as nested lists
-        (`arrays`)."""
+        (`arrays`). A job `failed` with code `not_converged` keeps its partial result here
+        (`values.converged` is false): it is not a solution."""
         return JSONResponse(svc.result(job_id, include_arrays=arrays))
 
     return results

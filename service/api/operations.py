@@ -9,9 +9,11 @@ bound per route at runtime.)"""
 import asyncio
 import time
 
-from fastapi import APIRouter, Query, Response
+from fastapi import APIRouter, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
+from fastapi.routing import APIRoute
 
+from service.api.bodies import parse_json
 from service.api.deps import IdempotencyKeyDep, JobSvc, RuntimeDep
 from service.errors import InvalidInput, responses
 from service.idempotency import REPLAYED, for_request
@@ -107,10 +109,38 @@ async def finish_submission(op_name: str, domain_id: str | None, body, wait: flo
     return out
 
 
+def _is_json(content_type: str) -> bool:
+    media = content_type.split(";")[0].strip().lower()
+    return media in ("", "application/json") or \
+        (media.startswith("application/") and media.endswith("+json"))
+
+
+class JsonBodyRoute(APIRoute):
+    """An operation route whose JSON body is parsed before FastAPI validates it: off the
+    event loop (service.api.bodies.parse_json: a child process for large bodies) and with the
+    ``invalid_json`` error naming the field ``body`` for anything that is not one JSON
+    document (invalid UTF-8, a syntax error, nesting too deep, a multipart or other non-JSON
+    body). FastAPI then reads the parsed object from the request's JSON cache."""
+
+    def get_route_handler(self):
+        handler = super().get_route_handler()
+
+        async def parse_then_handle(request: Request):
+            content_type = request.headers.get("content-type", "")
+            if not _is_json(content_type):
+                media = content_type.split(";")[0].strip()
+                raise InvalidInput(f"body is {media}, not JSON: send application/json",
+                                   field="body", code="invalid_json")
+            request._json = await parse_json(await request.body())
+            return await handler(request)
+
+        return parse_then_handle
+
+
 ROUTE_RESPONSES = {200: {"model": JobOut, "description": "the job finished within `wait`"},
                    202: {"description": "the job, not finished (yet): poll `Location` after "
                          "`Retry-After` seconds", "headers": RETRY_AFTER_HEADERS},
-                   **responses(401, 404, 422, 429)}
+                   **responses(400, 401, 404, 422, 429)}
 
 
 def _domain_route(router: APIRouter, op: Operation) -> None:
@@ -126,7 +156,8 @@ def _domain_route(router: APIRouter, op: Operation) -> None:
     router.add_api_route(
         f"/domains/{{domain_id}}/{op.name}", create_job, methods=["POST"],
         operation_id=op.operation_id, summary=op.summary, status_code=202,
-        response_model=JobOut, responses=ROUTE_RESPONSES, openapi_extra=openapi_extra(op.name))
+        response_model=JobOut, responses=ROUTE_RESPONSES, openapi_extra=openapi_extra(op.name),
+        route_class_override=JsonBodyRoute)
 
 
 def _global_route(router: APIRouter, op: Operation) -> None:
@@ -142,7 +173,8 @@ def _global_route(router: APIRouter, op: Operation) -> None:
     router.add_api_route(
         f"/{op.name}", create_job, methods=["POST"], operation_id=op.operation_id,
         summary=op.summary, status_code=202, response_model=JobOut,
-        responses=ROUTE_RESPONSES, openapi_extra=openapi_extra(op.name))
+        responses=ROUTE_RESPONSES, openapi_extra=openapi_extra(op.name),
+        route_class_override=JsonBodyRoute)
 
 
 def build_router(registry: Registry) -> APIRouter:

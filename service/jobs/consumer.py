@@ -94,7 +94,7 @@ class Consumer:
             except Exception:  # broker or database briefly unavailable
                 log.exception("worker loop error; retrying in %.2f s", backoff)
                 self.stop_event.wait(backoff)
-                backoff = min(backoff * 2, 5.0)
+                backoff = min(backoff * 2, 1.0)  # back within a second of a broker restart
 
     def run(self) -> None:
         """Consume until SIGTERM/SIGINT (or :meth:`stop`); the job thread is a daemon, so

@@ -139,7 +139,7 @@ def register_task(huey: Huey, run):
 DEFAULT_ITERATIONS = 1000  # assumed when a request names no iteration bound
 
 
-def estimate_cost(n: int, request) -> float:
+def estimate_cost(n: int, request, context=None) -> float:
     """A job's estimated cost at submission: domain size × iterations × columns.
 
     ``iterations`` is the request's ``max_iter`` (or ``iterations``), ``columns`` the number

@@ -22,8 +22,10 @@ DONE_MARKER_TTL = 3600.0  # seconds a completion marker is kept (waiting clients
 
 class Reaper:
     def __init__(self, settings: Settings, repo: JobRepository,
-                 enqueue: Callable[[str, str | None], None], store=None):
+                 enqueue: Callable[[str, str | None], None], store=None, watch=None):
         self.settings, self.repo, self.enqueue, self.store = settings, repo, enqueue, store
+        self.watch = watch  # a BrokerWatch (service.jobs.broker), checked more often
+        self._broker_down = False
         self._last_prune = 0.0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -66,9 +68,33 @@ class Reaper:
         except Exception:  # broker down: the job stays queued and is re-sent later
             log.exception("could not enqueue job %s", job_id)
 
+    def check_broker(self) -> list[str]:
+        """Re-send the queued jobs the broker lost (logged once per outage when down)."""
+        try:
+            resent = self.watch.check()
+        except Exception as exc:
+            if not self._broker_down:
+                log.warning("broker check failed (%s); retrying", type(exc).__name__)
+            self._broker_down = True
+            return []
+        if self._broker_down:
+            log.warning("broker reachable again")
+        self._broker_down = False
+        return resent
+
     def start(self) -> None:
+        interval = self.settings.reaper_interval
+        tick = interval if self.watch is None else \
+            min(interval, self.settings.broker_check_interval)
+
         def loop():
-            while not self._stop.wait(self.settings.reaper_interval):
+            next_pass = time.monotonic() + interval
+            while not self._stop.wait(tick):
+                if self.watch is not None:
+                    self.check_broker()
+                if time.monotonic() < next_pass:
+                    continue
+                next_pass = time.monotonic() + interval
                 try:
                     self.run_once()
                 except Exception:

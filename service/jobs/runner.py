@@ -115,6 +115,22 @@ class _Heartbeat:
             self.beat()
 
 
+def not_converged_error(values: dict, params) -> dict | None:
+    """The job's error when its solver reports ``converged: false`` (else None): such a job
+    ends ``failed`` with code ``not_converged``, its result kept for inspection."""
+    if values.get("converged") is not False:
+        return None
+    residual, iterations = values.get("residual"), values.get("iterations")
+    measured = ""
+    if isinstance(residual, (int, float)) and isinstance(iterations, int):
+        measured = f" (residual {float(residual):.3g} after {iterations} iterations)"
+    field = "max_iter" if getattr(params, "max_iter", None) is not None else None
+    return {"code": "not_converged", "field": field,
+            "message": f"the solver did not converge{measured}; the partial result is "
+                       "readable at the job's result link but is not a solution (raise "
+                       "max_iter or gamma)"}
+
+
 class JobRunner:
     def __init__(self, settings: Settings, store: Store, repo: JobRepository,
                  cache: OperatorCache, operations):
@@ -169,7 +185,9 @@ class JobRunner:
             if should_cancel():
                 raise CancelledError("cancelled")
             location = self._store_output(job_id, job, output)
-            state = SUCCEEDED
+            state, error = SUCCEEDED, not_converged_error(output.values, params)
+            if error is not None:  # the partial result stays readable; never a success
+                state = FAILED
         except CancelledError as exc:
             partial = getattr(exc, "partial_output", None)
             if partial is not None:  # e.g. a distance matrix's finished rows

@@ -30,6 +30,13 @@ UNSET_AT_CREATION = ("iteration", "residual", "fraction", "error", "worker", "st
                      "heartbeat_at", "finished_at", "duration", "result_location")
 
 
+def has_partial_result(job: JobRow) -> bool:
+    """A finished job that kept a partial result: a solver that stopped without converging
+    (failed, ``not_converged``), or a cancelled or timed-out job that kept its finished part
+    (a distance matrix's rows)."""
+    return job.state in TERMINAL and bool(job.result_location)
+
+
 class JobService:
     """Jobs as one tenant sees them: its own (every job for an admin); another tenant's job
     is "unknown" (404), so ids do not leak."""
@@ -87,14 +94,15 @@ class JobService:
         op = self.rt.operations.get_operation(operation)
         size = None  # points of the job's domain (its cost estimate picks the queue)
         if op.scope == "domain":
-            view = view_of_info(self.domains.info(domain_id))
+            view = context = view_of_info(self.domains.info(domain_id))
             size = view.n
             op.check_kind(view)
             op.validate(view, request)
             check_job_memory(op, view, request, self.rt.settings.job_memory_bytes)
             decision = op.decide(view, request) if op.decide is not None else None
         else:
-            ctx = SubmitContext(self.rt.store, self.rt.settings, holds=self.domains.holds)
+            ctx = context = SubmitContext(self.rt.store, self.rt.settings,
+                                          holds=self.domains.holds)
             op.validate(ctx, request)
             decision = op.decide(ctx, request) if op.decide is not None else None
             domain_id = op.primary_domain(request)
@@ -106,7 +114,7 @@ class JobService:
                 size = self.rt.store.domain_info(domain_id).n
             except NotFound:
                 size = None
-        cost = (op.estimate_cost or estimate_cost)(size or 1, request)
+        cost = (op.estimate_cost or estimate_cost)(size or 1, request, context)
         queue = queue_for_cost(self.rt.settings, cost)
         now = time.time()
         job = JobRow(id=uuid.uuid4().hex, operation=operation, domain_id=domain_id,
@@ -139,9 +147,7 @@ class JobService:
 
     def result(self, job_id: str, include_arrays: bool = True) -> dict:
         job = self.get(job_id)
-        # A cancelled or timed-out job may have kept a partial result (finished rows).
-        kept = job.state in TERMINAL and job.result_location is not None
-        if job.state != "succeeded" and not kept:
+        if job.state != "succeeded" and not has_partial_result(job):
             if job.state in TERMINAL:
                 raise Conflict(f"job {job_id} {job.state}; it has no result", field="job_id",
                                code="job_" + job.state)

@@ -128,7 +128,7 @@ def validate(view: DomainView, req: AnisotropicDistanceRequest) -> list[dict]:
     return _inputs(view, req)[2]
 
 
-def estimate_cost(n: int, req) -> float:
+def estimate_cost(n: int, req, context=None) -> float:
     """One W1 solve: the interior point's cost, or the ADMM/Weiszfeld iteration cap."""
     if req.algorithm in ("auto", "ipm") and req.basis in ("auto", "flow"):
         return float(IPM_SOLVE_COST) * float(max(n, 1))

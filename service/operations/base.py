@@ -31,6 +31,7 @@ from solvers.validation import (
     check_component_masses,
     check_entropy_bound,
     check_gamma,
+    check_gamma_resolved,
     check_indices,
     check_int,
     check_masses,
@@ -248,7 +249,8 @@ class Operation:
     # row ``row`` of ``name``, or ``None`` when ``name`` is served as stored
     result_row: Callable[..., np.ndarray | None] | None = None
     decide: Callable[..., dict | None] | None = None
-    # the job's cost from (points of its domain, request), which picks its queue (default:
+    # the job's cost from (points of its domain, request, context: the domain's view, or the
+    # SubmitContext of a global operation), which picks its queue (default:
     # ``service.jobs.queue.estimate_cost``, points x iterations x distributions)
     estimate_cost: Callable[..., float] | None = None
 
@@ -426,11 +428,13 @@ def view_extent(view: DomainView) -> float:
 
 def check_options(view: DomainView, req) -> None:
     """The request's scalar options against the domain, with the library's validators:
-    ``gamma`` (positive, at most ``GAMMA_MAX_FACTOR`` x extent^2), ``entropy_bound``
+    ``gamma`` (at least what the domain resolves, ``GAMMA_RESOLUTION`` x h^2, at most
+    ``GAMMA_MAX_FACTOR`` x extent^2), ``entropy_bound``
     (reachable), spectral basis sizes ``k`` (below the number of points)."""
     gamma = getattr(req, "gamma", None)
     if gamma is not None:
         check_gamma(gamma, view_extent(view), "gamma")
+        check_gamma_resolved(gamma, view.sketch().length_scale, "gamma")
     bound = getattr(req, "entropy_bound", None)
     if bound is not None:
         check_entropy_bound(bound, view.areas, "entropy_bound")

@@ -40,7 +40,7 @@ from solvers.color import (
     rgb_to_lab,
     write_image,
 )
-from solvers.color.chrominance import check_bins
+from solvers.color.chrominance import AbGrid, check_bins
 from solvers.color.transfer import (
     DEFAULT_BINS,
     DEFAULT_GAMMA,
@@ -48,7 +48,7 @@ from solvers.color.transfer import (
     MAX_IMAGES,
     check_alphas,
 )
-from solvers.validation import check_positive
+from solvers.validation import check_gamma_resolved
 
 MAX_ALPHAS = 32
 MEDIA = {"png": "image/png", "jpeg": "image/jpeg"}
@@ -171,7 +171,8 @@ def validate(ctx, req: ColorTransferRequest) -> list[dict]:
     A = _alphas(req)
     if req.bins is not None:
         check_bins(req.bins)
-    check_positive(req.gamma, "gamma")
+    # the barycentric mode's kernel: gamma must resolve the ab grid it runs on
+    check_gamma_resolved(req.gamma, AbGrid(req.bins or DEFAULT_BINS[req.mode]).spacing, "gamma")
     _recolor(req)
     blobs = [ctx.blob(blob_id, f"images[{i}]") for i, blob_id in enumerate(req.images)]
     total = 0

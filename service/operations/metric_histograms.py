@@ -118,7 +118,7 @@ def validate(view: DomainView, req: MetricHistogramRequest) -> list[dict]:
     return []
 
 
-def estimate_cost(n: int, req: MetricHistogramRequest) -> float:
+def estimate_cost(n: int, req: MetricHistogramRequest, context=None) -> float:
     """Nodes x B^2 plan entries per edge (about 3 edges per node), a few simplex passes."""
     b = len(req.cost) if req.cost is not None else req.circle.points if req.circle else 2
     return 30.0 * float(max(n, 1)) * float(b) ** 2

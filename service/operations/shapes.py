@@ -132,7 +132,7 @@ def estimate_bytes(req: ShapeInterpolationRequest) -> int:
     return 8 * req.resolution**3 * (VOLUME_ARRAYS + len(req.shapes))
 
 
-def estimate_cost(n: int, req: ShapeInterpolationRequest) -> float:
+def estimate_cost(n: int, req: ShapeInterpolationRequest, context=None) -> float:
     """Grid nodes x iterations x shapes x frames x ``GRID_NODE_COST``: one separable
     convolution per shape and iteration; ``n`` (the first shape's vertices) does not enter."""
     frames = len(req.times or req.weights or ([0] * (5 if len(req.shapes) == 2

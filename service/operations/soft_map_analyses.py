@@ -141,7 +141,7 @@ def validate(ctx, req: SoftMapAnalysisRequest) -> list[dict]:
     return []
 
 
-def estimate_cost(n: int, req: SoftMapAnalysisRequest) -> float:
+def estimate_cost(n: int, req: SoftMapAnalysisRequest, context=None) -> float:
     """Target vertices x samples x maps x (3 source edges per sample x the Dirichlet
     route's cost per edge, plus the SVD)."""
     per = 3 * DIRICHLET_COST[req.dirichlet] + req.samples

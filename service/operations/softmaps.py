@@ -153,9 +153,32 @@ def _mesh_view(ctx, domain_id: str, field: str):
     return view
 
 
-def validate(ctx, req: SoftMapRequest) -> list[dict]:
-    from solvers.softmaps.propagation_map import estimated_bytes, solved_points
+def estimate_sizes(n_source: int, n_target: int, req: SoftMapRequest) -> dict:
+    """``{"bytes", "cost"}`` of a soft map job from its sizes: the library's peak-memory
+    model (``solvers.softmaps.propagation_map.estimated_bytes``) and the cost in the units of
+    ``service.jobs.queue.estimate_cost``: per propagation sweep (at most ``max_iter``) one
+    log-domain step per source edge (about 3 per sample) over every solved target point,
+    plus the prolongation of every row to the full target."""
+    from solvers.softmaps.propagation_map import EDGES_PER_SAMPLE, estimated_bytes, solved_points
 
+    n_samples = min(req.samples, n_source)
+    solved = solved_points(req.target_points, n_samples, n_target)
+    need = estimated_bytes(n_samples, n_target, target_points=solved, n_source=n_source,
+                           k=req.k, n_energies=req.n_energies, landmarks=len(req.landmarks))
+    per_sweep = EDGES_PER_SAMPLE * n_samples * (n_target if solved is None else solved)
+    cost = float(per_sweep) * float(req.max_iter) + float(n_samples) * float(n_target)
+    return {"bytes": need, "cost": cost}
+
+
+def estimate_cost(n: int, req: SoftMapRequest, context=None) -> float:
+    """The job's cost (see :func:`estimate_sizes`) over its two stored meshes."""
+    n_target = n
+    if context is not None:
+        n_target = context.view(req.target_id, "target_id").n
+    return estimate_sizes(n, n_target, req)["cost"]
+
+
+def validate(ctx, req: SoftMapRequest) -> list[dict]:
     src = _mesh_view(ctx, req.source_id, "source_id")
     tgt = _mesh_view(ctx, req.target_id, "target_id")
     for i, pair in enumerate(req.landmarks):
@@ -180,9 +203,7 @@ def validate(ctx, req: SoftMapRequest) -> list[dict]:
     if isinstance(req.target_points, int) and req.target_points < 4:
         raise InvalidInput("target_points must be at least 4 (or 'auto', or null)",
                            field="target_points")
-    n_samples = min(req.samples, src.n)
-    need = estimated_bytes(n_samples, tgt.n,
-                           target_points=solved_points(req.target_points, n_samples, tgt.n))
+    need = estimate_sizes(src.n, tgt.n, req)["bytes"]
     limit = int(ctx.settings.job_memory_bytes)
     if need > limit:
         raise PayloadTooLarge(f"{min(req.samples, src.n)} samples over {tgt.n} target "
@@ -342,5 +363,6 @@ OPERATIONS = [
         domain_field="source_id",
         result_model=SoftMapValues,
         result_row=result_row,
+        estimate_cost=estimate_cost,
     ),
 ]

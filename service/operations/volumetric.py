@@ -236,7 +236,7 @@ def _solves(view_n: int, req) -> int:
     return len(req.points or ()) + slice_nodes
 
 
-def estimate_cost(n: int, req) -> float:
+def estimate_cost(n: int, req, context=None) -> float:
     """Each point (or path step) is one W1 problem on the mesh."""
     return float(IPM_SOLVE_COST) * float(max(n, 1)) * float(_solves(n, req))
 

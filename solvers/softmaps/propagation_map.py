@@ -86,8 +86,12 @@ def check_landmark_pairs(landmarks, n_source: int, n_target: int) -> np.ndarray:
     return x
 
 
-def estimated_bytes(n_samples: int, n_target: int, edges_per_sample: float = 3.0,
-                    target_points: int | None = None) -> int:
+EDGES_PER_SAMPLE = 3.0  # source edges per farthest-point sample (a surface's sample graph)
+
+
+def estimated_bytes(n_samples: int, n_target: int, edges_per_sample: float = EDGES_PER_SAMPLE,
+                    target_points: int | None = None, n_source: int = 0, k: int = 0,
+                    n_energies: int = 0, landmarks: int = 0) -> int:
     """Peak bytes of :func:`soft_map` for ``n_samples`` over ``n_target`` target vertices,
     solved over ``target_points`` coarse points (``None``: all ``n_target`` vertices).
 
@@ -95,13 +99,16 @@ def estimated_bytes(n_samples: int, n_target: int, edges_per_sample: float = 3.0
     log-rescalings, barycenters and masses with two temporaries of the final normalization
     (float64), and the float32 soft map; the propagation's chunk temporaries are small.
     With a coarse target, the prolonged rows the extraction reads (float32, and float64
-    inside the optional Sinkhorn projection: 12 bytes per sample and target vertex).
-    Measured peaks are in bench/results/softmaps.md.
+    inside the optional Sinkhorn projection: 12 bytes per sample and target vertex); at full
+    resolution the extraction's float64 copy of the rows (8 bytes each). The descriptors of
+    both meshes (``k`` eigenpairs, ``n_energies`` WKS energies and one column per landmark,
+    float64, over ``n_source + n_target`` vertices). Measured peaks:
+    bench/results/softmaps.md and bench/results/softmap_memory.md.
     """
     solved = n_target if target_points is None else target_points
     total = n_samples * solved * (2 * edges_per_sample * 8 + 6 * 8 + 4)
-    if target_points is not None:
-        total += n_samples * n_target * 12
+    total += n_samples * n_target * (12 if target_points is not None else 8)
+    total += (k + n_energies + landmarks) * (n_source + n_target) * 8
     return int(total)
 
 
@@ -324,7 +331,8 @@ def soft_map(
     samples = check_int(samples, "samples", low=max(2, len(pairs)))
     n_samples = min(samples, source.n)
     points = solved_points(target_points, n_samples, target.n)
-    need = estimated_bytes(n_samples, target.n, target_points=points)
+    need = estimated_bytes(n_samples, target.n, target_points=points, n_source=source.n,
+                           k=k, n_energies=n_energies, landmarks=len(pairs))
     if max_bytes is not None and need > max_bytes:
         raise InputError(f"{n_samples} samples over {points or target.n} target points need "
                          f"about {need / 2**20:.0f} MiB, more than the "

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
-from service_testing import assert_error, upload_mesh
+from service_testing import assert_error, assert_has_result, upload_mesh
 from shared_meshes import MESHES_DIR
 
 from service.export import parse_glb
@@ -141,8 +141,7 @@ def test_soft_map_full_resolution_on_request(client, pair):
     a, b = pair
     body = {"source_id": a, "target_id": b, **BODY, "target_points": None, "max_iter": 5,
             "refine": "none"}
-    job = client.post("/v1/soft-maps?wait=60", json=body).json()
-    assert job["state"] == "succeeded", job
+    job = assert_has_result(client.post("/v1/soft-maps?wait=60", json=body).json())
     result = client.get(f"/v1/jobs/{job['id']}/result").json()
     assert result["values"]["target_points"] is None
     assert np.shape(result["arrays"]["soft_map"]) == (60, 162)

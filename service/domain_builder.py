@@ -1,0 +1,103 @@
+"""Building large domains in a memory-bounded child process, so the API's memory stays small.
+
+A domain's construction (k-nearest-neighbour graphs, Laplacians, component labels, a mesh
+file's parsing and welding) can take many times the upload's size: a 1.9-million-point cloud
+once raised the API process to 15 GiB. Uploads above ``IN_PROCESS_POINTS`` points (or, for
+mesh files, ``IN_PROCESS_FILE_BYTES``) are built and stored by a child process whose address
+space is capped (``RLIMIT_AS`` at :func:`builder_memory_limit`); the API only receives the
+stored domain's metadata. A build that runs out of that bound answers 413 naming the upload's
+size field. Small uploads are built in the calling thread (no process hop).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from concurrent.futures.process import BrokenProcessPool
+
+from service.child_pool import ChildPool, die_with_parent
+from service.errors import ApiError, PayloadTooLarge
+from service.limits import WORKER_BASE_BYTES
+
+log = logging.getLogger("otgeo.service")
+
+IN_PROCESS_POINTS = 100_000  # domains up to this many points are built in the API process
+IN_PROCESS_FILE_BYTES = 8 * 2**20  # mesh files up to this size too (~150k vertices as OBJ)
+
+
+def builder_memory_limit(settings) -> int:
+    """Address space of the builder process: interpreter base + one job's working memory."""
+    return WORKER_BASE_BYTES + int(settings.job_memory_bytes)
+
+
+def _init_child(limit: int) -> None:
+    """Builder initializer: cap the address space, die with the API process (Linux)."""
+    import resource
+
+    die_with_parent()
+    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    if hard != resource.RLIM_INFINITY:
+        limit = min(limit, hard)
+    if soft == resource.RLIM_INFINITY or soft > limit:
+        resource.setrlimit(resource.RLIMIT_AS, (limit, hard))
+
+
+def _build_and_store(settings, method: str, args: tuple) -> tuple:
+    """In the child: ``("ok", meta, created)`` or ``("error", status, code, message, field)``
+    (``"memory"`` when the bound was hit)."""
+    from service.domains import build_domain, build_mesh_file
+    from service.errors import from_library
+    from service.store import Store
+    from solvers.errors import OTGeoError
+
+    try:
+        domain = (build_domain if method == "spec" else build_mesh_file)(settings, *args)
+        meta, created = Store(settings.data_dir).put_domain(domain, args[-1])
+        return ("ok", meta, created)
+    except MemoryError:
+        return ("memory",)
+    except (ApiError, OTGeoError) as exc:  # reported to the client as in the API process
+        err = from_library(exc) if isinstance(exc, OTGeoError) else exc
+        return ("error", err.status_code, err.code, err.message, err.field)
+    except Exception:
+        log.exception("domain build failed")
+        return ("internal",)
+
+
+BUILDER = ChildPool(_init_child)
+
+
+def _too_large(settings, field: str) -> PayloadTooLarge:
+    limit = builder_memory_limit(settings)
+    return PayloadTooLarge(f"building this domain needs more than the {limit / 2**30:.3g} GiB "
+                           "a domain build may use (OTGEO_JOB_MEMORY_BYTES plus the "
+                           "interpreter): upload fewer points", field=field)
+
+
+async def build_in_child(settings, method: str, args: tuple, field: str) -> tuple[dict, bool]:
+    """``(meta, created)`` of the domain built and stored by the bounded child process;
+    ``method`` is ``"spec"`` (args: spec, source) or ``"file"`` (args: data, filename, ext,
+    laplacian, weld, source)."""
+    limit = builder_memory_limit(settings)
+    try:
+        out = await asyncio.wrap_future(
+            BUILDER.get(limit).submit(_build_and_store, settings, method, args))
+    except BrokenProcessPool as exc:  # killed by the bound (an allocation that aborted)
+        log.warning("domain builder process died (%s)", exc)
+        BUILDER.discard()
+        raise _too_large(settings, field) from exc
+    if out[0] == "memory":
+        BUILDER.discard()  # a fresh child: the failed build's fragments go with the old one
+        raise _too_large(settings, field)
+    if out[0] == "internal":  # logged by the child; the app's handler answers 500
+        raise RuntimeError("domain build failed in the builder process")
+    if out[0] == "error":
+        _, status, code, message, err_field = out
+        err = ApiError(message, field=err_field, code=code)
+        err.status_code = status
+        raise err
+    return out[1], out[2]
+
+
+def shutdown() -> None:
+    BUILDER.discard()
