@@ -15,6 +15,7 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel
 from sqlalchemy.exc import DBAPIError
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match
 
 from solvers.errors import (
     CancelledError,
@@ -176,6 +177,7 @@ def field_from_loc(loc, elements: bool = False) -> str | None:
 
 
 ERROR_RESPONSES = {
+    400: {"model": ErrorResponse, "description": "malformed request body (not parseable)"},
     401: {"model": ErrorResponse, "description": "missing or wrong X-API-Key"},
     404: {"model": ErrorResponse, "description": "unknown domain or job"},
     413: {"model": ErrorResponse, "description": "upload or domain too large"},
@@ -207,6 +209,18 @@ class _BodyLimit:
                 await JSONResponse(err.body(), status_code=413)(scope, receive, send)
                 return
         await self.app(scope, receive, send)
+
+
+def allowed_methods(request: Request) -> str:
+    """``Allow`` of a 405: the methods of every route of the request's path (Starlette names
+    only those of the first route matching the path, e.g. GET of ``/v1/jobs/{id}`` without
+    its DELETE)."""
+    methods: set[str] = set()
+    for route in request.app.router.routes:
+        route_methods = getattr(route, "methods", None)
+        if route_methods and route.matches(request.scope)[0] != Match.NONE:
+            methods |= set(route_methods)
+    return ", ".join(sorted(methods))
 
 
 def install_handlers(app: FastAPI) -> None:
@@ -242,8 +256,10 @@ def install_handlers(app: FastAPI) -> None:
     async def _http(request: Request, exc: StarletteHTTPException):
         codes = {404: "not_found", 405: "method_not_allowed"}
         err = ApiError(str(exc.detail), code=codes.get(exc.status_code, "http_error"))
-        return JSONResponse(err.body(), status_code=exc.status_code,
-                            headers=getattr(exc, "headers", None))
+        headers = dict(getattr(exc, "headers", None) or {})
+        if exc.status_code == 405:
+            headers["Allow"] = allowed_methods(request)
+        return JSONResponse(err.body(), status_code=exc.status_code, headers=headers or None)
 
     @app.exception_handler(DBAPIError)
     async def _database(request: Request, exc: DBAPIError):

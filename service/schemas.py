@@ -139,7 +139,8 @@ class JobProgress(BaseModel):
 class JobOut(BaseModel):
     id: str
     operation: str
-    domain_id: str
+    domain_id: str = Field(description="the job's domain; empty for a global operation "
+                           "(color transfer, BRDF interpolation, several domains)")
     state: JobState
     progress: JobProgress
     queue: Literal["short", "long"] = Field(
@@ -158,7 +159,8 @@ class JobOut(BaseModel):
     started_at: datetime | None = None
     finished_at: datetime | None = None
     duration_seconds: float | None = None
-    links: dict[str, str]
+    links: dict[str, str] = Field(description="self, result, result_glb, events and, for a "
+                                  "domain-scoped job, domain")
 
     @classmethod
     def from_row(cls, row) -> JobOut:
@@ -175,8 +177,17 @@ class JobOut(BaseModel):
             decision=getattr(row, "decision", None), created_at=timestamp(row.created_at),
             started_at=timestamp(row.started_at),
             finished_at=timestamp(row.finished_at), duration_seconds=row.duration,
-            links={"self": base, "result": f"{base}/result", "result_glb": f"{base}/result.glb",
-                   "events": f"{base}/events", "domain": f"/v1/domains/{row.domain_id}"})
+            links=_job_links(base, row.domain_id))
+
+
+def _job_links(base: str, domain_id: str) -> dict[str, str]:
+    """A job's links; ``domain`` only for a domain-scoped job (a global one, e.g. a color
+    transfer, has no domain: ``/v1/domains/`` would be the listing)."""
+    links = {"self": base, "result": f"{base}/result", "result_glb": f"{base}/result.glb",
+             "events": f"{base}/events"}
+    if domain_id:
+        links["domain"] = f"/v1/domains/{domain_id}"
+    return links
 
 
 RETRY_AFTER_MAX = 30  # seconds

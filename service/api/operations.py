@@ -99,7 +99,7 @@ async def finish_submission(op_name: str, domain_id: str | None, body, wait: flo
 ROUTE_RESPONSES = {200: {"model": JobOut, "description": "the job finished within `wait`"},
                    202: {"description": "the job, not finished (yet): poll `Location` after "
                          "`Retry-After` seconds", "headers": RETRY_AFTER_HEADERS},
-                   **responses(401, 404, 422)}
+                   **responses(400, 401, 404, 413, 422)}
 
 
 def _domain_route(router: APIRouter, op: Operation) -> None:
