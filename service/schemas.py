@@ -5,7 +5,7 @@ from __future__ import annotations
 from datetime import UTC, datetime
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
 
 from service.errors import ErrorBody
 
@@ -15,15 +15,30 @@ def timestamp(value: float | None) -> datetime | None:
 
 
 # -- domains ----------------------------------------------------------------------
-# Request bodies refuse Infinity/NaN (JSON extensions, or 1e400 read as inf) at the door.
-SPEC_CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False)
+# Request bodies refuse Infinity/NaN (JSON extensions, or 1e400 read as inf) and type
+# coercions (0 for false) at the door.
+SPEC_CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
+
+
+def _integral(value):
+    """JSON Schema's integer: a number with a zero fractional part (``20.0`` too, as JSON
+    Schema counts it), never a boolean (refused by the strict int that follows)."""
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    return value
+
+
+# The int of request models (strict otherwise: no bool, no numeric string)
+Int = Annotated[int, BeforeValidator(_integral)]
 
 
 class GridSpec(BaseModel):
     model_config = ConfigDict(**SPEC_CONFIG, json_schema_extra={"examples": [
         {"kind": "grid", "shape": [32, 32]}]})
     kind: Literal["grid"]
-    shape: list[int] = Field(min_length=1, max_length=3, description="nodes per axis")
+    shape: list[Annotated[Int, Field(ge=2)]] = Field(
+        min_length=1, max_length=3, description="nodes per axis (at least 2; their product at "
+        "most OTGEO_MAX_VERTICES)")
     bounds: list[list[float]] | None = Field(None, description="(lo, hi) per axis; "
                                              "default [0, 1]")
     periodic: bool | list[bool] = False
@@ -34,8 +49,8 @@ class GraphSpec(BaseModel):
         {"kind": "graph", "n_nodes": 4, "edges": [[0, 1], [1, 2], [2, 3]],
          "weights": [1.0, 1.0, 2.0]}]})
     kind: Literal["graph"]
-    n_nodes: int = Field(ge=1)
-    edges: list[list[int]] = Field(description="(m, 2) node index pairs")
+    n_nodes: Int = Field(ge=1)
+    edges: list[list[Int]] = Field(description="(m, 2) node index pairs")
     weights: list[float] | None = None
     positions: list[list[float]] | None = None
 
@@ -46,7 +61,7 @@ class PointCloudSpec(BaseModel):
          "points": [[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.0, 1.0)]}]})
     kind: Literal["pointcloud"]
     points: list[list[float]] = Field(description="(n, 3) coordinates")
-    n_neighbors: int = 30
+    n_neighbors: Int = 30
 
 
 class MeshSpec(BaseModel):
@@ -55,7 +70,7 @@ class MeshSpec(BaseModel):
          "faces": [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]}]})
     kind: Literal["mesh"]
     vertices: list[list[float]] = Field(description="(n, 3) coordinates")
-    faces: list[list[int]] = Field(description="(m, 3) vertex indices")
+    faces: list[list[Int]] = Field(description="(m, 3) vertex indices")
     laplacian: Literal["robust", "cotan"] = "robust"
     weld: bool = Field(False, description="merge vertices at equal positions (seams)")
 

@@ -14,7 +14,7 @@ from pydantic import ValidationError
 from service.api.deps import JobSvc, RuntimeDep
 from service.api.operations import ROUTE_RESPONSES, WAIT_DESCRIPTION, finish_submission
 from service.errors import InvalidInput, PayloadTooLarge, responses
-from service.operations.color import ColorTransferRequest, check_header
+from service.operations.color import MAX_IMAGES, ColorTransferRequest, check_header
 from service.schemas import JobOut
 
 router = APIRouter(prefix="/v1", tags=["operations"])
@@ -52,19 +52,20 @@ def _store_images(rt, uploads: list[bytes], media: list[str]) -> list[str]:
             "chrominance histograms (thesis §3.7)")
 async def create_color_transfer(
     response: Response, svc: JobSvc, rt: RuntimeDep,
-    images: Annotated[list[UploadFile], File(description="2 to 16 image files (PNG, JPEG, "
+    images: Annotated[list[UploadFile], File(min_length=2, max_length=MAX_IMAGES,
+                                             description="2 to 16 image files (PNG, JPEG, "
                                              "TIFF, WebP; 8 or 16 bits; alpha kept)")],
     weights: str | None = Form(None, description="JSON list: one weight per image"),
     alphas: str | None = Form(None, description="JSON list of weight vectors (a sequence, "
                               "e.g. [[1,0],[0.5,0.5],[0,1]])"),
-    bins: int = Form(128, description="nodes per axis of the ab grid (8..512)"),
-    gamma: float = Form(16.0, description="entropic regularization (squared ab units)"),
+    bins: int = Form(128, ge=8, le=512, description="nodes per axis of the ab grid"),
+    gamma: float = Form(16.0, gt=0, description="entropic regularization (squared ab units)"),
     luminance: bool = Form(True, description="also transfer L* (1-D OT)"),
     sharpen: bool = Form(False, description="entropic sharpening of the barycenters"),
     debiased: bool = Form(False, description="debiased barycenters"),
     recolor: str | None = Form(None, description="JSON list of image indices to recolor"),
     format: Literal["png", "jpeg"] = Form("png", description="output image format"),
-    time_limit: float | None = Form(None, description="seconds"),
+    time_limit: float | None = Form(None, gt=0, description="seconds"),
     wait: float = Query(0.0, ge=0, description=WAIT_DESCRIPTION),
 ):
     """Upload the images and create the job; results at `/v1/jobs/{id}/result`, images at

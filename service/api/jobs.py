@@ -129,8 +129,9 @@ def get_job_result_glb(job_id: str, svc: JobSvc):
     return Response(svc.result_glb(job_id), media_type="model/gltf-binary")
 
 
-# Media types of the files operations produce (service.operations: ResultFile)
-FILE_MEDIA_TYPES = ("image/png", "image/jpeg", "model/gltf-binary")
+# Media types of the files operations produce (service.operations: ResultFile), then the
+# generic binary type that SDK generators read (openapi-python-client skips the others)
+FILE_MEDIA_TYPES = ("image/png", "image/jpeg", "model/gltf-binary", "application/octet-stream")
 
 
 @router.get("/{job_id}/files/{name}", operation_id="getJobFile", response_class=Response,

@@ -22,7 +22,7 @@ import numpy as np
 from pydantic import BaseModel, Field
 
 from service.errors import InvalidInput, PayloadTooLarge
-from service.operations.base import Operation, OperationOutput, OperationRequest, ResultFile
+from service.operations.base import Int, Operation, OperationOutput, OperationRequest, ResultFile
 from service.operations.examples import EXAMPLE_ID, example
 from solvers.color import (
     color_transfer,
@@ -51,26 +51,26 @@ class ColorTransferRequest(OperationRequest):
     alphas: list[list[float]] | None = Field(
         None, min_length=1, max_length=MAX_ALPHAS, description="several weight vectors "
         "(e.g. (1 - s, s) for a sequence of s, thesis Fig. 3.12); exclusive with weights")
-    bins: int = Field(128, ge=8, le=512, description="nodes per axis of the ab histogram "
+    bins: Int = Field(128, ge=8, le=512, description="nodes per axis of the ab histogram "
                       "grid over [-128, 128]^2")
     gamma: float = Field(DEFAULT_GAMMA, gt=0, description="entropic regularization in "
                          "squared ab units (blur of standard deviation sqrt(gamma/2))")
     luminance: bool = Field(True, description="also transfer L* (1-D optimal transport)")
     sharpen: bool = Field(False, description="entropic sharpening of the barycenters")
     debiased: bool = Field(False, description="debiased barycenters (less entropic blur)")
-    recolor: list[int] | None = Field(None, description="indices of the images to recolor "
+    recolor: list[Int] | None = Field(None, description="indices of the images to recolor "
                                       "(default all)")
     format: Literal["png", "jpeg"] = Field("png", description="format of the output images")
     tol: float = Field(1e-4, gt=0, lt=1, description="largest L1 marginal violation")
-    max_iter: int = Field(3000, ge=1, le=100_000)
+    max_iter: Int = Field(3000, ge=1, le=100_000)
 
 
 class ColorOutputInfo(BaseModel):
     file: str
-    alpha_index: int
-    image_index: int
-    width: int
-    height: int
+    alpha_index: Int
+    image_index: Int
+    width: Int
+    height: Int
     mean_ab_before: list[float]
     mean_ab_after: list[float]
 
@@ -78,14 +78,14 @@ class ColorOutputInfo(BaseModel):
 class ColorTransferValues(BaseModel):
     """``values`` of a color-transfer result."""
 
-    n_images: int
+    n_images: Int
     alphas: list[list[float]]
-    bins: int
+    bins: Int
     gamma: float
-    iterations: int
+    iterations: Int
     residual: float = Field(description="largest L1 marginal violation over all plans")
     converged: bool
-    window: list[list[int]] = Field(description="[[a_start, a_stop], [b_start, b_stop]]: "
+    window: list[list[Int]] = Field(description="[[a_start, a_stop], [b_start, b_stop]]: "
                                     "grid nodes the barycenter was computed on")
     timings: dict[str, float]
     outputs: list[ColorOutputInfo]
