@@ -30,6 +30,13 @@ def _integral(value):
 
 # The int of request models (strict otherwise: no bool, no numeric string)
 Int = Annotated[int, BeforeValidator(_integral)]
+# An edge of a request's graph: two different node indices (a list: strict validation of
+# JSON arrays parsed to Python lists refuses tuples)
+NodePair = Annotated[list[Annotated[Int, Field(ge=0)]],
+                     Field(min_length=2, max_length=2, json_schema_extra={"uniqueItems": True})]
+# A point in 3-D, a triangle's vertex indices
+Point = Annotated[list[float], Field(min_length=3, max_length=3)]
+Triangle = Annotated[list[Annotated[Int, Field(ge=0)]], Field(min_length=3, max_length=3)]
 
 
 class GridSpec(BaseModel):
@@ -39,7 +46,8 @@ class GridSpec(BaseModel):
     shape: list[Annotated[Int, Field(ge=2)]] = Field(
         min_length=1, max_length=3, description="nodes per axis (at least 2; their product at "
         "most OTGEO_MAX_VERTICES)")
-    bounds: list[list[float]] | None = Field(None, description="(lo, hi) per axis; "
+    bounds: list[Annotated[list[float], Field(min_length=2, max_length=2)]] | None = Field(
+        None, description="(lo, hi) per axis; "
                                              "default [0, 1]")
     periodic: bool | list[bool] = False
 
@@ -50,7 +58,7 @@ class GraphSpec(BaseModel):
          "weights": [1.0, 1.0, 2.0]}]})
     kind: Literal["graph"]
     n_nodes: Int = Field(ge=1)
-    edges: list[list[Int]] = Field(description="(m, 2) node index pairs")
+    edges: list[NodePair] = Field(description="(m, 2) node index pairs (no self-loops)")
     weights: list[float] | None = None
     positions: list[list[float]] | None = None
 
@@ -60,7 +68,7 @@ class PointCloudSpec(BaseModel):
         {"kind": "pointcloud", "n_neighbors": 5,
          "points": [[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.0, 1.0)]}]})
     kind: Literal["pointcloud"]
-    points: list[list[float]] = Field(description="(n, 3) coordinates")
+    points: list[Point] = Field(description="(n, 3) coordinates")
     n_neighbors: Int = 30
 
 
@@ -69,8 +77,8 @@ class MeshSpec(BaseModel):
         {"kind": "mesh", "vertices": [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]],
          "faces": [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]}]})
     kind: Literal["mesh"]
-    vertices: list[list[float]] = Field(description="(n, 3) coordinates")
-    faces: list[list[Int]] = Field(description="(m, 3) vertex indices")
+    vertices: list[Point] = Field(min_length=1, description="(n, 3) coordinates")
+    faces: list[Triangle] = Field(min_length=1, description="(m, 3) vertex indices")
     laplacian: Literal["robust", "cotan"] = "robust"
     weld: bool = Field(False, description="merge vertices at equal positions (seams)")
 

@@ -12,6 +12,7 @@ def as_served(schema: dict, settings: Settings) -> None:
     _key_requirements(schema, settings)
     _wait_bounds(schema, settings.wait_max)
     _binary_uploads(schema)
+    _constraint_names(schema)
 
 
 def _errors_everywhere(schema: dict) -> None:
@@ -62,3 +63,23 @@ def _wait_bounds(schema: dict, wait_max: float) -> None:
             for param in op.get("parameters", []):
                 if param.get("name") == "wait" and param.get("in") == "query":
                     param["schema"]["maximum"] = wait_max
+
+
+CONSTRAINTS = {"ge": "minimum", "le": "maximum", "gt": "exclusiveMinimum",
+               "lt": "exclusiveMaximum"}
+
+
+def _constraint_names(node) -> None:
+    """JSON Schema names for the bounds of an optional request integer: pydantic writes
+    ``Field(ge=1)`` on ``Int | None`` (service.schemas.Int, an int with a before-validator)
+    as ``{"ge": 1}``, which no client reads."""
+    if isinstance(node, dict):
+        if node.get("type") == "integer":
+            for name, json_name in CONSTRAINTS.items():
+                if name in node:
+                    node[json_name] = node.pop(name)
+        for value in node.values():
+            _constraint_names(value)
+    elif isinstance(node, list):
+        for value in node:
+            _constraint_names(value)

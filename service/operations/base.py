@@ -19,14 +19,14 @@ import weakref
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Annotated, Literal
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.sparse.csgraph import shortest_path
 
 from service.errors import InvalidInput, NotFound, UnsupportedOperation
-from service.schemas import Int
+from service.schemas import Int, NodePair  # noqa: F401 (NodePair: for the families)
 from solvers.validation import (
     COMPONENT_MASS_TOL,
     check_component_masses,
@@ -64,12 +64,6 @@ def given(*groups: str | tuple[str, ...], exactly: bool = True, nonempty: bool =
         return {"required": list(group), "properties": props}
 
     return {"oneOf" if exactly else "anyOf": [branch(g) for g in groups]}
-
-
-# An edge of a request's graph: two different node indices (a list: strict validation of
-# JSON arrays parsed to Python lists)
-NodePair = Annotated[list[Annotated[Int, Field(ge=0)]],
-                     Field(min_length=2, max_length=2, json_schema_extra={"uniqueItems": True})]
 
 
 class SparseDistribution(BaseModel):

@@ -241,7 +241,7 @@ class PropagationRequest(SinkhornOptions):
         "fixed": [{"node": 0, "distribution": BUMP_A}, {"node": 2, "distribution": BUMP_B}]})
     n_nodes: Int = Field(ge=2, le=10_000, description="nodes of the propagation graph (each "
                          "carries one distribution over the domain)")
-    edges: list[NodePair] = Field(description="(m, 2) node pairs")
+    edges: list[NodePair] = Field(min_length=1, description="(m, 2) node pairs")
     edge_weights: list[float] | None = Field(None, description="(m,) positive weights")
     fixed: list[FixedDistribution] = Field(min_length=1, description="nodes with known "
                                            "distributions (at least one per connected piece "
