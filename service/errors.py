@@ -7,6 +7,7 @@ the same shape, so bad input always gets a 4xx naming the field, never a 500.
 from __future__ import annotations
 
 import logging
+import re
 
 import numpy as np
 from fastapi import FastAPI, Request
@@ -15,7 +16,6 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel
 from sqlalchemy.exc import DBAPIError
 from starlette.exceptions import HTTPException as StarletteHTTPException
-from starlette.routing import Match
 
 from solvers.errors import (
     CancelledError,
@@ -211,16 +211,26 @@ class _BodyLimit:
         await self.app(scope, receive, send)
 
 
-def allowed_methods(request: Request) -> str:
-    """``Allow`` of a 405: the methods of every route of the request's path (Starlette names
-    only those of the first route matching the path, e.g. GET of ``/v1/jobs/{id}`` without
-    its DELETE)."""
-    methods: set[str] = set()
-    for route in request.app.router.routes:
-        route_methods = getattr(route, "methods", None)
-        if route_methods and route.matches(request.scope)[0] != Match.NONE:
-            methods |= set(route_methods)
-    return ", ".join(sorted(methods))
+HTTP_METHODS = ("get", "put", "post", "delete", "options", "head", "patch", "trace")
+
+
+def allowed_methods(app: FastAPI, path: str) -> str:
+    """``Allow`` of a 405: the methods the app's OpenAPI document gives the request's path,
+    over every path template it matches (Starlette names only the methods of the first
+    route matching the path, e.g. GET of ``/v1/jobs/{id}`` without its DELETE)."""
+    table = getattr(app.state, "allow_table", None)
+    if table is None:
+        table = []
+        for template, ops in app.openapi().get("paths", {}).items():
+            pattern = re.sub(r"\\\{[^}]*\\\}", "[^/]+", re.escape(template))
+            table.append(("{" not in template, re.compile(f"^{pattern}$"),
+                          {m.upper() for m in ops if m in HTTP_METHODS}))
+        app.state.allow_table = table
+    # a concrete path (/v1/domains/upload) before the templates it also matches, as OpenAPI
+    # resolves them
+    matches = [(literal, declared) for literal, regex, declared in table if regex.match(path)]
+    chosen = [declared for literal, declared in matches if literal] or [d for _, d in matches]
+    return ", ".join(sorted(set().union(*chosen)))
 
 
 def install_handlers(app: FastAPI) -> None:
@@ -258,7 +268,8 @@ def install_handlers(app: FastAPI) -> None:
         err = ApiError(str(exc.detail), code=codes.get(exc.status_code, "http_error"))
         headers = dict(getattr(exc, "headers", None) or {})
         if exc.status_code == 405:
-            headers["Allow"] = allowed_methods(request)
+            headers["Allow"] = (allowed_methods(app, request.url.path)
+                                or headers.get("Allow", ""))
         return JSONResponse(err.body(), status_code=exc.status_code, headers=headers or None)
 
     @app.exception_handler(DBAPIError)

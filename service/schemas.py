@@ -32,11 +32,13 @@ def _integral(value):
 Int = Annotated[int, BeforeValidator(_integral)]
 # An edge of a request's graph: two different node indices (a list: strict validation of
 # JSON arrays parsed to Python lists refuses tuples)
-NodePair = Annotated[list[Annotated[Int, Field(ge=0)]],
+Index = Annotated[Int, Field(ge=0, le=2**63 - 1)]  # within int64
+NodePair = Annotated[list[Index],
                      Field(min_length=2, max_length=2, json_schema_extra={"uniqueItems": True})]
 # A point in 3-D, a triangle's vertex indices
 Point = Annotated[list[float], Field(min_length=3, max_length=3)]
-Triangle = Annotated[list[Annotated[Int, Field(ge=0)]], Field(min_length=3, max_length=3)]
+Triangle = Annotated[list[Index],
+                     Field(min_length=3, max_length=3, json_schema_extra={"uniqueItems": True})]
 
 
 class GridSpec(BaseModel):
@@ -68,8 +70,9 @@ class PointCloudSpec(BaseModel):
         {"kind": "pointcloud", "n_neighbors": 5,
          "points": [[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.0, 1.0)]}]})
     kind: Literal["pointcloud"]
-    points: list[Point] = Field(description="(n, 3) coordinates")
-    n_neighbors: Int = 30
+    points: list[Point] = Field(min_length=4, description="(n, 3) coordinates, n >= 4")
+    n_neighbors: Int = Field(30, ge=3, description="neighbors of each point in its local "
+                             "triangulation")
 
 
 class MeshSpec(BaseModel):

@@ -63,7 +63,8 @@ def get_job(job_id: str, svc: JobSvc):
 
 
 @router.delete("/{job_id}", operation_id="cancelJob", response_model=JobOut,
-               summary="Cancel a job (the job remains)",
+               summary="Cancel a job: a queued one at once, a running one between two solver "
+               "iterations; the job remains (it is not deleted)",
                responses={200: {"description": "the job, cancelled (a queued one) or with "
                                 "`cancel_requested` set (a running one); it stays readable "
                                 "at GET /v1/jobs/{job_id}"},

@@ -35,13 +35,14 @@ from service.operations.base import (
     ResultFile,
     given,
 )
+from service.schemas import Point
 from solvers.emd.exact import MAX_VERTICES
 
 MAX_POINTS = 4096  # W1 solves of one job (listed points + slice nodes)
 MVC_CHUNK_ENTRIES = 4_000_000  # points x faces of one block of mean value coordinates
 MVC_TEMPORARIES = 30  # (points, faces) float64 temporaries of a block
 
-Point3 = list[float]
+Point3 = Point  # (x, y, z)
 
 
 def _point_field(description: str):
