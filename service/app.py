@@ -10,7 +10,7 @@ from fastapi.openapi.utils import get_openapi
 from pydantic import TypeAdapter
 
 from service import __version__
-from service.api import docs, domains, guards, health, images, jobs, operations, viewer
+from service.api import docs, domains, guards, health, images, jobs, operations, spec, viewer
 from service.api.deps import require_api_key
 from service.api.routelist import operations_markdown
 from service.errors import ErrorResponse, install_handlers
@@ -29,35 +29,6 @@ job is observable, cancellable and keeps its result. Errors are
 # Routers under /v1 (API key checked when configured); add new resource routers here.
 # The operation routes are built per app from its registry (service.operations).
 V1_ROUTERS = [domains.router, viewer.router, jobs.router, images.router]
-
-
-def _errors_everywhere(schema: dict) -> None:
-    """Request validation errors use the one error shape too (not FastAPI's default)."""
-    ref = {"$ref": "#/components/schemas/ErrorResponse"}
-    for methods in schema.get("paths", {}).values():
-        for op in methods.values():
-            resp = op.get("responses", {}).get("422")
-            if resp is not None:
-                resp["content"] = {"application/json": {"schema": ref}}
-                if resp.get("description") == "Validation Error":
-                    resp["description"] = "invalid input (the field is named)"
-    for name in ("HTTPValidationError", "ValidationError"):
-        schema["components"]["schemas"].pop(name, None)
-
-
-def _binary_uploads(node) -> None:
-    """File fields as ``{"type": "string", "format": "binary"}``, which SDK generators read as
-    files (FastAPI writes OpenAPI 3.1's ``contentMediaType``: openapi-python-client then types
-    the field as text and sends no file)."""
-    if isinstance(node, dict):
-        if node.get("type") == "string" and "contentMediaType" in node:
-            del node["contentMediaType"]
-            node["format"] = "binary"
-        for value in node.values():
-            _binary_uploads(value)
-    elif isinstance(node, list):
-        for value in node:
-            _binary_uploads(value)
 
 
 def create_app(settings: Settings | None = None, *, start_background: bool = True) -> FastAPI:
@@ -101,15 +72,14 @@ def create_app(settings: Settings | None = None, *, start_background: bool = Tru
             schema = get_openapi(title=app.title, version=app.version,
                                  description=description, routes=app.routes)
             components = schema.setdefault("components", {}).setdefault("schemas", {})
-            spec = TypeAdapter(DomainSpec).json_schema(
+            domain_spec = TypeAdapter(DomainSpec).json_schema(
                 ref_template="#/components/schemas/{model}")
-            components.update(spec.pop("$defs", {}))
-            components["DomainSpec"] = spec
+            components.update(domain_spec.pop("$defs", {}))
+            components["DomainSpec"] = domain_spec
             components["ErrorResponse"] = ErrorResponse.model_json_schema(
                 ref_template="#/components/schemas/{model}")
             components["ErrorResponse"].pop("$defs", None)
-            _errors_everywhere(schema)
-            _binary_uploads(schema)
+            spec.as_served(schema, settings)
             app.openapi_schema = schema
         return app.openapi_schema
 

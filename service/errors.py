@@ -7,6 +7,7 @@ the same shape, so bad input always gets a 4xx naming the field, never a 500.
 from __future__ import annotations
 
 import logging
+import re
 
 import numpy as np
 from fastapi import FastAPI, Request
@@ -177,6 +178,7 @@ def field_from_loc(loc, elements: bool = False) -> str | None:
 
 
 ERROR_RESPONSES = {
+    400: {"model": ErrorResponse, "description": "malformed request body (not parseable)"},
     401: {"model": ErrorResponse, "description": "missing or wrong X-API-Key"},
     404: {"model": ErrorResponse, "description": "unknown domain or job"},
     413: {"model": ErrorResponse, "description": "upload or domain too large"},
@@ -214,6 +216,28 @@ class _BodyLimit:
         await self.app(scope, receive, send)
 
 
+HTTP_METHODS = ("get", "put", "post", "delete", "options", "head", "patch", "trace")
+
+
+def allowed_methods(app: FastAPI, path: str) -> str:
+    """``Allow`` of a 405: the methods the app's OpenAPI document gives the request's path,
+    over every path template it matches (Starlette names only the methods of the first
+    route matching the path, e.g. GET of ``/v1/jobs/{id}`` without its DELETE)."""
+    table = getattr(app.state, "allow_table", None)
+    if table is None:
+        table = []
+        for template, ops in app.openapi().get("paths", {}).items():
+            pattern = re.sub(r"\\\{[^}]*\\\}", "[^/]+", re.escape(template))
+            table.append(("{" not in template, re.compile(f"^{pattern}$"),
+                          {m.upper() for m in ops if m in HTTP_METHODS}))
+        app.state.allow_table = table
+    # a concrete path (/v1/domains/upload) before the templates it also matches, as OpenAPI
+    # resolves them
+    matches = [(literal, declared) for literal, regex, declared in table if regex.match(path)]
+    chosen = [declared for literal, declared in matches if literal] or [d for _, d in matches]
+    return ", ".join(sorted(set().union(*chosen)))
+
+
 def install_handlers(app: FastAPI) -> None:
     @app.exception_handler(ApiError)
     async def _api_error(request: Request, exc: ApiError):
@@ -247,8 +271,11 @@ def install_handlers(app: FastAPI) -> None:
     async def _http(request: Request, exc: StarletteHTTPException):
         codes = {404: "not_found", 405: "method_not_allowed"}
         err = ApiError(str(exc.detail), code=codes.get(exc.status_code, "http_error"))
-        return JSONResponse(err.body(), status_code=exc.status_code,
-                            headers=getattr(exc, "headers", None))
+        headers = dict(getattr(exc, "headers", None) or {})
+        if exc.status_code == 405:
+            headers["Allow"] = (allowed_methods(app, request.url.path)
+                                or headers.get("Allow", ""))
+        return JSONResponse(err.body(), status_code=exc.status_code, headers=headers or None)
 
     @app.exception_handler(DBAPIError)
     async def _database(request: Request, exc: DBAPIError):

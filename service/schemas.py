@@ -5,7 +5,7 @@ from __future__ import annotations
 from datetime import UTC, datetime
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
 
 from service.errors import ErrorBody
 
@@ -15,16 +15,41 @@ def timestamp(value: float | None) -> datetime | None:
 
 
 # -- domains ----------------------------------------------------------------------
-# Request bodies refuse Infinity/NaN (JSON extensions, or 1e400 read as inf) at the door.
-SPEC_CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False)
+# Request bodies refuse Infinity/NaN (JSON extensions, or 1e400 read as inf) and type
+# coercions (0 for false) at the door.
+SPEC_CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
+
+
+def _integral(value):
+    """JSON Schema's integer: a number with a zero fractional part (``20.0`` too, as JSON
+    Schema counts it), never a boolean (refused by the strict int that follows)."""
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    return value
+
+
+# The int of request models (strict otherwise: no bool, no numeric string)
+Int = Annotated[int, BeforeValidator(_integral)]
+# An edge of a request's graph: two different node indices (a list: strict validation of
+# JSON arrays parsed to Python lists refuses tuples)
+Index = Annotated[Int, Field(ge=0, le=2**63 - 1)]  # within int64
+NodePair = Annotated[list[Index],
+                     Field(min_length=2, max_length=2, json_schema_extra={"uniqueItems": True})]
+# A point in 3-D, a triangle's vertex indices
+Point = Annotated[list[float], Field(min_length=3, max_length=3)]
+Triangle = Annotated[list[Index],
+                     Field(min_length=3, max_length=3, json_schema_extra={"uniqueItems": True})]
 
 
 class GridSpec(BaseModel):
     model_config = ConfigDict(**SPEC_CONFIG, json_schema_extra={"examples": [
         {"kind": "grid", "shape": [32, 32]}]})
     kind: Literal["grid"]
-    shape: list[int] = Field(min_length=1, max_length=3, description="nodes per axis")
-    bounds: list[list[float]] | None = Field(None, description="(lo, hi) per axis; "
+    shape: list[Annotated[Int, Field(ge=2)]] = Field(
+        min_length=1, max_length=3, description="nodes per axis (at least 2; their product at "
+        "most OTGEO_MAX_VERTICES)")
+    bounds: list[Annotated[list[float], Field(min_length=2, max_length=2)]] | None = Field(
+        None, description="(lo, hi) per axis; "
                                              "default [0, 1]")
     periodic: bool | list[bool] = False
 
@@ -34,8 +59,8 @@ class GraphSpec(BaseModel):
         {"kind": "graph", "n_nodes": 4, "edges": [[0, 1], [1, 2], [2, 3]],
          "weights": [1.0, 1.0, 2.0]}]})
     kind: Literal["graph"]
-    n_nodes: int = Field(ge=1)
-    edges: list[list[int]] = Field(description="(m, 2) node index pairs")
+    n_nodes: Int = Field(ge=1)
+    edges: list[NodePair] = Field(description="(m, 2) node index pairs (no self-loops)")
     weights: list[float] | None = None
     positions: list[list[float]] | None = None
 
@@ -45,8 +70,9 @@ class PointCloudSpec(BaseModel):
         {"kind": "pointcloud", "n_neighbors": 5,
          "points": [[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.0, 1.0)]}]})
     kind: Literal["pointcloud"]
-    points: list[list[float]] = Field(description="(n, 3) coordinates")
-    n_neighbors: int = 30
+    points: list[Point] = Field(min_length=4, description="(n, 3) coordinates, n >= 4")
+    n_neighbors: Int = Field(30, ge=3, description="neighbors of each point in its local "
+                             "triangulation")
 
 
 class MeshSpec(BaseModel):
@@ -54,8 +80,8 @@ class MeshSpec(BaseModel):
         {"kind": "mesh", "vertices": [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]],
          "faces": [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]}]})
     kind: Literal["mesh"]
-    vertices: list[list[float]] = Field(description="(n, 3) coordinates")
-    faces: list[list[int]] = Field(description="(m, 3) vertex indices")
+    vertices: list[Point] = Field(min_length=1, description="(n, 3) coordinates")
+    faces: list[Triangle] = Field(min_length=1, description="(m, 3) vertex indices")
     laplacian: Literal["robust", "cotan"] = "robust"
     weld: bool = Field(False, description="merge vertices at equal positions (seams)")
 
@@ -139,7 +165,8 @@ class JobProgress(BaseModel):
 class JobOut(BaseModel):
     id: str
     operation: str
-    domain_id: str
+    domain_id: str = Field(description="the job's domain; empty for a global operation "
+                           "(color transfer, BRDF interpolation, several domains)")
     state: JobState = Field(description="`succeeded` only when the solver converged; a job "
                             "that stopped without converging is `failed` with error code "
                             "`not_converged` (its partial result stays readable)")
@@ -160,7 +187,8 @@ class JobOut(BaseModel):
     started_at: datetime | None = None
     finished_at: datetime | None = None
     duration_seconds: float | None = None
-    links: dict[str, str]
+    links: dict[str, str] = Field(description="self, result, result_glb, events and, for a "
+                                  "domain-scoped job, domain")
 
     @classmethod
     def from_row(cls, row) -> JobOut:
@@ -177,8 +205,17 @@ class JobOut(BaseModel):
             decision=getattr(row, "decision", None), created_at=timestamp(row.created_at),
             started_at=timestamp(row.started_at),
             finished_at=timestamp(row.finished_at), duration_seconds=row.duration,
-            links={"self": base, "result": f"{base}/result", "result_glb": f"{base}/result.glb",
-                   "events": f"{base}/events", "domain": f"/v1/domains/{row.domain_id}"})
+            links=_job_links(base, row.domain_id))
+
+
+def _job_links(base: str, domain_id: str) -> dict[str, str]:
+    """A job's links; ``domain`` only for a domain-scoped job (a global one, e.g. a color
+    transfer, has no domain: ``/v1/domains/`` would be the listing)."""
+    links = {"self": base, "result": f"{base}/result", "result_glb": f"{base}/result.glb",
+             "events": f"{base}/events"}
+    if domain_id:
+        links["domain"] = f"/v1/domains/{domain_id}"
+    return links
 
 
 RETRY_AFTER_MAX = 30  # seconds

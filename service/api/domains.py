@@ -23,6 +23,7 @@ from service.errors import (
 )
 from service.idempotency import REPLAYED, for_request
 from service.schemas import DomainList, DomainOut, DomainSpec
+from solvers.domains.mesh import MESH_FORMATS
 
 router = APIRouter(prefix="/v1/domains", tags=["domains"])
 SPEC = TypeAdapter(DomainSpec)
@@ -35,8 +36,8 @@ UPLOAD_BODY = {
             "properties": {
                 "file": {"type": "string", "format": "binary",
                          "description": "mesh file: OBJ, PLY, STL, OFF, GLB or glTF"},
-                "format": {"type": "string", "description": "file format when the file name "
-                           "has no extension (obj, ply, stl, off, glb, gltf)"},
+                "format": {"type": "string", "enum": list(MESH_FORMATS),
+                           "description": "file format when the file name has no extension"},
                 "laplacian": {"type": "string", "enum": ["robust", "cotan"],
                               "default": "robust"},
                 "weld": {"type": "boolean", "description": "merge vertices at equal "

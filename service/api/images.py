@@ -17,6 +17,7 @@ from service.api.operations import ROUTE_RESPONSES, WAIT_DESCRIPTION, finish_sub
 from service.errors import InvalidInput, PayloadTooLarge, responses
 from service.operations.color import (
     DEFAULT_REGULARIZATION,
+    MAX_IMAGES,
     ColorTransferRequest,
     check_header,
 )
@@ -68,7 +69,8 @@ def _store_images(rt, tenant, uploads: list[bytes], media: list[str]) -> list[st
             "chrominance histograms (exact split plans, or the thesis' barycentric map, §3.7)")
 async def create_color_transfer(
     response: Response, svc: JobSvc, rt: RuntimeDep, idempotency_key: IdempotencyKeyDep,
-    images: Annotated[list[UploadFile], File(description="2 to 16 image files (PNG, JPEG, "
+    images: Annotated[list[UploadFile], File(min_length=2, max_length=MAX_IMAGES,
+                                             description="2 to 16 image files (PNG, JPEG, "
                                              "TIFF, WebP; 8 or 16 bits; alpha kept)")],
     weights: str | None = Form(None, description="JSON list: one weight per image"),
     alphas: str | None = Form(None, description="JSON list of weight vectors (a sequence, "
@@ -76,18 +78,18 @@ async def create_color_transfer(
     mode: Literal["split", "barycentric"] = Form(
         "split", description="split: exact plan, each color's pixels split among its "
         "targets, guided filter; barycentric: the thesis' map (Fig. 3.12)"),
-    bins: int | None = Form(None, description="nodes per axis of the ab grid (8..512; default "
-                            "65 split, 256 barycentric)"),
-    gamma: float = Form(16.0, description="entropic regularization (squared ab units)"),
-    regularization: float = Form(DEFAULT_REGULARIZATION, description="split mode: guided "
-                                 "filter strength (0..1; 0 = off)"),
+    bins: int | None = Form(None, ge=8, le=512, description="nodes per axis of the ab grid "
+                            "(8..512; default 65 split, 256 barycentric)"),
+    gamma: float = Form(16.0, gt=0, description="entropic regularization (squared ab units)"),
+    regularization: float = Form(DEFAULT_REGULARIZATION, ge=0, le=1, description="split mode: "
+                                 "guided filter strength (0..1; 0 = off)"),
     luminance: bool = Form(True, description="also transfer L* (1-D OT); false: "
                            "chrominance only"),
     sharpen: bool = Form(False, description="entropic sharpening of the barycenters"),
     debiased: bool = Form(False, description="debiased barycenters"),
     recolor: str | None = Form(None, description="JSON list of image indices to recolor"),
     format: Literal["png", "jpeg"] = Form("png", description="output image format"),
-    time_limit: float | None = Form(None, description="seconds"),
+    time_limit: float | None = Form(None, gt=0, description="seconds"),
     wait: float = Query(0.0, ge=0, description=WAIT_DESCRIPTION),
 ):
     """Upload the images and create the job; results at `/v1/jobs/{id}/result`, images at

@@ -63,10 +63,17 @@ def get_job(job_id: str, svc: JobSvc):
 
 
 @router.delete("/{job_id}", operation_id="cancelJob", response_model=JobOut,
-               responses={409: {"model": ErrorResponse, "description": "job already finished"},
+               summary="Cancel a job: a queued one at once, a running one between two solver "
+               "iterations; the job remains (it is not deleted)",
+               responses={200: {"description": "the job, cancelled (a queued one) or with "
+                                "`cancel_requested` set (a running one); it stays readable "
+                                "at GET /v1/jobs/{job_id}"},
+                          409: {"model": ErrorResponse, "description": "job already finished"},
                           **responses(401, 404)})
 def cancel_job(job_id: str, svc: JobSvc):
-    """Cancel: a queued job at once, a running one between two solver iterations."""
+    """Cancel: a queued job at once, a running one between two solver iterations. This does
+    not delete the job: it stays listed and readable, in state `cancelled` once stopped (the
+    partial progress kept), so a client can still follow it."""
     return JobOut.from_row(svc.cancel(job_id))
 
 
@@ -124,11 +131,16 @@ def get_job_result_glb(job_id: str, svc: JobSvc):
     return Response(svc.result_glb(job_id), media_type="model/gltf-binary")
 
 
+# Media types of the files operations produce (service.operations: ResultFile), then the
+# generic binary type that SDK generators read (openapi-python-client skips the others)
+FILE_MEDIA_TYPES = ("image/png", "image/jpeg", "model/gltf-binary", "application/octet-stream")
+
+
 @router.get("/{job_id}/files/{name}", operation_id="getJobFile", response_class=Response,
-            responses={200: {"content": {"application/octet-stream": {
-                                 "schema": {"type": "string", "format": "binary"}}},
-                             "description": "a file the job produced (its media type: PNG "
-                             "image, JPEG, glTF binary, ...); listed in the result's `files`"},
+            responses={200: {"content": {t: {"schema": {"type": "string", "format": "binary"}}
+                                         for t in FILE_MEDIA_TYPES},
+                             "description": "a file the job produced, sent with its media type "
+                             "(PNG or JPEG image, glTF binary); listed in the result's `files`"},
                        409: {"model": ErrorResponse, "description": "job not finished"},
                        **responses(401, 404)})
 def get_job_file(job_id: str, name: str, svc: JobSvc):

@@ -140,7 +140,7 @@ class JsonBodyRoute(APIRoute):
 ROUTE_RESPONSES = {200: {"model": JobOut, "description": "the job finished within `wait`"},
                    202: {"description": "the job, not finished (yet): poll `Location` after "
                          "`Retry-After` seconds", "headers": RETRY_AFTER_HEADERS},
-                   **responses(400, 401, 404, 422, 429)}
+                   **responses(400, 401, 404, 413, 422, 429)}
 
 
 def _domain_route(router: APIRouter, op: Operation) -> None:

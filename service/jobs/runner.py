@@ -174,7 +174,8 @@ class JobRunner:
         ctx = RunContext(self.store, self.settings, self.domain, job.domain_id)
         try:
             op = self.operations.get_operation(job.operation)
-            params = op.request_model.model_validate(job.params)
+            # checked strictly at the door; stored JSON gives lists for tuples
+            params = op.request_model.model_validate(job.params, strict=False)
             max_iter = getattr(params, "max_iter", None)
             hb.max_iter = max_iter if isinstance(max_iter, int) and max_iter > 0 else None
             try:

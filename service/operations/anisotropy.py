@@ -19,13 +19,16 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from service.errors import InvalidInput
 from service.operations.base import (
+    REQUEST_CONFIG,
     Distribution,
     DomainView,
+    Int,
     Operation,
     OperationOutput,
     OperationRequest,
     check_options,
     check_same_components,
+    given,
     resolve_all,
     view_of_domain,
 )
@@ -38,7 +41,7 @@ IPM_SOLVE_COST = 450
 class CurvatureWeights(BaseModel):
     """Scalar weights ``1 + strength |H| / mean |H|`` from the mean curvature ``H``."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = REQUEST_CONFIG
     strength: float = Field(1.0, ge=0, le=1e3, description="alpha: 1 doubles the cost where "
                             "the curvature is average; 0 is isotropic")
 
@@ -46,7 +49,7 @@ class CurvatureWeights(BaseModel):
 class AnisotropicDistanceRequest(OperationRequest):
     model_config = ConfigDict(json_schema_extra={"examples": [
         {"mu0": {"vertex": 0, "radius": 0.1}, "mu1": {"vertex": 40, "radius": 0.1},
-         "curvature": {"strength": 2.0}}]})
+         "curvature": {"strength": 2.0}}], **given("face_weights", "curvature")})
     mu0: Distribution
     mu1: Distribution
     face_weights: list[float] | list[list[list[float]]] | None = Field(
@@ -60,10 +63,10 @@ class AnisotropicDistanceRequest(OperationRequest):
         "admm, weiszfeld: in the curl basis 'full' or a 'spectral' one (an overestimate)")
     basis: Literal["auto", "flow", "full", "spectral"] = Field(
         "auto", description="flow space (auto: all flows with ipm, else full)")
-    k: int | None = Field(None, ge=1, description="spectral basis size")
+    k: Int | None = Field(None, ge=1, description="spectral basis size")
     tol: float | None = Field(None, gt=0, lt=1, description="ipm: certified relative gap "
                               "(default 1e-4); admm/weiszfeld: their stopping rule")
-    max_iter: int | None = Field(None, ge=1, le=100_000)
+    max_iter: Int | None = Field(None, ge=1, le=100_000)
 
 
 class AnisotropicDistanceValues(BaseModel):
@@ -77,7 +80,7 @@ class AnisotropicDistanceValues(BaseModel):
                                       "matrix's largest stretch)")
     algorithm: str
     basis: str
-    iterations: int
+    iterations: Int
     residual: float
     converged: bool
     normalization: list[dict]

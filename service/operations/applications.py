@@ -22,17 +22,21 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, Field
 
 from service.errors import InvalidInput, PayloadTooLarge, UnsupportedOperation
 from service.operations.base import (
+    REQUEST_CONFIG,
     DomainView,
+    Int,
+    NodePair,
     Operation,
     OperationOutput,
     OperationRequest,
     ResultFile,
 )
 from service.operations.examples import example
+from solvers.validation import GAMMA_MIN
 
 MAX_COLUMNS_X_POINTS = 4_000_000  # barycenter columns x hemisphere points of one job
 MAX_HEMISPHERE_POINTS = 4096  # dense kernel: 128 MB
@@ -41,7 +45,7 @@ MAX_SKELETON_NODES = 10_000
 
 # -- BRDF interpolation -------------------------------------------------------------------
 class BlinnPhong(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = REQUEST_CONFIG
     model: Literal["blinn-phong"]
     exponent: float = Field(50.0, ge=0, le=1e5, description="specular exponent e")
     ks: float = Field(1.0, ge=0, le=1e3, description="specular coefficient")
@@ -49,7 +53,7 @@ class BlinnPhong(BaseModel):
 
 
 class AshikhminShirley(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = REQUEST_CONFIG
     model: Literal["ashikhmin-shirley"]
     nu: float = Field(100.0, ge=0, le=1e5, description="exponent along the tangent u")
     nv: float = Field(100.0, ge=0, le=1e5, description="exponent along v")
@@ -72,24 +76,24 @@ class BRDFInterpolationRequest(OperationRequest):
                                               description="(B, k) barycentric weights, row-"
                                               "major over rows x cols; default: bilinear "
                                               "(4 materials) or linear (2) over the grid")
-    rows: int = Field(3, ge=1, le=16, description="rows of spheres (B = rows * cols)")
-    cols: int = Field(3, ge=1, le=16, description="columns of spheres")
-    incoming_theta: list[float] = Field(
+    rows: Int = Field(3, ge=1, le=16, description="rows of spheres (B = rows * cols)")
+    cols: Int = Field(3, ge=1, le=16, description="columns of spheres")
+    incoming_theta: list[Annotated[float, Field(ge=0, lt=90)]] = Field(
         [0.0, 20.0, 40.0, 60.0, 80.0], min_length=1, max_length=32,
         description="polar angles of the incoming directions, degrees in [0, 90), increasing")
-    n_theta: int = Field(12, ge=4, le=64, description="hemisphere grid: polar cells")
-    n_phi: int = Field(48, ge=8, le=256, description="hemisphere grid: azimuth cells")
+    n_theta: Int = Field(12, ge=4, le=64, description="hemisphere grid: polar cells")
+    n_phi: Int = Field(48, ge=8, le=256, description="hemisphere grid: azimuth cells")
     route: Literal["geodesic", "separable"] = Field(
         "geodesic", description="hemisphere kernel: exact great-circle Gaussian, or the "
         "thesis' latitude-modulated separable product (spurious mass near the pole)")
-    gamma: float | None = Field(None, gt=0, description="regularization (unit hemisphere "
+    gamma: float | None = Field(None, ge=GAMMA_MIN, description="regularization (unit hemisphere "
                                 "area); default (2 h)^2, h the polar cell size")
     entropy_bound: float | Literal["inputs"] | None = Field(
         None, description="Alg. 3: a bound H0, or 'inputs' (the largest input entropy of "
         "each incoming direction); null: plain barycenters")
     tol: float = Field(1e-4, gt=0, lt=1, description="largest L1 marginal violation")
-    max_iter: int = Field(500, ge=1, le=20_000)
-    size: int = Field(96, ge=16, le=256, description="pixels per sphere")
+    max_iter: Int = Field(500, ge=1, le=20_000)
+    size: Int = Field(96, ge=16, le=256, description="pixels per sphere")
     light: list[float] = Field([0.6, 0.5, 0.62], min_length=3, max_length=3,
                                description="direction towards the light (view: +z)")
 
@@ -97,20 +101,20 @@ class BRDFInterpolationRequest(OperationRequest):
 class BRDFInterpolationValues(BaseModel):
     """Values of a BRDF interpolation job."""
 
-    iterations: int
+    iterations: Int
     residual: float
     converged: bool
     gamma: float
     route: str
-    grid: list[int] = Field(description="[n_theta, n_phi]; point i * n_phi + j")
+    grid: list[Int] = Field(description="[n_theta, n_phi]; point i * n_phi + j")
     incoming_theta: list[float] = Field(description="degrees")
     weights: list[list[float]]
     entropy: list[list[float]] = Field(description="per incoming direction and weight vector")
     entropy_bound: list[list[float]] | None = None
     peak_theta: list[list[float]] = Field(description="polar angle (degrees) of each "
                                           "interpolated slice's largest density")
-    rows: int
-    cols: int
+    rows: Int
+    cols: Int
     image: str = Field("spheres.png", description="result file: the sphere grid")
 
 
@@ -219,8 +223,8 @@ def run_brdf(ctx, req: BRDFInterpolationRequest, progress, should_cancel) -> Ope
 class FixedPosition(BaseModel):
     """A skeleton node whose position is given."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    node: int = Field(ge=0, description="skeleton node index")
+    model_config = REQUEST_CONFIG
+    node: Int = Field(ge=0, description="skeleton node index")
     position: list[float] = Field(min_length=3, max_length=3, description="inside the mesh")
 
 
@@ -229,19 +233,19 @@ class SkeletonLayoutRequest(OperationRequest):
         "n_nodes": 3, "edges": [[0, 1], [1, 2]],
         "fixed": [{"node": 0, "position": [-0.1, 0.0, 0.0]},
                   {"node": 2, "position": [0.1, 0.0, 0.0]}]})
-    n_nodes: int = Field(ge=2, le=MAX_SKELETON_NODES, description="skeleton nodes")
-    edges: list[tuple[int, int]] = Field(min_length=1, max_length=4 * MAX_SKELETON_NODES,
+    n_nodes: Int = Field(ge=2, le=MAX_SKELETON_NODES, description="skeleton nodes")
+    edges: list[NodePair] = Field(min_length=1, max_length=4 * MAX_SKELETON_NODES,
                                          description="skeleton bones (node pairs)")
     fixed: list[FixedPosition] = Field(min_length=1, max_length=MAX_SKELETON_NODES,
                                    description="nodes with known positions (at least one per "
                                    "piece of the graph)")
     units: Literal["mesh", "input"] = Field("mesh", description="positions in the stored "
                                             "unit-area frame, or in the uploaded file's")
-    gamma: float | None = Field(None, gt=0, description="propagation regularization (unit "
+    gamma: float | None = Field(None, ge=GAMMA_MIN, description="propagation regularization (unit "
                                 "area); default (2 h)^2, h the mean edge length")
-    substeps: int = Field(1, ge=1, le=100)
+    substeps: Int = Field(1, ge=1, le=100)
     tol: float = Field(1e-5, gt=0, lt=1)
-    max_iter: int = Field(2000, ge=1, le=100_000)
+    max_iter: Int = Field(2000, ge=1, le=100_000)
 
 
 class SkeletonLayoutValues(BaseModel):
@@ -255,7 +259,7 @@ class SkeletonLayoutValues(BaseModel):
     linear_bones_inside: float
     clipped: list[float] = Field(description="per node: negative MVC weight clipped "
                                  "(fraction; 0 at free nodes)")
-    iterations: int
+    iterations: Int
     residual: float
     converged: bool
     gamma: float

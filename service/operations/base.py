@@ -26,6 +26,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.sparse.csgraph import shortest_path
 
 from service.errors import InvalidInput, NotFound, UnsupportedOperation
+from service.schemas import Int, NodePair  # noqa: F401 (NodePair: for the families)
 from solvers.validation import (
     COMPONENT_MASS_TOL,
     check_component_masses,
@@ -41,15 +42,40 @@ Progress = Callable[[int, float], None]
 ShouldCancel = Callable[[], bool]
 
 
+# Request models: unknown fields, Infinity/NaN and type coercions (``0`` for ``false``,
+# ``false`` for ``0``, ``"1"`` for ``1``) are refused, so what the spec says is what is accepted.
+REQUEST_CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
+
+
+def given(*groups: str | tuple[str, ...], exactly: bool = True, nonempty: bool = False
+          ) -> dict:
+    """JSON Schema keywords (for ``json_schema_extra``) stating the rule the operation's
+    validation enforces: exactly one (``exactly=False``: at least one) of ``groups`` is
+    given. A group is a field name or a tuple of fields given together; given means present
+    and not null (``nonempty``: a non-empty list). With ``exactly``, the fields of the
+    other groups are then absent or null."""
+    groups = [(g,) if isinstance(g, str) else tuple(g) for g in groups]
+    present = {"minItems": 1} if nonempty else {"not": {"type": "null"}}
+
+    def branch(group: tuple[str, ...]) -> dict:
+        props = {name: present for name in group}
+        if exactly:
+            props.update({name: {"type": "null"} for other in groups if other != group
+                          for name in other})
+        return {"required": list(group), "properties": props}
+
+    return {"oneOf" if exactly else "anyOf": [branch(g) for g in groups]}
+
+
 class SparseDistribution(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    indices: list[int] = Field(min_length=1, description="point indices")
+    model_config = REQUEST_CONFIG
+    indices: list[Int] = Field(min_length=1, description="point indices")
     masses: list[float] = Field(min_length=1, description="value at each listed point")
 
 
 class BumpDistribution(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    vertex: int = Field(ge=0, description="center point index")
+    model_config = REQUEST_CONFIG
+    vertex: Int = Field(ge=0, description="center point index")
     radius: float = Field(gt=0, description="support radius (unit-area coordinates; hops on "
                           "graphs)")
 
@@ -60,7 +86,7 @@ Distribution = list[float] | SparseDistribution | BumpDistribution
 class OperationRequest(BaseModel):
     """Fields shared by every operation request (Infinity/NaN refused in every float)."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = REQUEST_CONFIG
     input: Literal["masses", "density"] = Field(
         "masses", description="how distribution values are meant: masses per point, or "
         "densities with respect to the domain's area weights")

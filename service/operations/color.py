@@ -29,7 +29,7 @@ import numpy as np
 from pydantic import BaseModel, Field
 
 from service.errors import InvalidInput, PayloadTooLarge
-from service.operations.base import Operation, OperationOutput, OperationRequest, ResultFile
+from service.operations.base import Int, Operation, OperationOutput, OperationRequest, ResultFile
 from service.operations.examples import EXAMPLE_ID, example
 from solvers.color import (
     ab_histogram,
@@ -70,7 +70,7 @@ class ColorTransferRequest(OperationRequest):
         "pixels split among its targets in the plan's proportions (spatially coherent), "
         "then a guided filter on the color shift; barycentric: the thesis' barycentric "
         "projection of the entropic plans (Fig. 3.12)")
-    bins: int | None = Field(None, ge=8, le=512, description="nodes per axis of the ab "
+    bins: Int | None = Field(None, ge=8, le=512, description="nodes per axis of the ab "
                              "histogram grid over [-128, 128]^2 (default "
                              f"{DEFAULT_BINS['split']} for split, "
                              f"{DEFAULT_BINS['barycentric']} for barycentric)")
@@ -85,19 +85,19 @@ class ColorTransferRequest(OperationRequest):
                             "false transfers chrominance only")
     sharpen: bool = Field(False, description="entropic sharpening of the barycenters")
     debiased: bool = Field(False, description="debiased barycenters (less entropic blur)")
-    recolor: list[int] | None = Field(None, description="indices of the images to recolor "
+    recolor: list[Int] | None = Field(None, description="indices of the images to recolor "
                                       "(default all)")
     format: Literal["png", "jpeg"] = Field("png", description="format of the output images")
     tol: float = Field(1e-4, gt=0, lt=1, description="largest L1 marginal violation")
-    max_iter: int = Field(3000, ge=1, le=100_000)
+    max_iter: Int = Field(3000, ge=1, le=100_000)
 
 
 class ColorOutputInfo(BaseModel):
     file: str
-    alpha_index: int
-    image_index: int
-    width: int
-    height: int
+    alpha_index: Int
+    image_index: Int
+    width: Int
+    height: Int
     mean_ab_before: list[float]
     mean_ab_after: list[float]
 
@@ -113,17 +113,17 @@ class ColorPlanInfo(BaseModel):
 class ColorTransferValues(BaseModel):
     """``values`` of a color-transfer result."""
 
-    n_images: int
+    n_images: Int
     alphas: list[list[float]]
     mode: str
     regularization: float
-    bins: int
+    bins: Int
     gamma: float
-    iterations: int = Field(description="iterations of the entropic barycenter (0 if none ran)")
+    iterations: Int = Field(description="iterations of the entropic barycenter (0 if none ran)")
     residual: float = Field(description="largest L1 marginal violation over all plans")
     plans: list[ColorPlanInfo] = Field(description="split mode: the exact plans used")
     converged: bool
-    window: list[list[int]] = Field(description="[[a_start, a_stop], [b_start, b_stop]]: "
+    window: list[list[Int]] = Field(description="[[a_start, a_stop], [b_start, b_stop]]: "
                                     "grid nodes the barycenter was computed on")
     timings: dict[str, float]
     outputs: list[ColorOutputInfo]

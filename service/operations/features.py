@@ -17,7 +17,15 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from service.errors import InvalidInput
 from service.operations.anisotropy import estimate_cost  # one W1 solve
-from service.operations.base import DomainView, Operation, OperationOutput, OperationRequest
+from service.operations.base import (
+    REQUEST_CONFIG,
+    DomainView,
+    Int,
+    Operation,
+    OperationOutput,
+    OperationRequest,
+    given,
+)
 from solvers.validation import check_indices
 
 MAX_FEATURE_VERTICES = 1_000_000
@@ -26,16 +34,17 @@ MAX_FEATURE_VERTICES = 1_000_000
 class FeatureCurve(BaseModel):
     """A curve through waypoints (vertices), joined by shortest paths along mesh edges."""
 
-    model_config = ConfigDict(extra="forbid")
-    waypoints: list[int] = Field(min_length=2, max_length=10_000, description="vertices, in "
+    model_config = REQUEST_CONFIG
+    waypoints: list[Int] = Field(min_length=2, max_length=10_000, description="vertices, in "
                                  "order along the curve")
     closed: bool = Field(False, description="join the last waypoint back to the first")
 
 
 class FeatureDistanceRequest(OperationRequest):
     model_config = ConfigDict(json_schema_extra={"examples": [
-        {"vertices": [0], "curves": [{"waypoints": [10, 40, 70], "closed": False}]}]})
-    vertices: list[int] = Field(default_factory=list, max_length=MAX_FEATURE_VERTICES,
+        {"vertices": [0], "curves": [{"waypoints": [10, 40, 70], "closed": False}]}],
+        **given("vertices", "curves", exactly=False, nonempty=True)})
+    vertices: list[Int] = Field(default_factory=list, max_length=MAX_FEATURE_VERTICES,
                                 description="feature vertices")
     curves: list[FeatureCurve] = Field(default_factory=list, max_length=256,
                                        description="feature curves")
@@ -44,19 +53,19 @@ class FeatureDistanceRequest(OperationRequest):
     basis: Literal["auto", "flow", "full"] = Field(
         "auto", description="flow space (auto: all flows; full: the thesis' curl basis)")
     tol: float | None = Field(None, gt=0, lt=1, description="solver tolerance (default 1e-4)")
-    max_iter: int | None = Field(None, ge=1, le=100_000)
+    max_iter: Int | None = Field(None, ge=1, le=100_000)
 
 
 class FeatureDistanceValues(BaseModel):
     """Values of a feature-distance job."""
 
-    n_features: int = Field(description="feature vertices (listed and on the curves)")
+    n_features: Int = Field(description="feature vertices (listed and on the curves)")
     max_distance: float | None
-    unreachable: int = Field(description="vertices on components without a feature (null "
+    unreachable: Int = Field(description="vertices on components without a feature (null "
                              "distances)")
     w1: float = Field(description="W1 between the uniform distribution and the feature "
                       "masses (each feature vertex gets the area of its Voronoi cell)")
-    iterations: int
+    iterations: Int
     residual: float
     converged: bool
 

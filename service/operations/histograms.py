@@ -15,7 +15,15 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from service.errors import InvalidInput, PayloadTooLarge
-from service.operations.base import DomainView, Operation, OperationOutput, OperationRequest
+from service.operations.base import (
+    REQUEST_CONFIG,
+    DomainView,
+    Int,
+    Operation,
+    OperationOutput,
+    OperationRequest,
+    given,
+)
 from service.operations.examples import example
 from solvers.histograms import (
     Bins,
@@ -37,19 +45,20 @@ LP_TIME_LIMIT = 600.0  # seconds given to HiGHS when the request sets no time_li
 
 
 class BinsSpec(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(**REQUEST_CONFIG,
+                              json_schema_extra=given("edges", ("lo", "hi", "count")))
     edges: list[float] | None = Field(None, min_length=2, max_length=MAX_BINS + 1,
                                       description="strictly increasing bin edges (B + 1)")
     lo: float | None = Field(None, description="with hi and count: equal-width bins")
     hi: float | None = None
-    count: int | None = Field(None, ge=1, le=MAX_BINS)
+    count: Int | None = Field(None, ge=1, le=MAX_BINS)
     periodic: bool = Field(False, description="the axis is a circle of period hi - lo "
                            "(angles): propagation by the LP of §5.4 or its entropic version")
 
 
 class LabeledNode(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    node: int = Field(ge=0, description="node (vertex, point) index")
+    model_config = REQUEST_CONFIG
+    node: Int = Field(ge=0, description="node (vertex, point) index")
     histogram: list[float] | None = Field(None, description="one non-negative value per bin "
                                           "(normalized by the server)")
     samples: list[float] | None = Field(None, min_length=1, description="raw values; the "
@@ -71,8 +80,8 @@ class HistogramPropagationRequest(OperationRequest):
         "of `times`")
     times: list[float] | None = Field(None, min_length=1, max_length=32, description="heat "
                                       "times (route diffusion), >= 0")
-    substeps: int = Field(1, ge=1, le=100, description="implicit Euler steps per time")
-    levels: int = Field(100, ge=2, le=2000, description="quantile levels m")
+    substeps: Int = Field(1, ge=1, le=100, description="implicit Euler steps per time")
+    levels: Int = Field(100, ge=2, le=2000, description="quantile levels m")
     laplacian: Literal["auto", "robust", "cotan"] = Field(
         "auto", description="mesh weights: robust (intrinsic Delaunay) or cotangent")
     algorithm: Literal["lp", "entropic"] = Field(
@@ -82,7 +91,7 @@ class HistogramPropagationRequest(OperationRequest):
                                 "bins, algorithm entropic); default (2 w)^2, w the bin width")
     tol: float | None = Field(None, gt=0, lt=1, description="entropic stopping tolerance")
     color: Literal["mean", "std"] = Field("mean", description="field coloring result.glb")
-    max_iter: int | None = Field(None, ge=1, le=100_000)
+    max_iter: Int | None = Field(None, ge=1, le=100_000)
 
 
 class HistogramPropagationValues(BaseModel):
@@ -91,14 +100,14 @@ class HistogramPropagationValues(BaseModel):
     route: str
     algorithm: str | None = Field(None, description="lp | entropic (periodic bins)")
     bins: dict = Field(description="{edges, periodic}")
-    n_nodes: int
-    n_labeled: int
-    levels: int | None = None
+    n_nodes: Int
+    n_labeled: Int
+    levels: Int | None = None
     times: list[float] | None = None
     solver: str | None = Field(None, description="linear solver of the Dirichlet problem")
-    rank: int | None = Field(None, description="columns solved after compression")
+    rank: Int | None = Field(None, description="columns solved after compression")
     compression_error: float | None = None
-    iterations: int
+    iterations: Int
     residual: float
     converged: bool
     value: float | None = Field(None, description="periodic bins: the exact objective "

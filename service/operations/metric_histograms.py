@@ -20,7 +20,15 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from service.errors import InvalidInput
-from service.operations.base import DomainView, Operation, OperationOutput, OperationRequest
+from service.operations.base import (
+    REQUEST_CONFIG,
+    DomainView,
+    Int,
+    Operation,
+    OperationOutput,
+    OperationRequest,
+    given,
+)
 from service.operations.histograms import LP_TIME_LIMIT, MAX_LP_VARIABLES, _edge_count
 from solvers.validation import check_anchored_components, check_cost_matrix, check_node_indices
 
@@ -30,16 +38,16 @@ MAX_POINTS = 512
 class CircleSpace(BaseModel):
     """``points`` equally spaced points on a circle of circumference ``period``."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    points: int = Field(ge=2, le=MAX_POINTS, description="points B (bin centers)")
+    model_config = REQUEST_CONFIG
+    points: Int = Field(ge=2, le=MAX_POINTS, description="points B (bin centers)")
     period: float = Field(2 * np.pi, gt=0, description="circumference (2 pi: angles)")
     power: Literal[1, 2] = Field(2, description="cost: wrapped distance to this power "
                                  "(2: W2^2 as in the thesis)")
 
 
 class LabeledHistogram(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    node: int = Field(ge=0, description="node (vertex, point) index")
+    model_config = REQUEST_CONFIG
+    node: Int = Field(ge=0, description="node (vertex, point) index")
     histogram: list[float] = Field(min_length=2, max_length=MAX_POINTS, description="one "
                                    "non-negative mass per point (normalized by the server)")
 
@@ -48,7 +56,7 @@ class MetricHistogramRequest(OperationRequest):
     model_config = ConfigDict(json_schema_extra={"examples": [
         {"cost": [[0, 1, 2], [1, 0, 1], [2, 1, 0]],
          "labeled": [{"node": 0, "histogram": [1, 0, 0]},
-                     {"node": 2, "histogram": [0, 0, 1]}]}]})
+                     {"node": 2, "histogram": [0, 0, 1]}]}], **given("cost", "circle")})
     labeled: list[LabeledHistogram] = Field(min_length=1, max_length=100_000,
                                             description="at least one per connected "
                                             "component")
@@ -66,15 +74,15 @@ class MetricHistogramValues(BaseModel):
     """Values of a metric-histogram-propagation job."""
 
     space: Literal["metric", "circle"]
-    points: int
-    n_nodes: int
-    n_labeled: int
+    points: Int
+    n_nodes: Int
+    n_labeled: Int
     value: float = Field(description="sum_e w_e OT_C(mu_u, mu_v) of the result (LP optimum)")
     lower_bound: float = Field(description="dual bound over all plan entries")
     certified: bool = Field(description="value - lower_bound <= 1e-7 max(1, |value|)")
-    plan_entries: int
+    plan_entries: Int
     solver: str
-    iterations: int = Field(description="column-generation rounds")
+    iterations: Int = Field(description="column-generation rounds")
     residual: float = Field(description="largest constraint violation")
     converged: bool
     arrays: list[str]

@@ -18,7 +18,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from service.errors import InvalidInput, PayloadTooLarge, UnsupportedOperation
-from service.operations.base import Operation, OperationOutput, OperationRequest, ResultFile
+from service.operations.base import Int, Operation, OperationOutput, OperationRequest, ResultFile
 from service.operations.examples import EXAMPLE_ID
 
 MAX_SHAPES = 8
@@ -44,13 +44,13 @@ class ShapeInterpolationRequest(OperationRequest):
                                               "non-negative weight per shape (normalized); "
                                               "default with more than two shapes: each "
                                               "shape, then the uniform barycenter")
-    resolution: int = Field(40, ge=12, le=96, description="grid nodes along the longest "
+    resolution: Int = Field(40, ge=12, le=96, description="grid nodes along the longest "
                             "side of the box framing every shape")
     gamma: float | None = Field(None, gt=0, le=1, description="regularization on the grid "
                                 "(longest side 1); default (2h)^2, h the grid spacing")
     sharpen: bool = Field(False, description="entropic sharpening (thesis Alg. 3)")
     tol: float = Field(1e-5, gt=0, lt=1, description="barycenter stopping tolerance")
-    max_iter: int | None = Field(None, ge=1, le=20_000, description="barycenter iterations "
+    max_iter: Int | None = Field(None, ge=1, le=20_000, description="barycenter iterations "
                                  "per frame (default: the solver's)")
     view_axis: Literal["x", "y", "z"] = Field("z", description="frames.png looks along it")
 
@@ -60,13 +60,13 @@ class ShapeFrameValues(BaseModel):
 
     weights: list[float]
     time: float | None = Field(None, description="two shapes: t of weights (1 - t, t)")
-    vertices: int
-    faces: int
+    vertices: Int
+    faces: Int
     level: float = Field(description="iso value of the barycenter density")
     target_volume: float = Field(description="sum_i w_i |S_i| (input units)")
     enclosed_volume: float = Field(description="volume enclosed by the frame's surface")
     centroid: list[float] = Field(description="centroid of the enclosed solid (input units)")
-    iterations: int
+    iterations: Int
     residual: float
     converged: bool
 
@@ -75,10 +75,10 @@ class ShapeInterpolationValues(BaseModel):
     """Values of a shape-interpolation job."""
 
     frames: list[ShapeFrameValues]
-    grid: list[int] = Field(description="grid shape")
+    grid: list[Int] = Field(description="grid shape")
     gamma: float
     cell: float = Field(description="grid spacing in input units")
-    iterations: int = Field(description="summed over the frames")
+    iterations: Int = Field(description="summed over the frames")
     residual: float = Field(description="largest over the frames")
     converged: bool
     glb: str = Field("result.glb", description="one node (mesh) per frame")

@@ -22,7 +22,14 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from service.errors import InvalidInput, PayloadTooLarge
-from service.operations.base import Operation, OperationOutput, OperationRequest, ResultFile
+from service.operations.base import (
+    REQUEST_CONFIG,
+    Int,
+    Operation,
+    OperationOutput,
+    OperationRequest,
+    ResultFile,
+)
 from service.operations.examples import EXAMPLE_ID
 from service.operations.softmaps import _mesh_view  # meshes of one component
 
@@ -38,9 +45,9 @@ ROWS_COPIES = 8  # (samples x target) float64 arrays alive at once: rows, kernel
 class PointMap(BaseModel):
     """A point map from a source mesh to the target: one target vertex per source vertex."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = REQUEST_CONFIG
     source_id: str = Field(description="source mesh domain id")
-    correspondence: list[int] = Field(min_length=1, description="target vertex of every "
+    correspondence: list[Int] = Field(min_length=1, description="target vertex of every "
                                       "source vertex, in the source's vertex order")
 
 
@@ -52,30 +59,30 @@ class SoftMapAnalysisRequest(OperationRequest):
     target_id: str = Field(description="target mesh domain id (the job's domain)")
     maps: list[PointMap] = Field(min_length=1, max_length=MAX_MAPS, description="point maps "
                                  "into the target; two or more give a collection basis")
-    samples: int = Field(128, ge=2, le=4096, description="farthest-point samples of each "
+    samples: Int = Field(128, ge=2, le=4096, description="farthest-point samples of each "
                          "source (>= its vertices: every vertex)")
     gamma: float | None = Field(None, gt=0, le=100, description="blur of the point maps and "
                                 "regularization of the Dirichlet energy's W2 (unit area); "
                                 "default: twice the squared sample spacing, at least 4 h^2")
-    substeps: int = Field(1, ge=1, le=16, description="implicit Euler steps of the heat "
+    substeps: Int = Field(1, ge=1, le=16, description="implicit Euler steps of the heat "
                           "kernel")
-    rank: int = Field(8, ge=1, le=64, description="basis functions kept (the constant first)")
+    rank: Int = Field(8, ge=1, le=64, description="basis functions kept (the constant first)")
     dirichlet: Literal["w2", "potential", "none"] = Field(
         "w2", description="Dirichlet energy: w2 (eq. 4.2, convolutional W2^2 per source edge, "
         "debiased), potential (eq. 4.3, its linearization), none")
-    descriptor_k: int = Field(30, ge=0, le=300, description="eigenpairs of the WKS "
+    descriptor_k: Int = Field(30, ge=0, le=300, description="eigenpairs of the WKS "
                               "descriptors of the descriptor energy (eq. 4.6); 0: not "
                               "computed")
-    n_energies: int = Field(100, ge=2, le=1000, description="WKS energies")
+    n_energies: Int = Field(100, ge=2, le=1000, description="WKS energies")
     norm: Literal["l1", "l2"] = Field("l1", description="descriptor difference")
-    show: int = Field(4, ge=0, le=8, description="basis functions drawn in result.glb")
+    show: Int = Field(4, ge=0, le=8, description="basis functions drawn in result.glb")
 
 
 class PointMapAnalysisValues(BaseModel):
     """One analysed point map."""
 
     source_id: str
-    samples: int
+    samples: Int
     gamma: float
     dirichlet: float | None = Field(description="eq. 4.2 (or its linearization, see "
                                     "dirichlet_route); null when not asked")
@@ -94,7 +101,7 @@ class PointMapAnalysisValues(BaseModel):
 class CollectionBasisValues(BaseModel):
     """§4.6.2: one target basis shared by the maps."""
 
-    rank: int
+    rank: Int
     array: str = Field("collection_basis", description="(target vertices, rank) array")
     captured: list[float] = Field(description="per map: share of its de-meaned weighted "
                                   "kernel in the collection basis")
@@ -104,7 +111,7 @@ class SoftMapAnalysisValues(BaseModel):
     """Values of a soft-map analysis job."""
 
     target_id: str
-    rank: int
+    rank: Int
     maps: list[PointMapAnalysisValues]
     collection: CollectionBasisValues | None = Field(None, description="with two maps or "
                                                      "more")

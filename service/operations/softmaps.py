@@ -23,17 +23,24 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, Field
 
 from service.errors import InvalidInput, PayloadTooLarge, UnsupportedOperation
-from service.operations.base import Operation, OperationOutput, OperationRequest, ResultFile
+from service.operations.base import (
+    REQUEST_CONFIG,
+    Int,
+    Operation,
+    OperationOutput,
+    OperationRequest,
+    ResultFile,
+)
 from service.operations.examples import EXAMPLE_ID, example
 
 
 class LandmarkPair(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    source: int = Field(ge=0, description="vertex of the source mesh")
-    target: int = Field(ge=0, description="matching vertex of the target mesh")
+    model_config = REQUEST_CONFIG
+    source: Int = Field(ge=0, description="vertex of the source mesh")
+    target: Int = Field(ge=0, description="matching vertex of the target mesh")
 
 
 class SoftMapRequest(OperationRequest):
@@ -46,9 +53,9 @@ class SoftMapRequest(OperationRequest):
     landmarks: list[LandmarkPair] = Field(min_length=1, max_length=256, description="known "
                                           "pairs: fixed nodes of the propagation and landmark "
                                           "descriptors")
-    samples: int = Field(1024, ge=2, le=100_000, description="farthest-point source samples "
+    samples: Int = Field(1024, ge=2, le=100_000, description="farthest-point source samples "
                          "(>= source vertices: all of them)")
-    target_points: int | Literal["auto"] | None = Field(
+    target_points: Int | Literal["auto"] | None = Field(
         "auto", description="solve over the target decimated to about this many points, "
         "then prolong each row to every target vertex; 'auto': as many as the samples when "
         "that is at most 2/3 of the target's vertices; null: every target vertex")
@@ -56,15 +63,15 @@ class SoftMapRequest(OperationRequest):
     gamma: float | None = Field(None, gt=0, le=100, description="entropic regularization on "
                                 "the target (unit area); default: twice the squared sample "
                                 "spacing, at least 4 h^2")
-    k: int = Field(100, ge=10, le=500, description="Laplace-Beltrami eigenpairs (WKS, ZoomOut)")
-    n_energies: int = Field(100, ge=2, le=1000, description="WKS energies")
+    k: Int = Field(100, ge=10, le=500, description="Laplace-Beltrami eigenpairs (WKS, ZoomOut)")
+    n_energies: Int = Field(100, ge=2, le=1000, description="WKS energies")
     wks_weight: float = Field(1.0, ge=0, description="weight of the WKS block of descriptors")
     landmark_weight: float = Field(1.0, ge=0, description="weight of the landmark block")
     landmark_route: Literal["geodesic", "heat"] = "geodesic"
     norm: Literal["l1", "l2"] = Field("l1", description="descriptor difference (thesis: L1)")
     tol: float = Field(1e-4, gt=0, lt=1, description="largest L1 marginal violation")
-    max_iter: int = Field(1000, ge=1, le=10_000, description="propagation sweeps")
-    top_k: int | None = Field(None, ge=1, description="store only the k largest masses per "
+    max_iter: Int = Field(1000, ge=1, le=10_000, description="propagation sweeps")
+    top_k: Int | None = Field(None, ge=1, description="store only the k largest masses per "
                               "row (arrays top_indices/top_masses, dropped_mass)")
     extraction: Literal["mode", "barycentric", "path"] = "mode"
     refine: Literal["symmetric-zoomout", "zoomout", "sinkhorn", "sinkhorn+zoomout",
@@ -74,7 +81,7 @@ class SoftMapRequest(OperationRequest):
         "from the soft map's own functional map; sinkhorn: "
         "project the soft map onto the doubly-stochastic set (source/target areas) before "
         "extraction; sinkhorn+zoomout: both; none")
-    show_vertices: list[int] = Field(default_factory=list, max_length=8, description="source "
+    show_vertices: list[Int] = Field(default_factory=list, max_length=8, description="source "
                                      "vertices whose distributions color the target in the "
                                      "GLB (default: the first landmark's)")
     glb_densities: list[Literal["bijectivity", "dirichlet"]] = Field(
@@ -111,7 +118,7 @@ class SoftMapEnergies(BaseModel):
 class SinkhornSummary(BaseModel):
     """The Sinkhorn projection of ``refine="sinkhorn"`` (marginal residuals in L1)."""
 
-    iterations: int
+    iterations: Int
     residual: float = Field(description="target-marginal L1 violation after projection")
     initial_residual: float = Field(description="the same before: integral of |b - 1|")
     converged: bool
@@ -123,13 +130,13 @@ class SoftMapValues(BaseModel):
     source_id: str = Field(description="the source mesh domain (the request's source_id)")
     target_id: str = Field(description="the target mesh domain (the request's target_id)")
     energies: SoftMapEnergies
-    correspondence: list[int] = Field(description="target vertex of every source vertex")
-    samples: int
-    target_points: int | None = Field(description="coarse target points the map was solved "
+    correspondence: list[Int] = Field(description="target vertex of every source vertex")
+    samples: Int
+    target_points: Int | None = Field(description="coarse target points the map was solved "
                                       "over (null: every target vertex)")
     gamma: float
     tau: float
-    iterations: int
+    iterations: Int
     residual: float
     converged: bool
     dropped_mass_max: float | None = Field(None, description="top_k: largest mass left out "

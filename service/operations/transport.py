@@ -3,15 +3,18 @@ interpolations, pointwise distances and flows — thin adapters over ``solvers``
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, Field
 
 from service.errors import InvalidInput
 from service.operations.base import (
+    REQUEST_CONFIG,
     Distribution,
     DomainView,
+    Int,
+    NodePair,
     Operation,
     OperationOutput,
     OperationRequest,
@@ -36,18 +39,25 @@ from solvers.emd.green import GREEN_MAX_VERTICES
 from solvers.emd.pointwise import check_cost
 from solvers.errors import InputError
 from solvers.regularization import shape_regularization
-from solvers.validation import check_anchored, check_edge_weights, check_edges, check_weights
+from solvers.validation import (
+    GAMMA_MIN,
+    check_anchored,
+    check_edge_weights,
+    check_edges,
+    check_weights,
+)
 
 
 class SinkhornOptions(OperationRequest):
-    gamma: float | None = Field(None, gt=0, description="entropic regularization (cost d^2, "
+    gamma: float | None = Field(None, ge=GAMMA_MIN, description="entropic regularization "
+                                "(cost d^2, "
                                 "unit-area units); default: the regularization policy "
                                 "(solvers.regularization), reported in the result")
-    substeps: int | None = Field(None, ge=1, le=512, description="implicit Euler heat "
+    substeps: Int | None = Field(None, ge=1, le=512, description="implicit Euler heat "
                                  "substeps (default: the policy's; 1 when gamma is given)")
     tol: float | None = Field(None, gt=0, lt=1, description="stopping tolerance (marginal "
                               "violation; default: the solver's)")
-    max_iter: int | None = Field(None, ge=1, le=100_000, description="default: the solver's")
+    max_iter: Int | None = Field(None, ge=1, le=100_000, description="default: the solver's")
 
 
 class W1Options(OperationRequest):
@@ -59,10 +69,10 @@ class W1Options(OperationRequest):
         "auto", description="W1 flow space: auto (all piecewise-constant flows; the thesis' "
         "curl basis 'full' with matrix weights), flow, full (curl basis: an overestimate), "
         "spectral (k eigenfunctions)")
-    k: int | None = Field(None, ge=1, description="spectral basis size")
+    k: Int | None = Field(None, ge=1, description="spectral basis size")
     tol: float | None = Field(None, gt=0, lt=1, description="ipm: certified relative gap; "
                               "admm: relative primal/dual residual (default: the solver's)")
-    max_iter: int | None = Field(None, ge=1, le=100_000, description="default: the solver's")
+    max_iter: Int | None = Field(None, ge=1, le=100_000, description="default: the solver's")
 
 
 class DistanceRequest(SinkhornOptions):
@@ -86,7 +96,7 @@ class DistanceRequest(SinkhornOptions):
         "auto", description="W1 solver (as for flows)")
     basis: Literal["auto", "flow", "full", "spectral"] = Field(
         "auto", description="W1 flow space (as for flows)")
-    k: int | None = Field(None, ge=1, description="W1 spectral basis size")
+    k: Int | None = Field(None, ge=1, description="W1 spectral basis size")
 
 
 class Regularization(BaseModel):
@@ -94,7 +104,7 @@ class Regularization(BaseModel):
 
     gamma: float
     t: float
-    substeps: int
+    substeps: Int
     debiased: bool
     purpose: Literal["values", "shapes"]
     h: float = Field(description="length scale (mean edge length / grid spacing)")
@@ -111,7 +121,7 @@ class DistanceDecision(BaseModel):
     reason: str
     gamma: float | None = Field(None, description="convolutional: entropic regularization")
     t: float | None = Field(None, description="convolutional: heat time")
-    substeps: int | None = Field(None, description="convolutional: implicit Euler substeps")
+    substeps: Int | None = Field(None, description="convolutional: implicit Euler substeps")
     debiased: bool | None = Field(None, description="convolutional: Sinkhorn divergence")
     estimated_seconds: float | None = Field(None, description="modelled run time of the "
                                             "route (one core, unloaded machine)")
@@ -133,18 +143,18 @@ class DistanceResult(BaseModel):
     route: Literal["convolutional", "exact", "beckmann"] = Field(description="what ran")
     gamma: float | None = None
     t: float | None = None
-    substeps: int | None = None
+    substeps: Int | None = None
     debiased: bool | None = None
     regularization: Regularization | None = Field(None, description="the policy's choice "
                                                   "(when gamma was left out)")
-    support_sizes: list[int] | None = Field(None, description="exact route: support sizes")
+    support_sizes: list[Int] | None = Field(None, description="exact route: support sizes")
     cost_seconds: float | None = Field(None, description="exact route: geodesic cost matrix")
     lp_seconds: float | None = Field(None, description="exact route: transport LP")
     algorithm: Literal["ipm", "admm", "weiszfeld"] | None = Field(
         None, description="W1: the solver that ran")
     decision: DistanceDecision | None = Field(None, description="the job's decision (taken "
                                               "at submission)")
-    iterations: int
+    iterations: Int
     residual: float = Field(description="w2 convolutional: L1 marginal violation; exact: "
                             "marginal violation of the plan; w1: the solver's stopping "
                             "quantity (ipm: certified relative duality gap; admm: larger "
@@ -154,7 +164,7 @@ class DistanceResult(BaseModel):
 
 
 class ConvergenceValues(BaseModel):
-    iterations: int
+    iterations: Int
     residual: float = Field(description="the solver's measured stopping quantity")
     converged: bool
 
@@ -163,7 +173,7 @@ class ShapeValues(ConvergenceValues):
     """Values shared by barycenter, interpolation and propagation jobs."""
 
     gamma: float
-    substeps: int
+    substeps: Int
     regularization: Regularization | None = Field(None, description="the policy's choice "
                                                   "(when gamma was left out)")
     normalization: list[dict]
@@ -179,14 +189,14 @@ class InterpolationValues(ShapeValues):
 
 
 class PropagationValues(ShapeValues):
-    free_nodes: list[int] = Field(description="nodes whose distributions were propagated")
+    free_nodes: list[Int] = Field(description="nodes whose distributions were propagated")
 
 
 class PointwiseDistanceValues(ConvergenceValues):
-    source: int
-    k: int
+    source: Int
+    k: Int
     max_distance: float | None
-    unreachable: int = Field(description="vertices on other components (null distances)")
+    unreachable: Int = Field(description="vertices on other components (null distances)")
 
 
 class FlowValues(ConvergenceValues):
@@ -211,7 +221,8 @@ class InterpolationRequest(SinkhornOptions):
     model_config = example({"mu0": BUMP_A, "mu1": BUMP_B, "times": [0.0, 0.5, 1.0]})
     mu0: Distribution
     mu1: Distribution
-    times: list[float] = Field(min_length=1, max_length=64, description="in [0, 1]")
+    times: list[Annotated[float, Field(ge=0, le=1)]] = Field(min_length=1, max_length=64,
+                                                            description="in [0, 1]")
     sharpen: bool = Field(False, description="entropic sharpening of each frame")
     debiased: bool = False
 
@@ -219,8 +230,8 @@ class InterpolationRequest(SinkhornOptions):
 class FixedDistribution(BaseModel):
     """A node of the propagation graph whose distribution is given."""
 
-    model_config = ConfigDict(extra="forbid")
-    node: int = Field(ge=0, description="graph node whose distribution is given")
+    model_config = REQUEST_CONFIG
+    node: Int = Field(ge=0, description="graph node whose distribution is given")
     distribution: Distribution
 
 
@@ -228,9 +239,9 @@ class PropagationRequest(SinkhornOptions):
     model_config = example({
         "n_nodes": 3, "edges": [[0, 1], [1, 2]],
         "fixed": [{"node": 0, "distribution": BUMP_A}, {"node": 2, "distribution": BUMP_B}]})
-    n_nodes: int = Field(ge=1, le=10_000, description="nodes of the propagation graph (each "
+    n_nodes: Int = Field(ge=2, le=10_000, description="nodes of the propagation graph (each "
                          "carries one distribution over the domain)")
-    edges: list[tuple[int, int]] = Field(description="(m, 2) node pairs")
+    edges: list[NodePair] = Field(min_length=1, description="(m, 2) node pairs")
     edge_weights: list[float] | None = Field(None, description="(m,) positive weights")
     fixed: list[FixedDistribution] = Field(min_length=1, description="nodes with known "
                                            "distributions (at least one per connected piece "
@@ -239,8 +250,8 @@ class PropagationRequest(SinkhornOptions):
 
 class PointwiseDistanceRequest(OperationRequest):
     model_config = example({"source": 0})
-    source: int = Field(ge=0, description="source vertex")
-    k: int = Field(0, ge=0, description="spectral basis size (0: exact)")
+    source: Int = Field(ge=0, description="source vertex")
+    k: Int = Field(0, ge=0, description="spectral basis size (0: exact)")
 
 
 class FlowRequest(W1Options):

@@ -26,19 +26,23 @@ from pydantic import BaseModel, ConfigDict, Field
 from service.errors import InvalidInput, UnsupportedOperation
 from service.operations.anisotropy import IPM_SOLVE_COST
 from service.operations.base import (
+    REQUEST_CONFIG,
     DomainView,
+    Int,
     Operation,
     OperationOutput,
     OperationRequest,
     ResultFile,
+    given,
 )
+from service.schemas import Point
 from solvers.emd.exact import MAX_VERTICES
 
 MAX_POINTS = 4096  # W1 solves of one job (listed points + slice nodes)
 MVC_CHUNK_ENTRIES = 4_000_000  # points x faces of one block of mean value coordinates
 MVC_TEMPORARIES = 30  # (points, faces) float64 temporaries of a block
 
-Point3 = list[float]
+Point3 = Point  # (x, y, z)
 
 
 def _point_field(description: str):
@@ -59,11 +63,11 @@ class VolumetricOptions(OperationRequest):
 class SlicePlane(BaseModel):
     """A plane through the mesh's bounding box, sampled on a regular grid."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = REQUEST_CONFIG
     axis: Literal["x", "y", "z"] = Field("z", description="the plane's normal axis")
     offset: float = Field(0.5, ge=0, le=1, description="position along the axis, as a "
                           "fraction of the bounding box")
-    resolution: int = Field(24, ge=2, le=64, description="grid nodes along the longer side "
+    resolution: Int = Field(24, ge=2, le=64, description="grid nodes along the longer side "
                             "of the slice")
     margin: float = Field(0.05, ge=0, le=1, description="box padding, as a fraction of its "
                           "size")
@@ -72,7 +76,8 @@ class SlicePlane(BaseModel):
 class VolumetricDistanceRequest(VolumetricOptions):
     model_config = ConfigDict(json_schema_extra={"examples": [
         {"source": [0.0, 0.0, 0.0], "points": [[0.1, 0.0, 0.0], [0.0, 0.2, 0.0]],
-         "slice": {"axis": "z", "offset": 0.5, "resolution": 16}}]})
+         "slice": {"axis": "z", "offset": 0.5, "resolution": 16}}],
+        **given("points", "slice", exactly=False)})
     source: Point3 = _point_field("the source point (inside or outside the surface)")
     points: list[Point3] | None = Field(None, min_length=1, max_length=MAX_POINTS,
                                         description="points to measure the distance to")
@@ -87,7 +92,7 @@ class VolumetricPathRequest(VolumetricOptions):
     target: Point3 = _point_field("the point whose distance is descended")
     step: float | None = Field(None, gt=0, description="step length in the request's units "
                                "(default: the mean edge length)")
-    max_iter: int = Field(100, ge=1, le=1000, description="steps at most")
+    max_iter: Int = Field(100, ge=1, le=1000, description="steps at most")
 
 
 class VolumetricSliceValues(BaseModel):
@@ -96,7 +101,7 @@ class VolumetricSliceValues(BaseModel):
     axis: Literal["x", "y", "z"]
     coordinate: float = Field(description="the plane's coordinate along its axis (request "
                               "units)")
-    shape: list[int] = Field(description="[rows, columns] of the arrays slice_distances and "
+    shape: list[Int] = Field(description="[rows, columns] of the arrays slice_distances and "
                              "slice_inside")
     bounds: list[list[float]] = Field(description="[[lo, hi] of the row axis, [lo, hi] of "
                                       "the column axis] (request units)")
@@ -121,8 +126,8 @@ class VolumetricDistanceValues(BaseModel):
                                     "the points and slice nodes away from the source "
                                     "(>= 1 up to the solver's tolerance)")
     slice: VolumetricSliceValues | None = None
-    solves: int = Field(description="W1 problems solved")
-    iterations: int = Field(description="solver iterations, summed")
+    solves: Int = Field(description="W1 problems solved")
+    iterations: Int = Field(description="solver iterations, summed")
     residual: float = Field(description="largest solver residual")
     converged: bool
 
@@ -132,14 +137,14 @@ class VolumetricPathValues(BaseModel):
 
     units: Literal["mesh", "input"]
     algorithm: Literal["exact", "admm"]
-    steps: int = Field(description="points of the path, start and end included")
+    steps: Int = Field(description="points of the path, start and end included")
     length: float = Field(description="polyline length (request units)")
     straight: float = Field(description="|start - target| (request units)")
     start_distance: float = Field(description="volumetric distance at the start")
     final_distance: float = Field(description="volumetric distance at the last point (0 at "
                                   "the target)")
     decreasing: bool = Field(description="the distance fell at every step")
-    iterations: int
+    iterations: Int
     residual: float = Field(description="the final distance")
     converged: bool = Field(description="the target was reached within one step")
     image: str = Field("path.png", description="result file: the path over the mesh's "
