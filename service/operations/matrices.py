@@ -142,7 +142,7 @@ def estimate_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
     return total
 
 
-def estimate_cost(points: int, req: DistanceMatrixRequest) -> float:
+def estimate_cost(points: int, req: DistanceMatrixRequest, context=None) -> float:
     """Points x pairs x a typical solve's kernel applications (queue choice only)."""
     return float(max(points, 1)) * float(max(_sizes(req)[2], 1)) * 60.0
 

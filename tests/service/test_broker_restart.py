@@ -84,6 +84,7 @@ def test_jobs_queued_across_a_broker_restart_are_resent_at_once(make_client, tmp
         health = client.get("/healthz").json()
         assert health["broker"]["reachable"] and health["broker"]["messages"] == JOBS, health
 
+        _wait(lambda: rt.broker_watch.run_id, 5, "a first check of the broker (its run id)")
         server.stop()  # every message is gone with it
         time.sleep(rt.BROKER_CHECK_EVERY + 0.1)
         down = client.get("/healthz")

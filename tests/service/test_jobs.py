@@ -227,7 +227,7 @@ def test_job_input_errors_name_the_field(client, meshes_dir, shared_mesh):
         ({"mu0": {"indices": [3, 4], "masses": [1]}, "mu1": ok, "times": [0.5]},
          "mu0.masses", None),
         ({"mu0": {"vertex": 25, "radius": 0.1}, "mu1": ok, "times": [0.5]}, "mu0.vertex", None),
-        ({"mu0": ok, "mu1": ok, "times": [0.5, 1.5]}, "times[1]", None),
+        ({"mu0": ok, "mu1": ok, "times": [0.5, 1.5]}, "times", None),  # message: times[1]
         ({"mu0": ok, "mu1": ok, "times": []}, "times", None),
         ({"mu0": ok, "mu1": ok, "times": [0.5], "gamma": -1}, "gamma", None),
         ({"mu0": ok, "mu1": ok, "times": [0.5], "bogus": 1}, "bogus", None),

@@ -30,6 +30,12 @@ LONG = {"algorithm": "admm", "max_iter": 3000, "tol": 1e-12}  # never converges 
 SHORT = {"algorithm": "admm", "max_iter": 20, "tol": 1e-12}
 
 
+def ran_to_its_cap(job: dict) -> bool:
+    """These jobs stop at ``max_iter`` short of tol 1e-12: a full run ends ``failed`` with
+    ``not_converged`` (never a success), its partial result kept."""
+    return job["state"] == "failed" and (job["error"] or {}).get("code") == "not_converged"
+
+
 def _require_redis() -> None:
     import redis
 
@@ -200,7 +206,7 @@ def test_two_workers_never_run_a_job_twice(stack, cow):
     stack.ensure_workers(2, ready=True)
     ids = [stack.submit_flow(cow, SHORT) for _ in range(8)]
     jobs = [stack.wait_state(i, ("succeeded", "failed"), 60) for i in ids]
-    assert [j["state"] for j in jobs] == ["succeeded"] * len(ids), [j["error"] for j in jobs]
+    assert all(ran_to_its_cap(j) for j in jobs), [j["error"] for j in jobs]
     assert [j["attempts"] for j in jobs] == [1] * len(ids)
     # both workers took jobs, and each job was started exactly once across their logs
     assert len({stack.row(i)["worker"] for i in ids}) == 2
@@ -218,7 +224,7 @@ def test_killed_worker_job_is_rerun_by_another_worker(stack, cow):
     job = stack.wait_running(job_id, attempts=2, timeout=STALE_AFTER + 15)
     assert stack.worker_of(job_id) is not victim
     job = stack.wait_state(job_id, ("succeeded", "failed"), 30)
-    assert job["state"] == "succeeded", job["error"]
+    assert ran_to_its_cap(job), job["error"]
     assert job["attempts"] == 2
     assert stack.get(f"/v1/jobs/{job_id}/result").status_code == 200
 
@@ -256,7 +262,7 @@ def test_cancel_running_job(stack, cow):
 def test_api_restart_keeps_jobs_and_results(stack, cow):
     stack.ensure_workers(2)
     done = stack.submit_flow(cow, SHORT)
-    stack.wait_state(done, "succeeded", 30)
+    assert ran_to_its_cap(stack.wait_state(done, ("succeeded", "failed"), 30))
     before_jobs = {j["id"]: j for j in stack.get("/v1/jobs").json()["jobs"]}
     before_result = stack.get(f"/v1/jobs/{done}/result").json()
     before_glb = stack.get(f"/v1/jobs/{done}/result.glb").content
@@ -274,7 +280,7 @@ def test_api_restart_keeps_jobs_and_results(stack, cow):
     assert stack.get(f"/v1/jobs/{done}/result").json() == before_result
     assert stack.get(f"/v1/jobs/{done}/result.glb").content == before_glb
     job = stack.wait_state(running, ("succeeded", "failed"), 30)
-    assert job["state"] == "succeeded" and job["attempts"] == 1
+    assert ran_to_its_cap(job) and job["attempts"] == 1
 
 
 def test_every_job_was_started_exactly_attempts_times(stack):

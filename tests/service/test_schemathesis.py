@@ -83,6 +83,10 @@ ALLOWED = [
             "binary` and `type: string` say nothing of it"),
     Allowed("positive_data_acceptance", r"POST /v1/domains", 413, r"more than the limit of",
             "OTGEO_MAX_VERTICES bounds the product of a grid's axes, not each axis"),
+    Allowed("positive_data_acceptance", r"POST /v1/.*", 422,
+            r"Idempotency-Key '.*' was used for a different request",
+            "an Idempotency-Key names one request: the generator reuses its few header values "
+            "('0', 'null') across different bodies and routes, which the server must refuse"),
     Allowed("positive_data_acceptance", r"GET /v1/(domains|jobs)", 422,
             r"cursor is not one returned as next_cursor",
             "a cursor is an opaque token: only values the server returned are valid"),
