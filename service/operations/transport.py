@@ -18,6 +18,7 @@ from service.operations.base import (
     check_options,
     check_same_components,
     resolve_all,
+    resolve_weighted,
     view_of_domain,
 )
 from service.operations.examples import BUMP_A, BUMP_B, example
@@ -36,7 +37,7 @@ from solvers.emd.green import GREEN_MAX_VERTICES
 from solvers.emd.pointwise import check_cost
 from solvers.errors import InputError
 from solvers.regularization import shape_regularization
-from solvers.validation import check_anchored, check_edge_weights, check_edges, check_weights
+from solvers.validation import check_anchored, check_edge_weights, check_edges
 
 
 class SinkhornOptions(OperationRequest):
@@ -369,11 +370,7 @@ def run_distance(domain, req: DistanceRequest, progress, should_cancel,
 # -- barycenters --------------------------------------------------------------
 def _barycenter_inputs(view: DomainView, req: BarycenterRequest):
     check_options(view, req)
-    specs = {f"distributions[{i}]": d for i, d in enumerate(req.distributions)}
-    masses, reports = resolve_all(view, specs, req.input)
-    check_same_components(view, masses)
-    weights = check_weights(req.weights, len(req.distributions), "weights")
-    return np.stack(list(masses.values()), axis=1), weights, reports
+    return resolve_weighted(view, req.distributions, req.weights, req.input)
 
 
 def _validate_barycenter(view, req) -> list[dict]:

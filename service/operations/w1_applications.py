@@ -25,15 +25,14 @@ from service.operations.base import (
     Operation,
     OperationOutput,
     OperationRequest,
-    check_same_components,
-    resolve_all,
     resolve_distribution,
+    resolve_weighted,
     view_of_domain,
 )
 from service.operations.examples import BUMP_A, BUMP_B, example
 from solvers.emd.exact import MAX_BLOCK_UNKNOWNS, MAX_VERTICES
 from solvers.emd.path_planning import check_targets
-from solvers.validation import check_indices, check_weights
+from solvers.validation import check_indices
 
 MAX_TARGETS = 1_000_000
 
@@ -80,11 +79,7 @@ def _check_conic_size(view: DomainView, blocks: int, field: str) -> None:
 
 def _barycenter_inputs(view: DomainView, req: W1BarycenterRequest):
     _check_conic_size(view, len(req.distributions) + 1, "distributions")
-    specs = {f"distributions[{i}]": d for i, d in enumerate(req.distributions)}
-    masses, reports = resolve_all(view, specs, req.input)
-    check_same_components(view, masses)
-    weights = check_weights(req.weights, len(req.distributions), "weights")
-    return np.stack(list(masses.values()), axis=1), weights, reports
+    return resolve_weighted(view, req.distributions, req.weights, req.input)
 
 
 def validate_barycenter(view: DomainView, req: W1BarycenterRequest) -> list[dict]:

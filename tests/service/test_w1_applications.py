@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
-from service_testing import assert_error, upload_mesh
+from service_testing import assert_error, job_result, upload_arrays
 
 from service.operations.w1_applications import PathPlanValues, W1BarycenterValues
 from solvers import TriangleMesh
@@ -19,23 +19,9 @@ from solvers.emd import w1_barycenter
 from solvers.emd.path_planning import w1_path_planning
 
 
-def _upload(client, tmp_path, vertices, faces, name):
-    path = tmp_path / name
-    path.write_text(trimesh.exchange.obj.export_obj(trimesh.Trimesh(vertices, faces,
-                                                                    process=False)))
-    return upload_mesh(client, path).json()["id"]
-
-
-def _result(client, r):
-    assert r.status_code == 200, r.text
-    job = r.json()
-    assert job["state"] == "succeeded", job
-    return client.get(f"/v1/jobs/{job['id']}/result").json()
-
-
 def _sphere(client, tmp_path, subdivisions):
     s = trimesh.creation.icosphere(subdivisions=subdivisions)
-    return (_upload(client, tmp_path, s.vertices, s.faces, f"ball{subdivisions}.obj"),
+    return (upload_arrays(client, tmp_path, s.vertices, s.faces, f"ball{subdivisions}.obj"),
             TriangleMesh(s.vertices, s.faces))
 
 
@@ -57,7 +43,8 @@ def test_w1_barycenter_matches_the_library(client, small):
     sid, mesh = small
     sources = [0, 60, 120]
     body = {"distributions": [_dirac(i) for i in sources], "weights": [1.0, 2.0, 1.0]}
-    res = _result(client, client.post(f"/v1/domains/{sid}/w1-barycenters?wait=60", json=body))
+    _, res = job_result(client, client.post(f"/v1/domains/{sid}/w1-barycenters?wait=60",
+                                            json=body))
     v, a = res["values"], res["arrays"]
     W1BarycenterValues.model_validate(v)
     mus = np.zeros((mesh.n, 3))
@@ -80,7 +67,8 @@ def test_w1_barycenter_with_all_weight_on_one_input_is_that_input(client, small)
     sid, mesh = small
     body = {"distributions": [{"vertex": 5, "radius": 0.2}, _dirac(100)],
             "weights": [1.0, 0.0]}
-    res = _result(client, client.post(f"/v1/domains/{sid}/w1-barycenters?wait=60", json=body))
+    _, res = job_result(client, client.post(f"/v1/domains/{sid}/w1-barycenters?wait=60",
+                                            json=body))
     v, masses = res["values"], np.asarray(res["arrays"]["masses"])
     assert v["converged"] and v["value"] < 1e-6
     # the bump, as the service resolves it: a_j max(0, 1 - d_j / r) around vertex 5
@@ -96,7 +84,8 @@ def test_path_plan_matches_the_library_and_both_solvers_agree(client, small):
     rho0[[3, 40, 90]] = [0.5, 0.3, 0.2]
     targets = [10, 150]
     body = {"rho0": rho0.tolist(), "targets": targets}
-    res = _result(client, client.post(f"/v1/domains/{sid}/path-plans?wait=60", json=body))
+    _, res = job_result(client, client.post(f"/v1/domains/{sid}/path-plans?wait=60",
+                                            json=body))
     v, a = res["values"], res["arrays"]
     PathPlanValues.model_validate(v)
     lib = w1_path_planning(mesh, rho0, targets)
@@ -110,8 +99,8 @@ def test_path_plan_matches_the_library_and_both_solvers_agree(client, small):
     assert np.shape(a["flow"]) == (mesh.n_faces, 3) and np.shape(a["potential"]) == (mesh.n,)
     assert np.shape(a["hodge_f"]) == (mesh.n,) and np.shape(a["hodge_g"]) == (len(mesh.edges),)
     assert v["hodge_residual"] < 1e-6  # a sphere: no harmonic part
-    socp = _result(client, client.post(f"/v1/domains/{sid}/path-plans?wait=60",
-                                       json={**body, "algorithm": "socp"}))["values"]
+    socp = job_result(client, client.post(f"/v1/domains/{sid}/path-plans?wait=60",
+                                          json={**body, "algorithm": "socp"}))[1]["values"]
     assert socp["algorithm"] == "socp" and socp["converged"]
     assert socp["value"] == pytest.approx(v["value"], rel=1e-4)
 
@@ -120,8 +109,8 @@ def test_congestion_spreads_the_arrivals(client, small):
     sid, mesh = small
     body = {"rho0": _dirac(0), "targets": [10, 150]}
     url = f"/v1/domains/{sid}/path-plans?wait=60"
-    free = _result(client, client.post(url, json=body))
-    jam = _result(client, client.post(url, json={**body, "epsilon": 10.0}))
+    _, free = job_result(client, client.post(url, json=body))
+    _, jam = job_result(client, client.post(url, json={**body, "epsilon": 10.0}))
     lib = w1_path_planning(mesh, np.eye(mesh.n)[0], [10, 150], epsilon=10.0)
     assert jam["values"]["objective"] == pytest.approx(lib.objective, rel=1e-5)
     spread = [np.sort(np.asarray(r["arrays"]["arrivals"])[[10, 150]]) for r in (free, jam)]
@@ -161,15 +150,15 @@ def test_path_plans_need_an_exit_on_every_loaded_component(client, tmp_path):
     n = len(s.vertices)
     v = np.r_[s.vertices, s.vertices + [3.0, 0, 0]]
     f = np.r_[s.faces, s.faces + n]
-    two = _upload(client, tmp_path, v, f, "two.obj")
+    two = upload_arrays(client, tmp_path, v, f, "two.obj")
     body = {"rho0": {"indices": [0, n], "masses": [1.0, 1.0]}, "targets": [5]}
     assert_error(client.post(f"/v1/domains/{two}/path-plans", json=body), 422, "targets")
     # distributions with different mass per component cannot be averaged
     bary = {"distributions": [_dirac(0), {"indices": [0, n], "masses": [1.0, 1.0]}]}
     assert_error(client.post(f"/v1/domains/{two}/w1-barycenters", json=bary), 422,
                  "distributions[1]")
-    ok = _result(client, client.post(f"/v1/domains/{two}/path-plans?wait=60",
-                                     json={**body, "targets": [5, n + 5]}))["values"]
+    ok = job_result(client, client.post(f"/v1/domains/{two}/path-plans?wait=60",
+                                        json={**body, "targets": [5, n + 5]}))[1]["values"]
     assert ok["converged"]
 
 
