@@ -115,6 +115,24 @@ def test_interior_point_matches_the_conic_solver_on_a_real_mesh(shared_mesh, eps
     assert ipm.target_masses.min() >= 0 and ipm.target_masses.sum() == pytest.approx(1.0)
 
 
+@pytest.mark.parametrize("epsilon", [10.0, 1e3, 1e4])
+def test_interior_point_claims_convergence_only_when_feasible(epsilon):
+    """A large congestion weight makes the interior point's Newton solves lose feasibility to
+    rounding (measured on this sphere: 1.3e-4 at eps = 1e3, 1.5e-2 at 1e4, with a gap below
+    tol): a convergence claim needs a small residual, and then matches Clarabel."""
+    s = trimesh.creation.icosphere(subdivisions=3)
+    mesh = TriangleMesh(s.vertices, s.faces)
+    d = np.linalg.norm(mesh.vertices - mesh.vertices[0], axis=1)
+    m0 = mesh.areas * np.clip(1.0 - d / 0.6, 0.0, None)  # not normalized: rounding differs
+    ipm = w1_path_planning(mesh, m0, [100, 200], epsilon=epsilon, algorithm="ipm")
+    socp = w1_path_planning(mesh, m0, [100, 200], epsilon=epsilon, algorithm="socp")
+    assert socp.converged
+    if ipm.converged:
+        assert ipm.residual <= 1e-6
+        assert ipm.objective == pytest.approx(socp.objective, rel=1e-5)
+    assert ipm.status == ("Solved" if ipm.converged else "NotConverged")
+
+
 def test_path_planning_refuses_bad_targets(maze):
     m0 = _occupants(maze)
     with pytest.raises(InputError) as err:

@@ -18,6 +18,7 @@ from service.operations import (
     softmaps,
     transport,
     volumetric,
+    w1_applications,
 )
 from service.operations.base import (
     Operation,
@@ -28,7 +29,7 @@ from service.operations.base import (
 )
 
 FAMILIES = (transport, matrices, histograms, color, softmaps, applications, volumetric, features,
-            anisotropy, shapes, soft_map_analyses, metric_histograms)
+            anisotropy, shapes, soft_map_analyses, metric_histograms, w1_applications)
 
 
 class Registry(dict):

@@ -386,6 +386,21 @@ def resolve_all(view: DomainView, specs: dict[str, object], input_kind: str
     return masses, reports
 
 
+def resolve_weighted(view: DomainView, distributions: list, weights: list[float] | None,
+                     input_kind: str) -> tuple[np.ndarray, np.ndarray, list[dict]]:
+    """A barycenter's inputs: ``distributions`` (fields ``distributions[i]``) as the columns
+    of an ``(n, k)`` array, with the same mass on every connected component, and their
+    ``weights`` (the library's ``check_weights``: one per distribution, non-negative, a
+    positive sum; uniform when None), normalized; plus the normalization reports."""
+    from solvers.validation import check_weights
+
+    specs = {f"distributions[{i}]": d for i, d in enumerate(distributions)}
+    masses, reports = resolve_all(view, specs, input_kind)
+    check_same_components(view, masses)
+    w = check_weights(weights, len(distributions), "weights")
+    return np.stack(list(masses.values()), axis=1), w, reports
+
+
 def check_same_components(view: DomainView, masses: dict[str, np.ndarray],
                           tol: float | None = None) -> None:
     """On a domain with several components, transport cannot move mass between them:

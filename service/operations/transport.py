@@ -21,6 +21,7 @@ from service.operations.base import (
     check_options,
     check_same_components,
     resolve_all,
+    resolve_weighted,
     view_of_domain,
 )
 from service.operations.examples import BUMP_A, BUMP_B, example
@@ -44,7 +45,6 @@ from solvers.validation import (
     check_anchored,
     check_edge_weights,
     check_edges,
-    check_weights,
 )
 
 
@@ -380,11 +380,7 @@ def run_distance(domain, req: DistanceRequest, progress, should_cancel,
 # -- barycenters --------------------------------------------------------------
 def _barycenter_inputs(view: DomainView, req: BarycenterRequest):
     check_options(view, req)
-    specs = {f"distributions[{i}]": d for i, d in enumerate(req.distributions)}
-    masses, reports = resolve_all(view, specs, req.input)
-    check_same_components(view, masses)
-    weights = check_weights(req.weights, len(req.distributions), "weights")
-    return np.stack(list(masses.values()), axis=1), weights, reports
+    return resolve_weighted(view, req.distributions, req.weights, req.input)
 
 
 def _validate_barycenter(view, req) -> list[dict]:

@@ -68,27 +68,33 @@ class PathPlanningResult(SolverResult):
 
 
 def _target_mask(mesh, targets, m0) -> np.ndarray:
+    return check_targets(targets, mesh.n, mesh.component_labels, m0)
+
+
+def check_targets(targets, n: int, labels, m0, field: str = "targets") -> np.ndarray:
+    """The exits as a (n,) boolean mask, from vertex indices or a (n,) boolean mask: at least
+    one, in range, and one on every connected component (``labels``) where ``m0`` has mass
+    (mass cannot leave its component).  The service checks requests with it at submission."""
     t = np.asarray(targets)
-    mask = np.zeros(mesh.n, dtype=bool)
+    mask = np.zeros(n, dtype=bool)
     if t.dtype == bool:
-        if t.shape != (mesh.n,):
-            raise InputError(f"a boolean targets mask must have shape ({mesh.n},)",
-                             field="targets")
+        if t.shape != (n,):
+            raise InputError(f"a boolean targets mask must have shape ({n},)", field=field)
         mask = t.copy()
     else:
         idx = np.asarray(t, dtype=np.int64).ravel()
-        if idx.size and (idx.min() < 0 or idx.max() >= mesh.n):
-            raise InputError(f"targets must be vertex indices in [0, {mesh.n - 1}]",
-                             field="targets")
+        if idx.size and (idx.min() < 0 or idx.max() >= n):
+            raise InputError(f"targets must be vertex indices in [0, {n - 1}]", field=field)
         mask[idx] = True
     if not mask.any():
-        raise InputError("targets must name at least one vertex", field="targets")
-    labels = mesh.component_labels
-    reachable = np.bincount(labels[mask], minlength=mesh.n_components) > 0
-    stranded = np.bincount(labels, m0, minlength=mesh.n_components)[~reachable]
+        raise InputError("targets must name at least one vertex", field=field)
+    labels = np.asarray(labels)
+    n_components = int(labels.max()) + 1 if len(labels) else 1
+    reachable = np.bincount(labels[mask], minlength=n_components) > 0
+    stranded = np.bincount(labels, np.asarray(m0), minlength=n_components)[~reachable]
     if np.any(stranded > 0):
         raise InputError("rho0 has mass on a connected component without any target vertex",
-                         field="targets")
+                         field=field)
     return mask
 
 

@@ -23,3 +23,22 @@ def assert_has_result(job: dict) -> dict:
     if job["state"] != "succeeded":
         assert job["state"] == "failed" and job["error"]["code"] == "not_converged", job
     return job
+
+
+def upload_arrays(client, tmp_path, vertices, faces, name: str) -> str:
+    """Upload a mesh given as arrays (written as OBJ, vertex order kept); its domain id."""
+    import trimesh
+
+    path = tmp_path / name
+    path.write_text(trimesh.exchange.obj.export_obj(trimesh.Trimesh(vertices, faces,
+                                                                    process=False)))
+    return upload_mesh(client, path).json()["id"]
+
+
+def job_result(client, response) -> tuple[str, dict]:
+    """``(job id, result document)`` of a job awaited in its submission (``?wait=``), which
+    must have succeeded."""
+    assert response.status_code == 200, response.text
+    job = response.json()
+    assert job["state"] == "succeeded", job
+    return job["id"], client.get(f"/v1/jobs/{job['id']}/result").json()

@@ -12,7 +12,7 @@ import gdist
 import numpy as np
 import pytest
 import trimesh
-from service_testing import assert_error, upload_mesh
+from service_testing import assert_error, job_result, upload_arrays
 
 from service.export import parse_glb
 from service.operations.anisotropy import AnisotropicDistanceValues
@@ -21,24 +21,10 @@ from solvers import TriangleMesh
 from solvers.emd.feature_curves import feature_set
 
 
-def _upload(client, tmp_path, vertices, faces, name):
-    path = tmp_path / name
-    path.write_text(trimesh.exchange.obj.export_obj(trimesh.Trimesh(vertices, faces,
-                                                                    process=False)))
-    return upload_mesh(client, path).json()["id"]
-
-
-def _result(client, r):
-    assert r.status_code == 200, r.text
-    job = r.json()
-    assert job["state"] == "succeeded", job
-    return job["id"], client.get(f"/v1/jobs/{job['id']}/result").json()
-
-
 @pytest.fixture
 def ball(client, tmp_path):
     s = trimesh.creation.icosphere(subdivisions=3)
-    return _upload(client, tmp_path, s.vertices, s.faces, "ball.obj"), TriangleMesh(
+    return upload_arrays(client, tmp_path, s.vertices, s.faces, "ball.obj"), TriangleMesh(
         s.vertices, s.faces)
 
 
@@ -50,14 +36,14 @@ def square(client, tmp_path):
     a, b, c, d = (idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(),
                   idx[1:, :-1].ravel())
     v, f = np.c_[x.ravel(), y.ravel(), np.zeros(n * n)], np.r_[np.c_[a, b, c], np.c_[a, c, d]]
-    return _upload(client, tmp_path, v, f, "square.obj"), TriangleMesh(v, f)
+    return upload_arrays(client, tmp_path, v, f, "square.obj"), TriangleMesh(v, f)
 
 
 def test_feature_distances_match_exact_geodesics(client, ball):
     bid, mesh = ball
     body = {"vertices": [0], "curves": [{"waypoints": [100, 300, 500], "closed": True}]}
-    job, res = _result(client, client.post(f"/v1/domains/{bid}/feature-distances?wait=60",
-                                            json=body))
+    job, res = job_result(client, client.post(f"/v1/domains/{bid}/feature-distances?wait=60",
+                                               json=body))
     v, a = res["values"], res["arrays"]
     FeatureDistanceValues.model_validate(v)
     feats = feature_set(mesh, [0], [([100, 300, 500], True)])
@@ -97,8 +83,8 @@ def test_matrix_weights_give_the_closed_form(client, square):
     M = [[3.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
     body = {"mu0": {"indices": [p], "masses": [1.0]}, "mu1": {"indices": [q], "masses": [1.0]},
             "face_weights": [M] * mesh.n_faces}
-    job, res = _result(client, client.post(f"/v1/domains/{sid}/anisotropic-distances?wait=60",
-                                            json=body))
+    job, res = job_result(client, client.post(f"/v1/domains/{sid}/anisotropic-distances?wait=60",
+                                               json=body))
     v = res["values"]
     AnisotropicDistanceValues.model_validate(v)
     exact = float(np.linalg.norm(np.asarray(M) @ (mesh.vertices[p] - mesh.vertices[q])))
@@ -118,8 +104,8 @@ def test_scalar_weights_integrate_along_the_path(client, square):
     w = np.where(mesh.vertices[mesh.faces].mean(axis=1)[:, 0] > middle, 3.0, 1.0)
     body = {"mu0": {"indices": [p], "masses": [1.0]}, "mu1": {"indices": [q], "masses": [1.0]},
             "face_weights": w.tolist()}
-    _, res = _result(client, client.post(f"/v1/domains/{sid}/anisotropic-distances?wait=60",
-                                          json=body))
+    _, res = job_result(client, client.post(f"/v1/domains/{sid}/anisotropic-distances?wait=60",
+                                             json=body))
     exact = (middle - mesh.vertices[p, 0]) + 3.0 * (mesh.vertices[q, 0] - middle)
     assert res["values"]["value"] == pytest.approx(exact, rel=2e-3)
     assert res["values"]["weights"] == "scalar"
@@ -128,10 +114,10 @@ def test_scalar_weights_integrate_along_the_path(client, square):
 def test_curvature_weights_on_a_sphere_scale_the_distance(client, ball):
     bid, _ = ball
     pair = {"mu0": {"indices": [0], "masses": [1.0]}, "mu1": {"indices": [200], "masses": [1]}}
-    _, iso = _result(client, client.post(f"/v1/domains/{bid}/distances?wait=60",
-                                          json={**pair, "metric": "w1"}))
-    _, res = _result(client, client.post(f"/v1/domains/{bid}/anisotropic-distances?wait=60",
-                                          json={**pair, "curvature": {"strength": 2.0}}))
+    _, iso = job_result(client, client.post(f"/v1/domains/{bid}/distances?wait=60",
+                                             json={**pair, "metric": "w1"}))
+    _, res = job_result(client, client.post(f"/v1/domains/{bid}/anisotropic-distances?wait=60",
+                                             json={**pair, "curvature": {"strength": 2.0}}))
     v = res["values"]
     assert v["weights"] == "curvature" and min(v["weight_range"]) > 2.9
     assert v["value"] == pytest.approx(3.0 * iso["values"]["value"], rel=0.035)

@@ -9,7 +9,7 @@ from service.operations import build_registry
 
 WITH_EXAMPLES = {"volumetric-distances", "volumetric-paths", "feature-distances",
                  "anisotropic-distances", "shape-interpolations", "soft-map-analyses",
-                 "metric-histogram-propagations"}
+                 "metric-histogram-propagations", "w1-barycenters", "path-plans"}
 REGISTRY = build_registry()
 
 

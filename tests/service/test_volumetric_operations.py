@@ -14,7 +14,7 @@ import ot
 import pytest
 import trimesh
 from PIL import Image
-from service_testing import assert_error, upload_mesh
+from service_testing import assert_error, job_result, upload_mesh
 
 from service.export import parse_glb
 from service.operations.volumetric import VolumetricDistanceValues, VolumetricPathValues
@@ -31,19 +31,12 @@ def capsule(client, tmp_path):
     return upload_mesh(client, path).json()["id"], mesh
 
 
-def _result(client, r):
-    assert r.status_code == 200, r.text
-    job = r.json()
-    assert job["state"] == "succeeded", job
-    return job["id"], client.get(f"/v1/jobs/{job['id']}/result").json()
-
-
 def test_distances_match_the_exact_lp_and_bound_the_euclidean(client, capsule):
     cid, mesh = capsule
     points = [[0.1, 0.0, 0.0], [0.0, 0.2, 0.5], [0.3, 0.3, 0.9], [0.0, -0.3, -0.6]]
     body = {"source": [0.0, 0.0, 0.0], "points": points, "units": "input"}
-    _, res = _result(client, client.post(f"/v1/domains/{cid}/volumetric-distances?wait=60",
-                                          json=body))
+    _, res = job_result(client, client.post(f"/v1/domains/{cid}/volumetric-distances?wait=60",
+                                             json=body))
     v = res["values"]
     VolumetricDistanceValues.model_validate(v)
     assert v["converged"] and v["solves"] == 4 and v["slice"] is None
@@ -66,8 +59,8 @@ def test_slice_png_and_glb(client, capsule):
     cid, _ = capsule
     body = {"source": [0.0, 0.0, 0.0], "units": "input",
             "slice": {"axis": "x", "offset": 0.5, "resolution": 10}}
-    job, res = _result(client, client.post(f"/v1/domains/{cid}/volumetric-distances?wait=60",
-                                           json=body))
+    job, res = job_result(client, client.post(f"/v1/domains/{cid}/volumetric-distances?wait=60",
+                                              json=body))
     s = res["values"]["slice"]
     assert s["axes"] == ["y", "z"] and s["coordinate"] == pytest.approx(0.0, abs=1e-9)
     rows, cols = s["shape"]
@@ -90,8 +83,8 @@ def test_descent_path_follows_the_axis_to_the_target(client, capsule):
     cid, _ = capsule
     body = {"start": [0.0, 0.0, -0.6], "target": [0.0, 0.0, 0.6], "units": "input",
             "step": 0.1, "max_iter": 40}
-    job, res = _result(client, client.post(f"/v1/domains/{cid}/volumetric-paths?wait=60",
-                                           json=body))
+    job, res = job_result(client, client.post(f"/v1/domains/{cid}/volumetric-paths?wait=60",
+                                              json=body))
     v = res["values"]
     VolumetricPathValues.model_validate(v)
     assert v["converged"] and v["decreasing"] and v["final_distance"] == 0.0

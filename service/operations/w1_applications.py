@@ -1,0 +1,225 @@
+"""W1 barycenters and path planning on a mesh (thesis §2.7): ``POST
+/v1/domains/{id}/w1-barycenters`` and ``POST /v1/domains/{id}/path-plans``.
+
+* ``w1-barycenters``: eq. 2.7, :math:`\\min_\\rho \\sum_i \\alpha_i W_1(\\rho_i, \\rho)^2`, one
+  second-order cone program (Clarabel, :func:`solvers.emd.w1_barycenter`); it refuses meshes
+  above ``MAX_VERTICES`` vertices and ``MAX_BLOCK_UNKNOWNS`` vertices x (inputs + 1), checked
+  here at submission (413 naming the field).
+* ``path-plans``: eq. 2.6, occupants ``rho0`` leave through the ``targets`` with congestion
+  weight ``epsilon`` (:func:`solvers.emd.path_planning.w1_path_planning`): arrivals, the
+  flow, its potential and Hodge parts (Fig. 2.12).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, Field
+
+from service.errors import PayloadTooLarge
+from service.operations.anisotropy import IPM_SOLVE_COST
+from service.operations.base import (
+    Distribution,
+    DomainView,
+    Operation,
+    OperationOutput,
+    OperationRequest,
+    resolve_distribution,
+    resolve_weighted,
+    view_of_domain,
+)
+from service.operations.examples import BUMP_A, BUMP_B, example
+from solvers.emd.exact import MAX_BLOCK_UNKNOWNS, MAX_VERTICES
+from solvers.emd.path_planning import check_targets
+from solvers.validation import check_indices
+
+MAX_TARGETS = 1_000_000
+
+
+# -- W1 barycenters (eq. 2.7) ---------------------------------------------------------------
+class W1BarycenterRequest(OperationRequest):
+    model_config = example({"distributions": [BUMP_A, BUMP_B], "weights": [0.5, 0.5]})
+    distributions: list[Distribution] = Field(
+        min_length=1, max_length=64, description="the inputs rho_i; vertices x (inputs + 1) "
+        f"at most {MAX_BLOCK_UNKNOWNS} (one coupled conic program)")
+    weights: list[float] | None = Field(None, description="barycentric weights alpha_i, one "
+                                        "per distribution, non-negative with a positive sum "
+                                        "(default uniform); normalized to sum 1")
+    tol: float | None = Field(None, gt=0, lt=1, description="conic solver tolerance (default "
+                              "1e-8)")
+    max_iter: int | None = Field(None, ge=1, le=1000, description="interior-point iteration "
+                                 "cap (default 200)")
+
+
+class W1BarycenterValues(BaseModel):
+    """Values of a W1-barycenter job."""
+
+    value: float = Field(description="sum_i alpha_i W1(rho_i, rho)^2 at the returned rho")
+    distances: list[float] = Field(description="W1 from the barycenter to each input")
+    weights: list[float] = Field(description="the normalized barycentric weights")
+    iterations: int
+    residual: float = Field(description="max violation of the flows' divergence constraints")
+    converged: bool
+    status: str = Field(description="the conic solver's status")
+    normalization: list[dict]
+
+
+def _check_conic_size(view: DomainView, blocks: int, field: str) -> None:
+    """The exact solver's caps (``solvers.emd.exact``), as 413s at submission."""
+    if view.n > MAX_VERTICES:
+        raise PayloadTooLarge(f"the mesh has {view.n} vertices; the exact conic solver takes "
+                              f"at most {MAX_VERTICES}", field="domain_id")
+    if blocks > 1 and view.n * blocks > MAX_BLOCK_UNKNOWNS:
+        raise PayloadTooLarge(f"{blocks - 1} distributions on {view.n} vertices: vertices x "
+                              f"(distributions + 1) = {view.n * blocks} exceeds "
+                              f"{MAX_BLOCK_UNKNOWNS}; use fewer distributions or a coarser "
+                              "mesh", field=field)
+
+
+def _barycenter_inputs(view: DomainView, req: W1BarycenterRequest):
+    _check_conic_size(view, len(req.distributions) + 1, "distributions")
+    return resolve_weighted(view, req.distributions, req.weights, req.input)
+
+
+def validate_barycenter(view: DomainView, req: W1BarycenterRequest) -> list[dict]:
+    return _barycenter_inputs(view, req)[2]
+
+
+def barycenter_cost(n: int, req: W1BarycenterRequest, context=None) -> float:
+    """One coupled interior-point solve over all inputs' flow blocks."""
+    return float(IPM_SOLVE_COST) * float(max(n, 1)) * float(len(req.distributions) + 1)
+
+
+def barycenter_bytes(view: DomainView, req: W1BarycenterRequest) -> int:
+    """Per flow block: cones and scalings per face (~40 floats) and the KKT factor's share
+    per vertex (~60 floats); a coarse bound for the coupled program."""
+    faces = int(view.n_faces or 2 * view.n)
+    blocks = len(req.distributions) + 1
+    return 8 * blocks * (40 * faces + 60 * int(view.n))
+
+
+def run_barycenter(mesh, req: W1BarycenterRequest, progress, should_cancel) -> OperationOutput:
+    from solvers.emd import w1_barycenter
+
+    mus, weights, reports = _barycenter_inputs(view_of_domain(mesh), req)
+    kwargs = {k: v for k, v in (("tol", req.tol), ("max_iter", req.max_iter)) if v is not None}
+    res = w1_barycenter(mesh, mus, weights, progress=progress, should_cancel=should_cancel,
+                        **kwargs)
+    masses = np.asarray(res.masses, dtype=np.float64)
+    values = W1BarycenterValues(
+        value=float(res.value), distances=[float(d) for d in res.distances],
+        weights=weights.tolist(), iterations=int(res.iterations),
+        residual=float(res.residual), converged=bool(res.converged), status=str(res.status),
+        normalization=reports).model_dump()
+    arrays = {"masses": masses, "density": masses / np.asarray(mesh.areas)}
+    return OperationOutput(values, arrays, {"fields": ["masses", "density"],
+                                            "color": "density"})
+
+
+# -- path planning (eq. 2.6) ------------------------------------------------------------------
+class PathPlanRequest(OperationRequest):
+    model_config = example({"rho0": BUMP_A, "targets": [100, 200], "epsilon": 0.001})
+    rho0: Distribution = Field(description="the occupants' distribution")
+    targets: list[int] = Field(min_length=1, max_length=MAX_TARGETS, description="exit "
+                               "vertices S (at least one on every connected component where "
+                               "rho0 has mass)")
+    epsilon: float = Field(0.0, ge=0, le=1e6, description="congestion weight of the term "
+                           "epsilon * integral of rho1^2 (0: every occupant takes its nearest "
+                           "exit)")
+    algorithm: Literal["auto", "ipm", "socp"] = Field(
+        "auto", description="auto/ipm: interior point with vertex-sized Newton systems (any "
+        f"mesh size); socp: Clarabel on the whole program (at most {MAX_VERTICES} vertices)")
+    tol: float | None = Field(None, gt=0, lt=1, description="ipm: certified relative gap "
+                              "(default 1e-6); socp: conic tolerance (default 1e-8)")
+    max_iter: int | None = Field(None, ge=1, le=1000, description="iteration cap (default "
+                                 "100 for ipm, 200 for socp)")
+
+
+class PathPlanValues(BaseModel):
+    """Values of a path-planning job."""
+
+    value: float = Field(description="W1(rho0, rho1): cost of the returned flow")
+    objective: float = Field(description="value + epsilon * integral of rho1^2 (eq. 2.6)")
+    epsilon: float
+    n_targets: int = Field(description="distinct exit vertices")
+    algorithm: Literal["ipm", "socp"] = Field(description="the solver that ran")
+    hodge_residual: float = Field(description="relative size of the harmonic part of the "
+                                  "flow, J - grad f - R grad g (0 on simply connected "
+                                  "surfaces)")
+    iterations: int
+    residual: float = Field(description="max violation of div J = m0 - m1")
+    converged: bool
+    status: str
+    normalization: list[dict]
+
+
+def _path_inputs(view: DomainView, req: PathPlanRequest):
+    if req.algorithm == "socp":
+        if view.n > MAX_VERTICES:  # named after the choice the client can change
+            raise PayloadTooLarge(f"algorithm 'socp' takes at most {MAX_VERTICES} vertices; "
+                                  f"the mesh has {view.n} (use 'ipm')", field="algorithm")
+    rho0, report = resolve_distribution(view, req.rho0, "rho0", req.input)
+    targets = check_indices(req.targets, view.n, field="targets")
+    mask = check_targets(targets, view.n, view.component_labels, rho0)
+    return rho0, mask, [report]
+
+
+def validate_path_plan(view: DomainView, req: PathPlanRequest) -> list[dict]:
+    return _path_inputs(view, req)[2]
+
+
+def path_plan_cost(n: int, req: PathPlanRequest, context=None) -> float:
+    """One interior-point solve (the exits' program is about one W1 solve)."""
+    return float(IPM_SOLVE_COST) * float(max(n, 1))
+
+
+def path_plan_bytes(view: DomainView, req: PathPlanRequest) -> int:
+    """Per face: the flow, its Hodge parts and the solver's cones (~50 floats); per vertex
+    and edge: the Newton systems' factors and the Hodge solves (~80 floats)."""
+    faces = int(view.n_faces or 2 * view.n)
+    return 8 * (50 * faces + 80 * int(view.n) + 40 * (faces * 3 // 2))
+
+
+def run_path_plan(mesh, req: PathPlanRequest, progress, should_cancel) -> OperationOutput:
+    from solvers.emd.path_planning import w1_path_planning
+
+    rho0, mask, reports = _path_inputs(view_of_domain(mesh), req)
+    res = w1_path_planning(mesh, rho0, mask, epsilon=req.epsilon, algorithm=req.algorithm,
+                           tol=req.tol, max_iter=req.max_iter, progress=progress,
+                           should_cancel=should_cancel)
+    hodge = res.hodge
+    flow = np.asarray(res.flow, dtype=np.float64)
+    values = PathPlanValues(
+        value=float(res.value), objective=float(res.objective), epsilon=float(req.epsilon),
+        n_targets=int(mask.sum()), algorithm=res.algorithm,
+        hodge_residual=float(hodge.residual), iterations=int(res.iterations),
+        residual=float(res.residual), converged=bool(res.converged), status=str(res.status),
+        normalization=reports).model_dump()
+    arrays = {"arrivals": np.asarray(res.target_masses, dtype=np.float64), "flow": flow,
+              "flow_magnitude": np.linalg.norm(flow, axis=1),
+              "potential": np.asarray(res.potential, dtype=np.float64),
+              "hodge_f": np.asarray(hodge.f, dtype=np.float64),
+              "hodge_g": np.asarray(hodge.g, dtype=np.float64),
+              "hodge_g_vertices": np.asarray(hodge.g_vertices, dtype=np.float64),
+              "targets": np.flatnonzero(mask)}
+    return OperationOutput(values, arrays, {
+        "fields": ["potential", "arrivals", "hodge_f", "hodge_g_vertices"], "flow": "flow",
+        "color": "potential"})
+
+
+MESH = ("mesh",)
+OPERATIONS = [
+    Operation("w1-barycenters", "createW1BarycenterJob",
+              "W1 barycenter, the minimizer of the weighted sum of squared W1 distances to "
+              "the inputs (thesis eq. 2.7; exact conic program, small meshes)",
+              W1BarycenterRequest, run_barycenter, validate_barycenter, MESH,
+              result_model=W1BarycenterValues, estimate_bytes=barycenter_bytes,
+              estimate_cost=barycenter_cost),
+    Operation("path-plans", "createPathPlanJob",
+              "Path planning by W1: occupants leave through exit vertices, with optional "
+              "congestion (thesis eq. 2.6, Fig. 2.12): arrivals, flow, potential, Hodge parts",
+              PathPlanRequest, run_path_plan, validate_path_plan, MESH,
+              result_model=PathPlanValues, estimate_bytes=path_plan_bytes,
+              estimate_cost=path_plan_cost),
+]
