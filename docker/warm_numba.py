@@ -17,6 +17,7 @@ from service.jobs.service import JobService
 from service.operations.color import ColorTransferRequest
 from service.runtime import Runtime
 from service.settings import Settings
+from service.tenants import ANONYMOUS
 
 
 def png(rgb: np.ndarray) -> bytes:
@@ -33,7 +34,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as data:
         rt = Runtime(Settings(data_dir=data, queue="immediate"))  # jobs run in the call
         try:
-            ids = _store_images(rt, [png(warm), png(cool)], ["image/png"] * 2)
+            ids = _store_images(rt, ANONYMOUS, [png(warm), png(cool)], ["image/png"] * 2)
             job = JobService(rt).create("color-transfers", None, ColorTransferRequest(
                 images=ids, alphas=[[0, 1], [0.5, 0.5]], bins=32))
             job = JobService(rt).get(job.id)

@@ -22,6 +22,7 @@ from service.operations.anisotropy import IPM_SOLVE_COST
 from service.operations.base import (
     Distribution,
     DomainView,
+    Int,
     Operation,
     OperationOutput,
     OperationRequest,
@@ -48,7 +49,7 @@ class W1BarycenterRequest(OperationRequest):
                                         "(default uniform); normalized to sum 1")
     tol: float | None = Field(None, gt=0, lt=1, description="conic solver tolerance (default "
                               "1e-8)")
-    max_iter: int | None = Field(None, ge=1, le=1000, description="interior-point iteration "
+    max_iter: Int | None = Field(None, ge=1, le=1000, description="interior-point iteration "
                                  "cap (default 200)")
 
 
@@ -121,7 +122,7 @@ def run_barycenter(mesh, req: W1BarycenterRequest, progress, should_cancel) -> O
 class PathPlanRequest(OperationRequest):
     model_config = example({"rho0": BUMP_A, "targets": [100, 200], "epsilon": 0.001})
     rho0: Distribution = Field(description="the occupants' distribution")
-    targets: list[int] = Field(min_length=1, max_length=MAX_TARGETS, description="exit "
+    targets: list[Int] = Field(min_length=1, max_length=MAX_TARGETS, description="exit "
                                "vertices S (at least one on every connected component where "
                                "rho0 has mass)")
     epsilon: float = Field(0.0, ge=0, le=1e6, description="congestion weight of the term "
@@ -132,7 +133,7 @@ class PathPlanRequest(OperationRequest):
         f"mesh size); socp: Clarabel on the whole program (at most {MAX_VERTICES} vertices)")
     tol: float | None = Field(None, gt=0, lt=1, description="ipm: certified relative gap "
                               "(default 1e-6); socp: conic tolerance (default 1e-8)")
-    max_iter: int | None = Field(None, ge=1, le=1000, description="iteration cap (default "
+    max_iter: Int | None = Field(None, ge=1, le=1000, description="iteration cap (default "
                                  "100 for ipm, 200 for socp)")
 
 

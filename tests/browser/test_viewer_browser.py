@@ -108,7 +108,7 @@ def test_failing_request_shows_the_error(spot_page):
     error = page.locator("#error")
     error.wait_for(state="visible", timeout=TIMEOUT)
     # the server's validation message, naming the field, not a generic failure
-    assert "times[1]" in error.inner_text() and "outside [0, 1]" in error.inner_text()
+    assert "times[1]" in error.inner_text() and "less than or equal to 1" in error.inner_text()
     assert page.locator(".field.bad[data-field=times]").count() == 1
     assert page.locator("#job-panel").is_hidden()  # no job was created
     save(page, "viewer-error.png")
