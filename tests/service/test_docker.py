@@ -526,7 +526,9 @@ def test_killed_worker_container_job_finishes_on_the_other(stack, meshes_dir):
     requeued_after = time.monotonic() - killed_at
     j = wait_job(stack, job_id, lambda j: j["state"] not in ("queued", "running"), 180,
                  "the re-run to finish")
-    assert j["state"] == "succeeded", (j, stack.logs())
+    # tol 1e-12 is out of reach in LONG_ITER iterations: the full re-run ends not_converged
+    # (never a success) and keeps its result
+    assert j["state"] == "failed" and j["error"]["code"] == "not_converged", (j, stack.logs())
     assert j["attempts"] == 2 and j["progress"]["iteration"] == LONG_ITER
     assert stack.sql(f"SELECT worker FROM jobs WHERE id = '{job_id}'").startswith(
         survivor_host + ":")
@@ -579,7 +581,8 @@ def test_recreated_api_container_keeps_jobs_and_results(stack):
     assert new != old
     stack.wait_healthy(("api",), timeout=120)
     for job_id, result in stack.jobs.items():
-        assert job(stack, job_id)["state"] == "succeeded"
+        kept = job(stack, job_id)  # as finished before: succeeded, or the capped long job
+        assert kept["state"] == "succeeded" or kept["error"]["code"] == "not_converged", kept
         again = stack.get(f"/v1/jobs/{job_id}/result")
         assert again.status_code == 200 and again.json() == result
     listed = {d["id"] for d in stack.get("/v1/domains", params={"limit": 1000}).json()["domains"]}
