@@ -13,7 +13,6 @@ from __future__ import annotations
 import statistics
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -22,6 +21,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "service"))
 from liveserver import API  # noqa: E402
+from upload_latency import health_latencies_during  # noqa: E402
 
 
 def loadavg() -> str:
@@ -48,15 +48,7 @@ def main() -> None:
                     done.update(status=r.status_code, seconds=time.monotonic() - t0,
                                 field=r.json().get("error", {}).get("field"))
 
-                thread = threading.Thread(target=post)
-                thread.start()
-                lat = []
-                while thread.is_alive():
-                    t0 = time.monotonic()
-                    httpx.get(api.url + "/healthz", timeout=60)
-                    lat.append(time.monotonic() - t0)
-                    time.sleep(0.02)
-                thread.join()
+                lat = health_latencies_during(api.url, post)
                 print(f"run {run}: {done['status']} (field {done['field']}) in "
                       f"{done['seconds']:.2f} s; {len(lat)} /healthz during it: max "
                       f"{max(lat) * 1000:.0f} ms, p50 {statistics.median(lat) * 1000:.1f} ms; "

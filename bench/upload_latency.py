@@ -23,6 +23,20 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "service"
 from liveserver import API  # noqa: E402
 
 
+def health_latencies_during(url: str, work) -> list[float]:
+    """Seconds of each ``GET /healthz`` sent every 20 ms while ``work()`` runs in a thread."""
+    thread = threading.Thread(target=work)
+    thread.start()
+    lat = []
+    while thread.is_alive():
+        t0 = time.monotonic()
+        httpx.get(url + "/healthz", timeout=60)
+        lat.append(time.monotonic() - t0)
+        time.sleep(0.02)
+    thread.join()
+    return lat
+
+
 def graph_body(megabytes: float) -> bytes:
     rng = np.random.default_rng(0)
     m = int(megabytes * 2**20 / 16)
@@ -58,15 +72,7 @@ def main() -> None:
                                    headers={"content-type": "application/json"})
                     done.update(status=r.status_code, seconds=time.monotonic() - t0)
 
-                thread = threading.Thread(target=upload)
-                thread.start()
-                lat = []
-                while thread.is_alive():
-                    t0 = time.monotonic()
-                    httpx.get(api.url + "/healthz", timeout=60)
-                    lat.append(time.monotonic() - t0)
-                    time.sleep(0.02)
-                thread.join()
+                lat = health_latencies_during(api.url, upload)
                 print(f"run {run}: upload {done['status']} in {done['seconds']:.2f} s; "
                       f"{len(lat)} health checks during it: max {max(lat) * 1000:.0f} ms, "
                       f"p50 {statistics.median(lat) * 1000:.1f} ms; load {loadavg()}")
