@@ -137,6 +137,7 @@ def _start(problem, data: np.ndarray, index: np.ndarray) -> BlockState:
     w = problem.weights.astype(np.float64)
     mags = np.sqrt(data[0::2].astype(np.float64) ** 2 + data[1::2].astype(np.float64) ** 2)
     mean_flow = (w @ mags) / (w @ w)
+    mean_flow[mean_flow <= 0] = 1.0  # the source as its own target: d = 0, any penalty
     nb = data.shape[1]
     return BlockState(data=data, dual=np.zeros_like(data), work=np.zeros_like(data),
                       inv_rho=(mean_flow / RHO_SCALE).astype(np.float32),
