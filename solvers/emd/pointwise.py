@@ -54,6 +54,7 @@ _SOLVE_SECONDS = 5e-7
 _ADMM_FACE_SECONDS = 2e-9  # per face component, target and iteration
 _ADMM_BASIS_SECONDS = 2e-11  # per face component, basis field, target and iteration
 _ADMM_ITERATIONS = 100  # typical iterations per target to the default gap (k = 20..100)
+_EIGEN_SECONDS = 1.5e-8  # spectral reduction, per vertex and squared k (once per mesh and k)
 MAX_ESTIMATED_SECONDS = 300.0
 _ADMM_WORK_BYTES = 128 * 2**20  # ADMM state of one block of targets
 #: Default certified relative duality gap per target for k > 0.
@@ -162,7 +163,8 @@ def estimate_seconds(n_vertices: int, n_faces: int, k: int, n_targets: int,
                 if green else solves)
     m = k + 4  # eigenfunctions plus (up to) harmonic fields
     per_iteration = 2 * n_faces * (_ADMM_FACE_SECONDS + _ADMM_BASIS_SECONDS * m)
-    return solves + n_targets * _ADMM_ITERATIONS * per_iteration
+    reduction = _EIGEN_SECONDS * n_vertices * k * k  # counted even when already cached
+    return solves + reduction + n_targets * _ADMM_ITERATIONS * per_iteration
 
 
 def check_cost(n_vertices: int, n_faces: int, k: int, n_targets: int, green: bool,
