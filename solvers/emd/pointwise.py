@@ -56,7 +56,8 @@ _ADMM_BASIS_SECONDS = 2e-11  # per face component, basis field, target and itera
 _ADMM_ITERATIONS = 100  # typical iterations per target to the default gap (k = 20..100)
 _EIGEN_SECONDS = 1.5e-8  # spectral reduction, per vertex and squared k (once per mesh and k)
 MAX_ESTIMATED_SECONDS = 300.0
-_ADMM_WORK_BYTES = 128 * 2**20  # ADMM state of one block of targets
+#: Working memory of the ADMM state of one block of targets (bounds the block size).
+ADMM_WORK_BYTES = 128 * 2**20
 #: Default certified relative duality gap per target for k > 0.
 DWK_TOL = 1e-3
 #: ADMM iterations without a 0.1 % decrease of a block's worst gap: stalled.
@@ -254,7 +255,7 @@ def _dwk_admm(ops, source, k, targets, harmonic, tol, max_iter, block, monitor
     batched ADMM of :mod:`solvers.emd.dwk`, ``block`` targets per multi-RHS solve."""
     problem = reduced_spectral_problem(ops, k, harmonic)
     # about six (2F, block) float32 arrays per block: bound the block by the working budget
-    block = max(16, min(block, _ADMM_WORK_BYTES // (24 * 2 * ops.n_faces)))
+    block = max(16, min(block, ADMM_WORK_BYTES // (24 * 2 * ops.n_faces)))
     n = len(targets)
     upper, lower = np.empty(n), np.empty(n)
     iterations = np.zeros(n, dtype=np.int64)
