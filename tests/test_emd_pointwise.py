@@ -251,3 +251,27 @@ def test_distance_to_several_features(shared_mesh):
     assert np.all(res.distances[feats] == 0.0)
     # measured: 1.9 % mean relative deviation from the heat-method distance to the set
     assert np.abs(res.distances - geo).mean() / geo.mean() < 0.05
+
+
+def test_dwk_with_harmonic_fields_matches_direct_admm_on_a_torus():
+    """Genus 1: the reduced basis carries the 2 harmonic fields. Measured (k = 6, 3 targets):
+    |batched - direct| / direct <= 2e-7 with and without them."""
+    import trimesh
+
+    t = trimesh.creation.torus(major_radius=1.0, minor_radius=0.4, major_sections=24,
+                               minor_sections=12)
+    mesh = TriangleMesh(t.vertices, t.faces)
+    assert len(mesh_operators(mesh).harmonic_fields) == 2
+    targets, eye = np.array([40, 150, 250]), np.eye(mesh.n)
+    values = {}
+    for harmonic in (True, False):
+        res = pointwise_distances(mesh, 0, k=6, targets=targets, tol=1e-5, harmonic=harmonic)
+        assert res.converged
+        for j, y in enumerate(targets):
+            direct = earth_movers_distance(mesh, eye[0], eye[y], algorithm="admm",
+                                           basis="spectral", k=6, harmonic=harmonic,
+                                           tol=1e-7, max_iter=100_000)
+            assert abs(res.distances[j] - direct.value) <= 2e-6 * direct.value
+        values[harmonic] = res
+    # more fields, smaller minimum (certified)
+    assert np.all(values[True].lower_bounds <= values[False].distances)
