@@ -104,15 +104,16 @@ def test_unreachable_tolerance_stops_as_stalled():
 
 
 def test_long_pointwise_runs_are_refused_up_front(shared_mesh):
-    """d_W^50 from one vertex to all of spot was a 271 s run: now refused before it starts,
-    naming the limit and the faster option; a small target set still runs."""
+    """A d_W^k run estimated above the limit is refused before it starts, naming the limit
+    and the faster option; a small target set still runs."""
     from solvers.emd import pointwise_distances
-    from solvers.emd.pointwise import MAX_ESTIMATED_SECONDS
+    from solvers.emd.pointwise import estimate_seconds
 
     mesh = shared_mesh("spot.obj")
+    limit = estimate_seconds(mesh.n, mesh.n_faces, 50, mesh.n, False) / 2
     with pytest.raises(InputError) as err:
-        pointwise_distances(mesh, 0, k=50)
-    assert err.value.field == "k" and f"{MAX_ESTIMATED_SECONDS:.0f} s" in str(err.value)
+        pointwise_distances(mesh, 0, k=50, max_seconds=limit)
+    assert err.value.field == "k" and f"{limit:.0f} s" in str(err.value)
     assert "smaller k" in str(err.value)
     res = pointwise_distances(mesh, 0, k=4, targets=np.arange(1, 9))
     assert res.converged and np.all(res.distances > 0)

@@ -496,7 +496,8 @@ def estimate_job_bytes(view: DomainView, req) -> int:
 
     ``columns`` (n,)-vectors per distribution the solver keeps (~12 arrays each in the
     log-domain Sinkhorn iterations), plus spectral bases ``k`` x (2 V + 3 F) and the
-    dense Green's matrix of exact pointwise distances (4 V^2 bytes)."""
+    dense Green's matrix of exact pointwise distances (4 V^2 bytes) or, for k > 0, the
+    block state of their batched ADMM."""
     n = int(view.n)
     faces = int(view.n_faces or 2 * n)
     if getattr(req, "distributions", None) is not None:
@@ -513,6 +514,10 @@ def estimate_job_bytes(view: DomainView, req) -> int:
         total += 2 * 8 * int(k) * (2 * n + 3 * faces)
     if hasattr(req, "source") and not k and n <= GREEN_MAX_VERTICES:
         total += 4 * n * n
+    if hasattr(req, "source") and k:  # d_W^k: the batched ADMM's block state
+        from solvers.emd.pointwise import ADMM_WORK_BYTES
+
+        total += ADMM_WORK_BYTES
     return total
 
 

@@ -197,6 +197,8 @@ class PointwiseDistanceValues(ConvergenceValues):
     k: Int
     max_distance: float | None
     unreachable: Int = Field(description="vertices on other components (null distances)")
+    unconverged_targets: Int = Field(0, description="k > 0: targets whose certified relative "
+                                     "gap (array 'residuals') is above the tolerance")
 
 
 class FlowValues(ConvergenceValues):
@@ -498,12 +500,15 @@ def run_pointwise(domain, req: PointwiseDistanceRequest, progress, should_cancel
              should_cancel=should_cancel)
     d = np.full(domain.n, np.inf)
     d[targets] = np.asarray(res.distances, dtype=np.float64)
+    gap = np.full(domain.n, np.inf)  # per target: certified relative gap (0 for k = 0)
+    gap[targets] = res.residuals
     finite = d[np.isfinite(d)]
     values = {"source": req.source, "k": req.k,
               "max_distance": float(finite.max()) if finite.size else None,
-              "unreachable": int((~np.isfinite(d)).sum()), **_convergence(res)}
-    return OperationOutput(values, {"distances": d}, {"fields": ["distances"],
-                                                      "color": "distances"})
+              "unreachable": int((~np.isfinite(d)).sum()),
+              "unconverged_targets": int((~res.converged_targets).sum()), **_convergence(res)}
+    return OperationOutput(values, {"distances": d, "residuals": gap},
+                           {"fields": ["distances"], "color": "distances"})
 
 
 def run_flow(domain, req: FlowRequest, progress, should_cancel) -> OperationOutput:

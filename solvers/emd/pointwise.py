@@ -22,8 +22,10 @@ plus the ``2g`` harmonic fields for ``k > 0`` on surfaces with handles).
   (solves: ~1e-6), up to 5e-5 (solves: 1.3e-4) at a nearest neighbour of the source
   across a short edge.  ``d_W^0`` is the L¹ norm of a difference of gradient fields, hence
   a metric (exact triangle inequality).
-* ``k > 0``: a k-dimensional convex problem per target, solved for blocks of
-  targets at once by Weiszfeld iterations (Fig. 2.4).  Minimizing over nested
+* ``k > 0``: a k-dimensional convex problem per target.  The mesh's spectral basis is
+  reduced once (tangent frames, orthonormalized; cached on the mesh) and the problems of
+  a block of targets are solved together by one ADMM (Fig. 2.5) sharing that basis, each
+  target stopping at a certified duality gap (:mod:`solvers.emd.dwk`).  Minimizing over nested
   subspaces gives ``d_W^0 ≥ d_W^k ≥ d_W^{k'} (k < k')``, decreasing towards the
   full curl-basis W1 between the two Diracs, which approaches geodesic distance.
 
@@ -37,33 +39,57 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from solvers.emd.bases import SpectralBasis
 from solvers.emd.beckmann import check_mesh
+from solvers.emd.dwk import gaps, reduced_spectral_problem, solve_block
 from solvers.emd.green import GREEN_MAX_VERTICES, dw0_from_green
 from solvers.errors import InputError
 from solvers.monitor import Monitor, SolverResult
 
 ROUTES = ("auto", "green", "solve")
 
-# Cost model of the estimate (seconds on 2 cores; rough fit of spot, k = 20 and 50, 128
-# targets, 25-34 iterations): a Poisson solve per target and vertex; per Weiszfeld
-# iteration and target, a pass over the faces plus the (m x m) normal equations per face.
+# Cost model of the estimate (seconds on 2 cores; fit in bench/results/dwk.md): a Poisson
+# solve per target and vertex; per ADMM iteration and target a fused pass over the 2F
+# frame components plus two products with the (2F x m) reduced basis.
 _SOLVE_SECONDS = 5e-7
-_WEISZFELD_FACE_SECONDS = 3e-7
-_WEISZFELD_SECONDS = 1.5e-10
-_WEISZFELD_ITERATIONS = 30  # typical iterations per target (active targets only)
+_ADMM_FACE_SECONDS = 2e-9  # per face component, target and iteration
+_ADMM_BASIS_SECONDS = 2e-11  # per face component, basis field, target and iteration
+_ADMM_ITERATIONS = 100  # typical iterations per target to the default gap (k = 20..100)
+_EIGEN_SECONDS = 1.5e-8  # spectral reduction, per vertex and squared k (once per mesh and k)
 MAX_ESTIMATED_SECONDS = 300.0
-WEISZFELD_PATIENCE = 30
+#: Working memory of the ADMM state of one block of targets (bounds the block size).
+ADMM_WORK_BYTES = 128 * 2**20
+#: Default certified relative duality gap per target for k > 0.
+DWK_TOL = 1e-3
+#: ADMM iterations without a 0.1 % decrease of a block's worst gap: stalled.
+ADMM_PATIENCE = 200
 
 
 @dataclass
 class PointwiseDistanceResult(SolverResult):
-    """``distances[y] = d_W^k(source, y)`` for every target ``y`` (unit-area lengths)."""
+    """``distances[y] = d_W^k(source, y)`` for every target ``y`` (unit-area lengths).
+
+    Per target (k > 0; for k = 0 the evaluation is direct): ``residuals`` the certified
+    relative gap ``(distance - lower_bound) / distance``, ``lower_bounds`` the dual bound
+    (the true ``d_W^k`` lies in ``[lower_bound, distance]``), ``target_iterations`` the
+    ADMM iterations and ``converged_targets`` ``residuals <= tol``.  ``residual`` and
+    ``converged`` summarize them (worst gap; all converged)."""
 
     distances: np.ndarray
     source: int
     k: int
     targets: np.ndarray
+    residuals: np.ndarray | None = None
+    lower_bounds: np.ndarray | None = None
+    target_iterations: np.ndarray | None = None
+    converged_targets: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.residuals is None:  # k = 0: a direct evaluation, exact up to rounding
+            n = len(self.distances)
+            self.residuals = np.zeros(n)
+            self.lower_bounds = np.asarray(self.distances, dtype=np.float64)
+            self.target_iterations = np.zeros(n, dtype=np.int64)
+            self.converged_targets = np.ones(n, dtype=bool)
 
 
 def _pair_potentials(ops, source: int, targets: np.ndarray) -> np.ndarray:
@@ -80,7 +106,7 @@ def _split_gradient(ops) -> list:
 
 
 def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic: bool = True,
-                        tol: float = 1e-6, max_iter: int = 300, block: int = 512,
+                        tol: float = DWK_TOL, max_iter: int = 2000, block: int = 512,
                         route: str = "auto", green_max_vertices: int = GREEN_MAX_VERTICES,
                         max_seconds: float | None = MAX_ESTIMATED_SECONDS,
                         progress=None, should_cancel=None) -> PointwiseDistanceResult:
@@ -92,7 +118,8 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
     source : source vertex index.
     k : number of Laplacian eigenfunctions in the curl basis (0: Green's-function form).
     targets : optional vertex indices (default: all vertices).
-    tol, max_iter : Weiszfeld stopping rule for ``k > 0`` (relative change per target).
+    tol, max_iter : ``k > 0``: each target stops at a certified relative duality gap
+        ``tol`` (:mod:`solvers.emd.dwk`), or after ``max_iter`` ADMM iterations.
     block : targets per multi-RHS solve (``route="solve"`` and ``k > 0``).
     route : ``k = 0`` only. ``"green"``: dense Green's matrix + compiled face pass (the
         matrix, ``4 V²`` bytes, is built on first use and kept in the mesh's operator
@@ -105,9 +132,9 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
         1.6 GB).
     max_seconds : runs estimated above this (:func:`estimate_seconds`) are refused with an
         InputError naming the limit and the faster option (None: no limit).
-    progress, should_cancel : called every Weiszfeld iteration / solve block; Weiszfeld
-        stops a block as stalled when its worst change has not improved for
-        ``WEISZFELD_PATIENCE`` iterations (converged False, measured change).
+    progress, should_cancel : called at every gap check / solve block; the ADMM stops a
+        block as stalled when its worst gap has not improved for ``ADMM_PATIENCE``
+        iterations (those targets: converged False, their measured gap).
 
     Returns
     -------
@@ -115,7 +142,7 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
     """
     ops = check_mesh(mesh)
     source, k, targets = _check_inputs(ops, source, k, targets, route)
-    monitor = Monitor(progress, should_cancel, tol=tol, patience=WEISZFELD_PATIENCE)
+    monitor = Monitor(progress, should_cancel, tol=tol, patience=ADMM_PATIENCE)
     green = k == 0 and route != "solve" and (
         route == "green" or ops.has_green_matrix
         or (mesh.n <= green_max_vertices and 4 * len(targets) >= mesh.n))
@@ -124,7 +151,7 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
         return _dw0_green(ops, source, targets, monitor, green_max_vertices)
     if k == 0:
         return _dw0_solve(ops, source, targets, block, monitor)
-    return _dwk_weiszfeld(ops, source, k, targets, harmonic, tol, max_iter, block, monitor)
+    return _dwk_admm(ops, source, k, targets, harmonic, tol, max_iter, block, monitor)
 
 
 def estimate_seconds(n_vertices: int, n_faces: int, k: int, n_targets: int,
@@ -136,8 +163,9 @@ def estimate_seconds(n_vertices: int, n_faces: int, k: int, n_targets: int,
         return (n_vertices * _SOLVE_SECONDS * n_vertices * 0.05 + n_targets * n_faces * 2e-9
                 if green else solves)
     m = k + 4  # eigenfunctions plus (up to) harmonic fields
-    per_iteration = _WEISZFELD_FACE_SECONDS * n_faces + _WEISZFELD_SECONDS * n_faces * m * m
-    return solves + n_targets * _WEISZFELD_ITERATIONS * per_iteration
+    per_iteration = 2 * n_faces * (_ADMM_FACE_SECONDS + _ADMM_BASIS_SECONDS * m)
+    reduction = _EIGEN_SECONDS * n_vertices * k * k  # counted even when already cached
+    return solves + reduction + n_targets * _ADMM_ITERATIONS * per_iteration
 
 
 def check_cost(n_vertices: int, n_faces: int, k: int, n_targets: int, green: bool,
@@ -221,53 +249,30 @@ def _dw0_solve(ops, source, targets, block, monitor) -> PointwiseDistanceResult:
                                    iterations=0, residual=0.0, converged=True)
 
 
-def _dwk_weiszfeld(ops, source, k, targets, harmonic, tol, max_iter, block, monitor
-                   ) -> PointwiseDistanceResult:
-    """``d_W^k`` (k > 0): the flow ``∇(G_x - G_y)`` corrected in the spectral curl basis,
-    minimizing ``∫ |J|`` by Weiszfeld iterations, all targets of a block at once."""
-    area = ops.face_areas
-    basis = SpectralBasis(ops, k, harmonic=harmonic)
-    fields = basis.fields
-    if basis.n_harmonic:
-        fields = np.concatenate([fields, basis.harmonic.transpose(1, 2, 0)], axis=2)
-    m = fields.shape[2]
-    local_gram = np.einsum("fck,fcl->fkl", fields, fields).reshape(len(fields), m * m)
-    flat_fields = fields.reshape(-1, m)  # (3F, m)
-    out = np.empty(len(targets))
-    worst_change, max_its, converged, total = 0.0, 0, True, 0
-    for start in range(0, len(targets), block):
+def _dwk_admm(ops, source, k, targets, harmonic, tol, max_iter, block, monitor
+              ) -> PointwiseDistanceResult:
+    """``d_W^k`` (k > 0): the spectral reduction of the mesh (built once, cached) and the
+    batched ADMM of :mod:`solvers.emd.dwk`, ``block`` targets per multi-RHS solve."""
+    problem = reduced_spectral_problem(ops, k, harmonic)
+    # about six (2F, block) float32 arrays per block: bound the block by the working budget
+    block = max(16, min(block, ADMM_WORK_BYTES // (24 * 2 * ops.n_faces)))
+    n = len(targets)
+    upper, lower = np.empty(n), np.empty(n)
+    iterations = np.zeros(n, dtype=np.int64)
+    for start in range(0, n, block):
         chunk = targets[start:start + block]
-        diff = ops.grad(_pair_potentials(ops, source, chunk))  # (F, 3, B)
-        flow = diff
-        cost = np.einsum("f,fb->b", area, np.sqrt(np.einsum("fcb,fcb->fb", flow, flow)))
-        active = np.arange(len(chunk))  # targets still iterating (converged ones drop out)
-        block_monitor = Monitor(monitor.progress, monitor.should_cancel, tol=tol,
-                                patience=monitor.patience)
-        block_monitor.offset = total
-        change = 0.0
-        for it in range(1, max_iter + 1):
-            d_a, f_a = diff[:, :, active], flow[:, :, active]
-            norms = np.sqrt(np.einsum("fcb,fcb->fb", f_a, f_a))
-            floor = np.maximum(1e-9 * norms.max(axis=0), 1e-12)
-            omega = area[:, None] / np.maximum(norms, floor)  # (F, B)
-            gram = (omega.T @ local_gram).reshape(len(active), m, m)
-            rhs = -(flat_fields.T @ (omega[:, None, :] * d_a).reshape(-1, len(active)))
-            coef = np.linalg.solve(gram, rhs.T[:, :, None])[:, :, 0]  # (B, m)
-            f_a = d_a + (flat_fields @ coef.T).reshape(d_a.shape)
-            flow[:, :, active] = f_a
-            new = np.einsum("f,fb->b", area, np.sqrt(np.einsum("fcb,fcb->fb", f_a, f_a)))
-            changes = np.abs(cost[active] - new) / np.maximum(new, 1e-300)
-            cost[active] = new
-            change = float(changes.max())
-            max_its = max(max_its, it)
-            block_monitor(it, change)
-            active = active[changes > tol]
-            if not len(active) or block_monitor.stalled:
-                break
-        total += max_its
-        worst_change = max(worst_change, change)
-        converged = converged and change <= tol
-        out[start:start + len(chunk)] = cost
-    return PointwiseDistanceResult(distances=out, source=source, k=k, targets=targets,
-                                   iterations=max_its, residual=worst_change,
-                                   converged=converged)
+        data = problem.gradient @ _pair_potentials(ops, source, chunk)
+        block_monitor = monitor.next_stage()
+        block_monitor.offset = int(iterations.max()) if start else 0
+        up, lo, its = solve_block(problem, np.ascontiguousarray(data, dtype=np.float32),
+                                  tol=tol, max_iter=max_iter, monitor=block_monitor)
+        upper[start:start + len(chunk)] = up
+        lower[start:start + len(chunk)] = lo
+        iterations[start:start + len(chunk)] = its
+    residuals = gaps(upper, lower)
+    return PointwiseDistanceResult(
+        distances=upper, source=source, k=k, targets=targets,
+        iterations=int(iterations.max()) if n else 0,
+        residual=float(residuals.max()) if n else 0.0,
+        converged=bool(np.all(residuals <= tol)), residuals=residuals,
+        lower_bounds=lower, target_iterations=iterations, converged_targets=residuals <= tol)

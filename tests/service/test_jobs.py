@@ -134,6 +134,15 @@ def test_pointwise_distances_job(client, meshes_dir, shared_mesh):
     d = np.asarray(result["arrays"]["distances"])
     assert np.allclose(d, pointwise_distances(mesh, 7).distances, rtol=1e-9, atol=1e-12)
     assert d[7] == pytest.approx(0.0, abs=1e-9) and result["values"]["unreachable"] == 0
+    # k > 0: the batched spectral ADMM, per-vertex certified gaps and the unconverged count
+    job = client.post(f"/v1/domains/{mid}/pointwise-distances", json={"source": 7, "k": 5}).json()
+    assert job["state"] == "succeeded", job
+    result = client.get(f"/v1/jobs/{job['id']}/result").json()
+    lib = pointwise_distances(mesh, 7, k=5)
+    assert np.allclose(result["arrays"]["distances"], lib.distances, rtol=1e-12)
+    gaps = np.asarray(result["arrays"]["residuals"])
+    assert result["values"]["converged"] and result["values"]["unconverged_targets"] == 0
+    assert gaps.max() == pytest.approx(result["values"]["residual"]) and gaps.max() <= 1e-3
     # On a mesh with several components, other components are unreachable (null in JSON).
     suz = shared_mesh("suzanne.obj")
     sid = upload_mesh(client, meshes_dir / "suzanne.obj").json()["id"]
