@@ -154,6 +154,14 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
+def _rss_mb() -> float:
+    """The process's resident memory now (``VmRSS``)."""
+    for line in open("/proc/self/status"):
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
 COARSE_SIZES = (128, 1024)
 
 
@@ -164,6 +172,7 @@ def _one_coarse(direction: str, n: int) -> dict:
     from solvers.softmaps import soft_map
 
     cat, lion, gt, lm = load()
+    baseline = _rss_mb()  # interpreter, imports (numpy, scipy, numba, trimesh), both meshes
     every = np.loadtxt(PAIRS / "cat-lion-landmarks.txt", dtype=np.int64)
     held = every[HELD_OUT]
     if direction == "lion->cat":
@@ -173,6 +182,8 @@ def _one_coarse(direction: str, n: int) -> dict:
         source, target, truth, pairs = cat, lion, reverse_truth(gt, cat.n), lm
         held_t, held_s = held[:, 1], held[:, 0]
     soft_map(source, target, pairs, samples=n, max_iter=2)  # caches: eigenpairs, samples, ...
+    first_peak = _peak_rss_mb()
+    resident = _rss_mb()  # with the caches and compiled kernels of the first call
     before = loadavg()
     t0 = time.perf_counter()
     res = soft_map(source, target, pairs, samples=n)
@@ -187,7 +198,8 @@ def _one_coarse(direction: str, n: int) -> dict:
             "error": ev(res.correspondence),
             "error_mode": ev(res.sample_correspondence[res.labels]),
             "held_out_median": float(np.median(misses)), "held_out_max": float(misses.max()),
-            "peak_rss_mb": rss, "code": _code(), "load_before": before,
+            "peak_rss_mb": rss, "baseline_rss_mb": baseline, "first_peak_rss_mb": first_peak,
+            "resident_before_mb": resident, "code": _code(), "load_before": before,
             "load_after": after}
 
 
@@ -243,8 +255,10 @@ def _one_growth(n: int) -> dict:
     from solvers.softmaps import soft_map
 
     cat, lion, gt, lm = load()
+    baseline = _rss_mb()
     pairs = lm[:, ::-1]
     soft_map(lion, cat, pairs, samples=n, max_iter=2)  # caches
+    resident = _rss_mb()
     before = loadavg()
     t0 = time.perf_counter()
     res = soft_map(lion, cat, pairs, samples=n)
@@ -252,6 +266,8 @@ def _one_growth(n: int) -> dict:
     rss = _peak_rss_mb()  # before the evaluator's distance rows
     return {"samples": n, "target_points": res.target_points, "seconds": seconds,
             "propagation": res.timings["propagation"], "iterations": res.iterations,
+            "residual": res.residual, "baseline_rss_mb": baseline,
+            "resident_before_mb": resident,
             "converged": res.converged, "edges": int(len(res.edges)),
             "error": Evaluator(cat, gt)(res.correspondence), "peak_rss_mb": rss,
             "code": _code(), "load_before": before, "load_after": loadavg()}
@@ -718,10 +734,12 @@ def render(data) -> str:
         "and without refinement (the soft map's modes). Held out: the geodesic miss of the "
         "15 landmark pairs never given to any method (lines 6-20 of cat-lion-landmarks.txt), "
         "median / largest, unit-area target. Peak RSS: the process's (it includes the "
-        "first call).",
+        "first call); baseline: resident after the imports (numpy, scipy, numba, trimesh) "
+        "and both meshes, before any soft map; resident before: after the first call (its "
+        "caches, compiled kernels), before the timed one.",
         ["direction", "method", "target points", "error", "error before refinement",
          "held out median / max", "seconds", "propagation s", "sweeps", "peak RSS MB",
-         "load before", "load after"],
+         "baseline MB", "resident before MB", "load before", "load after"],
         lambda r: [r["direction"], r.get("method", f"otgeo soft map, {r.get('samples')} "
                                                    "samples, defaults"),
                    r.get("target_points", ""), f"{1e3 * r['error']:.2f}e-3",
@@ -731,17 +749,25 @@ def render(data) -> str:
                    f"{r['timings']['propagation']:.2f}" if "timings" in r else "",
                    r["iterations"] + 1 if "iterations" in r else "",
                    f"{r['peak_rss_mb']:.0f}" if "peak_rss_mb" in r else "",
+                   f"{r['baseline_rss_mb']:.0f}" if "baseline_rss_mb" in r else "",
+                   f"{r['resident_before_mb']:.0f}" if "resident_before_mb" in r else "",
                    r["load_before"], r["load_after"]])
     out += _table(
         data.get("growth"), "Growth with the number of samples (defaults, coarse target)",
         "lion -> cat with the defaults, warm (second call in a fresh process): seconds end to "
-        "end, of the propagation, sweeps, error as above, the process's peak RSS.",
+        "end, of the propagation, sweeps, the residual (largest L1 marginal violation; tol "
+        "1e-4), error as above, the process's peak RSS, its baseline and resident memory "
+        "before the timed call (as in the defaults table).",
         ["samples", "target points", "source edges", "seconds", "propagation s", "sweeps",
-         "converged", "error", "peak RSS MB", "code", "load before", "load after"],
+         "residual", "converged", "error", "peak RSS MB", "baseline MB", "resident before MB",
+         "code", "load before", "load after"],
         lambda r: [r["samples"], r["target_points"], r["edges"], f"{r['seconds']:.2f}",
-                   f"{r['propagation']:.2f}", r["iterations"] + 1, r["converged"],
-                   f"{1e3 * r['error']:.2f}e-3", f"{r['peak_rss_mb']:.0f}", r["code"],
-                   r["load_before"], r["load_after"]])
+                   f"{r['propagation']:.2f}", r["iterations"] + 1,
+                   f"{r['residual']:.3g}" if "residual" in r else "", r["converged"],
+                   f"{1e3 * r['error']:.2f}e-3", f"{r['peak_rss_mb']:.0f}",
+                   f"{r['baseline_rss_mb']:.0f}" if "baseline_rss_mb" in r else "",
+                   f"{r['resident_before_mb']:.0f}" if "resident_before_mb" in r else "",
+                   r["code"], r["load_before"], r["load_after"]])
     out += _table(
         data.get("multiscale"), "Multiscale start against a cold start (1,024 samples)",
         "Warm default soft maps; the multiscale start solves 128 samples over 128 coarse "
