@@ -274,13 +274,16 @@ def _one_growth(n: int) -> dict:
 
 
 def part_growth():
-    rows = []
+    """One fresh process per size of ``SOFTMAPS_GROWTH``; the recorded rows of other sizes
+    are kept (the largest size is run on its own)."""
+    old = json.loads(RESULTS.read_text()).get("growth", {}) if RESULTS.exists() else {}
+    rows = [r for r in old.get("rows", []) if r["samples"] not in GROWTH_SIZES]
     for n in GROWTH_SIZES:
         out = subprocess.run([sys.executable, __file__, "_growth", str(n)], check=True,
                              capture_output=True, text=True).stdout
         rows.append(json.loads(out.strip().splitlines()[-1]))
         print(rows[-1], flush=True)
-    return rows
+    return sorted(rows, key=lambda r: r["samples"])
 
 
 def _pyfm_rows(ev, lm, **meshes) -> list[dict]:
