@@ -261,7 +261,14 @@ def _one_growth(n: int) -> dict:
     resident = _rss_mb()
     before = loadavg()
     t0 = time.perf_counter()
-    res = soft_map(lion, cat, pairs, samples=n)
+
+    def progress(sweep, residual):  # to stderr: a long row shows where it stands
+        if sweep % 50 == 0:
+            print(f"{n} samples: sweep {sweep}, residual {residual:.3g}, "
+                  f"{time.perf_counter() - t0:.0f} s, load {loadavg()}", file=sys.stderr,
+                  flush=True)
+
+    res = soft_map(lion, cat, pairs, samples=n, progress=progress)
     seconds = time.perf_counter() - t0
     rss = _peak_rss_mb()  # before the evaluator's distance rows
     return {"samples": n, "target_points": res.target_points, "seconds": seconds,
@@ -280,7 +287,7 @@ def part_growth():
     rows = [r for r in old.get("rows", []) if r["samples"] not in GROWTH_SIZES]
     for n in GROWTH_SIZES:
         out = subprocess.run([sys.executable, __file__, "_growth", str(n)], check=True,
-                             capture_output=True, text=True).stdout
+                             stdout=subprocess.PIPE, text=True).stdout
         rows.append(json.loads(out.strip().splitlines()[-1]))
         print(rows[-1], flush=True)
     return sorted(rows, key=lambda r: r["samples"])

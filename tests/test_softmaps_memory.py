@@ -83,19 +83,37 @@ def test_extraction_with_a_prolongation_matches_the_prolonged_rows(sphere):
         assert np.mean(a.correspondence == b.correspondence) > 0.99
 
 
-def test_coarse_soft_map_allocates_no_samples_by_target_matrix(sphere):
+def test_coarse_soft_map_extraction_allocates_no_samples_by_target_matrix(sphere,
+                                                                         monkeypatch):
+    """From the end of the propagation to the result, the arrays of the call stay below
+    one float32 samples x n_target matrix (the mode and the top-k read the prolonged rows
+    a block at a time)."""
+    import solvers.softmaps.propagation_map as propagation_map
+
     pairs = _landmarks(sphere)
-    options = dict(samples=400, k=30, max_iter=3)
+    options = dict(samples=800, k=30, max_iter=3, refine="none")
     soft_map(sphere, sphere, pairs, **options)  # caches (eigenpairs, coarse target, ...)
-    tracemalloc.start()
-    res = soft_map(sphere, sphere, pairs, **options)
-    peak = tracemalloc.get_traced_memory()[1]
-    tracemalloc.stop()
-    assert res.target_points is not None and res.soft_map.shape == (400, res.target_points)
-    # One float32 samples x n_target matrix is 4.1 MB here; the call's arrays used to hold
-    # three of them at once (prolonged rows, their gather, the density of the mode).
-    # Measured after the change: 2.7 MB.
-    assert peak < 400 * sphere.n * 4
+    propagate = propagation_map._propagate
+    start = []
+
+    def traced(*args, **kwargs):
+        out = propagate(*args, **kwargs)
+        tracemalloc.reset_peak()
+        start.append(tracemalloc.get_traced_memory()[0])
+        return out
+
+    monkeypatch.setattr(propagation_map, "_propagate", traced)
+    for top_k in (None, 20):
+        tracemalloc.start()
+        try:
+            res = soft_map(sphere, sphere, pairs, top_k=top_k, **options)
+            peak = tracemalloc.get_traced_memory()[1] - start.pop()
+        finally:
+            tracemalloc.stop()
+        assert res.target_points is not None and res.target_points < sphere.n
+        # One float32 samples x n_target matrix is 8.2 MB here; the prolonged rows, their
+        # gather (3 floats per entry) and the density of the mode used to be whole.
+        assert peak < 800 * sphere.n * 4 / 2
 
 
 def test_top_k_of_prolonged_rows_in_blocks(sphere):
