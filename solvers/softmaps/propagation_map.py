@@ -132,19 +132,6 @@ def solved_points(target_points, n_samples: int, n_target: int) -> int | None:
     return None if points >= n_target else points
 
 
-# Propagation sweeps allowed by default: at least this many, and one per source sample.
-MIN_SWEEPS = 1000
-
-
-def default_max_iter(n_samples: int) -> int:
-    """The default cap on propagation sweeps: ``max(MIN_SWEEPS, n_samples)``.
-
-    The sweeps to tol 1e-4 grow faster than the samples once the coarse target and gamma
-    follow them (22 / 69 / 262 at 128 / 1,024 / 2,048 samples, lion -> cat), and 4,096
-    samples did not converge within 1,000 (bench/results/softmaps.md, growth table)."""
-    return max(MIN_SWEEPS, int(n_samples))
-
-
 def default_gamma(n_samples: int, target) -> float:
     r"""Twice the squared spacing of ``n_samples`` uniform samples of a unit-area surface
     (:math:`2 \cdot 2/(\sqrt3 N)`), and at least :math:`4h^2` (``h``: target edge length)."""
@@ -279,7 +266,7 @@ def soft_map(
     norm: str = "l1",
     descriptors: tuple | None = None,
     tol: float = 1e-4,
-    max_iter: int | None = None,
+    max_iter: int = 1000,
     acceleration: str = "over-relaxation",
     top_k: int | None = None,
     extraction: str = "mode",
@@ -311,8 +298,7 @@ def soft_map(
     k, n_energies, wks_weight, landmark_weight, landmark_route, norm : descriptors
         (:func:`descriptors_for_pair`) and cost (:func:`compatibility_cost`); or pass
         ``descriptors=(f0, f)`` directly (per source and target vertex).
-    tol, max_iter : stopping of the propagation (largest L1 marginal violation); the
-        default cap grows with the samples (:func:`default_max_iter`).
+    tol, max_iter : stopping of the propagation (largest L1 marginal violation).
     acceleration : ``"over-relaxation"`` (default: adaptive over-relaxation of the sweeps,
         same fixed point) or ``"none"`` (plain Alg. 4 sweeps); see
         :func:`~solvers.convolutional.wasserstein_propagation`.
@@ -361,8 +347,6 @@ def soft_map(
         raise InputError(f"refine must be one of {REFINEMENTS}", field="refine")
     if top_k is not None:
         top_k = check_int(top_k, "top_k", low=1, high=target.n)
-    max_iter = default_max_iter(n_samples) if max_iter is None else \
-        check_int(max_iter, "max_iter", low=1)
     timings = {}
     t0 = time.perf_counter()
     graph = farthest_point_samples(source, n_samples, pairs[:, 0])
