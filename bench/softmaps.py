@@ -886,24 +886,71 @@ def render(data) -> str:
 
 READING = """## Reading: the coarse target (runs of 2026-12-03)
 
-All figures of 2026-12-03 were taken at load 2.6-3.1 (five other sessions' tests on the two
-cores, and `cpu bench` could not hold them off), so the times are inflated; the earlier
-full-resolution figures below were taken at load 1.6-2.1.
+The defaults and growth tables were re-run at 17:30 UTC (code f8a73d9 / 739e04a) with
+`cpu bench` at load 1.8-4.0 (other sessions' jobs on the two cores; the load never fell below
+1.5 that afternoon), so the times are inflated by up to load/2; the other coarse-target
+figures are of 12:12-12:31 at load 2.6-5.2, the full-resolution ones of 2026-12-01/02 at
+1.6-2.1.  Memory does not depend on the load.
 
 - What changed: eq. 3.18 is solved by default over the target decimated to about as many
   points as samples (1,025 cat points at 1,024 samples, 130 at 128), rows prolonged to all
   7,207 vertices; the default refinement is symmetric ZoomOut (20, 80, 2) with the steps
   before the last on 1,024 farthest-point vertices of each mesh.
-- Time (defaults table, warm): 1,024 samples lion -> cat 8.88 s end to end, 7.59 s of
-  propagation (69 sweeps); cat -> lion 10.87 s, 9.60 s (101 sweeps).  128 samples: 1.17 s
-  and 1.10 s end to end.  The full-resolution 1,024-sample solve took 85-116 s (tables
-  below): the coarse problem is 7x smaller per sweep and needs 69 sweeps instead of 262
-  (its default gamma is 4 h^2 of the coarse mesh, ~2.2x the full-resolution one).
-- Growth (table above, load 3.0-5.2): 128 / 256 / 512 / 1,024 samples take 1.4 / 1.5 /
-  2.9 / 9.4 s (22 / 31 / 50 / 69 sweeps); 2,048 samples 66.9 s (262 sweeps, 712 MB);
-  4,096 samples hit the 1,000-sweep cap unconverged after 603 s (1.9 GB; error still
-  19.58e-3).  The slow tail of the full-resolution solve comes back as the samples grow:
-  gamma shrinks with them and the coarse target is as fine as the samples.
+- Time (defaults table, warm, load 2.8-4.0): 1,024 samples lion -> cat 6.52 s end to end,
+  5.59 s of propagation (69 sweeps); cat -> lion 7.39 s, 6.44 s (101 sweeps): within the
+  10 s (propagation) and 15 s (end to end) targets.  128 samples: 0.84 s and 0.88 s end to
+  end (target 2 s).  The full-resolution 1,024-sample solve took 85-116 s (tables below).
+- Memory, what it means: the tables give the process's peak RSS (`ru_maxrss`, which
+  includes the first, cache-building call), its baseline (resident after the imports --
+  numpy, scipy, numba, trimesh -- and both meshes, before any soft map: 174-176 MB) and
+  its resident memory before the timed call (baseline plus the first call's caches and
+  compiled kernels: 267-281 MB).  **The 300 MB target on the process peak is met at 128
+  samples (283-290 MB) and missed at 1,024 (372-373 MB, from 427-446 MB).**  The timed
+  1,024-sample call itself adds 91-94 MB to what was resident, and the soft map's first
+  call (caches included) 197 MB to the baseline.
+- Where the memory went, and what was cut (per-stage `VmRSS`/`VmHWM`, the high-water mark
+  reset after each stage through `/proc/self/clear_refs`; lion -> cat, 1,024 samples;
+  script /work/scratch/softmap28/memprof.py, `cpu run`): imports 129 MB (numpy 26, scipy
+  +33, solvers +9, numba +53 of it), both meshes +43 (trimesh's import: 42 of it);
+  first call: descriptors +53 (eigenpairs of both meshes, heat-method solvers), the first
+  compiled kernel +43 (numba's LLVM), the propagation's working arrays ~70-90 MB at their
+  peak (the edge-end log-scalings alone, 6,110 x 1,025 float64, are 50 MB).  Before this
+  change the peaks came after the propagation: the prolonged rows (1,024 x 7,207 float32,
+  30 MB) with their gather (3 entries per vertex, 88 MB), the mode's density (30 MB) and
+  ZoomOut's float64 copy of the prolonged rows (59 MB): 485-510 MB at the prolongation, 436
+  MB resident after the call.  Now (1) the extraction reads the coarse rows through the
+  prolongation: the mode a block of 64 prolonged rows at a time, ZoomOut's start as
+  `rows @ (P^T Phi)` (the same functional map), the top-k per block -- no samples x
+  n_target matrix is formed (`SoftMapResult.target_rows()` still forms it on demand);
+  (2) `Prolongation.apply` works in blocks of 64 rows; (3) the landmark distances are
+  cached per landmark set instead of potpourri3d's heat-method solver (22 MB on the cat,
+  13 MB on the lion); (4) glibc's freed heap is handed back (`malloc_trim`,
+  `solvers.memory.release_free_heap`) before the propagation and after the call: the
+  solver's threads each get a malloc arena, and without it 70 MB of freed temporaries
+  stayed resident (350 MB against 280 MB after the first call).  Per stage now: first call
+  peak 348 MB (in the propagation), resident 289 MB after it; timed call peak 377 MB (in
+  the propagation, from 299 MB resident).  What is left above 300 MB is the baseline
+  (interpreter, numba, trimesh, meshes: 175 MB) plus the compiled kernels and caches kept
+  for later calls (~100 MB) plus the propagation's arrays; reaching 300 MB for the process
+  would need the propagation in ~25 MB (float32 log-scalings would save 25 MB of the 50;
+  not tried: the compiled sweeps are float64 and the tolerance is 1e-4) or a smaller
+  baseline.  Accuracy is unchanged: 19.36e-3 / 16.61e-3 at 1,024 samples and 20.20e-3 /
+  16.61e-3 at 128, the same digits as before the change (12:12 run).
+- Growth (table above, load 1.8-2.1, code 739e04a whose only other change was a sweep cap
+  of max(1,000, samples), reverted since; no row here reached 1,000 sweeps): 128 / 256 /
+  512 / 1,024 / 2,048 samples take 0.91 / 1.11 / 2.05 / 5.84 / 37.5 s (22 / 31 / 50 / 69 /
+  262 sweeps, all converged to tol 1e-4), peak RSS 287 / 286 / 302 / 364 / 664 MB.
+  **4,096 samples do not converge**, so that row is missing: with the cap raised to 4,096
+  sweeps (`cpu bench`, load 2.0-2.4, code 739e04a, stopped by hand after 1,050 sweeps and
+  561 s) the residual was 0.217 / 0.065 / 0.014 after 50 / 100 / 150 sweeps, 1.45e-3 after
+  600, 1.01e-3 / 6.65e-4 / 5.74e-4 / 5.25e-4 / 5.18e-4 after 700 / 800 / 900 / 1,000 /
+  1,050: it stalls near 5e-4, falling ~1.4 % per 50 sweeps, which would need ~6,000 more
+  sweeps to reach 1e-4 (log stderr: /work/scratch/softmap28/growth4096_trace.log).  So a
+  larger default cap only runs longer, and the cap stays 1,000.  The earlier 4,096 row
+  (12:31, code f9a3a4d: 1,000 sweeps, 603 s, 1.9 GB, error 19.58e-3) was taken out of the
+  table.  The slow tail of the full-resolution solve comes back as the samples grow: gamma
+  (4 h^2 of the coarse mesh) shrinks with them and the coarse target is as fine as the
+  samples; a warm start did not help at 1,024 (multiscale table).
 - Accuracy (same table, pyFM in the same run): lion -> cat 19.36e-3 (1,024 samples) and
   20.20e-3 (128) against pyFM ZoomOut 21.56e-3 (ratios 0.898, 0.937); cat -> lion 16.61e-3
   at both sizes against 21.20e-3 (0.783).  Held-out landmarks (15 pairs never given):
@@ -927,12 +974,6 @@ full-resolution figures below were taken at load 1.6-2.1.
   centring the log-scalings at free nodes the same start converged to another point
   (error 64e-3 against 19.4e-3 at 256 samples, ad hoc): Alg. 4's fixed point needs their
   weighted mean at a free node to be 0.
-- Memory at 1,024 samples (ad hoc, `/proc/self/status`): 132 MB after imports, 180 MB
-  with both meshes, 377 MB resident (443 MB peak) after the first call built the caches
-  (eigenpairs, geodesic solvers, coarse target and its factor, compiled kernels); the
-  timed call then peaks at 454 MB, its own arrays at 135 MB (tracemalloc).  So the
-  process's peak RSS (427-446 MB in the table) misses the 300 MB target; the soft map's
-  arrays are within it (full resolution: 684 MiB traced).
 - Viewer (ad hoc, /work/scratch script, Playwright + Chromium against `otgeo serve`, load
   ~3): a default lion -> cat job run from the page took 9.5 s cold; from "succeeded" to
   the soft-map view ready to hover 0.86 s; a hovered row (prolonged on the server) 0.05 s.
