@@ -290,7 +290,8 @@ def soft_map(
         that is at most 2/3 of its vertices; :func:`solved_points`), an integer (that many
         coarse points) or ``None`` (every target vertex).  The compatibility cost is
         evaluated at the coarse points, landmark deltas are their barycentric weights there,
-        and the rows are prolonged to every target vertex for the extraction
+        and the rows are prolonged to every target vertex for the extraction (a block of
+        rows at a time, or through P^T: no samples x n_target matrix)
         (``result.target_points`` says which ran).
     tau : compatibility weight :math:`\tau` (cost of mean 1); gamma : entropic
         regularization of the heat kernel on the target solved over (``t = gamma/4``;
