@@ -178,7 +178,11 @@ def zoomout(source, target, correspondence=None, *, k_start: int = 20, k_end: in
         basis = phi1[:, :k_start]
         if prolongation is not None:
             basis = prolongation.transpose_apply(basis)
-        pulled = (np.asarray(rows) @ basis)[np.asarray(labels)[at]]
+        rows = np.asarray(rows)
+        pulled = np.empty((len(rows), basis.shape[1]))
+        for r0 in range(0, len(rows), _MODE_ROWS):  # float64 copies of a block of rows only
+            pulled[r0:r0 + _MODE_ROWS] = rows[r0:r0 + _MODE_ROWS] @ basis
+        pulled = pulled[np.asarray(labels)[at]]
         C = (phi0[at, :k_start] * w[:, None]).T @ pulled
         corr = None
     else:
