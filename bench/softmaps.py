@@ -886,28 +886,34 @@ def render(data) -> str:
 
 READING = """## Reading: the coarse target (runs of 2026-12-03)
 
-The defaults and growth tables were re-run at 17:30 UTC (code f8a73d9 / 739e04a) with
-`cpu bench` at load 1.8-4.0 (other sessions' jobs on the two cores; the load never fell below
-1.5 that afternoon), so the times are inflated by up to load/2; the other coarse-target
-figures are of 12:12-12:31 at load 2.6-5.2, the full-resolution ones of 2026-12-01/02 at
-1.6-2.1.  Memory does not depend on the load.
+The defaults table is of 18:00 UTC (code 31e26c1, `cpu bench`, load 1.2-1.5); the growth
+table of 17:32 (code 739e04a, load 1.8-2.1); an earlier run of the defaults at 17:30 (code
+f8a73d9, load 2.8-4.0) is quoted below.  The other coarse-target figures are of 12:12-12:31
+at load 2.6-5.2, the full-resolution ones of 2026-12-01/02 at 1.6-2.1.  Memory does not
+depend on the load.
 
 - What changed: eq. 3.18 is solved by default over the target decimated to about as many
   points as samples (1,025 cat points at 1,024 samples, 130 at 128), rows prolonged to all
   7,207 vertices; the default refinement is symmetric ZoomOut (20, 80, 2) with the steps
   before the last on 1,024 farthest-point vertices of each mesh.
-- Time (defaults table, warm, load 2.8-4.0): 1,024 samples lion -> cat 6.52 s end to end,
-  5.59 s of propagation (69 sweeps); cat -> lion 7.39 s, 6.44 s (101 sweeps): within the
-  10 s (propagation) and 15 s (end to end) targets.  128 samples: 0.84 s and 0.88 s end to
-  end (target 2 s).  The full-resolution 1,024-sample solve took 85-116 s (tables below).
+- Time (defaults table, warm, load 1.2-1.5): 1,024 samples lion -> cat 9.66 s end to end,
+  8.25 s of propagation (69 sweeps); cat -> lion 11.18 s, 9.85 s (101 sweeps): within the
+  10 s (propagation) and 15 s (end to end) targets, cat -> lion's propagation with 2 %
+  to spare.  128 samples: 1.24 s and 1.21 s end to end (target 2 s).  The same code but
+  for ZoomOut's blockwise start (f8a73d9) took 6.52 / 7.39 s (propagation 5.59 / 6.44 s)
+  and 0.84 / 0.88 s at 17:30 at load 2.8-4.0, and pyFM in that run was 19-24 % faster than
+  in the 18:00 run (6.88 against 8.50 s for its ZoomOut): the machine's speed varies more
+  than the load average shows, so compare within a run (pyFM ZoomOut 8.50 s, otgeo 9.66 s
+  end to end at 1,024 samples, 1.24 s at 128).  The full-resolution 1,024-sample solve
+  took 85-116 s (tables below).
 - Memory, what it means: the tables give the process's peak RSS (`ru_maxrss`, which
   includes the first, cache-building call), its baseline (resident after the imports --
   numpy, scipy, numba, trimesh -- and both meshes, before any soft map: 174-176 MB) and
   its resident memory before the timed call (baseline plus the first call's caches and
-  compiled kernels: 267-281 MB).  **The 300 MB target on the process peak is met at 128
-  samples (283-290 MB) and missed at 1,024 (372-373 MB, from 427-446 MB).**  The timed
-  1,024-sample call itself adds 91-94 MB to what was resident, and the soft map's first
-  call (caches included) 197 MB to the baseline.
+  compiled kernels: 268-282 MB).  **The 300 MB target on the process peak is met at 128
+  samples (286-293 MB) and missed at 1,024 (370-372 MB, from 427-446 MB).**  The timed
+  1,024-sample call itself adds 90 MB to what was resident; the process peak is 195 MB
+  above the baseline.
 - Where the memory went, and what was cut (per-stage `VmRSS`/`VmHWM`, the high-water mark
   reset after each stage through `/proc/self/clear_refs`; lion -> cat, 1,024 samples;
   script /work/scratch/softmap28/memprof.py, `cpu run`): imports 129 MB (numpy 26, scipy
@@ -935,7 +941,8 @@ figures are of 12:12-12:31 at load 2.6-5.2, the full-resolution ones of 2026-12-
   would need the propagation in ~25 MB (float32 log-scalings would save 25 MB of the 50;
   not tried: the compiled sweeps are float64 and the tolerance is 1e-4) or a smaller
   baseline.  Accuracy is unchanged: 19.36e-3 / 16.61e-3 at 1,024 samples and 20.20e-3 /
-  16.61e-3 at 128, the same digits as before the change (12:12 run).
+  16.61e-3 at 128, held-out misses 0.0200 / 0.0774 and 0.0131 / 0.0376, the same digits as
+  before the change (12:12 run), against pyFM ZoomOut 21.56e-3 / 21.20e-3 in the same run.
 - Growth (table above, load 1.8-2.1, code 739e04a whose only other change was a sweep cap
   of max(1,000, samples), reverted since; no row here reached 1,000 sweeps): 128 / 256 /
   512 / 1,024 / 2,048 samples take 0.91 / 1.11 / 2.05 / 5.84 / 37.5 s (22 / 31 / 50 / 69 /
