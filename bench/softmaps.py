@@ -154,6 +154,14 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
+def _rss_mb() -> float:
+    """The process's resident memory now (``VmRSS``)."""
+    for line in open("/proc/self/status"):
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
 COARSE_SIZES = (128, 1024)
 
 
@@ -164,6 +172,7 @@ def _one_coarse(direction: str, n: int) -> dict:
     from solvers.softmaps import soft_map
 
     cat, lion, gt, lm = load()
+    baseline = _rss_mb()  # interpreter, imports (numpy, scipy, numba, trimesh), both meshes
     every = np.loadtxt(PAIRS / "cat-lion-landmarks.txt", dtype=np.int64)
     held = every[HELD_OUT]
     if direction == "lion->cat":
@@ -173,6 +182,8 @@ def _one_coarse(direction: str, n: int) -> dict:
         source, target, truth, pairs = cat, lion, reverse_truth(gt, cat.n), lm
         held_t, held_s = held[:, 1], held[:, 0]
     soft_map(source, target, pairs, samples=n, max_iter=2)  # caches: eigenpairs, samples, ...
+    first_peak = _peak_rss_mb()
+    resident = _rss_mb()  # with the caches and compiled kernels of the first call
     before = loadavg()
     t0 = time.perf_counter()
     res = soft_map(source, target, pairs, samples=n)
@@ -187,7 +198,8 @@ def _one_coarse(direction: str, n: int) -> dict:
             "error": ev(res.correspondence),
             "error_mode": ev(res.sample_correspondence[res.labels]),
             "held_out_median": float(np.median(misses)), "held_out_max": float(misses.max()),
-            "peak_rss_mb": rss, "code": _code(), "load_before": before,
+            "peak_rss_mb": rss, "baseline_rss_mb": baseline, "first_peak_rss_mb": first_peak,
+            "resident_before_mb": resident, "code": _code(), "load_before": before,
             "load_after": after}
 
 
@@ -243,28 +255,42 @@ def _one_growth(n: int) -> dict:
     from solvers.softmaps import soft_map
 
     cat, lion, gt, lm = load()
+    baseline = _rss_mb()
     pairs = lm[:, ::-1]
     soft_map(lion, cat, pairs, samples=n, max_iter=2)  # caches
+    resident = _rss_mb()
     before = loadavg()
     t0 = time.perf_counter()
-    res = soft_map(lion, cat, pairs, samples=n)
+
+    def progress(sweep, residual):  # to stderr: a long row shows where it stands
+        if sweep % 50 == 0:
+            print(f"{n} samples: sweep {sweep}, residual {residual:.3g}, "
+                  f"{time.perf_counter() - t0:.0f} s, load {loadavg()}", file=sys.stderr,
+                  flush=True)
+
+    res = soft_map(lion, cat, pairs, samples=n, progress=progress)
     seconds = time.perf_counter() - t0
     rss = _peak_rss_mb()  # before the evaluator's distance rows
     return {"samples": n, "target_points": res.target_points, "seconds": seconds,
             "propagation": res.timings["propagation"], "iterations": res.iterations,
+            "residual": res.residual, "baseline_rss_mb": baseline,
+            "resident_before_mb": resident,
             "converged": res.converged, "edges": int(len(res.edges)),
             "error": Evaluator(cat, gt)(res.correspondence), "peak_rss_mb": rss,
             "code": _code(), "load_before": before, "load_after": loadavg()}
 
 
 def part_growth():
-    rows = []
+    """One fresh process per size of ``SOFTMAPS_GROWTH``; the recorded rows of other sizes
+    are kept (the largest size is run on its own)."""
+    old = json.loads(RESULTS.read_text()).get("growth", {}) if RESULTS.exists() else {}
+    rows = [r for r in old.get("rows", []) if r["samples"] not in GROWTH_SIZES]
     for n in GROWTH_SIZES:
         out = subprocess.run([sys.executable, __file__, "_growth", str(n)], check=True,
-                             capture_output=True, text=True).stdout
+                             stdout=subprocess.PIPE, text=True).stdout
         rows.append(json.loads(out.strip().splitlines()[-1]))
         print(rows[-1], flush=True)
-    return rows
+    return sorted(rows, key=lambda r: r["samples"])
 
 
 def _pyfm_rows(ev, lm, **meshes) -> list[dict]:
@@ -718,10 +744,12 @@ def render(data) -> str:
         "and without refinement (the soft map's modes). Held out: the geodesic miss of the "
         "15 landmark pairs never given to any method (lines 6-20 of cat-lion-landmarks.txt), "
         "median / largest, unit-area target. Peak RSS: the process's (it includes the "
-        "first call).",
+        "first call); baseline: resident after the imports (numpy, scipy, numba, trimesh) "
+        "and both meshes, before any soft map; resident before: after the first call (its "
+        "caches, compiled kernels), before the timed one.",
         ["direction", "method", "target points", "error", "error before refinement",
          "held out median / max", "seconds", "propagation s", "sweeps", "peak RSS MB",
-         "load before", "load after"],
+         "baseline MB", "resident before MB", "load before", "load after"],
         lambda r: [r["direction"], r.get("method", f"otgeo soft map, {r.get('samples')} "
                                                    "samples, defaults"),
                    r.get("target_points", ""), f"{1e3 * r['error']:.2f}e-3",
@@ -731,17 +759,25 @@ def render(data) -> str:
                    f"{r['timings']['propagation']:.2f}" if "timings" in r else "",
                    r["iterations"] + 1 if "iterations" in r else "",
                    f"{r['peak_rss_mb']:.0f}" if "peak_rss_mb" in r else "",
+                   f"{r['baseline_rss_mb']:.0f}" if "baseline_rss_mb" in r else "",
+                   f"{r['resident_before_mb']:.0f}" if "resident_before_mb" in r else "",
                    r["load_before"], r["load_after"]])
     out += _table(
         data.get("growth"), "Growth with the number of samples (defaults, coarse target)",
         "lion -> cat with the defaults, warm (second call in a fresh process): seconds end to "
-        "end, of the propagation, sweeps, error as above, the process's peak RSS.",
+        "end, of the propagation, sweeps, the residual (largest L1 marginal violation; tol "
+        "1e-4), error as above, the process's peak RSS, its baseline and resident memory "
+        "before the timed call (as in the defaults table).",
         ["samples", "target points", "source edges", "seconds", "propagation s", "sweeps",
-         "converged", "error", "peak RSS MB", "code", "load before", "load after"],
+         "residual", "converged", "error", "peak RSS MB", "baseline MB", "resident before MB",
+         "code", "load before", "load after"],
         lambda r: [r["samples"], r["target_points"], r["edges"], f"{r['seconds']:.2f}",
-                   f"{r['propagation']:.2f}", r["iterations"] + 1, r["converged"],
-                   f"{1e3 * r['error']:.2f}e-3", f"{r['peak_rss_mb']:.0f}", r["code"],
-                   r["load_before"], r["load_after"]])
+                   f"{r['propagation']:.2f}", r["iterations"] + 1,
+                   f"{r['residual']:.3g}" if "residual" in r else "", r["converged"],
+                   f"{1e3 * r['error']:.2f}e-3", f"{r['peak_rss_mb']:.0f}",
+                   f"{r['baseline_rss_mb']:.0f}" if "baseline_rss_mb" in r else "",
+                   f"{r['resident_before_mb']:.0f}" if "resident_before_mb" in r else "",
+                   r["code"], r["load_before"], r["load_after"]])
     out += _table(
         data.get("multiscale"), "Multiscale start against a cold start (1,024 samples)",
         "Warm default soft maps; the multiscale start solves 128 samples over 128 coarse "
@@ -850,24 +886,78 @@ def render(data) -> str:
 
 READING = """## Reading: the coarse target (runs of 2026-12-03)
 
-All figures of 2026-12-03 were taken at load 2.6-3.1 (five other sessions' tests on the two
-cores, and `cpu bench` could not hold them off), so the times are inflated; the earlier
-full-resolution figures below were taken at load 1.6-2.1.
+The defaults table is of 18:00 UTC (code 31e26c1, `cpu bench`, load 1.2-1.5); the growth
+table of 17:32 (code 739e04a, load 1.8-2.1); an earlier run of the defaults at 17:30 (code
+f8a73d9, load 2.8-4.0) is quoted below.  The other coarse-target figures are of 12:12-12:31
+at load 2.6-5.2, the full-resolution ones of 2026-12-01/02 at 1.6-2.1.  Memory does not
+depend on the load.
 
 - What changed: eq. 3.18 is solved by default over the target decimated to about as many
   points as samples (1,025 cat points at 1,024 samples, 130 at 128), rows prolonged to all
   7,207 vertices; the default refinement is symmetric ZoomOut (20, 80, 2) with the steps
   before the last on 1,024 farthest-point vertices of each mesh.
-- Time (defaults table, warm): 1,024 samples lion -> cat 8.88 s end to end, 7.59 s of
-  propagation (69 sweeps); cat -> lion 10.87 s, 9.60 s (101 sweeps).  128 samples: 1.17 s
-  and 1.10 s end to end.  The full-resolution 1,024-sample solve took 85-116 s (tables
-  below): the coarse problem is 7x smaller per sweep and needs 69 sweeps instead of 262
-  (its default gamma is 4 h^2 of the coarse mesh, ~2.2x the full-resolution one).
-- Growth (table above, load 3.0-5.2): 128 / 256 / 512 / 1,024 samples take 1.4 / 1.5 /
-  2.9 / 9.4 s (22 / 31 / 50 / 69 sweeps); 2,048 samples 66.9 s (262 sweeps, 712 MB);
-  4,096 samples hit the 1,000-sweep cap unconverged after 603 s (1.9 GB; error still
-  19.58e-3).  The slow tail of the full-resolution solve comes back as the samples grow:
-  gamma shrinks with them and the coarse target is as fine as the samples.
+- Time (defaults table, warm, load 1.2-1.5): 1,024 samples lion -> cat 9.66 s end to end,
+  8.25 s of propagation (69 sweeps); cat -> lion 11.18 s, 9.85 s (101 sweeps): within the
+  10 s (propagation) and 15 s (end to end) targets, cat -> lion's propagation with 2 %
+  to spare.  128 samples: 1.24 s and 1.21 s end to end (target 2 s).  The same code but
+  for ZoomOut's blockwise start (f8a73d9) took 6.52 / 7.39 s (propagation 5.59 / 6.44 s)
+  and 0.84 / 0.88 s at 17:30 at load 2.8-4.0, and pyFM in that run was 19-24 % faster than
+  in the 18:00 run (6.88 against 8.50 s for its ZoomOut): the machine's speed varies more
+  than the load average shows, so compare within a run (pyFM ZoomOut 8.50 s, otgeo 9.66 s
+  end to end at 1,024 samples, 1.24 s at 128).  The full-resolution 1,024-sample solve
+  took 85-116 s (tables below).
+- Memory, what it means: the tables give the process's peak RSS (`ru_maxrss`, which
+  includes the first, cache-building call), its baseline (resident after the imports --
+  numpy, scipy, numba, trimesh -- and both meshes, before any soft map: 174-176 MB) and
+  its resident memory before the timed call (baseline plus the first call's caches and
+  compiled kernels: 268-282 MB).  **The 300 MB target on the process peak is met at 128
+  samples (286-293 MB) and missed at 1,024 (370-372 MB, from 427-446 MB).**  The timed
+  1,024-sample call itself adds 90 MB to what was resident; the process peak is 195 MB
+  above the baseline.
+- Where the memory went, and what was cut (per-stage `VmRSS`/`VmHWM`, the high-water mark
+  reset after each stage through `/proc/self/clear_refs`; lion -> cat, 1,024 samples;
+  script /work/scratch/softmap28/memprof.py, `cpu run`): imports 129 MB (numpy 26, scipy
+  +33, solvers +9, numba +53 of it), both meshes +43 (trimesh's import: 42 of it);
+  first call: descriptors +53 (eigenpairs of both meshes, heat-method solvers), the first
+  compiled kernel +43 (numba's LLVM), the propagation's working arrays ~70-90 MB at their
+  peak (the edge-end log-scalings alone, 6,110 x 1,025 float64, are 50 MB).  Before this
+  change the peaks came after the propagation: the prolonged rows (1,024 x 7,207 float32,
+  30 MB) with their gather (3 entries per vertex, 88 MB), the mode's density (30 MB) and
+  ZoomOut's float64 copy of the prolonged rows (59 MB): 485-510 MB at the prolongation, 436
+  MB resident after the call.  Now (1) the extraction reads the coarse rows through the
+  prolongation: the mode a block of 64 prolonged rows at a time, ZoomOut's start as
+  `rows @ (P^T Phi)` (the same functional map), the top-k per block -- no samples x
+  n_target matrix is formed (`SoftMapResult.target_rows()` still forms it on demand);
+  (2) `Prolongation.apply` works in blocks of 64 rows; (3) the landmark distances are
+  cached per landmark set instead of potpourri3d's heat-method solver (22 MB on the cat,
+  13 MB on the lion); (4) glibc's freed heap is handed back (`malloc_trim`,
+  `solvers.memory.release_free_heap`) before the propagation and after the call: the
+  solver's threads each get a malloc arena, and without it 70 MB of freed temporaries
+  stayed resident (350 MB against 280 MB after the first call).  Per stage now: first call
+  peak 348 MB (in the propagation), resident 289 MB after it; timed call peak 377 MB (in
+  the propagation, from 299 MB resident).  What is left above 300 MB is the baseline
+  (interpreter, numba, trimesh, meshes: 175 MB) plus the compiled kernels and caches kept
+  for later calls (~100 MB) plus the propagation's arrays; reaching 300 MB for the process
+  would need the propagation in ~25 MB (float32 log-scalings would save 25 MB of the 50;
+  not tried: the compiled sweeps are float64 and the tolerance is 1e-4) or a smaller
+  baseline.  Accuracy is unchanged: 19.36e-3 / 16.61e-3 at 1,024 samples and 20.20e-3 /
+  16.61e-3 at 128, held-out misses 0.0200 / 0.0774 and 0.0131 / 0.0376, the same digits as
+  before the change (12:12 run), against pyFM ZoomOut 21.56e-3 / 21.20e-3 in the same run.
+- Growth (table above, load 1.8-2.1, code 739e04a whose only other change was a sweep cap
+  of max(1,000, samples), reverted since; no row here reached 1,000 sweeps): 128 / 256 /
+  512 / 1,024 / 2,048 samples take 0.91 / 1.11 / 2.05 / 5.84 / 37.5 s (22 / 31 / 50 / 69 /
+  262 sweeps, all converged to tol 1e-4), peak RSS 287 / 286 / 302 / 364 / 664 MB.
+  **4,096 samples do not converge**, so that row is missing: with the cap raised to 4,096
+  sweeps (`cpu bench`, load 2.0-2.4, code 739e04a, stopped by hand after 1,050 sweeps and
+  561 s) the residual was 0.217 / 0.065 / 0.014 after 50 / 100 / 150 sweeps, 1.45e-3 after
+  600, 1.01e-3 / 6.65e-4 / 5.74e-4 / 5.25e-4 / 5.18e-4 after 700 / 800 / 900 / 1,000 /
+  1,050: it stalls near 5e-4, falling ~1.4 % per 50 sweeps, which would need ~6,000 more
+  sweeps to reach 1e-4 (log stderr: /work/scratch/softmap28/growth4096_trace.log).  So a
+  larger default cap only runs longer, and the cap stays 1,000.  The earlier 4,096 row
+  (12:31, code f9a3a4d: 1,000 sweeps, 603 s, 1.9 GB, error 19.58e-3) was taken out of the
+  table.  The slow tail of the full-resolution solve comes back as the samples grow: gamma
+  (4 h^2 of the coarse mesh) shrinks with them and the coarse target is as fine as the
+  samples; a warm start did not help at 1,024 (multiscale table).
 - Accuracy (same table, pyFM in the same run): lion -> cat 19.36e-3 (1,024 samples) and
   20.20e-3 (128) against pyFM ZoomOut 21.56e-3 (ratios 0.898, 0.937); cat -> lion 16.61e-3
   at both sizes against 21.20e-3 (0.783).  Held-out landmarks (15 pairs never given):
@@ -891,12 +981,6 @@ full-resolution figures below were taken at load 1.6-2.1.
   centring the log-scalings at free nodes the same start converged to another point
   (error 64e-3 against 19.4e-3 at 256 samples, ad hoc): Alg. 4's fixed point needs their
   weighted mean at a free node to be 0.
-- Memory at 1,024 samples (ad hoc, `/proc/self/status`): 132 MB after imports, 180 MB
-  with both meshes, 377 MB resident (443 MB peak) after the first call built the caches
-  (eigenpairs, geodesic solvers, coarse target and its factor, compiled kernels); the
-  timed call then peaks at 454 MB, its own arrays at 135 MB (tracemalloc).  So the
-  process's peak RSS (427-446 MB in the table) misses the 300 MB target; the soft map's
-  arrays are within it (full resolution: 684 MiB traced).
 - Viewer (ad hoc, /work/scratch script, Playwright + Chromium against `otgeo serve`, load
   ~3): a default lion -> cat job run from the page took 9.5 s cold; from "succeeded" to
   the soft-map view ready to hover 0.86 s; a hovered row (prolonged on the server) 0.05 s.

@@ -44,10 +44,30 @@ SINKHORN_ITERATIONS = 50  # at most: stops at SINKHORN_TOL (bench/results/softma
 SINKHORN_TOL = 1e-3  # L1 target-marginal violation (the plan's total mass is 1)
 
 
-def mode(rows: np.ndarray, target_areas: np.ndarray) -> np.ndarray:
-    """``(N,)`` argmax over ``y`` of the density ``rows[i, y] / a(y)``."""
+# Rows at a time in the mode search (a block's density: rows x n_target floats).
+_MODE_ROWS = 64
+
+
+def mode(rows: np.ndarray, target_areas: np.ndarray, prolongation=None) -> np.ndarray:
+    """``(N,)`` argmax over ``y`` of the density ``rows[i, y] / a(y)``; with a
+    ``prolongation`` (:class:`~solvers.softmaps.coarse_target.Prolongation`) ``rows`` are
+    coarse masses and the density is that of the prolonged rows, formed a block of rows at
+    a time."""
     rows = np.asarray(rows)
-    return np.argmax(rows / np.asarray(target_areas, dtype=rows.dtype)[None, :], axis=1)
+    out = np.empty(len(rows), np.int64)
+    for r0, block in _fine_blocks(rows, prolongation):
+        density = block / np.asarray(target_areas, dtype=block.dtype)[None, :]
+        out[r0:r0 + len(block)] = np.argmax(density, axis=1)
+    return out
+
+
+def _fine_blocks(rows, prolongation):
+    """``(first row, rows on the target)`` in blocks of rows (prolonged when asked)."""
+    if prolongation is not None:
+        yield from prolongation.blocks(rows)
+        return
+    for r0 in range(0, len(rows), _MODE_ROWS):
+        yield r0, rows[r0:r0 + _MODE_ROWS]
 
 
 def barycentric_projection(rows: np.ndarray, target, radius: float | None = None
@@ -130,7 +150,10 @@ def zoomout(source, target, correspondence=None, *, k_start: int = 20, k_end: in
     ``soft=(rows, labels)`` starts instead from a soft map's own functional map, its
     pull-back :math:`C = \Phi_{0,k}^\top A_0 P \Phi_k` with :math:`P_{x,y} =`
     ``rows[labels[x], y]`` (``rows`` ``(N, n_target)`` masses, ``labels`` ``(n_source,)``),
-    so the first read-out sees the whole distributions, not one extracted point per row.
+    so the first read-out sees the whole distributions, not one extracted point per row;
+    ``soft=(rows, labels, prolongation)``: ``rows`` ``(N, n_coarse)`` on a coarse target
+    and :math:`P\Phi_k` is ``rows @ (prolongation^T Phi_k)`` (the prolonged rows are not
+    formed).
     ``queries=(vertices, weights)``: the steps before the last read out only these source
     vertices, and :math:`C_k` is the quadrature :math:`\sum_x w_x \Phi_{0,k}(x)^\top
     \Phi_k(T(x))` over them (``weights`` their areas, e.g. farthest-point cells); the
@@ -151,8 +174,15 @@ def zoomout(source, target, correspondence=None, *, k_start: int = 20, k_end: in
     at, w = _queries(source, queries)
     back, wb = _queries(target, target_queries)
     if soft is not None:
-        rows, labels = soft
-        pulled = (np.asarray(rows) @ phi1[:, :k_start])[np.asarray(labels)[at]]
+        rows, labels, prolongation = (*soft, None)[:3]
+        basis = phi1[:, :k_start]
+        if prolongation is not None:
+            basis = prolongation.transpose_apply(basis)
+        rows = np.asarray(rows)
+        pulled = np.empty((len(rows), basis.shape[1]))
+        for r0 in range(0, len(rows), _MODE_ROWS):  # float64 copies of a block of rows only
+            pulled[r0:r0 + _MODE_ROWS] = rows[r0:r0 + _MODE_ROWS] @ basis
+        pulled = pulled[np.asarray(labels)[at]]
         C = (phi0[at, :k_start] * w[:, None]).T @ pulled
         corr = None
     else:
@@ -294,7 +324,7 @@ def extract_correspondence(source, target, rows, *, labels, samples, cell_areas,
                            refine: str = "zoomout",
                            zoomout_range: tuple[int, int, int] = (20, 50, 1),
                            sinkhorn_iterations: int = SINKHORN_ITERATIONS,
-                           zoomout_queries=None) -> Correspondence:
+                           zoomout_queries=None, prolongation=None) -> Correspondence:
     r"""Point map ``source vertex -> target vertex`` from soft-map rows (§4.5.1 + refinement).
 
     ``rows`` ``(N, n)`` masses of the ``N`` source nodes ``samples`` (source vertex ids),
@@ -309,7 +339,9 @@ def extract_correspondence(source, target, rows, *, labels, samples, cell_areas,
     ``symmetric=True``), ``"sinkhorn+zoomout"`` both, ``"none"`` neither;
     ``zoomout_queries``: ``(source, target)`` vertices and weights of ZoomOut's
     intermediate steps (``queries``/``target_queries`` of :func:`zoomout`).  Each node's
-    match is spread to the vertices of its cell.
+    match is spread to the vertices of its cell.  ``prolongation``: ``rows`` are ``(N,
+    n_coarse)`` masses on a coarse target, prolonged by it (mode and ZoomOut read them a
+    block at a time or through :math:`P^\top`; the other options prolong them whole).
     """
     if extraction not in EXTRACTIONS:
         raise InputError(f"extraction must be one of {EXTRACTIONS}", field="extraction")
@@ -318,12 +350,14 @@ def extract_correspondence(source, target, rows, *, labels, samples, cell_areas,
     labels = np.asarray(labels, np.int64)
     samples = np.asarray(samples, np.int64)
     projection = None
+    if prolongation is not None and (refine.startswith("sinkhorn") or extraction != "mode"):
+        rows, prolongation = prolongation.apply(rows), None
     if refine.startswith("sinkhorn"):
         projection = sinkhorn_projection(rows, cell_areas, target.areas, fixed=fixed,
                                          max_iter=sinkhorn_iterations)
         rows = projection.rows
     if extraction == "mode":
-        sample_corr = mode(rows, target.areas)
+        sample_corr = mode(rows, target.areas, prolongation)
     elif extraction == "barycentric":
         sample_corr = barycentric_projection(rows, target)
     else:
@@ -335,8 +369,8 @@ def extract_correspondence(source, target, rows, *, labels, samples, cell_areas,
     if refine.endswith("zoomout"):
         ks, ke, st = zoomout_range
         src_q, tgt_q = zoomout_queries or (None, None)
-        corr = zoomout(source, target, k_start=ks, k_end=ke, step=st, soft=(rows, labels),
-                       queries=src_q, symmetric=refine == "symmetric-zoomout",
-                       target_queries=tgt_q)
+        corr = zoomout(source, target, k_start=ks, k_end=ke, step=st,
+                       soft=(rows, labels, prolongation), queries=src_q,
+                       symmetric=refine == "symmetric-zoomout", target_queries=tgt_q)
     return Correspondence(sample_correspondence=np.asarray(sample_corr, np.int64),
                           correspondence=corr, sinkhorn=projection)

@@ -28,6 +28,7 @@ import numpy as np
 
 from solvers.convolutional import wasserstein_propagation
 from solvers.errors import InputError, UnsupportedDomainError
+from solvers.memory import release_free_heap
 from solvers.monitor import SolverResult
 from solvers.softmaps.coarse_target import Prolongation, coarse_target
 from solvers.softmaps.compatibility import NORMS, compatibility_cost
@@ -289,7 +290,8 @@ def soft_map(
         that is at most 2/3 of its vertices; :func:`solved_points`), an integer (that many
         coarse points) or ``None`` (every target vertex).  The compatibility cost is
         evaluated at the coarse points, landmark deltas are their barycentric weights there,
-        and the rows are prolonged to every target vertex for the extraction
+        and the rows are prolonged to every target vertex for the extraction (a block of
+        rows at a time, or through P^T: no samples x n_target matrix)
         (``result.target_points`` says which ran).
     tau : compatibility weight :math:`\tau` (cost of mean 1); gamma : entropic
         regularization of the heat kernel on the target solved over (``t = gamma/4``;
@@ -375,6 +377,7 @@ def soft_map(
         start = _multiscale_start(source, target, pairs, graph, coarse, f0, f1, norm=norm,
                                   tau=tau, tol=tol, max_iter=max_iter)
     timings["multiscale"] = time.perf_counter() - t0
+    release_free_heap()  # the descriptors' temporaries, before the largest arrays
     t0 = time.perf_counter()
     prop, rows, descriptor = _propagate(solved, coarse, graph, cells, pairs, cost, tau=tau,
                                         gamma=gamma, substeps=substeps, tol=tol,
@@ -385,14 +388,14 @@ def soft_map(
 
     t0 = time.perf_counter()
     prolongation = None if coarse is None else coarse.prolongation
-    on_target = rows if prolongation is None else prolongation.apply(rows)
-    extracted = extract_correspondence(source, target, on_target, labels=graph.labels,
+    extracted = extract_correspondence(source, target, rows, labels=graph.labels,
                                        samples=graph.indices, cell_areas=cells,
                                        edges=graph.edges, fixed=np.arange(len(pairs)),
                                        seed_target=int(pairs[0, 1]),
                                        extraction=extraction, refine=refine,
                                        zoomout_range=zoomout_range,
-                                       zoomout_queries=_zoomout_queries(source, target, pairs))
+                                       zoomout_queries=_zoomout_queries(source, target, pairs),
+                                       prolongation=prolongation)
     sample_corr, corr = extracted.sample_correspondence, extracted.correspondence
     if extracted.sinkhorn is not None:
         extracted.sinkhorn.rows = None  # the projected copy is not kept
@@ -402,11 +405,9 @@ def soft_map(
 
     top_idx = top_m = dropped = None
     if top_k is not None:
-        top_idx = np.argpartition(-on_target, top_k - 1, axis=1)[:, :top_k]
-        top_m = np.take_along_axis(on_target, top_idx, axis=1)
-        dropped = np.maximum(1.0 - top_m.sum(axis=1, dtype=np.float64), 0.0)
+        top_idx, top_m, dropped = _top_k(rows, prolongation, top_k)
         rows = prolongation = None
-    del on_target
+    release_free_heap()
     return SoftMapResult(
         iterations=prop.iterations, residual=prop.residual, converged=prop.converged,
         samples=graph.indices, labels=graph.labels, cell_areas=cells, edges=graph.edges,
@@ -415,6 +416,20 @@ def soft_map(
         dirichlet=dirichlet, descriptor_energy=descriptor, gamma=gamma, tau=tau,
         timings=timings, n_target=target.n, sinkhorn=extracted.sinkhorn,
         target_points=None if coarse is None else coarse.n, prolongation=prolongation)
+
+
+def _top_k(rows, prolongation, k: int):
+    """The ``k`` largest masses of every row on the target (prolonged a block of rows at a
+    time): ``(indices (N, k), masses (N, k), dropped mass (N,))``."""
+    idx = np.empty((len(rows), k), np.int64)
+    masses = np.empty((len(rows), k), rows.dtype)
+    blocks = ([(0, rows)] if prolongation is None else prolongation.blocks(rows))
+    for r0, block in blocks:
+        part = np.argpartition(-block, k - 1, axis=1)[:, :k]
+        idx[r0:r0 + len(block)] = part
+        masses[r0:r0 + len(block)] = np.take_along_axis(block, part, axis=1)
+    dropped = np.maximum(1.0 - masses.sum(axis=1, dtype=np.float64), 0.0)
+    return idx, masses, dropped
 
 
 def _multiscale_start(source, target, pairs, graph, coarse, f0, f1, *, norm, tau, tol,
