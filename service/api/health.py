@@ -7,7 +7,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import JSONResponse, PlainTextResponse
+from fastapi.responses import JSONResponse, PlainTextResponse, Response
 
 from service import __version__
 from service.api.deps import RuntimeDep, metrics_scope
@@ -55,8 +55,8 @@ class _Exposition:
             self.lines.append(f"{name}{_labels(**labels)} {value:g}")
 
 
-@router.get("/metrics", operation_id="getMetrics", response_class=PlainTextResponse,
-            responses={200: {"content": {"text/plain": {}},
+@router.get("/metrics", operation_id="getMetrics", response_class=Response,
+            responses={200: {"content": {"text/plain": {"schema": {"type": "string"}}},
                              "description": "Prometheus text exposition format"},
                        401: {"model": ErrorResponse, "description": "missing or wrong "
                              "X-API-Key (unless OTGEO_METRICS_OPEN)"}})

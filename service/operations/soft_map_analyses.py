@@ -122,6 +122,12 @@ def estimated_bytes(req: SoftMapAnalysisRequest, n_target: int, sources: list[in
     return 8 * n_target * rows * ROWS_COPIES
 
 
+def job_bytes(ctx, req: SoftMapAnalysisRequest) -> int:
+    """:func:`estimated_bytes` over the stored meshes."""
+    sources = [ctx.view(m.source_id, f"maps[{i}].source_id").n for i, m in enumerate(req.maps)]
+    return estimated_bytes(req, ctx.view(req.target_id, "target_id").n, sources)
+
+
 def validate(ctx, req: SoftMapAnalysisRequest) -> list[dict]:
     from solvers.softmaps.point_maps import check_point_map
 
@@ -225,5 +231,5 @@ OPERATIONS = [
               "bijectivity, descriptor energies; §4.6 SVD and collection bases)",
               SoftMapAnalysisRequest, run, validate, ("mesh",), scope="global",
               domain_field="target_id", result_model=SoftMapAnalysisValues,
-              estimate_cost=estimate_cost),
+              estimate_cost=estimate_cost, estimate_bytes=job_bytes),
 ]

@@ -185,6 +185,12 @@ def estimate_cost(n: int, req: SoftMapRequest, context=None) -> float:
     return estimate_sizes(n, n_target, req)["cost"]
 
 
+def job_bytes(ctx, req: SoftMapRequest) -> int:
+    """The job's working memory (see :func:`estimate_sizes`) over its two stored meshes."""
+    return estimate_sizes(ctx.view(req.source_id, "source_id").n,
+                          ctx.view(req.target_id, "target_id").n, req)["bytes"]
+
+
 def validate(ctx, req: SoftMapRequest) -> list[dict]:
     src = _mesh_view(ctx, req.source_id, "source_id")
     tgt = _mesh_view(ctx, req.target_id, "target_id")
@@ -371,5 +377,6 @@ OPERATIONS = [
         result_model=SoftMapValues,
         result_row=result_row,
         estimate_cost=estimate_cost,
+        estimate_bytes=job_bytes,
     ),
 ]
