@@ -354,13 +354,14 @@ def _decided(view: DomainView, req: DistanceRequest) -> dict:
 
 
 def distance_bytes(view: DomainView, req: DistanceRequest) -> int:
-    """The default estimate, plus on the exact route the LP's cost matrix and plan
-    (support x support, two float64 arrays)."""
+    """The default estimate, plus on the exact route the LP's cost matrix, plan and the
+    solver's copy (support x support, three float64 arrays; two missed a fifth of a
+    measured peak: bench/results/operation_memory.md)."""
     total = estimate_job_bytes(view, req)
     if req.metric == "w2" and _decided(view, req)["route"] == "exact":
         masses, _ = _pair(view, req)
         n0, n1 = (int(np.count_nonzero(masses[k])) for k in ("mu0", "mu1"))
-        total += 16 * n0 * n1
+        total += 24 * n0 * n1
     return total
 
 
