@@ -44,7 +44,9 @@ def estimate_build_bytes(spec) -> int:
     if isinstance(spec, GraphSpec):
         return b["graph_node"] * int(spec.n_nodes) + b["graph_edge"] * len(spec.edges)
     if isinstance(spec, PointCloudSpec):
-        return b["pointcloud_neighbor"] * len(spec.points) * int(spec.n_neighbors)
+        # more neighbors than other points is refused by the build itself (422)
+        neighbors = min(int(spec.n_neighbors), max(len(spec.points) - 1, 1))
+        return b["pointcloud_neighbor"] * len(spec.points) * neighbors
     return b["mesh_vertex"] * len(spec.vertices) + b["mesh_face"] * len(spec.faces)
 
 
