@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 from concurrent.futures.process import BrokenProcessPool
 
 from service.child_pool import ChildPool, die_with_parent
@@ -23,6 +24,41 @@ log = logging.getLogger("otgeo.service")
 
 IN_PROCESS_POINTS = 100_000  # domains up to this many points are built in the API process
 IN_PROCESS_FILE_BYTES = 8 * 2**20  # mesh files up to this size too (~150k vertices as OBJ)
+
+
+# Bytes a JSON domain's build needs per unit of its size (bench/domain_build_memory.py,
+# measured peaks rounded up): a point cloud's per point and neighbor (k-NN graph, local
+# triangulations, Laplacian), a graph's per node and per edge, a mesh's per vertex and per
+# face, a grid's per cell.
+BUILD_BYTES = {"pointcloud_neighbor": 400, "graph_node": 32, "graph_edge": 32,
+               "mesh_vertex": 800, "mesh_face": 400, "grid_cell": 16}
+
+
+def estimate_build_bytes(spec) -> int:
+    """Working memory of building a validated JSON domain spec, from its sizes alone."""
+    from service.schemas import GraphSpec, GridSpec, PointCloudSpec
+
+    b = BUILD_BYTES
+    if isinstance(spec, GridSpec):
+        return b["grid_cell"] * math.prod(int(s) for s in spec.shape)
+    if isinstance(spec, GraphSpec):
+        return b["graph_node"] * int(spec.n_nodes) + b["graph_edge"] * len(spec.edges)
+    if isinstance(spec, PointCloudSpec):
+        # more neighbors than other points is refused by the build itself (422)
+        neighbors = min(int(spec.n_neighbors), max(len(spec.points) - 1, 1))
+        return b["pointcloud_neighbor"] * len(spec.points) * neighbors
+    return b["mesh_vertex"] * len(spec.vertices) + b["mesh_face"] * len(spec.faces)
+
+
+def check_build_memory(settings, spec, field: str) -> None:
+    """413 naming ``field`` (the spec's size field) when building ``spec`` would need more
+    than ``OTGEO_JOB_MEMORY_BYTES``: refused at submission, before any build starts."""
+    need, limit = estimate_build_bytes(spec), int(settings.job_memory_bytes)
+    if need > limit:
+        raise PayloadTooLarge(f"building this domain would need about {need / 2**30:.3g} GiB "
+                              f"of working memory, more than the limit of {limit / 2**30:.3g} "
+                              "GiB (OTGEO_JOB_MEMORY_BYTES): upload fewer points",
+                              field=field)
 
 
 def builder_memory_limit(settings) -> int:

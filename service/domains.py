@@ -17,6 +17,7 @@ from service.domain_builder import (
     IN_PROCESS_FILE_BYTES,
     IN_PROCESS_POINTS,
     build_in_child,
+    check_build_memory,
 )
 from service.errors import InvalidInput, NotFound, PayloadTooLarge
 from service.runtime import Runtime
@@ -67,6 +68,7 @@ class DomainService:
     def from_spec(self, spec) -> tuple[dict, bool]:
         """Store a JSON domain, built in this process."""
         source = {"format": "json"}
+        check_build_memory(self.settings, spec, spec_size(spec)[0])
         return self._put(build_domain(self.settings, spec, source), source)
 
     async def create_from_file(self, data: bytes, filename: str | None, file_type: str | None,
@@ -88,9 +90,10 @@ class DomainService:
         from fastapi.concurrency import run_in_threadpool
 
         field, n = spec_size(spec)
+        self._check_points(n, field)
+        check_build_memory(self.settings, spec, field)  # 413 before any build
         if n <= IN_PROCESS_POINTS:
             return await run_in_threadpool(self.from_spec, spec)
-        self._check_points(n, field)
         source = {"format": "json"}
         meta, created = await build_in_child(self.settings, "spec", (spec, source), field)
         return self._stored(meta, created, source)

@@ -95,7 +95,8 @@ class Settings(BaseSettings):
         1, ge=0, description="of `otgeo serve`'s workers, how many serve only the short-job "
         "queue (when there are at least two workers)")
     long_job_cost: float = Field(
-        5e7, gt=0, description="estimated cost (domain size x iterations x distributions) "
+        5e7, gt=0, description="estimated cost (domain size x iterations x distributions; "
+        "about 5e7 units per second of work, see service.operations.base.COST_PER_SECOND) "
         "from which a job goes to the long-job queue")
     metrics_open: bool = Field(False, description="serve /metrics without an API key even "
                                "when OTGEO_API_KEYS is set")

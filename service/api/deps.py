@@ -64,12 +64,15 @@ async def require_api_key(request: Request,
     tenant_of(request)
 
 
-async def require_metrics_key(request: Request,
-                              key: str | None = Security(api_key_header)) -> None:
-    """/metrics (host names, process ids): behind the key unless OTGEO_METRICS_OPEN."""
+async def metrics_scope(request: Request,
+                        key: str | None = Security(api_key_header)) -> str | None:
+    """Whose jobs /metrics counts: None (every tenant's, plus the processes' host names and
+    ids) for an admin key, the open service, or OTGEO_METRICS_OPEN; else the key's tenant.
+    401 for a missing or unknown key unless OTGEO_METRICS_OPEN."""
     if get_runtime(request).settings.metrics_open:
-        return
-    await require_api_key(request, key)
+        return None
+    tenant = tenant_of(request)
+    return None if tenant.admin else tenant.id
 
 
 async def idempotency_key(key: Annotated[str | None, Header(

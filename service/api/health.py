@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import time
+from typing import Annotated
 
 from fastapi import APIRouter, Depends
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import JSONResponse, PlainTextResponse
+from fastapi.responses import JSONResponse, PlainTextResponse, Response
 
 from service import __version__
-from service.api.deps import RuntimeDep, require_metrics_key
+from service.api.deps import RuntimeDep, metrics_scope
 from service.errors import ErrorResponse
 from service.jobs.db import QUEUED, RUNNING, STATES
 from service.jobs.queue import QUEUES
@@ -41,23 +42,39 @@ def _labels(**kv) -> str:
     return "{" + inner + "}" if inner else ""
 
 
-@router.get("/metrics", operation_id="getMetrics", response_class=PlainTextResponse,
-            dependencies=[Depends(require_metrics_key)],
-            responses={200: {"content": {"text/plain": {}},
+class _Exposition:
+    """Lines of the Prometheus text format."""
+
+    def __init__(self):
+        self.lines: list[str] = []
+
+    def metric(self, name: str, kind: str, help_: str, samples: list[tuple[dict, float]]):
+        self.lines.append(f"# HELP {name} {help_}")
+        self.lines.append(f"# TYPE {name} {kind}")
+        for labels, value in samples:
+            self.lines.append(f"{name}{_labels(**labels)} {value:g}")
+
+
+@router.get("/metrics", operation_id="getMetrics", response_class=Response,
+            responses={200: {"content": {"text/plain": {"schema": {"type": "string"}}},
                              "description": "Prometheus text exposition format"},
                        401: {"model": ErrorResponse, "description": "missing or wrong "
                              "X-API-Key (unless OTGEO_METRICS_OPEN)"}})
-def metrics(rt: RuntimeDep):
-    """Cache hits/misses and sizes (this process and every live worker), queue depth and job
-    counts and durations (from the job table)."""
-    lines: list[str] = []
+def metrics(rt: RuntimeDep, tenant: Annotated[str | None, Depends(metrics_scope)]):
+    """Job counts and durations and queue depth (from the job table). A tenant's key sees
+    its own jobs only; an admin key (or the open service, or OTGEO_METRICS_OPEN) sees every
+    tenant's, and the processes: cache hits/misses and sizes (this process and every live
+    worker), live workers, broker messages."""
+    out = _Exposition()
+    if tenant is None:
+        _process_metrics(rt, out)
+    _job_metrics(rt, out, tenant)
+    return PlainTextResponse("\n".join(out.lines) + "\n",
+                             media_type="text/plain; version=0.0.4; charset=utf-8")
 
-    def metric(name: str, kind: str, help_: str, samples: list[tuple[dict, float]]):
-        lines.append(f"# HELP {name} {help_}")
-        lines.append(f"# TYPE {name} {kind}")
-        for labels, value in samples:
-            lines.append(f"{name}{_labels(**labels)} {value:g}")
 
+def _process_metrics(rt, out: _Exposition) -> None:
+    """Caches and workers of every process (global: admin scope only)."""
     caches = [({"process": f"{rt.role}:{rt.process_id}"}, rt.cache.stats())]
     since = time.time() - rt.settings.stale_after
     workers = rt.repo.live_workers(since)
@@ -75,35 +92,38 @@ def metrics(rt: RuntimeDep):
         ("bytes", "otgeo_cache_bytes", "gauge", "estimated bytes held by the cache"),
         ("max_bytes", "otgeo_cache_max_bytes", "gauge", "cache bound in bytes"),
     ]:
-        metric(name, kind, help_, [(lab, float(st.get(key, 0))) for lab, st in caches])
+        out.metric(name, kind, help_, [(lab, float(st.get(key, 0))) for lab, st in caches])
     for key, name, help_ in [("hits", "otgeo_cache_hits_all_total", "cache hits, all "
                               "processes"), ("misses", "otgeo_cache_misses_all_total",
                                              "cache misses, all processes")]:
-        metric(name, "counter", help_, [({}, float(sum(st.get(key, 0) for _, st in caches)))])
-    metric("otgeo_workers_alive", "gauge", "worker processes with a recent heartbeat",
-           [({}, float(len(workers)))])
-
-    counts = rt.repo.counts()
-    by_state = {s: sum(n for (_, st), n in counts.items() if st == s) for s in STATES}
-    metric("otgeo_queue_depth", "gauge", "jobs waiting for a worker", [({}, by_state[QUEUED])])
-    metric("otgeo_jobs_running", "gauge", "jobs being run", [({}, by_state[RUNNING])])
-    per_queue = rt.repo.queued_by_queue()
-    metric("otgeo_queue_depth_by_queue", "gauge", "jobs waiting, per queue (short, long)",
-           [({"queue": q}, float(per_queue.get(q, 0))) for q in QUEUES])
+        out.metric(name, "counter", help_,
+                   [({}, float(sum(st.get(key, 0) for _, st in caches)))])
+    out.metric("otgeo_workers_alive", "gauge", "worker processes with a recent heartbeat",
+               [({}, float(len(workers)))])
     pending = rt.pending_messages()
     if pending is not None:
-        metric("otgeo_queue_messages", "gauge", "messages in the Huey queue",
-               [({}, float(pending))])
-    metric("otgeo_jobs", "gauge", "jobs in the job table by operation and state",
-           [({"operation": op, "state": st}, float(counts.get((op, st), 0)))
-            for op in rt.operations for st in STATES])
-    durations = rt.repo.durations()
+        out.metric("otgeo_queue_messages", "gauge", "messages in the Huey queue",
+                   [({}, float(pending))])
+
+
+def _job_metrics(rt, out: _Exposition, tenant: str | None) -> None:
+    """Jobs by operation and state, queue depth, durations: ``tenant``'s, or every job."""
+    counts = rt.repo.counts(tenant=tenant)
+    by_state = {s: sum(n for (_, st), n in counts.items() if st == s) for s in STATES}
+    out.metric("otgeo_queue_depth", "gauge", "jobs waiting for a worker",
+               [({}, by_state[QUEUED])])
+    out.metric("otgeo_jobs_running", "gauge", "jobs being run", [({}, by_state[RUNNING])])
+    per_queue = rt.repo.queued_by_queue(tenant=tenant)
+    out.metric("otgeo_queue_depth_by_queue", "gauge", "jobs waiting, per queue (short, long)",
+               [({"queue": q}, float(per_queue.get(q, 0))) for q in QUEUES])
+    out.metric("otgeo_jobs", "gauge", "jobs in the job table by operation and state",
+               [({"operation": op, "state": st}, float(counts.get((op, st), 0)))
+                for op in rt.operations for st in STATES])
+    durations = rt.repo.durations(tenant=tenant)
     for idx, (suffix, kind, help_) in enumerate([
             ("count", "counter", "finished jobs"),
             ("sum", "counter", "total run time of finished jobs (seconds)"),
             ("max", "gauge", "longest run time (seconds)")]):
-        metric(f"otgeo_job_duration_seconds_{suffix}", kind, help_,
-               [({"operation": op, "state": st}, v[idx]) for (op, st), v in
-                sorted(durations.items())])
-    return PlainTextResponse("\n".join(lines) + "\n",
-                             media_type="text/plain; version=0.0.4; charset=utf-8")
+        out.metric(f"otgeo_job_duration_seconds_{suffix}", kind, help_,
+                   [({"operation": op, "state": st}, v[idx]) for (op, st), v in
+                    sorted(durations.items())])

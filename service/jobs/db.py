@@ -336,10 +336,13 @@ class JobRepository:
              JobRow.enqueued_at == job.enqueued_at), enqueued_at=time.time()))
 
     # -- metrics ---------------------------------------------------------
-    def counts(self) -> dict[tuple[str, str], int]:
+    def counts(self, tenant: str | None = None) -> dict[tuple[str, str], int]:
+        """(operation, state) -> jobs; ``tenant``: only that tenant's (None: every job)."""
+        q = select(JobRow.operation, JobRow.state, func.count())
+        if tenant is not None:
+            q = q.where(JobRow.tenant == tenant)
         with self.Session() as s:
-            rows = s.execute(select(JobRow.operation, JobRow.state, func.count())
-                             .group_by(JobRow.operation, JobRow.state))
+            rows = s.execute(q.group_by(JobRow.operation, JobRow.state))
             return {(op, st): int(n) for op, st, n in rows}
 
     def queued_of(self, tenant: str) -> int:
@@ -349,22 +352,26 @@ class JobRepository:
         with self.engine.connect() as conn:
             return int(conn.execute(q).scalar() or 0)
 
-    def queued_by_queue(self) -> dict[str, int]:
-        """Queued jobs per queue (``short`` / ``long``)."""
+    def queued_by_queue(self, tenant: str | None = None) -> dict[str, int]:
+        """Queued jobs per queue (``short`` / ``long``); ``tenant``: only that tenant's."""
         q = func.coalesce(JOBS.c.queue, "short")
+        where = [JOBS.c.state == QUEUED] + ([JOBS.c.tenant == tenant] if tenant else [])
         with self.engine.connect() as conn:
-            rows = conn.execute(select(q, func.count()).where(JOBS.c.state == QUEUED)
-                                .group_by(q))
+            rows = conn.execute(select(q, func.count()).where(*where).group_by(q))
             return {str(name): int(n) for name, n in rows}
 
-    def durations(self) -> dict[tuple[str, str], tuple[int, float, float]]:
-        """(operation, state) -> (count, sum, max) of run durations of finished jobs."""
+    def durations(self, tenant: str | None = None
+                  ) -> dict[tuple[str, str], tuple[int, float, float]]:
+        """(operation, state) -> (count, sum, max) of run durations of finished jobs;
+        ``tenant``: only that tenant's."""
+        where = [JobRow.duration.is_not(None), JobRow.state.in_(TERMINAL)]
+        if tenant is not None:
+            where.append(JobRow.tenant == tenant)
         with self.Session() as s:
             rows = s.execute(
                 select(JobRow.operation, JobRow.state, func.count(), func.sum(JobRow.duration),
                        func.max(JobRow.duration))
-                .where(JobRow.duration.is_not(None), JobRow.state.in_(TERMINAL))
-                .group_by(JobRow.operation, JobRow.state))
+                .where(*where).group_by(JobRow.operation, JobRow.state))
             return {(op, st): (int(n), float(total or 0.0), float(mx or 0.0))
                     for op, st, n, total, mx in rows}
 

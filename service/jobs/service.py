@@ -104,6 +104,7 @@ class JobService:
             ctx = context = SubmitContext(self.rt.store, self.rt.settings,
                                           holds=self.domains.holds)
             op.validate(ctx, request)
+            check_job_memory(op, ctx, request, self.rt.settings.job_memory_bytes)
             decision = op.decide(ctx, request) if op.decide is not None else None
             domain_id = op.primary_domain(request)
         limit = self.rt.settings.job_time_limit

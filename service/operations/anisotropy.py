@@ -33,9 +33,10 @@ from service.operations.base import (
     view_of_domain,
 )
 
-# One interior-point W1 solve in the units of service.jobs.queue.estimate_cost (points x
-# iterations) per vertex: about 30 iterations, each a factorization worth ~15 solves.
-IPM_SOLVE_COST = 450
+# One interior-point W1 solve in cost units (service.operations.base.COST_PER_SECOND) per
+# vertex: about 30 iterations, each a factorization and its solves; measured, with margin
+# (bench/results/operation_memory.md: 450 under-counted these solves 5-20 times).
+IPM_SOLVE_COST = 4500
 
 
 class CurvatureWeights(BaseModel):

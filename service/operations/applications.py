@@ -328,6 +328,39 @@ def run_skeleton(mesh, req: SkeletonLayoutRequest, progress, should_cancel) -> O
                            files={"result.glb": ResultFile("model/gltf-binary", glb)})
 
 
+def brdf_bytes(ctx, req: BRDFInterpolationRequest) -> int:
+    """The dense hemisphere kernel and its temporaries (~6 float64 per point pair), ~12
+    vectors per barycenter column, the two rendered sphere grids (RGBA float64)."""
+    n, columns = _brdf_sizes(req)
+    pixels = req.rows * req.cols * req.size ** 2
+    return 8 * 6 * n * n + 8 * 12 * n * columns + 2 * 8 * 4 * pixels
+
+
+def brdf_cost(n_points: int, req: BRDFInterpolationRequest, context=None) -> float:
+    """Dense kernel applications: hemisphere points^2 x barycenter columns x
+    ``BRDF_PAIR_COST`` (measured: bench/results/operation_memory.md)."""
+    n, columns = _brdf_sizes(req)
+    return BRDF_PAIR_COST * float(n) ** 2 * float(columns)
+
+
+BRDF_PAIR_COST = 4.0
+
+
+def _brdf_sizes(req: BRDFInterpolationRequest) -> tuple[int, int]:
+    """(hemisphere points, barycenter columns) of a request."""
+    n = req.n_theta * req.n_phi
+    spheres = len(req.weights) if req.weights else req.rows * req.cols
+    return n, len(req.incoming_theta) * spheres * len(req.materials)
+
+
+def skeleton_bytes(view: DomainView, req: SkeletonLayoutRequest) -> int:
+    """Per vertex: ~1600 float64 (the mean value coordinates' per-face work and the
+    propagation's operators, measured: bench/results/operation_memory.md) and 12 per
+    column (a node's distribution, two per edge)."""
+    columns = int(req.n_nodes) + 2 * len(req.edges)
+    return 8 * int(view.n) * (1600 + 12 * columns)
+
+
 OPERATIONS = [
     Operation(
         name="brdf-interpolations",
@@ -339,6 +372,8 @@ OPERATIONS = [
         validate=validate_brdf,
         scope="global",
         result_model=BRDFInterpolationValues,
+        estimate_bytes=brdf_bytes,
+        estimate_cost=brdf_cost,
     ),
     Operation(
         name="skeleton-layouts",
@@ -350,5 +385,6 @@ OPERATIONS = [
         validate=validate_skeleton,
         kinds=("mesh",),
         result_model=SkeletonLayoutValues,
+        estimate_bytes=skeleton_bytes,
     ),
 ]

@@ -267,8 +267,9 @@ class Operation:
     domain_field: str | None = None
     route: bool = True
     result_model: type[BaseModel] | None = None
-    # bytes of working memory a job needs, estimated from (view, request) at submission
-    # (default: ``estimate_job_bytes``); checked against ``job_memory_bytes``
+    # bytes of working memory a job needs, estimated at submission from (view, request)
+    # (default: ``estimate_job_bytes``), or (SubmitContext, request) for a global operation;
+    # checked against ``job_memory_bytes`` (a global operation checks in its ``validate``)
     estimate_bytes: Callable[..., int] | None = None
     # rows of arrays the operation derives from its stored ones on demand:
     # ``result_row(array, name, row)`` (``array(name)`` reads a stored result array) returns
@@ -488,6 +489,13 @@ def check_options(view: DomainView, req) -> None:
         raise InvalidInput("basis 'spectral' needs k, the number of eigenfunctions", field="k")
 
 
+# Cost units (``Operation.estimate_cost``, which picks the queue) a warm worker runs per
+# second on one core: what the convolutional solvers' default cost (points x iterations x
+# distributions) runs at (bench/results/operation_memory.md); an operation whose work is
+# another kind of step converts its count to these units, so that the long-queue threshold
+# (``long_job_cost``, 5e7) means about one second of work for every operation.
+COST_PER_SECOND = 5e7
+
 GREEN_MAX_VERTICES = 20_000  # the d_W^0 route caches a dense float32 Green's matrix below
 
 
@@ -521,15 +529,28 @@ def estimate_job_bytes(view: DomainView, req) -> int:
     return total
 
 
-def check_job_memory(op: Operation, view: DomainView, req, limit: int) -> int:
+def job_memory_estimate(op: Operation, target, req) -> int | None:
+    """The job's working memory estimated at submission: ``op.estimate_bytes(view, req)``
+    (default :func:`estimate_job_bytes`) for a domain operation, ``op.estimate_bytes(ctx,
+    req)`` for a global one (None when it has none). bench/operation_memory.py checks these
+    against measured peaks."""
+    if op.scope == "domain":
+        return (op.estimate_bytes or estimate_job_bytes)(target, req)
+    return None if op.estimate_bytes is None else op.estimate_bytes(target, req)
+
+
+def check_job_memory(op: Operation, view: DomainView | SubmitContext, req, limit: int
+                     ) -> int | None:
     """413 (field: the request's size-giving field) when the job's estimated memory is
-    above ``limit`` (``Settings.job_memory_bytes``); returns the estimate."""
+    above ``limit`` (``Settings.job_memory_bytes``); returns the estimate. ``view``: the
+    SubmitContext for a global operation."""
     from service.errors import PayloadTooLarge
 
-    estimate = (op.estimate_bytes or estimate_job_bytes)(view, req)
-    if estimate > limit:
+    estimate = job_memory_estimate(op, view, req)
+    if estimate is not None and estimate > limit:
         field = next((f for f in ("distributions", "times", "edges", "n_nodes", "k",
-                                  "points", "slice", "face_weights", "cost", "circle")
+                                  "points", "slice", "face_weights", "cost", "circle", "images",
+                                  "n_phi")
                       if getattr(req, f, None)), None)
         raise PayloadTooLarge(f"this job would need about {estimate / 2**30:.3g} GiB of "
                               f"working memory, more than the limit of {limit / 2**30:.3g} GiB "

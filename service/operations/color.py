@@ -239,6 +239,36 @@ def run(ctx, req: ColorTransferRequest, progress, should_cancel) -> OperationOut
     return OperationOutput(values=values, arrays=arrays, files=files)
 
 
+def _job_sizes(ctx, req: ColorTransferRequest) -> tuple[int, int, int]:
+    """(ab grid nodes per axis, pixels over every image, largest product of two images'
+    histogram supports: at most bins^2 or the image's pixels each) of a request."""
+    bins = int(req.bins or DEFAULT_BINS[req.mode])
+    each = sorted(check_header(ctx.blob(b, f"images[{i}]"), f"images[{i}]",
+                               ctx.settings).pixels for i, b in enumerate(req.images))
+    supports = [min(bins * bins, p) for p in each[-2:]]
+    return bins, sum(each), supports[0] * supports[-1]
+
+
+def estimate_bytes(ctx, req: ColorTransferRequest) -> int:
+    """Per pixel ~440 bytes (Lab planes, guided filter, outputs); the split mode's exact
+    plan between two histograms' supports (float64), the barycentric mode's ~12 float64
+    per grid node and histogram (measured: bench/results/operation_memory.md)."""
+    bins, pixels, plan = _job_sizes(ctx, req)
+    grid = 8 * plan if req.mode == "split" else 8 * 12 * bins**2 * (len(req.images) + 1)
+    return 440 * pixels + grid
+
+
+def estimate_cost(n: int, req: ColorTransferRequest, context=None) -> float:
+    """Per pixel ~100 cost units; the split mode's plans ~3 per entry, the barycentric
+    mode's grid x iterations x histograms (measured: bench/results/operation_memory.md)."""
+    if context is None:
+        return float(n)
+    bins, pixels, plan = _job_sizes(context, req)
+    grid = (3.0 * plan if req.mode == "split"
+            else float(bins**2) * req.max_iter * (len(req.images) + 1))
+    return 100.0 * pixels + grid
+
+
 OPERATIONS = [
     Operation(
         name="color-transfers",
@@ -252,5 +282,7 @@ OPERATIONS = [
         scope="global",
         route=False,
         result_model=ColorTransferValues,
+        estimate_bytes=estimate_bytes,
+        estimate_cost=estimate_cost,
     ),
 ]

@@ -22,6 +22,7 @@ from service.operations.base import (
     Operation,
     OperationOutput,
     OperationRequest,
+    estimate_job_bytes,
     given,
 )
 from service.operations.examples import example
@@ -248,10 +249,18 @@ def run(domain, req: HistogramPropagationRequest, progress, should_cancel) -> Op
     return OperationOutput(values, arrays, export)
 
 
+def estimate_bytes(view: DomainView, req: HistogramPropagationRequest) -> int:
+    """The default estimate plus ~32 float64 per node and bin (the propagation's per-bin
+    fields and their sweeps; measured: bench/results/operation_memory.md)."""
+    spec = req.bins
+    bins = len(spec.edges) - 1 if spec.edges is not None else int(spec.count or 1)
+    return estimate_job_bytes(view, req) + 8 * 32 * int(view.n) * max(bins, 1)
+
+
 OPERATIONS = [
     Operation("histogram-propagations", "createHistogramPropagationJob",
               "Propagate histograms from labeled nodes to every node (Wasserstein "
               "propagation of thesis ch. 5, PDF baseline, Wasserstein diffusion; S¹ bins)",
               HistogramPropagationRequest, run, _validate, kinds=("graph", "mesh", "pointcloud"),
-              result_model=HistogramPropagationValues),
+              result_model=HistogramPropagationValues, estimate_bytes=estimate_bytes),
 ]

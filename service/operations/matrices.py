@@ -142,9 +142,19 @@ def estimate_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
     return total
 
 
+EXACT_PAIR_COST = 20.0  # cost units per points^2 of one exact pair (measured, with margin)
+
+
 def estimate_cost(points: int, req: DistanceMatrixRequest, context=None) -> float:
-    """Points x pairs x a typical solve's kernel applications (queue choice only)."""
-    return float(max(points, 1)) * float(max(_sizes(req)[2], 1)) * 60.0
+    """Points x pairs x a typical solve's kernel applications; where exact pairs may run,
+    ``EXACT_PAIR_COST`` x points^2 per pair (the LP on supports of a fraction of the
+    domain: bench/results/operation_memory.md)."""
+    pairs = float(max(_sizes(req)[2], 1))
+    exact = req.metric == "w2" and (req.route == "exact" or (req.route == "auto"
+                                                              and req.gamma is None))
+    if exact and (context is None or context.kind in EXACT_KINDS):
+        return EXACT_PAIR_COST * float(max(points, 1)) ** 2 * pairs
+    return float(max(points, 1)) * pairs * 60.0
 
 
 def _output(res, reports, complete: bool) -> OperationOutput:

@@ -126,16 +126,22 @@ def validate(view: DomainView, req: MetricHistogramRequest) -> list[dict]:
     return []
 
 
+LP_ENTRY_COST = 20_000.0
+
+
 def estimate_cost(n: int, req: MetricHistogramRequest, context=None) -> float:
-    """Nodes x B^2 plan entries per edge (about 3 edges per node), a few simplex passes."""
+    """Nodes x B^2 plan entries per edge (about 3 edges per node) x ``LP_ENTRY_COST`` (the LP
+    solver's work per entry, measured: bench/results/operation_memory.md)."""
     b = len(req.cost) if req.cost is not None else req.circle.points if req.circle else 2
-    return 30.0 * float(max(n, 1)) * float(b) ** 2
+    return LP_ENTRY_COST * float(max(n, 1)) * float(b) ** 2
 
 
 def estimate_bytes(view: DomainView, req: MetricHistogramRequest) -> int:
     b = len(req.cost) if req.cost is not None else req.circle.points if req.circle else 2
     m = _edge_count(view) or 3 * view.n
-    return 8 * 20 * int(m) * b * b // 4 + 8 * 8 * int(view.n) * b  # banded LP, histograms
+    # the LP's matrix, factors and solver state per plan entry (measured ~75 float64 each:
+    # bench/results/operation_memory.md), the histograms
+    return 8 * 80 * int(m) * b * b + 8 * 8 * int(view.n) * b
 
 
 def _node_summaries(H: np.ndarray, cost: np.ndarray, bins, circle: bool) -> dict:

@@ -132,6 +132,10 @@ def estimate_bytes(req: ShapeInterpolationRequest) -> int:
     return 8 * req.resolution**3 * (VOLUME_ARRAYS + len(req.shapes))
 
 
+def job_bytes(ctx, req: ShapeInterpolationRequest) -> int:
+    return estimate_bytes(req)
+
+
 def estimate_cost(n: int, req: ShapeInterpolationRequest, context=None) -> float:
     """Grid nodes x iterations x shapes x frames x ``GRID_NODE_COST``: one separable
     convolution per shape and iteration; ``n`` (the first shape's vertices) does not enter."""
@@ -206,5 +210,6 @@ OPERATIONS = [
               "Interpolate two or more closed meshes as Wasserstein barycenters of their "
               "volumes (thesis §3.7): one mesh per frame in a GLB, and a PNG",
               ShapeInterpolationRequest, run, validate, ("mesh",), scope="global",
-              result_model=ShapeInterpolationValues, estimate_cost=estimate_cost),
+              result_model=ShapeInterpolationValues, estimate_cost=estimate_cost,
+              estimate_bytes=job_bytes),
 ]

@@ -35,9 +35,11 @@ from service.operations.softmaps import _mesh_view  # meshes of one component
 
 MAX_MAPS = 8
 MAX_SINGULAR_VALUES = 64  # reported per map (all are in no array: the rank kept is)
-# cost units (see service.jobs.queue.estimate_cost) per (source edge x target vertex): a W2 or
-# a potential solve per edge took ~20 ms on 7,207 target vertices (lion -> cat, 128 samples)
-DIRICHLET_COST = {"w2": 10, "potential": 10, "none": 0}
+# cost units (service.operations.base.COST_PER_SECOND) per (source edge x target vertex): a
+# W2 or a potential solve per edge took ~20 ms on 7,207 target vertices (lion -> cat, 128
+# samples), ~140 units per target vertex; with the rest of the job, measured ~400
+# (bench/results/operation_memory.md)
+DIRICHLET_COST = {"w2": 400, "potential": 400, "none": 0}
 ROWS_COPIES = 8  # (samples x target) float64 arrays alive at once: rows, kernel input and
 # output, descriptor cost, the weighted kernel and the SVD's work arrays
 
@@ -120,6 +122,12 @@ class SoftMapAnalysisValues(BaseModel):
 def estimated_bytes(req: SoftMapAnalysisRequest, n_target: int, sources: list[int]) -> int:
     rows = sum(min(req.samples, n) for n in sources)
     return 8 * n_target * rows * ROWS_COPIES
+
+
+def job_bytes(ctx, req: SoftMapAnalysisRequest) -> int:
+    """:func:`estimated_bytes` over the stored meshes."""
+    sources = [ctx.view(m.source_id, f"maps[{i}].source_id").n for i, m in enumerate(req.maps)]
+    return estimated_bytes(req, ctx.view(req.target_id, "target_id").n, sources)
 
 
 def validate(ctx, req: SoftMapAnalysisRequest) -> list[dict]:
@@ -225,5 +233,5 @@ OPERATIONS = [
               "bijectivity, descriptor energies; §4.6 SVD and collection bases)",
               SoftMapAnalysisRequest, run, validate, ("mesh",), scope="global",
               domain_field="target_id", result_model=SoftMapAnalysisValues,
-              estimate_cost=estimate_cost),
+              estimate_cost=estimate_cost, estimate_bytes=job_bytes),
 ]

@@ -173,8 +173,14 @@ def estimate_sizes(n_source: int, n_target: int, req: SoftMapRequest) -> dict:
     need = estimated_bytes(n_samples, n_target, target_points=solved, n_source=n_source,
                            k=req.k, n_energies=req.n_energies, landmarks=len(req.landmarks))
     per_sweep = EDGES_PER_SAMPLE * n_samples * (n_target if solved is None else solved)
-    cost = float(per_sweep) * float(req.max_iter) + float(n_samples) * float(n_target)
-    return {"bytes": need, "cost": cost}
+    steps = float(per_sweep) * float(req.max_iter) + float(n_samples) * float(n_target)
+    return {"bytes": need, "cost": LOG_STEP_COST * steps}
+
+
+# cost units (service.operations.base.COST_PER_SECOND) per log-domain step (an exp and a
+# log-sum-exp per entry, not a kernel application): measured 56-87 (bench/results/
+# operation_memory.md)
+LOG_STEP_COST = 100.0
 
 
 def estimate_cost(n: int, req: SoftMapRequest, context=None) -> float:
@@ -183,6 +189,12 @@ def estimate_cost(n: int, req: SoftMapRequest, context=None) -> float:
     if context is not None:
         n_target = context.view(req.target_id, "target_id").n
     return estimate_sizes(n, n_target, req)["cost"]
+
+
+def job_bytes(ctx, req: SoftMapRequest) -> int:
+    """The job's working memory (see :func:`estimate_sizes`) over its two stored meshes."""
+    return estimate_sizes(ctx.view(req.source_id, "source_id").n,
+                          ctx.view(req.target_id, "target_id").n, req)["bytes"]
 
 
 def validate(ctx, req: SoftMapRequest) -> list[dict]:
@@ -371,5 +383,6 @@ OPERATIONS = [
         result_model=SoftMapValues,
         result_row=result_row,
         estimate_cost=estimate_cost,
+        estimate_bytes=job_bytes,
     ),
 ]

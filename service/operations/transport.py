@@ -9,7 +9,9 @@ import numpy as np
 from pydantic import BaseModel, Field
 
 from service.errors import InvalidInput
+from service.jobs.queue import DEFAULT_ITERATIONS, estimate_cost
 from service.operations.base import (
+    COST_PER_SECOND,
     REQUEST_CONFIG,
     Distribution,
     DomainView,
@@ -20,6 +22,7 @@ from service.operations.base import (
     OperationRequest,
     check_options,
     check_same_components,
+    estimate_job_bytes,
     resolve_all,
     resolve_weighted,
     view_of_domain,
@@ -340,6 +343,51 @@ def decide_distance_job(view: DomainView, req: DistanceRequest) -> dict:
     return {"metric": "w2", **decision.as_dict()}
 
 
+def _decided(view: DomainView, req: DistanceRequest) -> dict:
+    """The job's decision (deterministic: the one ``decide`` stores), memoized per request
+    on the view, for the estimates."""
+    memo = view.memo.setdefault("distance_decisions", {})
+    key = req.model_dump_json()
+    if key not in memo:
+        if len(memo) >= 64:
+            memo.clear()
+        memo[key] = decide_distance_job(view, req)
+    return memo[key]
+
+
+def distance_bytes(view: DomainView, req: DistanceRequest) -> int:
+    """The default estimate, plus on the exact route the LP's cost matrix, plan and the
+    solver's copy (support x support, three float64 arrays; two missed a fifth of a
+    measured peak: bench/results/operation_memory.md)."""
+    total = estimate_job_bytes(view, req)
+    if req.metric == "w2" and _decided(view, req)["route"] == "exact":
+        masses, _ = _pair(view, req)
+        n0, n1 = (int(np.count_nonzero(masses[k])) for k in ("mu0", "mu1"))
+        total += 24 * n0 * n1
+    return total
+
+
+def distance_cost(n: int, req: DistanceRequest, context=None) -> float:
+    """The decision's own time model (``estimated_seconds``) in cost units when it has
+    one, else the default (points x iterations x distributions)."""
+    default = estimate_cost(n, req)
+    if context is None or req.metric != "w2":
+        return default
+    seconds = _decided(context, req).get("estimated_seconds")
+    return default if seconds is None else max(default, float(seconds) * COST_PER_SECOND)
+
+
+PROPAGATION_COST_FACTOR = 3  # measured: ~3 default units per point, iteration and column
+
+
+def propagation_cost(n: int, req: PropagationRequest, context=None) -> float:
+    """Points x iterations x (nodes + 2 x edges): every sweep updates each node's
+    distribution and both ends of each edge."""
+    columns = int(req.n_nodes) + 2 * len(req.edges)
+    iterations = req.max_iter or DEFAULT_ITERATIONS
+    return PROPAGATION_COST_FACTOR * float(max(n, 1)) * float(iterations) * columns
+
+
 def run_distance(domain, req: DistanceRequest, progress, should_cancel,
                  decision: dict | None = None) -> OperationOutput:
     """Execute the job's stored ``decision`` (taken at submission; decided here only for a
@@ -532,7 +580,8 @@ OPERATIONS = [
               "Transport distance between two distributions (W2^2: exact LP for sparse "
               "supports or convolutional; or W1)",
               DistanceRequest, run_distance, _validate_distance, result_model=DistanceResult,
-              decide=decide_distance_job),
+              decide=decide_distance_job, estimate_bytes=distance_bytes,
+              estimate_cost=distance_cost),
     Operation("barycenters", "createBarycenterJob",
               "Wasserstein barycenter of distributions (convolutional, optional sharpening)",
               BarycenterRequest, run_barycenter, _validate_barycenter,
@@ -544,7 +593,8 @@ OPERATIONS = [
     Operation("propagations", "createPropagationJob",
               "Wasserstein propagation: distributions at the free nodes of a graph from the "
               "fixed ones (thesis Alg. 4)", PropagationRequest, run_propagation,
-              _validate_propagation, result_model=PropagationValues),
+              _validate_propagation, result_model=PropagationValues,
+              estimate_cost=propagation_cost),
     Operation("pointwise-distances", "createPointwiseDistanceJob",
               "Distances from a source vertex to every vertex (W1 between Diracs)",
               PointwiseDistanceRequest, run_pointwise, _validate_pointwise, MESH,

@@ -249,11 +249,16 @@ def estimate_cost(n: int, req, context=None) -> float:
 def estimate_bytes(view: DomainView, req) -> int:
     """Mean value coordinates of every point (P x V, twice) plus the temporaries of one
     block of them (at most ``MVC_CHUNK_ENTRIES`` points x faces), and the conic program of
-    one solve (~40 vectors per face)."""
+    one solve (``CONIC_FLOATS_PER_FACE``)."""
     n, faces = int(view.n), int(view.n_faces or 2 * view.n)
     points = 7 if isinstance(req, VolumetricPathRequest) else _solves(n, req)
     block = min(points * faces, MVC_CHUNK_ENTRIES)
-    return 16 * points * n + 8 * MVC_TEMPORARIES * block + 40 * 8 * faces
+    return 16 * points * n + 8 * MVC_TEMPORARIES * block + CONIC_FLOATS_PER_FACE * 8 * faces
+
+
+# the conic program of one W1 solve, per face (measured with the coupled W1 barycenter:
+# bench/results/operation_memory.md; 40 missed a third of a path's working memory)
+CONIC_FLOATS_PER_FACE = 200
 
 
 # -- run --------------------------------------------------------------------------------

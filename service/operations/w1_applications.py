@@ -93,11 +93,12 @@ def barycenter_cost(n: int, req: W1BarycenterRequest, context=None) -> float:
 
 
 def barycenter_bytes(view: DomainView, req: W1BarycenterRequest) -> int:
-    """Per flow block: cones and scalings per face (~40 floats) and the KKT factor's share
-    per vertex (~60 floats); a coarse bound for the coupled program."""
+    """Per flow block: cones and scalings per face and the KKT factor's share per vertex;
+    ~200 and ~300 float64 (measured: bench/results/operation_memory.md; 40 and 60 missed
+    three quarters)."""
     faces = int(view.n_faces or 2 * view.n)
     blocks = len(req.distributions) + 1
-    return 8 * blocks * (40 * faces + 60 * int(view.n))
+    return 8 * blocks * (200 * faces + 300 * int(view.n))
 
 
 def run_barycenter(mesh, req: W1BarycenterRequest, progress, should_cancel) -> OperationOutput:

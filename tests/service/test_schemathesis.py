@@ -37,6 +37,8 @@ from liveserver import API  # noqa: E402
 
 ST = Path(sys.executable).parent / "st"
 EXAMPLES = 25  # per operation and phase
+KEYED_EXAMPLES = EXAMPLES  # the run with API keys configured (and the key sent): the same spec
+KEY = "schemathesis-key"  # a plain OTGEO_API_KEYS entry: its own (non-admin) tenant
 SEED = 20261203
 SKIP_PATHS = ["/v1/jobs/{job_id}/events"]  # streams until the job ends (tests/service/test_jobs)
 ENV = {"OTGEO_WORKERS": "1", "OTGEO_JOB_TIME_LIMIT": "5", "OTGEO_WAIT_MAX": "2"}
@@ -96,7 +98,7 @@ ALLOWED = [
 
 
 # -- the server and its data ----------------------------------------------------------------
-def _domains(url: str) -> dict[str, str]:
+def _domains(url: str, headers: dict) -> dict[str, str]:
     """Upload a small domain of every kind; their ids (content hashes) by kind."""
     import trimesh
 
@@ -113,26 +115,28 @@ def _domains(url: str) -> dict[str, str]:
     }
     ids = {}
     for kind, body in bodies.items():
-        r = httpx.post(f"{url}/v1/domains", json=body, timeout=60)
+        r = httpx.post(f"{url}/v1/domains", json=body, headers=headers, timeout=60)
         assert r.status_code in (200, 201), r.text
         ids[kind] = r.json()["id"]
     return ids
 
 
-def _job_with_files(url: str) -> tuple[str, str]:
+def _job_with_files(url: str, headers: dict) -> tuple[str, str]:
     """A finished job with files (a BRDF interpolation: PNG and GLB); its id and a file name."""
     from service.operations import build_registry
 
     op = build_registry()["brdf-interpolations"]
     example = op.request_model.model_json_schema()["examples"][0]
-    r = httpx.post(f"{url}/v1/{op.name}", json=example, params={"wait": 2}, timeout=60)
+    r = httpx.post(f"{url}/v1/{op.name}", json=example, params={"wait": 2}, headers=headers,
+                   timeout=60)
     assert r.status_code in (200, 202), r.text
     job_id = r.json()["id"]
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
-        job = httpx.get(f"{url}/v1/jobs/{job_id}", timeout=10).json()
+        job = httpx.get(f"{url}/v1/jobs/{job_id}", headers=headers, timeout=10).json()
         if job["state"] == "succeeded":
-            files = httpx.get(f"{url}/v1/jobs/{job_id}/result", timeout=10).json()["files"]
+            files = httpx.get(f"{url}/v1/jobs/{job_id}/result", headers=headers,
+                              timeout=10).json()["files"]
             return job_id, sorted(n for n in files if n.endswith(".png"))[0]
         assert job["state"] in ("queued", "running"), job
         time.sleep(0.2)
@@ -164,20 +168,29 @@ def _config(domains: dict[str, str], job_id: str, file_name: str) -> str:
 
 
 # -- the run and its failures ---------------------------------------------------------------
-def run_schemathesis(work: Path, examples: int, seed: int = SEED) -> tuple[list[dict], str]:
-    """Start ``otgeo serve``, run ``st run`` with every check; the failures and the output."""
-    api = API(dict(ENV, OTGEO_DATA_DIR=str(work / "data")), work)
+def run_schemathesis(work: Path, examples: int, seed: int = SEED, key: str | None = None
+                     ) -> tuple[list[dict], str]:
+    """Start ``otgeo serve``, run ``st run`` with every check; the failures and the output.
+    ``key``: the server requires API keys (``OTGEO_API_KEYS=key``) and every request sends
+    it (the ``ignored_auth`` check then also sends requests without it, expecting 401)."""
+    env = dict(ENV, OTGEO_DATA_DIR=str(work / "data"))
+    headers = {}
+    if key is not None:
+        env["OTGEO_API_KEYS"] = key
+        headers = {"X-API-Key": key}
+    api = API(env, work)
     try:
         api.wait_healthy(60)
-        domains = _domains(api.url)
-        job_id, file_name = _job_with_files(api.url)
+        domains = _domains(api.url, headers)
+        job_id, file_name = _job_with_files(api.url, headers)
         config = work / "schemathesis.toml"
         config.write_text(_config(domains, job_id, file_name))
         report = work / "report"
         cmd = [str(ST), "--config-file", str(config), "run", f"{api.url}/openapi.json",
                "--checks", "all", "--seed", str(seed), "--max-examples", str(examples),
                "--workers", "1", "--no-shrink", "--report", "ndjson", "--report-dir", str(report),
-               *[a for p in SKIP_PATHS for a in ("--exclude-path", p)]]
+               *[a for p in SKIP_PATHS for a in ("--exclude-path", p)],
+               *[a for k, v in headers.items() for a in ("--header", f"{k}: {v}")]]
         proc = subprocess.run(cmd, cwd=work, capture_output=True, text=True, timeout=900)
         events = next(report.glob("*.ndjson"))
         return failures(events), proc.stdout[-3000:]
@@ -229,9 +242,11 @@ def unexplained(found: list[dict]) -> list[dict]:
     return [f for f in found if not any(a.matches(f) for a in ALLOWED)]
 
 
-def test_schemathesis_finds_no_unexplained_failure(tmp_path):
+@pytest.mark.parametrize("key, examples", [(None, EXAMPLES), (KEY, KEYED_EXAMPLES)],
+                         ids=["open", "with-api-key"])
+def test_schemathesis_finds_no_unexplained_failure(tmp_path, key, examples):
     start = time.monotonic()
-    found, output = run_schemathesis(tmp_path, EXAMPLES)
+    found, output = run_schemathesis(tmp_path, examples, key=key)
     assert "test cases" in output.lower() or "Test cases" in output, output
     left = unexplained(found)
     assert left == [], json.dumps(left[:8], indent=1)
@@ -295,12 +310,13 @@ def main(argv=None) -> int:
     parser.add_argument("--examples", type=int, default=EXAMPLES)
     parser.add_argument("--seed", type=int, default=SEED)
     parser.add_argument("--all", action="store_true", help="list allowed failures too")
+    parser.add_argument("--key", help="configure this API key on the server and send it")
     args = parser.parse_args(argv)
     with open("/proc/loadavg") as fh:
         load_before = fh.read().split()[:3]
     start = time.monotonic()
     with tempfile.TemporaryDirectory() as d:
-        found, output = run_schemathesis(Path(d), args.examples, args.seed)
+        found, output = run_schemathesis(Path(d), args.examples, args.seed, args.key)
     with open("/proc/loadavg") as fh:
         load_after = fh.read().split()[:3]
     left = unexplained(found)

@@ -6,7 +6,7 @@ import numpy as np
 import trimesh
 from service_testing import assert_error, upload_mesh
 
-from service.operations.softmaps import SoftMapRequest, estimate_sizes
+from service.operations.softmaps import LOG_STEP_COST, SoftMapRequest, estimate_sizes
 
 LANDMARKS = [{"source": 0, "target": 0}, {"source": 40, "target": 40}]
 NEFERTITI = 49_971  # vertices
@@ -34,12 +34,13 @@ def test_the_issue_soft_map_is_long_and_above_its_measured_peak():
 
 
 def test_queue_follows_samples_and_sweeps(make_client, tmp_path):
-    client = make_client(queue="sqlite", workers=0, long_job_cost=5e5)
+    client = make_client(queue="sqlite", workers=0, long_job_cost=5e5 * LOG_STEP_COST)
     a = upload_mesh(client, _sphere(tmp_path, "a.obj")).json()["id"]
     b = upload_mesh(client, _sphere(tmp_path, "b.obj", (1.2, 1.0, 0.8))).json()["id"]
     body = {"source_id": a, "target_id": b, "landmarks": LANDMARKS, "k": 20,
             "target_points": None}
-    # 3 edges x 100 samples x 162 target points per sweep: 48,600 (was: 162 x max_iter)
+    # 3 edges x 100 samples x 162 target points per sweep: 48,600 log-domain steps (was:
+    # 162 x max_iter), LOG_STEP_COST cost units each
     short = client.post("/v1/soft-maps", json={**body, "samples": 100, "max_iter": 5}).json()
     assert short["queue"] == "short", short
     long = client.post("/v1/soft-maps", json={**body, "samples": 100, "max_iter": 20}).json()

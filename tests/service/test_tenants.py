@@ -403,3 +403,35 @@ def test_jobs_from_before_tenants_are_seen_by_admins_only(two_tenants):
         conn.execute(update(JOBS).where(JOBS.c.id == owned["job"]).values(tenant=None))
     assert_error(client.get(f"/v1/jobs/{owned['job']}", headers=B), 404, "job_id")
     assert client.get(f"/v1/jobs/{owned['job']}", headers=ADMIN).status_code == 200
+
+
+def _jobs_total(text: str) -> float:
+    """Sum of ``otgeo_jobs`` samples in a /metrics body."""
+    return sum(float(line.rsplit(" ", 1)[1]) for line in text.splitlines()
+               if line.startswith("otgeo_jobs{"))
+
+
+def test_metrics_count_the_callers_jobs_and_only_admins_see_every_tenant(two_tenants):
+    client, owned = two_tenants
+    beta, alpha, admin = (client.get("/metrics", headers=h) for h in (B, A, ADMIN))
+    assert beta.status_code == alpha.status_code == admin.status_code == 200
+    # beta ran a distance job and a color transfer; alpha nothing; the admin sees both
+    assert 'otgeo_jobs{operation="distances",state="succeeded"} 1' in beta.text
+    assert _jobs_total(beta.text) == 2 and _jobs_total(admin.text) == 2
+    assert _jobs_total(alpha.text) == 0
+    assert "otgeo_job_duration_seconds_count{" not in alpha.text
+    assert 'otgeo_job_duration_seconds_count{operation="distances"' in beta.text
+    # process-wide figures (cache per process id, workers) only with an admin key
+    for text in (alpha.text, beta.text):
+        assert "otgeo_cache_hits_total" not in text and "process=" not in text
+        assert "otgeo_workers_alive" not in text
+    assert "otgeo_cache_hits_total{process=" in admin.text
+    # a job of alpha shows in alpha's metrics, not in beta's
+    grid = client.post("/v1/domains", json=GRID, headers=A).json()["id"]
+    r = client.post(f"/v1/domains/{grid}/distances?wait=60", headers=A,
+                    json={"mu0": {"vertex": 0, "radius": 3}, "mu1": {"vertex": 63, "radius": 3}})
+    assert r.status_code == 200, r.text
+    assert _jobs_total(client.get("/metrics", headers=A).text) == 1
+    assert _jobs_total(client.get("/metrics", headers=B).text) == 2
+    assert _jobs_total(client.get("/metrics", headers=ADMIN).text) == 3
+    assert_error(client.get("/metrics"), 401, "X-API-Key", "unauthorized")
