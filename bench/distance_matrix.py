@@ -268,6 +268,8 @@ def render(data: dict) -> str:
                 f"the LP on the sample; x 4,950, extrapolated) | "
                 f"{_fmt(best['seconds_per_pair'] * 4950)} | "
                 f"{best['seconds_per_pair'] * 4950 / s['matrix_seconds']:.1f} |", "",
+                "The exact pairs' LPs run in threads (default: the CPUs of the process, 2 "
+                "on this machine; POT's network simplex releases the GIL). "
                 f"Target <= 5 s: {'met' if s['matrix_seconds'] <= 5 else 'NOT met'}. Largest "
                 f"relative gap matrix vs single pair on the sample: "
                 f"{s['worst_relative_gap_to_single']:.1e}. Single-pair `decide_distance` on the "

@@ -252,35 +252,52 @@ def barycenter(
     -------
     BarycenterResult(masses (n,), iterations, residual, converged, entropy, entropy_bound)
     """
-    M = masses_block(domain, mus, "mus")
-    if M.ndim == 1:
-        M = M[:, None]
-    k = M.shape[1]
-    alpha = check_weights(weights, k)
-    acceleration = check_acceleration(acceleration, BARYCENTER_ACCELERATIONS)
-    reg, gamma, substeps = shape_regularization(domain, gamma, t, substeps)
-    setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
-                    progress=progress, should_cancel=should_cancel)
-    monitor = watch_stagnation(setup, project=max_iter is None)
-    check_components(domain, M, setup.tol, "mus")
-    bound = None
-    if entropy_bound is not None:
-        bound = check_entropy_bound(entropy_bound, setup.areas, "entropy_bound")
-    elif sharpen:
-        bound = float(np.max(entropy(M, setup.areas)))
+    M = _inputs(domain, mus)
+    alpha = check_weights(weights, M.shape[1])
+    reg, setup, options = _prepared(domain, M, gamma=gamma, t=t, substeps=substeps,
+                                    entropy_bound=entropy_bound, sharpen=sharpen,
+                                    debiased=debiased, tol=tol, max_iter=max_iter,
+                                    acceleration=acceleration, progress=progress,
+                                    should_cancel=should_cancel)
+    bound = options["entropy_bounds"]
+    bound = None if bound is None else float(bound[0])
     scalings: dict = {}
     lbar, it, res, conv = barycenters_log(
-        setup.logk, setup.areas, M, alpha[:, None], tol=setup.tol, max_iter=setup.max_iter,
-        monitor=monitor, entropy_bounds=None if bound is None else np.array([bound]),
-        debiased=debiased,
-        relax=acceleration == "over-relaxation" and bound is None and not debiased,
-        scalings=scalings)
+        setup.logk, setup.areas, M, alpha[:, None],
+        monitor=watch_stagnation(setup, project=max_iter is None), scalings=scalings,
+        **options)
     masses = masses_from_log(lbar[:, 0], setup.areas)
     return BarycenterResult(masses=masses, iterations=int(it), residual=float(res),
                             converged=conv, entropy=float(entropy(masses, setup.areas)),
                             entropy_bound=bound, gamma=setup.gamma, t=setup.t,
                             log_scalings=(scalings["log_v"], scalings["log_w"]),
                             substeps=setup.substeps, regularization=reg)
+
+
+def _inputs(domain, mus) -> np.ndarray:
+    """``(n, k)`` normalized input masses of a barycenter."""
+    M = masses_block(domain, mus, "mus")
+    return M[:, None] if M.ndim == 1 else M
+
+
+def _prepared(domain, M, *, gamma, t, substeps, entropy_bound, sharpen, debiased, tol,
+              max_iter, acceleration, progress, should_cancel):
+    """``(policy or None, prepared setup, options of barycenter_steps)`` of
+    :func:`barycenter` / :func:`barycenters` (their shared checks and regularization)."""
+    acceleration = check_acceleration(acceleration, BARYCENTER_ACCELERATIONS)
+    reg, gamma, substeps = shape_regularization(domain, gamma, t, substeps)
+    setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
+                    progress=progress, should_cancel=should_cancel)
+    check_components(domain, M, setup.tol, "mus")
+    bound = None
+    if entropy_bound is not None:
+        bound = check_entropy_bound(entropy_bound, setup.areas, "entropy_bound")
+    elif sharpen:
+        bound = float(np.max(entropy(M, setup.areas)))
+    options = {"tol": setup.tol, "max_iter": setup.max_iter, "debiased": debiased,
+               "entropy_bounds": None if bound is None else np.array([bound]),
+               "relax": acceleration == "over-relaxation" and bound is None and not debiased}
+    return reg, setup, options
 
 
 @dataclass
@@ -351,9 +368,7 @@ def barycenters(
     from solvers.convolutional.matrix import block_pairs, run_block
     from solvers.errors import CancelledError, InputError
 
-    M = masses_block(domain, mus, "mus")
-    if M.ndim == 1:
-        M = M[:, None]
+    M = _inputs(domain, mus)
     k = M.shape[1]
     try:
         W = np.atleast_2d(np.asarray(weights, dtype=np.float64))
@@ -362,18 +377,13 @@ def barycenters(
     if W.ndim != 2 or W.shape[0] == 0:
         raise InputError(f"weights must have shape (B, {k})", field="weights")
     W = np.stack([check_weights(w, k) for w in W])
-    acceleration = check_acceleration(acceleration, BARYCENTER_ACCELERATIONS)
-    reg, gamma, substeps = shape_regularization(domain, gamma, t, substeps)
-    setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
-                    progress=None, should_cancel=None)
-    check_components(domain, M, setup.tol, "mus")
-    bound = None
-    if entropy_bound is not None:
-        bound = check_entropy_bound(entropy_bound, setup.areas, "entropy_bound")
-    elif sharpen:
-        bound = float(np.max(entropy(M, setup.areas)))
-    relax = acceleration == "over-relaxation" and bound is None and not debiased
-    order = "F" if setup.logk.use_log_apply else "C"
+    reg, setup, options = _prepared(domain, M, gamma=gamma, t=t, substeps=substeps,
+                                    entropy_bound=entropy_bound, sharpen=sharpen,
+                                    debiased=debiased, tol=tol, max_iter=max_iter,
+                                    acceleration=acceleration, progress=None,
+                                    should_cancel=None)
+    bound = options["entropy_bounds"]
+    bound = None if bound is None else float(bound[0])
     B = W.shape[0]
     out = {"masses": np.zeros((M.shape[0], B)), "it": np.zeros(B, dtype=np.int64),
            "res": np.full(B, np.nan), "conv": np.zeros(B, dtype=bool)}
@@ -381,10 +391,9 @@ def barycenters(
     def jobs():
         for b in range(B):
             steps = barycenter_steps(
-                setup.areas, M, W[b][:, None], tol=setup.tol, max_iter=setup.max_iter,
+                setup.areas, M, W[b][:, None],
                 monitor=watch_stagnation(setup, project=max_iter is None),
-                entropy_bounds=None if bound is None else np.array([bound]),
-                debiased=debiased, relax=relax, order=order)
+                order="F" if setup.logk.use_log_apply else "C", **options)
             yield b, steps
 
     def done(b, value) -> None:
