@@ -268,8 +268,8 @@ def _fmt(seconds: float) -> str:
 def render(data: dict) -> str:
     out = ["# Distance matrices", "",
            "Command: `cpu bench env OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python "
-           "bench/distance_matrix.py PART` (PART = spot, blocks, nefertiti, iteration, barycenters; "
-           "module docstring). "
+           "bench/distance_matrix.py PART` (PART = spot, blocks, nefertiti, iteration, "
+           "barycenters; module docstring). "
            "Wall-clock seconds of one run; load = 1-minute load average (2 shared cores) "
            "before / after.", ""]
     s = data.get("spot")
