@@ -97,6 +97,43 @@ def test_grid_exact_matrix_matches_lp():
             assert _relative_gap(res.values[i, j], single.value) <= 1e-9
 
 
+def _grid_points(count: int, seed: int):
+    grid = Grid((12, 12))
+    rng = np.random.default_rng(seed)
+    masses = np.zeros((grid.n, count))
+    for k in range(count):
+        masses[rng.choice(grid.n, 5, replace=False), k] = rng.random(5) + 0.1
+    return grid, masses
+
+
+def test_exact_lps_in_threads_equal_one_thread(monkeypatch):
+    """The exact pairs' LPs run in threads, in chunks: same values with 1 or 3 threads."""
+    import solvers.convolutional.matrix as matrix
+
+    monkeypatch.setattr(matrix, "EXACT_CHUNK", 4)
+    grid, masses = _grid_points(7, 5)
+    one = distance_matrix(grid, masses, threads=1)
+    three = distance_matrix(grid, masses, threads=3)
+    assert set(one.routes[np.triu_indices(7, 1)]) == {"exact"}
+    assert np.array_equal(one.values, three.values) and three.converged
+    with pytest.raises(InputError):
+        distance_matrix(grid, masses, threads=0)
+
+
+def test_exact_cancellation_between_chunks_keeps_finished_rows(monkeypatch):
+    import solvers.convolutional.matrix as matrix
+
+    monkeypatch.setattr(matrix, "EXACT_CHUNK", 3)
+    grid, masses = _grid_points(4, 6)
+    done = []
+    with pytest.raises(CancelledError) as info:
+        distance_matrix(grid, masses, threads=2, progress=lambda d, w: done.append(d),
+                        should_cancel=lambda: len(done) >= 3)
+    partial = info.value.partial
+    assert list(partial.finished_rows) == [0]  # pairs (0, 1), (0, 2), (0, 3): one chunk
+    assert np.isnan(partial.values[1, 2]) and not partial.computed[2, 3]
+
+
 def test_w1_matrix_triangle_inequality_and_single_pairs():
     mesh = load_shared_mesh("woody.obj")
     masses = np.stack([_bump(mesh, i, 0.2) for i in (0, 200, 400, 650)], axis=1)

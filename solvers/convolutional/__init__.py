@@ -6,6 +6,7 @@
 - :func:`distance_matrix` — every pair of a collection (or against templates), W2 pairs
   sharing a kernel advanced as one multi-column block, exact pairs on one cost matrix;
 - :func:`barycenter` — eq. 3.13 / Alg. 2, entropic sharpening (Alg. 3), debiased option;
+  :func:`barycenters` — many weight vectors over the same inputs as one block;
 - :func:`displacement_interpolation` — eq. 3.16, barycenters of two inputs;
 - :func:`wasserstein_propagation` — Alg. 4 / eq. 3.17, per-edge rescaled kernels (eq. 3.18);
 - :func:`shape_interpolation` — §3.7, barycenters of voxelized shapes, marching cubes;
@@ -24,7 +25,12 @@ All iterations run on log-scalings (stable at small ``gamma``), stop on a measur
 marginal violation, and report ``iterations``, ``residual`` and ``converged``.
 """
 
-from solvers.convolutional.barycenter import BarycenterResult, barycenter
+from solvers.convolutional.barycenter import (
+    BarycenterResult,
+    BarycentersResult,
+    barycenter,
+    barycenters,
+)
 from solvers.convolutional.distance import SinkhornResult, wasserstein_distance
 from solvers.convolutional.exact import ExactTransportResult, exact_wasserstein_distance
 from solvers.convolutional.interpolation import InterpolationResult, displacement_interpolation
@@ -34,6 +40,7 @@ from solvers.convolutional.shapes import ShapeResult, iso_surface, shape_interpo
 
 __all__ = [
     "BarycenterResult",
+    "BarycentersResult",
     "DistanceMatrixResult",
     "ExactTransportResult",
     "InterpolationResult",
@@ -41,6 +48,7 @@ __all__ = [
     "ShapeResult",
     "SinkhornResult",
     "barycenter",
+    "barycenters",
     "displacement_interpolation",
     "distance_matrix",
     "exact_wasserstein_distance",

@@ -36,7 +36,7 @@ from solvers.convolutional.common import (
     masses_from_log,
     prepare,
 )
-from solvers.convolutional.distance import watch_stagnation
+from solvers.convolutional.distance import run_steps, watch_stagnation
 from solvers.monitor import SolverResult
 from solvers.regularization import Regularization, shape_regularization
 from solvers.validation import check_entropy_bound, check_weights
@@ -108,11 +108,25 @@ def sharpen_log(lbar: np.ndarray, areas: np.ndarray, bound: float) -> np.ndarray
 
 
 def barycenters_log(logk: LogKernel, areas: np.ndarray, inputs: np.ndarray,
-                    weights: np.ndarray, *, tol: float, max_iter: int, monitor: Monitor,
-                    entropy_bounds: np.ndarray | None = None, debiased: bool = False,
-                    owners: np.ndarray | None = None, relax: bool = False,
-                    measure_all: bool = False, scalings: dict | None = None):
-    r"""``B`` barycenters at once from ``C`` input columns.
+                    weights: np.ndarray, **options):
+    r"""``B`` barycenters at once from ``C`` input columns: :func:`barycenter_steps`
+    driven by ``logk`` (same arguments, returns ``(log_bar (n, B), iterations, residual,
+    converged)``)."""
+    options.setdefault("order", "F" if logk.use_log_apply else "C")
+    with np.errstate(invalid="ignore"):
+        return run_steps(barycenter_steps(areas, inputs, weights, **options), logk)
+
+
+def barycenter_steps(areas: np.ndarray, inputs: np.ndarray, weights: np.ndarray, *,
+                     tol: float, max_iter: int, monitor: Monitor,
+                     entropy_bounds: np.ndarray | None = None, debiased: bool = False,
+                     owners: np.ndarray | None = None, relax: bool = False,
+                     measure_all: bool = False, scalings: dict | None = None,
+                     order: str = "F"):
+    r"""``B`` barycenters at once from ``C`` input columns, as a step generator: it yields
+    each log-block to which the kernel applies and receives ``logk`` of it
+    (:func:`~solvers.convolutional.distance.run_steps`, or
+    :func:`~solvers.convolutional.matrix.run_block` for many problems in one block).
 
     ``inputs`` ``(n, C)`` masses; ``weights`` ``(C, B)``: column ``c`` enters
     barycenter ``b`` with weight ``weights[c, b]`` (each column of ``weights`` sums
@@ -129,7 +143,6 @@ def barycenters_log(logk: LogKernel, areas: np.ndarray, inputs: np.ndarray,
     alpha = weights[np.arange(C), owner]
     # Keep (n, C) blocks in the kernel's preferred layout: grid kernels work on the
     # transposed (C, *shape) block, so Fortran order avoids a transpose copy per call.
-    order = "F" if logk.use_log_apply else "C"
     lm = np.asarray(log_density(inputs, areas), order=order)
     lv = np.zeros((n, C), order=order)
     B = weights.shape[1]
@@ -148,43 +161,42 @@ def barycenters_log(logk: LogKernel, areas: np.ndarray, inputs: np.ndarray,
     lw = None
     it = 0
     residual = np.inf
-    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
-        while True:
-            lkv = logk(lv)
-            target = lm - lkv
-            if lw is None or omega == 1.0:
-                lw = target
-            else:
-                lw = lw + omega * (target - lw)
-                if not full:
-                    lw = np.where(support, lw, -np.inf)
-            lku = logk(lw)
-            ld = lv + lku
-            if debiased:
-                # Janati et al. (2020) / POT: geometric mean of H(w_i) times c.
-                lbar = lku @ weights + lc
-                for _ in range(10):
-                    lc = 0.5 * (lc + lbar - logk(lc))
-            else:
-                lbar = ld @ weights  # Alg. 2: mu = prod_i d_i^alpha_i
-            if entropy_bounds is not None:
-                for b in range(B):
-                    lbar[:, b] = sharpen_log(lbar[:, b], areas, entropy_bounds[b])
-            if it % check == 0 or it >= max_iter:
-                gaps = np.abs(a * (np.exp(ld) - np.exp(spread(lbar)))).sum(axis=0)
-                if omega != 1.0:  # the relaxed w update leaves the input marginal inexact
-                    gaps = gaps + np.abs(a * np.exp(lw + lkv) - inputs).sum(axis=0)
-                residual = float(np.max(gaps if measure_all else np.where(alpha > 0, gaps, 0.0)))
-                if not np.isfinite(residual):
-                    residual = float("inf")
-                if residual <= tol or it >= max_iter or not np.isfinite(residual) \
-                        or monitor.stalled:
-                    monitor(it, residual)
-                    break
-                omega = sor.update(residual)
-            monitor(it, residual)
-            lv = lv + omega * (spread(lbar) - lku - lv)
-            it += 1
+    while True:
+        lkv = yield lv
+        target = lm - lkv
+        if lw is None or omega == 1.0:
+            lw = target
+        else:
+            lw = lw + omega * (target - lw)
+            if not full:
+                lw = np.where(support, lw, -np.inf)
+        lku = yield lw
+        ld = lv + lku
+        if debiased:
+            # Janati et al. (2020) / POT: geometric mean of H(w_i) times c.
+            lbar = lku @ weights + lc
+            for _ in range(10):
+                lc = 0.5 * (lc + lbar - (yield lc))
+        else:
+            lbar = ld @ weights  # Alg. 2: mu = prod_i d_i^alpha_i
+        if entropy_bounds is not None:
+            for b in range(B):
+                lbar[:, b] = sharpen_log(lbar[:, b], areas, entropy_bounds[b])
+        if it % check == 0 or it >= max_iter:
+            gaps = np.abs(a * (np.exp(ld) - np.exp(spread(lbar)))).sum(axis=0)
+            if omega != 1.0:  # the relaxed w update leaves the input marginal inexact
+                gaps = gaps + np.abs(a * np.exp(lw + lkv) - inputs).sum(axis=0)
+            residual = float(np.max(gaps if measure_all else np.where(alpha > 0, gaps, 0.0)))
+            if not np.isfinite(residual):
+                residual = float("inf")
+            if residual <= tol or it >= max_iter or not np.isfinite(residual) \
+                    or monitor.stalled:
+                monitor(it, residual)
+                break
+            omega = sor.update(residual)
+        monitor(it, residual)
+        lv = lv + omega * (spread(lbar) - lku - lv)
+        it += 1
     if scalings is not None:
         scalings["log_v"], scalings["log_w"] = lv, lw
     return lbar, it, residual, bool(residual <= tol)
@@ -240,32 +252,168 @@ def barycenter(
     -------
     BarycenterResult(masses (n,), iterations, residual, converged, entropy, entropy_bound)
     """
-    M = masses_block(domain, mus, "mus")
-    if M.ndim == 1:
-        M = M[:, None]
-    k = M.shape[1]
-    alpha = check_weights(weights, k)
-    acceleration = check_acceleration(acceleration, BARYCENTER_ACCELERATIONS)
-    reg, gamma, substeps = shape_regularization(domain, gamma, t, substeps)
-    setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
-                    progress=progress, should_cancel=should_cancel)
-    monitor = watch_stagnation(setup, project=max_iter is None)
-    check_components(domain, M, setup.tol, "mus")
-    bound = None
-    if entropy_bound is not None:
-        bound = check_entropy_bound(entropy_bound, setup.areas, "entropy_bound")
-    elif sharpen:
-        bound = float(np.max(entropy(M, setup.areas)))
+    M = _inputs(domain, mus)
+    alpha = check_weights(weights, M.shape[1])
+    reg, setup, options = _prepared(domain, M, gamma=gamma, t=t, substeps=substeps,
+                                    entropy_bound=entropy_bound, sharpen=sharpen,
+                                    debiased=debiased, tol=tol, max_iter=max_iter,
+                                    acceleration=acceleration, progress=progress,
+                                    should_cancel=should_cancel)
+    bound = options["entropy_bounds"]
+    bound = None if bound is None else float(bound[0])
     scalings: dict = {}
     lbar, it, res, conv = barycenters_log(
-        setup.logk, setup.areas, M, alpha[:, None], tol=setup.tol, max_iter=setup.max_iter,
-        monitor=monitor, entropy_bounds=None if bound is None else np.array([bound]),
-        debiased=debiased,
-        relax=acceleration == "over-relaxation" and bound is None and not debiased,
-        scalings=scalings)
+        setup.logk, setup.areas, M, alpha[:, None],
+        monitor=watch_stagnation(setup, project=max_iter is None), scalings=scalings,
+        **options)
     masses = masses_from_log(lbar[:, 0], setup.areas)
     return BarycenterResult(masses=masses, iterations=int(it), residual=float(res),
                             converged=conv, entropy=float(entropy(masses, setup.areas)),
                             entropy_bound=bound, gamma=setup.gamma, t=setup.t,
                             log_scalings=(scalings["log_v"], scalings["log_w"]),
                             substeps=setup.substeps, regularization=reg)
+
+
+def _inputs(domain, mus) -> np.ndarray:
+    """``(n, k)`` normalized input masses of a barycenter."""
+    M = masses_block(domain, mus, "mus")
+    return M[:, None] if M.ndim == 1 else M
+
+
+def _prepared(domain, M, *, gamma, t, substeps, entropy_bound, sharpen, debiased, tol,
+              max_iter, acceleration, progress, should_cancel):
+    """``(policy or None, prepared setup, options of barycenter_steps)`` of
+    :func:`barycenter` / :func:`barycenters` (their shared checks and regularization)."""
+    acceleration = check_acceleration(acceleration, BARYCENTER_ACCELERATIONS)
+    reg, gamma, substeps = shape_regularization(domain, gamma, t, substeps)
+    setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
+                    progress=progress, should_cancel=should_cancel)
+    check_components(domain, M, setup.tol, "mus")
+    bound = None
+    if entropy_bound is not None:
+        bound = check_entropy_bound(entropy_bound, setup.areas, "entropy_bound")
+    elif sharpen:
+        bound = float(np.max(entropy(M, setup.areas)))
+    options = {"tol": setup.tol, "max_iter": setup.max_iter, "debiased": debiased,
+               "entropy_bounds": None if bound is None else np.array([bound]),
+               "relax": acceleration == "over-relaxation" and bound is None and not debiased}
+    return reg, setup, options
+
+
+@dataclass
+class BarycentersResult(SolverResult):
+    r"""Result of :func:`barycenters`: ``masses`` ``(n, B)`` (columns sum to 1), one per
+    weight vector; per problem ``(B,)``: ``problem_iterations``, ``problem_residuals``,
+    ``problem_converged``, ``entropies``; ``iterations`` (sum), ``residual`` (max) and
+    ``converged`` (all) summarize them."""
+
+    masses: np.ndarray
+    weights: np.ndarray
+    problem_iterations: np.ndarray
+    problem_residuals: np.ndarray
+    problem_converged: np.ndarray
+    entropies: np.ndarray
+    entropy_bound: float | None = None
+    gamma: float = 0.0
+    t: float = 0.0
+    substeps: int = 1
+    regularization: Regularization | None = None
+
+
+def barycenters(
+    domain,
+    mus,
+    weights,
+    *,
+    gamma: float | str = "auto",
+    t: float | None = None,
+    substeps: int | None = None,
+    entropy_bound: float | None = None,
+    sharpen: bool = False,
+    debiased: bool = False,
+    tol: float = 1e-5,
+    max_iter: int | None = None,
+    acceleration: str = "over-relaxation",
+    progress: Callable[..., None] | None = None,
+    should_cancel: Callable[[], bool] | None = None,
+) -> BarycentersResult:
+    r"""Many barycenters of the same inputs, one per weight vector, solved as one block.
+
+    Problem ``b`` is :func:`barycenter` ``(domain, mus, weights[b], ...)`` with the same
+    arguments (eq. 3.13 / Alg. 2; Alg. 3 with sharpening): every problem keeps its own
+    scalings, over-relaxation, stopping rule and stagnation record, so each column of
+    ``masses`` is that single call's result; the kernel applications of all active
+    problems form one multi-column block per step
+    (:func:`~solvers.convolutional.matrix.run_block`), finished problems leave it and the
+    next enter.  The regularization (``gamma="auto"``: the ``"shapes"`` policy) depends on
+    the domain alone, so every problem shares one kernel.
+
+    Parameters
+    ----------
+    domain : any domain.
+    mus : ``(n, k)`` input masses (columns normalized here).
+    weights : ``(B, k)`` non-negative weight vectors (each normalized), e.g. a grid of
+        ``alphas`` (thesis Fig. 3.4).
+    gamma, t, substeps, entropy_bound, sharpen, debiased, tol, max_iter, acceleration :
+        as :func:`barycenter`.
+    progress : ``progress(problems_done, worst_residual)`` after each finished problem.
+    should_cancel : checked before every block step (raises
+        :class:`~solvers.errors.CancelledError`).
+
+    Returns
+    -------
+    BarycentersResult(masses (n, B), weights (B, k), problem_iterations, problem_residuals,
+    problem_converged, entropies, iterations, residual, converged, ...)
+    """
+    from solvers.convolutional.matrix import block_pairs, run_block
+    from solvers.errors import CancelledError, InputError
+
+    M = _inputs(domain, mus)
+    k = M.shape[1]
+    try:
+        W = np.atleast_2d(np.asarray(weights, dtype=np.float64))
+    except (TypeError, ValueError) as exc:
+        raise InputError("weights must be a list of weight vectors", field="weights") from exc
+    if W.ndim != 2 or W.shape[0] == 0:
+        raise InputError(f"weights must have shape (B, {k})", field="weights")
+    W = np.stack([check_weights(w, k) for w in W])
+    reg, setup, options = _prepared(domain, M, gamma=gamma, t=t, substeps=substeps,
+                                    entropy_bound=entropy_bound, sharpen=sharpen,
+                                    debiased=debiased, tol=tol, max_iter=max_iter,
+                                    acceleration=acceleration, progress=None,
+                                    should_cancel=None)
+    bound = options["entropy_bounds"]
+    bound = None if bound is None else float(bound[0])
+    B = W.shape[0]
+    out = {"masses": np.zeros((M.shape[0], B)), "it": np.zeros(B, dtype=np.int64),
+           "res": np.full(B, np.nan), "conv": np.zeros(B, dtype=bool)}
+
+    def jobs():
+        for b in range(B):
+            steps = barycenter_steps(
+                setup.areas, M, W[b][:, None],
+                monitor=watch_stagnation(setup, project=max_iter is None),
+                order="F" if setup.logk.use_log_apply else "C", **options)
+            yield b, steps
+
+    def done(b, value) -> None:
+        lbar, it, res, conv = value
+        out["masses"][:, b] = masses_from_log(lbar[:, 0], setup.areas)
+        out["it"][b], out["res"][b], out["conv"][b] = it, res, conv
+        if progress is not None:
+            finished = np.isfinite(out["res"])
+            progress(int(finished.sum()), float(np.max(out["res"][finished])))
+
+    def stop(where: str) -> None:
+        if should_cancel is not None and should_cancel():
+            raise CancelledError(f"cancelled {where}")
+
+    with np.errstate(invalid="ignore"):
+        run_block(setup.logk, jobs(), max(1, block_pairs(M.shape[0] * k)), done, stop)
+    masses = out["masses"]
+    return BarycentersResult(
+        masses=masses, weights=W, problem_iterations=out["it"], problem_residuals=out["res"],
+        problem_converged=out["conv"], entropies=entropy(masses, setup.areas),
+        entropy_bound=bound, gamma=setup.gamma, t=setup.t, substeps=setup.substeps,
+        regularization=reg, iterations=int(out["it"].sum()), residual=float(out["res"].max()),
+        converged=bool(out["conv"].all()))
