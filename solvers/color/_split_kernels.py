@@ -11,7 +11,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from solvers.color._kernels import _finv, _jit, _nearest_node, _rgb_of
+from solvers.color._kernels import _jit, _linear_rgb, _lookup_l, _nearest_node, _store
 
 
 @_jit(inline="always")
@@ -223,17 +223,6 @@ def guided_solve(mom, nguide, eps, coef):
 
 
 @_jit(inline="always")
-def _linear_rgb(L, a, b, m):
-    y = (L + 16.0) / 116.0
-    x = _finv(a / 500.0 + y)
-    z = _finv(y - b / 200.0)
-    y = _finv(y)
-    return (m[0, 0] * x + m[0, 1] * y + m[0, 2] * z,
-            m[1, 0] * x + m[1, 1] * y + m[1, 2] * z,
-            m[2, 0] * x + m[2, 1] * y + m[2, 2] * z)
-
-
-@_jit(inline="always")
 def _in_gamut(L, a, b, m):
     r, g, bb = _linear_rgb(L, a, b, m)
     t = GAMUT_TOL
@@ -279,7 +268,6 @@ def apply_field(lab, src, out, width, lut_l, lstep, disp, coef, nguide, s, m, sc
     ``out = v * scale + offset``; a fourth channel of ``src`` is copied."""
     n = lab.shape[0]
     use_l = lut_l.shape[0] > 0
-    nl = max(lut_l.shape[0], 1)
     guided = coef.shape[0] > 0
     alpha = src.shape[1] > 3 and out.shape[1] > 3
     inv_l = 1.0 / lstep
@@ -302,20 +290,7 @@ def apply_field(lab, src, out, width, lut_l, lstep, disp, coef, nguide, s, m, sc
         else:
             A += disp[p, 0]
             B += disp[p, 1]
-        L = L0
-        if use_l:
-            u = L0 * inv_l
-            if u < 0.0:
-                u = 0.0
-            k = int(u)
-            if k > nl - 1:
-                k = nl - 1
-            L = lut_l[k]
+        L = _lookup_l(L0, lut_l, inv_l) if use_l else L0
         if reach > 0:
             L = gamut_lightness(L, A, B, m, reach)
-        r, g2, b = _rgb_of(L, A, B, m)
-        out[p, 0] = r * scale + offset
-        out[p, 1] = g2 * scale + offset
-        out[p, 2] = b * scale + offset
-        if alpha:
-            out[p, 3] = src[p, 3]
+        _store(out, src, p, L, A, B, m, scale, offset, alpha)
