@@ -76,3 +76,30 @@ def luminance_maps(counts: np.ndarray, alphas: np.ndarray, lmax: float = L_MAX) 
                           for j in range(k)])  # (k, M): mean of Q_j over bin m of input i
         out[:, i, :] = alphas @ means
     return out
+
+
+def limit_slope(table: np.ndarray, counts: np.ndarray, limit: float,
+                lmax: float = L_MAX) -> np.ndarray:
+    r"""Contrast-limited version of a monotone L* table ``(M,)`` (bins of equal width over
+    ``[0, lmax]``, ``counts`` ``(M,)`` the source's pixels per bin).
+
+    The exact 1-D map :math:`T` stretches some L* ranges and compresses others, which
+    changes local contrast.  Here its slope between consecutive bins is clipped to
+    :math:`[g / c, g c]` (:math:`c` = ``limit`` >= 1, :math:`g` the ratio of the
+    standard deviations of :math:`T(L)` and :math:`L` over the source's pixels), the
+    table re-integrated, and shifted so the source's mean L* goes where :math:`T` sends
+    it.  ``limit = inf`` keeps :math:`T`; ``limit = 1`` is the affine map that matches
+    mean and standard deviation.  The result is clipped to ``[0, lmax]``.
+    """
+    if not np.isfinite(limit):
+        return table
+    w = np.asarray(counts, dtype=np.float64)
+    w = w / w.sum()
+    centres = (np.arange(len(table)) + 0.5) * lmax / len(table)
+    mean_src, mean_out = w @ centres, w @ table
+    g = np.sqrt(max(w @ (table - mean_out) ** 2, 0.0)
+                / max(w @ (centres - mean_src) ** 2, 1e-12))
+    slope = np.clip(np.diff(table) / np.diff(centres), g / limit, g * limit)
+    out = np.concatenate([[0.0], np.cumsum(slope * np.diff(centres))])
+    out += mean_out - w @ out
+    return np.clip(out, 0.0, lmax)

@@ -127,15 +127,22 @@ def block_mean(field: np.ndarray, s: int) -> np.ndarray:
 
 
 def split_displacements(lab: np.ndarray, shape: tuple[int, int], plan: ExactPlan,
-                        grid: AbGrid, *, scale: float, s: int, radius: int) -> np.ndarray:
+                        grid: AbGrid, *, scale: float, s: int, radius: int,
+                        base: np.ndarray | None = None) -> np.ndarray:
     """Per-pixel ab displacements ``(N, 2)`` float32: ``scale`` times ``y_j - x_i`` for the
     target node ``j`` each pixel of source node ``i`` is given (module doc).
 
-    ``lab`` ``(N, 3)`` the image's Lab (C order over ``shape``); the ordering key smooths
-    ab by a box of ``2 radius + 1`` cells on the image reduced by ``s``."""
+    ``lab`` ``(N, 3)`` the image's Lab (C order over ``shape``), its ab moved by ``base``
+    ``(N, 2)`` if given; the ordering key smooths ab by a box of ``2 radius + 1`` cells
+    on the image reduced by ``s``."""
     H, W = shape
-    a = block_mean(lab[:, 1].reshape(H, W), s)
-    b = block_mean(lab[:, 2].reshape(H, W), s)
+    if base is None:
+        base = np.zeros((0, 2), dtype=np.float32)
+        a = block_mean(lab[:, 1].reshape(H, W), s)
+        b = block_mean(lab[:, 2].reshape(H, W), s)
+    else:
+        a = block_mean((lab[:, 1] + base[:, 0]).reshape(H, W), s)
+        b = block_mean((lab[:, 2] + base[:, 1]).reshape(H, W), s)
     size = 2 * radius + 1
     sa = ndimage.uniform_filter(a, size, mode="nearest")
     sb = ndimage.uniform_filter(b, size, mode="nearest")
@@ -147,7 +154,7 @@ def split_displacements(lab: np.ndarray, shape: tuple[int, int], plan: ExactPlan
     key = np.empty(lab.shape[0], dtype=np.float32)
     row = np.empty(lab.shape[0], dtype=np.int64)
     # the same float32 grid constants as the histogram pass, so both bin pixels alike
-    K.keys(lab, W, s, sa, sb, np.float32(grid.nodes[0]), np.float32(grid.spacing), grid.bins,
+    K.keys(lab, base, W, s, sa, sb, np.float32(grid.nodes[0]), np.float32(grid.spacing), grid.bins,
            row_of, dirs, key, row)
     if row.min() < 0:  # the plan was built from this image's own histogram
         raise RuntimeError("a pixel's ab node is missing from the plan's support")
@@ -173,3 +180,18 @@ def split_displacements(lab: np.ndarray, shape: tuple[int, int], plan: ExactPlan
     out = np.empty((lab.shape[0], 2), dtype=np.float32)
     K.assign(key, row, lo, hi, start, offsets, ends, disp, float(scale), out)
     return out
+
+
+def moved_histogram(lab: np.ndarray, disp: np.ndarray, grid: AbGrid):
+    """Nearest-node histogram ``(bins, bins)`` (pixel counts) of ``lab[:, 1:] + disp`` and
+    the mean ab ``(2, bins²)`` at each node."""
+    from solvers.color._kernels import _chunks
+
+    n2 = grid.bins**2
+    chunks = _chunks(lab.shape[0])
+    counts = np.zeros((chunks, n2))
+    sums = np.zeros((chunks, 2, n2))
+    K.moved_histogram(lab, disp, np.float32(grid.nodes[0]), np.float32(grid.spacing),
+                      grid.bins, counts, sums)
+    total = counts.sum(axis=0)
+    return total.reshape(grid.bins, grid.bins), sums.sum(axis=0) / np.maximum(total, 1.0)

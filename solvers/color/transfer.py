@@ -42,9 +42,9 @@ from solvers.color import _kernels
 from solvers.color import _split_kernels as SK
 from solvers.color.chrominance import AbGrid, check_bins, chrominance_barycenters
 from solvers.color.lab import check_image, code_scale, lut_for, pixels
-from solvers.color.luminance import L_MAX, LBINS, luminance_maps
+from solvers.color.luminance import L_MAX, LBINS, limit_slope, luminance_maps
 from solvers.color.regularize import guided_coefficients
-from solvers.color.split import ExactPlan, exact_plan, split_displacements
+from solvers.color.split import ExactPlan, exact_plan, moved_histogram, split_displacements
 from solvers.errors import InputError
 from solvers.monitor import SolverResult
 from solvers.validation import check_positive, check_weights
@@ -66,6 +66,7 @@ REDUCED_PIXELS = 2**19
 GUIDE_CHANNELS = 3
 # an out-of-gamut result moves to the nearest in-gamut L* up to this far (keeps its ab)
 GAMUT_REACH = 100.0
+LUMINANCE_SLOPE = float("inf")
 
 
 @dataclass(kw_only=True)
@@ -355,14 +356,18 @@ def _split(images, A, bins, luminance, regularization, todo, t0, opts) -> ColorT
                 continue
             if kind == "vertex":
                 p, scale = plan(i, (i, data), H[data], means[data]), 1.0
+                target = (H[data], means[data])
             elif kind == "pair":
                 j = 1 - i
                 p, scale = plan(i, (i, j), H[j], means[j]), float(A[b, j])
+                target = (targets[b], None)
             else:
                 p, scale = plan(i, (i, f"b{data}"), targets[b]), 1.0
-            lut_l = None if lmaps is None else lmaps[b, i]
+                target = (targets[b], None)
+            lut_l = None if lmaps is None else limit_slope(lmaps[b, i], lcounts[i],
+                                                           LUMINANCE_SLOPE)
             out_images[b][i] = _recolor_split(images[i], labs[i], p, grid, scale, lut_l,
-                                              regularization)
+                                              regularization, target)
     times["apply"] = time.perf_counter() - t2
     times["total"] = time.perf_counter() - t0
     residuals = [p.residual for p in plans.values()] + ([cb.residual] if cb else [])
@@ -387,19 +392,27 @@ def reduction(shape: tuple[int, int]) -> tuple[int, int, int]:
     return (s, max(1, round(KEY_RADIUS * side / s)), max(1, round(filter_px / s)))
 
 
-def _recolor_split(img, lab, plan, grid, scale, lut_l, regularization):
+def _recolor_split(img, lab, plan, grid, scale, lut_l, regularization, target, resplit=True):
+    """Split (module doc), guided filter, then (``resplit``) the filtered colours split
+    again by the exact plan from their histogram to ``target`` = ``(histogram, node
+    means or None)``, so the output histogram is the target's again."""
     shape = img.shape[:2]
     s, key_radius, filter_radius = reduction(shape)
     disp = split_displacements(lab, shape, plan, grid, scale=scale, s=s, radius=key_radius)
-    coef = np.zeros((0, 1, 1))
     if regularization > 0:
         coef = guided_coefficients(lab, disp, shape, strength=regularization, s=s,
                                    radius=filter_radius, nguide=GUIDE_CHANNELS)
+        SK.guided_field(lab, coef, GUIDE_CHANNELS, s, shape[1], disp)
+        if resplit:
+            hist, hmeans = moved_histogram(lab, disp, grid)
+            again = exact_plan(hist, target[0], grid, hmeans, target[1])
+            disp += split_displacements(lab, shape, again, grid, scale=1.0, s=s,
+                                        radius=key_radius, base=disp)
     src = pixels(img)
     out = np.empty_like(src)
     lut = np.zeros(0, dtype=np.float32) if lut_l is None else lut_l.astype(np.float32)
     scale_out = code_scale(img.dtype)
     offset = 0.5 if img.dtype.kind in "ui" else 0.0
-    SK.apply_field(lab, src, out, shape[1], lut, L_MAX / LBINS, disp, coef, GUIDE_CHANNELS,
-                   s, _kernels._M_INV, scale_out, offset, float(GAMUT_REACH))
+    SK.apply_field(lab, src, out, lut, L_MAX / LBINS, disp, _kernels._M_INV, scale_out,
+                   offset, float(GAMUT_REACH))
     return out.reshape(img.shape).astype(img.dtype, copy=False)
