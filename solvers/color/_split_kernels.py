@@ -67,6 +67,29 @@ def keys(lab, base, width, s, smooth_a, smooth_b, lo, h, nbins, row_of, dirs, ke
         key[p] = ma * dirs[r, 0] + mb * dirs[r, 1]
 
 
+@_jit(parallel=True)
+def block_sums_ab(lab, base, width, s, sums):
+    """Sums of a*, b* (moved by ``base`` unless it is empty) and pixel counts over each
+    ``s × s`` block: ``sums`` ``(3, h, w)``."""
+    hl = sums.shape[1]
+    wl = sums.shape[2]
+    height = lab.shape[0] // width
+    moved = base.shape[0] > 0
+    for by in numba.prange(hl):
+        for y in range(by * s, min(height, (by + 1) * s)):
+            for x in range(width):
+                p = y * width + x
+                bx = min(x // s, wl - 1)
+                a = np.float64(lab[p, 1])
+                b = np.float64(lab[p, 2])
+                if moved:
+                    a += base[p, 0]
+                    b += base[p, 1]
+                sums[0, by, bx] += a
+                sums[1, by, bx] += b
+                sums[2, by, bx] += 1.0
+
+
 @_jit()
 def key_ranges(key, row, nrows):
     lo = np.full(nrows, np.inf)

@@ -91,16 +91,21 @@ def exact_plan(source: np.ndarray, target: np.ndarray, grid: AbGrid,
 
 def integer_split(plan: np.ndarray, counts: np.ndarray) -> np.ndarray:
     """Integer pixel counts ``(R, C)`` whose rows sum to ``counts`` ``(R,)`` and that are
-    the plan's rows scaled to ``counts`` rounded by largest remainders."""
-    row = plan.sum(axis=1, keepdims=True)
-    share = plan / np.where(row > 0, row, 1.0) * counts[:, None]
+    the plan's rows scaled to ``counts`` rounded by largest remainders (ties: lower
+    column first)."""
+    row = plan.sum(axis=1)
+    r, c = np.nonzero(plan)  # row-major: columns ascending within each row
+    share = plan[r, c] / np.where(row > 0, row, 1.0)[r] * counts[r]
     base = np.floor(share).astype(np.int64)
-    missing = counts.astype(np.int64) - base.sum(axis=1)
-    frac = share - base
-    order = np.argsort(-frac, axis=1, kind="stable")
-    ranks = np.empty_like(order)
-    np.put_along_axis(ranks, order, np.arange(plan.shape[1])[None, :], axis=1)
-    return base + (ranks < missing[:, None])
+    missing = counts.astype(np.int64) - np.bincount(r, weights=base, minlength=len(counts)
+                                                    ).astype(np.int64)
+    order = np.lexsort((-(share - base), r))  # by row, then largest remainder first
+    first = np.searchsorted(r[order], np.arange(len(counts)))
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order)) - first[r[order]]
+    out = np.zeros(plan.shape, dtype=np.int64)
+    out[r, c] = base + (rank < missing[r])
+    return out
 
 
 def _principal_directions(points: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -114,16 +119,15 @@ def _principal_directions(points: np.ndarray, weights: np.ndarray) -> np.ndarray
     return np.stack([np.cos(theta), np.sin(theta)], axis=1)
 
 
-def block_mean(field: np.ndarray, s: int) -> np.ndarray:
-    """Mean over ``s × s`` blocks (the last partial blocks averaged over what they hold)."""
-    if s == 1:
-        return field.astype(np.float64)
-    H, W = field.shape
+def block_mean_ab(lab: np.ndarray, base: np.ndarray, shape: tuple[int, int],
+                  s: int) -> tuple[np.ndarray, np.ndarray]:
+    """Mean a*, b* (of ``lab[:, 1:] + base``; ``base`` empty: of ``lab``) over ``s × s``
+    blocks (the last partial blocks averaged over what they hold), ``(h, w)`` each."""
+    H, W = shape
     h, w = -(-H // s), -(-W // s)
-    pad = np.pad(field.astype(np.float64), ((0, h * s - H), (0, w * s - W)))
-    ones = np.pad(np.ones((H, W)), ((0, h * s - H), (0, w * s - W)))
-    sums = pad.reshape(h, s, w, s).sum(axis=(1, 3))
-    return sums / ones.reshape(h, s, w, s).sum(axis=(1, 3))
+    sums = np.zeros((3, h, w))
+    K.block_sums_ab(lab, base, W, s, sums)
+    return sums[0] / sums[2], sums[1] / sums[2]
 
 
 def split_displacements(lab: np.ndarray, shape: tuple[int, int], plan: ExactPlan,
@@ -138,11 +142,7 @@ def split_displacements(lab: np.ndarray, shape: tuple[int, int], plan: ExactPlan
     H, W = shape
     if base is None:
         base = np.zeros((0, 2), dtype=np.float32)
-        a = block_mean(lab[:, 1].reshape(H, W), s)
-        b = block_mean(lab[:, 2].reshape(H, W), s)
-    else:
-        a = block_mean((lab[:, 1] + base[:, 0]).reshape(H, W), s)
-        b = block_mean((lab[:, 2] + base[:, 1]).reshape(H, W), s)
+    a, b = block_mean_ab(lab, base, shape, s)
     size = 2 * radius + 1
     sa = ndimage.uniform_filter(a, size, mode="nearest")
     sb = ndimage.uniform_filter(b, size, mode="nearest")

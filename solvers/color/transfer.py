@@ -63,10 +63,14 @@ KEY_RADIUS = 0.02
 MIN_FILTER_RADIUS = 4  # pixels: small images still get a window that can smooth a step
 # images are reduced by s x s blocks for the filters' moments above this many pixels
 REDUCED_PIXELS = 2**19
-GUIDE_CHANNELS = 3
+GUIDE_CHANNELS = 1
 # an out-of-gamut result moves to the nearest in-gamut L* up to this far (keeps its ab)
 GAMUT_REACH = 100.0
-LUMINANCE_SLOPE = float("inf")
+# split mode: the L* table's slope kept within [1/c, c] times its mean slope
+# (luminance.limit_slope; inf = the exact 1-D map); chosen in bench/color.py
+DEFAULT_LUMINANCE_SLOPE = 1.25
+RESPLIT_FILTERS = 0
+RESPLIT_WEIGHT = 1.0
 
 
 @dataclass(kw_only=True)
@@ -132,6 +136,7 @@ def color_transfer(
     gamma: float = DEFAULT_GAMMA,
     luminance: bool = True,
     regularization: float = DEFAULT_REGULARIZATION,
+    luminance_slope: float = DEFAULT_LUMINANCE_SLOPE,
     sharpen: bool = False,
     debiased: bool = False,
     recolor: Sequence[int] | None = None,
@@ -177,7 +182,14 @@ def color_transfer(
         blur of standard deviation ``sqrt(gamma/2)``) of the entropic barycenters.
     luminance : also transfer L* (1-D OT); ``False`` transfers chrominance only and keeps
         each pixel's L*.
-    regularization : ``split`` only: guided-filter epsilon (>= 0; 0: no filter).
+    regularization : ``split`` only: guided-filter epsilon (>= 0; 0: no filter).  With a
+        filter the filtered colours are split once more by the exact plan from their
+        histogram to the target (the filter moves colours off the target's histogram;
+        this puts them back, up to the binning).
+    luminance_slope : ``split`` only: contrast limit ``c >= 1`` of the L* map
+        (:func:`~solvers.color.luminance.limit_slope`: the exact 1-D map's slope clipped
+        to ``[g/c, g c]``, ``g`` its mean slope); ``inf`` keeps the exact 1-D map.  The
+        default, 1.25, keeps local contrast (edges) that the exact map changes.
     sharpen, debiased : entropic sharpening (Alg. 3) / debiased barycenters, against the
         desaturation by entropic blur.
     recolor : indices of the images to recolor (default all); the others only contribute
@@ -203,6 +215,7 @@ def color_transfer(
     bins = check_bins(DEFAULT_BINS[mode] if bins is None else bins)
     gamma = check_positive(gamma, "gamma")
     regularization = check_regularization(regularization)
+    luminance_slope = check_luminance_slope(luminance_slope)
     todo = list(range(k)) if recolor is None else sorted({int(i) for i in recolor})
     if any(not 0 <= i < k for i in todo):
         raise InputError(f"recolor indices must lie in [0, {k})", field="recolor")
@@ -210,13 +223,25 @@ def color_transfer(
                 max_iter=max_iter, progress=progress, should_cancel=should_cancel)
     if mode == "barycentric":
         return _barycentric(images, A, bins, luminance, todo, t0, opts)
-    return _split(images, A, bins, luminance, regularization, todo, t0, opts)
+    return _split(images, A, bins, luminance, (regularization, luminance_slope), todo, t0,
+                  opts)
 
 
 def check_mode(mode) -> str:
     if mode not in MODES:
         raise InputError(f"mode must be one of {', '.join(MODES)}, got {mode!r}", field="mode")
     return str(mode)
+
+
+def check_luminance_slope(value) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError) as exc:
+        raise InputError("luminance_slope must be a number", field="luminance_slope") from exc
+    if np.isnan(v) or v < 1:
+        raise InputError(f"luminance_slope must be >= 1 (inf: exact map), got {value!r}",
+                         field="luminance_slope")
+    return v
 
 
 def check_regularization(value) -> float:
@@ -322,8 +347,10 @@ def _targets(H, A, grid, opts):
     return kinds, targets, cb
 
 
-def _split(images, A, bins, luminance, regularization, todo, t0, opts) -> ColorTransferResult:
-    """The split transfer (module doc), towards each weight row's target."""
+def _split(images, A, bins, luminance, settings, todo, t0, opts) -> ColorTransferResult:
+    """The split transfer (module doc), towards each weight row's target; ``settings`` =
+    ``(regularization, luminance_slope)``."""
+    regularization, slope = settings
     times: dict[str, float] = {}
     k = len(images)
     grid = AbGrid(bins)
@@ -364,8 +391,7 @@ def _split(images, A, bins, luminance, regularization, todo, t0, opts) -> ColorT
             else:
                 p, scale = plan(i, (i, f"b{data}"), targets[b]), 1.0
                 target = (targets[b], None)
-            lut_l = None if lmaps is None else limit_slope(lmaps[b, i], lcounts[i],
-                                                           LUMINANCE_SLOPE)
+            lut_l = None if lmaps is None else limit_slope(lmaps[b, i], lcounts[i], slope)
             out_images[b][i] = _recolor_split(images[i], labs[i], p, grid, scale, lut_l,
                                               regularization, target)
     times["apply"] = time.perf_counter() - t2
@@ -406,8 +432,12 @@ def _recolor_split(img, lab, plan, grid, scale, lut_l, regularization, target, r
         if resplit:
             hist, hmeans = moved_histogram(lab, disp, grid)
             again = exact_plan(hist, target[0], grid, hmeans, target[1])
-            disp += split_displacements(lab, shape, again, grid, scale=1.0, s=s,
+            disp += split_displacements(lab, shape, again, grid, scale=RESPLIT_WEIGHT, s=s,
                                         radius=key_radius, base=disp)
+            for _ in range(RESPLIT_FILTERS):
+                coef = guided_coefficients(lab, disp, shape, strength=regularization, s=s,
+                                           radius=filter_radius, nguide=GUIDE_CHANNELS)
+                SK.guided_field(lab, coef, GUIDE_CHANNELS, s, shape[1], disp)
     src = pixels(img)
     out = np.empty_like(src)
     lut = np.zeros(0, dtype=np.float32) if lut_l is None else lut_l.astype(np.float32)
