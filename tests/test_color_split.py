@@ -143,3 +143,42 @@ def test_split_input_errors():
     with pytest.raises(InputError) as e:
         color_transfer([img, img], regularization=-1)
     assert e.value.field == "regularization"
+
+
+def test_contrast_limited_luminance_map():
+    from solvers.color.luminance import limit_slope, luminance_maps
+
+    rng = np.random.default_rng(0)
+    src = np.bincount(np.clip(rng.normal(40, 8, 20000), 0, 99.9).astype(int) * 4, minlength=400)
+    tgt = np.bincount(np.clip(rng.gamma(2.0, 12.0, 20000), 0, 99.9).astype(int) * 4,
+                      minlength=400)
+    exact = luminance_maps(np.stack([src, tgt]), np.array([[0.0, 1.0]]))[0, 0]
+    assert limit_slope(exact, src, float("inf")) is exact  # the exact map stays available
+    w = src / src.sum()
+    centres = (np.arange(400) + 0.5) * 0.25
+    slope_exact = np.diff(exact) / 0.25
+    for c in (1.0, 1.25, 2.0):
+        out = limit_slope(exact, src, c)
+        slope = np.diff(out) / 0.25
+        inside = (out[1:] > 0) & (out[:-1] > 0) & (out[1:] < 100) & (out[:-1] < 100)
+        g = np.sqrt(w @ (exact - w @ exact) ** 2 / (w @ (centres - w @ centres) ** 2))
+        assert np.all(slope[inside] >= g / c - 1e-9) and np.all(slope[inside] <= g * c + 1e-9)
+        assert abs(w @ out - w @ exact) < 1e-6  # the mean L* goes where the exact map sends it
+        # within the limits the slopes are the exact map's
+        free = inside & (slope_exact > g / c) & (slope_exact < g * c)
+        assert np.allclose(slope[free], slope_exact[free])
+    affine = limit_slope(exact, src, 1.0)
+    unclipped = (affine[1:] > 0) & (affine[:-1] > 0) & (affine[1:] < 100) & (affine[:-1] < 100)
+    assert np.ptp(np.diff(affine)[unclipped]) < 1e-9  # c = 1: affine
+
+
+def test_luminance_slope_input_error_and_exact_option():
+    img, tgt = data.coffee()[::8, ::8], data.chelsea()[::8, ::8]
+    with pytest.raises(InputError) as e:
+        color_transfer([img, tgt], luminance_slope=0.5)
+    assert e.value.field == "luminance_slope"
+    r = color_transfer([img, tgt], [0, 1], recolor=[0], luminance_slope=float("inf"))
+    exact = rgb_to_lab_reference(r.images[0][0])[..., 0]
+    limited = rgb_to_lab_reference(color_transfer([img, tgt], [0, 1], recolor=[0]
+                                                  ).images[0][0])[..., 0]
+    assert np.abs(exact - limited).max() > 1.0  # the option changes the L* map

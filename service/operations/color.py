@@ -44,7 +44,9 @@ from solvers.color.chrominance import AbGrid, check_bins
 from solvers.color.transfer import (
     DEFAULT_BINS,
     DEFAULT_GAMMA,
+    DEFAULT_LUMINANCE_SLOPE,
     DEFAULT_REGULARIZATION,
+    DEFAULT_RESPLIT,
     MAX_IMAGES,
     check_alphas,
 )
@@ -83,6 +85,13 @@ class ColorTransferRequest(OperationRequest):
         "0 turns it off (exact histogram, possible banding)")
     luminance: bool = Field(True, description="also transfer L* (1-D optimal transport); "
                             "false transfers chrominance only")
+    resplit: float = Field(
+        DEFAULT_RESPLIT, ge=0, le=1, description="split mode: fraction of the second split "
+        "(filtered colours to the target's histogram) that is applied; 1: exact histogram")
+    luminance_slope: float | None = Field(
+        DEFAULT_LUMINANCE_SLOPE, ge=1, le=1000, description="split mode: contrast limit c of "
+        "the L* map (its slope kept within [1/c, c] times its mean slope, which keeps the "
+        "input's local contrast); null: the exact 1-D optimal map")
     sharpen: bool = Field(False, description="entropic sharpening of the barycenters")
     debiased: bool = Field(False, description="debiased barycenters (less entropic blur)")
     recolor: list[Int] | None = Field(None, description="indices of the images to recolor "
@@ -192,6 +201,9 @@ def run(ctx, req: ColorTransferRequest, progress, should_cancel) -> OperationOut
     A = _alphas(req)
     r = color_transfer(images, A, mode=req.mode, bins=req.bins, gamma=req.gamma,
                        luminance=req.luminance, regularization=req.regularization,
+                       luminance_slope=(float("inf") if req.luminance_slope is None
+                                        else req.luminance_slope),
+                       resplit=req.resplit,
                        sharpen=req.sharpen, debiased=req.debiased, recolor=_recolor(req),
                        tol=req.tol, max_iter=req.max_iter, progress=progress,
                        should_cancel=should_cancel)

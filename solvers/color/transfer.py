@@ -7,7 +7,13 @@ their color distributions, for one or several weight vectors :math:`\alpha`
 ``mode="split"`` (default): chrominance by the exact plan between nearest-node ab
 histograms, each source node's pixels split among its targets in the plan's proportions
 by a spatially coherent order (:mod:`solvers.color.split`), then the displacement field
-regularized by a guided filter on the input's luminance (:mod:`solvers.color.regularize`).
+regularized by a guided filter on the input's luminance (:mod:`solvers.color.regularize`),
+and the filtered colours split once more by the exact plan from their histogram to the
+target, which puts back the fidelity the filter costs (a filter -> re-split step, as in
+the regularized transport maps of Rabin, Delon and Gousseau).  L* goes through the exact
+1-D map with its slope limited (``luminance_slope``, :func:`~solvers.color.luminance.
+limit_slope`; ``inf`` = the exact map), and an out-of-gamut colour moves to the nearest
+in-gamut L* within ``GAMUT_REACH``, else loses chroma at its L* and hue.
 Towards a vertex of the simplex (``alphas`` with a single 1) the plan goes to that image's
 histogram; for ``k = 2`` and :math:`\alpha = (1 - s, s)` every pixel moves the fraction
 :math:`s` of its displacement (McCann's interpolation, the exact W2 geodesic between the
@@ -69,8 +75,9 @@ GAMUT_REACH = 100.0
 # split mode: the L* table's slope kept within [1/c, c] times its mean slope
 # (luminance.limit_slope; inf = the exact 1-D map); chosen in bench/color.py
 DEFAULT_LUMINANCE_SLOPE = 1.25
-RESPLIT_FILTERS = 0
-RESPLIT_WEIGHT = 1.0
+# fraction of the re-split's correction applied after the guided filter (1: the output
+# histogram is the target's; less: smaller steps between neighbours); chosen in bench/color.py
+DEFAULT_RESPLIT = 0.5
 
 
 @dataclass(kw_only=True)
@@ -137,6 +144,7 @@ def color_transfer(
     luminance: bool = True,
     regularization: float = DEFAULT_REGULARIZATION,
     luminance_slope: float = DEFAULT_LUMINANCE_SLOPE,
+    resplit: float = DEFAULT_RESPLIT,
     sharpen: bool = False,
     debiased: bool = False,
     recolor: Sequence[int] | None = None,
@@ -186,6 +194,8 @@ def color_transfer(
         filter the filtered colours are split once more by the exact plan from their
         histogram to the target (the filter moves colours off the target's histogram;
         this puts them back, up to the binning).
+    resplit : ``split`` only: fraction in [0, 1] of that re-split's correction that is
+        applied (1: output histogram = target's; 0: the filtered colours as they are).
     luminance_slope : ``split`` only: contrast limit ``c >= 1`` of the L* map
         (:func:`~solvers.color.luminance.limit_slope`: the exact 1-D map's slope clipped
         to ``[g/c, g c]``, ``g`` its mean slope); ``inf`` keeps the exact 1-D map.  The
@@ -216,6 +226,7 @@ def color_transfer(
     gamma = check_positive(gamma, "gamma")
     regularization = check_regularization(regularization)
     luminance_slope = check_luminance_slope(luminance_slope)
+    resplit = check_fraction(resplit, "resplit")
     todo = list(range(k)) if recolor is None else sorted({int(i) for i in recolor})
     if any(not 0 <= i < k for i in todo):
         raise InputError(f"recolor indices must lie in [0, {k})", field="recolor")
@@ -223,14 +234,24 @@ def color_transfer(
                 max_iter=max_iter, progress=progress, should_cancel=should_cancel)
     if mode == "barycentric":
         return _barycentric(images, A, bins, luminance, todo, t0, opts)
-    return _split(images, A, bins, luminance, (regularization, luminance_slope), todo, t0,
-                  opts)
+    return _split(images, A, bins, luminance, (regularization, luminance_slope, resplit), todo,
+                  t0, opts)
 
 
 def check_mode(mode) -> str:
     if mode not in MODES:
         raise InputError(f"mode must be one of {', '.join(MODES)}, got {mode!r}", field="mode")
     return str(mode)
+
+
+def check_fraction(value, name: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{name} must be a number", field=name) from exc
+    if not 0 <= v <= 1:
+        raise InputError(f"{name} must lie in [0, 1], got {value!r}", field=name)
+    return v
 
 
 def check_luminance_slope(value) -> float:
@@ -349,8 +370,8 @@ def _targets(H, A, grid, opts):
 
 def _split(images, A, bins, luminance, settings, todo, t0, opts) -> ColorTransferResult:
     """The split transfer (module doc), towards each weight row's target; ``settings`` =
-    ``(regularization, luminance_slope)``."""
-    regularization, slope = settings
+    ``(regularization, luminance_slope, resplit)``."""
+    regularization, slope, resplit = settings
     times: dict[str, float] = {}
     k = len(images)
     grid = AbGrid(bins)
@@ -393,7 +414,7 @@ def _split(images, A, bins, luminance, settings, todo, t0, opts) -> ColorTransfe
                 target = (targets[b], None)
             lut_l = None if lmaps is None else limit_slope(lmaps[b, i], lcounts[i], slope)
             out_images[b][i] = _recolor_split(images[i], labs[i], p, grid, scale, lut_l,
-                                              regularization, target)
+                                              (regularization, resplit), target)
     times["apply"] = time.perf_counter() - t2
     times["total"] = time.perf_counter() - t0
     residuals = [p.residual for p in plans.values()] + ([cb.residual] if cb else [])
@@ -418,10 +439,12 @@ def reduction(shape: tuple[int, int]) -> tuple[int, int, int]:
     return (s, max(1, round(KEY_RADIUS * side / s)), max(1, round(filter_px / s)))
 
 
-def _recolor_split(img, lab, plan, grid, scale, lut_l, regularization, target, resplit=True):
-    """Split (module doc), guided filter, then (``resplit``) the filtered colours split
-    again by the exact plan from their histogram to ``target`` = ``(histogram, node
-    means or None)``, so the output histogram is the target's again."""
+def _recolor_split(img, lab, plan, grid, scale, lut_l, settings, target):
+    """Split (module doc), guided filter, then the filtered colours split again by the
+    exact plan from their histogram to ``target`` = ``(histogram, node means or None)``,
+    the fraction ``resplit`` of that correction applied (1: the output histogram is the
+    target's again); ``settings`` = ``(regularization, resplit)``."""
+    regularization, resplit = settings
     shape = img.shape[:2]
     s, key_radius, filter_radius = reduction(shape)
     disp = split_displacements(lab, shape, plan, grid, scale=scale, s=s, radius=key_radius)
@@ -429,15 +452,11 @@ def _recolor_split(img, lab, plan, grid, scale, lut_l, regularization, target, r
         coef = guided_coefficients(lab, disp, shape, strength=regularization, s=s,
                                    radius=filter_radius, nguide=GUIDE_CHANNELS)
         SK.guided_field(lab, coef, GUIDE_CHANNELS, s, shape[1], disp)
-        if resplit:
+        if resplit > 0:
             hist, hmeans = moved_histogram(lab, disp, grid)
             again = exact_plan(hist, target[0], grid, hmeans, target[1])
-            disp += split_displacements(lab, shape, again, grid, scale=RESPLIT_WEIGHT, s=s,
+            disp += split_displacements(lab, shape, again, grid, scale=resplit, s=s,
                                         radius=key_radius, base=disp)
-            for _ in range(RESPLIT_FILTERS):
-                coef = guided_coefficients(lab, disp, shape, strength=regularization, s=s,
-                                           radius=filter_radius, nguide=GUIDE_CHANNELS)
-                SK.guided_field(lab, coef, GUIDE_CHANNELS, s, shape[1], disp)
     src = pixels(img)
     out = np.empty_like(src)
     lut = np.zeros(0, dtype=np.float32) if lut_l is None else lut_l.astype(np.float32)
