@@ -244,21 +244,22 @@ def check_mode(mode) -> str:
     return str(mode)
 
 
-def check_fraction(value, name: str) -> float:
+def _number(value, name: str) -> float:
     try:
-        v = float(value)
+        return float(value)
     except (TypeError, ValueError) as exc:
         raise InputError(f"{name} must be a number", field=name) from exc
+
+
+def check_fraction(value, name: str) -> float:
+    v = _number(value, name)
     if not 0 <= v <= 1:
         raise InputError(f"{name} must lie in [0, 1], got {value!r}", field=name)
     return v
 
 
 def check_luminance_slope(value) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as exc:
-        raise InputError("luminance_slope must be a number", field="luminance_slope") from exc
+    v = _number(value, "luminance_slope")
     if np.isnan(v) or v < 1:
         raise InputError(f"luminance_slope must be >= 1 (inf: exact map), got {value!r}",
                          field="luminance_slope")
@@ -266,10 +267,7 @@ def check_luminance_slope(value) -> float:
 
 
 def check_regularization(value) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as exc:
-        raise InputError("regularization must be a number", field="regularization") from exc
+    v = _number(value, "regularization")
     if not np.isfinite(v) or v < 0:
         raise InputError(f"regularization must be finite and >= 0, got {value!r}",
                          field="regularization")

@@ -178,8 +178,8 @@ def test_grid_domain_is_an_image(page, live_api, tmp_path):
     assert page.js_errors == []
 
 
-def test_color_transfer_images_side_by_side(page, live_api, tmp_path):
-    """A global operation with a multipart form (files): inputs and results side by side."""
+def open_color_transfer(page, live_api, tmp_path):
+    """The viewer with the color-transfer form filled in with two small gradient images."""
     y, x = np.mgrid[0:36, 0:48]
     warm = np.stack([200 + 0 * x, 60 + x, 40 + y], -1).astype(np.uint8)
     cool = np.stack([30 + 0 * x, 80 + y, 150 + x], -1).astype(np.uint8)
@@ -189,6 +189,11 @@ def test_color_transfer_images_side_by_side(page, live_api, tmp_path):
     page.select_option("#operation", "createColorTransfer")
     page.set_input_files("#op-form input[name=images]",
                          [str(tmp_path / "warm.png"), str(tmp_path / "cool.png")])
+
+
+def test_color_transfer_images_side_by_side(page, live_api, tmp_path):
+    """A global operation with a multipart form (files): inputs and results side by side."""
+    open_color_transfer(page, live_api, tmp_path)
     page.click("#op-form details > summary")  # optional fields are folded under "options"
     page.fill("#op-form input[name=bins]", "32")
     page.click("#run")
@@ -218,15 +223,7 @@ def test_color_transfer_histogram_row(page, live_api, tmp_path):
     """The ab histograms of inputs, outputs and target in one row under the results: every
     picture is shown, and each output's histogram looks like the target's, not like its
     input's."""
-    y, x = np.mgrid[0:36, 0:48]
-    warm = np.stack([200 + 0 * x, 60 + x, 40 + y], -1).astype(np.uint8)
-    cool = np.stack([30 + 0 * x, 80 + y, 150 + x], -1).astype(np.uint8)
-    for name, img in (("warm.png", warm), ("cool.png", cool)):
-        Image.fromarray(img).save(tmp_path / name)
-    open_viewer(page, live_api)
-    page.select_option("#operation", "createColorTransfer")
-    page.set_input_files("#op-form input[name=images]",
-                         [str(tmp_path / "warm.png"), str(tmp_path / "cool.png")])
+    open_color_transfer(page, live_api, tmp_path)
     page.click("#run")
     page.wait_for_selector("#progress[data-state=succeeded]", timeout=4 * TIMEOUT)
     heads = page.locator("#gallery h3").all_inner_texts()
