@@ -84,12 +84,13 @@ def limit_slope(table: np.ndarray, counts: np.ndarray, limit: float,
     ``[0, lmax]``, ``counts`` ``(M,)`` the source's pixels per bin).
 
     The exact 1-D map :math:`T` stretches some L* ranges and compresses others, which
-    changes local contrast.  Here its slope between consecutive bins is clipped to
-    :math:`[g / c, g c]` (:math:`c` = ``limit`` >= 1, :math:`g` the ratio of the
+    changes local contrast.  Here its slope between consecutive occupied source bins is
+    clipped to :math:`[g / c, g c]` (:math:`c` = ``limit`` >= 1, :math:`g` the ratio of the
     standard deviations of :math:`T(L)` and :math:`L` over the source's pixels), the
-    table re-integrated, and shifted so the source's mean L* goes where :math:`T` sends
-    it.  ``limit = inf`` keeps :math:`T`; ``limit = 1`` is the affine map that matches
-    mean and standard deviation.  The result is clipped to ``[0, lmax]``.
+    table re-integrated over the occupied bins (linear in between), and shifted so the
+    source's mean L* goes where :math:`T` sends it.  ``limit = inf`` keeps :math:`T`;
+    ``limit = 1`` is the affine map that matches mean and standard deviation.  The result
+    is clipped to ``[0, lmax]``.
     """
     if not np.isfinite(limit):
         return table
@@ -99,7 +100,13 @@ def limit_slope(table: np.ndarray, counts: np.ndarray, limit: float,
     mean_src, mean_out = w @ centres, w @ table
     g = np.sqrt(max(w @ (table - mean_out) ** 2, 0.0)
                 / max(w @ (centres - mean_src) ** 2, 1e-12))
-    slope = np.clip(np.diff(table) / np.diff(centres), g / limit, g * limit)
-    out = np.concatenate([[0.0], np.cumsum(slope * np.diff(centres))])
-    out += mean_out - w @ out
+    occ = np.flatnonzero(w > 0)
+    x = centres[occ]
+    slope = np.clip(np.diff(table[occ]) / np.diff(x), g / limit, g * limit)
+    at = np.concatenate([[0.0], np.cumsum(slope * np.diff(x))])
+    at += mean_out - w[occ] @ at
+    # outside the occupied range: the clipped slope carried on (no pixel sits there)
+    out = np.interp(centres, x, at)
+    out[centres < x[0]] = at[0] - (x[0] - centres[centres < x[0]]) * g
+    out[centres > x[-1]] = at[-1] + (centres[centres > x[-1]] - x[-1]) * g
     return np.clip(out, 0.0, lmax)
