@@ -77,7 +77,7 @@ GAMUT_REACH = 100.0
 DEFAULT_LUMINANCE_SLOPE = 1.25
 # fraction of the re-split's correction applied after the guided filter (1: the output
 # histogram is the target's; less: smaller steps between neighbours); chosen in bench/color.py
-DEFAULT_RESPLIT = 0.5
+DEFAULT_RESPLIT = 0.3
 
 
 @dataclass(kw_only=True)
