@@ -143,3 +143,42 @@ def test_split_input_errors():
     with pytest.raises(InputError) as e:
         color_transfer([img, img], regularization=-1)
     assert e.value.field == "regularization"
+
+
+def test_contrast_limited_luminance_map():
+    from solvers.color.luminance import limit_slope, luminance_maps
+
+    rng = np.random.default_rng(0)
+    centres = (np.arange(400) + 0.5) * 0.25
+    src = np.bincount((np.clip(rng.normal(40, 8, 20000), 0, 99.9) / 0.25).astype(int),
+                      minlength=400)
+    tgt = np.bincount((np.clip(rng.gamma(30.0, 1.7, 20000), 0, 99.9) / 0.25).astype(int),
+                      minlength=400)
+    exact = luminance_maps(np.stack([src, tgt]), np.array([[0.0, 1.0]]))[0, 0]
+    assert limit_slope(exact, src, float("inf")) is exact  # the exact map stays available
+    w = src / src.sum()
+    occ = np.flatnonzero(src)
+    slope_exact = np.diff(exact[occ]) / np.diff(centres[occ])
+    g = np.sqrt(w @ (exact - w @ exact) ** 2 / (w @ (centres - w @ centres) ** 2))
+    for c in (1.0, 1.25, 2.0):
+        out = limit_slope(exact, src, c)
+        assert 0 < out[occ].min() and out[occ].max() < 100  # no clipping on this pair
+        slope = np.diff(out[occ]) / np.diff(centres[occ])
+        assert np.all(slope >= g / c - 1e-9) and np.all(slope <= g * c + 1e-9)
+        assert abs(w @ out - w @ exact) < 1e-9  # the mean L* goes where the exact map sends it
+        free = (slope_exact > g / c) & (slope_exact < g * c)  # within the limits: unchanged
+        assert np.allclose(slope[free], slope_exact[free])
+    affine = np.diff(limit_slope(exact, src, 1.0)[occ]) / np.diff(centres[occ])
+    assert np.ptp(affine) < 1e-9  # c = 1: affine
+
+
+def test_luminance_slope_input_error_and_exact_option():
+    img, tgt = data.coffee()[::8, ::8], data.chelsea()[::8, ::8]
+    with pytest.raises(InputError) as e:
+        color_transfer([img, tgt], luminance_slope=0.5)
+    assert e.value.field == "luminance_slope"
+    r = color_transfer([img, tgt], [0, 1], recolor=[0], luminance_slope=float("inf"))
+    exact = rgb_to_lab_reference(r.images[0][0])[..., 0]
+    limited = rgb_to_lab_reference(color_transfer([img, tgt], [0, 1], recolor=[0]
+                                                  ).images[0][0])[..., 0]
+    assert np.abs(exact - limited).max() > 1.0  # the option changes the L* map

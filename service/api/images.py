@@ -16,7 +16,9 @@ from service.api.deps import IdempotencyKeyDep, JobSvc, RuntimeDep
 from service.api.operations import ROUTE_RESPONSES, WAIT_DESCRIPTION, finish_submission
 from service.errors import InvalidInput, PayloadTooLarge, responses
 from service.operations.color import (
+    DEFAULT_LUMINANCE_SLOPE,
     DEFAULT_REGULARIZATION,
+    DEFAULT_RESPLIT,
     MAX_IMAGES,
     ColorTransferRequest,
     check_header,
@@ -85,6 +87,10 @@ async def create_color_transfer(
                                  "guided filter strength (0..1; 0 = off)"),
     luminance: bool = Form(True, description="also transfer L* (1-D OT); false: "
                            "chrominance only"),
+    luminance_slope: float = Form(DEFAULT_LUMINANCE_SLOPE, ge=0, le=1000, description="split "
+                                  "mode: contrast limit (>= 1) of the L* map; 0: exact map"),
+    resplit: float = Form(DEFAULT_RESPLIT, ge=0, le=1, description="split mode: fraction of "
+                          "the re-split after the filter (1: exact histogram)"),
     sharpen: bool = Form(False, description="entropic sharpening of the barycenters"),
     debiased: bool = Form(False, description="debiased barycenters"),
     recolor: str | None = Form(None, description="JSON list of image indices to recolor"),
@@ -117,6 +123,7 @@ async def create_color_transfer(
             images=ids, weights=_json_list(weights, "weights"),
             alphas=_json_list(alphas, "alphas"), mode=mode, bins=bins, gamma=gamma,
             regularization=regularization, luminance=luminance,
+            luminance_slope=luminance_slope, resplit=resplit,
             sharpen=sharpen, debiased=debiased, recolor=_json_list(recolor, "recolor"),
             format=format, time_limit=time_limit)
     except ValidationError as exc:

@@ -26,7 +26,7 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, field_validator
 
 from service.errors import InvalidInput, PayloadTooLarge
 from service.operations.base import Int, Operation, OperationOutput, OperationRequest, ResultFile
@@ -44,7 +44,9 @@ from solvers.color.chrominance import AbGrid, check_bins
 from solvers.color.transfer import (
     DEFAULT_BINS,
     DEFAULT_GAMMA,
+    DEFAULT_LUMINANCE_SLOPE,
     DEFAULT_REGULARIZATION,
+    DEFAULT_RESPLIT,
     MAX_IMAGES,
     check_alphas,
 )
@@ -83,6 +85,13 @@ class ColorTransferRequest(OperationRequest):
         "0 turns it off (exact histogram, possible banding)")
     luminance: bool = Field(True, description="also transfer L* (1-D optimal transport); "
                             "false transfers chrominance only")
+    resplit: float = Field(
+        DEFAULT_RESPLIT, ge=0, le=1, description="split mode: fraction of the second split "
+        "(filtered colours to the target's histogram) that is applied; 1: exact histogram")
+    luminance_slope: float = Field(
+        DEFAULT_LUMINANCE_SLOPE, ge=0, le=1000, description="split mode: contrast limit c >= 1 "
+        "of the L* map (its slope kept within [1/c, c] times its mean slope, which keeps the "
+        "input's local contrast); 0: no limit, the exact 1-D optimal map")
     sharpen: bool = Field(False, description="entropic sharpening of the barycenters")
     debiased: bool = Field(False, description="debiased barycenters (less entropic blur)")
     recolor: list[Int] | None = Field(None, description="indices of the images to recolor "
@@ -90,6 +99,13 @@ class ColorTransferRequest(OperationRequest):
     format: Literal["png", "jpeg"] = Field("png", description="format of the output images")
     tol: float = Field(1e-4, gt=0, lt=1, description="largest L1 marginal violation")
     max_iter: Int = Field(3000, ge=1, le=100_000)
+
+    @field_validator("luminance_slope")
+    @classmethod
+    def _slope(cls, v: float) -> float:
+        if 0 < v < 1:
+            raise ValueError("must be 0 (exact map) or at least 1")
+        return v
 
 
 class ColorOutputInfo(BaseModel):
@@ -186,12 +202,19 @@ def validate(ctx, req: ColorTransferRequest) -> list[dict]:
     return [{"alphas": A.tolist()}]
 
 
+def exact_if_zero(slope: float) -> float:
+    """``luminance_slope`` of a request: 0 asks for the exact map (no limit)."""
+    return float("inf") if slope == 0 else slope
+
+
 def run(ctx, req: ColorTransferRequest, progress, should_cancel) -> OperationOutput:
     images = [read_image(ctx.blob(b, f"images[{i}]"), f"images[{i}]")
               for i, b in enumerate(req.images)]
     A = _alphas(req)
     r = color_transfer(images, A, mode=req.mode, bins=req.bins, gamma=req.gamma,
                        luminance=req.luminance, regularization=req.regularization,
+                       luminance_slope=exact_if_zero(req.luminance_slope),
+                       resplit=req.resplit,
                        sharpen=req.sharpen, debiased=req.debiased, recolor=_recolor(req),
                        tol=req.tol, max_iter=req.max_iter, progress=progress,
                        should_cancel=should_cancel)

@@ -636,11 +636,11 @@ function showFiles(result) {
   const box = $("gallery");
   box.replaceChildren();
   if (!images.length) { box.hidden = true; return; }
-  const strip = (title, items) => {
+  const strip = (title, items, kind = "") => {
     const h = document.createElement("h3");
     h.textContent = title;
     const row = document.createElement("div");
-    row.className = "strip";
+    row.className = kind ? `strip ${kind}` : "strip";
     for (const [name, src] of items) {
       const fig = document.createElement("figure");
       const img = document.createElement("img");
@@ -663,7 +663,9 @@ function showFiles(result) {
   const outputs = images.filter((f) => !isHistogram(f));
   const histograms = images.filter(isHistogram);
   if (outputs.length) strip("results", outputs.map(fetched));
-  if (histograms.length) strip("ab histograms (a* right, b* up)", histograms.map(fetched));
+  if (histograms.length) {
+    strip("ab histograms (a* right, b* up)", histograms.map(fetched), "histograms");
+  }
   box.hidden = false;
 }
 

@@ -123,7 +123,8 @@ def _lab_of(r, g, b, m):
 
 
 @_jit(inline="always")
-def _rgb_of(L, a, b, m):
+def _linear_rgb(L, a, b, m):
+    """Lab -> linear RGB (not clipped; ``m`` = ``_M_INV``)."""
     y = (L + 16.0) / 116.0
     x = a / 500.0 + y
     z = y - b / 200.0
@@ -132,10 +133,39 @@ def _rgb_of(L, a, b, m):
     x = _finv(x)
     y = _finv(y)
     z = _finv(z)
-    r = _encode(m[0, 0] * x + m[0, 1] * y + m[0, 2] * z)
-    g = _encode(m[1, 0] * x + m[1, 1] * y + m[1, 2] * z)
-    bb = _encode(m[2, 0] * x + m[2, 1] * y + m[2, 2] * z)
-    return r, g, bb
+    return (m[0, 0] * x + m[0, 1] * y + m[0, 2] * z,
+            m[1, 0] * x + m[1, 1] * y + m[1, 2] * z,
+            m[2, 0] * x + m[2, 1] * y + m[2, 2] * z)
+
+
+@_jit(inline="always")
+def _rgb_of(L, a, b, m):
+    """Lab -> sRGB in [0, 1] (clipped)."""
+    r, g, bb = _linear_rgb(L, a, b, m)
+    return _encode(r), _encode(g), _encode(bb)
+
+
+@_jit(inline="always")
+def _lookup_l(L, lut_l, inv_l):
+    """``lut_l`` at the bin (width ``1 / inv_l``) of ``L``, clamped to the table."""
+    u = L * inv_l
+    if u < 0.0:
+        u = 0.0
+    k = int(u)
+    if k > lut_l.shape[0] - 1:
+        k = lut_l.shape[0] - 1
+    return np.float64(lut_l[k])
+
+
+@_jit(inline="always")
+def _store(out, src, p, L, a, b, m, scale, offset, alpha):
+    """Write Lab ``(L, a, b)`` as ``sRGB * scale + offset`` into ``out[p]``; copy alpha."""
+    r, g, bb = _rgb_of(L, a, b, m)
+    out[p, 0] = r * scale + offset
+    out[p, 1] = g * scale + offset
+    out[p, 2] = bb * scale + offset
+    if alpha:
+        out[p, 3] = src[p, 3]
 
 
 @_jit(inline="always")
@@ -256,7 +286,6 @@ def _apply(lab, src, out, lut_l, lstep, ta, tb, a0, b0, h, m, scale, offset, chu
     use_ab = ta.shape[0] > 0
     m1 = max(ta.shape[0], 2)
     m2 = max(ta.shape[1], 2)
-    nl = max(lut_l.shape[0], 1)
     inv_l = 1.0 / lstep
     inv_h = 1.0 / h
     alpha = src.shape[1] > 3 and out.shape[1] > 3
@@ -268,13 +297,7 @@ def _apply(lab, src, out, lut_l, lstep, ta, tb, a0, b0, h, m, scale, offset, chu
             A = np.float64(lab[p, 1])
             B = np.float64(lab[p, 2])
             if use_l:
-                u = L * inv_l
-                if u < 0.0:
-                    u = 0.0
-                k = int(u)
-                if k > nl - 1:
-                    k = nl - 1
-                L = lut_l[k]
+                L = _lookup_l(L, lut_l, inv_l)
             if use_ab:
                 i, j, fu, fv = _cell((A - a0) * inv_h, (B - b0) * inv_h, m1, m2)
                 t00 = ta[i, j]
@@ -287,12 +310,7 @@ def _apply(lab, src, out, lut_l, lstep, ta, tb, a0, b0, h, m, scale, offset, chu
                 t10 = tb[i + 1, j]
                 t11 = tb[i + 1, j + 1]
                 B = t00 + fu * (t10 - t00) + fv * (t01 - t00) + fu * fv * (t11 - t10 - t01 + t00)
-            r, g, b = _rgb_of(L, A, B, m)
-            out[p, 0] = r * scale + offset
-            out[p, 1] = g * scale + offset
-            out[p, 2] = b * scale + offset
-            if alpha:
-                out[p, 3] = src[p, 3]
+            _store(out, src, p, L, A, B, m, scale, offset, alpha)
 
 
 def apply(lab, src, out, lut_l, lstep, ta, tb, a0, b0, h, scale, offset):

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from solvers.color._kernels import _finv, _jit, _nearest_node, _rgb_of
+from solvers.color._kernels import _jit, _linear_rgb, _lookup_l, _nearest_node, _store
 
 
 @_jit(inline="always")
@@ -44,20 +44,50 @@ def _sample(field, y, x, s):
 
 
 @_jit(parallel=True)
-def keys(lab, width, s, smooth_a, smooth_b, lo, h, nbins, row_of, dirs, key, row):
+def keys(lab, base, width, s, smooth_a, smooth_b, lo, h, nbins, row_of, dirs, key, row):
     """Each pixel's source row (``row_of`` its nearest ab node) and its ordering key: the
-    smoothed ab around it, relative to its node, projected on its row's direction."""
+    smoothed ab around it, relative to its node, projected on its row's direction.  The
+    pixel's ab is ``lab[:, 1:] + base`` (``base`` empty: ``lab[:, 1:]``)."""
     inv_h = 1.0 / h
+    moved = base.shape[0] > 0
     for p in numba.prange(lab.shape[0]):
         y = p // width
         x = p - y * width
-        i = _nearest_node(np.float64(lab[p, 1]), lo, inv_h, nbins)
-        j = _nearest_node(np.float64(lab[p, 2]), lo, inv_h, nbins)
+        a = lab[p, 1]
+        b = lab[p, 2]
+        if moved:
+            a = np.float32(a + base[p, 0])
+            b = np.float32(b + base[p, 1])
+        i = _nearest_node(np.float64(a), lo, inv_h, nbins)
+        j = _nearest_node(np.float64(b), lo, inv_h, nbins)
         r = row_of[i * nbins + j]
         row[p] = r
         ma = _sample(smooth_a, y, x, s) - (lo + h * i)
         mb = _sample(smooth_b, y, x, s) - (lo + h * j)
         key[p] = ma * dirs[r, 0] + mb * dirs[r, 1]
+
+
+@_jit(parallel=True)
+def block_sums_ab(lab, base, width, s, sums):
+    """Sums of a*, b* (moved by ``base`` unless it is empty) and pixel counts over each
+    ``s × s`` block: ``sums`` ``(3, h, w)``."""
+    hl = sums.shape[1]
+    wl = sums.shape[2]
+    height = lab.shape[0] // width
+    moved = base.shape[0] > 0
+    for by in numba.prange(hl):
+        for y in range(by * s, min(height, (by + 1) * s)):
+            for x in range(width):
+                p = y * width + x
+                bx = min(x // s, wl - 1)
+                a = np.float64(lab[p, 1])
+                b = np.float64(lab[p, 2])
+                if moved:
+                    a += base[p, 0]
+                    b += base[p, 1]
+                sums[0, by, bx] += a
+                sums[1, by, bx] += b
+                sums[2, by, bx] += 1.0
 
 
 @_jit()
@@ -223,17 +253,6 @@ def guided_solve(mom, nguide, eps, coef):
 
 
 @_jit(inline="always")
-def _linear_rgb(L, a, b, m):
-    y = (L + 16.0) / 116.0
-    x = _finv(a / 500.0 + y)
-    z = _finv(y - b / 200.0)
-    y = _finv(y)
-    return (m[0, 0] * x + m[0, 1] * y + m[0, 2] * z,
-            m[1, 0] * x + m[1, 1] * y + m[1, 2] * z,
-            m[2, 0] * x + m[2, 1] * y + m[2, 2] * z)
-
-
-@_jit(inline="always")
 def _in_gamut(L, a, b, m):
     r, g, bb = _linear_rgb(L, a, b, m)
     t = GAMUT_TOL
@@ -268,54 +287,81 @@ def gamut_lightness(L, a, b, m, reach):
     return L
 
 
+@_jit()
+def gamut_map(L, a, b, m, reach):
+    """An in-gamut colour for ``(L, a, b)``: the nearest in-gamut L* within ``reach``
+    (:func:`gamut_lightness`), else the same L* and hue with the largest in-gamut chroma
+    (bisection on the factor of ``(a, b)``; grey is in the gamut for L* in [0, 100])."""
+    L = min(max(L, 0.0), 100.0)
+    if _in_gamut(L, a, b, m):
+        return L, a, b
+    if reach > 0:
+        Lg = gamut_lightness(L, a, b, m, reach)
+        if Lg != L:
+            return Lg, a, b
+    lo = 0.0
+    hi = 1.0
+    for _ in range(12):
+        mid = 0.5 * (lo + hi)
+        if _in_gamut(L, a * mid, b * mid, m):
+            lo = mid
+        else:
+            hi = mid
+    return L, a * lo, b * lo
+
+
 @_jit(parallel=True)
-def apply_field(lab, src, out, width, lut_l, lstep, disp, coef, nguide, s, m, scale,
-                offset, reach):
-    """Recolor every pixel: ``L -> lut_l[bin]`` (empty: keep), ``ab += D`` with ``D`` the
-    per-pixel ``disp`` or, when ``coef`` (from :func:`guided_solve`, box-filtered) is
-    given, the guided filter ``a · I + b`` (``I = lab[:, :nguide]/100`` of the input,
-    coefficients bilinear); an out-of-gamut colour moves to the nearest in-gamut L* within
-    ``reach`` L* units (:func:`gamut_lightness`), else it is clipped in RGB; Lab -> sRGB,
-    ``out = v * scale + offset``; a fourth channel of ``src`` is copied."""
+def guided_field(lab, coef, nguide, s, width, disp):
+    """The guided filter's displacement ``a · I + b`` at every pixel (``I =
+    lab[:, :nguide] / 100``, coefficients from :func:`guided_solve`, box-filtered, bilinear
+    at pixel centres), written into ``disp`` ``(N, 2)``."""
+    c = nguide
+    for p in numba.prange(lab.shape[0]):
+        y = p // width
+        x = p - y * width
+        da = _sample(coef[2 * c], y, x, s)
+        db = _sample(coef[2 * c + 1], y, x, s)
+        for u in range(c):
+            g = np.float64(lab[p, u]) * GUIDE_SCALE
+            da += _sample(coef[u], y, x, s) * g
+            db += _sample(coef[c + u], y, x, s) * g
+        disp[p, 0] = da
+        disp[p, 1] = db
+
+
+@_jit(parallel=True)
+def moved_histogram(lab, disp, lo, h, nbins, counts, sums):
+    """Nearest-node histogram of the moved colours ``lab[:, 1:] + disp`` (float32, as
+    stored), per chunk: ``counts`` ``(chunks, nbins²)``, ``sums`` ``(chunks, 2, nbins²)``
+    their a*, b*."""
     n = lab.shape[0]
+    chunks = counts.shape[0]
+    step = (n + chunks - 1) // chunks
+    inv_h = 1.0 / h
+    for c in numba.prange(chunks):
+        for p in range(c * step, min(n, (c + 1) * step)):
+            a = np.float64(np.float32(lab[p, 1] + disp[p, 0]))
+            b = np.float64(np.float32(lab[p, 2] + disp[p, 1]))
+            q = _nearest_node(a, lo, inv_h, nbins) * nbins + _nearest_node(b, lo, inv_h, nbins)
+            counts[c, q] += 1.0
+            sums[c, 0, q] += a
+            sums[c, 1, q] += b
+
+
+@_jit(parallel=True)
+def apply_field(lab, src, out, lut_l, lstep, disp, m, scale, offset, reach):
+    """Recolor every pixel: ``L -> lut_l[bin]`` (empty: keep), ``ab += disp``; an
+    out-of-gamut colour moves to the nearest in-gamut L* within ``reach`` L* units, else
+    loses chroma (:func:`gamut_map`; ``reach < 0``: clipped in RGB); Lab -> sRGB,
+    ``out = v * scale + offset``; a fourth channel of ``src`` is copied."""
     use_l = lut_l.shape[0] > 0
-    nl = max(lut_l.shape[0], 1)
-    guided = coef.shape[0] > 0
     alpha = src.shape[1] > 3 and out.shape[1] > 3
     inv_l = 1.0 / lstep
-    c = nguide
-    for p in numba.prange(n):
+    for p in numba.prange(lab.shape[0]):
         L0 = np.float64(lab[p, 0])
-        A = np.float64(lab[p, 1])
-        B = np.float64(lab[p, 2])
-        if guided:
-            y = p // width
-            x = p - y * width
-            da = _sample(coef[2 * c], y, x, s)
-            db = _sample(coef[2 * c + 1], y, x, s)
-            for u in range(c):
-                g = np.float64(lab[p, u]) * GUIDE_SCALE
-                da += _sample(coef[u], y, x, s) * g
-                db += _sample(coef[c + u], y, x, s) * g
-            A += da
-            B += db
-        else:
-            A += disp[p, 0]
-            B += disp[p, 1]
-        L = L0
-        if use_l:
-            u = L0 * inv_l
-            if u < 0.0:
-                u = 0.0
-            k = int(u)
-            if k > nl - 1:
-                k = nl - 1
-            L = lut_l[k]
-        if reach > 0:
-            L = gamut_lightness(L, A, B, m, reach)
-        r, g2, b = _rgb_of(L, A, B, m)
-        out[p, 0] = r * scale + offset
-        out[p, 1] = g2 * scale + offset
-        out[p, 2] = b * scale + offset
-        if alpha:
-            out[p, 3] = src[p, 3]
+        A = np.float64(lab[p, 1]) + disp[p, 0]
+        B = np.float64(lab[p, 2]) + disp[p, 1]
+        L = _lookup_l(L0, lut_l, inv_l) if use_l else L0
+        if reach >= 0:
+            L, A, B = gamut_map(L, A, B, m, reach)
+        _store(out, src, p, L, A, B, m, scale, offset, alpha)

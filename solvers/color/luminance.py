@@ -76,3 +76,37 @@ def luminance_maps(counts: np.ndarray, alphas: np.ndarray, lmax: float = L_MAX) 
                           for j in range(k)])  # (k, M): mean of Q_j over bin m of input i
         out[:, i, :] = alphas @ means
     return out
+
+
+def limit_slope(table: np.ndarray, counts: np.ndarray, limit: float,
+                lmax: float = L_MAX) -> np.ndarray:
+    r"""Contrast-limited version of a monotone L* table ``(M,)`` (bins of equal width over
+    ``[0, lmax]``, ``counts`` ``(M,)`` the source's pixels per bin).
+
+    The exact 1-D map :math:`T` stretches some L* ranges and compresses others, which
+    changes local contrast.  Here its slope between consecutive occupied source bins is
+    clipped to :math:`[g / c, g c]` (:math:`c` = ``limit`` >= 1, :math:`g` the ratio of the
+    standard deviations of :math:`T(L)` and :math:`L` over the source's pixels), the
+    table re-integrated over the occupied bins (linear in between), and shifted so the
+    source's mean L* goes where :math:`T` sends it.  ``limit = inf`` keeps :math:`T`;
+    ``limit = 1`` is the affine map that matches mean and standard deviation.  The result
+    is clipped to ``[0, lmax]``.
+    """
+    if not np.isfinite(limit):
+        return table
+    w = np.asarray(counts, dtype=np.float64)
+    w = w / w.sum()
+    centres = (np.arange(len(table)) + 0.5) * lmax / len(table)
+    mean_src, mean_out = w @ centres, w @ table
+    g = np.sqrt(max(w @ (table - mean_out) ** 2, 0.0)
+                / max(w @ (centres - mean_src) ** 2, 1e-12))
+    occ = np.flatnonzero(w > 0)
+    x = centres[occ]
+    slope = np.clip(np.diff(table[occ]) / np.diff(x), g / limit, g * limit)
+    at = np.concatenate([[0.0], np.cumsum(slope * np.diff(x))])
+    at += mean_out - w[occ] @ at
+    # outside the occupied range: the clipped slope carried on (no pixel sits there)
+    out = np.interp(centres, x, at)
+    out[centres < x[0]] = at[0] - (x[0] - centres[centres < x[0]]) * g
+    out[centres > x[-1]] = at[-1] + (centres[centres > x[-1]] - x[-1]) * g
+    return np.clip(out, 0.0, lmax)

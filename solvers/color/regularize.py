@@ -17,7 +17,7 @@ the windows holding ``p``.  So the displacement varies only where the luminance 
 :math:`\varepsilon` (``strength``, in squared units of :math:`I`) sets how much of the
 field's variation that :math:`I` does not explain is smoothed away.  Large images use the
 fast guided filter (moments and coefficients on ``s × s`` block means, coefficients
-bilinear at full resolution, :func:`solvers.color._split_kernels.apply_field`).
+bilinear at full resolution, :func:`solvers.color._split_kernels.guided_field`).
 """
 
 from __future__ import annotations

@@ -91,16 +91,21 @@ def exact_plan(source: np.ndarray, target: np.ndarray, grid: AbGrid,
 
 def integer_split(plan: np.ndarray, counts: np.ndarray) -> np.ndarray:
     """Integer pixel counts ``(R, C)`` whose rows sum to ``counts`` ``(R,)`` and that are
-    the plan's rows scaled to ``counts`` rounded by largest remainders."""
-    row = plan.sum(axis=1, keepdims=True)
-    share = plan / np.where(row > 0, row, 1.0) * counts[:, None]
+    the plan's rows scaled to ``counts`` rounded by largest remainders (ties: lower
+    column first)."""
+    row = plan.sum(axis=1)
+    r, c = np.nonzero(plan)  # row-major: columns ascending within each row
+    share = plan[r, c] / np.where(row > 0, row, 1.0)[r] * counts[r]
     base = np.floor(share).astype(np.int64)
-    missing = counts.astype(np.int64) - base.sum(axis=1)
-    frac = share - base
-    order = np.argsort(-frac, axis=1, kind="stable")
-    ranks = np.empty_like(order)
-    np.put_along_axis(ranks, order, np.arange(plan.shape[1])[None, :], axis=1)
-    return base + (ranks < missing[:, None])
+    missing = counts.astype(np.int64) - np.bincount(r, weights=base, minlength=len(counts)
+                                                    ).astype(np.int64)
+    order = np.lexsort((-(share - base), r))  # by row, then largest remainder first
+    first = np.searchsorted(r[order], np.arange(len(counts)))
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order)) - first[r[order]]
+    out = np.zeros(plan.shape, dtype=np.int64)
+    out[r, c] = base + (rank < missing[r])
+    return out
 
 
 def _principal_directions(points: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -114,28 +119,30 @@ def _principal_directions(points: np.ndarray, weights: np.ndarray) -> np.ndarray
     return np.stack([np.cos(theta), np.sin(theta)], axis=1)
 
 
-def block_mean(field: np.ndarray, s: int) -> np.ndarray:
-    """Mean over ``s × s`` blocks (the last partial blocks averaged over what they hold)."""
-    if s == 1:
-        return field.astype(np.float64)
-    H, W = field.shape
+def block_mean_ab(lab: np.ndarray, base: np.ndarray, shape: tuple[int, int],
+                  s: int) -> tuple[np.ndarray, np.ndarray]:
+    """Mean a*, b* (of ``lab[:, 1:] + base``; ``base`` empty: of ``lab``) over ``s × s``
+    blocks (the last partial blocks averaged over what they hold), ``(h, w)`` each."""
+    H, W = shape
     h, w = -(-H // s), -(-W // s)
-    pad = np.pad(field.astype(np.float64), ((0, h * s - H), (0, w * s - W)))
-    ones = np.pad(np.ones((H, W)), ((0, h * s - H), (0, w * s - W)))
-    sums = pad.reshape(h, s, w, s).sum(axis=(1, 3))
-    return sums / ones.reshape(h, s, w, s).sum(axis=(1, 3))
+    sums = np.zeros((3, h, w))
+    K.block_sums_ab(lab, base, W, s, sums)
+    return sums[0] / sums[2], sums[1] / sums[2]
 
 
 def split_displacements(lab: np.ndarray, shape: tuple[int, int], plan: ExactPlan,
-                        grid: AbGrid, *, scale: float, s: int, radius: int) -> np.ndarray:
+                        grid: AbGrid, *, scale: float, s: int, radius: int,
+                        base: np.ndarray | None = None) -> np.ndarray:
     """Per-pixel ab displacements ``(N, 2)`` float32: ``scale`` times ``y_j - x_i`` for the
     target node ``j`` each pixel of source node ``i`` is given (module doc).
 
-    ``lab`` ``(N, 3)`` the image's Lab (C order over ``shape``); the ordering key smooths
-    ab by a box of ``2 radius + 1`` cells on the image reduced by ``s``."""
+    ``lab`` ``(N, 3)`` the image's Lab (C order over ``shape``), its ab moved by ``base``
+    ``(N, 2)`` if given; the ordering key smooths ab by a box of ``2 radius + 1`` cells
+    on the image reduced by ``s``."""
     H, W = shape
-    a = block_mean(lab[:, 1].reshape(H, W), s)
-    b = block_mean(lab[:, 2].reshape(H, W), s)
+    if base is None:
+        base = np.zeros((0, 2), dtype=np.float32)
+    a, b = block_mean_ab(lab, base, shape, s)
     size = 2 * radius + 1
     sa = ndimage.uniform_filter(a, size, mode="nearest")
     sb = ndimage.uniform_filter(b, size, mode="nearest")
@@ -147,7 +154,7 @@ def split_displacements(lab: np.ndarray, shape: tuple[int, int], plan: ExactPlan
     key = np.empty(lab.shape[0], dtype=np.float32)
     row = np.empty(lab.shape[0], dtype=np.int64)
     # the same float32 grid constants as the histogram pass, so both bin pixels alike
-    K.keys(lab, W, s, sa, sb, np.float32(grid.nodes[0]), np.float32(grid.spacing), grid.bins,
+    K.keys(lab, base, W, s, sa, sb, np.float32(grid.nodes[0]), np.float32(grid.spacing), grid.bins,
            row_of, dirs, key, row)
     if row.min() < 0:  # the plan was built from this image's own histogram
         raise RuntimeError("a pixel's ab node is missing from the plan's support")
@@ -173,3 +180,18 @@ def split_displacements(lab: np.ndarray, shape: tuple[int, int], plan: ExactPlan
     out = np.empty((lab.shape[0], 2), dtype=np.float32)
     K.assign(key, row, lo, hi, start, offsets, ends, disp, float(scale), out)
     return out
+
+
+def moved_histogram(lab: np.ndarray, disp: np.ndarray, grid: AbGrid):
+    """Nearest-node histogram ``(bins, bins)`` (pixel counts) of ``lab[:, 1:] + disp`` and
+    the mean ab ``(2, bins²)`` at each node."""
+    from solvers.color._kernels import _chunks
+
+    n2 = grid.bins**2
+    chunks = _chunks(lab.shape[0])
+    counts = np.zeros((chunks, n2))
+    sums = np.zeros((chunks, 2, n2))
+    K.moved_histogram(lab, disp, np.float32(grid.nodes[0]), np.float32(grid.spacing),
+                      grid.bins, counts, sums)
+    total = counts.sum(axis=0)
+    return total.reshape(grid.bins, grid.bins), sums.sum(axis=0) / np.maximum(total, 1.0)

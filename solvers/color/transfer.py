@@ -7,7 +7,13 @@ their color distributions, for one or several weight vectors :math:`\alpha`
 ``mode="split"`` (default): chrominance by the exact plan between nearest-node ab
 histograms, each source node's pixels split among its targets in the plan's proportions
 by a spatially coherent order (:mod:`solvers.color.split`), then the displacement field
-regularized by a guided filter on the input's luminance (:mod:`solvers.color.regularize`).
+regularized by a guided filter on the input's luminance (:mod:`solvers.color.regularize`),
+and the filtered colours split once more by the exact plan from their histogram to the
+target, which puts back the fidelity the filter costs (a filter -> re-split step, as in
+the regularized transport maps of Rabin, Delon and Gousseau).  L* goes through the exact
+1-D map with its slope limited (``luminance_slope``, :func:`~solvers.color.luminance.
+limit_slope`; ``inf`` = the exact map), and an out-of-gamut colour moves to the nearest
+in-gamut L* within ``GAMUT_REACH``, else loses chroma at its L* and hue.
 Towards a vertex of the simplex (``alphas`` with a single 1) the plan goes to that image's
 histogram; for ``k = 2`` and :math:`\alpha = (1 - s, s)` every pixel moves the fraction
 :math:`s` of its displacement (McCann's interpolation, the exact W2 geodesic between the
@@ -42,9 +48,9 @@ from solvers.color import _kernels
 from solvers.color import _split_kernels as SK
 from solvers.color.chrominance import AbGrid, check_bins, chrominance_barycenters
 from solvers.color.lab import check_image, code_scale, lut_for, pixels
-from solvers.color.luminance import L_MAX, LBINS, luminance_maps
+from solvers.color.luminance import L_MAX, LBINS, limit_slope, luminance_maps
 from solvers.color.regularize import guided_coefficients
-from solvers.color.split import ExactPlan, exact_plan, split_displacements
+from solvers.color.split import ExactPlan, exact_plan, moved_histogram, split_displacements
 from solvers.errors import InputError
 from solvers.monitor import SolverResult
 from solvers.validation import check_positive, check_weights
@@ -63,9 +69,15 @@ KEY_RADIUS = 0.02
 MIN_FILTER_RADIUS = 4  # pixels: small images still get a window that can smooth a step
 # images are reduced by s x s blocks for the filters' moments above this many pixels
 REDUCED_PIXELS = 2**19
-GUIDE_CHANNELS = 3
+GUIDE_CHANNELS = 1
 # an out-of-gamut result moves to the nearest in-gamut L* up to this far (keeps its ab)
 GAMUT_REACH = 100.0
+# split mode: the L* table's slope kept within [1/c, c] times its mean slope
+# (luminance.limit_slope; inf = the exact 1-D map); chosen in bench/color.py
+DEFAULT_LUMINANCE_SLOPE = 1.25
+# fraction of the re-split's correction applied after the guided filter (1: the output
+# histogram is the target's; less: smaller steps between neighbours); chosen in bench/color.py
+DEFAULT_RESPLIT = 0.3
 
 
 @dataclass(kw_only=True)
@@ -131,6 +143,8 @@ def color_transfer(
     gamma: float = DEFAULT_GAMMA,
     luminance: bool = True,
     regularization: float = DEFAULT_REGULARIZATION,
+    luminance_slope: float = DEFAULT_LUMINANCE_SLOPE,
+    resplit: float = DEFAULT_RESPLIT,
     sharpen: bool = False,
     debiased: bool = False,
     recolor: Sequence[int] | None = None,
@@ -176,7 +190,16 @@ def color_transfer(
         blur of standard deviation ``sqrt(gamma/2)``) of the entropic barycenters.
     luminance : also transfer L* (1-D OT); ``False`` transfers chrominance only and keeps
         each pixel's L*.
-    regularization : ``split`` only: guided-filter epsilon (>= 0; 0: no filter).
+    regularization : ``split`` only: guided-filter epsilon (>= 0; 0: no filter).  With a
+        filter the filtered colours are split once more by the exact plan from their
+        histogram to the target (the filter moves colours off the target's histogram;
+        this puts them back, up to the binning).
+    resplit : ``split`` only: fraction in [0, 1] of that re-split's correction that is
+        applied (1: output histogram = target's; 0: the filtered colours as they are).
+    luminance_slope : ``split`` only: contrast limit ``c >= 1`` of the L* map
+        (:func:`~solvers.color.luminance.limit_slope`: the exact 1-D map's slope clipped
+        to ``[g/c, g c]``, ``g`` its mean slope); ``inf`` keeps the exact 1-D map.  The
+        default, 1.25, keeps local contrast (edges) that the exact map changes.
     sharpen, debiased : entropic sharpening (Alg. 3) / debiased barycenters, against the
         desaturation by entropic blur.
     recolor : indices of the images to recolor (default all); the others only contribute
@@ -202,6 +225,8 @@ def color_transfer(
     bins = check_bins(DEFAULT_BINS[mode] if bins is None else bins)
     gamma = check_positive(gamma, "gamma")
     regularization = check_regularization(regularization)
+    luminance_slope = check_luminance_slope(luminance_slope)
+    resplit = check_fraction(resplit, "resplit")
     todo = list(range(k)) if recolor is None else sorted({int(i) for i in recolor})
     if any(not 0 <= i < k for i in todo):
         raise InputError(f"recolor indices must lie in [0, {k})", field="recolor")
@@ -209,7 +234,8 @@ def color_transfer(
                 max_iter=max_iter, progress=progress, should_cancel=should_cancel)
     if mode == "barycentric":
         return _barycentric(images, A, bins, luminance, todo, t0, opts)
-    return _split(images, A, bins, luminance, regularization, todo, t0, opts)
+    return _split(images, A, bins, luminance, (regularization, luminance_slope, resplit), todo,
+                  t0, opts)
 
 
 def check_mode(mode) -> str:
@@ -218,11 +244,30 @@ def check_mode(mode) -> str:
     return str(mode)
 
 
-def check_regularization(value) -> float:
+def _number(value, name: str) -> float:
     try:
-        v = float(value)
+        return float(value)
     except (TypeError, ValueError) as exc:
-        raise InputError("regularization must be a number", field="regularization") from exc
+        raise InputError(f"{name} must be a number", field=name) from exc
+
+
+def check_fraction(value, name: str) -> float:
+    v = _number(value, name)
+    if not 0 <= v <= 1:
+        raise InputError(f"{name} must lie in [0, 1], got {value!r}", field=name)
+    return v
+
+
+def check_luminance_slope(value) -> float:
+    v = _number(value, "luminance_slope")
+    if np.isnan(v) or v < 1:
+        raise InputError(f"luminance_slope must be >= 1 (inf: exact map), got {value!r}",
+                         field="luminance_slope")
+    return v
+
+
+def check_regularization(value) -> float:
+    v = _number(value, "regularization")
     if not np.isfinite(v) or v < 0:
         raise InputError(f"regularization must be finite and >= 0, got {value!r}",
                          field="regularization")
@@ -321,8 +366,10 @@ def _targets(H, A, grid, opts):
     return kinds, targets, cb
 
 
-def _split(images, A, bins, luminance, regularization, todo, t0, opts) -> ColorTransferResult:
-    """The split transfer (module doc), towards each weight row's target."""
+def _split(images, A, bins, luminance, settings, todo, t0, opts) -> ColorTransferResult:
+    """The split transfer (module doc), towards each weight row's target; ``settings`` =
+    ``(regularization, luminance_slope, resplit)``."""
+    regularization, slope, resplit = settings
     times: dict[str, float] = {}
     k = len(images)
     grid = AbGrid(bins)
@@ -355,14 +402,17 @@ def _split(images, A, bins, luminance, regularization, todo, t0, opts) -> ColorT
                 continue
             if kind == "vertex":
                 p, scale = plan(i, (i, data), H[data], means[data]), 1.0
+                target = (H[data], means[data])
             elif kind == "pair":
                 j = 1 - i
                 p, scale = plan(i, (i, j), H[j], means[j]), float(A[b, j])
+                target = (targets[b], None)
             else:
                 p, scale = plan(i, (i, f"b{data}"), targets[b]), 1.0
-            lut_l = None if lmaps is None else lmaps[b, i]
+                target = (targets[b], None)
+            lut_l = None if lmaps is None else limit_slope(lmaps[b, i], lcounts[i], slope)
             out_images[b][i] = _recolor_split(images[i], labs[i], p, grid, scale, lut_l,
-                                              regularization)
+                                              (regularization, resplit), target)
     times["apply"] = time.perf_counter() - t2
     times["total"] = time.perf_counter() - t0
     residuals = [p.residual for p in plans.values()] + ([cb.residual] if cb else [])
@@ -387,19 +437,29 @@ def reduction(shape: tuple[int, int]) -> tuple[int, int, int]:
     return (s, max(1, round(KEY_RADIUS * side / s)), max(1, round(filter_px / s)))
 
 
-def _recolor_split(img, lab, plan, grid, scale, lut_l, regularization):
+def _recolor_split(img, lab, plan, grid, scale, lut_l, settings, target):
+    """Split (module doc), guided filter, then the filtered colours split again by the
+    exact plan from their histogram to ``target`` = ``(histogram, node means or None)``,
+    the fraction ``resplit`` of that correction applied (1: the output histogram is the
+    target's again); ``settings`` = ``(regularization, resplit)``."""
+    regularization, resplit = settings
     shape = img.shape[:2]
     s, key_radius, filter_radius = reduction(shape)
     disp = split_displacements(lab, shape, plan, grid, scale=scale, s=s, radius=key_radius)
-    coef = np.zeros((0, 1, 1))
     if regularization > 0:
         coef = guided_coefficients(lab, disp, shape, strength=regularization, s=s,
                                    radius=filter_radius, nguide=GUIDE_CHANNELS)
+        SK.guided_field(lab, coef, GUIDE_CHANNELS, s, shape[1], disp)
+        if resplit > 0:
+            hist, hmeans = moved_histogram(lab, disp, grid)
+            again = exact_plan(hist, target[0], grid, hmeans, target[1])
+            disp += split_displacements(lab, shape, again, grid, scale=resplit, s=s,
+                                        radius=key_radius, base=disp)
     src = pixels(img)
     out = np.empty_like(src)
     lut = np.zeros(0, dtype=np.float32) if lut_l is None else lut_l.astype(np.float32)
     scale_out = code_scale(img.dtype)
     offset = 0.5 if img.dtype.kind in "ui" else 0.0
-    SK.apply_field(lab, src, out, shape[1], lut, L_MAX / LBINS, disp, coef, GUIDE_CHANNELS,
-                   s, _kernels._M_INV, scale_out, offset, float(GAMUT_REACH))
+    SK.apply_field(lab, src, out, lut, L_MAX / LBINS, disp, _kernels._M_INV, scale_out,
+                   offset, float(GAMUT_REACH))
     return out.reshape(img.shape).astype(img.dtype, copy=False)

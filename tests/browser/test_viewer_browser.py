@@ -178,8 +178,8 @@ def test_grid_domain_is_an_image(page, live_api, tmp_path):
     assert page.js_errors == []
 
 
-def test_color_transfer_images_side_by_side(page, live_api, tmp_path):
-    """A global operation with a multipart form (files): inputs and results side by side."""
+def open_color_transfer(page, live_api, tmp_path):
+    """The viewer with the color-transfer form filled in with two small gradient images."""
     y, x = np.mgrid[0:36, 0:48]
     warm = np.stack([200 + 0 * x, 60 + x, 40 + y], -1).astype(np.uint8)
     cool = np.stack([30 + 0 * x, 80 + y, 150 + x], -1).astype(np.uint8)
@@ -189,6 +189,11 @@ def test_color_transfer_images_side_by_side(page, live_api, tmp_path):
     page.select_option("#operation", "createColorTransfer")
     page.set_input_files("#op-form input[name=images]",
                          [str(tmp_path / "warm.png"), str(tmp_path / "cool.png")])
+
+
+def test_color_transfer_images_side_by_side(page, live_api, tmp_path):
+    """A global operation with a multipart form (files): inputs and results side by side."""
+    open_color_transfer(page, live_api, tmp_path)
     page.click("#op-form details > summary")  # optional fields are folded under "options"
     page.fill("#op-form input[name=bins]", "32")
     page.click("#run")
@@ -211,6 +216,42 @@ def test_color_transfer_images_side_by_side(page, live_api, tmp_path):
     assert np.abs(shown["image-0-0.png"] - shown["warm.png"]).sum() > 0.1
     assert page.locator("#downloads button:text('image-0-0.png')").count() == 1
     save(page, "viewer-color-transfer.png")
+    assert page.js_errors == []
+
+
+def test_color_transfer_histogram_row(page, live_api, tmp_path):
+    """The ab histograms of inputs, outputs and target in one row under the results: every
+    picture is shown, and each output's histogram looks like the target's, not like its
+    input's."""
+    open_color_transfer(page, live_api, tmp_path)
+    page.click("#run")
+    page.wait_for_selector("#progress[data-state=succeeded]", timeout=4 * TIMEOUT)
+    heads = page.locator("#gallery h3").all_inner_texts()
+    assert [h.split(" ")[0] for h in heads] == ["inputs", "results", "ab"], heads
+    row = page.locator("#gallery .strip").nth(2)  # the histogram row, after the results
+    captions = row.locator("figcaption").all_inner_texts()
+    names = ["histogram-0.png", "histogram-1.png", "histogram-0-0.png", "histogram-0-1.png",
+             "barycenter-0.png"]
+    assert sorted(captions) == sorted(names), captions
+    shown = {}
+    for caption in names:
+        img = row.locator(f"figure:has(figcaption:text-is('{caption}')) img")
+        page.wait_for_function("(el) => el.complete && el.naturalWidth > 0",
+                               arg=img.element_handle(), timeout=TIMEOUT)
+        box = img.bounding_box()
+        assert box["width"] > 20 and box["height"] > 20
+        png = np.asarray(Image.open(io.BytesIO(img.screenshot())).convert("L"), float) / 255
+        shown[caption] = np.asarray(Image.fromarray(png).resize((64, 64)), float)
+    # side by side: the histograms share one row (same top within a few pixels)
+    tops = [row.locator(f"figure:has(figcaption:text-is('{c}'))").bounding_box()["y"]
+            for c in names]
+    assert max(tops) - min(tops) < 5, tops
+    target = shown["barycenter-0.png"]
+    for i in (0, 1):
+        before = np.abs(shown[f"histogram-{i}.png"] - target).mean()
+        after = np.abs(shown[f"histogram-0-{i}.png"] - target).mean()
+        assert after < before, (i, before, after)
+    save(page, "viewer-color-histograms.png")
     assert page.js_errors == []
 
 

@@ -158,6 +158,10 @@ def test_refusals_name_the_field(client, make_client, photos):
     assert_error(post(client, [("a.png", good), ("b.png", good)], regularization=-1), 422,
                  "regularization")
     assert_error(post(client, [("a.png", good), ("b.png", good)], format="gif"), 422, "format")
+    for slope in (0.5, -1):  # 0 (exact map) or a limit >= 1
+        assert_error(post(client, [("a.png", good), ("b.png", good)], luminance_slope=slope),
+                     422, "luminance_slope")
+    assert_error(post(client, [("a.png", good), ("b.png", good)], resplit=2), 422, "resplit")
     # nothing was queued by the refused submissions
     assert client.get("/v1/jobs?operation=color-transfers").json()["jobs"] == []
 
