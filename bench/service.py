@@ -162,11 +162,11 @@ class Bench:
         t0 = time.perf_counter()
         mesh = load_mesh(self.mesh_path)
         self.load_seconds = time.perf_counter() - t0
-        n = mesh.n
+        n = self.n = mesh.n
         a, b = 0, n // 2
         self.gamma = float((2.0 * mesh.mean_edge_length) ** 2)
         self.body = {"mu0": {"vertex": a, "radius": 0.1}, "mu1": {"vertex": b, "radius": 0.1},
-                     "method": "sinkhorn", "gamma": self.gamma,
+                     "route": "convolutional", "gamma": self.gamma,
                      "max_iter": self.args.iterations, "tol": 1e-12}
         view = view_of_domain(mesh)
         self.mu0, _ = resolve_distribution(view, BumpDistribution(vertex=a, radius=0.1), "mu0")
@@ -289,7 +289,7 @@ class Bench:
         lines = [
             "# Service latency and throughput (bench/service.py)",
             "",
-            f"Mesh: {a.mesh} (34,834 vertices), operation: `POST /v1/domains/{{id}}/distances"
+            f"Mesh: {a.mesh} ({self.n:,} vertices), operation: `POST /v1/domains/{{id}}/distances"
             f"?wait=60` (convolutional W2, gamma = (2h)^2 = {self.gamma:.3g}, "
             f"{lat['iterations']} Sinkhorn iterations, tol 1e-12 so every request does the "
             f"same work). Server: `otgeo serve`, embedded defaults (Huey on SQLite, job table "
@@ -375,7 +375,7 @@ class Bench:
             "",
             f"Single-worker bound from the solver alone: {1 / pct(solver, 50):.2f} jobs/s.",
             "",
-            f"Command: `.venv/bin/python bench/service.py{' --quick' if a.quick else ''}`",
+            f"Command: `.venv/bin/python bench/service.py {' '.join(self.argv)}`",
             "",
         ]
         return "\n".join(lines)
@@ -399,6 +399,7 @@ def main(argv=None) -> None:
     if args.quick:
         args.requests, args.clients, args.per_client, args.workers = 5, [1, 2], 2, [1]
     bench = Bench(args)
+    bench.argv = argv
     bench.load_start = f"{os.getloadavg()[0]:.1f}"
     bench.latency()
     for workers in args.workers:
