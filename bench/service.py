@@ -154,7 +154,10 @@ class Bench:
                         json=self.body)
         elapsed = time.perf_counter() - t0
         job = r.json()
-        assert r.status_code == 200 and job["state"] == "succeeded", job
+        # a fixed iteration count with tol 1e-12 ends every job not_converged (failed, its
+        # result stored as for a success): the same work each time
+        assert r.status_code == 200 and (job["state"] == "succeeded" or (
+            job["state"] == "failed" and job["error"]["code"] == "not_converged")), job
         return elapsed, job
 
     # -- problem ---------------------------------------------------------------------
@@ -292,8 +295,9 @@ class Bench:
             f"Mesh: {a.mesh} ({self.n:,} vertices), operation: `POST /v1/domains/{{id}}/distances"
             f"?wait=60` (convolutional W2, gamma = (2h)^2 = {self.gamma:.3g}, "
             f"{lat['iterations']} Sinkhorn iterations, tol 1e-12 so every request does the "
-            f"same work). Server: `otgeo serve`, embedded defaults (Huey on SQLite, job table "
-            f"on SQLite), {BLAS_THREADS} BLAS thread per worker; solver reference in the "
+            f"same work and ends `not_converged`, its result stored as for a success). "
+            f"Server: `otgeo serve`, embedded defaults (Huey on SQLite, job table on SQLite), "
+            f" {BLAS_THREADS} BLAS thread per worker; solver reference in the "
             f"bench process with the same thread count. {a.requests} sequential warm "
             f"requests; times are client wall clock.",
             "",
