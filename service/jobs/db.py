@@ -147,6 +147,8 @@ class JobRepository:
         create_tables(Base.metadata, self.engine)
         self._add_columns()
         self.Session = sessionmaker(self.engine, expire_on_commit=False)
+        # a file on this machine (SQLite, WAL): reads are cheap and never wait for a writer
+        self.local = self.engine.dialect.name == "sqlite"
 
     def _add_columns(self) -> None:
         """ALTER an older job table to the current columns (a no-op on a new one)."""
