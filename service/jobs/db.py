@@ -130,12 +130,13 @@ def _bound(name: str):
     return bindparam(f"b_{name}", type_=JOBS.c[name].type)
 
 
-# the worker's per-job statements, built once (building one costs more than running it)
+# the per-job statements, built once (building one costs about as much as running it)
 CLAIM = (update(JOBS).where(JOBS.c.id == _bound("id"), JOBS.c.state == QUEUED)
          .values(state=RUNNING, attempts=JOBS.c.attempts + 1, worker=_bound("worker"),
                  started_at=bindparam("b_now", type_=Float()),
                  heartbeat_at=bindparam("b_now", type_=Float()))
          .returning(*JOBS.c))
+GET = select(JOBS).where(JOBS.c.id == _bound("id"))
 FINISHED = ("state", "error", "result_location", "finished_at", "heartbeat_at", "duration")
 
 
@@ -205,7 +206,7 @@ class JobRepository:
     def get(self, job_id: str) -> JobRow | None:
         """The job as a detached row (one Core SELECT: no session bookkeeping)."""
         with self.engine.connect() as conn:
-            row = conn.execute(select(JOBS).where(JOBS.c.id == job_id)).mappings().first()
+            row = conn.execute(GET, {"b_id": job_id}).mappings().first()
         return None if row is None else JobRow(**row)
 
     def list(self, limit: int = 100, state: str | None = None, *,
