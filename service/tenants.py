@@ -144,10 +144,14 @@ QUEUE_RETRY_AFTER = 10  # seconds: queued jobs start within about that (a hint, 
 STORAGE_RETRY_AFTER = 60  # stored bytes free up only when the tenant deletes something
 
 
-def check_queued_quota(settings, tenant: Tenant, queued: int) -> None:
-    """429 when ``tenant`` already has its quota of queued jobs (admins have no quota)."""
+def check_queued_quota(settings, tenant: Tenant, count_queued) -> None:
+    """429 when ``tenant`` already has its quota of queued jobs (admins have no quota);
+    ``count_queued()`` (a job-table count) is called only when a quota applies."""
     limit = settings.quota(tenant.id).queued_jobs
-    if tenant.admin or limit is None or queued < limit:
+    if tenant.admin or limit is None:
+        return
+    queued = count_queued()
+    if queued < limit:
         return
     raise QuotaExceeded(f"tenant {tenant.id!r} has {queued} queued jobs, its quota is {limit}; "
                         "retry when some have started", retry_after=QUEUE_RETRY_AFTER)

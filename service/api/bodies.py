@@ -26,6 +26,9 @@ log = logging.getLogger("otgeo.service")
 
 SPEC = TypeAdapter(DomainSpec)
 IN_PROCESS_BYTES = 1 << 20  # bodies from 1 MiB on are parsed in a child process
+# bodies below this are parsed on the event loop (tens of microseconds): a thread hop costs
+# more than the parse, and each hop waits for a core on a busy machine
+ON_LOOP_BYTES = 16 << 10
 KINDS = {"grid": GridSpec, "graph": GraphSpec, "pointcloud": PointCloudSpec, "mesh": MeshSpec}
 ARRAY_FIELDS = {"edges": np.int64, "faces": np.int64, "points": np.float64,
                 "vertices": np.float64, "positions": np.float64, "weights": np.float64}
@@ -148,10 +151,13 @@ def _raise(out: tuple) -> None:
 
 
 async def parse_json(body: bytes):
-    """The JSON object of ``body``, parsed off the event loop (a child process from
-    ``IN_PROCESS_BYTES`` on, else the thread pool); ApiError ``invalid_json`` otherwise."""
+    """The JSON object of ``body``: a small one (``ON_LOOP_BYTES``) parsed on the event loop,
+    larger ones off it (a child process from ``IN_PROCESS_BYTES`` on, else the thread pool);
+    ApiError ``invalid_json`` otherwise."""
     from fastapi.concurrency import run_in_threadpool
 
+    if len(body) < min(ON_LOOP_BYTES, IN_PROCESS_BYTES):
+        return load_json(body)
     if len(body) < IN_PROCESS_BYTES:
         return await run_in_threadpool(load_json, body)
     try:

@@ -40,13 +40,17 @@ async def wait_for(svc, job_id: str, seconds: float, job=None):
     ``MARKER_POLL_WOKEN`` seconds on the SQLite queue, whose workers share this machine,
     ``MARKER_POLL`` otherwise). The job
     table is also read every ``TABLE_POLL`` seconds in case both are missed (a job failed by
-    the reaper, or storage that caches file metadata). ``job``: its row as just read."""
+    the reaper, or storage that caches file metadata), on the event loop when it is a local
+    SQLite file. ``job``: its row as just read."""
     deadline = time.monotonic() + seconds
     waiters = svc.rt.waiters
     event = waiters.register(job_id) if waiters is not None and waiters.active else None
     # with Redis, workers may run on other machines (no datagram): keep the fast marker poll
     local = event is not None and svc.rt.settings.queue == "sqlite"
     poll = MARKER_POLL_WOKEN if local else MARKER_POLL
+    # a primary-key read of a local SQLite table (WAL: readers never wait for writers) takes
+    # less than the two thread hops around it; a server database is read off the loop
+    on_loop = svc.rt.repo.local
     try:
         if job is None:
             job = await run_in_threadpool(svc.get, job_id)
@@ -67,7 +71,7 @@ async def wait_for(svc, job_id: str, seconds: float, job=None):
                     or time.monotonic() - last_read >= TABLE_POLL):
                 if event is not None:
                     event.clear()
-                job = await run_in_threadpool(svc.get, job_id)
+                job = svc.get(job_id) if on_loop else await run_in_threadpool(svc.get, job_id)
                 last_read = time.monotonic()
     finally:
         if event is not None:

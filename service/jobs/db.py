@@ -8,6 +8,7 @@ the attempt that owns it can heartbeat or finish it.
 
 from __future__ import annotations
 
+import functools
 import os
 import socket
 import time
@@ -20,6 +21,7 @@ from sqlalchemy import (
     Integer,
     String,
     and_,
+    bindparam,
     create_engine,
     event,
     func,
@@ -123,6 +125,29 @@ def make_engine(url: str):
     return create_engine(url, pool_pre_ping=True, pool_size=5, max_overflow=10)
 
 
+def _bound(name: str):
+    """A parameter for column ``name`` (typed as the column: JSON, float, ...)."""
+    return bindparam(f"b_{name}", type_=JOBS.c[name].type)
+
+
+# the per-job statements, built once (building one costs about as much as running it)
+CLAIM = (update(JOBS).where(JOBS.c.id == _bound("id"), JOBS.c.state == QUEUED)
+         .values(state=RUNNING, attempts=JOBS.c.attempts + 1, worker=_bound("worker"),
+                 started_at=bindparam("b_now", type_=Float()),
+                 heartbeat_at=bindparam("b_now", type_=Float()))
+         .returning(*JOBS.c))
+GET = select(JOBS).where(JOBS.c.id == _bound("id"))
+FINISHED = ("state", "error", "result_location", "finished_at", "heartbeat_at", "duration")
+
+
+@functools.lru_cache(maxsize=16)
+def _finish_statement(progress: frozenset):
+    """``UPDATE`` of a running attempt to its final state, with these progress columns."""
+    return (update(JOBS).where(JOBS.c.id == _bound("id"), JOBS.c.state == RUNNING,
+                               JOBS.c.attempts == bindparam("b_attempt", type_=Integer()))
+            .values({name: _bound(name) for name in (*FINISHED, *sorted(progress))}))
+
+
 CREATE_ATTEMPTS = 5  # create_all tries when processes start together on a fresh database
 
 
@@ -147,6 +172,8 @@ class JobRepository:
         create_tables(Base.metadata, self.engine)
         self._add_columns()
         self.Session = sessionmaker(self.engine, expire_on_commit=False)
+        # a file on this machine (SQLite, WAL): reads are cheap and never wait for a writer
+        self.local = self.engine.dialect.name == "sqlite"
 
     def _add_columns(self) -> None:
         """ALTER an older job table to the current columns (a no-op on a new one)."""
@@ -179,7 +206,7 @@ class JobRepository:
     def get(self, job_id: str) -> JobRow | None:
         """The job as a detached row (one Core SELECT: no session bookkeeping)."""
         with self.engine.connect() as conn:
-            row = conn.execute(select(JOBS).where(JOBS.c.id == job_id)).mappings().first()
+            row = conn.execute(GET, {"b_id": job_id}).mappings().first()
         return None if row is None else JobRow(**row)
 
     def list(self, limit: int = 100, state: str | None = None, *,
@@ -235,8 +262,8 @@ class JobRepository:
         where = (JOBS.c.id == job_id, JOBS.c.state == QUEUED)
         if self.engine.dialect.update_returning:
             with self.engine.begin() as conn:
-                row = conn.execute(update(JOBS).where(*where).values(**values)
-                                   .returning(*JOBS.c)).mappings().first()
+                row = conn.execute(CLAIM, {"b_id": job_id, "b_worker": worker,
+                                           "b_now": now}).mappings().first()
             if row is None:
                 return None
             return Claim(int(row["attempts"]), JobRow(**row))
@@ -269,11 +296,12 @@ class JobRepository:
         if started_at is None:
             job = self.get(job_id)
             started_at = job.started_at if job and job.started_at else now
-        started = started_at
-        return bool(self._update(
-            (JobRow.id == job_id, JobRow.state == RUNNING, JobRow.attempts == attempt),
-            state=state, error=error, result_location=result_location, finished_at=now,
-            heartbeat_at=now, duration=now - started, **progress))
+        values = {"b_state": state, "b_error": error, "b_result_location": result_location,
+                  "b_finished_at": now, "b_heartbeat_at": now, "b_duration": now - started_at,
+                  **{f"b_{k}": v for k, v in progress.items()}}
+        with self.engine.begin() as conn:
+            return bool(conn.execute(_finish_statement(frozenset(progress)),
+                                     {"b_id": job_id, "b_attempt": attempt, **values}).rowcount)
 
     def release(self, job_id: str, attempt: int) -> bool:
         """Give a running job back to the queue without counting the attempt."""

@@ -215,10 +215,10 @@ class JobRunner:
         if not self.repo.finish(job_id, attempt, state, error=error, result_location=location,
                                 started_at=job.started_at, **progress):
             log.warning("job %s attempt %d lost ownership; result discarded", job_id, attempt)
-        else:
-            self.store.mark_done(job_id)
+        else:  # the waiting API on this machine first (a datagram), then the marker
             if self.notify_done is not None:
                 self.notify_done(job_id)
+            self.store.mark_done(job_id)
         if built is None or built:  # operators were added: re-estimate the entries' sizes
             for domain_id in ctx.domains:
                 self.cache.refresh(("domain", domain_id))

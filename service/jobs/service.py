@@ -61,7 +61,8 @@ class JobService:
             earlier = idempotency.previous()
             if earlier is not None:
                 return self._replayed(earlier.resource_id)
-        check_queued_quota(self.rt.settings, self.tenant, self.rt.repo.queued_of(self.tenant.id))
+        check_queued_quota(self.rt.settings, self.tenant,
+                           lambda: self.rt.repo.queued_of(self.tenant.id))
         job = self._new_job(operation, domain_id, request)
         also = [idempotency.record("job", job.id)] if idempotency is not None else []
         try:
