@@ -199,6 +199,16 @@ def flow_structure(mesh):
     return geo, _structure(geo.div, np.asarray(mesh.faces)[geo.faces], mesh_operators(mesh)._keep)
 
 
+def cone_start(u0: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """A strictly interior primal cone point ``(s_t, u_t)`` ``(F, 3)`` over the flow ``u0``
+    ``(F, 2)``: ``s_t = ‖u_t‖`` plus a margin, the weighted mean norm."""
+    norms = np.linalg.norm(u0, axis=1)
+    x = np.empty((len(u0), 3))
+    x[:, 1:] = u0
+    x[:, 0] = norms + max(float(weights @ norms) / max(float(weights.sum()), 1e-300), 1e-300)
+    return x
+
+
 def _interior(x: np.ndarray) -> bool:
     return bool(np.all(np.isfinite(x)) and np.all(x[:, 0] > 0) and np.all(_jdot(x, x) > 0))
 
@@ -246,6 +256,45 @@ def _iterate(x, z, st, newton, backend, factor):
     return factor, dx, dy, dz, alpha
 
 
+# What a failed Newton step raises at the end of the central path (a factorization or a
+# solve losing positive definiteness to rounding).
+STEP_FAILURES = (ValueError, RuntimeError, ZeroDivisionError, FloatingPointError)
+
+
+def relative_gap(value: float, lower: float, floor: float = 1e-300) -> float:
+    """``(value - lower) / max(|value|, floor)``: the certified relative error of ``value``."""
+    return (value - lower) / max(abs(value), floor)
+
+
+def certified_loop(state, advance, bounds, tol: float, max_iter: int, monitor,
+                   floor: float = 1e-300):
+    """The primal-dual loop every interior point here shares: ``advance(state)`` returns the
+    next iterate, or None when the step failed or left the cones (rounding at the end of the
+    path; a failure in :data:`STEP_FAILURES` counts the same), and the last iterate, which
+    is still primal and dual feasible, is kept; ``bounds(state)`` gives ``(value,
+    lower_bound)`` of an iterate.  Stops when :func:`relative_gap` (with ``floor``) is at
+    most ``tol`` (converged), at ``max_iter``, or when ``monitor`` (called with the gap)
+    reports a stall.  Returns ``(state, iterations, converged)``."""
+    it, converged = 0, False
+    for it in range(1, max_iter + 1):
+        try:
+            new = advance(state)
+        except STEP_FAILURES:
+            new = None
+        if new is None:
+            it -= 1
+            break
+        state = new
+        gap = relative_gap(*bounds(state), floor)
+        monitor(it, gap)
+        if gap <= tol:
+            converged = True
+            break
+        if monitor.stalled:
+            break
+    return state, it, converged
+
+
 @dataclass
 class InteriorPointOutput:
     u: np.ndarray  # (F, 2) flow u_t = A_t J_t in the tangent frames
@@ -270,18 +319,14 @@ def beckmann_interior_point(div: sp.csr_matrix, faces: np.ndarray, weights: np.n
     :class:`~solvers.monitor.Monitor` called with the certified relative gap."""
     st = structure if structure is not None else _structure(div, faces, keep)
     n_faces = len(faces)
-    # primal start: u0 with a margin above its norm; dual start y = 0, z = (w, 0, 0)
-    norms = np.linalg.norm(u0, axis=1)
-    x = np.empty((n_faces, 3))
-    x[:, 1:] = u0
-    x[:, 0] = norms + max(float(weights @ norms) / max(float(weights.sum()), 1e-300), 1e-300)
+    # primal start: u0 inside the cones; dual start y = 0, z = (w, 0, 0)
+    x = cone_start(u0, weights)
     y = np.zeros(div.shape[0])
     z = np.zeros((n_faces, 3))
     z[:, 0] = weights
     n = div.shape[0]
     flat = faces.ravel()
     l0, l1 = st.local[:, :, 0], st.local[:, :, 1]  # (F, 3) each
-    factor = None
 
     def newton(scaling: _Scaling, rc: np.ndarray, factor):
         # λ ∘ (W Δx + W⁻¹ Δz) = rc with D Δu = 0 and Δz = −Dᵀ Δy (primal and dual
@@ -297,36 +342,25 @@ def beckmann_interior_point(div: sp.csr_matrix, faces: np.ndarray, weights: np.n
         dx = wq - scaling.apply_inverse_square(dz)
         return dx, dy, dz
 
-    value = float(weights @ np.linalg.norm(x[:, 1:], axis=1))
-    lower = 0.0
-    it = 0
-    converged = False
-    for it in range(1, max_iter + 1):
-        try:
-            step = _iterate(x, z, st, newton, backend, factor)
-        except (ValueError, RuntimeError, ZeroDivisionError, FloatingPointError):
-            step = None  # a factorization failed at the end of the path (rounding)
+    def advance(state):
+        x, y, z, factor = state
+        step = _iterate(x, z, st, newton, backend, factor)
         if step is None:
-            it -= 1
-            break
+            return None
         factor, dx, dy, dz, alpha = step
-        x_new, y_new, z_new = x + alpha * dx, y + alpha * dy, z + alpha * dz
-        if not (_interior(x_new) and _interior(z_new) and np.all(np.isfinite(y_new))):
-            it -= 1  # rounding left the cone: keep the last certified iterate
-            break
-        x, y, z = x_new, y_new, z_new
-        value = float(weights @ np.linalg.norm(x[:, 1:], axis=1))
-        lower = float(y @ b)
-        gap = (value - lower) / max(abs(value), 1e-300)
-        monitor(it, gap)
-        if gap <= tol:
-            converged = True
-            break
-        if monitor.stalled:
-            break
+        new = (x + alpha * dx, y + alpha * dy, z + alpha * dz, factor)
+        ok = _interior(new[0]) and _interior(new[2]) and np.all(np.isfinite(new[1]))
+        return new if ok else None
+
+    def bounds(state):
+        return float(weights @ np.linalg.norm(state[0][:, 1:], axis=1)), float(state[1] @ b)
+
+    (x, y, z, _), it, converged = certified_loop((x, y, z, None), advance, bounds, tol,
+                                                 max_iter, monitor)
+    value, lower = bounds((x, y))
     u = x[:, 1:].copy()
     feasibility = float(np.abs(div @ np.column_stack([np.zeros(n_faces), u]).ravel()
                                - b).max())
     return InteriorPointOutput(u=u, y=y, value=value, lower_bound=lower,
-                               gap=(value - lower) / max(abs(value), 1e-300), iterations=it,
+                               gap=relative_gap(value, lower), iterations=it,
                                feasibility=feasibility, converged=converged)

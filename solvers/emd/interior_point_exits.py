@@ -38,7 +38,10 @@ from solvers.emd.interior_point import (
     _max_step,
     _nt_scaling,
     _Structure,
+    certified_loop,
+    cone_start,
     normal_matrix_data,
+    relative_gap,
 )
 
 # Largest violation of ``D u + E m = m0`` (mass units; total mass 1) with which a small gap
@@ -137,10 +140,7 @@ def exits_interior_point(div, st: _Structure, weights, m0, exits, p_diag, u0, m_
     the diagonal of P, ``u0`` (F, 2) and ``m_start`` (S,) > 0 with ``D u0 + E m_start =
     m0``, ``y_start`` (V,) constant per component with ``y < 0`` on the exits."""
     faces, n = st.faces, div.shape[0]
-    norms = np.linalg.norm(u0, axis=1)
-    x = np.empty((len(faces), 3))
-    x[:, 1:] = u0
-    x[:, 0] = norms + max(float(weights @ norms) / max(float(weights.sum()), 1e-300), 1e-300)
+    x = cone_start(u0, weights)
     m, y = m_start.copy(), y_start.copy()
     z = np.zeros_like(x)
     z[:, 0] = weights
@@ -150,44 +150,33 @@ def exits_interior_point(div, st: _Structure, weights, m0, exits, p_diag, u0, m_
     exits_pos = _diagonal_slots(st, position[exits])
     local = (st.local[:, :, 0], st.local[:, :, 1])
 
-    def objective(x, m, y):
+    def bounds(state):
+        x, m, y = state[:3]
         quad = 0.5 * float(p_diag @ m**2)
         return float(weights @ np.linalg.norm(x[:, 1:], axis=1)) + quad, \
             float(y[st.keep] @ m0[st.keep]) - quad
 
-    value, lower = objective(x, m, y)
-    factor, it, converged = None, 0, False
-    for it in range(1, max_iter + 1):
-        try:
-            newton = _ExitNewton(st, local, faces, n, exits_pos, exits, p_diag,
-                                 _nt_scaling(x, z), m, zm, factor, backend)
-            step = None if newton.factor is None else _step(x, m, z, zm, newton)
-        except (ValueError, RuntimeError, ZeroDivisionError, FloatingPointError):
-            step = None  # a factorization failed at the end of the path (rounding)
-        if step is None:
-            it -= 1
-            break
-        factor = newton.factor
-        dx, dm, dy, dz, dzm, alpha = step
-        new = (x + alpha * dx, m + alpha * dm, y + alpha * dy, z + alpha * dz, zm + alpha * dzm)
-        if not (_interior(new[0]) and _interior(new[3]) and np.all(new[1] > 0)
-                and np.all(new[4] > 0) and np.all(np.isfinite(new[2]))):
-            it -= 1  # rounding left the cone: keep the last certified iterate
-            break
-        x, m, y, z, zm = new
-        value, lower = objective(x, m, y)
-        gap = (value - lower) / max(abs(value), 1e-300)
-        monitor(it, gap)
-        if gap <= tol:
-            converged = True
-            break
-        if monitor.stalled:
-            break
+    def advance(state):
+        x, m, y, z, zm, factor = state
+        newton = _ExitNewton(st, local, faces, n, exits_pos, exits, p_diag,
+                             _nt_scaling(x, z), m, zm, factor, backend)
+        if newton.factor is None:
+            return None
+        dx, dm, dy, dz, dzm, alpha = _step(x, m, z, zm, newton)
+        new = (x + alpha * dx, m + alpha * dm, y + alpha * dy, z + alpha * dz, zm + alpha * dzm,
+               newton.factor)
+        ok = (_interior(new[0]) and _interior(new[3]) and np.all(new[1] > 0)
+              and np.all(new[4] > 0) and np.all(np.isfinite(new[2])))
+        return new if ok else None
+
+    state, it, converged = certified_loop((x, m, y, z, zm, None), advance, bounds, tol,
+                                          max_iter, monitor)
+    value, lower = bounds(state)
+    x, m, y = state[:3]
     u = x[:, 1:].copy()
     flow = div @ np.column_stack([np.zeros(len(faces)), u]).ravel()
     flow[exits] += m
     feasibility = float(np.abs(flow - m0)[st.keep].max())
     return ExitsOutput(u=u, m=m, y=y, value=value, lower_bound=lower,
-                       gap=(value - lower) / max(abs(value), 1e-300), iterations=it,
-                       feasibility=feasibility,
+                       gap=relative_gap(value, lower), iterations=it, feasibility=feasibility,
                        converged=converged and feasibility <= FEASIBILITY_TOL)
