@@ -213,24 +213,38 @@ def _interior(x: np.ndarray) -> bool:
     return bool(np.all(np.isfinite(x)) and np.all(x[:, 0] > 0) and np.all(_jdot(x, x) > 0))
 
 
+def face_blocks(scaling: _Scaling, local: np.ndarray) -> np.ndarray:
+    """Each face's ``3 × 3`` block ``D_t W_t⁻² D_tᵀ`` of the normal matrix ``(F', 3, 3)``
+    (``local`` ``(F, 3, 2)``; ``scaling`` over ``F' = k F`` faces: ``k`` stacked copies)."""
+    copies = len(scaling.beta) // len(local)
+    t11, t12, t22 = (t.reshape(copies, -1)[:, :, None, None]
+                     for t in scaling.inverse_square_tangent())
+    l0, l1 = local[None, :, :, 0], local[None, :, :, 1]
+    a0, a1 = l0[..., :, None], l1[..., :, None]
+    b0, b1 = l0[..., None, :], l1[..., None, :]
+    return (t11 * a0 * b0 + t12 * (a0 * b1 + a1 * b0) + t22 * a1 * b1).reshape(-1, 3, 3)
+
+
 def normal_matrix_data(scaling: _Scaling, st: _Structure) -> np.ndarray:
     """CSR data (on ``st.pattern``) of the normal matrix ``D W⁻² Dᵀ`` on the kept vertices,
     from a 3×3 block per face."""
-    t11, t12, t22 = (t[:, None, None] for t in scaling.inverse_square_tangent())
-    l0, l1 = st.local[:, :, 0], st.local[:, :, 1]
-    a0, a1 = l0[:, :, None], l1[:, :, None]
-    b0, b1 = l0[:, None, :], l1[:, None, :]
-    blocks = t11 * a0 * b0 + t12 * (a0 * b1 + a1 * b0) + t22 * a1 * b1
+    blocks = face_blocks(scaling, st.local)
     return np.bincount(st.slots, blocks.reshape(-1)[st.kept], minlength=st.pattern.nnz)
 
 
 def _factor_normal(data: np.ndarray, st: _Structure, factor, backend: str):
     """Factor (or refactor in place) the normal matrix with CSR ``data``; None if it is not
     finite."""
-    if not np.all(np.isfinite(data)):
+    return factor_normal_matrix(
+        sp.csr_matrix((data, st.pattern.indices, st.pattern.indptr), shape=st.pattern.shape),
+        factor, backend)
+
+
+def factor_normal_matrix(normal: sp.csr_matrix, factor, backend: str):
+    """Factor ``normal``, or refactor ``factor`` in place when it can (PARDISO keeps the
+    ordering and symbolic analysis of the fixed pattern); None if ``normal`` is not finite."""
+    if not np.all(np.isfinite(normal.data)):
         return None
-    normal = sp.csr_matrix((data, st.pattern.indices, st.pattern.indptr),
-                           shape=st.pattern.shape)
     if factor is not None and hasattr(factor, "refactor"):
         factor.refactor(normal)
         return factor
@@ -293,6 +307,36 @@ def certified_loop(state, advance, bounds, tol: float, max_iter: int, monitor,
         if monitor.stalled:
             break
     return state, it, converged
+
+
+def nonneg_max_step(x: np.ndarray, d: np.ndarray) -> float:
+    """Largest ``α`` with ``x + α d >= 0`` (``x > 0``; ``inf`` if ``d >= 0``)."""
+    neg = d < 0
+    return float((-x[neg] / d[neg]).min(initial=np.inf))
+
+
+def mehrotra_step(x, m, z, zm, newton):
+    """Mehrotra's predictor-corrector over Lorentz cones ``x, z`` ``(F, 3)`` and a
+    non-negative block ``m, zm``: ``(dx, dm, dy, dz, dzm, α)``.  ``newton(rc, rc_m)`` solves
+    the Newton system for complementarity right-hand sides (its ``scaling`` holds the
+    cones' NT scaling)."""
+    lam, lam_m = newton.scaling.lam, np.sqrt(m * zm)
+    degree = len(x) + len(m)
+    mu = (float(_dot(x, z).sum()) + float(m @ zm)) / degree
+    dx, dm, _, dz, dzm = newton(-_jordan(lam, lam), -lam_m**2)
+    alpha = min(1.0, _max_step(x, dx), _max_step(z, dz), nonneg_max_step(m, dm),
+                nonneg_max_step(zm, dzm))
+    mu_a = (float(_dot(x + alpha * dx, z + alpha * dz).sum())
+            + float((m + alpha * dm) @ (zm + alpha * dzm))) / degree
+    sigma = (max(mu_a, 0.0) / mu) ** 3
+    sc = newton.scaling
+    rc = -_jordan(lam, lam) - _jordan(sc.apply_inverse(dz), sc.apply(dx))
+    rc[:, 0] += sigma * mu
+    rc_m = -lam_m**2 - dzm * dm + sigma * mu
+    dx, dm, dy, dz, dzm = newton(rc, rc_m)
+    alpha = min(1.0, STEP_FRACTION * min(_max_step(x, dx), _max_step(z, dz),
+                                         nonneg_max_step(m, dm), nonneg_max_step(zm, dzm)))
+    return dx, dm, dy, dz, dzm, alpha
 
 
 @dataclass

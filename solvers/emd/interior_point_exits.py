@@ -29,17 +29,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from solvers.emd.interior_point import (
-    STEP_FRACTION,
-    _dot,
     _factor_normal,
     _interior,
-    _jordan,
     _jordan_solve,
-    _max_step,
     _nt_scaling,
     _Structure,
     certified_loop,
     cone_start,
+    mehrotra_step,
     normal_matrix_data,
     relative_gap,
 )
@@ -69,11 +66,6 @@ def _diagonal_slots(st: _Structure, rows: np.ndarray) -> np.ndarray:
     indptr, indices = st.pattern.indptr, st.pattern.indices
     return np.array([indptr[r] + int(np.searchsorted(indices[indptr[r]:indptr[r + 1]], r))
                      for r in rows], dtype=np.int64)
-
-
-def _nonneg_max_step(x: np.ndarray, d: np.ndarray) -> float:
-    neg = d < 0
-    return float((-x[neg] / d[neg]).min(initial=np.inf))
 
 
 class _ExitNewton:
@@ -112,27 +104,6 @@ class _ExitNewton:
         return dx, dm, dy, dz, dzm
 
 
-def _step(x, m, z, zm, newton):
-    """Mehrotra predictor-corrector: ``(dx, dm, dy, dz, dzm, α)``."""
-    lam, lam_m = newton.scaling.lam, np.sqrt(m * zm)
-    degree = len(x) + len(m)
-    mu = (float(_dot(x, z).sum()) + float(m @ zm)) / degree
-    dx, dm, _, dz, dzm = newton(-_jordan(lam, lam), -lam_m**2)
-    alpha = min(1.0, _max_step(x, dx), _max_step(z, dz), _nonneg_max_step(m, dm),
-                _nonneg_max_step(zm, dzm))
-    mu_a = (float(_dot(x + alpha * dx, z + alpha * dz).sum())
-            + float((m + alpha * dm) @ (zm + alpha * dzm))) / degree
-    sigma = (max(mu_a, 0.0) / mu) ** 3
-    sc = newton.scaling
-    rc = -_jordan(lam, lam) - _jordan(sc.apply_inverse(dz), sc.apply(dx))
-    rc[:, 0] += sigma * mu
-    rc_m = -lam_m**2 - dzm * dm + sigma * mu
-    dx, dm, dy, dz, dzm = newton(rc, rc_m)
-    alpha = min(1.0, STEP_FRACTION * min(_max_step(x, dx), _max_step(z, dz),
-                                         _nonneg_max_step(m, dm), _nonneg_max_step(zm, dzm)))
-    return dx, dm, dy, dz, dzm, alpha
-
-
 def exits_interior_point(div, st: _Structure, weights, m0, exits, p_diag, u0, m_start,
                          y_start, tol, max_iter, monitor, backend="auto") -> ExitsOutput:
     """The primal-dual loop (module docstring).  ``div`` (V, 3F) interleaved divergence,
@@ -162,7 +133,7 @@ def exits_interior_point(div, st: _Structure, weights, m0, exits, p_diag, u0, m_
                              _nt_scaling(x, z), m, zm, factor, backend)
         if newton.factor is None:
             return None
-        dx, dm, dy, dz, dzm, alpha = _step(x, m, z, zm, newton)
+        dx, dm, dy, dz, dzm, alpha = mehrotra_step(x, m, z, zm, newton)
         new = (x + alpha * dx, m + alpha * dm, y + alpha * dy, z + alpha * dz, zm + alpha * dzm,
                newton.factor)
         ok = (_interior(new[0]) and _interior(new[3]) and np.all(new[1] > 0)
