@@ -213,22 +213,34 @@ def _interior(x: np.ndarray) -> bool:
     return bool(np.all(np.isfinite(x)) and np.all(x[:, 0] > 0) and np.all(_jdot(x, x) > 0))
 
 
-def face_blocks(scaling: _Scaling, local: np.ndarray) -> np.ndarray:
-    """Each face's ``3 × 3`` block ``D_t W_t⁻² D_tᵀ`` of the normal matrix ``(F', 3, 3)``
-    (``local`` ``(F, 3, 2)``; ``scaling`` over ``F' = k F`` faces: ``k`` stacked copies)."""
-    copies = len(scaling.beta) // len(local)
-    t11, t12, t22 = (t.reshape(copies, -1)[:, :, None, None]
-                     for t in scaling.inverse_square_tangent())
-    l0, l1 = local[None, :, :, 0], local[None, :, :, 1]
-    a0, a1 = l0[..., :, None], l1[..., :, None]
-    b0, b1 = l0[..., None, :], l1[..., None, :]
-    return (t11 * a0 * b0 + t12 * (a0 * b1 + a1 * b0) + t22 * a1 * b1).reshape(-1, 3, 3)
+def local_products(local: np.ndarray) -> np.ndarray:
+    """``(F, 3, 9)``: per face the ``3 × 3`` products ``l0 l0ᵀ``, ``l0 l1ᵀ + l1 l0ᵀ``,
+    ``l1 l1ᵀ`` of the divergence's local columns ``local`` ``(F, 3, 2)``, which the tangential
+    entries of ``W⁻²`` weight in :func:`face_blocks`."""
+    l0, l1 = local[:, :, 0], local[:, :, 1]
+
+    def outer(a, b):
+        return (a[:, :, None] * b[:, None, :]).reshape(-1, 9)
+
+    return np.stack([outer(l0, l0), outer(l0, l1) + outer(l1, l0), outer(l1, l1)], axis=1)
+
+
+def face_blocks(scaling: _Scaling, products: np.ndarray) -> np.ndarray:
+    """Each face's ``3 × 3`` block ``D_t W_t⁻² D_tᵀ`` of the normal matrix, flattened
+    ``(F', 9)``, from :func:`local_products` ``(F, 3, 9)``; ``scaling`` is over ``F' = k F``
+    faces (``k`` stacked copies of the mesh's faces)."""
+    copies = len(scaling.beta) // len(products)
+    t11, t12, t22 = (t.reshape(copies, -1, 1) for t in scaling.inverse_square_tangent())
+    out = t11 * products[None, :, 0]
+    out += t12 * products[None, :, 1]
+    out += t22 * products[None, :, 2]
+    return out.reshape(-1, 9)
 
 
 def normal_matrix_data(scaling: _Scaling, st: _Structure) -> np.ndarray:
     """CSR data (on ``st.pattern``) of the normal matrix ``D W⁻² Dᵀ`` on the kept vertices,
     from a 3×3 block per face."""
-    blocks = face_blocks(scaling, st.local)
+    blocks = face_blocks(scaling, local_products(st.local))
     return np.bincount(st.slots, blocks.reshape(-1)[st.kept], minlength=st.pattern.nnz)
 
 

@@ -47,6 +47,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from solvers.emd.interior_point import (
+    _backend,
     _interior,
     _jordan_solve,
     _nt_scaling,
@@ -55,6 +56,7 @@ from solvers.emd.interior_point import (
     cone_start,
     face_blocks,
     factor_normal_matrix,
+    local_products,
     mehrotra_step,
     relative_gap,
 )
@@ -62,9 +64,36 @@ from solvers.emd.interior_point import (
 # Largest violation of the divergence constraints (mass units, total mass 1) with which a
 # small gap counts as converged (as in solvers.emd.interior_point_exits).
 FEASIBILITY_TOL = 1e-6
+# Cost model of this route (bench/w1_applications.py fits it: measured times and PARDISO's
+# factor sizes in bench/results/w1_applications.md): per iteration, passes over the k F
+# face cones and a numeric factorization of the coupled (k V)-row normal matrix, whose factor
+# grows like N log N and its work like N^1.5 (nested dissection on a surface mesh).
+ESTIMATED_ITERATIONS = 50
+_FACE_SECONDS = 1.0e-6  # per face cone and iteration
+_FACTOR_SECONDS = 1.0e-8  # per (k V)^1.5 and iteration
+_FACTOR_FILL = 2.0  # factor nonzeros per coupled unknown and log2(unknowns)
+_FACE_FLOATS = 60  # cones, scalings, directions, per-face blocks: floats per face cone
+MAX_ESTIMATED_SECONDS = 300.0
 # Absolute floor of the relative gap's denominator (objective units: squared length on the
 # unit-area mesh): the objective is 0 when the inputs coincide.
 GAP_FLOOR = 1e-12
+
+
+@dataclass(frozen=True)
+class CostEstimate:
+    seconds: float
+    bytes: int
+
+
+def estimated_cost(n_vertices: int, n_faces: int, k: int) -> CostEstimate:
+    """Modelled run time (s, one core) and working memory of :func:`solve_barycenter_ipm`
+    with ``k`` inputs of positive weight on a mesh of that size (constants above)."""
+    unknowns = float(max(k, 1)) * float(max(n_vertices, 1))
+    cones = float(max(k, 1)) * float(max(n_faces, 1))
+    per_iteration = _FACE_SECONDS * cones + _FACTOR_SECONDS * unknowns**1.5
+    factor = _FACTOR_FILL * unknowns * np.log2(max(unknowns, 2.0))
+    return CostEstimate(seconds=ESTIMATED_ITERATIONS * per_iteration,
+                        bytes=int(12 * factor + 8 * _FACE_FLOATS * cones + 8 * 40 * unknowns))
 
 
 @dataclass
@@ -109,7 +138,9 @@ class _CoupledPattern:
                 rows.append(position[i][common])
                 cols.append(position[j][common])
                 src.append(k * 9 * n_faces + common)
-        rows, cols, self.src = np.concatenate(rows), np.concatenate(cols), np.concatenate(src)
+        rows, cols, src = np.concatenate(rows), np.concatenate(cols), np.concatenate(src)
+        upper = rows <= cols  # symmetric: PARDISO reads the upper triangle
+        rows, cols, self.src = rows[upper], cols[upper], src[upper]
         size = int(self.offsets[-1])
         self.pattern = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(size, size))
         self.pattern.sum_duplicates()
@@ -118,13 +149,14 @@ class _CoupledPattern:
             + self.pattern.indices
         self.slots = np.searchsorted(keys, rows * size + cols)
 
-    def matrix(self, blocks: np.ndarray, d: np.ndarray) -> sp.csr_matrix:
-        """The sparse part of the normal matrix from per-face blocks ``(k F, 3, 3)`` and
-        ``d`` ``(V,)``."""
+    def matrix(self, blocks: np.ndarray, d: np.ndarray, full: bool) -> sp.csr_matrix:
+        """The sparse part of the normal matrix from per-face blocks ``(k F, 9)`` and ``d``
+        ``(V,)``: its upper triangle, or with ``full`` the whole symmetric matrix."""
         values = np.concatenate([blocks.ravel(), d])[self.src]
         data = np.bincount(self.slots, values, minlength=self.pattern.nnz)
-        return sp.csr_matrix((data, self.pattern.indices, self.pattern.indptr),
-                             shape=self.pattern.shape)
+        upper = sp.csr_matrix((data, self.pattern.indices, self.pattern.indptr),
+                              shape=self.pattern.shape)
+        return (upper + sp.triu(upper, 1).T).tocsr() if full else upper
 
     def scatter(self, per_block: np.ndarray) -> np.ndarray:
         """``(k, V)`` vertex arrays to one vector over the blocks' rows."""
@@ -149,7 +181,7 @@ class _Program:
 
     def __init__(self, structure: _Structure, w, alpha, m):
         self.faces, self.w, self.alpha, self.m = structure.faces, w, alpha, m
-        self.local = structure.local
+        self.products = local_products(structure.local)
         self.l0, self.l1 = structure.local[:, :, 0], structure.local[:, :, 1]
         self.k, self.n = m.shape
 
@@ -203,8 +235,9 @@ class _Newton:
         ghg = self.h[:, :, 0] @ prog.w
         self.c = 2.0 * prog.alpha / (1.0 + 2.0 * prog.alpha * ghg)
         self.v = prog.div(self.h)  # (k, V): D (W⁻² g)_u per block
-        blocks = face_blocks(self.scaling, prog.local)
-        self.factor = factor_normal_matrix(layout.matrix(blocks, self.d), factor, backend)
+        blocks = face_blocks(self.scaling, prog.products)
+        normal = layout.matrix(blocks, self.d, full=_backend(backend) != "pardiso")
+        self.factor = factor_normal_matrix(normal, factor, backend)
         if self.factor is None:
             return
         self.V = np.zeros((int(layout.offsets[-1]), k))  # column i: v_i on block i's rows
@@ -235,7 +268,28 @@ class _Newton:
         drho = -self.d * dy.sum(axis=0) + wq_rho
         dz = -a
         dz[:, :, 0] = (2.0 * prog.alpha * (dx[:, :, 0] @ prog.w))[:, None] * prog.w[None]
+        _debug_newton(self, rc, rc_rho, dx, drho, dz, wq)
         return dx.reshape(-1, 3), drho, dy, dz.reshape(-1, 3), dy.sum(axis=0)
+
+
+def _debug(step):
+    import os
+    if os.environ.get("DEBUG"):
+        print("step", step)
+
+
+def _debug_newton(self, rc, rc_rho, dx, drho, dz, wq):
+    import os
+    if not os.environ.get("DEBUG"):
+        return
+    from solvers.emd.interior_point import _jordan
+    prog, sc = self.prog, self.scaling
+    prim = prog.div(dx) - drho[None]
+    prim[1:, self.layout.rows_of[0][~np.isin(self.layout.rows_of[0], self.layout.rows_of[1])]] = 0
+    scale = np.abs(prog.div(wq)).max()
+    comp = _jordan(sc.lam, sc.apply(dx.reshape(-1, 3)) + sc.apply_inverse(dz.reshape(-1, 3))) - rc
+    print("newton prim", np.abs(prim).max() / scale, "comp", np.abs(comp).max() / np.abs(rc).max(),
+          "rho", np.abs(self.lam_rho * (drho / self.d**0.5 * 1 + dx.sum() * 0) - 0).max() * 0)
 
 
 def barycenter_interior_point(full: _Structure, kept: _Structure, w: np.ndarray,
@@ -253,6 +307,9 @@ def barycenter_interior_point(full: _Structure, kept: _Structure, w: np.ndarray,
     k, n = m.shape
     layout = _CoupledPattern(full, kept, k, n)
     x = np.stack([cone_start(u, w) for u in u0])  # (k, F, 3)
+    import os
+    cc = float(os.environ.get("CSTART", "1"))
+    x[:, :, 0] += (cc - 1) * np.linalg.norm(x[:, :, 1:], axis=2)
     # dual start: y_1 = δ (constant: Dᵀ y_1 = 0), so z_ρ = δ balances ρ z_ρ against the
     # cones' mean complementarity
     cone_mu = float(2.0 * alpha @ prog.totals(x) ** 2) / (k * len(prog.faces))
@@ -269,7 +326,7 @@ def barycenter_interior_point(full: _Structure, kept: _Structure, w: np.ndarray,
         dx, drho, dy, _, _, step = mehrotra_step(x.reshape(-1, 3), rho, z.reshape(-1, 3),
                                                  z_rho, newton)
         x, rho, y = x + step * dx.reshape(shape), rho + step * drho, y + step * dy
-        if __import__('os').environ.get('DEBUG'): print('step', step, 'mu', float((x.reshape(-1,3)*z.reshape(-1,3)).sum()), float(rho@z_rho))
+        _debug(step)
         z, z_rho = prog.dual_slacks(x, y)  # exact dual feasibility: a certified bound
         ok = (_interior(x.reshape(-1, 3)) and _interior(z.reshape(-1, 3)) and np.all(rho > 0)
               and np.all(z_rho > 0) and np.all(np.isfinite(y)))
@@ -288,3 +345,71 @@ def barycenter_interior_point(full: _Structure, kept: _Structure, w: np.ndarray,
                             gap=relative_gap(value, lower, GAP_FLOOR), iterations=it,
                             feasibility=feasibility,
                             converged=converged and feasibility <= FEASIBILITY_TOL)
+
+
+def _start(ops, mesh, m: np.ndarray, geo):
+    """``(rho0, u0)``: each component's mass spread by area, and the Poisson flows
+    carrying it to every input (``D u0_i = rho0 - m_i``)."""
+    labels, areas = ops.labels, mesh.areas
+    density = np.bincount(labels, m[0]) / np.bincount(labels, areas)
+    rho0 = areas * density[labels]
+    u0 = []
+    for mi in m:
+        _, v = ops.particular_flow(mi - rho0)
+        u0.append(np.einsum("fc,fdc->fd", v, geo.frames) * mesh.face_areas[:, None])
+    return rho0, np.stack(u0)
+
+
+def solve_barycenter_ipm(mesh, M: np.ndarray, alpha: np.ndarray, face_weights: np.ndarray,
+                         tol: float, max_iter: int, monitor) -> dict:
+    """Eq. 2.7 on ``mesh`` for validated inputs ``M`` ``(V, k)`` and weights ``alpha``
+    ``(k,)`` (summing to 1), finite ``face_weights`` ``(F,)``: the coupled interior point over
+    the inputs with positive weight; an input of weight 0 does not change the optimum, and its
+    distance and flow come from the W1 interior point (:func:`solvers.emd.beckmann.
+    earth_movers_distance`) afterwards.  Returns the fields of a
+    :class:`~solvers.emd.exact.W1BarycenterResult` (flows as ``(k, F, 2)`` tangent
+    coordinates ``u``, with the operators' ``frames``)."""
+    from solvers.emd.interior_point import _structure
+    from solvers.emd.operators import mesh_operators
+
+    ops = mesh_operators(mesh)
+    geo, kept = ops.interior_point_structure
+    k = M.shape[1]
+    positive = np.flatnonzero(alpha > 0)
+    m = np.ascontiguousarray(M[:, positive].T)
+    u = np.zeros((k, mesh.n_faces, 2))
+    if len(positive) == 1:  # the input itself, exactly
+        rho, out = m[0].copy(), None
+    else:
+        full = _structure(geo.div, kept.faces, np.arange(mesh.n))
+        rho0, u0 = _start(ops, mesh, m, geo)
+        out = barycenter_interior_point(full, kept, face_weights, alpha[positive], m, u0, rho0,
+                                        tol, max_iter, monitor)
+        rho = out.rho
+        u[positive] = out.u
+    report = {"iterations": 0 if out is None else out.iterations,
+              "feasibility": 0.0 if out is None else out.feasibility,
+              "gap": 0.0 if out is None else out.gap,
+              "lower_bound": 0.0 if out is None else out.lower_bound,
+              "converged": True if out is None else out.converged}
+    distances = np.zeros(k)
+    if out is not None:
+        distances[positive] = out.distances
+    flows = np.einsum("kfd,fdc->kfc", u, geo.frames) / mesh.face_areas[None, :, None]
+    for j in np.flatnonzero(alpha <= 0):
+        distances[j], flows[j] = _zero_weight_distance(mesh, rho, M[:, j], face_weights, tol,
+                                                       max_iter, report)
+    return {"masses": rho, "distances": distances, "flows": flows,
+            "value": float(alpha @ distances**2), **report}
+
+
+def _zero_weight_distance(mesh, rho, target, face_weights, tol, max_iter, report):
+    """W1 from the barycenter to an input of weight 0 (certified interior point); folds
+    its convergence into ``report``."""
+    from solvers.emd.beckmann import earth_movers_distance
+
+    res = earth_movers_distance(mesh, rho, target, algorithm="ipm", face_weights=face_weights,
+                                tol=tol, max_iter=max_iter)
+    report["converged"] = report["converged"] and bool(res.converged)
+    report["feasibility"] = max(report["feasibility"], float(res.primal_residual))
+    return res.value, res.flow
