@@ -268,28 +268,7 @@ class _Newton:
         drho = -self.d * dy.sum(axis=0) + wq_rho
         dz = -a
         dz[:, :, 0] = (2.0 * prog.alpha * (dx[:, :, 0] @ prog.w))[:, None] * prog.w[None]
-        _debug_newton(self, rc, rc_rho, dx, drho, dz, wq)
         return dx.reshape(-1, 3), drho, dy, dz.reshape(-1, 3), dy.sum(axis=0)
-
-
-def _debug(step):
-    import os
-    if os.environ.get("DEBUG"):
-        print("step", step)
-
-
-def _debug_newton(self, rc, rc_rho, dx, drho, dz, wq):
-    import os
-    if not os.environ.get("DEBUG"):
-        return
-    from solvers.emd.interior_point import _jordan
-    prog, sc = self.prog, self.scaling
-    prim = prog.div(dx) - drho[None]
-    prim[1:, self.layout.rows_of[0][~np.isin(self.layout.rows_of[0], self.layout.rows_of[1])]] = 0
-    scale = np.abs(prog.div(wq)).max()
-    comp = _jordan(sc.lam, sc.apply(dx.reshape(-1, 3)) + sc.apply_inverse(dz.reshape(-1, 3))) - rc
-    print("newton prim", np.abs(prim).max() / scale, "comp", np.abs(comp).max() / np.abs(rc).max(),
-          "rho", np.abs(self.lam_rho * (drho / self.d**0.5 * 1 + dx.sum() * 0) - 0).max() * 0)
 
 
 def barycenter_interior_point(full: _Structure, kept: _Structure, w: np.ndarray,
@@ -307,14 +286,11 @@ def barycenter_interior_point(full: _Structure, kept: _Structure, w: np.ndarray,
     k, n = m.shape
     layout = _CoupledPattern(full, kept, k, n)
     x = np.stack([cone_start(u, w) for u in u0])  # (k, F, 3)
-    import os
-    cc = float(os.environ.get("CSTART", "1"))
-    x[:, :, 0] += (cc - 1) * np.linalg.norm(x[:, :, 1:], axis=2)
     # dual start: y_1 = δ (constant: Dᵀ y_1 = 0), so z_ρ = δ balances ρ z_ρ against the
     # cones' mean complementarity
     cone_mu = float(2.0 * alpha @ prog.totals(x) ** 2) / (k * len(prog.faces))
     y = np.zeros((k, n))
-    y[0] = n * cone_mu * float(__import__('os').environ.get('DSCALE', '1'))
+    y[0] = n * cone_mu
     z, z_rho = prog.dual_slacks(x, y)
     shape = x.shape
 
@@ -326,7 +302,6 @@ def barycenter_interior_point(full: _Structure, kept: _Structure, w: np.ndarray,
         dx, drho, dy, _, _, step = mehrotra_step(x.reshape(-1, 3), rho, z.reshape(-1, 3),
                                                  z_rho, newton)
         x, rho, y = x + step * dx.reshape(shape), rho + step * drho, y + step * dy
-        _debug(step)
         z, z_rho = prog.dual_slacks(x, y)  # exact dual feasibility: a certified bound
         ok = (_interior(x.reshape(-1, 3)) and _interior(z.reshape(-1, 3)) and np.all(rho > 0)
               and np.all(z_rho > 0) and np.all(np.isfinite(y)))
