@@ -46,20 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from solvers.emd.interior_point import (
-    _backend,
-    _interior,
-    _jordan_solve,
-    _nt_scaling,
-    _Structure,
-    certified_loop,
-    cone_start,
-    face_blocks,
-    factor_normal_matrix,
-    local_products,
-    mehrotra_step,
-    relative_gap,
-)
+from solvers.emd import interior_point as ip
 
 # Largest violation of the divergence constraints (mass units, total mass 1) with which a
 # small gap counts as converged (as in solvers.emd.interior_point_exits).
@@ -116,7 +103,7 @@ class _CoupledPattern:
 
     Block 0 holds every vertex (``full``), blocks 1.. the kept vertices (``kept``)."""
 
-    def __init__(self, full: _Structure, kept: _Structure, k: int, n: int):
+    def __init__(self, full: ip._Structure, kept: ip._Structure, k: int, n: int):
         self.k, self.n = k, n
         self.sizes = [n] + [len(kept.keep)] * (k - 1)
         self.offsets = np.concatenate([[0], np.cumsum(self.sizes)])
@@ -179,9 +166,9 @@ class _Program:
     """The data of one barycenter program: divergence as per-face ``3 × 2`` blocks
     ``local`` on ``faces``, face weights ``w``, weights ``alpha`` (k,), inputs ``m`` (k, V)."""
 
-    def __init__(self, structure: _Structure, w, alpha, m):
+    def __init__(self, structure: ip._Structure, w, alpha, m):
         self.faces, self.w, self.alpha, self.m = structure.faces, w, alpha, m
-        self.products = local_products(structure.local)
+        self.products = ip.local_products(structure.local)
         self.l0, self.l1 = structure.local[:, :, 0], structure.local[:, :, 1]
         self.k, self.n = m.shape
 
@@ -225,7 +212,7 @@ class _Newton:
                  backend):
         k, n_faces = x.shape[:2]
         self.prog, self.layout = prog, layout
-        self.scaling = _nt_scaling(x.reshape(-1, 3), z.reshape(-1, 3))
+        self.scaling = ip._nt_scaling(x.reshape(-1, 3), z.reshape(-1, 3))
         self.lam_rho = np.sqrt(rho * z_rho)
         self.d = rho / z_rho
         self.z_rho = z_rho
@@ -235,9 +222,9 @@ class _Newton:
         ghg = self.h[:, :, 0] @ prog.w
         self.c = 2.0 * prog.alpha / (1.0 + 2.0 * prog.alpha * ghg)
         self.v = prog.div(self.h)  # (k, V): D (W⁻² g)_u per block
-        blocks = face_blocks(self.scaling, prog.products)
-        normal = layout.matrix(blocks, self.d, full=_backend(backend) != "pardiso")
-        self.factor = factor_normal_matrix(normal, factor, backend)
+        blocks = ip.face_blocks(self.scaling, prog.products)
+        normal = layout.matrix(blocks, self.d, full=ip._backend(backend) != "pardiso")
+        self.factor = ip.factor_normal_matrix(normal, factor, backend)
         if self.factor is None:
             return
         self.V = np.zeros((int(layout.offsets[-1]), k))  # column i: v_i on block i's rows
@@ -255,7 +242,7 @@ class _Newton:
         complementarity right-hand sides ``rc`` ``(k F, 3)`` and ``rc_rho`` ``(V,)``."""
         prog, sc = self.prog, self.scaling
         k, n_faces = prog.k, len(prog.faces)
-        wq = sc.apply_inverse(_jordan_solve(sc.lam, rc)).reshape(k, n_faces, 3)
+        wq = sc.apply_inverse(ip._jordan_solve(sc.lam, rc)).reshape(k, n_faces, 3)
         wq_rho = rc_rho / self.z_rho
         g_wq = wq[:, :, 0] @ prog.w
         v = self.v
@@ -271,7 +258,7 @@ class _Newton:
         return dx.reshape(-1, 3), drho, dy, dz.reshape(-1, 3), dy.sum(axis=0)
 
 
-def barycenter_interior_point(full: _Structure, kept: _Structure, w: np.ndarray,
+def barycenter_interior_point(full: ip._Structure, kept: ip._Structure, w: np.ndarray,
                               alpha: np.ndarray, m: np.ndarray, u0: np.ndarray,
                               rho0: np.ndarray, tol: float, max_iter: int, monitor,
                               backend: str = "auto") -> BarycenterOutput:
@@ -285,7 +272,7 @@ def barycenter_interior_point(full: _Structure, kept: _Structure, w: np.ndarray,
     prog = _Program(full, w, alpha, m)
     k, n = m.shape
     layout = _CoupledPattern(full, kept, k, n)
-    x = np.stack([cone_start(u, w) for u in u0])  # (k, F, 3)
+    x = np.stack([ip.cone_start(u, w) for u in u0])  # (k, F, 3)
     # dual start: y_1 = δ (constant: Dᵀ y_1 = 0), so z_ρ = δ balances ρ z_ρ against the
     # cones' mean complementarity
     cone_mu = float(2.0 * alpha @ prog.totals(x) ** 2) / (k * len(prog.faces))
@@ -299,25 +286,25 @@ def barycenter_interior_point(full: _Structure, kept: _Structure, w: np.ndarray,
         newton = _Newton(prog, layout, x, rho, z, z_rho, factor, backend)
         if newton.factor is None:
             return None
-        dx, drho, dy, _, _, step = mehrotra_step(x.reshape(-1, 3), rho, z.reshape(-1, 3),
+        dx, drho, dy, _, _, step = ip.mehrotra_step(x.reshape(-1, 3), rho, z.reshape(-1, 3),
                                                  z_rho, newton)
         x, rho, y = x + step * dx.reshape(shape), rho + step * drho, y + step * dy
         z, z_rho = prog.dual_slacks(x, y)  # exact dual feasibility: a certified bound
-        ok = (_interior(x.reshape(-1, 3)) and _interior(z.reshape(-1, 3)) and np.all(rho > 0)
+        ok = (ip._interior(x.reshape(-1, 3)) and ip._interior(z.reshape(-1, 3)) and np.all(rho > 0)
               and np.all(z_rho > 0) and np.all(np.isfinite(y)))
         return (x, rho, y, z, z_rho, newton.factor) if ok else None
 
     def bounds(state):
         return prog.bounds(state[0], state[2])[:2]
 
-    state, it, converged = certified_loop((x, rho0.copy(), y, z, z_rho, None), advance,
+    state, it, converged = ip.certified_loop((x, rho0.copy(), y, z, z_rho, None), advance,
                                           bounds, tol, max_iter, monitor, GAP_FLOOR)
     x, rho, y = state[:3]
     value, lower, distances = prog.bounds(x, y)
     feasibility = float(np.abs(prog.div(x) - rho[None] + m).max())
     return BarycenterOutput(u=x[:, :, 1:].copy(), rho=rho, y=y, distances=distances,
                             value=value, lower_bound=lower,
-                            gap=relative_gap(value, lower, GAP_FLOOR), iterations=it,
+                            gap=ip.relative_gap(value, lower, GAP_FLOOR), iterations=it,
                             feasibility=feasibility,
                             converged=converged and feasibility <= FEASIBILITY_TOL)
 
