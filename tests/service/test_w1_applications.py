@@ -188,7 +188,7 @@ def test_w1_barycenter_above_the_conic_cap(client, tmp_path):
     certificate."""
     big, _ = _sphere(client, tmp_path, 5)
     _, res = job_result(client, client.post(
-        f"/v1/domains/{big}/w1-barycenters?wait=120",
+        f"/v1/domains/{big}/w1-barycenters?wait=60",
         json={"distributions": [_dirac(0), _dirac(5000)], "weights": [0.5, 0.5]}))
     v = res["values"]
     assert v["algorithm"] == "ipm" and v["converged"] and v["gap"] <= 1e-6
