@@ -57,8 +57,8 @@ FEASIBILITY_TOL = 1e-6
 ESTIMATED_ITERATIONS = 50
 _FACE_SECONDS = 1.0e-6  # per face cone and iteration
 _FACTOR_SECONDS = 1.0e-8  # per (k V)^1.5 and iteration
-_FACTOR_FILL = 2.0  # factor nonzeros per coupled unknown and log2(unknowns)
-_FACE_FLOATS = 60  # cones, scalings, directions, per-face blocks: floats per face cone
+_FACTOR_FILL = 4.0  # factor nonzeros per coupled unknown and log2(unknowns)
+_FACE_FLOATS = 150  # cones, scalings, directions, per-face blocks: floats per face cone
 MAX_ESTIMATED_SECONDS = 300.0
 # Absolute floor of the relative gap's denominator (objective units: squared length on the
 # unit-area mesh): the objective is 0 when the inputs coincide.
