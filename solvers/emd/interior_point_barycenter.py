@@ -223,7 +223,13 @@ class _Newton:
         self.v = prog.div(self.h)  # (k, V): D (W⁻² g)_u per block
         blocks = ip.face_blocks(self.scaling, prog.products)
         normal = layout.matrix(blocks, self.d, full=ip._backend(backend) != "pardiso")
-        self.factor = ip.factor_normal_matrix(normal, factor, backend)
+        try:
+            self.factor = ip.factor_normal_matrix(normal, factor, backend)
+        except ValueError:  # Cholesky lost definiteness to rounding near the end of the
+            # path: LU with partial pivoting on the whole symmetric matrix (same system)
+            if ip._backend(backend) == "pardiso":
+                normal = (normal + sp.triu(normal, 1).T).tocsr()
+            self.factor = ip.factor_normal_matrix(normal, None, "splu")
         if self.factor is None:
             return
         self.V = np.zeros((int(layout.offsets[-1]), k))  # column i: v_i on block i's rows
