@@ -3,8 +3,11 @@
 
 Path planning: the vertex-sized interior point (``algorithm="ipm"``, certified relative gap
 1e-6) beside Clarabel on the whole program (``"socp"``, 10k only) in the same run, with the
-ratio.  Barycenters (three Dirac inputs): Clarabel on the whole coupled program with its
-size caps lifted (there is no vertex-sized interior point for eq. 2.7 yet).
+ratio.  Barycenters (Dirac inputs): the vertex-sized interior point of
+:mod:`solvers.emd.interior_point_barycenter` (certified relative gap 1e-6) beside Clarabel on
+the whole coupled program (size caps lifted, 10k only), each solve in a fresh process whose
+peak resident memory above its baseline is recorded beside the modelled cost
+(:func:`~solvers.emd.interior_point_barycenter.estimated_cost`) the service admits jobs by.
 
 Run: ``cpu bench .venv/bin/python bench/w1_applications.py``.
 Writes ``bench/results/w1_applications.md``.
@@ -17,7 +20,9 @@ import os
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
+import json  # noqa: E402
 import platform  # noqa: E402
+import subprocess  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -31,6 +36,7 @@ from _common import load1, service_bump  # noqa: E402
 
 import solvers.emd.exact as exact  # noqa: E402
 from solvers.domains import load_mesh  # noqa: E402
+from solvers.emd.interior_point_barycenter import estimated_cost  # noqa: E402
 from solvers.emd.path_planning import w1_path_planning  # noqa: E402
 
 MESHES = Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
@@ -68,17 +74,67 @@ def path_rows(mesh, name, with_socp):
     return rows
 
 
-def barycenter_row(mesh, name):
-    idx = [0, mesh.n // 3, 2 * mesh.n // 3]
-    M = np.zeros((mesh.n, 3))
-    M[idx, np.arange(3)] = 1.0
-    exact.MAX_BLOCK_UNKNOWNS = 10**9  # lift the coupled-program cap for the measurement
-    res, t = _timed(lambda: exact.w1_barycenter(mesh, M, max_vertices=10**7,
-                                                time_limit=BARYCENTER_TIME_LIMIT))
-    row = [name, mesh.n, f"{res.value:.6f}", res.iterations, f"{t:.2f}", res.status,
-           f"{load1():.2f}"]
-    print(row, flush=True)
-    return row
+BARYCENTER_CASES = [("rocker-arm.obj", 3, True), ("rocker-arm.obj", 6, False),
+                    ("nefertiti.obj", 3, False)]  # (mesh, Dirac inputs, run Clarabel too)
+
+
+def _peak_rss() -> int:
+    """Peak resident set size of this process (bytes)."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) * 1024
+    return 0
+
+
+def _rss() -> int:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) * 1024
+    return 0
+
+
+def barycenter_case(name: str, k: int, algorithm: str) -> dict:
+    """One barycenter solve (run in a fresh process by ``--case``): k Diracs at vertices
+    spread over the index range, uniform weights."""
+    mesh = load_mesh(MESHES / name)
+    M = np.zeros((mesh.n, k))
+    M[[i * mesh.n // k for i in range(k)], np.arange(k)] = 1.0
+    exact.MAX_BLOCK_UNKNOWNS = 10**9  # lift the conic program's caps for the measurement
+    baseline = _rss()
+    res, t = _timed(lambda: exact.w1_barycenter(
+        mesh, M, algorithm=algorithm, max_vertices=10**7,
+        time_limit=BARYCENTER_TIME_LIMIT if algorithm == "socp" else None))
+    model = estimated_cost(mesh.n, mesh.n_faces, k)
+    return {"V": mesh.n, "F": mesh.n_faces, "value": res.value, "iterations": res.iterations,
+            "time": t, "status": res.status, "gap": res.gap, "converged": res.converged,
+            "residual": res.residual, "memory": _peak_rss() - baseline,
+            "model_seconds": model.seconds, "model_bytes": model.bytes}
+
+
+def _run_case(name: str, k: int, algorithm: str) -> dict:
+    out = subprocess.run([sys.executable, __file__, "--case", name, str(k), algorithm],
+                         capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def barycenter_rows():
+    rows = []
+    for name, k, with_socp in BARYCENTER_CASES:
+        ipm = _run_case(name, k, "ipm")
+        row = [name, ipm["V"], k, f"{ipm['value']:.6f}", ipm["iterations"],
+               f"{ipm['gap']:.1e}", str(ipm["converged"]), f"{ipm['time']:.2f}",
+               f"{ipm['model_seconds']:.1f}", f"{ipm['memory'] / 2**20:.0f}",
+               f"{ipm['model_bytes'] / 2**20:.0f}"]
+        if with_socp:
+            socp = _run_case(name, k, "socp")
+            rel = abs(ipm["value"] - socp["value"]) / socp["value"]
+            row += [f"{socp['value']:.6f}", socp["status"],
+                    f"{socp['time']:.2f} [{socp['time'] / ipm['time']:.1f}x]", f"{rel:.1e}"]
+        else:
+            row += ["not run", "", "", ""]
+        rows.append(row + [f"{load1():.2f}"])
+        print(rows[-1], flush=True)
+    return rows
 
 
 def _table(header, rows):
@@ -89,18 +145,17 @@ def _table(header, rows):
 
 def main():
     before = load1()
-    paths, barys = [], []
+    paths = []
     for name, with_socp in SIZES:
-        mesh = load_mesh(MESHES / name)
-        paths += path_rows(mesh, name, with_socp)
-        if with_socp:
-            barys.append(barycenter_row(mesh, name))
+        paths += path_rows(load_mesh(MESHES / name), name, with_socp)
+    barys = barycenter_rows()
     after = load1()
     text = f"""# §2.7 applications at scale: path planning (eq. 2.6), W1 barycenters (eq. 2.7)
 
 Machine: {platform.machine()}, Python {platform.python_version()}, BLAS threads pinned to 1;
 `cpu bench .venv/bin/python bench/w1_applications.py`.  Load average (1 min) before
-{before:.2f}, after {after:.2f}; per row in the last column.
+{before:.2f}, after {after:.2f}; per row in the last column.  Targets of issue 26: 10k
+vertices <= 10 s, 50k <= 60 s.
 
 ## Path planning (`w1_path_planning`)
 
@@ -112,19 +167,25 @@ interior point, certified relative gap 1e-6; `socp`: Clarabel on the whole progr
          "ipm converged", "socp objective", "socp time (s) [x ipm]", "rel. diff", "load"],
         paths)}
 
-## W1 barycenter, eq. 2.7 (`w1_barycenter`, Clarabel)
+## W1 barycenter, eq. 2.7 (`w1_barycenter`)
 
-Three Dirac inputs (vertices 0, V/3, 2V/3), uniform weights; the coupled program's size
-caps lifted for the measurement, Clarabel's time limit {BARYCENTER_TIME_LIMIT:.0f} s.  Not run
-at 50k vertices.  Targets of issue 26: 10k vertices <= 10 s, 50k <= 60 s; path planning
-meets them above, this barycenter does not (no vertex-sized interior point for eq. 2.7
-yet).
+k Dirac inputs (vertices i V / k), uniform weights.  `ipm`: the vertex-sized interior point
+(`algorithm="ipm"`, the default), certified relative gap 1e-6 (`gap` is the measured one);
+`socp`: Clarabel on the whole coupled program (tol 1e-8, caps lifted, time limit
+{BARYCENTER_TIME_LIMIT:.0f} s), same run, 10k only.  Each solve runs in a fresh process;
+memory = its peak resident set above the resident set before the solve (MiB).  `model`: the
+service's admission estimate (`estimated_cost`; refused above 300 s or the job memory limit).
 
-{_table(["mesh", "V", "objective", "iterations", "time (s)", "status", "load"], barys)}
+{_table(["mesh", "V", "k", "ipm objective", "ipm iterations", "gap", "converged",
+         "ipm time (s)", "model (s)", "memory (MiB)", "model (MiB)", "socp objective",
+         "socp status", "socp time (s) [x ipm]", "rel. diff", "load"], barys)}
 """
     OUT.write_text(text)
     print(text)
 
 
 if __name__ == "__main__":
-    main()
+    if len(sys.argv) == 5 and sys.argv[1] == "--case":
+        print(json.dumps(barycenter_case(sys.argv[2], int(sys.argv[3]), sys.argv[4])))
+    else:
+        main()

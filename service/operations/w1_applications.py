@@ -1,10 +1,13 @@
 """W1 barycenters and path planning on a mesh (thesis §2.7): ``POST
 /v1/domains/{id}/w1-barycenters`` and ``POST /v1/domains/{id}/path-plans``.
 
-* ``w1-barycenters``: eq. 2.7, :math:`\\min_\\rho \\sum_i \\alpha_i W_1(\\rho_i, \\rho)^2`, one
-  second-order cone program (Clarabel, :func:`solvers.emd.w1_barycenter`); it refuses meshes
-  above ``MAX_VERTICES`` vertices and ``MAX_BLOCK_UNKNOWNS`` vertices x (inputs + 1), checked
-  here at submission (413 naming the field).
+* ``w1-barycenters``: eq. 2.7, :math:`\\min_\\rho \\sum_i \\alpha_i W_1(\\rho_i, \\rho)^2`
+  (:func:`solvers.emd.w1_barycenter`): by default the vertex-sized interior point, refused at
+  submission (413 naming the field) when its modelled run time
+  (:func:`solvers.emd.interior_point_barycenter.estimated_cost`) exceeds
+  ``MAX_ESTIMATED_SECONDS`` or its memory the job limit; ``algorithm="socp"`` (Clarabel on
+  the whole program) keeps that solver's caps, ``MAX_VERTICES`` vertices and
+  ``MAX_BLOCK_UNKNOWNS`` vertices x (inputs + 1).
 * ``path-plans``: eq. 2.6, occupants ``rho0`` leave through the ``targets`` with congestion
   weight ``epsilon`` (:func:`solvers.emd.path_planning.w1_path_planning`): arrivals, the
   flow, its potential and Hodge parts (Fig. 2.12).
@@ -32,6 +35,7 @@ from service.operations.base import (
 )
 from service.operations.examples import BUMP_A, BUMP_B, example
 from solvers.emd.exact import MAX_BLOCK_UNKNOWNS, MAX_VERTICES
+from solvers.emd.interior_point_barycenter import MAX_ESTIMATED_SECONDS, estimated_cost
 from solvers.emd.path_planning import check_targets
 from solvers.validation import check_indices
 
@@ -42,15 +46,20 @@ MAX_TARGETS = 1_000_000
 class W1BarycenterRequest(OperationRequest):
     model_config = example({"distributions": [BUMP_A, BUMP_B], "weights": [0.5, 0.5]})
     distributions: list[Distribution] = Field(
-        min_length=1, max_length=64, description="the inputs rho_i; vertices x (inputs + 1) "
-        f"at most {MAX_BLOCK_UNKNOWNS} (one coupled conic program)")
+        min_length=1, max_length=64, description="the inputs rho_i (ipm: modelled run time at "
+        f"most {MAX_ESTIMATED_SECONDS:.0f} s; socp: vertices x (inputs + 1) at most "
+        f"{MAX_BLOCK_UNKNOWNS})")
     weights: list[float] | None = Field(None, description="barycentric weights alpha_i, one "
                                         "per distribution, non-negative with a positive sum "
                                         "(default uniform); normalized to sum 1")
-    tol: float | None = Field(None, gt=0, lt=1, description="conic solver tolerance (default "
-                              "1e-8)")
-    max_iter: Int | None = Field(None, ge=1, le=1000, description="interior-point iteration "
-                                 "cap (default 200)")
+    algorithm: Literal["auto", "ipm", "socp"] = Field(
+        "auto", description="auto/ipm: interior point with vertex-sized Newton systems, "
+        f"certified duality gap (meshes up to a modelled {MAX_ESTIMATED_SECONDS:.0f} s); "
+        f"socp: Clarabel on the whole program (at most {MAX_VERTICES} vertices)")
+    tol: float | None = Field(None, gt=0, lt=1, description="ipm: certified relative gap "
+                              "(default 1e-6); socp: conic tolerance (default 1e-8)")
+    max_iter: Int | None = Field(None, ge=1, le=1000, description="iteration cap (default "
+                                 "100 for ipm, 200 for socp)")
 
 
 class W1BarycenterValues(BaseModel):
@@ -59,10 +68,15 @@ class W1BarycenterValues(BaseModel):
     value: float = Field(description="sum_i alpha_i W1(rho_i, rho)^2 at the returned rho")
     distances: list[float] = Field(description="W1 from the barycenter to each input")
     weights: list[float] = Field(description="the normalized barycentric weights")
+    algorithm: Literal["ipm", "socp"] = Field(description="the solver that ran")
+    lower_bound: float | None = Field(description="ipm: certified lower bound of the "
+                                      "objective (null for socp)")
+    gap: float | None = Field(description="ipm: certified relative gap (value - lower_bound) "
+                              "/ value (null for socp)")
     iterations: int
     residual: float = Field(description="max violation of the flows' divergence constraints")
     converged: bool
-    status: str = Field(description="the conic solver's status")
+    status: str = Field(description="the solver's status")
     normalization: list[dict]
 
 
@@ -78,8 +92,33 @@ def _check_conic_size(view: DomainView, blocks: int, field: str) -> None:
                               "mesh", field=field)
 
 
+def _faces(view: DomainView) -> int:
+    return int(view.n_faces or 2 * view.n)
+
+
+def _ipm_estimate(view: DomainView, req: W1BarycenterRequest):
+    """The interior point's modelled cost for the request's inputs of positive weight."""
+    k = len(req.distributions) if req.weights is None else \
+        sum(1 for w in req.weights if w > 0)
+    return estimated_cost(view.n, _faces(view), max(k, 1))
+
+
+def _check_ipm_size(view: DomainView, req: W1BarycenterRequest) -> None:
+    seconds = _ipm_estimate(view, req).seconds
+    if seconds > MAX_ESTIMATED_SECONDS:
+        alone = estimated_cost(view.n, _faces(view), 2).seconds > MAX_ESTIMATED_SECONDS
+        raise PayloadTooLarge(
+            f"the interior point's modelled run time on {view.n} vertices with these inputs "
+            f"is {seconds:.0f} s, above {MAX_ESTIMATED_SECONDS:.0f} s: use "
+            + ("a coarser mesh" if alone else "fewer distributions or a coarser mesh"),
+            field="domain_id" if alone else "distributions")
+
+
 def _barycenter_inputs(view: DomainView, req: W1BarycenterRequest):
-    _check_conic_size(view, len(req.distributions) + 1, "distributions")
+    if req.algorithm == "socp":
+        _check_conic_size(view, len(req.distributions) + 1, "distributions")
+    else:
+        _check_ipm_size(view, req)
     return resolve_weighted(view, req.distributions, req.weights, req.input)
 
 
@@ -87,36 +126,53 @@ def validate_barycenter(view: DomainView, req: W1BarycenterRequest) -> list[dict
     return _barycenter_inputs(view, req)[2]
 
 
+# Cost units (service.jobs.queue.estimate_cost: points x iterations) per modelled second:
+# one W1 interior-point solve, IPM_SOLVE_COST per vertex, took 8.3 s at 50k vertices
+# (bench/results/w1_applications.md).
+COST_PER_SECOND = IPM_SOLVE_COST * 50_000 / 8.3
+
+
 def barycenter_cost(n: int, req: W1BarycenterRequest, context=None) -> float:
-    """One coupled interior-point solve over all inputs' flow blocks."""
-    return float(IPM_SOLVE_COST) * float(max(n, 1)) * float(len(req.distributions) + 1)
+    """ipm: the modelled run time in queue-cost units; socp: one coupled conic solve over
+    all inputs' flow blocks."""
+    if req.algorithm == "socp":
+        return float(IPM_SOLVE_COST) * float(max(n, 1)) * float(len(req.distributions) + 1)
+    k = len(req.distributions)
+    return COST_PER_SECOND * estimated_cost(n, 2 * max(n, 1), k).seconds
 
 
 def barycenter_bytes(view: DomainView, req: W1BarycenterRequest) -> int:
-    """Per flow block: cones and scalings per face and the KKT factor's share per vertex;
-    ~200 and ~300 float64 (measured: bench/results/operation_memory.md; 40 and 60 missed
-    three quarters)."""
-    faces = int(view.n_faces or 2 * view.n)
+    """ipm: the modelled memory (factor of the coupled normal matrix, per-face cones); socp:
+    per flow block, cones and scalings per face and the KKT factor's share per vertex, ~200
+    and ~300 float64 (measured: bench/results/operation_memory.md; 40 and 60 missed three
+    quarters)."""
+    if req.algorithm != "socp":
+        return _ipm_estimate(view, req).bytes
     blocks = len(req.distributions) + 1
-    return 8 * blocks * (200 * faces + 300 * int(view.n))
+    return 8 * blocks * (200 * _faces(view) + 300 * int(view.n))
 
 
 def run_barycenter(mesh, req: W1BarycenterRequest, progress, should_cancel) -> OperationOutput:
     from solvers.emd import w1_barycenter
 
     mus, weights, reports = _barycenter_inputs(view_of_domain(mesh), req)
-    kwargs = {k: v for k, v in (("tol", req.tol), ("max_iter", req.max_iter)) if v is not None}
-    res = w1_barycenter(mesh, mus, weights, progress=progress, should_cancel=should_cancel,
-                        **kwargs)
+    res = w1_barycenter(mesh, mus, weights, algorithm=req.algorithm, tol=req.tol,
+                        max_iter=req.max_iter, progress=progress, should_cancel=should_cancel)
     masses = np.asarray(res.masses, dtype=np.float64)
     values = W1BarycenterValues(
         value=float(res.value), distances=[float(d) for d in res.distances],
-        weights=weights.tolist(), iterations=int(res.iterations),
+        weights=weights.tolist(), algorithm=res.algorithm,
+        lower_bound=_finite_or_none(res.lower_bound), gap=_finite_or_none(res.gap),
+        iterations=int(res.iterations),
         residual=float(res.residual), converged=bool(res.converged), status=str(res.status),
         normalization=reports).model_dump()
     arrays = {"masses": masses, "density": masses / np.asarray(mesh.areas)}
     return OperationOutput(values, arrays, {"fields": ["masses", "density"],
                                             "color": "density"})
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
 
 
 # -- path planning (eq. 2.6) ------------------------------------------------------------------
@@ -214,7 +270,7 @@ MESH = ("mesh",)
 OPERATIONS = [
     Operation("w1-barycenters", "createW1BarycenterJob",
               "W1 barycenter, the minimizer of the weighted sum of squared W1 distances to "
-              "the inputs (thesis eq. 2.7; exact conic program, small meshes)",
+              "the inputs (thesis eq. 2.7; interior point with a certified duality gap)",
               W1BarycenterRequest, run_barycenter, validate_barycenter, MESH,
               result_model=W1BarycenterValues, estimate_bytes=barycenter_bytes,
               estimate_cost=barycenter_cost),

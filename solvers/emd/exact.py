@@ -24,7 +24,9 @@ to interior-point accuracy with Clarabel, which makes it the ground truth for th
 iterative ADMM solver of :mod:`solvers.emd`, and lets the same machinery solve the
 convex W1 problems of §2.7:
 
-* :func:`w1_barycenter` – eq. (2.7), :math:`\min_\rho \sum_i \alpha_i W_1(\rho_i, \rho)^2`,
+* :func:`w1_barycenter` – eq. (2.7), :math:`\min_\rho \sum_i \alpha_i W_1(\rho_i, \rho)^2`
+  (here as the reference route ``algorithm="socp"``; the default route is the vertex-sized
+  interior point of :mod:`solvers.emd.interior_point_barycenter`, any mesh size),
   and :func:`w1_median`, the unsquared :math:`\sum_i \alpha_i W_1` (a geometric median);
 * :func:`w1_multistep_paths` – not in the thesis: a sequence of distributions from a start
   to a goal minimizing :math:`\sum_k W_1(\mu_k, \mu_{k+1})` under per-vertex capacities,
@@ -32,7 +34,7 @@ convex W1 problems of §2.7:
 * :func:`solvers.emd.path_planning.w1_path_planning` (eq. 2.6) builds on the same
   assembler.
 
-Interior-point cost grows superlinearly, so every entry point refuses problems above
+Clarabel's cost grows superlinearly, so every conic entry point refuses problems above
 ``max_vertices`` (default 5,000) mesh vertices (use :mod:`solvers.emd` beyond that), and
 the coupled programs above ``MAX_BLOCK_UNKNOWNS`` vertices x blocks.
 """
@@ -51,6 +53,10 @@ from solvers.monitor import Monitor, SolverResult
 from solvers.validation import check_masses
 
 MAX_VERTICES = 5000
+# The eq. 2.7 interior point (algorithm "ipm"): certified relative gap and iteration cap.
+IPM_TOL = 1e-6
+IPM_MAX_ITER = 100
+BARYCENTER_ALGORITHMS = ("auto", "ipm", "socp")
 # Coupled programs (barycenters, paths) factor much worse than k separate ones: cap
 # vertices x (flow blocks + distribution blocks). Single-W1 timings are in
 # bench/results/w1_exact.md; a coupled program costs far more than its blocks solved apart.
@@ -82,7 +88,10 @@ class W1BarycenterResult(SolverResult):
     r"""W1 barycenter (eq. 2.7, :func:`w1_barycenter`) or median (:func:`w1_median`):
     ``masses`` ``(V,)``, the solved objective ``value`` (:math:`\sum_i \alpha_i W_1^2`
     or :math:`\sum_i \alpha_i W_1`) and the distances ``(k,)`` from the result to each
-    input, with their flows ``(k, F, 3)``."""
+    input, with their flows ``(k, F, 3)`` (``J_i`` carries ``masses`` to input ``i``);
+    ``residual`` is the largest violation of the flows' divergence constraints and
+    ``algorithm`` the solver that ran (``"ipm"`` adds a certified ``lower_bound`` and the
+    relative ``gap``)."""
 
     masses: np.ndarray
     value: float
@@ -90,6 +99,9 @@ class W1BarycenterResult(SolverResult):
     flows: np.ndarray
     status: str
     solve_time: float
+    algorithm: str = "socp"
+    lower_bound: float = float("nan")  # "ipm": certified lower bound of the objective
+    gap: float = float("nan")  # "ipm": (value - lower_bound) / value
 
 
 @dataclass
@@ -442,8 +454,9 @@ def w1_barycenter(
     weights=None,
     *,
     face_weights=None,
-    tol: float = 1e-8,
-    max_iter: int = 200,
+    algorithm: str = "auto",
+    tol: float | None = None,
+    max_iter: int | None = None,
     max_vertices: int = MAX_VERTICES,
     time_limit: float | None = None,
     progress=None,
@@ -456,25 +469,50 @@ def w1_barycenter(
     ``div J_i = rho - rho_i`` and epigraph variables
     :math:`t_i \ge \sum_t w_t A_t \lVert J_{i,t}\rVert`; the objective
     :math:`\sum_i \alpha_i t_i^2` is a diagonal quadratic, so the program is a convex QP
-    over second-order cones (Clarabel).  For Dirac inputs the optimum is (close to) a Dirac
-    at a point minimizing :math:`\sum_i \alpha_i d(x_i, p)^2` (the thesis' remark after
-    Fig. 2.16); :func:`w1_median` solves the unsquared problem instead.
+    over second-order cones.  For Dirac inputs the optimum is (close to) a Dirac at a point
+    minimizing :math:`\sum_i \alpha_i d(x_i, p)^2` (the thesis' remark after Fig. 2.16);
+    :func:`w1_median` solves the unsquared problem instead.
 
     Parameters
     ----------
-    mesh : TriangleMesh with at most ``max_vertices`` vertices.
+    mesh : TriangleMesh.
     mus : (V, k) masses, one column per input :math:`\rho_i` (normalized per column).
     weights : (k,) non-negative weights :math:`\alpha` (normalized to sum 1), default uniform.
-    face_weights, tol, max_iter, time_limit, progress, should_cancel : as in
-        :func:`beckmann_w1_exact`.
+    face_weights : as in :func:`beckmann_w1_exact`.
+    algorithm : ``"auto"`` (``"ipm"`` unless a face weight is infinite), ``"ipm"`` (the
+        primal-dual interior point with vertex-sized Newton systems of
+        :mod:`solvers.emd.interior_point_barycenter`, any mesh size; ``tol`` is the
+        certified relative duality gap, default ``IPM_TOL``) or ``"socp"`` (Clarabel on the
+        whole program, at most ``max_vertices`` vertices and ``MAX_BLOCK_UNKNOWNS``
+        vertices x (k + 1); default ``tol`` 1e-8).
+    max_iter : iteration cap (default ``IPM_MAX_ITER`` / 200).
+    time_limit : wall-time cap (s) of the ``"socp"`` route.
+    progress, should_cancel : as in :func:`beckmann_w1_exact` (the ``"ipm"`` route reports
+        its certified relative gap).
 
     Returns
     -------
     W1BarycenterResult: ``masses`` (V,), ``value`` :math:`\sum_i \alpha_i W_1^2`,
-    ``distances`` (k,) the W1 of each input's flow, ``flows`` (k, F, 3).
+    ``distances`` (k,) the W1 of each input's flow, ``flows`` (k, F, 3), and for ``"ipm"``
+    the certified ``lower_bound`` and relative ``gap``.
     """
-    return _barycenter(mesh, mus, weights, squared=True, face_weights=face_weights, tol=tol,
-                       max_iter=max_iter, max_vertices=max_vertices, time_limit=time_limit,
+    if algorithm not in BARYCENTER_ALGORITHMS:
+        raise InputError(f"algorithm must be one of {BARYCENTER_ALGORITHMS}, got "
+                         f"{algorithm!r}", field="algorithm")
+    fw = _face_weights(mesh, face_weights) if isinstance(mesh, TriangleMesh) else None
+    if algorithm == "auto":
+        algorithm = "socp" if fw is not None and not np.all(np.isfinite(fw)) else "ipm"
+    if algorithm == "ipm":
+        if fw is not None and not np.all(np.isfinite(fw)):
+            raise InputError("algorithm='ipm' needs finite face_weights; use 'socp' for walls",
+                             field="algorithm")
+        return _barycenter_ipm(mesh, mus, weights, fw, IPM_TOL if tol is None else float(tol),
+                               IPM_MAX_ITER if max_iter is None else int(max_iter), progress,
+                               should_cancel)
+    return _barycenter(mesh, mus, weights, squared=True, face_weights=face_weights,
+                       tol=1e-8 if tol is None else tol,
+                       max_iter=200 if max_iter is None else max_iter,
+                       max_vertices=max_vertices, time_limit=time_limit,
                        progress=progress, should_cancel=should_cancel)
 
 
@@ -505,14 +543,19 @@ def w1_median(
                        progress=progress, should_cancel=should_cancel)
 
 
-def _barycenter_inputs(mesh, mus, weights, max_vertices):
-    """Validated ``(M (V, k) normalized columns, alpha (k,) summing to 1)``."""
+def _barycenter_inputs(mesh, mus, weights, max_vertices: int | None):
+    """Validated ``(M (V, k) normalized columns, alpha (k,) summing to 1)``; the conic
+    solver's size caps unless ``max_vertices`` is None."""
+    if not isinstance(mesh, TriangleMesh):
+        raise UnsupportedDomainError("W1 barycenters need a TriangleMesh domain",
+                                     field="domain")
     x_in = check_masses(mus, mesh.n, "mus")
     if x_in.ndim != 2:
         raise InputError("mus must be a (V, k) array, one column per input", field="mus")
     M = x_in / x_in.sum(axis=0)
     k = M.shape[1]
-    _check_mesh(mesh, max_vertices, blocks=k + 1)
+    if max_vertices is not None:
+        _check_mesh(mesh, max_vertices, blocks=k + 1)
     alpha = np.full(k, 1.0 / k) if weights is None else np.asarray(weights, dtype=np.float64)
     if alpha.shape != (k,) or not np.all(np.isfinite(alpha)) or np.any(alpha < 0) \
             or alpha.sum() <= 0:
@@ -520,6 +563,25 @@ def _barycenter_inputs(mesh, mus, weights, max_vertices):
                          field="weights")
     mesh.require_matching_component_masses(M, _BALANCE_TOL, "mus")
     return M, alpha / alpha.sum()
+
+
+def _barycenter_ipm(mesh, mus, weights, fw, tol, max_iter, progress,
+                    should_cancel) -> W1BarycenterResult:
+    """Eq. 2.7 by the interior point of :mod:`solvers.emd.interior_point_barycenter`."""
+    from solvers.emd.beckmann import IPM_PATIENCE as W1_IPM_PATIENCE
+    from solvers.emd.interior_point_barycenter import solve_barycenter_ipm
+
+    M, alpha = _barycenter_inputs(mesh, mus, weights, None)
+    monitor = Monitor(progress, should_cancel, tol=tol, patience=W1_IPM_PATIENCE)
+    monitor.check_cancel("before the solve")
+    start = time.perf_counter()
+    out = solve_barycenter_ipm(mesh, M, alpha, fw, tol, max_iter, monitor)
+    return W1BarycenterResult(
+        masses=out["masses"], value=out["value"], distances=out["distances"],
+        flows=out["flows"], iterations=out["iterations"], residual=out["feasibility"],
+        converged=out["converged"], status="Solved" if out["converged"] else "NotConverged",
+        solve_time=time.perf_counter() - start, algorithm="ipm",
+        lower_bound=out["lower_bound"], gap=out["gap"])
 
 
 def _barycenter(mesh, mus, weights, *, squared, face_weights, tol, max_iter, max_vertices,

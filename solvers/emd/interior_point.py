@@ -199,28 +199,64 @@ def flow_structure(mesh):
     return geo, _structure(geo.div, np.asarray(mesh.faces)[geo.faces], mesh_operators(mesh)._keep)
 
 
+def cone_start(u0: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """A strictly interior primal cone point ``(s_t, u_t)`` ``(F, 3)`` over the flow ``u0``
+    ``(F, 2)``: ``s_t = ‖u_t‖`` plus a margin, the weighted mean norm."""
+    norms = np.linalg.norm(u0, axis=1)
+    x = np.empty((len(u0), 3))
+    x[:, 1:] = u0
+    x[:, 0] = norms + max(float(weights @ norms) / max(float(weights.sum()), 1e-300), 1e-300)
+    return x
+
+
 def _interior(x: np.ndarray) -> bool:
     return bool(np.all(np.isfinite(x)) and np.all(x[:, 0] > 0) and np.all(_jdot(x, x) > 0))
+
+
+def local_products(local: np.ndarray) -> np.ndarray:
+    """``(F, 3, 9)``: per face the ``3 × 3`` products ``l0 l0ᵀ``, ``l0 l1ᵀ + l1 l0ᵀ``,
+    ``l1 l1ᵀ`` of the divergence's local columns ``local`` ``(F, 3, 2)``, which the tangential
+    entries of ``W⁻²`` weight in :func:`face_blocks`."""
+    l0, l1 = local[:, :, 0], local[:, :, 1]
+
+    def outer(a, b):
+        return (a[:, :, None] * b[:, None, :]).reshape(-1, 9)
+
+    return np.stack([outer(l0, l0), outer(l0, l1) + outer(l1, l0), outer(l1, l1)], axis=1)
+
+
+def face_blocks(scaling: _Scaling, products: np.ndarray) -> np.ndarray:
+    """Each face's ``3 × 3`` block ``D_t W_t⁻² D_tᵀ`` of the normal matrix, flattened
+    ``(F', 9)``, from :func:`local_products` ``(F, 3, 9)``; ``scaling`` is over ``F' = k F``
+    faces (``k`` stacked copies of the mesh's faces)."""
+    copies = len(scaling.beta) // len(products)
+    t11, t12, t22 = (t.reshape(copies, -1, 1) for t in scaling.inverse_square_tangent())
+    out = t11 * products[None, :, 0]
+    out += t12 * products[None, :, 1]
+    out += t22 * products[None, :, 2]
+    return out.reshape(-1, 9)
 
 
 def normal_matrix_data(scaling: _Scaling, st: _Structure) -> np.ndarray:
     """CSR data (on ``st.pattern``) of the normal matrix ``D W⁻² Dᵀ`` on the kept vertices,
     from a 3×3 block per face."""
-    t11, t12, t22 = (t[:, None, None] for t in scaling.inverse_square_tangent())
-    l0, l1 = st.local[:, :, 0], st.local[:, :, 1]
-    a0, a1 = l0[:, :, None], l1[:, :, None]
-    b0, b1 = l0[:, None, :], l1[:, None, :]
-    blocks = t11 * a0 * b0 + t12 * (a0 * b1 + a1 * b0) + t22 * a1 * b1
+    blocks = face_blocks(scaling, local_products(st.local))
     return np.bincount(st.slots, blocks.reshape(-1)[st.kept], minlength=st.pattern.nnz)
 
 
 def _factor_normal(data: np.ndarray, st: _Structure, factor, backend: str):
     """Factor (or refactor in place) the normal matrix with CSR ``data``; None if it is not
     finite."""
-    if not np.all(np.isfinite(data)):
+    return factor_normal_matrix(
+        sp.csr_matrix((data, st.pattern.indices, st.pattern.indptr), shape=st.pattern.shape),
+        factor, backend)
+
+
+def factor_normal_matrix(normal: sp.csr_matrix, factor, backend: str):
+    """Factor ``normal``, or refactor ``factor`` in place when it can (PARDISO keeps the
+    ordering and symbolic analysis of the fixed pattern); None if ``normal`` is not finite."""
+    if not np.all(np.isfinite(normal.data)):
         return None
-    normal = sp.csr_matrix((data, st.pattern.indices, st.pattern.indptr),
-                           shape=st.pattern.shape)
     if factor is not None and hasattr(factor, "refactor"):
         factor.refactor(normal)
         return factor
@@ -244,6 +280,75 @@ def _iterate(x, z, st, newton, backend, factor):
     dx, dy, dz = newton(scaling, rc, factor)
     alpha = min(1.0, STEP_FRACTION * min(_max_step(x, dx), _max_step(z, dz)))
     return factor, dx, dy, dz, alpha
+
+
+# What a failed Newton step raises at the end of the central path (a factorization or a
+# solve losing positive definiteness to rounding).
+STEP_FAILURES = (ValueError, RuntimeError, ZeroDivisionError, FloatingPointError)
+
+
+def relative_gap(value: float, lower: float, floor: float = 1e-300) -> float:
+    """``(value - lower) / max(|value|, floor)``: the certified relative error of ``value``."""
+    return (value - lower) / max(abs(value), floor)
+
+
+def certified_loop(state, advance, bounds, tol: float, max_iter: int, monitor,
+                   floor: float = 1e-300):
+    """The primal-dual loop every interior point here shares: ``advance(state)`` returns the
+    next iterate, or None when the step failed or left the cones (rounding at the end of the
+    path; a failure in :data:`STEP_FAILURES` counts the same), and the last iterate, which
+    is still primal and dual feasible, is kept; ``bounds(state)`` gives ``(value,
+    lower_bound)`` of an iterate.  Stops when :func:`relative_gap` (with ``floor``) is at
+    most ``tol`` (converged), at ``max_iter``, or when ``monitor`` (called with the gap)
+    reports a stall.  Returns ``(state, iterations, converged)``."""
+    it, converged = 0, False
+    for it in range(1, max_iter + 1):
+        try:
+            new = advance(state)
+        except STEP_FAILURES:
+            new = None
+        if new is None:
+            it -= 1
+            break
+        state = new
+        gap = relative_gap(*bounds(state), floor)
+        monitor(it, gap)
+        if gap <= tol:
+            converged = True
+            break
+        if monitor.stalled:
+            break
+    return state, it, converged
+
+
+def nonneg_max_step(x: np.ndarray, d: np.ndarray) -> float:
+    """Largest ``α`` with ``x + α d >= 0`` (``x > 0``; ``inf`` if ``d >= 0``)."""
+    neg = d < 0
+    return float((-x[neg] / d[neg]).min(initial=np.inf))
+
+
+def mehrotra_step(x, m, z, zm, newton):
+    """Mehrotra's predictor-corrector over Lorentz cones ``x, z`` ``(F, 3)`` and a
+    non-negative block ``m, zm``: ``(dx, dm, dy, dz, dzm, α)``.  ``newton(rc, rc_m)`` solves
+    the Newton system for complementarity right-hand sides (its ``scaling`` holds the
+    cones' NT scaling)."""
+    lam, lam_m = newton.scaling.lam, np.sqrt(m * zm)
+    degree = len(x) + len(m)
+    mu = (float(_dot(x, z).sum()) + float(m @ zm)) / degree
+    dx, dm, _, dz, dzm = newton(-_jordan(lam, lam), -lam_m**2)
+    alpha = min(1.0, _max_step(x, dx), _max_step(z, dz), nonneg_max_step(m, dm),
+                nonneg_max_step(zm, dzm))
+    mu_a = (float(_dot(x + alpha * dx, z + alpha * dz).sum())
+            + float((m + alpha * dm) @ (zm + alpha * dzm))) / degree
+    sigma = (max(mu_a, 0.0) / mu) ** 3
+    sc = newton.scaling
+    rc = -_jordan(lam, lam) - _jordan(sc.apply_inverse(dz), sc.apply(dx))
+    rc[:, 0] += sigma * mu
+    rc_m = -lam_m**2 - dzm * dm + sigma * mu
+    dx, dm, dy, dz, dzm = newton(rc, rc_m)
+    alpha = min(1.0, STEP_FRACTION * min(_max_step(x, dx), _max_step(z, dz),
+                                         nonneg_max_step(m, dm), nonneg_max_step(zm, dzm)))
+    return dx, dm, dy, dz, dzm, alpha
 
 
 @dataclass
@@ -270,18 +375,14 @@ def beckmann_interior_point(div: sp.csr_matrix, faces: np.ndarray, weights: np.n
     :class:`~solvers.monitor.Monitor` called with the certified relative gap."""
     st = structure if structure is not None else _structure(div, faces, keep)
     n_faces = len(faces)
-    # primal start: u0 with a margin above its norm; dual start y = 0, z = (w, 0, 0)
-    norms = np.linalg.norm(u0, axis=1)
-    x = np.empty((n_faces, 3))
-    x[:, 1:] = u0
-    x[:, 0] = norms + max(float(weights @ norms) / max(float(weights.sum()), 1e-300), 1e-300)
+    # primal start: u0 inside the cones; dual start y = 0, z = (w, 0, 0)
+    x = cone_start(u0, weights)
     y = np.zeros(div.shape[0])
     z = np.zeros((n_faces, 3))
     z[:, 0] = weights
     n = div.shape[0]
     flat = faces.ravel()
     l0, l1 = st.local[:, :, 0], st.local[:, :, 1]  # (F, 3) each
-    factor = None
 
     def newton(scaling: _Scaling, rc: np.ndarray, factor):
         # λ ∘ (W Δx + W⁻¹ Δz) = rc with D Δu = 0 and Δz = −Dᵀ Δy (primal and dual
@@ -297,36 +398,25 @@ def beckmann_interior_point(div: sp.csr_matrix, faces: np.ndarray, weights: np.n
         dx = wq - scaling.apply_inverse_square(dz)
         return dx, dy, dz
 
-    value = float(weights @ np.linalg.norm(x[:, 1:], axis=1))
-    lower = 0.0
-    it = 0
-    converged = False
-    for it in range(1, max_iter + 1):
-        try:
-            step = _iterate(x, z, st, newton, backend, factor)
-        except (ValueError, RuntimeError, ZeroDivisionError, FloatingPointError):
-            step = None  # a factorization failed at the end of the path (rounding)
+    def advance(state):
+        x, y, z, factor = state
+        step = _iterate(x, z, st, newton, backend, factor)
         if step is None:
-            it -= 1
-            break
+            return None
         factor, dx, dy, dz, alpha = step
-        x_new, y_new, z_new = x + alpha * dx, y + alpha * dy, z + alpha * dz
-        if not (_interior(x_new) and _interior(z_new) and np.all(np.isfinite(y_new))):
-            it -= 1  # rounding left the cone: keep the last certified iterate
-            break
-        x, y, z = x_new, y_new, z_new
-        value = float(weights @ np.linalg.norm(x[:, 1:], axis=1))
-        lower = float(y @ b)
-        gap = (value - lower) / max(abs(value), 1e-300)
-        monitor(it, gap)
-        if gap <= tol:
-            converged = True
-            break
-        if monitor.stalled:
-            break
+        new = (x + alpha * dx, y + alpha * dy, z + alpha * dz, factor)
+        ok = _interior(new[0]) and _interior(new[2]) and np.all(np.isfinite(new[1]))
+        return new if ok else None
+
+    def bounds(state):
+        return float(weights @ np.linalg.norm(state[0][:, 1:], axis=1)), float(state[1] @ b)
+
+    (x, y, z, _), it, converged = certified_loop((x, y, z, None), advance, bounds, tol,
+                                                 max_iter, monitor)
+    value, lower = bounds((x, y))
     u = x[:, 1:].copy()
     feasibility = float(np.abs(div @ np.column_stack([np.zeros(n_faces), u]).ravel()
                                - b).max())
     return InteriorPointOutput(u=u, y=y, value=value, lower_bound=lower,
-                               gap=(value - lower) / max(abs(value), 1e-300), iterations=it,
+                               gap=relative_gap(value, lower), iterations=it,
                                feasibility=feasibility, converged=converged)

@@ -29,16 +29,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from solvers.emd.interior_point import (
-    STEP_FRACTION,
-    _dot,
     _factor_normal,
     _interior,
-    _jordan,
     _jordan_solve,
-    _max_step,
     _nt_scaling,
     _Structure,
+    certified_loop,
+    cone_start,
+    mehrotra_step,
     normal_matrix_data,
+    relative_gap,
 )
 
 # Largest violation of ``D u + E m = m0`` (mass units; total mass 1) with which a small gap
@@ -66,11 +66,6 @@ def _diagonal_slots(st: _Structure, rows: np.ndarray) -> np.ndarray:
     indptr, indices = st.pattern.indptr, st.pattern.indices
     return np.array([indptr[r] + int(np.searchsorted(indices[indptr[r]:indptr[r + 1]], r))
                      for r in rows], dtype=np.int64)
-
-
-def _nonneg_max_step(x: np.ndarray, d: np.ndarray) -> float:
-    neg = d < 0
-    return float((-x[neg] / d[neg]).min(initial=np.inf))
 
 
 class _ExitNewton:
@@ -109,27 +104,6 @@ class _ExitNewton:
         return dx, dm, dy, dz, dzm
 
 
-def _step(x, m, z, zm, newton):
-    """Mehrotra predictor-corrector: ``(dx, dm, dy, dz, dzm, α)``."""
-    lam, lam_m = newton.scaling.lam, np.sqrt(m * zm)
-    degree = len(x) + len(m)
-    mu = (float(_dot(x, z).sum()) + float(m @ zm)) / degree
-    dx, dm, _, dz, dzm = newton(-_jordan(lam, lam), -lam_m**2)
-    alpha = min(1.0, _max_step(x, dx), _max_step(z, dz), _nonneg_max_step(m, dm),
-                _nonneg_max_step(zm, dzm))
-    mu_a = (float(_dot(x + alpha * dx, z + alpha * dz).sum())
-            + float((m + alpha * dm) @ (zm + alpha * dzm))) / degree
-    sigma = (max(mu_a, 0.0) / mu) ** 3
-    sc = newton.scaling
-    rc = -_jordan(lam, lam) - _jordan(sc.apply_inverse(dz), sc.apply(dx))
-    rc[:, 0] += sigma * mu
-    rc_m = -lam_m**2 - dzm * dm + sigma * mu
-    dx, dm, dy, dz, dzm = newton(rc, rc_m)
-    alpha = min(1.0, STEP_FRACTION * min(_max_step(x, dx), _max_step(z, dz),
-                                         _nonneg_max_step(m, dm), _nonneg_max_step(zm, dzm)))
-    return dx, dm, dy, dz, dzm, alpha
-
-
 def exits_interior_point(div, st: _Structure, weights, m0, exits, p_diag, u0, m_start,
                          y_start, tol, max_iter, monitor, backend="auto") -> ExitsOutput:
     """The primal-dual loop (module docstring).  ``div`` (V, 3F) interleaved divergence,
@@ -137,10 +111,7 @@ def exits_interior_point(div, st: _Structure, weights, m0, exits, p_diag, u0, m_
     the diagonal of P, ``u0`` (F, 2) and ``m_start`` (S,) > 0 with ``D u0 + E m_start =
     m0``, ``y_start`` (V,) constant per component with ``y < 0`` on the exits."""
     faces, n = st.faces, div.shape[0]
-    norms = np.linalg.norm(u0, axis=1)
-    x = np.empty((len(faces), 3))
-    x[:, 1:] = u0
-    x[:, 0] = norms + max(float(weights @ norms) / max(float(weights.sum()), 1e-300), 1e-300)
+    x = cone_start(u0, weights)
     m, y = m_start.copy(), y_start.copy()
     z = np.zeros_like(x)
     z[:, 0] = weights
@@ -150,44 +121,33 @@ def exits_interior_point(div, st: _Structure, weights, m0, exits, p_diag, u0, m_
     exits_pos = _diagonal_slots(st, position[exits])
     local = (st.local[:, :, 0], st.local[:, :, 1])
 
-    def objective(x, m, y):
+    def bounds(state):
+        x, m, y = state[:3]
         quad = 0.5 * float(p_diag @ m**2)
         return float(weights @ np.linalg.norm(x[:, 1:], axis=1)) + quad, \
             float(y[st.keep] @ m0[st.keep]) - quad
 
-    value, lower = objective(x, m, y)
-    factor, it, converged = None, 0, False
-    for it in range(1, max_iter + 1):
-        try:
-            newton = _ExitNewton(st, local, faces, n, exits_pos, exits, p_diag,
-                                 _nt_scaling(x, z), m, zm, factor, backend)
-            step = None if newton.factor is None else _step(x, m, z, zm, newton)
-        except (ValueError, RuntimeError, ZeroDivisionError, FloatingPointError):
-            step = None  # a factorization failed at the end of the path (rounding)
-        if step is None:
-            it -= 1
-            break
-        factor = newton.factor
-        dx, dm, dy, dz, dzm, alpha = step
-        new = (x + alpha * dx, m + alpha * dm, y + alpha * dy, z + alpha * dz, zm + alpha * dzm)
-        if not (_interior(new[0]) and _interior(new[3]) and np.all(new[1] > 0)
-                and np.all(new[4] > 0) and np.all(np.isfinite(new[2]))):
-            it -= 1  # rounding left the cone: keep the last certified iterate
-            break
-        x, m, y, z, zm = new
-        value, lower = objective(x, m, y)
-        gap = (value - lower) / max(abs(value), 1e-300)
-        monitor(it, gap)
-        if gap <= tol:
-            converged = True
-            break
-        if monitor.stalled:
-            break
+    def advance(state):
+        x, m, y, z, zm, factor = state
+        newton = _ExitNewton(st, local, faces, n, exits_pos, exits, p_diag,
+                             _nt_scaling(x, z), m, zm, factor, backend)
+        if newton.factor is None:
+            return None
+        dx, dm, dy, dz, dzm, alpha = mehrotra_step(x, m, z, zm, newton)
+        new = (x + alpha * dx, m + alpha * dm, y + alpha * dy, z + alpha * dz, zm + alpha * dzm,
+               newton.factor)
+        ok = (_interior(new[0]) and _interior(new[3]) and np.all(new[1] > 0)
+              and np.all(new[4] > 0) and np.all(np.isfinite(new[2])))
+        return new if ok else None
+
+    state, it, converged = certified_loop((x, m, y, z, zm, None), advance, bounds, tol,
+                                          max_iter, monitor)
+    value, lower = bounds(state)
+    x, m, y = state[:3]
     u = x[:, 1:].copy()
     flow = div @ np.column_stack([np.zeros(len(faces)), u]).ravel()
     flow[exits] += m
     feasibility = float(np.abs(flow - m0)[st.keep].max())
     return ExitsOutput(u=u, m=m, y=y, value=value, lower_bound=lower,
-                       gap=(value - lower) / max(abs(value), 1e-300), iterations=it,
-                       feasibility=feasibility,
+                       gap=relative_gap(value, lower), iterations=it, feasibility=feasibility,
                        converged=converged and feasibility <= FEASIBILITY_TOL)

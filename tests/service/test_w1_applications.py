@@ -16,6 +16,7 @@ from service_testing import assert_error, job_result, upload_arrays
 from service.operations.w1_applications import PathPlanValues, W1BarycenterValues
 from solvers import TriangleMesh
 from solvers.emd import w1_barycenter
+from solvers.emd.interior_point_barycenter import MAX_ESTIMATED_SECONDS, estimated_cost
 from solvers.emd.path_planning import w1_path_planning
 
 
@@ -164,15 +165,34 @@ def test_path_plans_need_an_exit_on_every_loaded_component(client, tmp_path):
 
 def test_size_caps_of_the_exact_solver_are_413s(client, tmp_path, ball):
     bid, _ = ball  # 642 vertices: 18 inputs make 642 x 19 > 12000 coupled unknowns
-    many = {"distributions": [_dirac(i) for i in range(18)]}
+    many = {"distributions": [_dirac(i) for i in range(18)], "algorithm": "socp"}
     assert_error(client.post(f"/v1/domains/{bid}/w1-barycenters", json=many), 413,
                  "distributions")
-    big, _ = _sphere(client, tmp_path, 5)  # 10242 vertices
+    big, mesh = _sphere(client, tmp_path, 5)  # 10242 vertices
     assert_error(client.post(f"/v1/domains/{big}/w1-barycenters",
-                             json={"distributions": [_dirac(0), _dirac(1)]}), 413, "domain_id")
+                             json={"distributions": [_dirac(0), _dirac(1)],
+                                   "algorithm": "socp"}), 413, "domain_id")
     assert_error(client.post(f"/v1/domains/{big}/path-plans",
                              json={"rho0": _dirac(0), "targets": [1], "algorithm": "socp"}),
                  413, "algorithm")
+    # the interior point: no vertex cap; refused when its modelled run time is too long
+    k = next(k for k in range(2, 65)
+             if estimated_cost(mesh.n, mesh.n_faces, k).seconds > MAX_ESTIMATED_SECONDS)
+    assert_error(client.post(f"/v1/domains/{big}/w1-barycenters",
+                             json={"distributions": [_dirac(i) for i in range(k)]}), 413,
+                 "distributions")
+
+
+def test_w1_barycenter_above_the_conic_cap(client, tmp_path):
+    """10242 vertices: beyond Clarabel's 5,000, solved by the interior point with its
+    certificate."""
+    big, _ = _sphere(client, tmp_path, 5)
+    _, res = job_result(client, client.post(
+        f"/v1/domains/{big}/w1-barycenters?wait=60",
+        json={"distributions": [_dirac(0), _dirac(5000)], "weights": [0.5, 0.5]}))
+    v = res["values"]
+    assert v["algorithm"] == "ipm" and v["converged"] and v["gap"] <= 1e-6
+    assert v["lower_bound"] <= v["value"] and v["residual"] < 1e-6
 
 
 def test_only_meshes(client):

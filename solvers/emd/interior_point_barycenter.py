@@ -1,0 +1,384 @@
+r"""W1 barycenters (thesis eq. 2.7) by the primal-dual interior point of
+:mod:`solvers.emd.interior_point`, with vertex-sized Newton systems.
+
+Eq. 2.7, :math:`\min_{\rho \ge 0,\ \int\rho = 1} \sum_i \alpha_i W_1(\rho_i, \rho)^2`, with each
+:math:`W_1` in Beckmann form (eq. 2.3, one flow :math:`u_i` per input) and the epigraph
+:math:`T_i = \sum_t w_t s_{i,t} \ge W_1(\rho_i, \rho)` is the cone QP
+
+.. math::
+    \min_{x_{i,t} = (s_{i,t}, u_{i,t}) \in \mathcal Q^3,\ \rho \ge 0}\
+    \sum_i \alpha_i \Big(\sum_t w_t s_{i,t}\Big)^2
+    \quad\text{s.t.}\quad D u_i - \rho = -m_i \quad (i = 1..k),
+
+(``D`` the weak divergence; every block but the first drops one row per component, the
+first keeps all rows and so fixes each component's mass of :math:`\rho`).  Its dual
+variables are potentials :math:`y_i` with cone slacks :math:`z_{i,t} = (2\alpha_i T_i w_t,
+-(D^\top y_i)_t) \in \mathcal Q^3` and :math:`z_\rho = \sum_i y_i \ge 0`; the dual
+objective :math:`-\sum_i \alpha_i T_i^2 - \sum_i y_i^\top m_i` is a certified lower bound.
+
+Newton systems.  With Nesterov–Todd scalings :math:`W_i` per face and :math:`d = \rho /
+z_\rho`, the face variables and :math:`\rho` are eliminated in closed form; the objective's
+Hessian :math:`2\alpha_i g g^\top` (``g`` = the weights on the ``s`` coordinates) is one
+rank-one term per block, removed by Sherman–Morrison.  What is left are the normal equations
+in the ``k`` potentials,
+
+.. math::
+    \Big(\operatorname{blkdiag}_i\, D W_i^{-2} D^\top + (\mathbf 1 \mathbf 1^\top) \otimes
+    \operatorname{diag}(d) - \sum_i c_i \hat v_i \hat v_i^\top\Big)\, \Delta y = r ,
+
+``k`` weighted Laplacians (those of the W1 solver) coupled through :math:`\rho` by a diagonal
+between every pair of blocks, minus a rank-``k`` term.  The sparse part is one SPD matrix of
+the mesh's sparsity with ``k × k`` blocks per vertex, factored by PARDISO (ordering and
+symbolic analysis once, a numeric refactorization per iteration) or cholespy; the rank-``k``
+term is handled by the Woodbury identity with ``k`` extra solves.
+
+The start is primal and dual feasible (uniform :math:`\rho`, the Poisson flows that carry it
+to every input, :math:`y_1` a positive constant, the other potentials 0), and steps keep both
+feasible, so ``value - lower_bound`` certifies the objective; ``value`` is evaluated with the flows'
+costs :math:`\sum_t w_t \lVert u_{i,t}\rVert`, the W1 upper bounds of a feasible point.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from solvers.emd import interior_point as ip
+
+# Largest violation of the divergence constraints (mass units, total mass 1) with which a
+# small gap counts as converged (as in solvers.emd.interior_point_exits).
+FEASIBILITY_TOL = 1e-6
+# Cost model of this route (bench/w1_applications.py fits it: measured times and PARDISO's
+# factor sizes in bench/results/w1_applications.md): per iteration, passes over the k F
+# face cones and a numeric factorization of the coupled (k V)-row normal matrix, whose factor
+# grows like N log N and its work like N^1.5 (nested dissection on a surface mesh).
+ESTIMATED_ITERATIONS = 50
+_FACE_SECONDS = 1.0e-6  # per face cone and iteration
+_FACTOR_SECONDS = 1.0e-8  # per (k V)^1.5 and iteration
+_FACTOR_FILL = 4.0  # factor nonzeros per coupled unknown and log2(unknowns)
+_FACE_FLOATS = 150  # cones, scalings, directions, per-face blocks: floats per face cone
+MAX_ESTIMATED_SECONDS = 300.0
+# Absolute floor of the relative gap's denominator (objective units: squared length on the
+# unit-area mesh): the objective is 0 when the inputs coincide.
+GAP_FLOOR = 1e-12
+
+
+@dataclass(frozen=True)
+class CostEstimate:
+    seconds: float
+    bytes: int
+
+
+def estimated_cost(n_vertices: int, n_faces: int, k: int) -> CostEstimate:
+    """Modelled run time (s, one core) and working memory of :func:`solve_barycenter_ipm`
+    with ``k`` inputs of positive weight on a mesh of that size (constants above)."""
+    unknowns = float(max(k, 1)) * float(max(n_vertices, 1))
+    cones = float(max(k, 1)) * float(max(n_faces, 1))
+    per_iteration = _FACE_SECONDS * cones + _FACTOR_SECONDS * unknowns**1.5
+    factor = _FACTOR_FILL * unknowns * np.log2(max(unknowns, 2.0))
+    return CostEstimate(seconds=ESTIMATED_ITERATIONS * per_iteration,
+                        bytes=int(12 * factor + 8 * _FACE_FLOATS * cones + 8 * 40 * unknowns))
+
+
+@dataclass
+class BarycenterOutput:
+    u: np.ndarray  # (k, F, 2) flows u_i = A_t J_i in the tangent frames, rho -> input i
+    rho: np.ndarray  # (V,) barycenter masses
+    y: np.ndarray  # (k, V) dual potentials
+    distances: np.ndarray  # (k,) flow costs sum_t w_t |u_i,t| (>= W1(rho, rho_i))
+    value: float  # sum_i alpha_i distances_i^2
+    lower_bound: float
+    gap: float  # relative, certified
+    iterations: int
+    feasibility: float  # max |D u_i - rho + m_i|
+    converged: bool
+
+
+class _CoupledPattern:
+    """The normal matrix's pattern over the ``k`` blocks of potentials and the gather/slot
+    maps that fill its CSR data from per-face blocks and ``d`` (built once per solve).
+
+    Block 0 holds every vertex (``full``), blocks 1.. the kept vertices (``kept``)."""
+
+    def __init__(self, full: ip._Structure, kept: ip._Structure, k: int, n: int):
+        self.k, self.n = k, n
+        self.sizes = [n] + [len(kept.keep)] * (k - 1)
+        self.offsets = np.concatenate([[0], np.cumsum(self.sizes)])
+        self.rows_of = [np.arange(n)] + [kept.keep] * (k - 1)  # vertex of each local row
+        n_faces = len(full.faces)
+        rows, cols, src = [], [], []
+        for i, st in enumerate([full] + [kept] * (k - 1)):
+            r, c = _slot_coordinates(st.pattern)
+            entry = np.flatnonzero(st.kept)
+            rows.append(self.offsets[i] + r[st.slots])
+            cols.append(self.offsets[i] + c[st.slots])
+            src.append(i * 9 * n_faces + entry)
+        position = [np.full(n, -1, dtype=np.int64) for _ in range(k)]
+        for i in range(k):
+            position[i][self.rows_of[i]] = self.offsets[i] + np.arange(self.sizes[i])
+        for i in range(k):  # d couples the blocks vertex by vertex
+            for j in range(k):
+                common = self.rows_of[i] if i > 0 or j == 0 else self.rows_of[j]
+                rows.append(position[i][common])
+                cols.append(position[j][common])
+                src.append(k * 9 * n_faces + common)
+        rows, cols, src = np.concatenate(rows), np.concatenate(cols), np.concatenate(src)
+        upper = rows <= cols  # symmetric: PARDISO reads the upper triangle
+        rows, cols, self.src = rows[upper], cols[upper], src[upper]
+        size = int(self.offsets[-1])
+        self.pattern = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(size, size))
+        self.pattern.sum_duplicates()
+        self.pattern.sort_indices()
+        keys = np.repeat(np.arange(size), np.diff(self.pattern.indptr)) * size \
+            + self.pattern.indices
+        self.slots = np.searchsorted(keys, rows * size + cols)
+
+    def matrix(self, blocks: np.ndarray, d: np.ndarray, full: bool) -> sp.csr_matrix:
+        """The sparse part of the normal matrix from per-face blocks ``(k F, 9)`` and ``d``
+        ``(V,)``: its upper triangle, or with ``full`` the whole symmetric matrix."""
+        values = np.concatenate([blocks.ravel(), d])[self.src]
+        data = np.bincount(self.slots, values, minlength=self.pattern.nnz)
+        upper = sp.csr_matrix((data, self.pattern.indices, self.pattern.indptr),
+                              shape=self.pattern.shape)
+        return (upper + sp.triu(upper, 1).T).tocsr() if full else upper
+
+    def scatter(self, per_block: np.ndarray) -> np.ndarray:
+        """``(k, V)`` vertex arrays to one vector over the blocks' rows."""
+        return np.concatenate([per_block[i, self.rows_of[i]] for i in range(self.k)], axis=0)
+
+    def gather(self, vector: np.ndarray) -> np.ndarray:
+        """Inverse of :meth:`scatter` (``(k, V)``, zero on dropped rows); a trailing axis of
+        ``vector`` is kept."""
+        out = np.zeros((self.k, self.n) + vector.shape[1:])
+        for i in range(self.k):
+            out[i, self.rows_of[i]] = vector[self.offsets[i]:self.offsets[i + 1]]
+        return out
+
+
+def _slot_coordinates(pattern: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
+    return np.repeat(np.arange(pattern.shape[0]), np.diff(pattern.indptr)), pattern.indices
+
+
+class _Program:
+    """The data of one barycenter program: divergence as per-face ``3 × 2`` blocks
+    ``local`` on ``faces``, face weights ``w``, weights ``alpha`` (k,), inputs ``m`` (k, V)."""
+
+    def __init__(self, structure: ip._Structure, w, alpha, m):
+        self.faces, self.w, self.alpha, self.m = structure.faces, w, alpha, m
+        self.products = ip.local_products(structure.local)
+        self.l0, self.l1 = structure.local[:, :, 0], structure.local[:, :, 1]
+        self.k, self.n = m.shape
+
+    def div(self, x: np.ndarray) -> np.ndarray:
+        """``D u_i`` ``(k, V)`` of face vectors ``x`` ``(k, F, 3)`` (their ``u`` part)."""
+        k, n = self.k, self.n
+        per = self.l0 * x[:, :, 1:2] + self.l1 * x[:, :, 2:3]  # (k, F, 3)
+        index = (np.arange(k)[:, None, None] * n + self.faces[None]).ravel()
+        return np.bincount(index, per.ravel(), minlength=k * n).reshape(k, n)
+
+    def div_adjoint(self, y: np.ndarray) -> np.ndarray:
+        """``(0, Dᵀ y_i)`` per face ``(k, F, 3)`` of potentials ``y`` ``(k, V)``."""
+        yf = y[:, self.faces]  # (k, F, 3)
+        out = np.zeros(yf.shape)
+        out[:, :, 1] = (self.l0 * yf).sum(axis=2)
+        out[:, :, 2] = (self.l1 * yf).sum(axis=2)
+        return out
+
+    def totals(self, x: np.ndarray) -> np.ndarray:
+        """``T_i = Σ_t w_t s_{i,t}`` ``(k,)``."""
+        return x[:, :, 0] @ self.w
+
+    def dual_slacks(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``z_i = 2 α_i T_i (w, 0, 0) - (0, Dᵀ y_i)`` and ``z_ρ = Σ_i y_i``."""
+        z = -self.div_adjoint(y)
+        z[:, :, 0] = (2.0 * self.alpha * self.totals(x))[:, None] * self.w[None]
+        return z, y.sum(axis=0)
+
+    def bounds(self, x: np.ndarray, y: np.ndarray) -> tuple[float, float, np.ndarray]:
+        """``(value, lower_bound, distances)`` of a feasible iterate."""
+        distances = np.linalg.norm(x[:, :, 1:], axis=2) @ self.w
+        lower = -float(self.alpha @ self.totals(x) ** 2) - float(np.sum(y * self.m))
+        return float(self.alpha @ distances**2), lower, distances
+
+
+class _Newton:
+    """Newton directions for fixed scalings (module docstring): one factorization of the
+    coupled sparse part, Woodbury for the rank-``k`` objective term."""
+
+    def __init__(self, prog: _Program, layout: _CoupledPattern, x, rho, z, z_rho, factor,
+                 backend):
+        k, n_faces = x.shape[:2]
+        self.prog, self.layout = prog, layout
+        self.scaling = ip._nt_scaling(x.reshape(-1, 3), z.reshape(-1, 3))
+        self.lam_rho = np.sqrt(rho * z_rho)
+        self.d = rho / z_rho
+        self.z_rho = z_rho
+        g = np.zeros((k * n_faces, 3))
+        g[:, 0] = np.tile(prog.w, k)
+        self.h = self.scaling.apply_inverse_square(g).reshape(k, n_faces, 3)  # W⁻² g
+        ghg = self.h[:, :, 0] @ prog.w
+        self.c = 2.0 * prog.alpha / (1.0 + 2.0 * prog.alpha * ghg)
+        self.v = prog.div(self.h)  # (k, V): D (W⁻² g)_u per block
+        blocks = ip.face_blocks(self.scaling, prog.products)
+        normal = layout.matrix(blocks, self.d, full=ip._backend(backend) != "pardiso")
+        try:
+            self.factor = ip.factor_normal_matrix(normal, factor, backend)
+        except ValueError:  # Cholesky lost definiteness to rounding near the end of the
+            # path: LU with partial pivoting on the whole symmetric matrix (same system)
+            if ip._backend(backend) == "pardiso":
+                normal = (normal + sp.triu(normal, 1).T).tocsr()
+            self.factor = ip.factor_normal_matrix(normal, None, "splu")
+        if self.factor is None:
+            return
+        self.V = np.zeros((int(layout.offsets[-1]), k))  # column i: v_i on block i's rows
+        for i in range(k):
+            self.V[layout.offsets[i]:layout.offsets[i + 1], i] = self.v[i, layout.rows_of[i]]
+        self.Z = np.asarray(self.factor.solve(self.V))
+        self.cap_inv = np.linalg.inv(np.diag(1.0 / self.c) - self.V.T @ self.Z)
+
+    def _solve(self, r: np.ndarray) -> np.ndarray:
+        s = self.factor.solve(r)
+        return s + self.Z @ (self.cap_inv @ (self.V.T @ s))
+
+    def __call__(self, rc: np.ndarray, rc_rho: np.ndarray):
+        """Directions ``(dx (k F, 3), dρ, dy (k, V), dz (k F, 3), dz_ρ)`` for the
+        complementarity right-hand sides ``rc`` ``(k F, 3)`` and ``rc_rho`` ``(V,)``."""
+        prog, sc = self.prog, self.scaling
+        k, n_faces = prog.k, len(prog.faces)
+        wq = sc.apply_inverse(ip._jordan_solve(sc.lam, rc)).reshape(k, n_faces, 3)
+        wq_rho = rc_rho / self.z_rho
+        g_wq = wq[:, :, 0] @ prog.w
+        v = self.v
+        r = -prog.div(wq) + (self.c * g_wq)[:, None] * v + wq_rho[None]
+        dy = self.layout.gather(self._solve(self.layout.scatter(r)))
+        a = prog.div_adjoint(dy)
+        coef = self.c * (np.sum(v * dy, axis=1) + g_wq)
+        dx = sc.apply_inverse_square(a.reshape(-1, 3)).reshape(k, n_faces, 3) + wq \
+            - coef[:, None, None] * self.h
+        drho = -self.d * dy.sum(axis=0) + wq_rho
+        dz = -a
+        dz[:, :, 0] = (2.0 * prog.alpha * (dx[:, :, 0] @ prog.w))[:, None] * prog.w[None]
+        return dx.reshape(-1, 3), drho, dy, dz.reshape(-1, 3), dy.sum(axis=0)
+
+
+def barycenter_interior_point(full: ip._Structure, kept: ip._Structure, w: np.ndarray,
+                              alpha: np.ndarray, m: np.ndarray, u0: np.ndarray,
+                              rho0: np.ndarray, tol: float, max_iter: int, monitor,
+                              backend: str = "auto") -> BarycenterOutput:
+    """The primal-dual loop (module docstring).
+
+    ``full``/``kept``: the divergence's structure on every vertex / on all but one vertex
+    per component (same faces); ``w`` ``(F,)`` finite face weights; ``alpha`` ``(k,)``
+    positive; ``m`` ``(k, V)`` the inputs' masses; ``rho0`` ``(V,)`` > 0 with the inputs'
+    component masses and ``u0`` ``(k, F, 2)`` flows with ``D u0_i = rho0 - m_i``;
+    ``monitor`` is called with the certified relative gap."""
+    prog = _Program(full, w, alpha, m)
+    k, n = m.shape
+    layout = _CoupledPattern(full, kept, k, n)
+    x = np.stack([ip.cone_start(u, w) for u in u0])  # (k, F, 3)
+    # dual start: y_1 = δ (constant: Dᵀ y_1 = 0), so z_ρ = δ balances ρ z_ρ against the
+    # cones' mean complementarity
+    cone_mu = float(2.0 * alpha @ prog.totals(x) ** 2) / (k * len(prog.faces))
+    y = np.zeros((k, n))
+    y[0] = n * cone_mu
+    z, z_rho = prog.dual_slacks(x, y)
+    shape = x.shape
+
+    def advance(state):
+        x, rho, y, z, z_rho, factor = state
+        newton = _Newton(prog, layout, x, rho, z, z_rho, factor, backend)
+        if newton.factor is None:
+            return None
+        dx, drho, dy, dz, dz_rho, step = ip.mehrotra_step(x.reshape(-1, 3), rho,
+                                                          z.reshape(-1, 3), z_rho, newton)
+        x, rho, y = x + step * dx.reshape(shape), rho + step * drho, y + step * dy
+        # the slacks by the step (the linear dual relation holds to rounding); recomputing
+        # them from y would add the rounding of Dᵀ y_1, y_1 ~ a large constant
+        z, z_rho = z + step * dz.reshape(shape), z_rho + step * dz_rho
+        ok = (ip._interior(x.reshape(-1, 3)) and ip._interior(z.reshape(-1, 3)) and np.all(rho > 0)
+              and np.all(z_rho > 0) and np.all(np.isfinite(y)))
+        return (x, rho, y, z, z_rho, newton.factor) if ok else None
+
+    def bounds(state):
+        return prog.bounds(state[0], state[2])[:2]
+
+    state, it, converged = ip.certified_loop((x, rho0.copy(), y, z, z_rho, None), advance,
+                                          bounds, tol, max_iter, monitor, GAP_FLOOR)
+    x, rho, y = state[:3]
+    value, lower, distances = prog.bounds(x, y)
+    feasibility = float(np.abs(prog.div(x) - rho[None] + m).max())
+    return BarycenterOutput(u=x[:, :, 1:].copy(), rho=rho, y=y, distances=distances,
+                            value=value, lower_bound=lower,
+                            gap=ip.relative_gap(value, lower, GAP_FLOOR), iterations=it,
+                            feasibility=feasibility,
+                            converged=converged and feasibility <= FEASIBILITY_TOL)
+
+
+def _start(ops, mesh, m: np.ndarray, geo):
+    """``(rho0, u0)``: each component's mass spread by area, and the Poisson flows
+    carrying it to every input (``D u0_i = rho0 - m_i``)."""
+    labels, areas = ops.labels, mesh.areas
+    density = np.bincount(labels, m[0]) / np.bincount(labels, areas)
+    rho0 = areas * density[labels]
+    u0 = []
+    for mi in m:
+        _, v = ops.particular_flow(mi - rho0)
+        u0.append(np.einsum("fc,fdc->fd", v, geo.frames) * mesh.face_areas[:, None])
+    return rho0, np.stack(u0)
+
+
+def solve_barycenter_ipm(mesh, M: np.ndarray, alpha: np.ndarray, face_weights: np.ndarray,
+                         tol: float, max_iter: int, monitor) -> dict:
+    """Eq. 2.7 on ``mesh`` for validated inputs ``M`` ``(V, k)`` and weights ``alpha``
+    ``(k,)`` (summing to 1), finite ``face_weights`` ``(F,)``: the coupled interior point over
+    the inputs with positive weight; an input of weight 0 does not change the optimum, and its
+    distance and flow come from the W1 interior point (:func:`solvers.emd.beckmann.
+    earth_movers_distance`) afterwards.  Returns the fields of a
+    :class:`~solvers.emd.exact.W1BarycenterResult` (flows as ``(k, F, 2)`` tangent
+    coordinates ``u``, with the operators' ``frames``)."""
+    from solvers.emd.interior_point import _structure
+    from solvers.emd.operators import mesh_operators
+
+    ops = mesh_operators(mesh)
+    geo, kept = ops.interior_point_structure
+    k = M.shape[1]
+    positive = np.flatnonzero(alpha > 0)
+    m = np.ascontiguousarray(M[:, positive].T)
+    u = np.zeros((k, mesh.n_faces, 2))
+    if len(positive) == 1:  # the input itself, exactly
+        rho, out = m[0].copy(), None
+    else:
+        full = _structure(geo.div, kept.faces, np.arange(mesh.n))
+        rho0, u0 = _start(ops, mesh, m, geo)
+        out = barycenter_interior_point(full, kept, face_weights, alpha[positive], m, u0, rho0,
+                                        tol, max_iter, monitor)
+        rho = out.rho
+        u[positive] = out.u
+    report = {"iterations": 0 if out is None else out.iterations,
+              "feasibility": 0.0 if out is None else out.feasibility,
+              "gap": 0.0 if out is None else out.gap,
+              "lower_bound": 0.0 if out is None else out.lower_bound,
+              "converged": True if out is None else out.converged}
+    distances = np.zeros(k)
+    if out is not None:
+        distances[positive] = out.distances
+    flows = np.einsum("kfd,fdc->kfc", u, geo.frames) / mesh.face_areas[None, :, None]
+    for j in np.flatnonzero(alpha <= 0):
+        distances[j], flows[j] = _zero_weight_distance(mesh, rho, M[:, j], face_weights, tol,
+                                                       max_iter, report)
+    return {"masses": rho, "distances": distances, "flows": flows,
+            "value": float(alpha @ distances**2), **report}
+
+
+def _zero_weight_distance(mesh, rho, target, face_weights, tol, max_iter, report):
+    """W1 from the barycenter to an input of weight 0 (certified interior point); folds
+    its convergence into ``report``."""
+    from solvers.emd.beckmann import earth_movers_distance
+
+    res = earth_movers_distance(mesh, rho, target, algorithm="ipm", face_weights=face_weights,
+                                tol=tol, max_iter=max_iter)
+    report["converged"] = report["converged"] and bool(res.converged)
+    report["feasibility"] = max(report["feasibility"], float(res.primal_residual))
+    return res.value, res.flow

@@ -1,0 +1,140 @@
+"""W1 barycenters (eq. 2.7) by the vertex-sized interior point (``algorithm="ipm"``, the
+default) against Clarabel on the whole cone program (``"socp"``) on small meshes.
+
+The interior point certifies its objective: ``lower_bound <= optimum <= value`` with
+``(value - lower_bound) / value = gap <= tol``; Clarabel's optimum (tolerance 1e-10) must fall
+in that bracket, which is the check below (up to Clarabel's own tolerance).  The ground-truth
+tests with Dirac inputs (brute force over vertices, exact geodesics) are in
+``test_emd_exact.py`` and run on this default route."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from solvers.domains import TriangleMesh
+from solvers.emd.beckmann import earth_movers_distance
+from solvers.emd.exact import w1_barycenter
+from solvers.emd.interior_point_barycenter import estimated_cost
+from solvers.errors import InputError
+
+
+def _sphere(subdivisions=2):
+    s = trimesh.creation.icosphere(subdivisions=subdivisions)
+    return TriangleMesh(s.vertices, s.faces)
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    return _sphere()  # 162 vertices
+
+
+def _bump(mesh, center, width=0.3):
+    d = np.linalg.norm(mesh.vertices - mesh.vertices[center], axis=1)
+    x = np.exp(-((d / width) ** 2))
+    return x / x.sum()
+
+
+def _check_bracket(ipm, ref, tol):
+    assert ipm.algorithm == "ipm" and ipm.converged and ipm.gap <= tol
+    assert ipm.lower_bound <= ipm.value
+    slack = 1e-8 * ref.value + 1e-12  # Clarabel's tolerance
+    assert ipm.lower_bound - slack <= ref.value <= ipm.value + slack
+    assert ipm.value == pytest.approx(ref.value, rel=2 * tol)
+    assert ipm.residual < 1e-9
+
+
+@pytest.mark.parametrize("case", ["bumps", "diracs", "two-inputs"])
+def test_interior_point_matches_clarabel(sphere, case):
+    if case == "bumps":
+        mus = np.stack([_bump(sphere, c) for c in (0, 50, 100)], axis=1)
+        alpha = [0.2, 0.3, 0.5]
+    elif case == "diracs":
+        mus = np.zeros((sphere.n, 4))
+        mus[[3, 40, 90, 150], np.arange(4)] = 1.0
+        alpha = None
+    else:
+        mus = np.stack([_bump(sphere, 7, 0.2), _bump(sphere, 120, 0.5)], axis=1)
+        alpha = [0.7, 0.3]
+    tol = 1e-6  # the default; the loop stops near 1e-7 on these small meshes (rounding)
+    ipm = w1_barycenter(sphere, mus, alpha, tol=tol)
+    ref = w1_barycenter(sphere, mus, alpha, algorithm="socp", tol=1e-10)
+    _check_bracket(ipm, ref, tol)
+    # the reported distances are the W1 distances of the returned barycenter
+    for i in range(mus.shape[1]):
+        w1 = earth_movers_distance(sphere, ipm.masses, mus[:, i], algorithm="ipm", tol=1e-9)
+        assert ipm.distances[i] == pytest.approx(w1.value, rel=1e-4, abs=1e-9)
+    # the flows carry the barycenter to each input
+    for i in range(mus.shape[1]):
+        div = sphere.divergence @ ipm.flows[i].ravel()
+        assert np.abs(div - (ipm.masses - mus[:, i])).max() < 1e-9
+    assert ipm.masses.min() > 0 and ipm.masses.sum() == pytest.approx(1.0, abs=1e-9)
+
+
+def test_face_weights_and_two_components():
+    """Finite face weights (cheaper travel on half the faces), and a mesh of two spheres
+    whose inputs carry the same mass on each component."""
+    s = trimesh.creation.icosphere(subdivisions=1)
+    two = TriangleMesh(np.vstack([s.vertices, s.vertices + 3.0]),
+                       np.vstack([s.faces, s.faces + len(s.vertices)]))
+    n = len(s.vertices)
+    mus = np.zeros((two.n, 3))
+    mus[[0, 7, 20], [0, 1, 2]] = 0.5
+    mus[[n + 3, n + 30, n + 11], [0, 1, 2]] = 0.5
+    fw = np.where(np.arange(two.n_faces) % 2 == 0, 1.0, 2.5)
+    alpha = [0.5, 0.25, 0.25]
+    ipm = w1_barycenter(two, mus, alpha, face_weights=fw, tol=1e-6)
+    ref = w1_barycenter(two, mus, alpha, face_weights=fw, algorithm="socp", tol=1e-10)
+    _check_bracket(ipm, ref, 1e-6)
+    assert ipm.masses[:n].sum() == pytest.approx(0.5, abs=1e-9)
+
+
+def test_zero_weights(sphere):
+    a, b, c = _bump(sphere, 0), _bump(sphere, 60), _bump(sphere, 110)
+    # all weight on one input: that input, exactly, and W1 to the others
+    one = w1_barycenter(sphere, np.stack([a, b], axis=1), [1.0, 0.0])
+    assert one.converged and one.value == 0.0 and np.allclose(one.masses, a, rtol=1e-12, atol=0)
+    w_ab = earth_movers_distance(sphere, a, b, algorithm="ipm", tol=1e-6).value
+    assert one.distances[0] == 0.0
+    assert one.distances[1] == pytest.approx(w_ab, rel=1e-5)
+    # a zero weight leaves the optimum of the others unchanged
+    mus = np.stack([a, b, c], axis=1)
+    with_zero = w1_barycenter(sphere, mus, [0.5, 0.0, 0.5])
+    without = w1_barycenter(sphere, mus[:, [0, 2]], [0.5, 0.5])
+    assert with_zero.converged
+    assert with_zero.value == pytest.approx(without.value, rel=1e-7)
+    assert with_zero.distances[1] == pytest.approx(earth_movers_distance(
+        sphere, with_zero.masses, b, algorithm="ipm", tol=1e-6).value, rel=1e-6)
+
+
+def test_walls_need_the_conic_route(sphere):
+    a, b = _bump(sphere, 0), _bump(sphere, 60)
+    fw = np.ones(sphere.n_faces)
+    fw[:5] = np.inf
+    res = w1_barycenter(sphere, np.stack([a, b], axis=1), face_weights=fw)  # auto: socp
+    assert res.algorithm == "socp" and res.converged
+    with pytest.raises(InputError) as err:
+        w1_barycenter(sphere, np.stack([a, b], axis=1), face_weights=fw, algorithm="ipm")
+    assert err.value.field == "algorithm"
+    with pytest.raises(InputError) as err:
+        w1_barycenter(sphere, np.stack([a, b], axis=1), algorithm="lp")
+    assert err.value.field == "algorithm"
+
+
+def test_no_vertex_cap_on_the_interior_point():
+    """The conic route refuses a 10k-vertex mesh; the interior point solves it."""
+    mesh = _sphere(5)  # 10242 vertices
+    mus = np.zeros((mesh.n, 2))
+    mus[[0, 5000], [0, 1]] = 1.0
+    with pytest.raises(InputError):
+        w1_barycenter(mesh, mus, algorithm="socp")
+    res = w1_barycenter(mesh, mus)
+    assert res.converged and res.gap <= 1e-6 and res.residual < 1e-6
+
+
+def test_cost_model_grows_with_size_and_inputs():
+    small, more, bigger = (estimated_cost(10_000, 20_000, 3), estimated_cost(10_000, 20_000, 6),
+                           estimated_cost(50_000, 100_000, 3))
+    assert small.seconds < more.seconds and small.seconds < bigger.seconds
+    assert small.bytes < more.bytes and small.bytes < bigger.bytes
