@@ -41,7 +41,10 @@ def _results(http, ids: list[str]) -> list[dict]:
 
 
 def test_two_workers_give_identical_answers(tmp_path, meshes_dir):
-    api = API({"OTGEO_DATA_DIR": str(tmp_path), "OTGEO_WORKERS": "2"}, tmp_path)
+    # Neither worker is reserved for short jobs: the spot jobs' costs may send them to the long
+    # queue, and the test needs both workers to take them.
+    api = API({"OTGEO_DATA_DIR": str(tmp_path), "OTGEO_WORKERS": "2",
+               "OTGEO_RESERVED_SHORT_WORKERS": "0"}, tmp_path)
     try:
         api.wait_healthy(60)
         wait_for(lambda: api.log(10**7).count(" ready (queue ") >= 2, timeout=120,
