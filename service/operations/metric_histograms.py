@@ -139,9 +139,10 @@ def estimate_cost(n: int, req: MetricHistogramRequest, context=None) -> float:
 def estimate_bytes(view: DomainView, req: MetricHistogramRequest) -> int:
     b = len(req.cost) if req.cost is not None else req.circle.points if req.circle else 2
     m = _edge_count(view) or 3 * view.n
-    # the LP's matrix, factors and solver state per plan entry (measured ~75 float64 each:
-    # bench/results/operation_memory.md), the histograms
-    return 8 * 80 * int(m) * b * b + 8 * 8 * int(view.n) * b
+    # the LP's matrix, factors and solver state per plan entry (measured up to ~115 float64
+    # each, the most on the smaller mesh's harder LP: bench/results/operation_memory.md),
+    # the histograms
+    return 8 * 120 * int(m) * b * b + 8 * 8 * int(view.n) * b
 
 
 def _node_summaries(H: np.ndarray, cost: np.ndarray, bins, circle: bool) -> dict:
