@@ -366,7 +366,7 @@ def barycenters(
     problem_converged, entropies, iterations, residual, converged, ...)
     """
     from solvers.convolutional.matrix import block_pairs, run_block
-    from solvers.errors import CancelledError, InputError
+    from solvers.errors import InputError
 
     M = _inputs(domain, mus)
     k = M.shape[1]
@@ -404,10 +404,7 @@ def barycenters(
             finished = np.isfinite(out["res"])
             progress(int(finished.sum()), float(np.max(out["res"][finished])))
 
-    def stop(where: str) -> None:
-        if should_cancel is not None and should_cancel():
-            raise CancelledError(f"cancelled {where}")
-
+    stop = Monitor(None, should_cancel).check_cancel
     with np.errstate(invalid="ignore"):
         run_block(setup.logk, jobs(), max(1, block_pairs(M.shape[0] * k)), done, stop)
     masses = out["masses"]
