@@ -142,7 +142,7 @@ def estimate_cost(n: int, req, context=None) -> float:
 def estimate_bytes(view: DomainView, req: AnisotropicDistanceRequest) -> int:
     """Per face: the weights (9 floats), interior-point cones and scalings (~40 floats);
     per vertex: the normal matrix's Cholesky factor (~60 floats)."""
-    faces = int(view.n_faces or 2 * view.n)
+    faces = view.faces_or_typical
     k = int(req.k or 0) if req.basis == "spectral" else 0
     return 8 * (49 * faces + 60 * int(view.n) + k * (2 * int(view.n) + 3 * faces))
 

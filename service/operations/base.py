@@ -127,6 +127,12 @@ class DomainView:
         return self.memo["tree"]
 
     @property
+    def faces_or_typical(self) -> int:
+        """The mesh's face count, or ~2 per vertex (a closed triangle mesh's) when unknown:
+        what the per-face cost and memory models take."""
+        return int(self.n_faces or 2 * self.n)
+
+    @property
     def n_components(self) -> int:
         return int(self.component_labels.max()) + 1 if len(self.component_labels) else 1
 

@@ -531,7 +531,7 @@ def _validate_pointwise(view, req: PointwiseDistanceRequest) -> list[dict]:
     n_targets = int(np.count_nonzero(labels == labels[req.source]))
     green = req.k == 0 and view.n <= GREEN_MAX_VERTICES and 4 * n_targets >= view.n
     try:
-        check_cost(view.n, int(view.n_faces or 2 * view.n), req.k, n_targets, green)
+        check_cost(view.n, view.faces_or_typical, req.k, n_targets, green)
     except InputError as exc:  # the service has no 'targets' field: the choice is k
         raise InvalidInput(str(exc), field="k") from exc
     return []

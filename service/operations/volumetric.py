@@ -250,7 +250,7 @@ def estimate_bytes(view: DomainView, req) -> int:
     """Mean value coordinates of every point (P x V, twice) plus the temporaries of one
     block of them (at most ``MVC_CHUNK_ENTRIES`` points x faces), and the conic program of
     one solve (``CONIC_FLOATS_PER_FACE``)."""
-    n, faces = int(view.n), int(view.n_faces or 2 * view.n)
+    n, faces = int(view.n), view.faces_or_typical
     points = 7 if isinstance(req, VolumetricPathRequest) else _solves(n, req)
     block = min(points * faces, MVC_CHUNK_ENTRIES)
     return 16 * points * n + 8 * MVC_TEMPORARIES * block + CONIC_FLOATS_PER_FACE * 8 * faces

@@ -92,21 +92,17 @@ def _check_conic_size(view: DomainView, blocks: int, field: str) -> None:
                               "mesh", field=field)
 
 
-def _faces(view: DomainView) -> int:
-    return int(view.n_faces or 2 * view.n)
-
-
 def _ipm_estimate(view: DomainView, req: W1BarycenterRequest):
     """The interior point's modelled cost for the request's inputs of positive weight."""
     k = len(req.distributions) if req.weights is None else \
         sum(1 for w in req.weights if w > 0)
-    return estimated_cost(view.n, _faces(view), max(k, 1))
+    return estimated_cost(view.n, view.faces_or_typical, max(k, 1))
 
 
 def _check_ipm_size(view: DomainView, req: W1BarycenterRequest) -> None:
     seconds = _ipm_estimate(view, req).seconds
     if seconds > MAX_ESTIMATED_SECONDS:
-        alone = estimated_cost(view.n, _faces(view), 2).seconds > MAX_ESTIMATED_SECONDS
+        alone = estimated_cost(view.n, view.faces_or_typical, 2).seconds > MAX_ESTIMATED_SECONDS
         raise PayloadTooLarge(
             f"the interior point's modelled run time on {view.n} vertices with these inputs "
             f"is {seconds:.0f} s, above {MAX_ESTIMATED_SECONDS:.0f} s: use "
@@ -149,7 +145,7 @@ def barycenter_bytes(view: DomainView, req: W1BarycenterRequest) -> int:
     if req.algorithm != "socp":
         return _ipm_estimate(view, req).bytes
     blocks = len(req.distributions) + 1
-    return 8 * blocks * (200 * _faces(view) + 300 * int(view.n))
+    return 8 * blocks * (200 * view.faces_or_typical + 300 * int(view.n))
 
 
 def run_barycenter(mesh, req: W1BarycenterRequest, progress, should_cancel) -> OperationOutput:
@@ -235,7 +231,7 @@ def path_plan_cost(n: int, req: PathPlanRequest, context=None) -> float:
 def path_plan_bytes(view: DomainView, req: PathPlanRequest) -> int:
     """Per face: the flow, its Hodge parts and the solver's cones (~50 floats); per vertex
     and edge: the Newton systems' factors and the Hodge solves (~80 floats)."""
-    faces = int(view.n_faces or 2 * view.n)
+    faces = view.faces_or_typical
     return 8 * (50 * faces + 80 * int(view.n) + 40 * (faces * 3 // 2))
 
 
