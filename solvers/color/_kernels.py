@@ -139,13 +139,6 @@ def _linear_rgb(L, a, b, m):
 
 
 @_jit(inline="always")
-def _rgb_of(L, a, b, m):
-    """Lab -> sRGB in [0, 1] (clipped)."""
-    r, g, bb = _linear_rgb(L, a, b, m)
-    return _encode(r), _encode(g), _encode(bb)
-
-
-@_jit(inline="always")
 def _lookup_l(L, lut_l, inv_l):
     """``lut_l`` at the bin (width ``1 / inv_l``) of ``L``, clamped to the table."""
     u = L * inv_l
@@ -160,7 +153,16 @@ def _lookup_l(L, lut_l, inv_l):
 @_jit(inline="always")
 def _store(out, src, p, L, a, b, m, scale, offset, alpha):
     """Write Lab ``(L, a, b)`` as ``sRGB * scale + offset`` into ``out[p]``; copy alpha."""
-    r, g, bb = _rgb_of(L, a, b, m)
+    r, g, bb = _linear_rgb(L, a, b, m)
+    _store_linear(out, src, p, r, g, bb, scale, offset, alpha)
+
+
+@_jit(inline="always")
+def _store_linear(out, src, p, r, g, bb, scale, offset, alpha):
+    """:func:`_store` of a colour given in linear RGB."""
+    r = _encode(r)
+    g = _encode(g)
+    bb = _encode(bb)
     out[p, 0] = r * scale + offset
     out[p, 1] = g * scale + offset
     out[p, 2] = bb * scale + offset

@@ -11,7 +11,14 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from solvers.color._kernels import _jit, _linear_rgb, _lookup_l, _nearest_node, _store
+from solvers.color._kernels import (
+    _jit,
+    _linear_rgb,
+    _lookup_l,
+    _nearest_node,
+    _store,
+    _store_linear,
+)
 
 
 @_jit(inline="always")
@@ -113,31 +120,76 @@ def _level(k, lo, hi, levels):
     return min(max(q, 0), levels - 1)
 
 
+@_jit(parallel=True)
+def _row_counts(row, nrows):
+    """Pixels per row (per-chunk integer counts, summed: exact in any order)."""
+    n = row.shape[0]
+    chunks = max(1, min(4 * numba.get_num_threads(), n // 65536 + 1))
+    step = (n + chunks - 1) // chunks
+    part = np.zeros((chunks, nrows), dtype=np.int64)
+    for c in numba.prange(chunks):
+        for p in range(c * step, min(n, (c + 1) * step)):
+            part[c, row[p]] += 1
+    return part.sum(axis=0)
+
+
 @_jit()
+def _row_groups(weight, ngroups):
+    """Rows cut into ``ngroups`` consecutive ranges of about equal ``weight``: the group of
+    each row.  Only the work split depends on it, never the result."""
+    total = max(weight.sum(), 1)
+    group = np.empty(weight.shape[0], dtype=np.int64)
+    acc = 0
+    for r in range(weight.shape[0]):
+        group[r] = min(ngroups - 1, acc * ngroups // total)
+        acc += weight[r]
+    return group
+
+
+@_jit(parallel=True)
 def level_counts(key, row, lo, hi, counts):
+    """Pixels per row and key level, ``counts`` ``(nrows, levels)``.  Parallel over groups
+    of rows (each row counted by one thread), so it is exact for any thread count."""
     levels = counts.shape[1]
-    for p in range(key.shape[0]):
-        r = row[p]
-        counts[r, _level(key[p], lo[r], hi[r], levels)] += 1
+    ngroups = numba.get_num_threads()
+    group = _row_groups(_row_counts(row, counts.shape[0]), ngroups)
+    for g in numba.prange(ngroups):
+        for p in range(key.shape[0]):
+            r = row[p]
+            if group[r] == g:
+                counts[r, _level(key[p], lo[r], hi[r], levels)] += 1
 
 
-@_jit()
+@_jit(parallel=True)
 def assign(key, row, lo, hi, start, offsets, ends, disp, scale, out):
     """Rank every pixel within its row (key level, then raster order) and give it the
     displacement of the target its rank falls in: targets ``offsets[r]..offsets[r+1]``
-    of row ``r`` hold ``ends`` (cumulative pixel counts) and ``disp`` ``(T, 2)``."""
+    of row ``r`` hold ``ends`` (cumulative pixel counts) and ``disp`` ``(T, 2)``.
+
+    Parallel over groups of rows: one thread walks a row's pixels in raster order, so
+    the ranks (and the result) do not depend on the number of threads."""
     levels = start.shape[1]
-    for p in range(key.shape[0]):
-        r = row[p]
-        q = _level(key[p], lo[r], hi[r], levels)
-        rank = start[r, q]
-        start[r, q] = rank + 1
-        t = offsets[r]
-        last = offsets[r + 1] - 1
-        while t < last and rank >= ends[t]:
-            t += 1
-        out[p, 0] = disp[t, 0] * scale
-        out[p, 1] = disp[t, 1] * scale
+    nrows = start.shape[0]
+    totals = np.zeros(nrows, dtype=np.int64)
+    for r in range(nrows):
+        if offsets[r + 1] > offsets[r]:
+            totals[r] = ends[offsets[r + 1] - 1]
+    ngroups = numba.get_num_threads()
+    group = _row_groups(totals, ngroups)
+    for g in numba.prange(ngroups):
+        for p in range(key.shape[0]):
+            r = row[p]
+            if group[r] != g:
+                continue
+            q = _level(key[p], lo[r], hi[r], levels)
+            rank = start[r, q]
+            start[r, q] = rank + 1
+            t = offsets[r]
+            last = offsets[r + 1] - 1
+            while t < last and rank >= ends[t]:
+                t += 1
+            out[p, 0] = disp[t, 0] * scale
+            out[p, 1] = disp[t, 1] * scale
 
 
 GUIDE_SCALE = 0.01  # guide channels: Lab / 100
@@ -253,48 +305,116 @@ def guided_solve(mom, nguide, eps, coef):
 
 
 @_jit(inline="always")
-def _in_gamut(L, a, b, m):
-    r, g, bb = _linear_rgb(L, a, b, m)
+def _in_box(r, g, bb):
     t = GAMUT_TOL
     return -t <= r <= 1 + t and -t <= g <= 1 + t and -t <= bb <= 1 + t
 
 
+@_jit(inline="always")
+def _in_gamut(L, a, b, m):
+    r, g, bb = _linear_rgb(L, a, b, m)
+    return _in_box(r, g, bb)
+
+
 GAMUT_TOL = 1e-3
 GAMUT_STEP = 2.0
+# _finv(t) = t^3 above this, linear (slope 1 / 7.787) below
+_FINV_KNEE = 0.2068966
+_FINV_SLOPE = 1.0 / 7.787
+
+
+@_jit(inline="always")
+def _finv_slope(t):
+    """An upper bound of the slope of :func:`~solvers.color._kernels._finv` on
+    ``(-inf, t]`` (it is increasing and convex above the knee)."""
+    if t > _FINV_KNEE:
+        return max(3.0 * t * t, _FINV_SLOPE)
+    return _FINV_SLOPE
+
+
+@_jit(inline="always")
+def _excluded_radius(r, g, bb, slope_x, slope_y, slope_z, m):
+    """A distance in L* within which no colour of the same ``(a, b)`` is in the gamut,
+    from the linear RGB ``(r, g, bb)`` at one L* and bounds ``slope_*`` of ``d X/dL*``
+    (and Y, Z) over the L* range searched: channel ``c`` moves at most
+    ``sum_k |m_ck| slope_k`` per L* unit, so its violation needs that many units to close."""
+    t = GAMUT_TOL
+    radius = 0.0
+    for c in range(3):
+        v = r if c == 0 else (g if c == 1 else bb)
+        # less 1e-7: the knee of _finv is continuous only to ~1e-8
+        over = max(-t - v, v - (1.0 + t)) - 1e-7
+        if over > 0.0:
+            rate = (abs(m[c, 0]) * slope_x + abs(m[c, 1]) * slope_y
+                    + abs(m[c, 2]) * slope_z)
+            radius = max(radius, over / rate)
+    # a relative margin well above float rounding keeps every skipped point a sure miss
+    return radius * (1.0 - 1e-6)
+
+
+@_jit(inline="always")
+def _skip_steps(L_hi, L, a, b, m, r, g, bb):
+    """How many scan steps past ``L`` are sure misses given the RGB ``(r, g, bb)`` at ``L``
+    (``L_hi``: the largest L* the steps can reach); at least 1 (the next step)."""
+    y = (L_hi + 16.0) / 116.0
+    slope_x = _finv_slope(a / 500.0 + y) / 116.0
+    slope_y = _finv_slope(y) / 116.0
+    slope_z = _finv_slope(y - b / 200.0) / 116.0
+    k = int(_excluded_radius(r, g, bb, slope_x, slope_y, slope_z, m) / GAMUT_STEP)
+    return max(k, 1)
 
 
 @_jit()
 def gamut_lightness(L, a, b, m, reach):
     """The L* nearest to ``L`` at which ``(L*, a, b)`` is inside the sRGB gamut (scan in
-    steps of ``GAMUT_STEP``, then bisection), if one lies within ``reach`` of ``L``;
-    ``L`` itself otherwise."""
+    steps of ``GAMUT_STEP``, below before above at equal distance, then bisection), if one
+    lies within ``reach`` of ``L``; ``L`` itself otherwise.
+
+    The scan skips steps that a Lipschitz bound of the RGB channels in L*
+    (:func:`_excluded_radius`) proves out of the gamut, so it returns what the plain
+    step-by-step scan returns (``tests/test_color_speed.py`` checks it)."""
     if _in_gamut(L, a, b, m):
         return L
-    for step in range(1, int(reach / GAMUT_STEP) + 1):
+    last = int(reach / GAMUT_STEP)
+    big = last + 1
+    down = 1  # next step below L that may be in the gamut
+    up = 1
+    while True:
+        step = min(down, up)
+        if step > last:
+            return L
         for sign in (-1.0, 1.0):
-            Lc = L + sign * step * GAMUT_STEP
-            if Lc < 0.0 or Lc > 100.0 or not _in_gamut(Lc, a, b, m):
+            if (down if sign < 0 else up) != step:
                 continue
-            bad = Lc - sign * GAMUT_STEP
-            good = Lc
-            for _ in range(10):
-                mid = 0.5 * (bad + good)
-                if _in_gamut(mid, a, b, m):
-                    good = mid
-                else:
-                    bad = mid
-            return good
-    return L
+            Lc = L + sign * step * GAMUT_STEP
+            if Lc < 0.0 or Lc > 100.0:
+                nxt = big  # every further step on this side is outside [0, 100] too
+            else:
+                r, g, bb = _linear_rgb(Lc, a, b, m)
+                if _in_box(r, g, bb):
+                    return _bisect_lightness(Lc - sign * GAMUT_STEP, Lc, a, b, m)
+                L_hi = Lc if sign < 0 else 100.0
+                nxt = step + _skip_steps(L_hi, Lc, a, b, m, r, g, bb)
+            if sign < 0:
+                down = nxt
+            else:
+                up = nxt
 
 
-@_jit()
-def gamut_map(L, a, b, m, reach):
-    """An in-gamut colour for ``(L, a, b)``: the nearest in-gamut L* within ``reach``
-    (:func:`gamut_lightness`), else the same L* and hue with the largest in-gamut chroma
-    (bisection on the factor of ``(a, b)``; grey is in the gamut for L* in [0, 100])."""
-    L = min(max(L, 0.0), 100.0)
-    if _in_gamut(L, a, b, m):
-        return L, a, b
+@_jit(inline="always")
+def _bisect_lightness(bad, good, a, b, m):
+    for _ in range(10):
+        mid = 0.5 * (bad + good)
+        if _in_gamut(mid, a, b, m):
+            good = mid
+        else:
+            bad = mid
+    return good
+
+
+@_jit(inline="always")
+def _gamut_map_out(L, a, b, m, reach):
+    """:func:`gamut_map` of a colour already known to be out of the gamut at ``L``."""
     if reach > 0:
         Lg = gamut_lightness(L, a, b, m, reach)
         if Lg != L:
@@ -308,6 +428,17 @@ def gamut_map(L, a, b, m, reach):
         else:
             hi = mid
     return L, a * lo, b * lo
+
+
+@_jit()
+def gamut_map(L, a, b, m, reach):
+    """An in-gamut colour for ``(L, a, b)``: the nearest in-gamut L* within ``reach``
+    (:func:`gamut_lightness`), else the same L* and hue with the largest in-gamut chroma
+    (bisection on the factor of ``(a, b)``; grey is in the gamut for L* in [0, 100])."""
+    L = min(max(L, 0.0), 100.0)
+    if _in_gamut(L, a, b, m):
+        return L, a, b
+    return _gamut_map_out(L, a, b, m, reach)
 
 
 @_jit(parallel=True)
@@ -363,5 +494,10 @@ def apply_field(lab, src, out, lut_l, lstep, disp, m, scale, offset, reach):
         B = np.float64(lab[p, 2]) + disp[p, 1]
         L = _lookup_l(L0, lut_l, inv_l) if use_l else L0
         if reach >= 0:
-            L, A, B = gamut_map(L, A, B, m, reach)
+            L = min(max(L, 0.0), 100.0)
+            r, g, bb = _linear_rgb(L, A, B, m)
+            if _in_box(r, g, bb):  # most pixels: linear RGB computed once
+                _store_linear(out, src, p, r, g, bb, scale, offset, alpha)
+                continue
+            L, A, B = _gamut_map_out(L, A, B, m, reach)
         _store(out, src, p, L, A, B, m, scale, offset, alpha)
