@@ -124,7 +124,7 @@ def _level(k, lo, hi, levels):
 def _row_counts(row, nrows):
     """Pixels per row (per-chunk integer counts, summed: exact in any order)."""
     n = row.shape[0]
-    chunks = max(1, min(4 * numba.get_num_threads(), n // 65536 + 1))
+    chunks = max(1, min(8, n // 65536 + 1))
     step = (n + chunks - 1) // chunks
     part = np.zeros((chunks, nrows), dtype=np.int64)
     for c in numba.prange(chunks):
@@ -146,12 +146,15 @@ def _row_groups(weight, ngroups):
     return group
 
 
-@_jit(parallel=True)
 def level_counts(key, row, lo, hi, counts):
     """Pixels per row and key level, ``counts`` ``(nrows, levels)``.  Parallel over groups
     of rows (each row counted by one thread), so it is exact for any thread count."""
+    _level_counts(key, row, lo, hi, counts, numba.get_num_threads())
+
+
+@_jit(parallel=True)
+def _level_counts(key, row, lo, hi, counts, ngroups):
     levels = counts.shape[1]
-    ngroups = numba.get_num_threads()
     group = _row_groups(_row_counts(row, counts.shape[0]), ngroups)
     for g in numba.prange(ngroups):
         for p in range(key.shape[0]):
@@ -160,7 +163,6 @@ def level_counts(key, row, lo, hi, counts):
                 counts[r, _level(key[p], lo[r], hi[r], levels)] += 1
 
 
-@_jit(parallel=True)
 def assign(key, row, lo, hi, start, offsets, ends, disp, scale, out):
     """Rank every pixel within its row (key level, then raster order) and give it the
     displacement of the target its rank falls in: targets ``offsets[r]..offsets[r+1]``
@@ -168,13 +170,18 @@ def assign(key, row, lo, hi, start, offsets, ends, disp, scale, out):
 
     Parallel over groups of rows: one thread walks a row's pixels in raster order, so
     the ranks (and the result) do not depend on the number of threads."""
+    _assign(key, row, lo, hi, start, offsets, ends, disp, float(scale), out,
+            numba.get_num_threads())
+
+
+@_jit(parallel=True)
+def _assign(key, row, lo, hi, start, offsets, ends, disp, scale, out, ngroups):
     levels = start.shape[1]
     nrows = start.shape[0]
     totals = np.zeros(nrows, dtype=np.int64)
     for r in range(nrows):
         if offsets[r + 1] > offsets[r]:
             totals[r] = ends[offsets[r + 1] - 1]
-    ngroups = numba.get_num_threads()
     group = _row_groups(totals, ngroups)
     for g in numba.prange(ngroups):
         for p in range(key.shape[0]):

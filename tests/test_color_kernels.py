@@ -1,0 +1,148 @@
+"""The fast colour kernels against straightforward references (same answers, any thread
+count): the gamut search with skipped steps, the parallel rank assignment."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import pytest
+
+from solvers.color import _kernels
+from solvers.color import _split_kernels as SK
+
+M = _kernels._M_INV
+
+
+def _in_gamut_ref(L, a, b):
+    y = (L + 16.0) / 116.0
+    x = a / 500.0 + y
+    z = max(y - b / 200.0, 0.0)
+
+    def finv(t):
+        return t * t * t if t > 0.2068966 else (t - 16.0 / 116.0) / 7.787
+
+    xyz = (finv(x), finv(y), finv(z))
+    t = SK.GAMUT_TOL
+    return all(-t <= sum(M[c, k] * xyz[k] for k in range(3)) <= 1 + t for c in range(3))
+
+
+def _gamut_map_ref(L, a, b, reach):
+    """The plain scan: every step of 2 L* below then above, bisection; else chroma."""
+    L = min(max(L, 0.0), 100.0)
+    if _in_gamut_ref(L, a, b):
+        return L, a, b
+    for step in range(1, int(reach / SK.GAMUT_STEP) + 1):
+        for sign in (-1.0, 1.0):
+            Lc = L + sign * step * SK.GAMUT_STEP
+            if Lc < 0.0 or Lc > 100.0 or not _in_gamut_ref(Lc, a, b):
+                continue
+            bad, good = Lc - sign * SK.GAMUT_STEP, Lc
+            for _ in range(10):
+                mid = 0.5 * (bad + good)
+                bad, good = (bad, mid) if _in_gamut_ref(mid, a, b) else (mid, good)
+            return good, a, b
+    lo, hi = 0.0, 1.0
+    for _ in range(12):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if _in_gamut_ref(L, a * mid, b * mid) else (lo, mid)
+    return L, a * lo, b * lo
+
+
+def _colours(n, seed=0):
+    rng = np.random.default_rng(seed)
+    return np.stack([rng.uniform(-5, 105, n), rng.uniform(-140, 140, n),
+                     rng.uniform(-140, 140, n)], axis=1)
+
+
+@pytest.mark.parametrize("reach", [100.0, 10.0])
+def test_gamut_map_matches_the_plain_scan(reach):
+    lab = _colours(1500)
+    out_of_gamut = 0
+    for L, a, b in lab:
+        got = SK.gamut_map(L, a, b, M, reach)
+        want = _gamut_map_ref(L, a, b, reach)
+        assert got == pytest.approx(want, abs=1e-9), (L, a, b)
+        out_of_gamut += not _in_gamut_ref(min(max(L, 0), 100), a, b)
+        assert _in_gamut_ref(*got) or got[1:] == (a, b)  # in gamut, or no L* in reach
+    assert out_of_gamut > 500  # the search really ran
+
+
+def test_apply_field_is_gamut_map_then_lab_to_rgb():
+    rng = np.random.default_rng(1)
+    n = 2000
+    lab = np.ascontiguousarray(_colours(n, 1).astype(np.float32))
+    lab[:, 0] = np.clip(lab[:, 0], 0, 100)
+    disp = rng.normal(0, 20, (n, 2)).astype(np.float32)
+    src = np.zeros((n, 4), dtype=np.uint8)
+    src[:, 3] = rng.integers(0, 256, n)
+    out = np.empty_like(src)
+    empty = np.zeros(0, dtype=np.float32)
+    SK.apply_field(lab, src, out, empty, 1.0, disp, M, 255.0, 0.5, 100.0)
+    mapped = np.array([_gamut_map_ref(float(L), float(a) + float(da), float(b) + float(db), 100.0)
+                       for (L, a, b), (da, db) in zip(lab, disp, strict=True)])
+    want = np.empty((n, 3), dtype=np.uint8)
+    lab64 = np.ascontiguousarray(mapped)
+    empty2 = np.zeros((0, 0), dtype=np.float32)
+    _kernels._apply(lab64, lab64, want, empty, 1.0, empty2, empty2, 0.0, 0.0, 1.0, M, 255.0,
+                    0.5, 1)
+    assert np.abs(out[:, :3].astype(int) - want.astype(int)).max() <= 1
+    assert np.mean(out[:, :3] != want) < 1e-3  # float32 vs float64 Lab: rare 1-code steps
+    assert np.array_equal(out[:, 3], src[:, 3])
+
+
+def _assign_ref(key, row, lo, hi, offsets, ends, disp, levels):
+    """Ranks by a stable sort on (row, key level), then each rank's target."""
+    q = np.array([SK._level(k, lo[r], hi[r], levels) for k, r in zip(key, row, strict=True)])
+    order = np.lexsort((np.arange(len(key)), q, row))
+    out = np.empty((len(key), 2))
+    first = np.searchsorted(row[order], np.arange(len(lo)))
+    for i, p in enumerate(order):
+        r = row[p]
+        rank = i - first[r]
+        t = offsets[r] + np.searchsorted(ends[offsets[r]:offsets[r + 1]], rank, side="right")
+        out[p] = disp[min(t, offsets[r + 1] - 1)]
+    return out
+
+
+def _rank_problem(seed=2, n=20000, nrows=7):
+    rng = np.random.default_rng(seed)
+    row = rng.choice(nrows, n, p=np.arange(1, nrows + 1) / (nrows * (nrows + 1) / 2))
+    key = np.round(rng.normal(size=n), 2).astype(np.float32)  # many ties within a level
+    counts = np.bincount(row, minlength=nrows)
+    offsets, ends = [0], []
+    for r in range(nrows):
+        cuts = np.sort(rng.choice(np.arange(1, counts[r]), 2, replace=False))
+        ends.extend([cuts[0], cuts[1], counts[r]])
+        offsets.append(offsets[-1] + 3)
+    disp = rng.normal(size=(3 * nrows, 2))
+    return key, row.astype(np.int64), np.array(offsets), np.array(ends, dtype=np.int64), disp
+
+
+def _run_assign(key, row, offsets, ends, disp, levels):
+    lo, hi = SK.key_ranges(key, row, len(offsets) - 1)
+    counts = np.zeros((len(offsets) - 1, levels), dtype=np.int64)
+    SK.level_counts(key, row, lo, hi, counts)
+    start = np.cumsum(counts, axis=1) - counts
+    out = np.empty((len(key), 2), dtype=np.float32)
+    SK.assign(key, row, lo, hi, start, offsets, ends, disp, 1.0, out)
+    return out, counts, lo, hi
+
+
+def test_parallel_assign_matches_stable_sort_for_any_thread_count():
+    key, row, offsets, ends, disp = _rank_problem()
+    levels = 64
+    before = numba.get_num_threads()
+    try:
+        results = []
+        for threads in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
+            numba.set_num_threads(threads)
+            results.append(_run_assign(key, row, offsets, ends, disp, levels))
+    finally:
+        numba.set_num_threads(before)
+    out, counts, lo, hi = results[0]
+    assert counts.sum(axis=1).tolist() == np.bincount(row).tolist()
+    want = _assign_ref(key, row, lo, hi, offsets, ends, disp, levels)
+    np.testing.assert_array_equal(out, want.astype(np.float32))
+    for other in results[1:]:
+        np.testing.assert_array_equal(other[0], out)
+        np.testing.assert_array_equal(other[1], counts)
