@@ -2,8 +2,9 @@
 
 Pixels are flat ``(N,)`` rows of an ``H × W`` image in C order.  Low-resolution fields
 (``(h, w)``, one cell per ``s × s`` block of pixels) are sampled bilinearly at pixel
-centres.  The passes that hand out ranks run sequentially (a running counter per source
-bin and key level), so the assignment is deterministic.
+centres.  The passes that hand out ranks keep a running counter per source bin and key
+level, each bin's counters advanced by one thread in raster order, so the assignment is
+the same for any number of threads.
 """
 
 from __future__ import annotations
@@ -21,31 +22,31 @@ from solvers.color._kernels import (
 )
 
 
+@_jit()
+def _axis(n, s, size):
+    """For the ``n`` pixel centres along one axis: the two cells of a ``size``-cell axis
+    of a field reduced by ``s`` that bilinear sampling mixes, and the fraction of the
+    second (clamped at the borders)."""
+    first = np.empty(n, dtype=np.int64)
+    second = np.empty(n, dtype=np.int64)
+    frac = np.empty(n)
+    for y in range(n):
+        f = (y + 0.5) / s - 0.5
+        if f < 0.0:
+            f = 0.0
+        if f > size - 1:
+            f = size - 1.0
+        i = int(f)
+        if i > size - 2:
+            i = max(size - 2, 0)
+        first[y] = i
+        second[y] = min(i + 1, size - 1)
+        frac[y] = f - i
+    return first, second, frac
+
+
 @_jit(inline="always")
-def _sample(field, y, x, s):
-    """Bilinear value of the low-resolution ``field`` at the centre of pixel ``(y, x)``."""
-    fy = (y + 0.5) / s - 0.5
-    fx = (x + 0.5) / s - 0.5
-    h = field.shape[0]
-    w = field.shape[1]
-    if fy < 0.0:
-        fy = 0.0
-    if fx < 0.0:
-        fx = 0.0
-    if fy > h - 1:
-        fy = h - 1.0
-    if fx > w - 1:
-        fx = w - 1.0
-    i = int(fy)
-    j = int(fx)
-    if i > h - 2:
-        i = max(h - 2, 0)
-    if j > w - 2:
-        j = max(w - 2, 0)
-    u = fy - i
-    v = fx - j
-    i1 = min(i + 1, h - 1)
-    j1 = min(j + 1, w - 1)
+def _bilinear(field, i, i1, u, j, j1, v):
     return ((1 - u) * ((1 - v) * field[i, j] + v * field[i, j1])
             + u * ((1 - v) * field[i1, j] + v * field[i1, j1]))
 
@@ -53,25 +54,35 @@ def _sample(field, y, x, s):
 @_jit(parallel=True)
 def keys(lab, base, width, s, smooth_a, smooth_b, lo, h, nbins, row_of, dirs, key, row):
     """Each pixel's source row (``row_of`` its nearest ab node) and its ordering key: the
-    smoothed ab around it, relative to its node, projected on its row's direction.  The
-    pixel's ab is ``lab[:, 1:] + base`` (``base`` empty: ``lab[:, 1:]``)."""
+    smoothed ab around it (bilinear at the pixel centre), relative to its node, projected
+    on its row's direction.  The pixel's ab is ``lab[:, 1:] + base`` (``base`` empty:
+    ``lab[:, 1:]``)."""
     inv_h = 1.0 / h
     moved = base.shape[0] > 0
-    for p in numba.prange(lab.shape[0]):
-        y = p // width
-        x = p - y * width
-        a = lab[p, 1]
-        b = lab[p, 2]
-        if moved:
-            a = np.float32(a + base[p, 0])
-            b = np.float32(b + base[p, 1])
-        i = _nearest_node(np.float64(a), lo, inv_h, nbins)
-        j = _nearest_node(np.float64(b), lo, inv_h, nbins)
-        r = row_of[i * nbins + j]
-        row[p] = r
-        ma = _sample(smooth_a, y, x, s) - (lo + h * i)
-        mb = _sample(smooth_b, y, x, s) - (lo + h * j)
-        key[p] = ma * dirs[r, 0] + mb * dirs[r, 1]
+    height = lab.shape[0] // width
+    ys, ys1, fy = _axis(height, s, smooth_a.shape[0])
+    xs, xs1, fx = _axis(width, s, smooth_a.shape[1])
+    for y in numba.prange(height):
+        i0 = ys[y]
+        i1 = ys1[y]
+        u = fy[y]
+        for x in range(width):
+            p = y * width + x
+            a = lab[p, 1]
+            b = lab[p, 2]
+            if moved:
+                a = np.float32(a + base[p, 0])
+                b = np.float32(b + base[p, 1])
+            i = _nearest_node(np.float64(a), lo, inv_h, nbins)
+            j = _nearest_node(np.float64(b), lo, inv_h, nbins)
+            r = row_of[i * nbins + j]
+            row[p] = r
+            j0 = xs[x]
+            j1 = xs1[x]
+            v = fx[x]
+            ma = _bilinear(smooth_a, i0, i1, u, j0, j1, v) - (lo + h * i)
+            mb = _bilinear(smooth_b, i0, i1, u, j0, j1, v) - (lo + h * j)
+            key[p] = ma * dirs[r, 0] + mb * dirs[r, 1]
 
 
 @_jit(parallel=True)
@@ -454,17 +465,26 @@ def guided_field(lab, coef, nguide, s, width, disp):
     lab[:, :nguide] / 100``, coefficients from :func:`guided_solve`, box-filtered, bilinear
     at pixel centres), written into ``disp`` ``(N, 2)``."""
     c = nguide
-    for p in numba.prange(lab.shape[0]):
-        y = p // width
-        x = p - y * width
-        da = _sample(coef[2 * c], y, x, s)
-        db = _sample(coef[2 * c + 1], y, x, s)
-        for u in range(c):
-            g = np.float64(lab[p, u]) * GUIDE_SCALE
-            da += _sample(coef[u], y, x, s) * g
-            db += _sample(coef[c + u], y, x, s) * g
-        disp[p, 0] = da
-        disp[p, 1] = db
+    height = lab.shape[0] // width
+    ys, ys1, fy = _axis(height, s, coef.shape[1])
+    xs, xs1, fx = _axis(width, s, coef.shape[2])
+    for y in numba.prange(height):
+        i0 = ys[y]
+        i1 = ys1[y]
+        w = fy[y]
+        for x in range(width):
+            p = y * width + x
+            j0 = xs[x]
+            j1 = xs1[x]
+            v = fx[x]
+            da = _bilinear(coef[2 * c], i0, i1, w, j0, j1, v)
+            db = _bilinear(coef[2 * c + 1], i0, i1, w, j0, j1, v)
+            for u in range(c):
+                g = np.float64(lab[p, u]) * GUIDE_SCALE
+                da += _bilinear(coef[u], i0, i1, w, j0, j1, v) * g
+                db += _bilinear(coef[c + u], i0, i1, w, j0, j1, v) * g
+            disp[p, 0] = da
+            disp[p, 1] = db
 
 
 @_jit(parallel=True)
