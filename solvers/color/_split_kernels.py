@@ -177,37 +177,83 @@ def _level_counts(key, row, lo, hi, counts, ngroups):
 def assign(key, row, lo, hi, start, offsets, ends, disp, scale, out):
     """Rank every pixel within its row (key level, then raster order) and give it the
     displacement of the target its rank falls in: targets ``offsets[r]..offsets[r+1]``
-    of row ``r`` hold ``ends`` (cumulative pixel counts) and ``disp`` ``(T, 2)``.
+    of row ``r`` hold ``ends`` (cumulative pixel counts) and ``disp`` ``(T, 2)``;
+    ``start`` ``(nrows, levels)`` the rank of each level's first pixel (advanced here).
 
-    Parallel over groups of rows: one thread walks a row's pixels in raster order, so
-    the ranks (and the result) do not depend on the number of threads."""
-    _assign(key, row, lo, hi, start, offsets, ends, disp, float(scale), out,
-            numba.get_num_threads())
+    The pixels of a level whose ranks all fall in one target need no rank: they are
+    assigned in parallel; only the levels that straddle a target's end are walked in
+    raster order.  The result does not depend on the number of threads."""
+    nrows, levels = start.shape
+    target = np.empty((nrows, levels), dtype=np.int32)
+    _uniform_levels(start, offsets, ends, target)
+    straddle = np.zeros(key.shape[0], dtype=np.bool_)
+    _assign_uniform(key, row, lo, hi, target, disp, float(scale), out, straddle)
+    _assign_straddling(key, row, lo, hi, start, offsets, ends, disp, float(scale), out,
+                       straddle)
+
+
+@_jit(inline="always")
+def _target_of(ends, first, last, rank):
+    """The first target in ``first..last`` whose cumulative count exceeds ``rank`` (the
+    row's last target for any rank past them), by bisection."""
+    t = first
+    while t < last:
+        mid = (t + last) // 2
+        if rank >= ends[mid]:
+            t = mid + 1
+        else:
+            last = mid
+    return t
 
 
 @_jit(parallel=True)
-def _assign(key, row, lo, hi, start, offsets, ends, disp, scale, out, ngroups):
-    levels = start.shape[1]
-    nrows = start.shape[0]
-    totals = np.zeros(nrows, dtype=np.int64)
-    for r in range(nrows):
-        if offsets[r + 1] > offsets[r]:
-            totals[r] = ends[offsets[r + 1] - 1]
-    group = _row_groups(totals, ngroups)
-    for g in numba.prange(ngroups):
-        for p in range(key.shape[0]):
-            r = row[p]
-            if group[r] != g:
-                continue
-            q = _level(key[p], lo[r], hi[r], levels)
-            rank = start[r, q]
-            start[r, q] = rank + 1
-            t = offsets[r]
-            last = offsets[r + 1] - 1
-            while t < last and rank >= ends[t]:
-                t += 1
+def _uniform_levels(start, offsets, ends, target):
+    """``target[r, q]``: the target all ranks of level ``q`` of row ``r`` fall in, or -1
+    (the level straddles a target's end, or is empty)."""
+    nrows, levels = start.shape
+    for r in numba.prange(nrows):
+        first = offsets[r]
+        last = offsets[r + 1] - 1
+        for q in range(levels):
+            target[r, q] = -1
+        if last < first:
+            continue
+        total = ends[last]
+        for q in range(levels):
+            lo = start[r, q]
+            hi = start[r, q + 1] if q + 1 < levels else total
+            if hi > lo:
+                t = _target_of(ends, first, last, lo)
+                if t == _target_of(ends, first, last, hi - 1):
+                    target[r, q] = t
+
+
+@_jit(parallel=True)
+def _assign_uniform(key, row, lo, hi, target, disp, scale, out, straddle):
+    levels = target.shape[1]
+    for p in numba.prange(key.shape[0]):
+        r = row[p]
+        t = target[r, _level(key[p], lo[r], hi[r], levels)]
+        if t < 0:
+            straddle[p] = True
+        else:
             out[p, 0] = disp[t, 0] * scale
             out[p, 1] = disp[t, 1] * scale
+
+
+@_jit()
+def _assign_straddling(key, row, lo, hi, start, offsets, ends, disp, scale, out, straddle):
+    levels = start.shape[1]
+    for p in range(key.shape[0]):
+        if not straddle[p]:
+            continue
+        r = row[p]
+        q = _level(key[p], lo[r], hi[r], levels)
+        rank = start[r, q]
+        start[r, q] = rank + 1
+        t = _target_of(ends, offsets[r], offsets[r + 1] - 1, rank)
+        out[p, 0] = disp[t, 0] * scale
+        out[p, 1] = disp[t, 1] * scale
 
 
 GUIDE_SCALE = 0.01  # guide channels: Lab / 100
