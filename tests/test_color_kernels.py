@@ -146,3 +146,43 @@ def test_parallel_assign_matches_stable_sort_for_any_thread_count():
     for other in results[1:]:
         np.testing.assert_array_equal(other[0], out)
         np.testing.assert_array_equal(other[1], counts)
+
+
+def _sample_ref(field, y, x, s):
+    """Bilinear value of a field reduced by ``s`` at the centre of pixel ``(y, x)``."""
+    h, w = field.shape
+    fy = min(max((y + 0.5) / s - 0.5, 0.0), h - 1.0)
+    fx = min(max((x + 0.5) / s - 0.5, 0.0), w - 1.0)
+    i, j = min(int(fy), max(h - 2, 0)), min(int(fx), max(w - 2, 0))
+    u, v = fy - i, fx - j
+    i1, j1 = min(i + 1, h - 1), min(j + 1, w - 1)
+    return (1 - u) * ((1 - v) * field[i, j] + v * field[i, j1]) + u * (
+        (1 - v) * field[i1, j] + v * field[i1, j1])
+
+
+def test_row_wise_sampling_matches_per_pixel_formula():
+    rng = np.random.default_rng(3)
+    H, W, s = 37, 53, 4
+    lab = rng.uniform(-50, 50, (H * W, 3)).astype(np.float32)
+    h, w = -(-H // s), -(-W // s)
+    sa, sb = rng.normal(size=(h, w)), rng.normal(size=(h, w))
+    row_of = np.zeros(65 * 65, dtype=np.int64)
+    dirs = np.array([[0.6, 0.8]])
+    key = np.empty(H * W, dtype=np.float32)
+    row = np.empty(H * W, dtype=np.int64)
+    SK.keys(lab, np.zeros((0, 2), dtype=np.float32), W, s, sa, sb, np.float32(-128.0),
+            np.float32(4.0), 65, row_of, dirs, key, row)
+    coef = rng.normal(size=(4, h, w))
+    disp = np.empty((H * W, 2))
+    SK.guided_field(lab, coef, 1, s, W, disp)
+    for p in range(0, H * W, 7):
+        y, x = divmod(p, W)
+        i, j = (min(max(int((float(lab[p, c]) + 128.0) / 4.0 + 0.5), 0), 64) for c in (1, 2))
+        want = ((_sample_ref(sa, y, x, s) - (-128.0 + 4.0 * i)) * 0.6
+                + (_sample_ref(sb, y, x, s) - (-128.0 + 4.0 * j)) * 0.8)
+        assert key[p] == pytest.approx(want, rel=1e-6, abs=1e-5)
+        g = float(lab[p, 0]) * 0.01
+        assert disp[p, 0] == pytest.approx(_sample_ref(coef[2], y, x, s)
+                                           + _sample_ref(coef[0], y, x, s) * g, abs=1e-12)
+        assert disp[p, 1] == pytest.approx(_sample_ref(coef[3], y, x, s)
+                                           + _sample_ref(coef[1], y, x, s) * g, abs=1e-12)

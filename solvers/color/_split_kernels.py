@@ -45,6 +45,15 @@ def _axis(n, s, size):
     return first, second, frac
 
 
+@_jit()
+def _axes(npix, width, s, h, w):
+    """:func:`_axis` for the rows and the columns of an image of ``npix`` pixels, ``width``
+    wide, sampling an ``h × w`` field."""
+    ys, ys1, fy = _axis(npix // width, s, h)
+    xs, xs1, fx = _axis(width, s, w)
+    return ys, ys1, fy, xs, xs1, fx
+
+
 @_jit(inline="always")
 def _bilinear(field, i, i1, u, j, j1, v):
     return ((1 - u) * ((1 - v) * field[i, j] + v * field[i, j1])
@@ -59,13 +68,10 @@ def keys(lab, base, width, s, smooth_a, smooth_b, lo, h, nbins, row_of, dirs, ke
     ``lab[:, 1:]``)."""
     inv_h = 1.0 / h
     moved = base.shape[0] > 0
-    height = lab.shape[0] // width
-    ys, ys1, fy = _axis(height, s, smooth_a.shape[0])
-    xs, xs1, fx = _axis(width, s, smooth_a.shape[1])
-    for y in numba.prange(height):
-        i0 = ys[y]
-        i1 = ys1[y]
-        u = fy[y]
+    ys, ys1, fy, xs, xs1, fx = _axes(lab.shape[0], width, s, smooth_a.shape[0],
+                                      smooth_a.shape[1])
+    for y in numba.prange(ys.shape[0]):
+        i0, i1, u = ys[y], ys1[y], fy[y]
         for x in range(width):
             p = y * width + x
             a = lab[p, 1]
@@ -511,13 +517,9 @@ def guided_field(lab, coef, nguide, s, width, disp):
     lab[:, :nguide] / 100``, coefficients from :func:`guided_solve`, box-filtered, bilinear
     at pixel centres), written into ``disp`` ``(N, 2)``."""
     c = nguide
-    height = lab.shape[0] // width
-    ys, ys1, fy = _axis(height, s, coef.shape[1])
-    xs, xs1, fx = _axis(width, s, coef.shape[2])
-    for y in numba.prange(height):
-        i0 = ys[y]
-        i1 = ys1[y]
-        w = fy[y]
+    ys, ys1, fy, xs, xs1, fx = _axes(lab.shape[0], width, s, coef.shape[1], coef.shape[2])
+    for y in numba.prange(ys.shape[0]):
+        i0, i1, w = ys[y], ys1[y], fy[y]
         for x in range(width):
             p = y * width + x
             j0 = xs[x]
