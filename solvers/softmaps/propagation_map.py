@@ -52,6 +52,14 @@ MULTISCALE_SAMPLES = 128
 ZOOMOUT_QUERIES = 1024
 # "auto" solves over a coarse target when it has at most 1/AUTO_COARSENING of the vertices.
 AUTO_COARSENING = 1.5
+# Smallest default gamma over a coarse target (unit-area target).  Below it the sweeps'
+# slow mode -- mass moving between the two modes of left/right-ambiguous rows -- stalls:
+# 4,096 samples (gamma 4 h^2 = 1.1e-3 of the coarse target) stood at a residual of 5.2e-4
+# after 1,050 sweeps against tol 1e-4.  The floor is what the default solves from 512
+# samples on (4 h^2: 9.3e-3 at 512, 5.0e-3 at 1,024); the rows are then blurrier than the
+# sample spacing, which the refinement does not mind: errors with and without the floor in
+# bench/results/softmaps.md.
+COARSE_GAMMA_MIN = 0.01
 
 
 def check_mesh_for_soft_map(mesh, field: str) -> None:
@@ -132,10 +140,13 @@ def solved_points(target_points, n_samples: int, n_target: int) -> int | None:
     return None if points >= n_target else points
 
 
-def default_gamma(n_samples: int, target) -> float:
+def default_gamma(n_samples: int, target, coarse: bool = False) -> float:
     r"""Twice the squared spacing of ``n_samples`` uniform samples of a unit-area surface
-    (:math:`2 \cdot 2/(\sqrt3 N)`), and at least :math:`4h^2` (``h``: target edge length)."""
-    return max(4.0 / (np.sqrt(3.0) * n_samples), 4.0 * target.mean_edge_length**2)
+    (:math:`2 \cdot 2/(\sqrt3 N)`), and at least :math:`4h^2` (``h``: edge length of the
+    target solved over); over a coarse target (``coarse``) at least
+    :data:`COARSE_GAMMA_MIN` as well."""
+    gamma = max(4.0 / (np.sqrt(3.0) * n_samples), 4.0 * target.mean_edge_length**2)
+    return max(gamma, COARSE_GAMMA_MIN) if coarse else gamma
 
 
 @dataclass(kw_only=True)
@@ -356,7 +367,7 @@ def soft_map(
     solved = target if coarse is None else coarse.mesh
     timings["sampling"] = time.perf_counter() - t0
     if gamma is None:
-        gamma = default_gamma(n_samples, solved)
+        gamma = default_gamma(n_samples, solved, coarse=coarse is not None)
     gamma = check_positive(gamma, "gamma")
 
     t0 = time.perf_counter()
@@ -444,7 +455,7 @@ def _multiscale_start(source, target, pairs, graph, coarse, f0, f1, *, norm, tau
     cost = compatibility_cost(f0, f1, areas0=source.areas, areas1=target.areas,
                               rows=small.indices, norm=norm, columns=below.restrict(f1))
     _, rows, _ = _propagate(below.mesh, below, small, cells, pairs, cost, tau=tau,
-                            gamma=default_gamma(small.n, below.mesh), tol=tol,
+                            gamma=default_gamma(small.n, below.mesh, coarse=True), tol=tol,
                             max_iter=max_iter, acceleration="over-relaxation")
     density = below.prolongation.apply(rows.astype(np.float64)) / target.areas  # (n_s, n)
     guess = coarse.restrict(density.T) * coarse.mesh.areas[:, None]  # (coarse.n, n_s)
