@@ -28,7 +28,7 @@ import numpy as np
 
 from solvers.convolutional import wasserstein_propagation
 from solvers.errors import InputError, UnsupportedDomainError
-from solvers.memory import release_free_heap
+from solvers.memory import map_large_blocks, release_free_heap
 from solvers.monitor import SolverResult
 from solvers.softmaps.coarse_target import Prolongation, coarse_target
 from solvers.softmaps.compatibility import NORMS, compatibility_cost
@@ -52,6 +52,9 @@ MULTISCALE_SAMPLES = 128
 ZOOMOUT_QUERIES = 1024
 # "auto" solves over a coarse target when it has at most 1/AUTO_COARSENING of the vertices.
 AUTO_COARSENING = 1.5
+# Storage of the propagation's edge-end log-scalings (its largest array: 2 x edges x
+# target points): float32 halves it; the sweeps compute in float64.
+SCALINGS_DTYPE = np.float32
 # Smallest default gamma over a coarse target (unit-area target).  Below it the sweeps'
 # slow mode -- mass moving between the two modes of left/right-ambiguous rows -- stalls:
 # 4,096 samples (gamma 4 h^2 = 1.1e-3 of the coarse target) stood at a residual of 5.2e-4
@@ -360,6 +363,7 @@ def soft_map(
     if top_k is not None:
         top_k = check_int(top_k, "top_k", low=1, high=target.n)
     timings = {}
+    map_large_blocks()  # the (samples x target) temporaries go back to the OS when freed
     t0 = time.perf_counter()
     graph = farthest_point_samples(source, n_samples, pairs[:, 0])
     cells = np.bincount(graph.labels, weights=source.areas, minlength=graph.n)
@@ -388,9 +392,14 @@ def soft_map(
         start = _multiscale_start(source, target, pairs, graph, coarse, f0, f1, norm=norm,
                                   tau=tau, tol=tol, max_iter=max_iter)
     timings["multiscale"] = time.perf_counter() - t0
-    release_free_heap()  # the descriptors' temporaries, before the largest arrays
+    del f0, f1, descriptors  # not needed any more: out before the largest arrays come
+    release_free_heap()  # the descriptors' temporaries too
     t0 = time.perf_counter()
-    prop, rows, descriptor = _propagate(solved, coarse, graph, cells, pairs, cost, tau=tau,
+    # The node log-rescalings replace the cost (float32: the float64 cost is gone before
+    # the propagation's arrays come).
+    log_d = _node_logs(cost, graph, tau=tau, gamma=gamma)
+    del cost
+    prop, rows, descriptor = _propagate(solved, coarse, graph, cells, pairs, log_d, tau=tau,
                                         gamma=gamma, substeps=substeps, tol=tol,
                                         start_masses=start,
                                         max_iter=max_iter, acceleration=acceleration,
@@ -454,8 +463,10 @@ def _multiscale_start(source, target, pairs, graph, coarse, f0, f1, *, norm, tau
     below = coarse_target(target, MULTISCALE_SAMPLES)
     cost = compatibility_cost(f0, f1, areas0=source.areas, areas1=target.areas,
                               rows=small.indices, norm=norm, columns=below.restrict(f1))
-    _, rows, _ = _propagate(below.mesh, below, small, cells, pairs, cost, tau=tau,
-                            gamma=default_gamma(small.n, below.mesh, coarse=True), tol=tol,
+    gamma = default_gamma(small.n, below.mesh, coarse=True)
+    _, rows, _ = _propagate(below.mesh, below, small, cells, pairs,
+                            _node_logs(cost, small, tau=tau, gamma=gamma), tau=tau,
+                            gamma=gamma, tol=tol,
                             max_iter=max_iter, acceleration="over-relaxation")
     density = below.prolongation.apply(rows.astype(np.float64)) / target.areas  # (n_s, n)
     guess = coarse.restrict(density.T) * coarse.mesh.areas[:, None]  # (coarse.n, n_s)
@@ -475,15 +486,27 @@ def _zoomout_queries(source, target, pairs):
     return on(source, pairs[:, 0]), on(target, np.unique(pairs[:, 1]))
 
 
-def _propagate(solved, coarse, graph, cells, pairs, cost, *, tau, gamma, start_masses=None,
+def _node_weights(graph) -> np.ndarray:
+    """:math:`W_u = \\sum_{e \\ni u} \\omega_e` per node of ``graph``."""
+    return np.bincount(graph.edges.ravel(), weights=np.repeat(graph.weights, 2),
+                       minlength=graph.n)
+
+
+def _node_logs(cost, graph, *, tau, gamma) -> np.ndarray:
+    """The node log-rescalings :math:`\\log d_u = -\\tau c(u, \\cdot) / (\\gamma W_u)` of eq.
+    3.18, stored as the propagation's log-scalings (:data:`SCALINGS_DTYPE`); ``cost`` is
+    overwritten (scaled in place)."""
+    cost *= -tau / gamma / _node_weights(graph)[:, None]
+    return cost.astype(SCALINGS_DTYPE, copy=False)
+
+
+def _propagate(solved, coarse, graph, cells, pairs, log_d, *, tau, gamma, start_masses=None,
                **options):
-    """eq. 3.18 over ``solved`` (the target, or ``coarse.mesh``): the propagation result,
-    the ``(N, solved.n)`` float32 rows and the descriptor energy (eq. 4.6).  ``cost`` is
-    consumed (turned into the node log-rescalings in place)."""
+    """eq. 3.18 over ``solved`` (the target, or ``coarse.mesh``) with the node
+    log-rescalings ``log_d`` (:func:`_node_logs`): the propagation result, the ``(N,
+    solved.n)`` float32 rows and the descriptor energy (eq. 4.6)."""
     w = graph.weights
-    wu = np.bincount(graph.edges.ravel(), weights=np.repeat(w, 2), minlength=graph.n)
-    log_d = cost
-    log_d *= -tau / gamma / wu[:, None]  # in place: the cost is not needed any more
+    wu = _node_weights(graph)
     fixed = {}
     for j, (_, y) in enumerate(pairs):  # landmark j is sample j (seeds first)
         if coarse is None:
@@ -496,11 +519,13 @@ def _propagate(solved, coarse, graph, cells, pairs, cost, *, tau, gamma, start_m
             start_masses[:, j] = m
     prop = wasserstein_propagation(solved, graph.n, graph.edges, fixed, edge_weights=w,
                                    node_scalings=log_d, gamma=gamma,
-                                   start_masses=start_masses, **options)
+                                   start_masses=start_masses,
+                                   scalings_dtype=SCALINGS_DTYPE, **options)
     # Descriptor energy (eq. 4.6) with the normalized cost c = -log_d * gamma * W_u / tau.
     descriptor = -(gamma / tau) * float((cells * wu) @ np.einsum("ij,ji->i", log_d,
-                                                                  prop.masses))
-    del log_d, cost
+                                                                  prop.masses,
+                                                                  dtype=np.float64))
+    del log_d
     rows = np.ascontiguousarray(prop.masses.T, dtype=np.float32)
     prop.masses = None
     return prop, rows, descriptor
