@@ -190,11 +190,14 @@ def _rss_mb() -> float:
 COARSE_SIZES = (128, 1024)
 
 
-def _one_coarse(direction: str, n: int) -> dict:
+def _one_coarse(direction: str, n: int, floor: bool = True) -> dict:
     """A warm default soft map (a first call builds the caches), ``direction`` "lion->cat"
     or "cat->lion", ``n`` samples; errors with and without refinement, held-out landmarks,
-    the process's peak RSS."""
+    the process's peak RSS.  ``floor=False``: gamma without the coarse-target floor
+    (``COARSE_GAMMA_MIN``), all else the defaults."""
     from solvers.softmaps import soft_map
+    from solvers.softmaps.coarse_target import coarse_target
+    from solvers.softmaps.propagation_map import default_gamma
 
     cat, lion, gt, lm = load_stored()
     baseline = _rss_mb()  # interpreter, imports (numpy, scipy, numba), both meshes
@@ -206,18 +209,20 @@ def _one_coarse(direction: str, n: int) -> dict:
     else:
         source, target, truth, pairs = cat, lion, reverse_truth(gt, cat.n), lm
         held_t, held_s = held[:, 1], held[:, 0]
+    gamma = None if floor else default_gamma(n, coarse_target(target, n).mesh)
     soft_map(source, target, pairs, samples=n, max_iter=2)  # caches: eigenpairs, samples, ...
     first_peak = _peak_rss_mb()
     resident = _rss_mb()  # with the caches and compiled kernels of the first call
     before = loadavg()
     t0 = time.perf_counter()
-    res = soft_map(source, target, pairs, samples=n)
+    res = soft_map(source, target, pairs, samples=n, gamma=gamma)
     seconds = time.perf_counter() - t0
     after = loadavg()
     rss = _peak_rss_mb()  # before the evaluator's distance rows
     ev = Evaluator(target, truth)
     misses = held_out_misses(target, res.correspondence, held_t, held_s)
     return {"direction": direction, "samples": n, "target_points": res.target_points,
+            "gamma_floor": floor,
             "seconds": seconds, "timings": res.timings, "iterations": res.iterations,
             "residual": res.residual, "converged": res.converged, "gamma": res.gamma,
             "error": ev(res.correspondence),
@@ -245,6 +250,21 @@ def part_coarse():
     for row in _pyfm_rows(Evaluator(lion, reverse_truth(gt, cat.n)), lm[:, ::-1],
                           target="lion-00.off", source="cat-00.off"):
         rows.append({"direction": "cat->lion", **row})
+    return rows
+
+
+def part_gamma_floor():
+    """1,024 samples, warm, each in a fresh process: the default gamma (with the coarse
+    target's floor) against gamma without the floor, both directions."""
+    rows = []
+    _store_meshes()
+    for direction in ("lion->cat", "cat->lion"):
+        for floor in (True, False):
+            out = subprocess.run([sys.executable, __file__, "_coarse", direction, "1024",
+                                  "floor" if floor else "nofloor"],
+                                 check=True, capture_output=True, text=True).stdout
+            rows.append(json.loads(out.strip().splitlines()[-1]))
+            print(rows[-1], flush=True)
     return rows
 
 
@@ -771,8 +791,10 @@ def render(data) -> str:
         "and without refinement (the soft map's modes). Held out: the geodesic miss of the "
         "15 landmark pairs never given to any method (lines 6-20 of cat-lion-landmarks.txt), "
         "median / largest, unit-area target. Peak RSS: the process's (it includes the "
-        "first call); baseline: resident after the imports (numpy, scipy, numba, trimesh) "
-        "and both meshes, before any soft map; resident before: after the first call (its "
+        "first call); baseline: resident after the imports (numpy, scipy, numba) and both "
+        "meshes rebuilt from stored arrays as a service worker holds them (no mesh-file "
+        "parser; rows before 2026-12-04: loaded from the files, trimesh imported), before "
+        "any soft map; resident before: after the first call (its "
         "caches, compiled kernels), before the timed one.",
         ["direction", "method", "target points", "error", "error before refinement",
          "held out median / max", "seconds", "propagation s", "sweeps", "peak RSS MB",
@@ -785,7 +807,7 @@ def render(data) -> str:
                    if "held_out_median" in r else "", f"{r['seconds']:.2f}",
                    f"{r['timings']['propagation']:.2f}" if "timings" in r else "",
                    r["iterations"] + 1 if "iterations" in r else "",
-                   f"{r['peak_rss_mb']:.0f}" if "peak_rss_mb" in r else "",
+                   f"{r['peak_rss_mb']:.1f}" if "peak_rss_mb" in r else "",
                    f"{r['baseline_rss_mb']:.0f}" if "baseline_rss_mb" in r else "",
                    f"{r['resident_before_mb']:.0f}" if "resident_before_mb" in r else "",
                    r["load_before"], r["load_after"]])
@@ -801,10 +823,24 @@ def render(data) -> str:
         lambda r: [r["samples"], r["target_points"], r["edges"], f"{r['seconds']:.2f}",
                    f"{r['propagation']:.2f}", r["iterations"] + 1,
                    f"{r['residual']:.3g}" if "residual" in r else "", r["converged"],
-                   f"{1e3 * r['error']:.2f}e-3", f"{r['peak_rss_mb']:.0f}",
+                   f"{1e3 * r['error']:.2f}e-3", f"{r['peak_rss_mb']:.1f}",
                    f"{r['baseline_rss_mb']:.0f}" if "baseline_rss_mb" in r else "",
                    f"{r['resident_before_mb']:.0f}" if "resident_before_mb" in r else "",
                    r["code"], r["load_before"], r["load_after"]])
+    out += _table(
+        data.get("gamma_floor"), "The coarse target's gamma floor (1,024 samples)",
+        "Warm default soft maps as in the defaults table (fresh process each), gamma with the "
+        "floor COARSE_GAMMA_MIN = 0.01 (the default) or without it (max(4 / (sqrt(3) N), "
+        "4 h^2 of the coarse target), the default before the floor); errors as there.",
+        ["direction", "gamma floor", "gamma", "error", "error before refinement",
+         "held out median / max", "seconds", "propagation s", "sweeps", "residual",
+         "converged", "peak RSS MB", "code", "load before", "load after"],
+        lambda r: [r["direction"], r["gamma_floor"], f"{r['gamma']:.3g}",
+                   f"{1e3 * r['error']:.2f}e-3", f"{1e3 * r['error_mode']:.1f}e-3",
+                   f"{r['held_out_median']:.4f} / {r['held_out_max']:.4f}",
+                   f"{r['seconds']:.2f}", f"{r['timings']['propagation']:.2f}",
+                   r["iterations"] + 1, f"{r['residual']:.3g}", r["converged"],
+                   f"{r['peak_rss_mb']:.1f}", r["code"], r["load_before"], r["load_after"]])
     out += _table(
         data.get("multiscale"), "Multiscale start against a cold start (1,024 samples)",
         "Warm default soft maps; the multiscale start solves 128 samples over 128 coarse "
@@ -1125,7 +1161,8 @@ def main(argv):
         print(json.dumps(_one_sweep_cost(int(argv[2]))))
         return
     if argv[:1] == ["_coarse"]:
-        print(json.dumps(_one_coarse(argv[1], int(argv[2])), default=float))
+        print(json.dumps(_one_coarse(argv[1], int(argv[2]), argv[3:] != ["nofloor"]),
+                         default=float))
         return
     if argv[:1] == ["_growth"]:
         print(json.dumps(_one_growth(int(argv[1])), default=float))

@@ -14,7 +14,6 @@ import ctypes
 import ctypes.util
 import functools
 
-
 # glibc's mallopt parameter for the mmap threshold (malloc.h: M_MMAP_THRESHOLD = -3).
 _M_MMAP_THRESHOLD = -3
 # Blocks from this size on are mapped on their own (and unmapped when freed).

@@ -13,7 +13,7 @@ import trimesh
 from solvers import TriangleMesh
 from solvers.memory import release_free_heap
 from solvers.softmaps import soft_map
-from solvers.softmaps.coarse_target import _APPLY_ROWS, coarse_target
+from solvers.softmaps.coarse_target import APPLY_ROWS, coarse_target
 from solvers.softmaps.descriptors import landmark_descriptors
 from solvers.softmaps.extraction import extract_correspondence, mode, zoomout
 from solvers.softmaps.sampling import farthest_point_samples
@@ -40,7 +40,7 @@ def _rows(n_rows, n, seed=0, dtype=np.float32):
 def test_prolongation_in_blocks_is_the_sparse_product(sphere):
     p = coarse_target(sphere, 200).prolongation
     dense = p.matrix().toarray()
-    n_rows = 2 * _APPLY_ROWS + 7  # several blocks and a partial one
+    n_rows = 2 * APPLY_ROWS + 7  # several blocks and a partial one
     for dtype, rtol in ((np.float64, 1e-12), (np.float32, 1e-5)):
         rows = _rows(n_rows, p.n_coarse, dtype=dtype)
         fine = p.apply(rows)
@@ -56,7 +56,7 @@ def test_prolongation_in_blocks_is_the_sparse_product(sphere):
 def test_mode_and_zoomout_read_coarse_rows_as_the_prolonged_ones(sphere):
     coarse = coarse_target(sphere, 200)
     p = coarse.prolongation
-    rows = _rows(2 * _APPLY_ROWS + 5, p.n_coarse)
+    rows = _rows(2 * APPLY_ROWS + 5, p.n_coarse)
     fine = p.apply(rows)
     np.testing.assert_array_equal(mode(rows, sphere.areas, p), mode(fine, sphere.areas))
     graph = farthest_point_samples(sphere, len(rows))

@@ -166,12 +166,18 @@ def estimate_sizes(n_source: int, n_target: int, req: SoftMapRequest) -> dict:
     ``service.jobs.queue.estimate_cost``: per propagation sweep (at most ``max_iter``) one
     log-domain step per source edge (about 3 per sample) over every solved target point,
     plus the prolongation of every row to the full target."""
-    from solvers.softmaps.propagation_map import EDGES_PER_SAMPLE, estimated_bytes, solved_points
+    from solvers.softmaps.propagation_map import (
+        EDGES_PER_SAMPLE,
+        estimated_bytes,
+        solved_points,
+        wholly_prolonged,
+    )
 
     n_samples = min(req.samples, n_source)
     solved = solved_points(req.target_points, n_samples, n_target)
     need = estimated_bytes(n_samples, n_target, target_points=solved, n_source=n_source,
-                           k=req.k, n_energies=req.n_energies, landmarks=len(req.landmarks))
+                           k=req.k, n_energies=req.n_energies, landmarks=len(req.landmarks),
+                           whole_rows=wholly_prolonged(req.extraction, req.refine))
     per_sweep = EDGES_PER_SAMPLE * n_samples * (n_target if solved is None else solved)
     steps = float(per_sweep) * float(req.max_iter) + float(n_samples) * float(n_target)
     return {"bytes": need, "cost": LOG_STEP_COST * steps}

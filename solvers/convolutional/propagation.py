@@ -213,7 +213,7 @@ _RELAX_WINDOW = 3
 # A node is skipped while the bound on its gap is below this fraction of tol.
 _ACTIVE = 0.5
 # Nodes whose final masses are formed at once (the (n, nodes) temporaries of the exp).
-_MASS_COLUMNS = 256
+MASS_COLUMNS = 64
 
 
 def wasserstein_propagation(
@@ -397,8 +397,8 @@ def wasserstein_propagation(
     # second (n_nodes, n) array; the blocks' temporaries stay small); ``masses`` is its
     # transpose, a view.
     log_bar, sweeper.log_bar = sweeper.log_bar, None
-    for c0 in range(0, len(free), _MASS_COLUMNS):
-        cols = free[c0:c0 + _MASS_COLUMNS]
+    for c0 in range(0, len(free), MASS_COLUMNS):
+        cols = free[c0:c0 + MASS_COLUMNS]
         log_bar[cols] = masses_from_log(log_bar[cols].T, a).T
     for u, m in fixed_m.items():
         log_bar[u] = m

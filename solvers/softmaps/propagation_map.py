@@ -53,7 +53,7 @@ ZOOMOUT_QUERIES = 1024
 # "auto" solves over a coarse target when it has at most 1/AUTO_COARSENING of the vertices.
 AUTO_COARSENING = 1.5
 # Storage of the propagation's edge-end log-scalings (its largest array: 2 x edges x
-# target points): float32 halves it; the sweeps compute in float64.
+# target points) over a coarse target: float32 halves it; the sweeps compute in float64.
 SCALINGS_DTYPE = np.float32
 # Smallest default gamma over a coarse target (unit-area target).  Below it the sweeps'
 # slow mode -- mass moving between the two modes of left/right-ambiguous rows -- stalls:
@@ -101,27 +101,53 @@ def check_landmark_pairs(landmarks, n_source: int, n_target: int) -> np.ndarray:
 EDGES_PER_SAMPLE = 3.0  # source edges per farthest-point sample (a surface's sample graph)
 
 
+# Bytes per source and target vertex beyond the descriptors: ZoomOut's (vertices x k_end)
+# products and contiguous copies of the bases (k_end 80: 2 x 80 floats per vertex), the
+# sampling's and extraction's per-vertex arrays.
+PER_VERTEX_BYTES = 2 * 80 * 8 + 256
+
+
 def estimated_bytes(n_samples: int, n_target: int, edges_per_sample: float = EDGES_PER_SAMPLE,
                     target_points: int | None = None, n_source: int = 0, k: int = 0,
-                    n_energies: int = 0, landmarks: int = 0) -> int:
+                    n_energies: int = 0, landmarks: int = 0, whole_rows: bool = False) -> int:
     """Peak bytes of :func:`soft_map` for ``n_samples`` over ``n_target`` target vertices,
     solved over ``target_points`` coarse points (``None``: all ``n_target`` vertices).
 
-    Per (sample, solved point): the edge-end log-scalings (2 per edge, float64), the node
-    log-rescalings, barycenters and masses with two temporaries of the final normalization
-    (float64), and the float32 soft map; the propagation's chunk temporaries are small.
-    With a coarse target, the prolonged rows the extraction reads (float32, and float64
-    inside the optional Sinkhorn projection: 12 bytes per sample and target vertex); at full
-    resolution the extraction's float64 copy of the rows (8 bytes each). The descriptors of
-    both meshes (``k`` eigenpairs, ``n_energies`` WKS energies and one column per landmark,
-    float64, over ``n_source + n_target`` vertices). Measured peaks:
-    bench/results/softmaps.md and bench/results/softmap_memory.md.
+    Over a coarse target, per (sample, coarse point): the edge-end log-scalings (2 per
+    edge), the node log-rescalings and the barycenters, which become the rows
+    (:data:`SCALINGS_DTYPE`); the final masses' temporaries over a block of nodes; the
+    prolongation (up to 4 entries per target vertex) and one block of prolonged rows
+    (gathered float32), or with ``whole_rows`` (an extraction other than the mode, or a
+    Sinkhorn refinement) all of them (float32, float64 in the projection).  At full
+    resolution (float64), per (sample, target vertex): the edge-end log-scalings, the node
+    log-rescalings, barycenters and masses with two temporaries, the float32 rows and the
+    extraction's float64 copy of them.  The descriptors of both
+    meshes (at least :data:`~solvers.softmaps.descriptors.EIGENPAIRS_SOLVED` eigenpairs,
+    ``n_energies`` WKS energies and one column per landmark, float64) and
+    :data:`PER_VERTEX_BYTES` per vertex.  Measured peaks: bench/results/softmaps.md,
+    bench/results/softmap_memory.md and bench/results/operation_memory.md.
     """
-    solved = n_target if target_points is None else target_points
-    total = n_samples * solved * (2 * edges_per_sample * 8 + 6 * 8 + 4)
-    total += n_samples * n_target * (12 if target_points is not None else 8)
-    total += (k + n_energies + landmarks) * (n_source + n_target) * 8
+    from solvers.convolutional.propagation import MASS_COLUMNS
+    from solvers.softmaps.coarse_target import APPLY_ROWS
+    from solvers.softmaps.descriptors import EIGENPAIRS_SOLVED
+
+    if target_points is None:  # float64 throughout (bench/results/softmap_memory.md)
+        total = n_samples * n_target * (2 * edges_per_sample * 8 + 6 * 8 + 4 + 8)
+    else:
+        item = np.dtype(SCALINGS_DTYPE).itemsize
+        total = n_samples * target_points * (2 * edges_per_sample + 2) * item
+        total += min(n_samples, MASS_COLUMNS) * target_points * 32
+        total += n_target * 4 * 16
+        total += (n_samples if whole_rows else APPLY_ROWS) * n_target * 16
+    total += (max(k, EIGENPAIRS_SOLVED) + n_energies + landmarks) * (n_source + n_target) * 8
+    total += PER_VERTEX_BYTES * (n_source + n_target)
     return int(total)
+
+
+def wholly_prolonged(extraction: str, refine: str) -> bool:
+    """Whether the extraction forms every prolonged row at once (only the mode and ZoomOut
+    read them a block at a time)."""
+    return extraction != "mode" or refine.startswith("sinkhorn")
 
 
 def solved_points(target_points, n_samples: int, n_target: int) -> int | None:
@@ -348,7 +374,8 @@ def soft_map(
     n_samples = min(samples, source.n)
     points = solved_points(target_points, n_samples, target.n)
     need = estimated_bytes(n_samples, target.n, target_points=points, n_source=source.n,
-                           k=k, n_energies=n_energies, landmarks=len(pairs))
+                           k=k, n_energies=n_energies, landmarks=len(pairs),
+                           whole_rows=wholly_prolonged(extraction, refine))
     if max_bytes is not None and need > max_bytes:
         raise InputError(f"{n_samples} samples over {points or target.n} target points need "
                          f"about {need / 2**20:.0f} MiB, more than the "
@@ -397,7 +424,7 @@ def soft_map(
     t0 = time.perf_counter()
     # The node log-rescalings replace the cost (float32: the float64 cost is gone before
     # the propagation's arrays come).
-    log_d = _node_logs(cost, graph, tau=tau, gamma=gamma)
+    log_d = _node_logs(cost, graph, tau=tau, gamma=gamma, coarse=coarse is not None)
     del cost
     prop, rows, descriptor = _propagate(solved, coarse, graph, cells, pairs, log_d, tau=tau,
                                         gamma=gamma, substeps=substeps, tol=tol,
@@ -465,7 +492,7 @@ def _multiscale_start(source, target, pairs, graph, coarse, f0, f1, *, norm, tau
                               rows=small.indices, norm=norm, columns=below.restrict(f1))
     gamma = default_gamma(small.n, below.mesh, coarse=True)
     _, rows, _ = _propagate(below.mesh, below, small, cells, pairs,
-                            _node_logs(cost, small, tau=tau, gamma=gamma), tau=tau,
+                            _node_logs(cost, small, tau=tau, gamma=gamma, coarse=True), tau=tau,
                             gamma=gamma, tol=tol,
                             max_iter=max_iter, acceleration="over-relaxation")
     density = below.prolongation.apply(rows.astype(np.float64)) / target.areas  # (n_s, n)
@@ -492,12 +519,18 @@ def _node_weights(graph) -> np.ndarray:
                        minlength=graph.n)
 
 
-def _node_logs(cost, graph, *, tau, gamma) -> np.ndarray:
+def scalings_dtype(coarse: bool):
+    """Storage of the propagation's log-scalings: :data:`SCALINGS_DTYPE` over a coarse
+    target, float64 at full resolution (its memory model was measured in float64)."""
+    return SCALINGS_DTYPE if coarse else np.float64
+
+
+def _node_logs(cost, graph, *, tau, gamma, coarse: bool) -> np.ndarray:
     """The node log-rescalings :math:`\\log d_u = -\\tau c(u, \\cdot) / (\\gamma W_u)` of eq.
-    3.18, stored as the propagation's log-scalings (:data:`SCALINGS_DTYPE`); ``cost`` is
+    3.18, stored as the propagation's log-scalings (:func:`scalings_dtype`); ``cost`` is
     overwritten (scaled in place)."""
     cost *= -tau / gamma / _node_weights(graph)[:, None]
-    return cost.astype(SCALINGS_DTYPE, copy=False)
+    return cost.astype(scalings_dtype(coarse), copy=False)
 
 
 def _propagate(solved, coarse, graph, cells, pairs, log_d, *, tau, gamma, start_masses=None,
@@ -520,7 +553,7 @@ def _propagate(solved, coarse, graph, cells, pairs, log_d, *, tau, gamma, start_
     prop = wasserstein_propagation(solved, graph.n, graph.edges, fixed, edge_weights=w,
                                    node_scalings=log_d, gamma=gamma,
                                    start_masses=start_masses,
-                                   scalings_dtype=SCALINGS_DTYPE, **options)
+                                   scalings_dtype=log_d.dtype, **options)
     # Descriptor energy (eq. 4.6) with the normalized cost c = -log_d * gamma * W_u / tau.
     descriptor = -(gamma / tau) * float((cells * wu) @ np.einsum("ij,ji->i", log_d,
                                                                   prop.masses,
