@@ -174,9 +174,12 @@ def _timed_soft_map(method: str, ev, source, target, pairs, **options):
 
 
 def _peak_rss_mb() -> float:
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    """The process's peak resident memory (``VmHWM``; ``ru_maxrss`` would carry the
+    parent's over from the fork of a fresh-process row)."""
+    for line in open("/proc/self/status"):
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
 
 
 def _rss_mb() -> float:
