@@ -122,14 +122,13 @@ def estimated_bytes(n_samples: int, n_target: int, edges_per_sample: float = EDG
     resolution (float64), per (sample, target vertex): the edge-end log-scalings, the node
     log-rescalings, barycenters and masses with two temporaries, the float32 rows and the
     extraction's float64 copy of them.  The descriptors of both
-    meshes (at least :data:`~solvers.softmaps.descriptors.EIGENPAIRS_SOLVED` eigenpairs,
-    ``n_energies`` WKS energies and one column per landmark, float64) and
+    meshes (``k`` eigenpairs, ``n_energies`` WKS energies and one column per landmark,
+    float64) and
     :data:`PER_VERTEX_BYTES` per vertex.  Measured peaks: bench/results/softmaps.md,
     bench/results/softmap_memory.md and bench/results/operation_memory.md.
     """
     from solvers.convolutional.propagation import MASS_COLUMNS
     from solvers.softmaps.coarse_target import APPLY_ROWS
-    from solvers.softmaps.descriptors import EIGENPAIRS_SOLVED
 
     if target_points is None:  # float64 throughout (bench/results/softmap_memory.md)
         total = n_samples * n_target * (2 * edges_per_sample * 8 + 6 * 8 + 4 + 8)
@@ -139,7 +138,7 @@ def estimated_bytes(n_samples: int, n_target: int, edges_per_sample: float = EDG
         total += min(n_samples, MASS_COLUMNS) * target_points * 32
         total += n_target * 4 * 16
         total += (n_samples if whole_rows else APPLY_ROWS) * n_target * 16
-    total += (max(k, EIGENPAIRS_SOLVED) + n_energies + landmarks) * (n_source + n_target) * 8
+    total += (k + n_energies + landmarks) * (n_source + n_target) * 8
     total += PER_VERTEX_BYTES * (n_source + n_target)
     return int(total)
 
