@@ -946,8 +946,90 @@ def render(data) -> str:
         lambda r: [r["variant"], f"{r['seconds']:.1f}", r["sweeps"], f"{r['residual']:.3g}",
                    f"{r['max_l1_gap_vs_before']:.2g}" if "max_l1_gap_vs_before" in r else "",
                    r["load_before"], r["load_after"]])
-    out += [READING]
+    out += [READING_FLOOR, READING]
     return "\n".join(out)
+
+
+READING_FLOOR = """## Reading: the gamma floor and the memory cut (runs of 2026-12-04)
+
+The defaults, gamma-floor and growth tables are of one run, `cpu bench env
+OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/softmaps.py coarse gamma_floor growth`
+(21:58-22:03 UTC, code f3dfba2, load 0.96 at the start, 1.90 at the end).  A run of
+`coarse gamma_floor` just before it (21:50-21:52, code ab88011, load 1.2-1.8) is quoted
+below.  The reading of 2026-12-03 further down quotes the tables as they were then (code
+31e26c1 / 739e04a).
+
+- What changed.  (1) Over a coarse target the default gamma is at least
+  `COARSE_GAMMA_MIN` = 0.01 (`solvers.softmaps.propagation_map.default_gamma`): 4 h^2 of
+  the coarse target is 9.3e-3 / 5.0e-3 / 2.5e-3 / 1.1e-3 at 512 / 1,024 / 2,048 / 4,096
+  samples, so the floor is what the default solves from 512 samples on (twice the former
+  gamma at 1,024).  (2) Memory: over a coarse target the propagation stores its edge-end
+  log-scalings, barycenters (which become the masses) and node log-rescalings in float32
+  (`scalings_dtype` of `wasserstein_propagation`; the kernel applications, barycenters and
+  gaps are computed in float64); the final masses are formed 64 nodes at a time in place
+  of the barycenters; the descriptors and the float64 cost are freed before the
+  propagation; the descriptors (100 eigenpairs) and ZoomOut (80) share one eigen-solve and
+  one cached basis (before: two, 8 MB more on this pair); glibc maps blocks of 4 MiB and
+  more on their own (`solvers.memory.map_large_blocks`, process-wide), so freed
+  (samples x target) temporaries leave at once.  Full resolution (`target_points=None`)
+  stays float64.  (3) The fresh-process rows rebuild both meshes from stored arrays as a
+  service worker does (`Domain.to_arrays()`), so trimesh, the file parser, is not
+  imported (29 MB resident, ad hoc); peak RSS is read from `VmHWM` (`ru_maxrss` carries
+  the parent's over a fork: the first run's gamma-floor rows read 466 MB, the parent's
+  peak with pyFM).
+- Time (defaults table): 1,024 samples lion -> cat 4.93 s end to end, 3.71 s of
+  propagation (48 sweeps); cat -> lion 5.22 s, 4.07 s (54 sweeps); targets 15 s and 10 s.
+  128 samples: 1.11 s and 1.20 s end to end (target 2 s).  pyFM's ZoomOut in the same run:
+  6.49 s / 6.45 s.  The run before: 4.84 / 5.33 s end to end, 3.80 / 4.20 s of
+  propagation, 1.12 / 1.29 s at 128 samples.  The machine was faster today than on
+  2026-12-03 (pyFM ZoomOut 6.5 s against 8.5 s), so compare within a run: at 1,024
+  samples otgeo is 1.3x faster than pyFM's ZoomOut end to end, against 1.14x slower on
+  12-03.  Without the floor (gamma-floor table, same run) the propagation takes 69 / 101
+  sweeps and 4.59 / 5.72 s: the floor saves 30 % / 46 % of the sweeps at 1,024 samples.
+- Accuracy (gamma-floor table): refined, the floor changes nothing that shows -- lion ->
+  cat 19.37e-3 against 19.36e-3 without it, cat -> lion 16.59e-3 against 16.61e-3; pyFM's
+  ZoomOut 21.56e-3 / 21.20e-3 in the same run (ratios 0.899 / 0.782).  Held out (15 pairs):
+  lion -> cat median 0.0210 against 0.0200 (largest 0.0774 both), cat -> lion 0.0131 /
+  0.0376 both.  Before refinement the floor's blurrier rows are worse: the modes score
+  99.3e-3 against 91.2e-3 (lion -> cat) and 129.7e-3 against 103.2e-3 (cat -> lion).  So
+  what the default solves at 1,024 samples and more is eq. 3.18 at gamma 0.01, a smoother
+  soft map than the sample spacing would allow; the refinement from its functional map
+  does not suffer.  Without the floor, the float32 code reproduces the float64 code's
+  digits of 2026-12-03 (19.36e-3 / 91.2e-3, 69 sweeps; 16.61e-3 / 103.2e-3, 101 sweeps).
+  128 samples: 20.20e-3 / 16.61e-3, as before (gamma 0.046 there, above the floor).
+- Memory at 1,024 samples (target 300 MB): process peak 261.1 MB lion -> cat and 259.7 MB
+  cat -> lion (defaults table; gamma-floor table 257.8-264.4 MB), from 154 MB after the
+  imports and meshes and 225 MB before the timed call.  The run before (`ru_maxrss`, which
+  there was the child's own: the parent held less) read 284.9 / 276.4 MB.  The resident
+  memory of the same code varies by ~40 MB between runs (baseline 154 MB here, 185 MB in
+  the run before, 195 MB in an ad-hoc profile): how many pages of the shared libraries
+  (numba's LLVM, scipy) are resident.  The ad-hoc per-stage profile (`VmHWM` reset per
+  stage through `/proc/self/clear_refs`, script /work/scratch/softmap28/memprof.py, `cpu
+  run`) put the timed call's peak at 282 MB from 249 MB resident, reached both in the
+  propagation (the float32 scalings 25 MB, node logs and barycenters 4 MB each, the masses'
+  block temporaries) and in the extraction; the first call's at 281 MB.  Step by step (the
+  same profile): float32 scalings with float64 barycenters and a separate masses array
+  304 MB; the masses in place of the barycenters 295 MB; float32 node logs and barycenters
+  286 MB; the masses' blocks of 64 nodes 282 MB.  So the target is met with 15-40 MB to
+  spare depending on the run.  (MB here: MiB, as the tables.)
+- Growth (table): every size from 128 to 4,096 samples converges to tol 1e-4 with the
+  defaults: 22 / 31 / 48 / 48 / 51 / 63 sweeps, 1.15 / 1.30 / 2.65 / 4.74 / 20.5 / 84.6 s
+  end to end, peak RSS 253 / 250 / 252 / 260 / 361 / 767 MB; errors 19.4-20.2e-3.  At
+  4,096 samples the former default (gamma 1.1e-3) stalled near a residual of 5.2e-4 after
+  1,050 sweeps (reading of 2026-12-03).  The rows of 2,048 and 4,096 samples ran at load
+  1.55-1.98 (the machine shared with other sessions), so their times may be inflated by up
+  to that load / 2.
+- The service's memory estimate (`estimated_bytes`) now counts, over a coarse target, the
+  float32 arrays per (sample, coarse point), the masses' block temporaries, the
+  prolongation, one block of 64 prolonged rows (all rows with an extraction other than the
+  mode or a Sinkhorn refinement) and 1,536 bytes per source and target vertex (ZoomOut's
+  vertices x 80 products and copies); full resolution as before.  It bounds the measured
+  working memory: bench/results/operation_memory.md (soft-maps rows of 2026-12-04) and, at
+  1,024 / 2,048 / 4,096 samples on this pair, 78 / 177 / 565 MiB against 37 / 121 / 542 MiB
+  measured (peak minus resident before, growth table).  On the operation-memory meshes
+  (cow 2,903 and homer 6,002 vertices, the request example: 64 samples, k 20) 17 / 35 MiB
+  against 11 / 18 MiB measured warm (ratios 1.57 / 1.91).
+"""
 
 
 READING = """## Reading: the coarse target (runs of 2026-12-03)
