@@ -62,7 +62,8 @@ class SoftMapRequest(OperationRequest):
     tau: float = Field(0.05, gt=0, le=1e6, description="compatibility weight (cost of mean 1)")
     gamma: float | None = Field(None, gt=0, le=100, description="entropic regularization on "
                                 "the target (unit area); default: twice the squared sample "
-                                "spacing, at least 4 h^2")
+                                "spacing, at least 4 h^2 of the target solved over, and at "
+                                "least 0.01 over a coarse target")
     k: Int = Field(100, ge=10, le=500, description="Laplace-Beltrami eigenpairs (WKS, ZoomOut)")
     n_energies: Int = Field(100, ge=2, le=1000, description="WKS energies")
     wks_weight: float = Field(1.0, ge=0, description="weight of the WKS block of descriptors")
