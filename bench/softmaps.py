@@ -1,7 +1,18 @@
 """Benchmark of soft maps (thesis ch. 4, §3.7) on the TOSCA cat/lion pair, peers in the same run.
 
-Parts (``.venv/bin/python bench/softmaps.py [accuracy] [reverse] [scaling] [convergence]
-[propagation]``):
+Parts (``.venv/bin/python bench/softmaps.py [coarse] [gamma_floor] [growth] [multiscale]
+[accuracy] [reverse] [scaling] [convergence] [propagation] ...``):
+
+coarse
+    the defaults (coarse target) at 128 and 1,024 samples, both directions, each warm in a
+    fresh process (meshes rebuilt from stored arrays, as a service worker holds them);
+    errors with and without refinement, held-out landmarks, peak RSS; pyFM in the same run.
+gamma_floor
+    1,024 samples, both directions: the default gamma (with the coarse target's floor)
+    against gamma without the floor.
+growth
+    the defaults lion -> cat at ``SOFTMAPS_GROWTH`` samples (default 128 ... 4,096), one
+    fresh process each: time, sweeps, residual, error, peak RSS.
 
 accuracy
     lion -> cat, 5 landmark pairs (the first 5 of ``cat-lion-landmarks.txt``), score = mean
@@ -954,7 +965,10 @@ READING_FLOOR = """## Reading: the gamma floor and the memory cut (runs of 2026-
 
 The defaults, gamma-floor and growth tables are of one run, `cpu bench env
 OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/softmaps.py coarse gamma_floor growth`
-(21:58-22:03 UTC, code f3dfba2, load 0.96 at the start, 1.90 at the end).  A run of
+(21:58-22:03 UTC, code f3dfba2, load 0.96 at the start, 1.90 at the end), but for the
+growth rows of 2,048 and 4,096 samples: rerun on their own (`cpu bench env
+OPENBLAS_NUM_THREADS=1 SOFTMAPS_GROWTH=2048,4096 .venv/bin/python bench/softmaps.py
+growth`, 22:20-22:22, code de191bf: the same solver, load 0.99 at the start).  A run of
 `coarse gamma_floor` just before it (21:50-21:52, code ab88011, load 1.2-1.8) is quoted
 below.  The reading of 2026-12-03 further down quotes the tables as they were then (code
 31e26c1 / 739e04a).
@@ -1013,19 +1027,20 @@ below.  The reading of 2026-12-03 further down quotes the tables as they were th
   286 MB; the masses' blocks of 64 nodes 282 MB.  So the target is met with 15-40 MB to
   spare depending on the run.  (MB here: MiB, as the tables.)
 - Growth (table): every size from 128 to 4,096 samples converges to tol 1e-4 with the
-  defaults: 22 / 31 / 48 / 48 / 51 / 63 sweeps, 1.15 / 1.30 / 2.65 / 4.74 / 20.5 / 84.6 s
-  end to end, peak RSS 253 / 250 / 252 / 260 / 361 / 767 MB; errors 19.4-20.2e-3.  At
+  defaults: 22 / 31 / 48 / 48 / 51 / 63 sweeps, 1.15 / 1.30 / 2.65 / 4.74 / 20.6 / 85.9 s
+  end to end, peak RSS 253 / 250 / 252 / 260 / 354 / 758 MB; errors 19.4-20.2e-3.  At
   4,096 samples the former default (gamma 1.1e-3) stalled near a residual of 5.2e-4 after
-  1,050 sweeps (reading of 2026-12-03).  The rows of 2,048 and 4,096 samples ran at load
-  1.55-1.98 (the machine shared with other sessions), so their times may be inflated by up
-  to that load / 2.
+  1,050 sweeps (reading of 2026-12-03).  The load during a row rises to ~2 from the
+  solver's own two threads: the first run's 2,048 / 4,096 rows (load 1.55 / 1.72 before
+  them) took 20.53 / 84.61 s, the rerun from load 1.07 / 1.53 (0.99 when it began) 20.55 /
+  85.89 s.
 - The service's memory estimate (`estimated_bytes`) now counts, over a coarse target, the
   float32 arrays per (sample, coarse point), the masses' block temporaries, the
   prolongation, one block of 64 prolonged rows (all rows with an extraction other than the
   mode or a Sinkhorn refinement) and 1,536 bytes per source and target vertex (ZoomOut's
   vertices x 80 products and copies); full resolution as before.  It bounds the measured
   working memory: bench/results/operation_memory.md (soft-maps rows of 2026-12-04) and, at
-  1,024 / 2,048 / 4,096 samples on this pair, 78 / 177 / 565 MiB against 37 / 121 / 542 MiB
+  1,024 / 2,048 / 4,096 samples on this pair, 78 / 177 / 565 MiB against 37 / 137 / 536 MiB
   measured (peak minus resident before, growth table).  On the operation-memory meshes
   (cow 2,903 and homer 6,002 vertices, the request example: 64 samples, k 20) 17 / 35 MiB
   against 11 / 18 MiB measured warm (ratios 1.57 / 1.91).
