@@ -1,7 +1,18 @@
 """Benchmark of soft maps (thesis ch. 4, §3.7) on the TOSCA cat/lion pair, peers in the same run.
 
-Parts (``.venv/bin/python bench/softmaps.py [accuracy] [reverse] [scaling] [convergence]
-[propagation]``):
+Parts (``.venv/bin/python bench/softmaps.py [coarse] [gamma_floor] [growth] [multiscale]
+[accuracy] [reverse] [scaling] [convergence] [propagation] ...``):
+
+coarse
+    the defaults (coarse target) at 128 and 1,024 samples, both directions, each warm in a
+    fresh process (meshes rebuilt from stored arrays, as a service worker holds them);
+    errors with and without refinement, held-out landmarks, peak RSS; pyFM in the same run.
+gamma_floor
+    1,024 samples, both directions: the default gamma (with the coarse target's floor)
+    against gamma without the floor.
+growth
+    the defaults lion -> cat at ``SOFTMAPS_GROWTH`` samples (default 128 ... 4,096), one
+    fresh process each: time, sweeps, residual, error, peak RSS.
 
 accuracy
     lion -> cat, 5 landmark pairs (the first 5 of ``cat-lion-landmarks.txt``), score = mean
@@ -67,6 +78,31 @@ RESULTS = ROOT / "bench" / "results" / "softmaps.json"
 SCALING_SWEEPS = 5  # fixed sweeps per scaling row: time per sweep and peak memory
 SCALING_SIZES = tuple(int(x) for x in os.environ.get("SOFTMAPS_SIZES", "128,256,512,1024")
                       .split(","))
+
+
+# The meshes as a service worker holds them: stored arrays (``Domain.to_arrays()``), rebuilt
+# without the mesh-file parser (trimesh, ~31 MB resident once imported); written by the
+# parent of the fresh-process rows (:func:`_store_meshes`).
+STORED = Path(os.environ.get("SOFTMAPS_STORED", "/tmp/otgeo_bench_softmaps_meshes.npz"))
+
+
+def _store_meshes() -> None:
+    cat, lion, _, _ = load()
+    np.savez(STORED, **{f"cat_{k}": v for k, v in cat.to_arrays().items()},
+             **{f"lion_{k}": v for k, v in lion.to_arrays().items()})
+
+
+def load_stored():
+    """``load()`` from the arrays of :func:`_store_meshes` (no mesh-file parser imported)."""
+    from solvers.domains import domain_from_arrays
+
+    with np.load(STORED) as data:
+        cat, lion = (domain_from_arrays("mesh", {k: data[f"{name}_{k}"]
+                                                 for k in ("vertices", "faces")})
+                     for name in ("cat", "lion"))
+    gt = np.loadtxt(PAIRS / "lion-to-cat.txt", dtype=np.int64)
+    lm = np.loadtxt(PAIRS / "cat-lion-landmarks.txt", dtype=np.int64)[:5]
+    return cat, lion, gt, lm
 
 
 def load():
@@ -149,9 +185,12 @@ def _timed_soft_map(method: str, ev, source, target, pairs, **options):
 
 
 def _peak_rss_mb() -> float:
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    """The process's peak resident memory (``VmHWM``; ``ru_maxrss`` would carry the
+    parent's over from the fork of a fresh-process row)."""
+    for line in open("/proc/self/status"):
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
 
 
 def _rss_mb() -> float:
@@ -165,14 +204,17 @@ def _rss_mb() -> float:
 COARSE_SIZES = (128, 1024)
 
 
-def _one_coarse(direction: str, n: int) -> dict:
+def _one_coarse(direction: str, n: int, floor: bool = True) -> dict:
     """A warm default soft map (a first call builds the caches), ``direction`` "lion->cat"
     or "cat->lion", ``n`` samples; errors with and without refinement, held-out landmarks,
-    the process's peak RSS."""
+    the process's peak RSS.  ``floor=False``: gamma without the coarse-target floor
+    (``COARSE_GAMMA_MIN``), all else the defaults."""
     from solvers.softmaps import soft_map
+    from solvers.softmaps.coarse_target import coarse_target
+    from solvers.softmaps.propagation_map import default_gamma
 
-    cat, lion, gt, lm = load()
-    baseline = _rss_mb()  # interpreter, imports (numpy, scipy, numba, trimesh), both meshes
+    cat, lion, gt, lm = load_stored()
+    baseline = _rss_mb()  # interpreter, imports (numpy, scipy, numba), both meshes
     every = np.loadtxt(PAIRS / "cat-lion-landmarks.txt", dtype=np.int64)
     held = every[HELD_OUT]
     if direction == "lion->cat":
@@ -181,18 +223,20 @@ def _one_coarse(direction: str, n: int) -> dict:
     else:
         source, target, truth, pairs = cat, lion, reverse_truth(gt, cat.n), lm
         held_t, held_s = held[:, 1], held[:, 0]
+    gamma = None if floor else default_gamma(n, coarse_target(target, n).mesh)
     soft_map(source, target, pairs, samples=n, max_iter=2)  # caches: eigenpairs, samples, ...
     first_peak = _peak_rss_mb()
     resident = _rss_mb()  # with the caches and compiled kernels of the first call
     before = loadavg()
     t0 = time.perf_counter()
-    res = soft_map(source, target, pairs, samples=n)
+    res = soft_map(source, target, pairs, samples=n, gamma=gamma)
     seconds = time.perf_counter() - t0
     after = loadavg()
     rss = _peak_rss_mb()  # before the evaluator's distance rows
     ev = Evaluator(target, truth)
     misses = held_out_misses(target, res.correspondence, held_t, held_s)
     return {"direction": direction, "samples": n, "target_points": res.target_points,
+            "gamma_floor": floor,
             "seconds": seconds, "timings": res.timings, "iterations": res.iterations,
             "residual": res.residual, "converged": res.converged, "gamma": res.gamma,
             "error": ev(res.correspondence),
@@ -207,6 +251,7 @@ def part_coarse():
     """The defaults (coarse target, symmetric ZoomOut) at 128 and 1,024 samples, both
     directions, each in a fresh process, warm; pyFM in the same run."""
     rows = []
+    _store_meshes()
     for direction in ("lion->cat", "cat->lion"):
         for n in COARSE_SIZES:
             out = subprocess.run([sys.executable, __file__, "_coarse", direction, str(n)],
@@ -219,6 +264,21 @@ def part_coarse():
     for row in _pyfm_rows(Evaluator(lion, reverse_truth(gt, cat.n)), lm[:, ::-1],
                           target="lion-00.off", source="cat-00.off"):
         rows.append({"direction": "cat->lion", **row})
+    return rows
+
+
+def part_gamma_floor():
+    """1,024 samples, warm, each in a fresh process: the default gamma (with the coarse
+    target's floor) against gamma without the floor, both directions."""
+    rows = []
+    _store_meshes()
+    for direction in ("lion->cat", "cat->lion"):
+        for floor in (True, False):
+            out = subprocess.run([sys.executable, __file__, "_coarse", direction, "1024",
+                                  "floor" if floor else "nofloor"],
+                                 check=True, capture_output=True, text=True).stdout
+            rows.append(json.loads(out.strip().splitlines()[-1]))
+            print(rows[-1], flush=True)
     return rows
 
 
@@ -254,7 +314,7 @@ GROWTH_SIZES = tuple(int(x) for x in os.environ.get(
 def _one_growth(n: int) -> dict:
     from solvers.softmaps import soft_map
 
-    cat, lion, gt, lm = load()
+    cat, lion, gt, lm = load_stored()
     baseline = _rss_mb()
     pairs = lm[:, ::-1]
     soft_map(lion, cat, pairs, samples=n, max_iter=2)  # caches
@@ -285,6 +345,7 @@ def part_growth():
     are kept (the largest size is run on its own)."""
     old = json.loads(RESULTS.read_text()).get("growth", {}) if RESULTS.exists() else {}
     rows = [r for r in old.get("rows", []) if r["samples"] not in GROWTH_SIZES]
+    _store_meshes()
     for n in GROWTH_SIZES:
         out = subprocess.run([sys.executable, __file__, "_growth", str(n)], check=True,
                              stdout=subprocess.PIPE, text=True).stdout
@@ -744,8 +805,10 @@ def render(data) -> str:
         "and without refinement (the soft map's modes). Held out: the geodesic miss of the "
         "15 landmark pairs never given to any method (lines 6-20 of cat-lion-landmarks.txt), "
         "median / largest, unit-area target. Peak RSS: the process's (it includes the "
-        "first call); baseline: resident after the imports (numpy, scipy, numba, trimesh) "
-        "and both meshes, before any soft map; resident before: after the first call (its "
+        "first call); baseline: resident after the imports (numpy, scipy, numba) and both "
+        "meshes rebuilt from stored arrays as a service worker holds them (no mesh-file "
+        "parser; rows before 2026-12-04: loaded from the files, trimesh imported), before "
+        "any soft map; resident before: after the first call (its "
         "caches, compiled kernels), before the timed one.",
         ["direction", "method", "target points", "error", "error before refinement",
          "held out median / max", "seconds", "propagation s", "sweeps", "peak RSS MB",
@@ -758,7 +821,7 @@ def render(data) -> str:
                    if "held_out_median" in r else "", f"{r['seconds']:.2f}",
                    f"{r['timings']['propagation']:.2f}" if "timings" in r else "",
                    r["iterations"] + 1 if "iterations" in r else "",
-                   f"{r['peak_rss_mb']:.0f}" if "peak_rss_mb" in r else "",
+                   f"{r['peak_rss_mb']:.1f}" if "peak_rss_mb" in r else "",
                    f"{r['baseline_rss_mb']:.0f}" if "baseline_rss_mb" in r else "",
                    f"{r['resident_before_mb']:.0f}" if "resident_before_mb" in r else "",
                    r["load_before"], r["load_after"]])
@@ -774,10 +837,24 @@ def render(data) -> str:
         lambda r: [r["samples"], r["target_points"], r["edges"], f"{r['seconds']:.2f}",
                    f"{r['propagation']:.2f}", r["iterations"] + 1,
                    f"{r['residual']:.3g}" if "residual" in r else "", r["converged"],
-                   f"{1e3 * r['error']:.2f}e-3", f"{r['peak_rss_mb']:.0f}",
+                   f"{1e3 * r['error']:.2f}e-3", f"{r['peak_rss_mb']:.1f}",
                    f"{r['baseline_rss_mb']:.0f}" if "baseline_rss_mb" in r else "",
                    f"{r['resident_before_mb']:.0f}" if "resident_before_mb" in r else "",
                    r["code"], r["load_before"], r["load_after"]])
+    out += _table(
+        data.get("gamma_floor"), "The coarse target's gamma floor (1,024 samples)",
+        "Warm default soft maps as in the defaults table (fresh process each), gamma with the "
+        "floor COARSE_GAMMA_MIN = 0.01 (the default) or without it (max(4 / (sqrt(3) N), "
+        "4 h^2 of the coarse target), the default before the floor); errors as there.",
+        ["direction", "gamma floor", "gamma", "error", "error before refinement",
+         "held out median / max", "seconds", "propagation s", "sweeps", "residual",
+         "converged", "peak RSS MB", "code", "load before", "load after"],
+        lambda r: [r["direction"], r["gamma_floor"], f"{r['gamma']:.3g}",
+                   f"{1e3 * r['error']:.2f}e-3", f"{1e3 * r['error_mode']:.1f}e-3",
+                   f"{r['held_out_median']:.4f} / {r['held_out_max']:.4f}",
+                   f"{r['seconds']:.2f}", f"{r['timings']['propagation']:.2f}",
+                   r["iterations"] + 1, f"{r['residual']:.3g}", r["converged"],
+                   f"{r['peak_rss_mb']:.1f}", r["code"], r["load_before"], r["load_after"]])
     out += _table(
         data.get("multiscale"), "Multiscale start against a cold start (1,024 samples)",
         "Warm default soft maps; the multiscale start solves 128 samples over 128 coarse "
@@ -880,8 +957,94 @@ def render(data) -> str:
         lambda r: [r["variant"], f"{r['seconds']:.1f}", r["sweeps"], f"{r['residual']:.3g}",
                    f"{r['max_l1_gap_vs_before']:.2g}" if "max_l1_gap_vs_before" in r else "",
                    r["load_before"], r["load_after"]])
-    out += [READING]
+    out += [READING_FLOOR, READING]
     return "\n".join(out)
+
+
+READING_FLOOR = """## Reading: the gamma floor and the memory cut (runs of 2026-12-04)
+
+The defaults, gamma-floor and growth tables are of one run, `cpu bench env
+OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/softmaps.py coarse gamma_floor growth`
+(21:58-22:03 UTC, code f3dfba2, load 0.96 at the start, 1.90 at the end), but for the
+growth rows of 2,048 and 4,096 samples: rerun on their own (`cpu bench env
+OPENBLAS_NUM_THREADS=1 SOFTMAPS_GROWTH=2048,4096 .venv/bin/python bench/softmaps.py
+growth`, 22:20-22:22, code de191bf: the same solver, load 0.99 at the start).  A run of
+`coarse gamma_floor` just before it (21:50-21:52, code ab88011, load 1.2-1.8) is quoted
+below.  The reading of 2026-12-03 further down quotes the tables as they were then (code
+31e26c1 / 739e04a).
+
+- What changed.  (1) Over a coarse target the default gamma is at least
+  `COARSE_GAMMA_MIN` = 0.01 (`solvers.softmaps.propagation_map.default_gamma`): 4 h^2 of
+  the coarse target is 9.3e-3 / 5.0e-3 / 2.5e-3 / 1.1e-3 at 512 / 1,024 / 2,048 / 4,096
+  samples, so the floor is what the default solves from 512 samples on (twice the former
+  gamma at 1,024).  (2) Memory: over a coarse target the propagation stores its edge-end
+  log-scalings, barycenters (which become the masses) and node log-rescalings in float32
+  (`scalings_dtype` of `wasserstein_propagation`; the kernel applications, barycenters and
+  gaps are computed in float64); the final masses are formed 64 nodes at a time in place
+  of the barycenters; the descriptors and the float64 cost are freed before the
+  propagation; the descriptors (100 eigenpairs) and ZoomOut (80) share one eigen-solve and
+  one cached basis (before: two, 8 MB more on this pair); glibc maps blocks of 4 MiB and
+  more on their own (`solvers.memory.map_large_blocks`, process-wide), so freed
+  (samples x target) temporaries leave at once.  Full resolution (`target_points=None`)
+  stays float64.  (3) The fresh-process rows rebuild both meshes from stored arrays as a
+  service worker does (`Domain.to_arrays()`), so trimesh, the file parser, is not
+  imported (29 MB resident, ad hoc); peak RSS is read from `VmHWM` (`ru_maxrss` carries
+  the parent's over a fork: the first run's gamma-floor rows read 466 MB, the parent's
+  peak with pyFM).
+- Time (defaults table): 1,024 samples lion -> cat 4.93 s end to end, 3.71 s of
+  propagation (48 sweeps); cat -> lion 5.22 s, 4.07 s (54 sweeps); targets 15 s and 10 s.
+  128 samples: 1.11 s and 1.20 s end to end (target 2 s).  pyFM's ZoomOut in the same run:
+  6.49 s / 6.45 s.  The run before: 4.84 / 5.33 s end to end, 3.80 / 4.20 s of
+  propagation, 1.12 / 1.29 s at 128 samples.  The machine was faster today than on
+  2026-12-03 (pyFM ZoomOut 6.5 s against 8.5 s), so compare within a run: at 1,024
+  samples otgeo is 1.3x faster than pyFM's ZoomOut end to end, against 1.14x slower on
+  12-03.  Without the floor (gamma-floor table, same run) the propagation takes 69 / 101
+  sweeps and 4.59 / 5.72 s: the floor saves 30 % / 46 % of the sweeps at 1,024 samples.
+- Accuracy (gamma-floor table): refined, the floor changes nothing that shows -- lion ->
+  cat 19.37e-3 against 19.36e-3 without it, cat -> lion 16.59e-3 against 16.61e-3; pyFM's
+  ZoomOut 21.56e-3 / 21.20e-3 in the same run (ratios 0.899 / 0.782).  Held out (15 pairs):
+  lion -> cat median 0.0210 against 0.0200 (largest 0.0774 both), cat -> lion 0.0131 /
+  0.0376 both.  Before refinement the floor's blurrier rows are worse: the modes score
+  99.3e-3 against 91.2e-3 (lion -> cat) and 129.7e-3 against 103.2e-3 (cat -> lion).  So
+  what the default solves at 1,024 samples and more is eq. 3.18 at gamma 0.01, a smoother
+  soft map than the sample spacing would allow; the refinement from its functional map
+  does not suffer.  Without the floor, the float32 code reproduces the float64 code's
+  digits of 2026-12-03 (19.36e-3 / 91.2e-3, 69 sweeps; 16.61e-3 / 103.2e-3, 101 sweeps).
+  128 samples: 20.20e-3 / 16.61e-3, as before (gamma 0.046 there, above the floor).
+- Memory at 1,024 samples (target 300 MB): process peak 261.1 MB lion -> cat and 259.7 MB
+  cat -> lion (defaults table; gamma-floor table 257.8-264.4 MB), from 154 MB after the
+  imports and meshes and 225 MB before the timed call.  The run before (`ru_maxrss`, which
+  there was the child's own: the parent held less) read 284.9 / 276.4 MB.  The resident
+  memory of the same code varies by ~40 MB between runs (baseline 154 MB here, 185 MB in
+  the run before, 195 MB in an ad-hoc profile): how many pages of the shared libraries
+  (numba's LLVM, scipy) are resident.  The ad-hoc per-stage profile (`VmHWM` reset per
+  stage through `/proc/self/clear_refs`, script /work/scratch/softmap28/memprof.py, `cpu
+  run`) put the timed call's peak at 282 MB from 249 MB resident, reached both in the
+  propagation (the float32 scalings 25 MB, node logs and barycenters 4 MB each, the masses'
+  block temporaries) and in the extraction; the first call's at 281 MB.  Step by step (the
+  same profile): float32 scalings with float64 barycenters and a separate masses array
+  304 MB; the masses in place of the barycenters 295 MB; float32 node logs and barycenters
+  286 MB; the masses' blocks of 64 nodes 282 MB.  So the target is met with 15-40 MB to
+  spare depending on the run.  (MB here: MiB, as the tables.)
+- Growth (table): every size from 128 to 4,096 samples converges to tol 1e-4 with the
+  defaults: 22 / 31 / 48 / 48 / 51 / 63 sweeps, 1.15 / 1.30 / 2.65 / 4.74 / 20.6 / 85.9 s
+  end to end, peak RSS 253 / 250 / 252 / 260 / 354 / 758 MB; errors 19.4-20.2e-3.  At
+  4,096 samples the former default (gamma 1.1e-3) stalled near a residual of 5.2e-4 after
+  1,050 sweeps (reading of 2026-12-03).  The load during a row rises to ~2 from the
+  solver's own two threads: the first run's 2,048 / 4,096 rows (load 1.55 / 1.72 before
+  them) took 20.53 / 84.61 s, the rerun from load 1.07 / 1.53 (0.99 when it began) 20.55 /
+  85.89 s.
+- The service's memory estimate (`estimated_bytes`) now counts, over a coarse target, the
+  float32 arrays per (sample, coarse point), the masses' block temporaries, the
+  prolongation, one block of 64 prolonged rows (all rows with an extraction other than the
+  mode or a Sinkhorn refinement) and 1,536 bytes per source and target vertex (ZoomOut's
+  vertices x 80 products and copies); full resolution as before.  It bounds the measured
+  working memory: bench/results/operation_memory.md (soft-maps rows of 2026-12-04) and, at
+  1,024 / 2,048 / 4,096 samples on this pair, 78 / 177 / 565 MiB against 37 / 137 / 536 MiB
+  measured (peak minus resident before, growth table).  On the operation-memory meshes
+  (cow 2,903 and homer 6,002 vertices, the request example: 64 samples, k 20) 17 / 35 MiB
+  against 11 / 18 MiB measured warm (ratios 1.57 / 1.91).
+"""
 
 
 READING = """## Reading: the coarse target (runs of 2026-12-03)
@@ -1098,7 +1261,8 @@ def main(argv):
         print(json.dumps(_one_sweep_cost(int(argv[2]))))
         return
     if argv[:1] == ["_coarse"]:
-        print(json.dumps(_one_coarse(argv[1], int(argv[2])), default=float))
+        print(json.dumps(_one_coarse(argv[1], int(argv[2]), argv[3:] != ["nofloor"]),
+                         default=float))
         return
     if argv[:1] == ["_growth"]:
         print(json.dumps(_one_growth(int(argv[1])), default=float))

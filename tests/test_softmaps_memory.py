@@ -11,11 +11,13 @@ import pytest
 import trimesh
 
 from solvers import TriangleMesh
-from solvers.memory import release_free_heap
+from solvers.convolutional import wasserstein_propagation
+from solvers.memory import map_large_blocks, release_free_heap
 from solvers.softmaps import soft_map
-from solvers.softmaps.coarse_target import _APPLY_ROWS, coarse_target
+from solvers.softmaps.coarse_target import APPLY_ROWS, coarse_target
 from solvers.softmaps.descriptors import landmark_descriptors
 from solvers.softmaps.extraction import extract_correspondence, mode, zoomout
+from solvers.softmaps.propagation_map import COARSE_GAMMA_MIN, default_gamma
 from solvers.softmaps.sampling import farthest_point_samples
 
 
@@ -40,7 +42,7 @@ def _rows(n_rows, n, seed=0, dtype=np.float32):
 def test_prolongation_in_blocks_is_the_sparse_product(sphere):
     p = coarse_target(sphere, 200).prolongation
     dense = p.matrix().toarray()
-    n_rows = 2 * _APPLY_ROWS + 7  # several blocks and a partial one
+    n_rows = 2 * APPLY_ROWS + 7  # several blocks and a partial one
     for dtype, rtol in ((np.float64, 1e-12), (np.float32, 1e-5)):
         rows = _rows(n_rows, p.n_coarse, dtype=dtype)
         fine = p.apply(rows)
@@ -56,7 +58,7 @@ def test_prolongation_in_blocks_is_the_sparse_product(sphere):
 def test_mode_and_zoomout_read_coarse_rows_as_the_prolonged_ones(sphere):
     coarse = coarse_target(sphere, 200)
     p = coarse.prolongation
-    rows = _rows(2 * _APPLY_ROWS + 5, p.n_coarse)
+    rows = _rows(2 * APPLY_ROWS + 5, p.n_coarse)
     fine = p.apply(rows)
     np.testing.assert_array_equal(mode(rows, sphere.areas, p), mode(fine, sphere.areas))
     graph = farthest_point_samples(sphere, len(rows))
@@ -144,3 +146,46 @@ def test_release_free_heap_runs():
     big = np.ones(50_000_000 // 8)
     del big
     assert release_free_heap() in (True, False)
+
+
+def test_map_large_blocks_returns_a_freed_block_to_the_os():
+    """With the threshold set, a freed block of 64 MB leaves the resident memory at once."""
+    if not map_large_blocks():
+        pytest.skip("not glibc: mallopt unavailable")
+
+    def rss():
+        with open("/proc/self/status") as fh:
+            return next(int(x.split()[1]) for x in fh if x.startswith("VmRSS:")) * 1024
+
+    before = rss()
+    big = np.ones(64 << 17)  # 64 MiB, touched
+    assert rss() - before > 48 << 20
+    del big
+    assert rss() - before < 16 << 20
+
+
+def test_float32_scalings_reach_the_float64_fixed_point(sphere):
+    """The propagation with float32 edge-end log-scalings (the coarse target's storage)
+    converges to the same distributions as with float64."""
+    graph = farthest_point_samples(sphere, 48, [0, 900])
+    fixed = {0: np.eye(sphere.n)[0], 1: np.eye(sphere.n)[1700]}
+    cost = np.random.default_rng(1).random((graph.n, sphere.n))
+    logs = -0.5 * cost
+    out = {}
+    for dtype in (np.float64, np.float32):
+        res = wasserstein_propagation(sphere, graph.n, graph.edges, fixed,
+                                      edge_weights=graph.weights,
+                                      node_scalings=logs.astype(dtype), gamma=0.01,
+                                      tol=1e-6, acceleration="over-relaxation",
+                                      scalings_dtype=dtype)
+        assert res.converged and res.masses.dtype == dtype
+        out[dtype] = res.masses.astype(np.float64)
+    gap = np.abs(out[np.float32] - out[np.float64]).sum(axis=0).max()
+    assert gap < 1e-4, gap
+
+
+def test_coarse_gamma_floor_is_the_default_from_512_samples(sphere):
+    coarse = coarse_target(sphere, 1024)
+    assert default_gamma(1024, coarse.mesh, coarse=True) == COARSE_GAMMA_MIN
+    assert default_gamma(1024, coarse.mesh) < COARSE_GAMMA_MIN  # the floor is what binds
+    assert default_gamma(64, coarse_target(sphere, 64).mesh, coarse=True) > COARSE_GAMMA_MIN

@@ -62,7 +62,8 @@ class SoftMapRequest(OperationRequest):
     tau: float = Field(0.05, gt=0, le=1e6, description="compatibility weight (cost of mean 1)")
     gamma: float | None = Field(None, gt=0, le=100, description="entropic regularization on "
                                 "the target (unit area); default: twice the squared sample "
-                                "spacing, at least 4 h^2")
+                                "spacing, at least 4 h^2 of the target solved over, and at "
+                                "least 0.01 over a coarse target")
     k: Int = Field(100, ge=10, le=500, description="Laplace-Beltrami eigenpairs (WKS, ZoomOut)")
     n_energies: Int = Field(100, ge=2, le=1000, description="WKS energies")
     wks_weight: float = Field(1.0, ge=0, description="weight of the WKS block of descriptors")
@@ -166,12 +167,18 @@ def estimate_sizes(n_source: int, n_target: int, req: SoftMapRequest) -> dict:
     ``service.jobs.queue.estimate_cost``: per propagation sweep (at most ``max_iter``) one
     log-domain step per source edge (about 3 per sample) over every solved target point,
     plus the prolongation of every row to the full target."""
-    from solvers.softmaps.propagation_map import EDGES_PER_SAMPLE, estimated_bytes, solved_points
+    from solvers.softmaps.propagation_map import (
+        EDGES_PER_SAMPLE,
+        estimated_bytes,
+        solved_points,
+        wholly_prolonged,
+    )
 
     n_samples = min(req.samples, n_source)
     solved = solved_points(req.target_points, n_samples, n_target)
     need = estimated_bytes(n_samples, n_target, target_points=solved, n_source=n_source,
-                           k=req.k, n_energies=req.n_energies, landmarks=len(req.landmarks))
+                           k=req.k, n_energies=req.n_energies, landmarks=len(req.landmarks),
+                           whole_rows=wholly_prolonged(req.extraction, req.refine))
     per_sweep = EDGES_PER_SAMPLE * n_samples * (n_target if solved is None else solved)
     steps = float(per_sweep) * float(req.max_iter) + float(n_samples) * float(n_target)
     return {"bytes": need, "cost": LOG_STEP_COST * steps}

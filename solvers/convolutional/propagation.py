@@ -165,10 +165,13 @@ def check_edge_kernels(edge_kernels, n_edges: int, n: int):
 
 
 def check_node_scalings(node_scalings, n_nodes: int, n: int) -> np.ndarray | None:
-    """Validate ``(n_nodes, n)`` log-rescalings :math:`\\log d_u` (finite or ``-inf``)."""
+    """Validate ``(n_nodes, n)`` log-rescalings :math:`\\log d_u` (finite or ``-inf``;
+    float32 or float64)."""
     if node_scalings is None:
         return None
-    x = np.asarray(node_scalings, dtype=np.float64)
+    x = np.asarray(node_scalings)
+    if x.dtype != np.float32:  # float32 logs are kept as given (no float64 copy)
+        x = np.asarray(x, dtype=np.float64)
     if x.shape != (n_nodes, n):
         raise InputError(f"node_scalings must have shape ({n_nodes}, {n}), got {x.shape}",
                          field="node_scalings")
@@ -209,6 +212,8 @@ _RESTART_ABOVE = 10.0
 _RELAX_WINDOW = 3
 # A node is skipped while the bound on its gap is below this fraction of tol.
 _ACTIVE = 0.5
+# Nodes whose final masses are formed at once (the (n, nodes) temporaries of the exp).
+MASS_COLUMNS = 64
 
 
 def wasserstein_propagation(
@@ -232,6 +237,7 @@ def wasserstein_propagation(
     initial: PropagationResult | None = None,
     keep_scalings: bool = False,
     start_masses=None,
+    scalings_dtype=np.float64,
 ) -> PropagationResult:
     r"""Propagate distributions from fixed graph nodes to the others (Alg. 4, eq. 3.17).
 
@@ -272,6 +278,11 @@ def wasserstein_propagation(
         solve prolonged): before the first sweep every edge takes one Sinkhorn step
         towards the guesses at its two ends (first ends, then second ends; one kernel
         application per edge end).  Same fixed point, another start.
+    scalings_dtype : ``np.float64`` (default) or ``np.float32``: the storage of the edge
+        ends' log-scalings (``2m x n``, the solver's largest array), of the barycenters'
+        log-densities and of the returned ``masses``.  float32 halves them; the kernel
+        applications, barycenters and gaps are computed in float64 either way, so only the
+        stored values are rounded (relative 6e-8).
 
     Returns
     -------
@@ -314,7 +325,9 @@ def wasserstein_propagation(
     row_of = np.empty((len(e), 2), dtype=np.int64)
     row_of[end_edge, end_side] = np.arange(2 * len(e))
     opposite = row_of[end_edge, 1 - end_side]
-    T = _own_side_logs(log_p, log_q, log_d, end_edge, end_side, end_node, n)
+    if np.dtype(scalings_dtype) not in (np.float32, np.float64):
+        raise InputError("scalings_dtype must be float32 or float64", field="scalings_dtype")
+    T = _own_side_logs(log_p, log_q, log_d, end_edge, end_side, end_node, n, scalings_dtype)
     end_order = end_side * len(e) + end_edge
     if initial is not None:
         _warm_start(T, initial, end_order, setup.gamma)
@@ -380,12 +393,16 @@ def wasserstein_propagation(
                 break
             visit_all = residual <= setup.tol  # certify with a sweep over every node
             it += 1
-    log_bar = sweeper.log_bar
-    masses = np.zeros((n, n_nodes))
+    # The masses overwrite the barycenters' log-densities, a block of nodes at a time (no
+    # second (n_nodes, n) array; the blocks' temporaries stay small); ``masses`` is its
+    # transpose, a view.
+    log_bar, sweeper.log_bar = sweeper.log_bar, None
+    for c0 in range(0, len(free), MASS_COLUMNS):
+        cols = free[c0:c0 + MASS_COLUMNS]
+        log_bar[cols] = masses_from_log(log_bar[cols].T, a).T
     for u, m in fixed_m.items():
-        masses[:, u] = m
-    if len(free):
-        masses[:, free] = masses_from_log(log_bar[free].T, a)
+        log_bar[u] = m
+    masses = log_bar.T
     # Edge values from the scalings S = T - (own-side rescalings), one chunk at a time; with
     # keep_scalings, S replaces T in place (no second (2m, n) array).
     values = np.zeros(len(e))
@@ -455,10 +472,10 @@ def _warm_start(T, initial, end_order, gamma) -> None:
         T[r0:r0 + 256] += ratio * initial.scalings[r0:r0 + 256]
 
 
-def _own_side_logs(log_p, log_q, log_d, end_edge, end_side, end_node, n):
+def _own_side_logs(log_p, log_q, log_d, end_edge, end_side, end_node, n, dtype=np.float64):
     """``(ends, n)`` own-side log-rescalings of edge ends (zeros without rescalings),
     filled in row blocks (no full-size temporaries)."""
-    out = np.zeros((len(end_edge), n))
+    out = np.zeros((len(end_edge), n), dtype)
     for r0 in range(0, len(end_edge), 256):
         rows = slice(r0, r0 + 256)
         if log_p is not None:
@@ -527,7 +544,7 @@ class _Sweeper:
         self.fixed_slot = -np.ones(n_nodes, dtype=np.int64)
         self.fixed_slot[list(fixed_m)] = np.arange(len(fixed_m))
         self.log_fixed = np.stack([log_density(m, self.areas) for m in fixed_m.values()])
-        self.log_bar = np.zeros((n_nodes, T.shape[1]))
+        self.log_bar = np.zeros((n_nodes, T.shape[1]), T.dtype)
         self.columns = 0
         self.threads = thread_count(threads)
         self._pool = None
@@ -555,7 +572,7 @@ class _Sweeper:
 
     def _log_kernel(self, opp):
         r"""``(k, n)`` :math:`\log H_t \exp(T_{opp})`."""
-        X = self.T[opp]
+        X = np.asarray(self.T[opp], np.float64)  # a chunk's copy (float32 storage: widened)
         if self.factor is not None:
             tops, widest = self.kernels.row_range(X)
             if widest <= self.logk.band:

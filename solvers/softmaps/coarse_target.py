@@ -43,7 +43,7 @@ _CANDIDATES = 16
 # fast-simplification keeps the mesh being simplified in module state: one call at a time.
 _DECIMATION_LOCK = threading.Lock()
 # Rows prolonged at once (a block's gathered temporary: rows x n_fine x 3 floats).
-_APPLY_ROWS = 64
+APPLY_ROWS = 64
 
 
 @dataclass
@@ -70,7 +70,7 @@ class Prolongation:
 
     def apply(self, rows) -> np.ndarray:
         """Fine masses ``(..., n_fine)`` of coarse masses ``rows`` ``(..., n_coarse)``
-        (float32 for float32 rows).  Rows are prolonged in blocks of :data:`_APPLY_ROWS`,
+        (float32 for float32 rows).  Rows are prolonged in blocks of :data:`APPLY_ROWS`,
         so the gathered ``(rows, n_fine, 3)`` temporary stays small."""
         r = np.asarray(rows)
         if r.shape[-1] != self.n_coarse:
@@ -82,17 +82,17 @@ class Prolongation:
             return np.einsum("yk,yk->y", r[self.indices], w)
         flat = r.reshape(-1, self.n_coarse)
         out = np.empty((len(flat), self.n_fine), dtype)
-        for r0 in range(0, len(flat), _APPLY_ROWS):
-            block = flat[r0:r0 + _APPLY_ROWS]
-            np.einsum("iyk,yk->iy", block[:, self.indices], w, out=out[r0:r0 + _APPLY_ROWS])
+        for r0 in range(0, len(flat), APPLY_ROWS):
+            block = flat[r0:r0 + APPLY_ROWS]
+            np.einsum("iyk,yk->iy", block[:, self.indices], w, out=out[r0:r0 + APPLY_ROWS])
         return out.reshape(*r.shape[:-1], self.n_fine)
 
     def blocks(self, rows):
         """``(first row, fine masses of a block of rows)`` for the coarse ``rows``
-        ``(N, n_coarse)``, :data:`_APPLY_ROWS` rows at a time: the prolonged rows without
+        ``(N, n_coarse)``, :data:`APPLY_ROWS` rows at a time: the prolonged rows without
         the ``(N, n_fine)`` matrix."""
-        for r0 in range(0, len(rows), _APPLY_ROWS):
-            yield r0, self.apply(rows[r0:r0 + _APPLY_ROWS])
+        for r0 in range(0, len(rows), APPLY_ROWS):
+            yield r0, self.apply(rows[r0:r0 + APPLY_ROWS])
 
     def transpose_apply(self, fine) -> np.ndarray:
         r""":math:`P^\top` ``fine`` for ``fine`` ``(n_fine, ...)``: ``(n_coarse, ...)``."""

@@ -25,28 +25,36 @@ from solvers.errors import InputError
 from solvers.validation import check_int, check_positive
 
 LANDMARK_ROUTES = ("geodesic", "heat")
+# Eigenpairs solved for at least (the soft map's descriptor default), whatever k is asked.
+EIGENPAIRS_SOLVED = 100
 
 
 def eigenpairs(mesh, k: int) -> tuple[np.ndarray, np.ndarray]:
     r"""The ``k`` smallest pairs of :math:`L\phi = \lambda A \phi`: ``(evals (k,), evecs (n, k))``.
 
     Eigenvectors are :math:`A`-orthonormal (:math:`\Phi^\top A \Phi = I`); the first is
-    constant (:math:`\lambda_0 = 0` on a connected mesh).  Cached in ``mesh.operators``.
+    constant (:math:`\lambda_0 = 0` on a connected mesh).  Always solved for at least
+    :data:`EIGENPAIRS_SOLVED` pairs and cached in ``mesh.operators`` per solved count, so
+    the descriptors (``k`` 100) and ZoomOut (``k`` up to 80) share one solve and one cached
+    basis; smaller ``k`` get the leading columns (views of the cache).
     """
     k = check_int(k, "k", low=2, high=max(2, mesh.n - 2))
+    solved = max(k, min(EIGENPAIRS_SOLVED, mesh.n - 2))
 
     def build():
         A = sp.diags(mesh.areas)
         L = sp.csc_matrix(mesh.laplacian)
         # Shift-invert about a small negative sigma: L - sigma A is positive definite.
         sigma = -1e-3 * float(np.abs(L.diagonal()).mean() / np.mean(mesh.areas))
-        vals, vecs = eigsh(L, k=k, M=A.tocsc(), sigma=sigma, which="LM")
+        vals, vecs = eigsh(L, k=solved, M=A.tocsc(), sigma=sigma, which="LM")
         order = np.argsort(vals)
         vals, vecs = np.maximum(vals[order], 0.0), vecs[:, order]
         vecs = vecs / np.sqrt(np.einsum("ij,i,ij->j", vecs, mesh.areas, vecs))
         return vals, vecs
 
-    return mesh.operators.get(("softmaps.eigenpairs", k, mesh.laplacian_kind), build)
+    vals, vecs = mesh.operators.get(("softmaps.eigenpairs", solved, mesh.laplacian_kind),
+                                    build)
+    return vals[:k], vecs[:, :k]
 
 
 def heat_kernel_signature(mesh, k: int = 100, times=None, n_times: int = 16) -> np.ndarray:

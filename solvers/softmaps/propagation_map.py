@@ -28,7 +28,7 @@ import numpy as np
 
 from solvers.convolutional import wasserstein_propagation
 from solvers.errors import InputError, UnsupportedDomainError
-from solvers.memory import release_free_heap
+from solvers.memory import map_large_blocks, release_free_heap
 from solvers.monitor import SolverResult
 from solvers.softmaps.coarse_target import Prolongation, coarse_target
 from solvers.softmaps.compatibility import NORMS, compatibility_cost
@@ -52,6 +52,17 @@ MULTISCALE_SAMPLES = 128
 ZOOMOUT_QUERIES = 1024
 # "auto" solves over a coarse target when it has at most 1/AUTO_COARSENING of the vertices.
 AUTO_COARSENING = 1.5
+# Storage of the propagation's edge-end log-scalings (its largest array: 2 x edges x
+# target points) over a coarse target: float32 halves it; the sweeps compute in float64.
+SCALINGS_DTYPE = np.float32
+# Smallest default gamma over a coarse target (unit-area target).  Below it the sweeps'
+# slow mode -- mass moving between the two modes of left/right-ambiguous rows -- stalls:
+# 4,096 samples (gamma 4 h^2 = 1.1e-3 of the coarse target) stood at a residual of 5.2e-4
+# after 1,050 sweeps against tol 1e-4.  The floor is what the default solves from 512
+# samples on (4 h^2: 9.3e-3 at 512, 5.0e-3 at 1,024); the rows are then blurrier than the
+# sample spacing, which the refinement does not mind: errors with and without the floor in
+# bench/results/softmaps.md.
+COARSE_GAMMA_MIN = 0.01
 
 
 def check_mesh_for_soft_map(mesh, field: str) -> None:
@@ -90,27 +101,52 @@ def check_landmark_pairs(landmarks, n_source: int, n_target: int) -> np.ndarray:
 EDGES_PER_SAMPLE = 3.0  # source edges per farthest-point sample (a surface's sample graph)
 
 
+# Bytes per source and target vertex beyond the descriptors: ZoomOut's (vertices x k_end)
+# products and contiguous copies of the bases (k_end 80: 2 x 80 floats per vertex), the
+# sampling's and extraction's per-vertex arrays.
+PER_VERTEX_BYTES = 2 * 80 * 8 + 256
+
+
 def estimated_bytes(n_samples: int, n_target: int, edges_per_sample: float = EDGES_PER_SAMPLE,
                     target_points: int | None = None, n_source: int = 0, k: int = 0,
-                    n_energies: int = 0, landmarks: int = 0) -> int:
+                    n_energies: int = 0, landmarks: int = 0, whole_rows: bool = False) -> int:
     """Peak bytes of :func:`soft_map` for ``n_samples`` over ``n_target`` target vertices,
     solved over ``target_points`` coarse points (``None``: all ``n_target`` vertices).
 
-    Per (sample, solved point): the edge-end log-scalings (2 per edge, float64), the node
-    log-rescalings, barycenters and masses with two temporaries of the final normalization
-    (float64), and the float32 soft map; the propagation's chunk temporaries are small.
-    With a coarse target, the prolonged rows the extraction reads (float32, and float64
-    inside the optional Sinkhorn projection: 12 bytes per sample and target vertex); at full
-    resolution the extraction's float64 copy of the rows (8 bytes each). The descriptors of
-    both meshes (``k`` eigenpairs, ``n_energies`` WKS energies and one column per landmark,
-    float64, over ``n_source + n_target`` vertices). Measured peaks:
-    bench/results/softmaps.md and bench/results/softmap_memory.md.
+    Over a coarse target, per (sample, coarse point): the edge-end log-scalings (2 per
+    edge), the node log-rescalings and the barycenters, which become the rows
+    (:data:`SCALINGS_DTYPE`); the final masses' temporaries over a block of nodes; the
+    prolongation (up to 4 entries per target vertex) and one block of prolonged rows
+    (gathered float32), or with ``whole_rows`` (an extraction other than the mode, or a
+    Sinkhorn refinement) all of them (float32, float64 in the projection).  At full
+    resolution (float64), per (sample, target vertex): the edge-end log-scalings, the node
+    log-rescalings, barycenters and masses with two temporaries, the float32 rows and the
+    extraction's float64 copy of them.  The descriptors of both
+    meshes (``k`` eigenpairs, ``n_energies`` WKS energies and one column per landmark,
+    float64) and
+    :data:`PER_VERTEX_BYTES` per vertex.  Measured peaks: bench/results/softmaps.md,
+    bench/results/softmap_memory.md and bench/results/operation_memory.md.
     """
-    solved = n_target if target_points is None else target_points
-    total = n_samples * solved * (2 * edges_per_sample * 8 + 6 * 8 + 4)
-    total += n_samples * n_target * (12 if target_points is not None else 8)
+    from solvers.convolutional.propagation import MASS_COLUMNS
+    from solvers.softmaps.coarse_target import APPLY_ROWS
+
+    if target_points is None:  # float64 throughout (bench/results/softmap_memory.md)
+        total = n_samples * n_target * (2 * edges_per_sample * 8 + 6 * 8 + 4 + 8)
+    else:
+        item = np.dtype(SCALINGS_DTYPE).itemsize
+        total = n_samples * target_points * (2 * edges_per_sample + 2) * item
+        total += min(n_samples, MASS_COLUMNS) * target_points * 32
+        total += n_target * 4 * 16
+        total += (n_samples if whole_rows else APPLY_ROWS) * n_target * 16
     total += (k + n_energies + landmarks) * (n_source + n_target) * 8
+    total += PER_VERTEX_BYTES * (n_source + n_target)
     return int(total)
+
+
+def wholly_prolonged(extraction: str, refine: str) -> bool:
+    """Whether the extraction forms every prolonged row at once (only the mode and ZoomOut
+    read them a block at a time)."""
+    return extraction != "mode" or refine.startswith("sinkhorn")
 
 
 def solved_points(target_points, n_samples: int, n_target: int) -> int | None:
@@ -132,10 +168,13 @@ def solved_points(target_points, n_samples: int, n_target: int) -> int | None:
     return None if points >= n_target else points
 
 
-def default_gamma(n_samples: int, target) -> float:
+def default_gamma(n_samples: int, target, coarse: bool = False) -> float:
     r"""Twice the squared spacing of ``n_samples`` uniform samples of a unit-area surface
-    (:math:`2 \cdot 2/(\sqrt3 N)`), and at least :math:`4h^2` (``h``: target edge length)."""
-    return max(4.0 / (np.sqrt(3.0) * n_samples), 4.0 * target.mean_edge_length**2)
+    (:math:`2 \cdot 2/(\sqrt3 N)`), and at least :math:`4h^2` (``h``: edge length of the
+    target solved over); over a coarse target (``coarse``) at least
+    :data:`COARSE_GAMMA_MIN` as well."""
+    gamma = max(4.0 / (np.sqrt(3.0) * n_samples), 4.0 * target.mean_edge_length**2)
+    return max(gamma, COARSE_GAMMA_MIN) if coarse else gamma
 
 
 @dataclass(kw_only=True)
@@ -334,7 +373,8 @@ def soft_map(
     n_samples = min(samples, source.n)
     points = solved_points(target_points, n_samples, target.n)
     need = estimated_bytes(n_samples, target.n, target_points=points, n_source=source.n,
-                           k=k, n_energies=n_energies, landmarks=len(pairs))
+                           k=k, n_energies=n_energies, landmarks=len(pairs),
+                           whole_rows=wholly_prolonged(extraction, refine))
     if max_bytes is not None and need > max_bytes:
         raise InputError(f"{n_samples} samples over {points or target.n} target points need "
                          f"about {need / 2**20:.0f} MiB, more than the "
@@ -349,6 +389,7 @@ def soft_map(
     if top_k is not None:
         top_k = check_int(top_k, "top_k", low=1, high=target.n)
     timings = {}
+    map_large_blocks()  # the (samples x target) temporaries go back to the OS when freed
     t0 = time.perf_counter()
     graph = farthest_point_samples(source, n_samples, pairs[:, 0])
     cells = np.bincount(graph.labels, weights=source.areas, minlength=graph.n)
@@ -356,7 +397,7 @@ def soft_map(
     solved = target if coarse is None else coarse.mesh
     timings["sampling"] = time.perf_counter() - t0
     if gamma is None:
-        gamma = default_gamma(n_samples, solved)
+        gamma = default_gamma(n_samples, solved, coarse=coarse is not None)
     gamma = check_positive(gamma, "gamma")
 
     t0 = time.perf_counter()
@@ -377,9 +418,14 @@ def soft_map(
         start = _multiscale_start(source, target, pairs, graph, coarse, f0, f1, norm=norm,
                                   tau=tau, tol=tol, max_iter=max_iter)
     timings["multiscale"] = time.perf_counter() - t0
-    release_free_heap()  # the descriptors' temporaries, before the largest arrays
+    del f0, f1, descriptors  # not needed any more: out before the largest arrays come
+    release_free_heap()  # the descriptors' temporaries too
     t0 = time.perf_counter()
-    prop, rows, descriptor = _propagate(solved, coarse, graph, cells, pairs, cost, tau=tau,
+    # The node log-rescalings replace the cost (float32: the float64 cost is gone before
+    # the propagation's arrays come).
+    log_d = _node_logs(cost, graph, tau=tau, gamma=gamma, coarse=coarse is not None)
+    del cost
+    prop, rows, descriptor = _propagate(solved, coarse, graph, cells, pairs, log_d, tau=tau,
                                         gamma=gamma, substeps=substeps, tol=tol,
                                         start_masses=start,
                                         max_iter=max_iter, acceleration=acceleration,
@@ -443,8 +489,10 @@ def _multiscale_start(source, target, pairs, graph, coarse, f0, f1, *, norm, tau
     below = coarse_target(target, MULTISCALE_SAMPLES)
     cost = compatibility_cost(f0, f1, areas0=source.areas, areas1=target.areas,
                               rows=small.indices, norm=norm, columns=below.restrict(f1))
-    _, rows, _ = _propagate(below.mesh, below, small, cells, pairs, cost, tau=tau,
-                            gamma=default_gamma(small.n, below.mesh), tol=tol,
+    gamma = default_gamma(small.n, below.mesh, coarse=True)
+    _, rows, _ = _propagate(below.mesh, below, small, cells, pairs,
+                            _node_logs(cost, small, tau=tau, gamma=gamma, coarse=True), tau=tau,
+                            gamma=gamma, tol=tol,
                             max_iter=max_iter, acceleration="over-relaxation")
     density = below.prolongation.apply(rows.astype(np.float64)) / target.areas  # (n_s, n)
     guess = coarse.restrict(density.T) * coarse.mesh.areas[:, None]  # (coarse.n, n_s)
@@ -464,15 +512,33 @@ def _zoomout_queries(source, target, pairs):
     return on(source, pairs[:, 0]), on(target, np.unique(pairs[:, 1]))
 
 
-def _propagate(solved, coarse, graph, cells, pairs, cost, *, tau, gamma, start_masses=None,
+def _node_weights(graph) -> np.ndarray:
+    """:math:`W_u = \\sum_{e \\ni u} \\omega_e` per node of ``graph``."""
+    return np.bincount(graph.edges.ravel(), weights=np.repeat(graph.weights, 2),
+                       minlength=graph.n)
+
+
+def scalings_dtype(coarse: bool):
+    """Storage of the propagation's log-scalings: :data:`SCALINGS_DTYPE` over a coarse
+    target, float64 at full resolution (its memory model was measured in float64)."""
+    return SCALINGS_DTYPE if coarse else np.float64
+
+
+def _node_logs(cost, graph, *, tau, gamma, coarse: bool) -> np.ndarray:
+    """The node log-rescalings :math:`\\log d_u = -\\tau c(u, \\cdot) / (\\gamma W_u)` of eq.
+    3.18, stored as the propagation's log-scalings (:func:`scalings_dtype`); ``cost`` is
+    overwritten (scaled in place)."""
+    cost *= -tau / gamma / _node_weights(graph)[:, None]
+    return cost.astype(scalings_dtype(coarse), copy=False)
+
+
+def _propagate(solved, coarse, graph, cells, pairs, log_d, *, tau, gamma, start_masses=None,
                **options):
-    """eq. 3.18 over ``solved`` (the target, or ``coarse.mesh``): the propagation result,
-    the ``(N, solved.n)`` float32 rows and the descriptor energy (eq. 4.6).  ``cost`` is
-    consumed (turned into the node log-rescalings in place)."""
+    """eq. 3.18 over ``solved`` (the target, or ``coarse.mesh``) with the node
+    log-rescalings ``log_d`` (:func:`_node_logs`): the propagation result, the ``(N,
+    solved.n)`` float32 rows and the descriptor energy (eq. 4.6)."""
     w = graph.weights
-    wu = np.bincount(graph.edges.ravel(), weights=np.repeat(w, 2), minlength=graph.n)
-    log_d = cost
-    log_d *= -tau / gamma / wu[:, None]  # in place: the cost is not needed any more
+    wu = _node_weights(graph)
     fixed = {}
     for j, (_, y) in enumerate(pairs):  # landmark j is sample j (seeds first)
         if coarse is None:
@@ -485,11 +551,13 @@ def _propagate(solved, coarse, graph, cells, pairs, cost, *, tau, gamma, start_m
             start_masses[:, j] = m
     prop = wasserstein_propagation(solved, graph.n, graph.edges, fixed, edge_weights=w,
                                    node_scalings=log_d, gamma=gamma,
-                                   start_masses=start_masses, **options)
+                                   start_masses=start_masses,
+                                   scalings_dtype=log_d.dtype, **options)
     # Descriptor energy (eq. 4.6) with the normalized cost c = -log_d * gamma * W_u / tau.
     descriptor = -(gamma / tau) * float((cells * wu) @ np.einsum("ij,ji->i", log_d,
-                                                                  prop.masses))
-    del log_d, cost
+                                                                  prop.masses,
+                                                                  dtype=np.float64))
+    del log_d
     rows = np.ascontiguousarray(prop.masses.T, dtype=np.float32)
     prop.masses = None
     return prop, rows, descriptor
