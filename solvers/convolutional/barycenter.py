@@ -321,9 +321,9 @@ class BarycentersResult(SolverResult):
 
 
 # Batched barycenters: problems per block step such that the block's kernel columns (n
-# values per input column) fit this many bytes.  Wider blocks were slower than single calls on
-# spot (bench/results/distance_matrix.md): each step's element-wise passes over all columns
-# then leave the cache between the two kernel applications.
+# values per input column) fit this many bytes.  All problems in one block measured slower
+# than single calls on spot, blocks of this size faster (bench/results/distance_matrix.md,
+# barycenters): wide blocks leave the cache between a step's element-wise passes.
 BLOCK_CACHE_BYTES = 256 * 2**10
 
 
