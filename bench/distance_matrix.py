@@ -466,6 +466,14 @@ def render(data: dict) -> str:
                     f"{p['factor']:g}: {100 * p['worst_relative_error']:.2f} % / "
                     f"{p['seconds_per_pair']:.3g} s" for p in s["pot"]) + ".", ""]
         out += _render_lp_designs(s.get("lp_designs"))
+    ab = data.get("spot_pipeline_ab")
+    if ab:
+        out += ["### Threads: chunk barriers vs one chunk submitted ahead", "",
+                f"{ab['what']} Load {ab['load'][0]:.1f} / {ab['load'][1]:.1f}.", "",
+                "| run | main (chunk barriers) | one chunk ahead |", "|---|---|---|"]
+        out += [f"| {k + 1} | {a:.2f} s | {b:.2f} s |" for k, (a, b) in
+                enumerate(zip(ab["main"], ab["pipelined"], strict=True))]
+        out += [""]
     b = data.get("blocks")
     if b:
         out += ["## Convolutional pairs in blocks (spot, 20 bumps of radius 0.3, 190 pairs)", "",
