@@ -58,3 +58,20 @@ def test_batch_progress_cancel_and_errors(inputs):
     assert info.value.field == "weights"
     with pytest.raises(InputError):
         barycenters(grid, mus, [[1.0, -1.0, 0.5]])
+    with pytest.raises(InputError) as info:
+        barycenters(grid, mus, ALPHAS, block=0)
+    assert info.value.field == "block"
+
+
+@pytest.mark.parametrize("options", [{"gamma": 0.004}, {"gamma": 0.004, "debiased": True}])
+def test_block_size_does_not_change_results(inputs, options):
+    # One problem per block, a few, and all in one block: the same masses, iterations and
+    # residuals (each problem's arithmetic is its own; the block only shares kernel solves).
+    grid, mus = inputs
+    runs = [barycenters(grid, mus, ALPHAS, block=b, **options) for b in (1, 2, len(ALPHAS))]
+    default = barycenters(grid, mus, ALPHAS, **options)
+    for other in runs[1:] + [default]:
+        assert np.abs(other.masses - runs[0].masses).sum(axis=0).max() <= 1e-12
+        np.testing.assert_array_equal(other.problem_iterations, runs[0].problem_iterations)
+        np.testing.assert_allclose(other.problem_residuals, runs[0].problem_residuals,
+                                   rtol=1e-9, atol=1e-15)

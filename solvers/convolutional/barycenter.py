@@ -320,6 +320,19 @@ class BarycentersResult(SolverResult):
     regularization: Regularization | None = None
 
 
+# Batched barycenters: problems per block step such that the block's kernel columns (n
+# values per input column) fit this many bytes.  All problems in one block measured slower
+# than single calls on spot, blocks of this size faster (bench/results/distance_matrix.md,
+# barycenters): wide blocks leave the cache between a step's element-wise passes.
+BLOCK_CACHE_BYTES = 256 * 2**10
+
+
+def cached_problems(n: int, inputs: int) -> int:
+    """Barycenter problems of ``inputs`` columns on ``n`` vertices per block (at least 1; a
+    function of the sizes only)."""
+    return max(1, BLOCK_CACHE_BYTES // (8 * int(n) * int(inputs)))
+
+
 def barycenters(
     domain,
     mus,
@@ -334,6 +347,7 @@ def barycenters(
     tol: float = 1e-5,
     max_iter: int | None = None,
     acceleration: str = "over-relaxation",
+    block: int | None = None,
     progress: Callable[..., None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
 ) -> BarycentersResult:
@@ -356,6 +370,8 @@ def barycenters(
         ``alphas`` (thesis Fig. 3.4).
     gamma, t, substeps, entropy_bound, sharpen, debiased, tol, max_iter, acceleration :
         as :func:`barycenter`.
+    block : problems advanced together (default :func:`cached_problems`: their kernel
+        columns fit :data:`BLOCK_CACHE_BYTES`); each problem's result does not depend on it.
     progress : ``progress(problems_done, worst_residual)`` after each finished problem.
     should_cancel : checked before every block step (raises
         :class:`~solvers.errors.CancelledError`).
@@ -365,7 +381,7 @@ def barycenters(
     BarycentersResult(masses (n, B), weights (B, k), problem_iterations, problem_residuals,
     problem_converged, entropies, iterations, residual, converged, ...)
     """
-    from solvers.convolutional.matrix import block_pairs, run_block
+    from solvers.convolutional.matrix import run_block
     from solvers.errors import InputError
 
     M = _inputs(domain, mus)
@@ -377,6 +393,9 @@ def barycenters(
     if W.ndim != 2 or W.shape[0] == 0:
         raise InputError(f"weights must have shape (B, {k})", field="weights")
     W = np.stack([check_weights(w, k) for w in W])
+    if block is not None and (isinstance(block, bool) or not isinstance(block, (int, np.integer))
+                              or block < 1):
+        raise InputError(f"block must be a positive integer, got {block!r}", field="block")
     reg, setup, options = _prepared(domain, M, gamma=gamma, t=t, substeps=substeps,
                                     entropy_bound=entropy_bound, sharpen=sharpen,
                                     debiased=debiased, tol=tol, max_iter=max_iter,
@@ -406,7 +425,7 @@ def barycenters(
 
     stop = Monitor(None, should_cancel).check_cancel
     with np.errstate(invalid="ignore"):
-        run_block(setup.logk, jobs(), max(1, block_pairs(M.shape[0] * k)), done, stop)
+        run_block(setup.logk, jobs(), block or cached_problems(M.shape[0], k), done, stop)
     masses = out["masses"]
     return BarycentersResult(
         masses=masses, weights=W, problem_iterations=out["it"], problem_residuals=out["res"],

@@ -35,9 +35,9 @@ finished rows come first).
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import nullcontext
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -290,10 +290,10 @@ def _kernel_key(d: DistanceDecision) -> tuple:
 
 def _exact_pairs(domain, A, B, pairs, table: _Table, stop, threads: int | None = None) -> None:
     """The exact route: one cost matrix between the supports of the exact pairs' rows and
-    those of their columns, then one transport LP per pair on its sub-matrix.  The LPs of
-    :data:`EXACT_CHUNK` consecutive pairs run in ``threads`` threads (POT's network simplex
-    releases the GIL; each pair's LP is the same whichever thread solves it) and enter the
-    table in row order, so cancellation between chunks keeps the finished rows."""
+    those of their columns, then one transport LP per pair on its sub-matrix.  The LPs run in
+    ``threads`` threads (POT's network simplex releases the GIL; each pair's LP is the same
+    whichever thread solves it) and enter the table in row order (:func:`_in_order`), so
+    cancellation, checked every :data:`EXACT_CHUNK` pairs, keeps the finished rows."""
     rows = np.flatnonzero((A[:, sorted({i for i, _ in pairs})] > 0).any(axis=1))
     cols = np.flatnonzero((B[:, sorted({j for _, j in pairs})] > 0).any(axis=1))
     if len(rows) * len(cols) > SHARED_COST_ENTRIES:
@@ -317,14 +317,35 @@ def _exact_pairs(domain, A, B, pairs, table: _Table, stop, threads: int | None =
         src, dst = row_support[i], col_support[j]
         return _support_lp(A[src, i], B[dst, j], cost[np.ix_(at_row[src], at_col[dst])])
 
-    count = thread_count(threads)
-    with ThreadPoolExecutor(count) if count > 1 else nullcontext() as pool:
-        run = map if pool is None else pool.map
-        for start in range(0, len(pairs), EXACT_CHUNK):
-            chunk = pairs[start:start + EXACT_CHUNK]
-            stop(f"before pair {chunk[0]}")
-            for (i, j), solved in zip(chunk, run(solve, chunk), strict=True):
-                table.put(i, j, *solved, "exact")
+    for (i, j), solved in _in_order(solve, pairs, thread_count(threads), stop):
+        table.put(i, j, *solved, "exact")
+
+
+def _in_order(solve, pairs: list, count: int, stop) -> Iterator[tuple]:
+    """``(pair, solve(pair))`` in the order of ``pairs``, solved by ``count`` threads.
+
+    ``stop`` runs before each run of :data:`EXACT_CHUNK` pairs is collected.  Up to one
+    chunk is submitted ahead of the pair being collected, so threads never idle at a chunk
+    boundary (the slowest LP of a chunk does not hold the next chunk back)."""
+    if count == 1:
+        for k, pair in enumerate(pairs):
+            if k % EXACT_CHUNK == 0:
+                stop(f"before pair {pair}")
+            yield pair, solve(pair)
+        return
+    pool = ThreadPoolExecutor(count)
+    try:
+        pending = deque((pair, pool.submit(solve, pair)) for pair in pairs[:EXACT_CHUNK])
+        for k in range(len(pairs)):
+            if k + EXACT_CHUNK < len(pairs):
+                later = pairs[k + EXACT_CHUNK]
+                pending.append((later, pool.submit(solve, later)))
+            pair, future = pending.popleft()
+            if k % EXACT_CHUNK == 0:
+                stop(f"before pair {pair}")
+            yield pair, future.result()
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _support_lp(a: np.ndarray, b: np.ndarray, sub: np.ndarray) -> tuple:
