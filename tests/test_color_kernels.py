@@ -77,7 +77,8 @@ def test_apply_field_is_gamut_map_then_lab_to_rgb():
     src[:, 3] = rng.integers(0, 256, n)
     out = np.empty_like(src)
     empty = np.zeros(0, dtype=np.float32)
-    SK.apply_field(lab, src, out, empty, 1.0, disp, M, 255.0, 0.5, 100.0)
+    SK.apply_field(lab, src, out, empty, 1.0, disp, M, 255.0, 0.5, 100.0,
+                   np.zeros((2, 0, 0)), 1, n)
     mapped = np.array([_gamut_map_ref(float(L), float(a) + float(da), float(b) + float(db), 100.0)
                        for (L, a, b), (da, db) in zip(lab, disp, strict=True)])
     want = np.empty((n, 3), dtype=np.uint8)

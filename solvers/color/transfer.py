@@ -49,7 +49,7 @@ from solvers.color import _split_kernels as SK
 from solvers.color.chrominance import AbGrid, check_bins, chrominance_barycenters
 from solvers.color.lab import check_image, code_scale, lut_for, pixels
 from solvers.color.luminance import L_MAX, LBINS, limit_slope, luminance_maps
-from solvers.color.regularize import guided_coefficients
+from solvers.color.regularize import guided_coefficients, guided_solve_moments
 from solvers.color.split import ExactPlan, exact_plan, moved_histogram, split_displacements
 from solvers.errors import InputError
 from solvers.monitor import SolverResult
@@ -72,12 +72,25 @@ REDUCED_PIXELS = 2**19
 GUIDE_CHANNELS = 1
 # an out-of-gamut result moves to the nearest in-gamut L* up to this far (keeps its ab)
 GAMUT_REACH = 100.0
+# the L* move into the gamut is guided-filtered (window: the guided filter's) with this
+# epsilon, each pixel weighted 1 if out of the gamut and GAMUT_IN_WEIGHT if in it (a mean
+# over the pixels that need a move, diluted where they are few); chosen in bench/color.py
+GAMUT_SHIFT_STRENGTH = 1e-3
+GAMUT_IN_WEIGHT = 0.3
+# that move is sampled on every min(s, GAMUT_STRIDE)-th row and column (s: the block
+# size of the reduced image; 1 below REDUCED_PIXELS): the filter averages it over many
+# blocks anyway
+GAMUT_STRIDE = 2
 # split mode: the L* table's slope kept within [1/c, c] times its mean slope
 # (luminance.limit_slope; inf = the exact 1-D map); chosen in bench/color.py
 DEFAULT_LUMINANCE_SLOPE = 1.25
 # fraction of the re-split's correction applied after the guided filter (1: the output
-# histogram is the target's; less: smaller steps between neighbours); chosen in bench/color.py
-DEFAULT_RESPLIT = 0.3
+# histogram is the target's up to the binning and the correction's filter); chosen in
+# bench/color.py
+DEFAULT_RESPLIT = 1.0
+# window radius (cells of the reduced image) of the guided filter of the re-split's
+# correction: small, so the histogram stays the target's but no single pixel steps alone
+CORRECTION_RADIUS = 1
 
 
 @dataclass(kw_only=True)
@@ -453,13 +466,33 @@ def _recolor_split(img, lab, plan, grid, scale, lut_l, settings, target):
         if resplit > 0:
             hist, hmeans = moved_histogram(lab, disp, grid)
             again = exact_plan(hist, target[0], grid, hmeans, target[1])
-            disp += split_displacements(lab, shape, again, grid, scale=resplit, s=s,
-                                        radius=key_radius, base=disp)
+            corr = split_displacements(lab, shape, again, grid, scale=resplit, s=s,
+                                       radius=key_radius, base=disp)
+            coef = guided_coefficients(lab, corr, shape, strength=regularization, s=s,
+                                       radius=CORRECTION_RADIUS, nguide=GUIDE_CHANNELS)
+            SK.guided_field(lab, coef, GUIDE_CHANNELS, s, shape[1], corr)
+            disp += corr
+    lut = np.zeros(0, dtype=np.float32) if lut_l is None else lut_l.astype(np.float32)
+    shift = _gamut_shift(lab, lut, disp, shape, s, filter_radius)
     src = pixels(img)
     out = np.empty_like(src)
-    lut = np.zeros(0, dtype=np.float32) if lut_l is None else lut_l.astype(np.float32)
     scale_out = code_scale(img.dtype)
     offset = 0.5 if img.dtype.kind in "ui" else 0.0
     SK.apply_field(lab, src, out, lut, L_MAX / LBINS, disp, _kernels._M_INV, scale_out,
-                   offset, float(GAMUT_REACH))
+                   offset, 0.0, shift, s, shape[1])
     return out.reshape(img.shape).astype(img.dtype, copy=False)
+
+
+def _gamut_shift(lab, lut, disp, shape, s, radius):
+    """Coefficients ``(2, h, w)`` (``a``, ``b`` of ``a L*/100 + b``) of a smooth L* shift
+    towards the gamut: each recolored pixel's move to its nearest in-gamut L*
+    (:func:`~solvers.color._split_kernels.gamut_lightness`, 0 in the gamut),
+    guided-filtered by the input's L* with in-gamut pixels down-weighted.  A per-pixel
+    move adds L* texture the input does not have; the smooth shift keeps the input's
+    structure, and the colours it leaves out of the gamut lose chroma at their L*."""
+    H, W = shape
+    mom = np.zeros((SK.n_moments(1), -(-H // s), -(-W // s)))
+    SK.gamut_shift_moments(lab, lut, L_MAX / LBINS, disp, _kernels._M_INV, float(GAMUT_REACH),
+                           W, s, min(s, GAMUT_STRIDE), GAMUT_IN_WEIGHT, mom)
+    coef = guided_solve_moments(mom, 1, GAMUT_SHIFT_STRENGTH, radius, weighted=True)
+    return np.ascontiguousarray(coef[[0, 2]])
