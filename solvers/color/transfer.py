@@ -12,8 +12,11 @@ and the filtered colours split once more by the exact plan from their histogram 
 target, which puts back the fidelity the filter costs (a filter -> re-split step, as in
 the regularized transport maps of Rabin, Delon and Gousseau).  L* goes through the exact
 1-D map with its slope limited (``luminance_slope``, :func:`~solvers.color.luminance.
-limit_slope`; ``inf`` = the exact map), and an out-of-gamut colour moves to the nearest
-in-gamut L* within ``GAMUT_REACH``, else loses chroma at its L* and hue.
+limit_slope`; ``inf`` = the exact map).  Colours out of the sRGB gamut: each pixel's move
+to its nearest in-gamut L* (within ``GAMUT_REACH``) is guided-filtered by the input's L*
+and the smooth shift applied to all pixels (a per-pixel move would add L* texture); a
+colour still out of the gamut loses chroma at its L* and hue.  The re-split's correction
+is itself guided-filtered over a window of radius ``CORRECTION_RADIUS`` cells.
 Towards a vertex of the simplex (``alphas`` with a single 1) the plan goes to that image's
 histogram; for ``k = 2`` and :math:`\alpha = (1 - s, s)` every pixel moves the fraction
 :math:`s` of its displacement (McCann's interpolation, the exact W2 geodesic between the
