@@ -11,9 +11,10 @@ method, at native size:
 * time at native size.
 
 The first 8 pairs were used while developing the method; the last ``HELD_OUT`` pairs were
-not looked at before the defaults were fixed.  Methods: this library (``otgeo split``: the
-default ``color_transfer(..., [0, 1])``; also with a partial re-split, without
-regularization, with the exact 1-D L* map, the previous default, and the thesis' ``mode="barycentric"``),
+not used to choose the defaults (see ``PAIRS``).  Methods: this library (``otgeo split``:
+the default ``color_transfer(..., [0, 1])``; also the previous default's partial re-split
+``resplit=0.3``, without regularization, with the exact 1-D L* map, and the thesis'
+``mode="barycentric"``),
 color-matcher (``reinhard``, ``mkl``, ``hm-mvgd-hm``, ``hm``),
 POT ``ot.da.EMDTransport`` / ``SinkhornTransport`` / ``EMDLaplaceTransport`` fitted on
 1000 sampled pixels per image in RGB (POT's colour-transfer example) and applied to all
