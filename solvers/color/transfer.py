@@ -211,7 +211,9 @@ def color_transfer(
         histogram to the target (the filter moves colours off the target's histogram;
         this puts them back, up to the binning).
     resplit : ``split`` only: fraction in [0, 1] of that re-split's correction that is
-        applied (1: output histogram = target's; 0: the filtered colours as they are).
+        applied, after a guided filter of radius ``CORRECTION_RADIUS`` cells (default 1:
+        output histogram = target's up to the binning and that small filter; 0: the
+        filtered colours as they are).
     luminance_slope : ``split`` only: contrast limit ``c >= 1`` of the L* map
         (:func:`~solvers.color.luminance.limit_slope`: the exact 1-D map's slope clipped
         to ``[g/c, g c]``, ``g`` its mean slope); ``inf`` keeps the exact 1-D map.  The
