@@ -221,3 +221,21 @@ def test_gamut_shift_moments_match_per_pixel_sums_for_any_thread_count():
     finally:
         numba.set_num_threads(before)
     assert want[2].any()  # some pixels really moved
+
+
+def test_default_transfer_is_the_same_for_any_thread_count():
+    from skimage import data
+
+    from solvers.color import color_transfer
+
+    imgs = [data.rocket()[::2, ::2], data.astronaut()[::2, ::2]]  # many out-of-gamut colours
+    before = numba.get_num_threads()
+    try:
+        outs = []
+        for threads in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
+            numba.set_num_threads(threads)
+            outs.append(color_transfer(imgs, [0, 1], recolor=[0]).images[0][0])
+    finally:
+        numba.set_num_threads(before)
+    for other in outs[1:]:
+        np.testing.assert_array_equal(other, outs[0])
