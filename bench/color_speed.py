@@ -45,7 +45,7 @@ def otgeo(**kw):
 
 METHODS = {
     "otgeo split (default)": otgeo(),
-    "otgeo split, resplit=1": otgeo(resplit=1.0),
+    "otgeo split, resplit=0.3": otgeo(resplit=0.3),
     "color-matcher mkl": color_matcher("mkl"),
     "color-matcher hm-mvgd-hm": color_matcher("hm-mvgd-hm"),
 }

@@ -77,7 +77,8 @@ def test_apply_field_is_gamut_map_then_lab_to_rgb():
     src[:, 3] = rng.integers(0, 256, n)
     out = np.empty_like(src)
     empty = np.zeros(0, dtype=np.float32)
-    SK.apply_field(lab, src, out, empty, 1.0, disp, M, 255.0, 0.5, 100.0)
+    SK.apply_field(lab, src, out, empty, 1.0, disp, M, 255.0, 0.5, 100.0,
+                   np.zeros((2, 0, 0)), 1, n)
     mapped = np.array([_gamut_map_ref(float(L), float(a) + float(da), float(b) + float(db), 100.0)
                        for (L, a, b), (da, db) in zip(lab, disp, strict=True)])
     want = np.empty((n, 3), dtype=np.uint8)
@@ -186,3 +187,55 @@ def test_row_wise_sampling_matches_per_pixel_formula():
                                            + _sample_ref(coef[0], y, x, s) * g, abs=1e-12)
         assert disp[p, 1] == pytest.approx(_sample_ref(coef[3], y, x, s)
                                            + _sample_ref(coef[1], y, x, s) * g, abs=1e-12)
+
+
+def test_gamut_shift_moments_match_per_pixel_sums_for_any_thread_count():
+    """Block sums of the L* moves into the gamut (weighted: 1 out of the gamut, w0 in it)
+    against the plain scan, over a sample of every ``stride``-th row and column."""
+    rng = np.random.default_rng(5)
+    H, W, s, stride, w0 = 13, 11, 4, 2, 0.3
+    lab = np.ascontiguousarray(_colours(H * W, 5).astype(np.float32))
+    lab[:, 0] = np.clip(lab[:, 0], 0, 100)
+    disp = rng.normal(0, 10, (H * W, 2)).astype(np.float32)
+    lut = np.linspace(5, 95, 100).astype(np.float32)
+    want = np.zeros((SK.n_moments(1), -(-H // s), -(-W // s)))
+    for y in range(0, H, stride):
+        for x in range(0, W, stride):
+            if y % s % stride or x % s % stride:
+                continue
+            p = y * W + x
+            L = min(max(float(lut[min(int(lab[p, 0]), 99)]), 0.0), 100.0)
+            a, b = float(lab[p, 1]) + float(disp[p, 0]), float(lab[p, 2]) + float(disp[p, 1])
+            inside = _in_gamut_ref(L, a, b)
+            d = 0.0 if inside else _gamut_map_ref(L, a, b, 100.0)[0] - L
+            w, g = (w0 if inside else 1.0), float(lab[p, 0]) / 100.0
+            cell = (slice(None), y // s, min(x // s, want.shape[2] - 1))
+            want[cell] += w * np.array([g, g * g, d, 0.0, g * d, 0.0, 1.0])
+    before = numba.get_num_threads()
+    try:
+        for threads in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
+            numba.set_num_threads(threads)
+            got = np.zeros_like(want)
+            SK.gamut_shift_moments(lab, lut, 1.0, disp, M, 100.0, W, s, stride, w0, got)
+            np.testing.assert_allclose(got, want, atol=1e-6)
+    finally:
+        numba.set_num_threads(before)
+    assert want[2].any()  # some pixels really moved
+
+
+def test_default_transfer_is_the_same_for_any_thread_count():
+    from skimage import data
+
+    from solvers.color import color_transfer
+
+    imgs = [data.rocket()[::2, ::2], data.astronaut()[::2, ::2]]  # many out-of-gamut colours
+    before = numba.get_num_threads()
+    try:
+        outs = []
+        for threads in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
+            numba.set_num_threads(threads)
+            outs.append(color_transfer(imgs, [0, 1], recolor=[0]).images[0][0])
+    finally:
+        numba.set_num_threads(before)
+    for other in outs[1:]:
+        np.testing.assert_array_equal(other, outs[0])

@@ -9,7 +9,8 @@ files, no decompression bombs) within the per-image and per-job pixel limits
 numerical reasons.
 
 ``mode`` picks the transfer: ``split`` (default; exact plan, pixels split in its
-proportions, guided-filter regularization of strength ``regularization``) or
+proportions, guided-filter regularization of strength ``regularization``, a second split
+to the target's histogram, a smooth L* shift into the sRGB gamut) or
 ``barycentric`` (the thesis' map, Fig. 3.12); ``luminance=false`` transfers chrominance
 only.
 
@@ -87,7 +88,8 @@ class ColorTransferRequest(OperationRequest):
                             "false transfers chrominance only")
     resplit: float = Field(
         DEFAULT_RESPLIT, ge=0, le=1, description="split mode: fraction of the second split "
-        "(filtered colours to the target's histogram) that is applied; 1: exact histogram")
+        "(filtered colours to the target's histogram) that is applied, after a guided "
+        "filter of radius 1 cell; 1 (default): the target's histogram up to the binning")
     luminance_slope: float = Field(
         DEFAULT_LUMINANCE_SLOPE, ge=0, le=1000, description="split mode: contrast limit c >= 1 "
         "of the L* map (its slope kept within [1/c, c] times its mean slope, which keeps the "

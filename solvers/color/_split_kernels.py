@@ -555,24 +555,72 @@ def moved_histogram(lab, disp, lo, h, nbins, counts, sums):
 
 
 @_jit(parallel=True)
-def apply_field(lab, src, out, lut_l, lstep, disp, m, scale, offset, reach):
-    """Recolor every pixel: ``L -> lut_l[bin]`` (empty: keep), ``ab += disp``; an
-    out-of-gamut colour moves to the nearest in-gamut L* within ``reach`` L* units, else
-    loses chroma (:func:`gamut_map`; ``reach < 0``: clipped in RGB); Lab -> sRGB,
-    ``out = v * scale + offset``; a fourth channel of ``src`` is copied."""
+def apply_field(lab, src, out, lut_l, lstep, disp, m, scale, offset, reach, shift, s, width):
+    """Recolor every pixel: ``L -> lut_l[bin]`` (empty: keep) plus the L* shift ``a I + b``
+    (``shift`` ``(2, h, w)`` the coefficients ``a, b`` of a guided filter on ``s × s``
+    blocks, bilinear at pixel centres, ``I = L*/100`` of the input; empty: none), ``ab +=
+    disp``; a colour still out of the gamut moves to the nearest in-gamut L* within
+    ``reach`` L* units, else loses chroma (:func:`gamut_map`; ``reach < 0``: clipped in
+    RGB); Lab -> sRGB, ``out = v * scale + offset``; a fourth channel of ``src`` is copied."""
     use_l = lut_l.shape[0] > 0
+    use_shift = shift.shape[1] > 0
     alpha = src.shape[1] > 3 and out.shape[1] > 3
     inv_l = 1.0 / lstep
-    for p in numba.prange(lab.shape[0]):
-        L0 = np.float64(lab[p, 0])
-        A = np.float64(lab[p, 1]) + disp[p, 0]
-        B = np.float64(lab[p, 2]) + disp[p, 1]
-        L = _lookup_l(L0, lut_l, inv_l) if use_l else L0
-        if reach >= 0:
-            L = min(max(L, 0.0), 100.0)
-            r, g, bb = _linear_rgb(L, A, B, m)
-            if _in_box(r, g, bb):  # most pixels: linear RGB computed once
-                _store_linear(out, src, p, r, g, bb, scale, offset, alpha)
-                continue
-            L, A, B = _gamut_map_out(L, A, B, m, reach)
-        _store(out, src, p, L, A, B, m, scale, offset, alpha)
+    hs = max(shift.shape[1], 1)
+    ws = max(shift.shape[2], 1)
+    ys, ys1, fy, xs, xs1, fx = _axes(lab.shape[0], width, s, hs, ws)
+    for y in numba.prange(ys.shape[0]):
+        i0, i1, u = ys[y], ys1[y], fy[y]
+        for x in range(width):
+            p = y * width + x
+            L0 = np.float64(lab[p, 0])
+            A = np.float64(lab[p, 1]) + disp[p, 0]
+            B = np.float64(lab[p, 2]) + disp[p, 1]
+            L = _lookup_l(L0, lut_l, inv_l) if use_l else L0
+            if use_shift:
+                j0, j1, v = xs[x], xs1[x], fx[x]
+                L += (_bilinear(shift[0], i0, i1, u, j0, j1, v) * L0 * GUIDE_SCALE
+                      + _bilinear(shift[1], i0, i1, u, j0, j1, v))
+            if reach >= 0:
+                L = min(max(L, 0.0), 100.0)
+                r, g, bb = _linear_rgb(L, A, B, m)
+                if _in_box(r, g, bb):  # most pixels: linear RGB computed once
+                    _store_linear(out, src, p, r, g, bb, scale, offset, alpha)
+                    continue
+                L, A, B = _gamut_map_out(L, A, B, m, reach)
+            _store(out, src, p, L, A, B, m, scale, offset, alpha)
+
+
+@_jit(parallel=True)
+def gamut_shift_moments(lab, lut_l, lstep, disp, m, reach, width, s, stride, w0, out):
+    """Block moments (:func:`block_moments` layout, one guide channel ``I = L*/100`` of
+    the input, field ``(d, 0)``) of ``d``, the L* move :func:`gamut_lightness` gives a
+    pixel's recolored colour (``L -> lut_l[bin]``, ``ab += disp``; 0 in the gamut or with
+    no in-gamut L* within ``reach``), over the pixels of every ``stride``-th row and
+    column (the field is smoothed over many blocks: a sample of each block suffices)."""
+    use_l = lut_l.shape[0] > 0
+    inv_l = 1.0 / lstep
+    hl = out.shape[1]
+    wl = out.shape[2]
+    height = lab.shape[0] // width
+    for by in numba.prange(hl):
+        for y in range(by * s, min(height, (by + 1) * s), stride):
+            for x in range(0, width, stride):
+                p = y * width + x
+                bx = min(x // s, wl - 1)
+                L0 = np.float64(lab[p, 0])
+                A = np.float64(lab[p, 1]) + disp[p, 0]
+                B = np.float64(lab[p, 2]) + disp[p, 1]
+                L = _lookup_l(L0, lut_l, inv_l) if use_l else L0
+                L = min(max(L, 0.0), 100.0)
+                d = 0.0
+                w = w0
+                if not _in_gamut(L, A, B, m):
+                    d = gamut_lightness(L, A, B, m, reach) - L
+                    w = 1.0
+                g = L0 * GUIDE_SCALE
+                out[0, by, bx] += w * g
+                out[1, by, bx] += w * g * g
+                out[2, by, bx] += w * d
+                out[4, by, bx] += w * g * d
+                out[6, by, bx] += w

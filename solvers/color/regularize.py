@@ -37,9 +37,22 @@ def guided_coefficients(lab: np.ndarray, disp: np.ndarray, shape: tuple[int, int
     h, w = -(-H // s), -(-W // s)
     mom = np.zeros((K.n_moments(nguide), h, w))
     K.block_moments(lab, disp, W, s, nguide, mom)
-    mom[:-1] /= mom[-1]
+    return guided_solve_moments(mom, nguide, strength, radius)
+
+
+def guided_solve_moments(mom: np.ndarray, nguide: int, strength: float,
+                         radius: int, weighted: bool = False) -> np.ndarray:
+    """Box-filtered guided-filter coefficients ``(2 nguide + 2, h, w)`` from block sums
+    ``mom`` (:func:`~solvers.color._split_kernels.n_moments` layout; normalized here in
+    place), window radius ``radius`` blocks, regularization ``strength``."""
     size = 2 * radius + 1
-    means = np.stack([ndimage.uniform_filter(m, size, mode="nearest") for m in mom[:-1]])
+    if weighted:  # window sums of the weighted moments over the window's weight
+        sums = np.stack([ndimage.uniform_filter(m, size, mode="nearest") for m in mom])
+        means = sums[:-1] / np.maximum(sums[-1], 1e-12)
+    else:
+        mom[:-1] /= np.maximum(mom[-1], 1.0)
+        means = np.stack([ndimage.uniform_filter(m, size, mode="nearest") for m in mom[:-1]])
+    h, w = mom.shape[1:]
     coef = np.empty((2 * nguide + 2, h, w))
     K.guided_solve(means, nguide, float(strength), coef)
     return np.stack([ndimage.uniform_filter(c, size, mode="nearest") for c in coef])

@@ -12,8 +12,11 @@ and the filtered colours split once more by the exact plan from their histogram 
 target, which puts back the fidelity the filter costs (a filter -> re-split step, as in
 the regularized transport maps of Rabin, Delon and Gousseau).  L* goes through the exact
 1-D map with its slope limited (``luminance_slope``, :func:`~solvers.color.luminance.
-limit_slope`; ``inf`` = the exact map), and an out-of-gamut colour moves to the nearest
-in-gamut L* within ``GAMUT_REACH``, else loses chroma at its L* and hue.
+limit_slope`; ``inf`` = the exact map).  Colours out of the sRGB gamut: each pixel's move
+to its nearest in-gamut L* (within ``GAMUT_REACH``) is guided-filtered by the input's L*
+and the smooth shift applied to all pixels (a per-pixel move would add L* texture); a
+colour still out of the gamut loses chroma at its L* and hue.  The re-split's correction
+is itself guided-filtered over a window of radius ``CORRECTION_RADIUS`` cells.
 Towards a vertex of the simplex (``alphas`` with a single 1) the plan goes to that image's
 histogram; for ``k = 2`` and :math:`\alpha = (1 - s, s)` every pixel moves the fraction
 :math:`s` of its displacement (McCann's interpolation, the exact W2 geodesic between the
@@ -49,7 +52,7 @@ from solvers.color import _split_kernels as SK
 from solvers.color.chrominance import AbGrid, check_bins, chrominance_barycenters
 from solvers.color.lab import check_image, code_scale, lut_for, pixels
 from solvers.color.luminance import L_MAX, LBINS, limit_slope, luminance_maps
-from solvers.color.regularize import guided_coefficients
+from solvers.color.regularize import guided_coefficients, guided_solve_moments
 from solvers.color.split import ExactPlan, exact_plan, moved_histogram, split_displacements
 from solvers.errors import InputError
 from solvers.monitor import SolverResult
@@ -72,12 +75,25 @@ REDUCED_PIXELS = 2**19
 GUIDE_CHANNELS = 1
 # an out-of-gamut result moves to the nearest in-gamut L* up to this far (keeps its ab)
 GAMUT_REACH = 100.0
+# the L* move into the gamut is guided-filtered (window: the guided filter's) with this
+# epsilon, each pixel weighted 1 if out of the gamut and GAMUT_IN_WEIGHT if in it (a mean
+# over the pixels that need a move, diluted where they are few); chosen in bench/color.py
+GAMUT_SHIFT_STRENGTH = 1e-3
+GAMUT_IN_WEIGHT = 0.3
+# that move is sampled on every min(s, GAMUT_STRIDE)-th row and column (s: the block
+# size of the reduced image; 1 below REDUCED_PIXELS): the filter averages it over many
+# blocks anyway
+GAMUT_STRIDE = 2
 # split mode: the L* table's slope kept within [1/c, c] times its mean slope
 # (luminance.limit_slope; inf = the exact 1-D map); chosen in bench/color.py
 DEFAULT_LUMINANCE_SLOPE = 1.25
 # fraction of the re-split's correction applied after the guided filter (1: the output
-# histogram is the target's; less: smaller steps between neighbours); chosen in bench/color.py
-DEFAULT_RESPLIT = 0.3
+# histogram is the target's up to the binning and the correction's filter); chosen in
+# bench/color.py
+DEFAULT_RESPLIT = 1.0
+# window radius (cells of the reduced image) of the guided filter of the re-split's
+# correction: small, so the histogram stays the target's but no single pixel steps alone
+CORRECTION_RADIUS = 1
 
 
 @dataclass(kw_only=True)
@@ -195,7 +211,9 @@ def color_transfer(
         histogram to the target (the filter moves colours off the target's histogram;
         this puts them back, up to the binning).
     resplit : ``split`` only: fraction in [0, 1] of that re-split's correction that is
-        applied (1: output histogram = target's; 0: the filtered colours as they are).
+        applied, after a guided filter of radius ``CORRECTION_RADIUS`` cells (default 1:
+        output histogram = target's up to the binning and that small filter; 0: the
+        filtered colours as they are).
     luminance_slope : ``split`` only: contrast limit ``c >= 1`` of the L* map
         (:func:`~solvers.color.luminance.limit_slope`: the exact 1-D map's slope clipped
         to ``[g/c, g c]``, ``g`` its mean slope); ``inf`` keeps the exact 1-D map.  The
@@ -453,13 +471,33 @@ def _recolor_split(img, lab, plan, grid, scale, lut_l, settings, target):
         if resplit > 0:
             hist, hmeans = moved_histogram(lab, disp, grid)
             again = exact_plan(hist, target[0], grid, hmeans, target[1])
-            disp += split_displacements(lab, shape, again, grid, scale=resplit, s=s,
-                                        radius=key_radius, base=disp)
+            corr = split_displacements(lab, shape, again, grid, scale=resplit, s=s,
+                                       radius=key_radius, base=disp)
+            coef = guided_coefficients(lab, corr, shape, strength=regularization, s=s,
+                                       radius=CORRECTION_RADIUS, nguide=GUIDE_CHANNELS)
+            SK.guided_field(lab, coef, GUIDE_CHANNELS, s, shape[1], corr)
+            disp += corr
+    lut = np.zeros(0, dtype=np.float32) if lut_l is None else lut_l.astype(np.float32)
+    shift = _gamut_shift(lab, lut, disp, shape, s, filter_radius)
     src = pixels(img)
     out = np.empty_like(src)
-    lut = np.zeros(0, dtype=np.float32) if lut_l is None else lut_l.astype(np.float32)
     scale_out = code_scale(img.dtype)
     offset = 0.5 if img.dtype.kind in "ui" else 0.0
     SK.apply_field(lab, src, out, lut, L_MAX / LBINS, disp, _kernels._M_INV, scale_out,
-                   offset, float(GAMUT_REACH))
+                   offset, 0.0, shift, s, shape[1])
     return out.reshape(img.shape).astype(img.dtype, copy=False)
+
+
+def _gamut_shift(lab, lut, disp, shape, s, radius):
+    """Coefficients ``(2, h, w)`` (``a``, ``b`` of ``a L*/100 + b``) of a smooth L* shift
+    towards the gamut: each recolored pixel's move to its nearest in-gamut L*
+    (:func:`~solvers.color._split_kernels.gamut_lightness`, 0 in the gamut),
+    guided-filtered by the input's L* with in-gamut pixels down-weighted.  A per-pixel
+    move adds L* texture the input does not have; the smooth shift keeps the input's
+    structure, and the colours it leaves out of the gamut lose chroma at their L*."""
+    H, W = shape
+    mom = np.zeros((SK.n_moments(1), -(-H // s), -(-W // s)))
+    SK.gamut_shift_moments(lab, lut, L_MAX / LBINS, disp, _kernels._M_INV, float(GAMUT_REACH),
+                           W, s, min(s, GAMUT_STRIDE), GAMUT_IN_WEIGHT, mom)
+    coef = guided_solve_moments(mom, 1, GAMUT_SHIFT_STRENGTH, radius, weighted=True)
+    return np.ascontiguousarray(coef[[0, 2]])
