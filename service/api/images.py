@@ -90,7 +90,9 @@ async def create_color_transfer(
     luminance_slope: float = Form(DEFAULT_LUMINANCE_SLOPE, ge=0, le=1000, description="split "
                                   "mode: contrast limit (>= 1) of the L* map; 0: exact map"),
     resplit: float = Form(DEFAULT_RESPLIT, ge=0, le=1, description="split mode: fraction of "
-                          "the re-split after the filter (1: exact histogram)"),
+                          "the second split (filtered colours to the target's histogram) "
+                          "that is applied, after a guided filter of radius 1 cell; 1 "
+                          "(default): the target's histogram up to the binning"),
     sharpen: bool = Form(False, description="entropic sharpening of the barycenters"),
     debiased: bool = Form(False, description="debiased barycenters"),
     recolor: str | None = Form(None, description="JSON list of image indices to recolor"),
