@@ -46,6 +46,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from solvers.emd import interior_point as ip
+from solvers.linalg import PardisoFactor
 
 # Largest violation of the divergence constraints (mass units, total mass 1) with which a
 # small gap counts as converged (as in solvers.emd.interior_point_exits).
@@ -220,6 +221,7 @@ class _Newton:
                  backend):
         k, n_faces = x.shape[:2]
         self.prog, self.layout = prog, layout
+        self.residual = prog.div(x) - rho[None] + prog.m  # (k, V)
         self.scaling = ip._nt_scaling(x.reshape(-1, 3), z.reshape(-1, 3))
         self.lam_rho = np.sqrt(rho * z_rho)
         self.d = rho / z_rho
@@ -234,11 +236,8 @@ class _Newton:
         normal = layout.matrix(blocks, self.d, full=ip._backend(backend) != "pardiso")
         try:
             self.factor = ip.factor_normal_matrix(normal, factor, backend)
-        except ValueError:  # Cholesky lost definiteness to rounding near the end of the
-            # path: LU with partial pivoting on the whole symmetric matrix (same system)
-            if ip._backend(backend) == "pardiso":
-                normal = (normal + sp.triu(normal, 1).T).tocsr()
-            self.factor = ip.factor_normal_matrix(normal, None, "splu")
+        except ValueError:  # zero pivot: the Cholesky lost definiteness to rounding
+            self.factor = _pivoting_factor(normal, backend)
         if self.factor is None:
             return
         self.V = np.zeros((int(layout.offsets[-1]), k))  # column i: v_i on block i's rows
@@ -253,14 +252,16 @@ class _Newton:
 
     def __call__(self, rc: np.ndarray, rc_rho: np.ndarray):
         """Directions ``(dx (k F, 3), dρ, dy (k, V), dz (k F, 3), dz_ρ)`` for the
-        complementarity right-hand sides ``rc`` ``(k F, 3)`` and ``rc_rho`` ``(V,)``."""
+        complementarity right-hand sides ``rc`` ``(k F, 3)`` and ``rc_rho`` ``(V,)``; they
+        also cancel the primal residual ``e = D u_i - ρ + m_i`` (:attr:`residual`), which
+        rounding leaves, so a full step restores the divergence constraints."""
         prog, sc = self.prog, self.scaling
         k, n_faces = prog.k, len(prog.faces)
         wq = sc.apply_inverse(ip._jordan_solve(sc.lam, rc)).reshape(k, n_faces, 3)
         wq_rho = rc_rho / self.z_rho
         g_wq = wq[:, :, 0] @ prog.w
         v = self.v
-        r = -prog.div(wq) + (self.c * g_wq)[:, None] * v + wq_rho[None]
+        r = -prog.div(wq) + (self.c * g_wq)[:, None] * v + wq_rho[None] - self.residual
         dy = self.layout.gather(self._solve(self.layout.scatter(r)))
         a = prog.div_adjoint(dy)
         coef = self.c * (np.sum(v * dy, axis=1) + g_wq)
@@ -270,6 +271,17 @@ class _Newton:
         dz = -a
         dz[:, :, 0] = (2.0 * prog.alpha * (dx[:, :, 0] @ prog.w))[:, None] * prog.w[None]
         return dx.reshape(-1, 3), drho, dy, dz.reshape(-1, 3), dy.sum(axis=0)
+
+
+def _pivoting_factor(normal: sp.csr_matrix, backend: str):
+    """The normal matrix's factor once its Cholesky met a zero pivot (rounding near the end
+    of the path; the matrix is positive semidefinite in exact arithmetic): PARDISO's
+    symmetric-indefinite ``L D Lᵀ`` with pivot perturbation and iterative refinement, which
+    then refactors in place for the remaining iterations; without PARDISO, LU with partial
+    pivoting (``normal`` is then the whole symmetric matrix)."""
+    if ip._backend(backend) == "pardiso":
+        return PardisoFactor(normal, pivoting=True)
+    return ip.factor_normal_matrix(normal, None, "splu")
 
 
 def barycenter_interior_point(full: ip._Structure, kept: ip._Structure, w: np.ndarray,
