@@ -241,6 +241,15 @@ class PardisoFactor:
         self.perturbed = int(iparm[13])
         self.nbytes = int(iparm[15] + iparm[16]) * 1024 + self._data.nbytes * 2
 
+    def release(self) -> None:
+        """Free PARDISO's memory now (e.g. before a replacement factor is built); the factor
+        cannot be used afterwards."""
+        self._finalizer()
+
+    def _check_alive(self) -> None:
+        if not self._finalizer.alive:
+            raise ValueError("this PARDISO factor was released")
+
     def refactor(self, matrix: sp.spmatrix) -> None:
         """Numeric factorization of a matrix with the same pattern (PARDISO phase 22 only:
         the ordering and symbolic analysis are kept), e.g. the changing weights of an
@@ -250,6 +259,7 @@ class PardisoFactor:
         if (upper.nnz != len(self._indices) or not np.array_equal(upper.indptr, self._indptr)
                 or not np.array_equal(upper.indices, self._indices)):
             raise ValueError("refactor needs the pattern the factor was analysed with")
+        self._check_alive()
         with self._lock:
             self._data[:] = upper.data
             err = _pardiso_call(self._lib, self._handle, 22, self.n, self._data, self._indptr,
@@ -269,6 +279,7 @@ class PardisoFactor:
         nrhs = 1 if b.ndim == 1 else b.shape[1]
         if nrhs == 0:
             return x
+        self._check_alive()
         with self._lock:
             iparm = self._iparm.copy()
             err = _pardiso_call(self._lib, self._handle, 33, self.n, self._data, self._indptr,

@@ -13,11 +13,13 @@ import numpy as np
 import pytest
 import trimesh
 
+import solvers.emd.interior_point_barycenter as ipb
 from solvers.domains import TriangleMesh
 from solvers.emd.beckmann import earth_movers_distance
 from solvers.emd.exact import w1_barycenter
 from solvers.emd.interior_point_barycenter import estimated_cost
 from solvers.errors import InputError
+from solvers.linalg import have_pardiso
 
 
 def _sphere(subdivisions=2):
@@ -138,3 +140,30 @@ def test_cost_model_grows_with_size_and_inputs():
                            estimated_cost(50_000, 100_000, 3))
     assert small.seconds < more.seconds and small.seconds < bigger.seconds
     assert small.bytes < more.bytes and small.bytes < bigger.bytes
+
+
+@pytest.mark.skipif(not have_pardiso(), reason="the mkl wheel (pardiso extra) is not installed")
+@pytest.mark.parametrize("from_iteration", [1, 6])
+def test_zero_pivot_hands_over_to_ldlt(sphere, monkeypatch, from_iteration):
+    """A zero pivot in the Cholesky (forced here from a given factorization on) hands the
+    normal matrix to PARDISO's L D Lᵀ, which factors the remaining iterations; the optimum
+    is Clarabel's, within the certified bracket, and the constraints hold to rounding."""
+    calls, used = [0], []
+    cholesky = ipb.ip.factor_normal_matrix
+
+    def zero_pivot_from(normal, factor, backend):
+        calls[0] += 1
+        if factor is not None and getattr(factor, "mtype", 2) == -2:
+            used.append(factor.backend)
+            return cholesky(normal, factor, backend)  # the L D Lᵀ refactors in place
+        if calls[0] >= from_iteration:
+            raise ValueError("PARDISO phase 22 failed (-4: zero pivot)")
+        return cholesky(normal, factor, backend)
+
+    monkeypatch.setattr(ipb.ip, "factor_normal_matrix", zero_pivot_from)
+    mus = np.stack([_bump(sphere, c) for c in (0, 50, 100)], axis=1)
+    alpha = [0.2, 0.3, 0.5]
+    ipm = w1_barycenter(sphere, mus, alpha, tol=1e-6)
+    ref = w1_barycenter(sphere, mus, alpha, algorithm="socp", tol=1e-10)
+    _check_bracket(ipm, ref, 1e-6)
+    assert ipm.iterations > from_iteration and used and set(used) == {"pardiso-ldlt"}

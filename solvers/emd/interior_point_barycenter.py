@@ -237,7 +237,7 @@ class _Newton:
         try:
             self.factor = ip.factor_normal_matrix(normal, factor, backend)
         except ValueError:  # zero pivot: the Cholesky lost definiteness to rounding
-            self.factor = _pivoting_factor(normal, backend)
+            self.factor = _pivoting_factor(normal, factor, backend)
         if self.factor is None:
             return
         self.V = np.zeros((int(layout.offsets[-1]), k))  # column i: v_i on block i's rows
@@ -273,13 +273,16 @@ class _Newton:
         return dx.reshape(-1, 3), drho, dy, dz.reshape(-1, 3), dy.sum(axis=0)
 
 
-def _pivoting_factor(normal: sp.csr_matrix, backend: str):
-    """The normal matrix's factor once its Cholesky met a zero pivot (rounding near the end
-    of the path; the matrix is positive semidefinite in exact arithmetic): PARDISO's
-    symmetric-indefinite ``L D Lᵀ`` with pivot perturbation and iterative refinement, which
-    then refactors in place for the remaining iterations; without PARDISO, LU with partial
+def _pivoting_factor(normal: sp.csr_matrix, failed, backend: str):
+    """The normal matrix's factor once its Cholesky ``failed`` met a zero pivot (rounding
+    near the end of the path; the matrix is positive semidefinite in exact arithmetic):
+    PARDISO's symmetric-indefinite ``L D Lᵀ`` with pivot perturbation and iterative
+    refinement, which then refactors in place for the remaining iterations (the Cholesky's
+    memory is released first: it is not used again); without PARDISO, LU with partial
     pivoting (``normal`` is then the whole symmetric matrix)."""
     if ip._backend(backend) == "pardiso":
+        if isinstance(failed, PardisoFactor):
+            failed.release()
         return PardisoFactor(normal, pivoting=True)
     return ip.factor_normal_matrix(normal, None, "splu")
 
