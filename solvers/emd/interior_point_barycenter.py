@@ -52,14 +52,16 @@ from solvers.linalg import PardisoFactor
 # small gap counts as converged (as in solvers.emd.interior_point_exits).
 FEASIBILITY_TOL = 1e-6
 # Cost model of this route (bench/w1_applications.py fits it: measured times and PARDISO's
-# factor sizes in bench/results/w1_applications.md): per iteration, passes over the k F
-# face cones and a numeric factorization of the coupled (k V)-row normal matrix, whose factor
-# grows like N log N and its work like N^1.5 (nested dissection on a surface mesh).
-ESTIMATED_ITERATIONS = 50
-_FACE_SECONDS = 1.0e-6  # per face cone and iteration
-_FACTOR_SECONDS = 1.0e-8  # per (k V)^1.5 and iteration
-_FACTOR_FILL = 4.0  # factor nonzeros per coupled unknown and log2(unknowns)
-_FACE_FLOATS = 150  # cones, scalings, directions, per-face blocks: floats per face cone
+# factor sizes in bench/results/w1_applications.md).  Iterations grow slowly with the mesh
+# and the inputs; each passes over the k F face cones and factors the (k V)-row normal matrix,
+# a mesh Laplacian with dense k × k blocks per vertex: nested dissection gives a factor of
+# ~k² V log V nonzeros, and its work grew like k^2.5 V^1.5 (k = 3 -> 6 at 10k vertices).
+_ITERATIONS = 42.0  # at 10k vertices and 3 inputs; x (V / 10k)^0.2 (k / 3)^(1/3)
+_FACE_SECONDS = 1.8e-6  # per face cone and iteration
+_FACTOR_SECONDS = 2.0e-9  # per k^2.5 V^1.5 and iteration
+_FACTOR_FILL = 2.0  # factor nonzeros per k² V log2(V)
+_FACTOR_ENTRY_BYTES = 16  # PARDISO's memory per factor nonzero (values, indices, symbolic)
+_FACE_FLOATS = 200  # cones, scalings, directions, per-face blocks: floats per face cone
 MAX_ESTIMATED_SECONDS = 300.0
 # Absolute floor of the relative gap's denominator (objective units: squared length on the
 # unit-area mesh): the objective is 0 when the inputs coincide.
@@ -72,24 +74,16 @@ class CostEstimate:
     bytes: int
 
 
-# Bounds of the measured fallback runs over the Cholesky model (bench/results/w1_applications.md).
-_LU_FALLBACK_TIME = 3.8
-_LU_FALLBACK_MEMORY = 4.5
-
-
 def estimated_cost(n_vertices: int, n_faces: int, k: int) -> CostEstimate:
     """Modelled run time (s, one core) and working memory of :func:`solve_barycenter_ipm`
     with ``k`` inputs of positive weight on a mesh of that size (constants above)."""
-    unknowns = float(max(k, 1)) * float(max(n_vertices, 1))
-    cones = float(max(k, 1)) * float(max(n_faces, 1))
-    per_iteration = _FACE_SECONDS * cones + _FACTOR_SECONDS * unknowns**1.5
-    factor = _FACTOR_FILL * unknowns * np.log2(max(unknowns, 2.0))
-    seconds = ESTIMATED_ITERATIONS * per_iteration
-    working = 12 * factor + 8 * _FACE_FLOATS * cones + 8 * 40 * unknowns
-    # Admission must also cover the late iterations that fall back to LU (zero pivot in
-    # PARDISO): those runs took up to 3.7x the time and 4.4x the memory of the Cholesky model.
-    return CostEstimate(seconds=_LU_FALLBACK_TIME * seconds,
-                        bytes=int(_LU_FALLBACK_MEMORY * working))
+    k, n = float(max(k, 1)), float(max(n_vertices, 2))
+    cones = k * float(max(n_faces, 1))
+    iterations = _ITERATIONS * (n / 1e4) ** 0.2 * (k / 3.0) ** (1.0 / 3.0)
+    per_iteration = _FACE_SECONDS * cones + _FACTOR_SECONDS * k**2.5 * n**1.5
+    factor = _FACTOR_FILL * k**2 * n * np.log2(n)
+    working = _FACTOR_ENTRY_BYTES * factor + 8 * _FACE_FLOATS * cones + 8 * 40 * k * n
+    return CostEstimate(seconds=iterations * per_iteration, bytes=int(working))
 
 
 @dataclass
