@@ -51,6 +51,10 @@ from solvers.linalg import PardisoFactor
 # Largest violation of the divergence constraints (mass units, total mass 1) with which a
 # small gap counts as converged (as in solvers.emd.interior_point_exits).
 FEASIBILITY_TOL = 1e-6
+# Gondzio centrality correctors per iteration (solvers.emd.interior_point.mehrotra_step):
+# the cones limit Mehrotra's steps to ~0.3-0.6 on this program; each corrector is one more
+# solve with the iteration's factorization.
+CORRECTORS = 2
 # Cost model of this route (bench/w1_applications.py fits it: measured times and PARDISO's
 # factor sizes in bench/results/w1_applications.md).  Iterations grow slowly with the mesh
 # and the inputs; each passes over the k F face cones and factors the (k V)-row normal matrix,
@@ -284,7 +288,8 @@ def _pivoting_factor(normal: sp.csr_matrix, failed, backend: str):
 def barycenter_interior_point(full: ip._Structure, kept: ip._Structure, w: np.ndarray,
                               alpha: np.ndarray, m: np.ndarray, u0: np.ndarray,
                               rho0: np.ndarray, tol: float, max_iter: int, monitor,
-                              backend: str = "auto") -> BarycenterOutput:
+                              backend: str = "auto",
+                              correctors: int = CORRECTORS) -> BarycenterOutput:
     """The primal-dual loop (module docstring).
 
     ``full``/``kept``: the divergence's structure on every vertex / on all but one vertex
@@ -310,7 +315,8 @@ def barycenter_interior_point(full: ip._Structure, kept: ip._Structure, w: np.nd
         if newton.factor is None:
             return None
         dx, drho, dy, dz, dz_rho, step = ip.mehrotra_step(x.reshape(-1, 3), rho,
-                                                          z.reshape(-1, 3), z_rho, newton)
+                                                          z.reshape(-1, 3), z_rho, newton,
+                                                          correctors)
         x, rho, y = x + step * dx.reshape(shape), rho + step * drho, y + step * dy
         # the slacks by the step (the linear dual relation holds to rounding); recomputing
         # them from y would add the rounding of Dᵀ y_1, y_1 ~ a large constant
