@@ -30,11 +30,15 @@ in the ``k`` potentials,
 between every pair of blocks, minus a rank-``k`` term.  The sparse part is one SPD matrix of
 the mesh's sparsity with ``k × k`` blocks per vertex, factored by PARDISO (ordering and
 symbolic analysis once, a numeric refactorization per iteration) or cholespy; the rank-``k``
-term is handled by the Woodbury identity with ``k`` extra solves.
+term is handled by the Woodbury identity with ``k`` extra solves.  Near the end of the path
+rounding can cost the Cholesky a pivot; the matrix then goes to PARDISO's
+symmetric-indefinite ``L D Lᵀ`` (pivot perturbation, iterative refinement) for the remaining
+iterations.  Steps are Mehrotra's with Gondzio's centrality correctors (:data:`CORRECTORS`).
 
 The start is primal and dual feasible (uniform :math:`\rho`, the Poisson flows that carry it
 to every input, :math:`y_1` a positive constant, the other potentials 0), and steps keep both
-feasible, so ``value - lower_bound`` certifies the objective; ``value`` is evaluated with the flows'
+feasible (the Newton right-hand side also cancels the divergence residual rounding leaves),
+so ``value - lower_bound`` certifies the objective; ``value`` is evaluated with the flows'
 costs :math:`\sum_t w_t \lVert u_{i,t}\rVert`, the W1 upper bounds of a feasible point.
 """
 
