@@ -167,3 +167,36 @@ def test_zero_pivot_hands_over_to_ldlt(sphere, monkeypatch, from_iteration):
     ref = w1_barycenter(sphere, mus, alpha, algorithm="socp", tol=1e-10)
     _check_bracket(ipm, ref, 1e-6)
     assert ipm.iterations > from_iteration and used and set(used) == {"pardiso-ldlt"}
+
+
+def test_centrality_correction_moves_spectral_values_into_the_band():
+    """Gondzio's target per Lorentz cone: the corrected Jordan product's spectral values
+    ``p_0 ± ‖p̄‖`` lie in the band (where the decrease cap does not bind), and products
+    already inside are left alone."""
+    rng = np.random.default_rng(3)
+    bar = rng.normal(size=(500, 2))
+    bar *= np.minimum(1.0, 3.0 / np.linalg.norm(bar, axis=1))[:, None]
+    p = np.column_stack([rng.uniform(0.0, 6.0, 500), bar])
+    lo, hi = 0.5, 5.0  # spectral values <= 9 < 2 hi: the decrease cap does not bind
+    q = p + ipb.ip._centrality_correction(p, lo, hi)
+    spectra = [q[:, 0] + np.linalg.norm(q[:, 1:], axis=1),
+               q[:, 0] - np.linalg.norm(q[:, 1:], axis=1)]
+    for s in spectra:
+        assert np.all((s >= lo - 1e-12) & (s <= hi + 1e-12))
+    inside = p[:, 0] + np.linalg.norm(p[:, 1:], axis=1) <= hi
+    inside &= p[:, 0] - np.linalg.norm(p[:, 1:], axis=1) >= lo
+    assert inside.any()
+    np.testing.assert_allclose(q[inside], p[inside], atol=1e-15)
+
+
+@pytest.mark.parametrize("correctors", [0, 1, 4])
+def test_correctors_keep_the_optimum(sphere, monkeypatch, correctors):
+    """With any number of Gondzio's correctors (the default is ``CORRECTORS``) the certified
+    bracket holds Clarabel's optimum."""
+    step = ipb.ip.mehrotra_step
+    monkeypatch.setattr(ipb.ip, "mehrotra_step", lambda *args: step(*args[:5], correctors))
+    mus = np.stack([_bump(sphere, c) for c in (0, 50, 100)], axis=1)
+    alpha = [0.2, 0.3, 0.5]
+    ipm = w1_barycenter(sphere, mus, alpha, tol=1e-6)
+    ref = w1_barycenter(sphere, mus, alpha, algorithm="socp", tol=1e-10)
+    _check_bracket(ipm, ref, 1e-6)
