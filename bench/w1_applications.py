@@ -9,8 +9,9 @@ the whole coupled program (size caps lifted, 10k only), each solve in a fresh pr
 peak resident memory above its baseline is recorded beside the modelled cost
 (:func:`~solvers.emd.interior_point_barycenter.estimated_cost`) the service admits jobs by.
 
-Run: ``cpu bench .venv/bin/python bench/w1_applications.py``.
-Writes ``bench/results/w1_applications.md``.
+Run: ``cpu bench .venv/bin/python bench/w1_applications.py``; with ``--barycenter`` only the
+barycenter rows run, and only that section of the results file is rewritten (with its own
+command and load).  Writes ``bench/results/w1_applications.md``.
 """
 
 from __future__ import annotations
@@ -122,7 +123,8 @@ def barycenter_rows():
     for name, k, with_socp in BARYCENTER_CASES:
         ipm = _run_case(name, k, "ipm")
         row = [name, ipm["V"], k, f"{ipm['value']:.6f}", ipm["iterations"],
-               f"{ipm['gap']:.1e}", str(ipm["converged"]), f"{ipm['time']:.2f}",
+               f"{ipm['gap']:.1e}", f"{ipm['residual']:.1e}", str(ipm["converged"]),
+               f"{ipm['time']:.2f}",
                f"{ipm['model_seconds']:.1f}", f"{ipm['memory'] / 2**20:.0f}",
                f"{ipm['model_bytes'] / 2**20:.0f}"]
         if with_socp:
@@ -141,6 +143,42 @@ def _table(header, rows):
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
     return "\n".join(lines)
+
+
+BARYCENTER_HEADING = "## W1 barycenter, eq. 2.7 (`w1_barycenter`)"
+
+
+def barycenter_section(barys, command: str = "", loads: tuple[float, float] | None = None):
+    run = "" if loads is None else (
+        f"Run on its own: `{command}`; load average (1 min) before {loads[0]:.2f}, after "
+        f"{loads[1]:.2f}.  ")
+    return f"""{BARYCENTER_HEADING}
+
+{run}k Dirac inputs (vertices i V / k), uniform weights.  `ipm`: the vertex-sized interior point
+(`algorithm="ipm"`, the default), certified relative gap 1e-6 (`gap` is the measured one;
+`residual` the largest divergence-constraint violation, converged needs <= 1e-6);
+`socp`: Clarabel on the whole coupled program (tol 1e-8, caps lifted, time limit
+{BARYCENTER_TIME_LIMIT:.0f} s), same run, 10k only.  Each solve runs in a fresh process;
+memory = its peak resident set above the resident set before the solve (MiB).  `model`: the
+service's admission estimate (`estimated_cost`; refused above 300 s or the job memory limit).
+
+{_table(["mesh", "V", "k", "ipm objective", "ipm iterations", "gap", "residual", "converged",
+         "ipm time (s)", "model (s)", "memory (MiB)", "model (MiB)", "socp objective",
+         "socp status", "socp time (s) [x ipm]", "rel. diff", "load"], barys)}
+"""
+
+
+def main_barycenter():
+    """Only the barycenter rows; the path-planning section of the results file is kept."""
+    before = load1()
+    barys = barycenter_rows()
+    after = load1()
+    head = OUT.read_text().split(BARYCENTER_HEADING)[0] if OUT.exists() else ""
+    command = ("cpu bench env OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 .venv/bin/python "
+               "bench/w1_applications.py --barycenter")
+    text = head + barycenter_section(barys, command, (before, after))
+    OUT.write_text(text)
+    print(text)
 
 
 def main():
@@ -167,19 +205,7 @@ interior point, certified relative gap 1e-6; `socp`: Clarabel on the whole progr
          "ipm converged", "socp objective", "socp time (s) [x ipm]", "rel. diff", "load"],
         paths)}
 
-## W1 barycenter, eq. 2.7 (`w1_barycenter`)
-
-k Dirac inputs (vertices i V / k), uniform weights.  `ipm`: the vertex-sized interior point
-(`algorithm="ipm"`, the default), certified relative gap 1e-6 (`gap` is the measured one);
-`socp`: Clarabel on the whole coupled program (tol 1e-8, caps lifted, time limit
-{BARYCENTER_TIME_LIMIT:.0f} s), same run, 10k only.  Each solve runs in a fresh process;
-memory = its peak resident set above the resident set before the solve (MiB).  `model`: the
-service's admission estimate (`estimated_cost`; refused above 300 s or the job memory limit).
-
-{_table(["mesh", "V", "k", "ipm objective", "ipm iterations", "gap", "converged",
-         "ipm time (s)", "model (s)", "memory (MiB)", "model (MiB)", "socp objective",
-         "socp status", "socp time (s) [x ipm]", "rel. diff", "load"], barys)}
-"""
+{barycenter_section(barys)}"""
     OUT.write_text(text)
     print(text)
 
@@ -187,5 +213,7 @@ service's admission estimate (`estimated_cost`; refused above 300 s or the job m
 if __name__ == "__main__":
     if len(sys.argv) == 5 and sys.argv[1] == "--case":
         print(json.dumps(barycenter_case(sys.argv[2], int(sys.argv[3]), sys.argv[4])))
+    elif sys.argv[1:] == ["--barycenter"]:
+        main_barycenter()
     else:
         main()

@@ -147,10 +147,11 @@ def have_pardiso() -> bool:
 
 
 def _pardiso_call(lib, handle, phase: int, n: int, data, indptr, indices, iparm, nrhs: int,
-                  b=None, x=None) -> int:
+                  b=None, x=None, mtype: int = 2) -> int:
+    # mtype 2: real symmetric positive definite; -2: real symmetric indefinite
     i32 = ctypes.c_int32
     err = i32(0)
-    one, mtype = i32(1), i32(2)  # maxfct = mnum = 1; mtype 2: real symmetric positive definite
+    one, mtype = i32(1), i32(mtype)  # maxfct = mnum = 1
     lib.pardiso(handle.ctypes.data, ctypes.byref(one), ctypes.byref(one), ctypes.byref(mtype),
                 ctypes.byref(i32(phase)), ctypes.byref(i32(n)),
                 None if data is None else data.ctypes.data,
@@ -162,9 +163,9 @@ def _pardiso_call(lib, handle, phase: int, n: int, data, indptr, indices, iparm,
     return int(err.value)
 
 
-def _pardiso_release(lib, handle, iparm, lock) -> None:
+def _pardiso_release(lib, handle, iparm, lock, mtype) -> None:
     with lock:
-        _pardiso_call(lib, handle, -1, 0, None, None, None, iparm, 0)
+        _pardiso_call(lib, handle, -1, 0, None, None, None, iparm, 0, mtype=mtype)
 
 
 PARDISO_ERRORS = {-1: "input inconsistent", -2: "not enough memory", -3: "reordering problem",
@@ -173,7 +174,13 @@ PARDISO_ERRORS = {-1: "input inconsistent", -2: "not enough memory", -3: "reorde
 
 
 class PardisoFactor:
-    """Supernodal sparse Cholesky by MKL PARDISO (``mtype=2``, METIS nested dissection).
+    """Supernodal sparse Cholesky by MKL PARDISO (``mtype=2``, METIS nested dissection), or
+    with ``pivoting`` its symmetric-indefinite ``L D Lᵀ`` (``mtype=-2``: Bunch–Kaufman
+    pivoting inside supernodes, pivots below ``1e-8 ‖A‖`` perturbed, and iterative
+    refinement of every solve against the unperturbed matrix).  The latter takes over where
+    the Cholesky meets a zero pivot on a symmetric positive (semi)definite matrix whose
+    conditioning rounding has spoiled, e.g. interior-point normal equations near the end of
+    the central path; ``perturbed`` counts the perturbed pivots of the last factorization.
 
     The upper triangle is handed over in CSR (0-based, sorted, diagonal stored), copied so
     the caller's arrays are never touched.  ``nbytes``: PARDISO's own report of the
@@ -185,7 +192,8 @@ class PardisoFactor:
     backend = "pardiso"
 
     def __init__(self, matrix: sp.spmatrix, ordering: Literal["metis", "parallel-metis",
-                                                               "amd"] = "metis"):
+                                                               "amd"] = "metis",
+                 pivoting: bool = False):
         lib = _pardiso_lib()
         if lib is None:
             raise RuntimeError("PARDISO needs the mkl wheel (pip install mkl)")
@@ -207,23 +215,40 @@ class PardisoFactor:
         iparm = np.zeros(64, dtype=np.int32)
         iparm[0] = 1  # the values below, not the defaults
         iparm[1] = {"amd": 0, "metis": 2, "parallel-metis": 3}[ordering]
-        iparm[9] = 13  # pivot perturbation 1e-13 (unused for SPD)
+        # pivot perturbation 1e-13 (unused for SPD); 1e-8 for L D Lᵀ (MKL's default there)
+        iparm[9] = 8 if pivoting else 13
+        # L D Lᵀ: two refinement steps when pivots were perturbed (MKL's default, made
+        # explicit); no scaling or weighted matching: the matrix is close to SPD, and both
+        # would be frozen at the analysis' values across refactorizations
+        iparm[7] = 0
         iparm[17] = -1  # report nnz(L)
         iparm[34] = 1  # 0-based indices
+        self.mtype = -2 if pivoting else 2
+        self.backend = "pardiso-ldlt" if pivoting else "pardiso"
         self._iparm = iparm
         self._lib = lib
         self._lock = threading.Lock()
         self._finalizer = weakref.finalize(self, _pardiso_release, lib, self._handle, iparm,
-                                           self._lock)
+                                           self._lock, self.mtype)
         with self._lock:
             for phase in (11, 22):  # analysis (ordering + symbolic), numeric factorization
                 err = _pardiso_call(lib, self._handle, phase, n, self._data, self._indptr,
-                                    self._indices, iparm, 1)
+                                    self._indices, iparm, 1, mtype=self.mtype)
                 if err:
                     raise ValueError(f"PARDISO phase {phase} failed ({err}: "
                                      f"{PARDISO_ERRORS.get(err, 'error')})")
         self.factor_nnz = int(iparm[17])
+        self.perturbed = int(iparm[13])
         self.nbytes = int(iparm[15] + iparm[16]) * 1024 + self._data.nbytes * 2
+
+    def release(self) -> None:
+        """Free PARDISO's memory now (e.g. before a replacement factor is built); the factor
+        cannot be used afterwards."""
+        self._finalizer()
+
+    def _check_alive(self) -> None:
+        if not self._finalizer.alive:
+            raise ValueError("this PARDISO factor was released")
 
     def refactor(self, matrix: sp.spmatrix) -> None:
         """Numeric factorization of a matrix with the same pattern (PARDISO phase 22 only:
@@ -234,10 +259,12 @@ class PardisoFactor:
         if (upper.nnz != len(self._indices) or not np.array_equal(upper.indptr, self._indptr)
                 or not np.array_equal(upper.indices, self._indices)):
             raise ValueError("refactor needs the pattern the factor was analysed with")
+        self._check_alive()
         with self._lock:
             self._data[:] = upper.data
             err = _pardiso_call(self._lib, self._handle, 22, self.n, self._data, self._indptr,
-                                self._indices, self._iparm, 1)
+                                self._indices, self._iparm, 1, mtype=self.mtype)
+            self.perturbed = int(self._iparm[13])
         if err:
             raise ValueError(f"PARDISO phase 22 failed ({err}: {PARDISO_ERRORS.get(err, 'error')})")
 
@@ -252,10 +279,11 @@ class PardisoFactor:
         nrhs = 1 if b.ndim == 1 else b.shape[1]
         if nrhs == 0:
             return x
+        self._check_alive()
         with self._lock:
             iparm = self._iparm.copy()
             err = _pardiso_call(self._lib, self._handle, 33, self.n, self._data, self._indptr,
-                                self._indices, iparm, nrhs, b, x)
+                                self._indices, iparm, nrhs, b, x, mtype=self.mtype)
         if err:
             raise ValueError(f"PARDISO solve failed ({err}: {PARDISO_ERRORS.get(err, 'error')})")
         return x

@@ -141,3 +141,29 @@ def test_pardiso_refactor_keeps_the_analysis_and_refuses_a_new_pattern():
     np.testing.assert_allclose(b @ f.solve(rhs), rhs, atol=1e-10 * np.abs(rhs).max())
     with pytest.raises(ValueError, match="pattern"):
         f.refactor(sp.identity(300, format="csr"))
+
+
+@pytest.mark.skipif(not have_pardiso(), reason="the mkl wheel (pardiso extra) is not installed")
+def test_pardiso_ldlt_takes_over_where_cholesky_meets_a_zero_pivot():
+    """``pivoting=True`` (symmetric-indefinite L D Lᵀ) factors what the Cholesky refuses,
+    solves it to rounding, and refactors in place with the kept analysis."""
+    from scipy.sparse.linalg import eigsh
+
+    from solvers.linalg import PardisoFactor
+
+    a = _random_spd(300, 7).tocsr()
+    shift = float(eigsh(a, k=1, sigma=0, which="LM", return_eigenvectors=False)[0])
+    indefinite = (a - sp.identity(300) * 1.5 * shift).tocsr()  # a negative eigenvalue
+    with pytest.raises(ValueError, match="positive definite"):
+        PardisoFactor(indefinite)
+    f = PardisoFactor(indefinite, pivoting=True)
+    assert f.backend == "pardiso-ldlt" and f.mtype == -2
+    rng = np.random.default_rng(8)
+    rhs = rng.normal(size=(300, 3))
+    np.testing.assert_allclose(indefinite @ f.solve(rhs), rhs, atol=1e-9 * np.abs(rhs).max())
+    f.refactor(a)  # same pattern, now SPD
+    x = f.solve(rhs[:, 0])
+    np.testing.assert_allclose(a @ x, rhs[:, 0], atol=1e-10 * np.abs(rhs).max())
+    f.release()  # memory freed now; the factor refuses further use
+    with pytest.raises(ValueError, match="released"):
+        f.solve(rhs[:, 0])

@@ -13,11 +13,13 @@ import numpy as np
 import pytest
 import trimesh
 
+import solvers.emd.interior_point_barycenter as ipb
 from solvers.domains import TriangleMesh
 from solvers.emd.beckmann import earth_movers_distance
 from solvers.emd.exact import w1_barycenter
 from solvers.emd.interior_point_barycenter import estimated_cost
 from solvers.errors import InputError
+from solvers.linalg import have_pardiso
 
 
 def _sphere(subdivisions=2):
@@ -138,3 +140,63 @@ def test_cost_model_grows_with_size_and_inputs():
                            estimated_cost(50_000, 100_000, 3))
     assert small.seconds < more.seconds and small.seconds < bigger.seconds
     assert small.bytes < more.bytes and small.bytes < bigger.bytes
+
+
+@pytest.mark.skipif(not have_pardiso(), reason="the mkl wheel (pardiso extra) is not installed")
+@pytest.mark.parametrize("from_iteration", [1, 6])
+def test_zero_pivot_hands_over_to_ldlt(sphere, monkeypatch, from_iteration):
+    """A zero pivot in the Cholesky (forced here from a given factorization on) hands the
+    normal matrix to PARDISO's L D Lᵀ, which factors the remaining iterations; the optimum
+    is Clarabel's, within the certified bracket, and the constraints hold to rounding."""
+    calls, used = [0], []
+    cholesky = ipb.ip.factor_normal_matrix
+
+    def zero_pivot_from(normal, factor, backend):
+        calls[0] += 1
+        if factor is not None and getattr(factor, "mtype", 2) == -2:
+            used.append(factor.backend)
+            return cholesky(normal, factor, backend)  # the L D Lᵀ refactors in place
+        if calls[0] >= from_iteration:
+            raise ValueError("PARDISO phase 22 failed (-4: zero pivot)")
+        return cholesky(normal, factor, backend)
+
+    monkeypatch.setattr(ipb.ip, "factor_normal_matrix", zero_pivot_from)
+    mus = np.stack([_bump(sphere, c) for c in (0, 50, 100)], axis=1)
+    alpha = [0.2, 0.3, 0.5]
+    ipm = w1_barycenter(sphere, mus, alpha, tol=1e-6)
+    ref = w1_barycenter(sphere, mus, alpha, algorithm="socp", tol=1e-10)
+    _check_bracket(ipm, ref, 1e-6)
+    assert ipm.iterations > from_iteration and used and set(used) == {"pardiso-ldlt"}
+
+
+def test_centrality_correction_moves_spectral_values_into_the_band():
+    """Gondzio's target per Lorentz cone: the corrected Jordan product's spectral values
+    ``p_0 ± ‖p̄‖`` lie in the band (where the decrease cap does not bind), and products
+    already inside are left alone."""
+    rng = np.random.default_rng(3)
+    bar = rng.normal(size=(500, 2))
+    bar *= np.minimum(1.0, 3.0 / np.linalg.norm(bar, axis=1))[:, None]
+    p = np.column_stack([rng.uniform(0.0, 6.0, 500), bar])
+    lo, hi = 0.5, 5.0  # spectral values <= 9 < 2 hi: the decrease cap does not bind
+    q = p + ipb.ip._centrality_correction(p, lo, hi)
+    spectra = [q[:, 0] + np.linalg.norm(q[:, 1:], axis=1),
+               q[:, 0] - np.linalg.norm(q[:, 1:], axis=1)]
+    for s in spectra:
+        assert np.all((s >= lo - 1e-12) & (s <= hi + 1e-12))
+    inside = p[:, 0] + np.linalg.norm(p[:, 1:], axis=1) <= hi
+    inside &= p[:, 0] - np.linalg.norm(p[:, 1:], axis=1) >= lo
+    assert inside.any()
+    np.testing.assert_allclose(q[inside], p[inside], atol=1e-15)
+
+
+@pytest.mark.parametrize("correctors", [0, 1, 4])
+def test_correctors_keep_the_optimum(sphere, monkeypatch, correctors):
+    """With any number of Gondzio's correctors (the default is ``CORRECTORS``) the certified
+    bracket holds Clarabel's optimum."""
+    step = ipb.ip.mehrotra_step
+    monkeypatch.setattr(ipb.ip, "mehrotra_step", lambda *args: step(*args[:5], correctors))
+    mus = np.stack([_bump(sphere, c) for c in (0, 50, 100)], axis=1)
+    alpha = [0.2, 0.3, 0.5]
+    ipm = w1_barycenter(sphere, mus, alpha, tol=1e-6)
+    ref = w1_barycenter(sphere, mus, alpha, algorithm="socp", tol=1e-10)
+    _check_bracket(ipm, ref, 1e-6)

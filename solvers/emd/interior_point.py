@@ -327,11 +327,67 @@ def nonneg_max_step(x: np.ndarray, d: np.ndarray) -> float:
     return float((-x[neg] / d[neg]).min(initial=np.inf))
 
 
-def mehrotra_step(x, m, z, zm, newton):
+# Gondzio's centrality correctors: neighbourhood of the central path, in multiples of the
+# target σμ, into which the products at a trial step are pulled, and the trial step's
+# lengthening; a corrector is kept when it lengthens the step by a fraction of that.
+CENTRALITY_BAND = (0.1, 10.0)
+CORRECTOR_REACH = 0.2
+CORRECTOR_GAIN = 0.1
+
+
+def _max_steps(x, m, z, zm, dx, dm, dz, dzm) -> float:
+    return min(_max_step(x, dx), _max_step(z, dz), nonneg_max_step(m, dm),
+               nonneg_max_step(zm, dzm))
+
+
+def _centrality_correction(p: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """Per Lorentz cone, the change of the Jordan product ``p`` ``(F, 3)`` that moves its
+    spectral values ``p_0 ± ‖p̄‖`` into ``[lo, hi]`` (a decrease at most ``hi``, as in
+    Gondzio 1996): ``((d1 + d2)/2, (d1 - d2)/2 · p̄/‖p̄‖)``."""
+    norm = np.linalg.norm(p[:, 1:], axis=1)
+    first, second = p[:, 0] + norm, p[:, 0] - norm
+    d1 = np.maximum(np.clip(first, lo, hi) - first, -hi)
+    d2 = np.maximum(np.clip(second, lo, hi) - second, -hi)
+    out = np.zeros_like(p)
+    out[:, 0] = 0.5 * (d1 + d2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        unit = np.where(norm[:, None] > 0, p[:, 1:] / norm[:, None], 0.0)
+    out[:, 1:] = 0.5 * (d1 - d2)[:, None] * unit
+    return out
+
+
+def _gondzio(x, m, z, zm, newton, direction, rc, rc_m, target: float, correctors: int):
+    """Up to ``correctors`` centrality correctors (Gondzio 1996; Colombo & Gondzio 2008 for
+    cones) on Mehrotra's ``direction`` ``(dx, dm, dy, dz, dzm)`` with right-hand sides
+    ``rc``, ``rc_m``: the scaled products at a longer trial step are pulled into
+    :data:`CENTRALITY_BAND` around ``target``, and the Newton system (same factorization)
+    is solved again with that change added.  Returns the direction with its largest step."""
+    sc = newton.scaling
+    alpha = _max_steps(x, m, z, zm, *direction[:2], *direction[3:])
+    lo, hi = CENTRALITY_BAND[0] * target, CENTRALITY_BAND[1] * target
+    for _ in range(correctors):
+        if alpha >= 1.0:
+            break
+        trial = min(1.0, alpha + CORRECTOR_REACH)
+        dx, dm, _, dz, dzm = direction
+        p = _jordan(sc.apply(x + trial * dx), sc.apply_inverse(z + trial * dz))
+        p_m = (m + trial * dm) * (zm + trial * dzm)
+        rc_new = rc + _centrality_correction(p, lo, hi)
+        rc_m_new = rc_m + np.maximum(np.clip(p_m, lo, hi) - p_m, -hi)
+        candidate = newton(rc_new, rc_m_new)
+        step = _max_steps(x, m, z, zm, *candidate[:2], *candidate[3:])
+        if step < alpha + CORRECTOR_GAIN * CORRECTOR_REACH:
+            break
+        direction, alpha, rc, rc_m = candidate, step, rc_new, rc_m_new
+    return direction, alpha
+
+
+def mehrotra_step(x, m, z, zm, newton, correctors: int = 0):
     """Mehrotra's predictor-corrector over Lorentz cones ``x, z`` ``(F, 3)`` and a
     non-negative block ``m, zm``: ``(dx, dm, dy, dz, dzm, α)``.  ``newton(rc, rc_m)`` solves
     the Newton system for complementarity right-hand sides (its ``scaling`` holds the
-    cones' NT scaling)."""
+    cones' NT scaling); ``correctors``: at most that many of Gondzio's centrality
+    correctors follow (:func:`_gondzio`, one more solve each with the same factorization)."""
     lam, lam_m = newton.scaling.lam, np.sqrt(m * zm)
     degree = len(x) + len(m)
     mu = (float(_dot(x, z).sum()) + float(m @ zm)) / degree
@@ -345,10 +401,13 @@ def mehrotra_step(x, m, z, zm, newton):
     rc = -_jordan(lam, lam) - _jordan(sc.apply_inverse(dz), sc.apply(dx))
     rc[:, 0] += sigma * mu
     rc_m = -lam_m**2 - dzm * dm + sigma * mu
-    dx, dm, dy, dz, dzm = newton(rc, rc_m)
-    alpha = min(1.0, STEP_FRACTION * min(_max_step(x, dx), _max_step(z, dz),
-                                         nonneg_max_step(m, dm), nonneg_max_step(zm, dzm)))
-    return dx, dm, dy, dz, dzm, alpha
+    direction = newton(rc, rc_m)
+    if correctors:
+        direction, longest = _gondzio(x, m, z, zm, newton, direction, rc, rc_m, sigma * mu,
+                                      correctors)
+    else:
+        longest = _max_steps(x, m, z, zm, *direction[:2], *direction[3:])
+    return (*direction, min(1.0, STEP_FRACTION * longest))
 
 
 @dataclass

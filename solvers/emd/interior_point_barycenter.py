@@ -30,11 +30,15 @@ in the ``k`` potentials,
 between every pair of blocks, minus a rank-``k`` term.  The sparse part is one SPD matrix of
 the mesh's sparsity with ``k × k`` blocks per vertex, factored by PARDISO (ordering and
 symbolic analysis once, a numeric refactorization per iteration) or cholespy; the rank-``k``
-term is handled by the Woodbury identity with ``k`` extra solves.
+term is handled by the Woodbury identity with ``k`` extra solves.  Near the end of the path
+rounding can cost the Cholesky a pivot; the matrix then goes to PARDISO's
+symmetric-indefinite ``L D Lᵀ`` (pivot perturbation, iterative refinement) for the remaining
+iterations.  Steps are Mehrotra's with Gondzio's centrality correctors (:data:`CORRECTORS`).
 
 The start is primal and dual feasible (uniform :math:`\rho`, the Poisson flows that carry it
 to every input, :math:`y_1` a positive constant, the other potentials 0), and steps keep both
-feasible, so ``value - lower_bound`` certifies the objective; ``value`` is evaluated with the flows'
+feasible (the Newton right-hand side also cancels the divergence residual rounding leaves),
+so ``value - lower_bound`` certifies the objective; ``value`` is evaluated with the flows'
 costs :math:`\sum_t w_t \lVert u_{i,t}\rVert`, the W1 upper bounds of a feasible point.
 """
 
@@ -46,19 +50,26 @@ import numpy as np
 import scipy.sparse as sp
 
 from solvers.emd import interior_point as ip
+from solvers.linalg import PardisoFactor
 
 # Largest violation of the divergence constraints (mass units, total mass 1) with which a
 # small gap counts as converged (as in solvers.emd.interior_point_exits).
 FEASIBILITY_TOL = 1e-6
+# Gondzio centrality correctors per iteration (solvers.emd.interior_point.mehrotra_step):
+# the cones limit Mehrotra's steps to ~0.3-0.6 on this program; each corrector is one more
+# solve with the iteration's factorization.
+CORRECTORS = 2
 # Cost model of this route (bench/w1_applications.py fits it: measured times and PARDISO's
-# factor sizes in bench/results/w1_applications.md): per iteration, passes over the k F
-# face cones and a numeric factorization of the coupled (k V)-row normal matrix, whose factor
-# grows like N log N and its work like N^1.5 (nested dissection on a surface mesh).
-ESTIMATED_ITERATIONS = 50
-_FACE_SECONDS = 1.0e-6  # per face cone and iteration
-_FACTOR_SECONDS = 1.0e-8  # per (k V)^1.5 and iteration
-_FACTOR_FILL = 4.0  # factor nonzeros per coupled unknown and log2(unknowns)
-_FACE_FLOATS = 150  # cones, scalings, directions, per-face blocks: floats per face cone
+# factor sizes in bench/results/w1_applications.md).  Iterations grow slowly with the mesh
+# and the inputs; each passes over the k F face cones and factors the (k V)-row normal matrix,
+# a mesh Laplacian with dense k × k blocks per vertex: nested dissection gives a factor of
+# ~k² V log V nonzeros, and its work grew like k^2.5 V^1.5 (k = 3 -> 6 at 10k vertices).
+_ITERATIONS = 42.0  # at 10k vertices and 3 inputs; x (V / 10k)^0.2 (k / 3)^(1/3)
+_FACE_SECONDS = 1.8e-6  # per face cone and iteration
+_FACTOR_SECONDS = 2.0e-9  # per k^2.5 V^1.5 and iteration
+_FACTOR_FILL = 2.0  # factor nonzeros per k² V log2(V)
+_FACTOR_ENTRY_BYTES = 16  # PARDISO's memory per factor nonzero (values, indices, symbolic)
+_FACE_FLOATS = 200  # cones, scalings, directions, per-face blocks: floats per face cone
 MAX_ESTIMATED_SECONDS = 300.0
 # Absolute floor of the relative gap's denominator (objective units: squared length on the
 # unit-area mesh): the objective is 0 when the inputs coincide.
@@ -71,24 +82,16 @@ class CostEstimate:
     bytes: int
 
 
-# Bounds of the measured fallback runs over the Cholesky model (bench/results/w1_applications.md).
-_LU_FALLBACK_TIME = 3.8
-_LU_FALLBACK_MEMORY = 4.5
-
-
 def estimated_cost(n_vertices: int, n_faces: int, k: int) -> CostEstimate:
     """Modelled run time (s, one core) and working memory of :func:`solve_barycenter_ipm`
     with ``k`` inputs of positive weight on a mesh of that size (constants above)."""
-    unknowns = float(max(k, 1)) * float(max(n_vertices, 1))
-    cones = float(max(k, 1)) * float(max(n_faces, 1))
-    per_iteration = _FACE_SECONDS * cones + _FACTOR_SECONDS * unknowns**1.5
-    factor = _FACTOR_FILL * unknowns * np.log2(max(unknowns, 2.0))
-    seconds = ESTIMATED_ITERATIONS * per_iteration
-    working = 12 * factor + 8 * _FACE_FLOATS * cones + 8 * 40 * unknowns
-    # Admission must also cover the late iterations that fall back to LU (zero pivot in
-    # PARDISO): those runs took up to 3.7x the time and 4.4x the memory of the Cholesky model.
-    return CostEstimate(seconds=_LU_FALLBACK_TIME * seconds,
-                        bytes=int(_LU_FALLBACK_MEMORY * working))
+    k, n = float(max(k, 1)), float(max(n_vertices, 2))
+    cones = k * float(max(n_faces, 1))
+    iterations = _ITERATIONS * (n / 1e4) ** 0.2 * (k / 3.0) ** (1.0 / 3.0)
+    per_iteration = _FACE_SECONDS * cones + _FACTOR_SECONDS * k**2.5 * n**1.5
+    factor = _FACTOR_FILL * k**2 * n * np.log2(n)
+    working = _FACTOR_ENTRY_BYTES * factor + 8 * _FACE_FLOATS * cones + 8 * 40 * k * n
+    return CostEstimate(seconds=iterations * per_iteration, bytes=int(working))
 
 
 @dataclass
@@ -220,6 +223,7 @@ class _Newton:
                  backend):
         k, n_faces = x.shape[:2]
         self.prog, self.layout = prog, layout
+        self.residual = prog.div(x) - rho[None] + prog.m  # (k, V)
         self.scaling = ip._nt_scaling(x.reshape(-1, 3), z.reshape(-1, 3))
         self.lam_rho = np.sqrt(rho * z_rho)
         self.d = rho / z_rho
@@ -234,11 +238,8 @@ class _Newton:
         normal = layout.matrix(blocks, self.d, full=ip._backend(backend) != "pardiso")
         try:
             self.factor = ip.factor_normal_matrix(normal, factor, backend)
-        except ValueError:  # Cholesky lost definiteness to rounding near the end of the
-            # path: LU with partial pivoting on the whole symmetric matrix (same system)
-            if ip._backend(backend) == "pardiso":
-                normal = (normal + sp.triu(normal, 1).T).tocsr()
-            self.factor = ip.factor_normal_matrix(normal, None, "splu")
+        except ValueError:  # zero pivot: the Cholesky lost definiteness to rounding
+            self.factor = _pivoting_factor(normal, factor, backend)
         if self.factor is None:
             return
         self.V = np.zeros((int(layout.offsets[-1]), k))  # column i: v_i on block i's rows
@@ -253,14 +254,16 @@ class _Newton:
 
     def __call__(self, rc: np.ndarray, rc_rho: np.ndarray):
         """Directions ``(dx (k F, 3), dρ, dy (k, V), dz (k F, 3), dz_ρ)`` for the
-        complementarity right-hand sides ``rc`` ``(k F, 3)`` and ``rc_rho`` ``(V,)``."""
+        complementarity right-hand sides ``rc`` ``(k F, 3)`` and ``rc_rho`` ``(V,)``; they
+        also cancel the primal residual ``e = D u_i - ρ + m_i`` (:attr:`residual`), which
+        rounding leaves, so a full step restores the divergence constraints."""
         prog, sc = self.prog, self.scaling
         k, n_faces = prog.k, len(prog.faces)
         wq = sc.apply_inverse(ip._jordan_solve(sc.lam, rc)).reshape(k, n_faces, 3)
         wq_rho = rc_rho / self.z_rho
         g_wq = wq[:, :, 0] @ prog.w
         v = self.v
-        r = -prog.div(wq) + (self.c * g_wq)[:, None] * v + wq_rho[None]
+        r = -prog.div(wq) + (self.c * g_wq)[:, None] * v + wq_rho[None] - self.residual
         dy = self.layout.gather(self._solve(self.layout.scatter(r)))
         a = prog.div_adjoint(dy)
         coef = self.c * (np.sum(v * dy, axis=1) + g_wq)
@@ -272,10 +275,25 @@ class _Newton:
         return dx.reshape(-1, 3), drho, dy, dz.reshape(-1, 3), dy.sum(axis=0)
 
 
+def _pivoting_factor(normal: sp.csr_matrix, failed, backend: str):
+    """The normal matrix's factor once its Cholesky ``failed`` met a zero pivot (rounding
+    near the end of the path; the matrix is positive semidefinite in exact arithmetic):
+    PARDISO's symmetric-indefinite ``L D Lᵀ`` with pivot perturbation and iterative
+    refinement, which then refactors in place for the remaining iterations (the Cholesky's
+    memory is released first: it is not used again); without PARDISO, LU with partial
+    pivoting (``normal`` is then the whole symmetric matrix)."""
+    if ip._backend(backend) == "pardiso":
+        if isinstance(failed, PardisoFactor):
+            failed.release()
+        return PardisoFactor(normal, pivoting=True)
+    return ip.factor_normal_matrix(normal, None, "splu")
+
+
 def barycenter_interior_point(full: ip._Structure, kept: ip._Structure, w: np.ndarray,
                               alpha: np.ndarray, m: np.ndarray, u0: np.ndarray,
                               rho0: np.ndarray, tol: float, max_iter: int, monitor,
-                              backend: str = "auto") -> BarycenterOutput:
+                              backend: str = "auto",
+                              correctors: int = CORRECTORS) -> BarycenterOutput:
     """The primal-dual loop (module docstring).
 
     ``full``/``kept``: the divergence's structure on every vertex / on all but one vertex
@@ -301,7 +319,8 @@ def barycenter_interior_point(full: ip._Structure, kept: ip._Structure, w: np.nd
         if newton.factor is None:
             return None
         dx, drho, dy, dz, dz_rho, step = ip.mehrotra_step(x.reshape(-1, 3), rho,
-                                                          z.reshape(-1, 3), z_rho, newton)
+                                                          z.reshape(-1, 3), z_rho, newton,
+                                                          correctors)
         x, rho, y = x + step * dx.reshape(shape), rho + step * drho, y + step * dy
         # the slacks by the step (the linear dual relation holds to rounding); recomputing
         # them from y would add the rounding of Dᵀ y_1, y_1 ~ a large constant
