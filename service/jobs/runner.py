@@ -177,7 +177,8 @@ class JobRunner:
             # checked strictly at the door; stored JSON gives lists for tuples
             params = op.request_model.model_validate(job.params, strict=False)
             max_iter = getattr(params, "max_iter", None)
-            hb.max_iter = max_iter if isinstance(max_iter, int) and max_iter > 0 else None
+            if isinstance(max_iter, int) and max_iter > 0 and not op.progress_counts_items:
+                hb.max_iter = max_iter
             try:
                 output = ctx.run(op, params, hb.on_progress, should_cancel, job.decision)
             finally:

@@ -213,5 +213,6 @@ OPERATIONS = [
               "templates (W2^2 per pair as /distances by default, or W1): the matrix, with "
               "progress over pairs; a cancelled job keeps its finished rows",
               DistanceMatrixRequest, run, validate, result_model=DistanceMatrixValues,
-              estimate_bytes=estimate_bytes, estimate_cost=estimate_cost),
+              estimate_bytes=estimate_bytes, estimate_cost=estimate_cost,
+              progress_counts_items=True),
 ]
