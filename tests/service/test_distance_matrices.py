@@ -137,3 +137,57 @@ def test_bad_inputs_name_the_field(client, woody):
     assert_error(client.post(f"/v1/domains/{grid}/distance-matrices",
                              json={"distributions": [[1.0] * 64], "metric": "w1"}),
                  422, "metric")
+
+
+def test_decision_recorded_at_submission_and_reported(make_client, meshes_dir, shared_mesh):
+    """The 202 carries the matrix's decision (per-pair routes and kernels by the library's
+    decide_route on the stored domain), the job stores it and the result reports it; what
+    ran (routes, kernels) equals it."""
+    from solvers.convolutional.decision import decide_route
+    from solvers.regularization import sketch_of
+
+    client = make_client(queue="sqlite")
+    rt = client.app.state.runtime
+    mesh = shared_mesh("woody.obj")
+    mid = upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
+    body = {"distributions": BUMPS[:3], "route": "convolutional"}
+    r = client.post(f"/v1/domains/{mid}/distance-matrices", json=body)
+    assert r.status_code == 202, r.text
+    job = r.json()
+    decision = job["decision"]
+    masses = [_bump(mesh, b["vertex"], b["radius"]) for b in BUMPS[:3]]
+    expected = [decide_route(sketch_of(mesh), masses[i], masses[j], route="convolutional")
+                for i, j in ((0, 1), (0, 2), (1, 2))]
+    assert decision["per_pair"] and decision["zero_diagonal"] and decision["pairs"] == 3
+    assert decision["routes"] == {"convolutional": 3}
+    kernels = {(d.t, d.substeps) for d in expected}
+    assert decision["kernel_count"] == len(kernels)
+    listed = sorted((k["t"], k["substeps"]) for k in decision["kernels"])
+    assert len(listed) == len(kernels)
+    for (t, s), (t_ref, s_ref) in zip(listed, sorted(kernels), strict=True):
+        assert s == s_ref and t == pytest.approx(t_ref, rel=1e-12)
+    rt.runner.run(job["id"])
+    result = client.get(f"/v1/jobs/{job['id']}/result").json()["values"]
+    assert result["decision"] == decision
+    assert result["routes"] == decision["routes"]
+    assert len(result["kernels"]) == decision["kernel_count"]
+
+
+def test_uniform_decision_runs_as_explicit_arguments(client, woody):
+    _, mid = woody
+    job = client.post(f"/v1/domains/{mid}/distance-matrices",
+                      json={"distributions": BUMPS[:3], **SHARED}).json()
+    assert job["state"] == "succeeded", job
+    d = job["decision"]
+    assert d["solver_arguments"] == {"route": "convolutional", "gamma": 0.01, "t": None,
+                                     "substeps": 8, "debiased": True}
+    assert d["kernel_count"] == 1 and d["routes"] == {"convolutional": 3}
+    exact = client.post(f"/v1/domains/{mid}/distance-matrices",
+                        json={"distributions": [{"vertex": v, "radius": 0.08}
+                                                for v in (0, 200, 400)]}).json()
+    assert exact["state"] == "succeeded", exact
+    assert exact["decision"]["solver_arguments"] == {"route": "exact"}
+    assert exact["decision"]["routes"] == {"exact": 3}
+    w1 = client.post(f"/v1/domains/{mid}/distance-matrices",
+                     json={"distributions": BUMPS[:2], "metric": "w1"}).json()
+    assert w1["decision"]["algorithm"] == "ipm" and w1["decision"]["routes"] == {"w1": 1}
