@@ -153,7 +153,12 @@ class JobRunner:
         if claim is None:
             log.info("job %s not claimable (already taken, cancelled or finished)", job_id)
             return
+        self.run_claimed(claim)
+
+    def run_claimed(self, claim) -> None:
+        """Run a job this worker has claimed (``JobRepository.claim`` / ``claim_next``)."""
         job, attempt = claim.job, claim.attempt
+        job_id = job.id
         self.current = (job_id, attempt)
         log.info("job %s (%s) attempt %d started", job_id, job.operation, attempt)
         limit = min(job.time_limit or self.settings.job_time_limit,
