@@ -496,6 +496,39 @@ def test_worker_sigterm_hands_running_job_back(make_client, tmp_path):
     assert client.delete(f"/v1/jobs/{job['id']}").json()["state"] == "cancelled"
 
 
+def test_job_of_a_killed_worker_reruns_from_the_job_table(make_client, tmp_path):
+    """Embedded queue (the job table is the queue): a worker killed with SIGKILL mid-job
+    loses nothing; the reaper puts the stale job back in the table and the next worker
+    claims and finishes it (attempt 2)."""
+    client = make_client(queue="sqlite", stale_after=1.0, reaper_interval=0.2)
+    rt = client.app.state.runtime
+    gid = _grid(client, (120, 120))
+    body = {"distributions": [{"vertex": 0, "radius": 0.2}, {"vertex": 14399, "radius": 0.2}],
+            "gamma": 1e-4, "tol": 1e-15, "max_iter": 100_000}  # runs until killed
+    job = client.post(f"/v1/domains/{gid}/barycenters", json=body).json()
+    proc, log = _start_worker(tmp_path)
+    try:
+        deadline = time.monotonic() + 30
+        while client.get(f"/v1/jobs/{job['id']}").json()["state"] != "running":
+            assert time.monotonic() < deadline, (tmp_path / "worker.log").read_text()[-2000:]
+            time.sleep(0.02)
+        proc.kill()  # SIGKILL: no hand-back
+        proc.wait(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        log.close()
+    deadline = time.monotonic() + 30
+    while client.get(f"/v1/jobs/{job['id']}").json()["state"] != "queued":
+        rt.reaper.run_once()
+        assert time.monotonic() < deadline
+        time.sleep(0.1)
+    claim = rt.repo.claim_next(("short", "long"), "next-worker")
+    assert claim is not None and claim.job.id == job["id"] and claim.attempt == 2
+    rt.repo.request_cancel(job["id"])  # the re-run need not finish: it was claimed again
+    assert rt.repo.claim_next(("short", "long"), "other") is None
+
+
 def test_real_worker_process(make_client, meshes_dir, tmp_path):
     proc, log = _start_worker(tmp_path)
     try:
