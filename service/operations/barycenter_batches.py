@@ -11,6 +11,8 @@ problems finish together, so there is no finished part worth keeping).
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import numpy as np
 from pydantic import Field
 
@@ -48,8 +50,8 @@ class BarycenterBatchRequest(SinkhornOptions):
                             "weights": [[1.0, 0.0], [0.75, 0.25], [0.5, 0.5], [0.25, 0.75]]})
     distributions: list[Distribution] = Field(min_length=1, max_length=MAX_DISTRIBUTIONS,
                                               description="the inputs shared by every problem")
-    weights: list[list[float]] = Field(
-        min_length=1, max_length=MAX_PROBLEMS, description="one weight vector per problem "
+    weights: list[Annotated[list[float], Field(min_length=1, max_length=MAX_DISTRIBUTIONS)]] = \
+        Field(min_length=1, max_length=MAX_PROBLEMS, description="one weight vector per problem "
         "(B x k: one non-negative value per distribution, positive sum; each normalized)")
     sharpen: bool = Field(False, description="entropic sharpening (thesis Alg. 3)")
     entropy_bound: float | None = None
@@ -72,10 +74,14 @@ def _weights(req: BarycenterBatchRequest) -> np.ndarray:
     k = len(req.distributions)
     rows = []
     for b, w in enumerate(req.weights):
+        field = f"weights[{b}]"
         try:
-            rows.append(check_weights(w, k, f"weights[{b}]"))
+            rows.append(check_weights(w, k, field))
         except InputError as exc:
-            raise InvalidInput(str(exc), field=f"weights[{b}]") from exc
+            raise InvalidInput(str(exc), field=field) from exc
+        if not np.isfinite(np.sum(w)):  # values near the float limit: the sum overflows
+            raise InvalidInput(f"{field} sums beyond the float range; scale it down",
+                               field=field)
     return np.stack(rows)
 
 

@@ -65,6 +65,7 @@ def test_batch_equals_library_barycenters(client, woody):
     ([[0.5, 0.5, 0.0], [1.0, -0.5, 0.5]], "weights[1]"),  # negative
     ([[0.5, 0.5, 0.0], [0.2, 0.3, 0.5], [0.0, 0.0, 0.0]], "weights[2]"),  # zero sum
     ([[0.5, 0.5]], "weights[0]"),  # length 2 for 3 distributions
+    ([[0.5, 0.5, 0.0], [1e308, 1e308, 0.0]], "weights[1]"),  # the sum overflows
 ])
 def test_bad_weights_name_the_field_and_index(client, woody, weights, field):
     _, mid = woody
