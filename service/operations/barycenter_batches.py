@@ -50,7 +50,8 @@ class BarycenterBatchRequest(SinkhornOptions):
                             "weights": [[1.0, 0.0], [0.75, 0.25], [0.5, 0.5], [0.25, 0.75]]})
     distributions: list[Distribution] = Field(min_length=1, max_length=MAX_DISTRIBUTIONS,
                                               description="the inputs shared by every problem")
-    weights: list[Annotated[list[float], Field(min_length=1, max_length=MAX_DISTRIBUTIONS)]] = \
+    weights: list[Annotated[list[Annotated[float, Field(ge=0)]],
+                            Field(min_length=1, max_length=MAX_DISTRIBUTIONS)]] = \
         Field(min_length=1, max_length=MAX_PROBLEMS, description="one weight vector per problem "
         "(B x k: one non-negative value per distribution, positive sum; each normalized)")
     sharpen: bool = Field(False, description="entropic sharpening (thesis Alg. 3)")
@@ -75,11 +76,19 @@ def _weights(req: BarycenterBatchRequest) -> np.ndarray:
     rows = []
     for b, w in enumerate(req.weights):
         field = f"weights[{b}]"
+        if len(w) != k:
+            raise InvalidInput(f"every row of weights needs {k} values (one per distribution); "
+                               f"{field} has {len(w)}", field=field)
+        if not any(w):
+            raise InvalidInput(f"{field} sums to 0: give at least one positive weight",
+                               field=field)
         try:
             rows.append(check_weights(w, k, field))
         except InputError as exc:
             raise InvalidInput(str(exc), field=field) from exc
-        if not np.isfinite(np.sum(w)):  # values near the float limit: the sum overflows
+        with np.errstate(over="ignore"):
+            total = np.sum(w)
+        if not np.isfinite(total):  # values near the float limit: the sum overflows
             raise InvalidInput(f"{field} sums beyond the float range; scale it down",
                                field=field)
     return np.stack(rows)

@@ -61,18 +61,19 @@ def test_batch_equals_library_barycenters(client, woody):
     assert done["iteration"] == 4 and done["fraction"] == 1.0
 
 
-@pytest.mark.parametrize(("weights", "field"), [
-    ([[0.5, 0.5, 0.0], [1.0, -0.5, 0.5]], "weights[1]"),  # negative
-    ([[0.5, 0.5, 0.0], [0.2, 0.3, 0.5], [0.0, 0.0, 0.0]], "weights[2]"),  # zero sum
-    ([[0.5, 0.5]], "weights[0]"),  # length 2 for 3 distributions
-    ([[0.5, 0.5, 0.0], [1e308, 1e308, 0.0]], "weights[1]"),  # the sum overflows
+@pytest.mark.parametrize(("weights", "field", "named"), [
+    # negative: refused by the request model (the spec says >= 0), the item named
+    ([[0.5, 0.5, 0.0], [1.0, -0.5, 0.5]], "weights", "weights[1][1]"),
+    ([[0.5, 0.5, 0.0], [0.2, 0.3, 0.5], [0.0, 0.0, 0.0]], "weights[2]", "sums to 0"),
+    ([[0.5, 0.5]], "weights[0]", "needs 3 values"),  # length 2 for 3 distributions
+    ([[0.5, 0.5, 0.0], [1e308, 1e308, 0.0]], "weights[1]", "float range"),  # sum overflows
 ])
-def test_bad_weights_name_the_field_and_index(client, woody, weights, field):
+def test_bad_weights_name_the_field_and_index(client, woody, weights, field, named):
     _, mid = woody
     r = client.post(f"/v1/domains/{mid}/barycenter-batches",
                     json={"distributions": BUMPS, "weights": weights})
     err = assert_error(r, 422, field)
-    assert field in err["message"]
+    assert named in err["message"] and field in err["message"]
 
 
 def test_bad_inputs_refused(client, woody):
