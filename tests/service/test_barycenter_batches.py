@@ -11,23 +11,12 @@ import time
 
 import numpy as np
 import pytest
-from service_testing import assert_error, upload_mesh
+from service_testing import assert_error, bump_masses, upload_mesh
 
 from solvers.convolutional import barycenters
 
 BUMPS = [{"vertex": v, "radius": 0.3} for v in (0, 300, 500)]
 WEIGHTS = [[1.0, 0.0, 0.0], [0.5, 0.5, 0.0], [0.2, 0.3, 0.5], [0.0, 1.0, 3.0]]
-
-
-def _bump(mesh, vertex, radius):
-    d = np.linalg.norm(mesh.vertices - mesh.vertices[vertex], axis=1)
-    m = mesh.areas * np.clip(1 - d / radius, 0, None)
-    return m / m.sum()
-
-
-@pytest.fixture
-def woody(client, meshes_dir, shared_mesh):
-    return shared_mesh("woody.obj"), upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
 
 
 def _npy(client, job_id, name) -> np.ndarray:
@@ -42,7 +31,7 @@ def test_batch_equals_library_barycenters(client, woody):
                       json={"distributions": BUMPS, "weights": WEIGHTS}).json()
     assert job["state"] == "succeeded", job
     values = client.get(f"/v1/jobs/{job['id']}/result", params={"arrays": False}).json()["values"]
-    mus = np.stack([_bump(mesh, b["vertex"], b["radius"]) for b in BUMPS], axis=1)
+    mus = np.stack([bump_masses(mesh, b["vertex"], b["radius"]) for b in BUMPS], axis=1)
     ref = barycenters(mesh, mus, np.array(WEIGHTS))
     masses = _npy(client, job["id"], "masses")
     assert masses.shape == (mesh.n, len(WEIGHTS))

@@ -9,23 +9,12 @@ import time
 
 import numpy as np
 import pytest
-from service_testing import assert_error, upload_mesh
+from service_testing import assert_error, bump_masses, upload_mesh
 
 from solvers.convolutional import wasserstein_distance
 
 BUMPS = [{"vertex": v, "radius": 0.3} for v in (0, 100, 300, 500)]
 SHARED = {"gamma": 0.01, "substeps": 8, "debiased": True}
-
-
-def _bump(mesh, vertex, radius):
-    d = np.linalg.norm(mesh.vertices - mesh.vertices[vertex], axis=1)
-    m = mesh.areas * np.clip(1 - d / radius, 0, None)
-    return m / m.sum()
-
-
-@pytest.fixture
-def woody(client, meshes_dir, shared_mesh):
-    return shared_mesh("woody.obj"), upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
 
 
 def _matrix(client, job_id) -> np.ndarray:
@@ -48,7 +37,7 @@ def test_symmetric_matrix_equals_single_pairs(client, woody):
     inline = np.array(result["arrays"]["matrix"])
     D = _matrix(client, job["id"])
     assert np.array_equal(inline, D) and np.array_equal(D, D.T) and np.all(np.diag(D) == 0)
-    masses = [_bump(mesh, b["vertex"], b["radius"]) for b in BUMPS]
+    masses = [bump_masses(mesh, b["vertex"], b["radius"]) for b in BUMPS]
     for i, j in ((0, 1), (1, 3), (2, 3)):
         single = wasserstein_distance(mesh, masses[i], masses[j], **SHARED)
         assert abs(D[i, j] - single.value) <= 1e-6 * abs(single.value)
@@ -69,8 +58,8 @@ def test_templates_default_route_and_large_result_as_file(make_client, meshes_di
     assert "matrix" not in result["arrays"] and result["array_files"]["matrix"]["shape"] == [3, 2]
     assert result["values"]["routes"] == {"exact": 6} and not result["values"]["symmetric"]
     D = _matrix(client, job["id"])
-    m0 = _bump(mesh, 200, 0.08)
-    m1 = _bump(mesh, 50, 0.08)
+    m0 = bump_masses(mesh, 200, 0.08)
+    m1 = bump_masses(mesh, 50, 0.08)
     single = wasserstein_distance(mesh, m0, m1)
     assert single.route == "exact"
     assert abs(D[1, 1] - single.value) <= 1e-6 * single.value
@@ -155,7 +144,7 @@ def test_decision_recorded_at_submission_and_reported(make_client, meshes_dir, s
     assert r.status_code == 202, r.text
     job = r.json()
     decision = job["decision"]
-    masses = [_bump(mesh, b["vertex"], b["radius"]) for b in BUMPS[:3]]
+    masses = [bump_masses(mesh, b["vertex"], b["radius"]) for b in BUMPS[:3]]
     expected = [decide_route(sketch_of(mesh), masses[i], masses[j], route="convolutional")
                 for i, j in ((0, 1), (0, 2), (1, 2))]
     assert decision["per_pair"] and decision["zero_diagonal"] and decision["pairs"] == 3
