@@ -47,10 +47,11 @@ from solvers.errors import CancelledError, InputError
 
 MAX_DISTRIBUTIONS = 2000  # per side of a matrix (the request JSON stays a few MB)
 ROUTE_CODES = {"": -1, "identical": 0, "exact": 1, "convolutional": 2, "w1": 3}
-# Pairs decided one by one at submission (an automatic regularization costs ~1-2 ms per pair
-# on a small mesh): above it the decision records the requested arguments and the worker
-# decides per pair, deterministically, as the library does.
-DECIDED_PAIRS = 5000
+# Pairs decided one by one at submission: an exact-route decision costs ~20-30 us, an
+# automatic regularization ~0.9-2.4 ms per pair (100 bumps on spot, measured), so at most a
+# few seconds of the API's time; above it the decision records the requested arguments and
+# the worker decides per pair, by the same function of the data, as the library does.
+DECIDED_PAIRS = 1000
 LISTED_KERNELS = 32  # heat kernels listed in a decision (more: counted)
 
 
