@@ -99,6 +99,10 @@ def body_for(name: str, size: str, example: dict, info) -> dict:
         axis = np.eye(3)[np.argmax(np.ptp(pts, axis=0))] * 0.02
         body["fixed"] = [{"node": 0, "position": (center - axis).tolist()},
                          {"node": 2, "position": (center + axis).tolist()}]
+    elif name == "barycenter-batches":  # a grid of alphas between the example's two inputs
+        problems = 64 if big else 16
+        body["weights"] = [[b / (problems - 1), 1 - b / (problems - 1)]
+                           for b in range(problems)]
     elif name == "volumetric-distances":  # the mesh sets the size: a coarse slice
         body["slice"] = {**body["slice"], "resolution": 8}
     return body

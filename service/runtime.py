@@ -57,17 +57,24 @@ class Runtime:
         return worker_identity()
 
     def enqueue(self, job_id: str, queue: str | None = None) -> None:
-        """Send a job id to its queue (``short`` unless given; in immediate mode: run it)."""
+        """Send a job id to its queue (``short`` unless given; in immediate mode: run it).
+
+        On the embedded SQLite queue the job table is the queue (the recorded job row is the
+        message: ``JobRepository.claim_next``): only the local workers are woken."""
         queue = queue if queue in QUEUES else "short"
-        self.tasks[queue](job_id)
-        if self.wake is not None and self.settings.queue == "sqlite":
+        if self.settings.queue != "sqlite":
+            self.tasks[queue](job_id)
+        elif self.wake is not None:
             self.wake.notify("worker", job_id)  # Redis workers block on the list already
 
     def pending_messages(self) -> int | None:
         if self.settings.queue == "immediate":
             return 0
         try:
-            return sum(int(h.pending_count()) for h in self.hueys.values())
+            messages = sum(int(h.pending_count()) for h in self.hueys.values())
+            if self.settings.queue == "sqlite":  # the job table is the queue
+                messages += sum(self.repo.queued_by_queue().values())
+            return messages
         except Exception:  # broker down
             return None
 

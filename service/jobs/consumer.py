@@ -1,8 +1,10 @@
 """A worker's queue consumer: one job at a time from the short queue and (unless the worker
 is reserved for short jobs) the long queue, short jobs first.
 
-Replaces Huey's consumer (which reads one queue): on the embedded SQLite queue it reads
-both queues without blocking and then blocks on the wake-up socket (service.jobs.wake); on
+Replaces Huey's consumer (which reads one queue): on the embedded SQLite queue the job table
+is the queue (the worker claims the oldest queued job of its queues in one statement, see
+``JobRepository.claim_next``; Huey messages, e.g. from an older API, are still read), then it
+blocks on the wake-up socket (service.jobs.wake); on
 Redis it blocks in one ``BRPOP`` over both lists (Redis serves the first non-empty key in
 order: short before long). Messages are decoded by the queues' JSON serializer
 (service.jobs.queue): a message that is not one of ours is logged and dropped.
@@ -21,6 +23,8 @@ from service.jobs.queue import QUEUES
 
 log = logging.getLogger("otgeo.worker")
 
+CLAIMED = "claimed"  # next_message's tag of a job claimed from the job table
+
 
 class Consumer:
     def __init__(self, runtime, queues=QUEUES, wake=None):
@@ -37,6 +41,9 @@ class Consumer:
 
     # -- reading ---------------------------------------------------------------
     def _read_sqlite(self, timeout: float):
+        claim = self.rt.repo.claim_next(tuple(self.queues), self.rt.runner.worker_id)
+        if claim is not None:
+            return CLAIMED, claim
         for q in self.queues:
             data = self.rt.hueys[q].storage.dequeue_now()
             if data is not None:
@@ -80,6 +87,9 @@ class Consumer:
         msg = self.next_message(timeout)
         if msg is None:
             return None
+        if msg[0] == CLAIMED:
+            self.rt.runner.run_claimed(msg[1])
+            return msg[1].job.id
         job_id = self.decode(*msg)
         if job_id is not None:
             self.rt.runner.run(job_id)

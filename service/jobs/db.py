@@ -25,6 +25,7 @@ from sqlalchemy import (
     create_engine,
     event,
     func,
+    insert,
     inspect,
     or_,
     select,
@@ -137,6 +138,25 @@ CLAIM = (update(JOBS).where(JOBS.c.id == _bound("id"), JOBS.c.state == QUEUED)
                  heartbeat_at=bindparam("b_now", type_=Float()))
          .returning(*JOBS.c))
 GET = select(JOBS).where(JOBS.c.id == _bound("id"))
+_QUEUE = func.coalesce(JOBS.c.queue, "short")
+
+
+@functools.lru_cache(maxsize=4)
+def _claim_next_statement(queues: tuple[str, ...]):
+    """``UPDATE`` of the oldest queued job of ``queues`` (in that order) to running for a
+    worker, ``RETURNING`` it: the job table as the queue (one statement claims and
+    dequeues; the outer ``state = 'queued'`` keeps two workers from both winning)."""
+    from sqlalchemy import case
+
+    rank = case({q: i for i, q in enumerate(queues)}, value=_QUEUE)
+    oldest = (select(JOBS.c.id).where(JOBS.c.state == QUEUED, _QUEUE.in_(queues))
+              .order_by(rank, func.coalesce(JOBS.c.enqueued_at, JOBS.c.created_at), JOBS.c.id)
+              .limit(1).scalar_subquery())
+    return (update(JOBS).where(JOBS.c.id == oldest, JOBS.c.state == QUEUED)
+            .values(state=RUNNING, attempts=JOBS.c.attempts + 1, worker=_bound("worker"),
+                    started_at=bindparam("b_now", type_=Float()),
+                    heartbeat_at=bindparam("b_now", type_=Float()))
+            .returning(*JOBS.c))
 FINISHED = ("state", "error", "result_location", "finished_at", "heartbeat_at", "duration")
 
 
@@ -146,6 +166,23 @@ def _finish_statement(progress: frozenset):
     return (update(JOBS).where(JOBS.c.id == _bound("id"), JOBS.c.state == RUNNING,
                                JOBS.c.attempts == bindparam("b_attempt", type_=Integer()))
             .values({name: _bound(name) for name in (*FINISHED, *sorted(progress))}))
+
+
+@functools.lru_cache(maxsize=8)
+def _insert_statement(table):
+    """``INSERT`` of every column of ``table`` (built once per table)."""
+    return insert(table)
+
+
+def _column_values(row, table) -> dict:
+    """A mapped row's column values for a Core INSERT (unset values of primary keys and of
+    columns with a default left out, so the table's default applies as in the ORM)."""
+    values = {}
+    for c in table.columns:
+        value = getattr(row, c.key)
+        if value is not None or not (c.primary_key or c.default is not None):
+            values[c.name] = value
+    return values
 
 
 CREATE_ATTEMPTS = 5  # create_all tries when processes start together on a fresh database
@@ -197,10 +234,14 @@ class JobRepository:
 
     # -- creation / reading ---------------------------------------------
     def create(self, job: JobRow, *also) -> JobRow:
-        """Insert the job, and ``also`` (e.g. its idempotency key) in the same transaction."""
-        with self.Session.begin() as s:
-            s.add(job)
-            s.add_all(also)
+        """Insert the job, and ``also`` (e.g. its idempotency key) in the same transaction.
+
+        Core INSERTs of the rows' column values (the ORM unit of work costs more than the
+        statement on this path); ``job`` stays a detached row holding what was written."""
+        with self.engine.begin() as conn:
+            for row in (job, *also):
+                table = type(row).__table__
+                conn.execute(_insert_statement(table), _column_values(row, table))
         return job
 
     def get(self, job_id: str) -> JobRow | None:
@@ -273,6 +314,16 @@ class JobRepository:
         if not self._update(where + (JOBS.c.attempts == job.attempts,), **values):
             return None
         return Claim(job.attempts + 1, self.get(job_id))
+
+    def claim_next(self, queues: tuple[str, ...], worker: str) -> Claim | None:
+        """Claim the oldest queued job of ``queues`` (earlier queues first) for this worker;
+        None when there is none (or another worker took it first).  The embedded queue: the
+        job row written at submission is the message, so nothing is handed over twice and a
+        requeued job (reaper) is simply queued again."""
+        with self.engine.begin() as conn:
+            row = conn.execute(_claim_next_statement(tuple(queues)),
+                               {"b_worker": worker, "b_now": time.time()}).mappings().first()
+        return None if row is None else Claim(int(row["attempts"]), JobRow(**row))
 
     def heartbeat(self, job_id: str, attempt: int, **progress) -> tuple[bool, bool]:
         """Refresh the heartbeat (and progress); returns (still owned, cancel requested)."""

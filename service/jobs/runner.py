@@ -153,7 +153,12 @@ class JobRunner:
         if claim is None:
             log.info("job %s not claimable (already taken, cancelled or finished)", job_id)
             return
+        self.run_claimed(claim)
+
+    def run_claimed(self, claim) -> None:
+        """Run a job this worker has claimed (``JobRepository.claim`` / ``claim_next``)."""
         job, attempt = claim.job, claim.attempt
+        job_id = job.id
         self.current = (job_id, attempt)
         log.info("job %s (%s) attempt %d started", job_id, job.operation, attempt)
         limit = min(job.time_limit or self.settings.job_time_limit,
@@ -177,7 +182,8 @@ class JobRunner:
             # checked strictly at the door; stored JSON gives lists for tuples
             params = op.request_model.model_validate(job.params, strict=False)
             max_iter = getattr(params, "max_iter", None)
-            hb.max_iter = max_iter if isinstance(max_iter, int) and max_iter > 0 else None
+            if isinstance(max_iter, int) and max_iter > 0 and not op.progress_counts_items:
+                hb.max_iter = max_iter
             try:
                 output = ctx.run(op, params, hb.on_progress, should_cancel, job.decision)
             finally:

@@ -8,6 +8,7 @@ Add a family by listing its module in ``FAMILIES``.
 from service.operations import (
     anisotropy,
     applications,
+    barycenter_batches,
     color,
     features,
     histograms,
@@ -28,8 +29,9 @@ from service.operations.base import (
     SubmitContext,
 )
 
-FAMILIES = (transport, matrices, histograms, color, softmaps, applications, volumetric, features,
-            anisotropy, shapes, soft_map_analyses, metric_histograms, w1_applications)
+FAMILIES = (transport, barycenter_batches, matrices, histograms, color, softmaps, applications,
+            volumetric, features, anisotropy, shapes, soft_map_analyses, metric_histograms,
+            w1_applications)
 
 
 class Registry(dict):

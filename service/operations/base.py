@@ -286,6 +286,12 @@ class Operation:
     # SubmitContext of a global operation), which picks its queue (default:
     # ``service.jobs.queue.estimate_cost``, points x iterations x distributions)
     estimate_cost: Callable[..., float] | None = None
+    # the request field a 413 names, from (view or SubmitContext, request): the field of the
+    # larger part of the memory estimate (default: the first size-giving field present)
+    size_field: Callable[..., str | None] | None = None
+    # progress counts items (pairs, problems) with their own fraction, not iterations: the
+    # request's max_iter bounds each item, not the count
+    progress_counts_items: bool = False
 
     def check_kind(self, view: DomainView, field: str = "domain_id") -> None:
         if view.kind not in self.kinds:
@@ -545,6 +551,11 @@ def job_memory_estimate(op: Operation, target, req) -> int | None:
     return None if op.estimate_bytes is None else op.estimate_bytes(target, req)
 
 
+# the fields a 413 names by default: the first one the request gives
+SIZE_FIELDS = ("distributions", "times", "edges", "n_nodes", "k", "points", "slice",
+               "face_weights", "cost", "circle", "images", "n_phi")
+
+
 def check_job_memory(op: Operation, view: DomainView | SubmitContext, req, limit: int
                      ) -> int | None:
     """413 (field: the request's size-giving field) when the job's estimated memory is
@@ -554,10 +565,9 @@ def check_job_memory(op: Operation, view: DomainView | SubmitContext, req, limit
 
     estimate = job_memory_estimate(op, view, req)
     if estimate is not None and estimate > limit:
-        field = next((f for f in ("distributions", "times", "edges", "n_nodes", "k",
-                                  "points", "slice", "face_weights", "cost", "circle", "images",
-                                  "n_phi")
-                      if getattr(req, f, None)), None)
+        field = next((f for f in SIZE_FIELDS if getattr(req, f, None)), None)
+        if op.size_field is not None:
+            field = op.size_field(view, req)
         raise PayloadTooLarge(f"this job would need about {estimate / 2**30:.3g} GiB of "
                               f"working memory, more than the limit of {limit / 2**30:.3g} GiB "
                               "(OTGEO_JOB_MEMORY_BYTES): use fewer points or columns",

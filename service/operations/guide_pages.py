@@ -23,6 +23,9 @@ OPERATION_DOCS = {
                                       "solvers.convolutional.distance_matrix"),
     "barycenters": OperationDoc("convolutional", "eq. 3.13, Alg. 2-3",
                                 "solvers.convolutional.barycenter"),
+    "barycenter-batches": OperationDoc("convolutional", "eq. 3.13, Alg. 2-3 (per weight "
+                                       "vector; Fig. 3.4)",
+                                       "solvers.convolutional.barycenters"),
     "interpolations": OperationDoc("convolutional", "eq. 3.16, Alg. 2",
                                    "solvers.convolutional.displacement_interpolation"),
     "propagations": OperationDoc("convolutional", "eq. 3.17, Alg. 4",

@@ -1,10 +1,14 @@
 """Distance matrices: every pair of a collection, or a collection against templates, as one
 job (thin adapter over :func:`solvers.convolutional.distance_matrix`).
 
-Each W2 pair takes the single-pair default's decision (route and regularization, computed in
-the worker from the request and the stored domain alone, so every attempt gets the same
-answer); pairs sharing a heat kernel run as one multi-column block, exact pairs share one
-geodesic cost matrix.  Progress counts pairs; a cancelled (or timed-out) job keeps the
+Each W2 pair takes the single-pair default's decision (route and regularization, from the
+request and the stored domain alone).  The job's :class:`MatrixDecision` is taken at
+submission (``Operation.decide``: the library's per-pair ``decide_route`` on the stored
+domain's sketch, summarized) and stored with the job: a uniform decision (every pair exact,
+or one heat kernel) runs as explicit solver arguments; a mixed one runs the same
+deterministic per-pair decision in the library and is checked against the record.  Pairs
+sharing a heat kernel run as one multi-column block, exact pairs share one geodesic cost
+matrix.  Progress counts pairs; a cancelled (or timed-out) job keeps the
 entries finished so far as its result (``complete: false``, ``finished_rows``).
 """
 
@@ -28,6 +32,7 @@ from service.operations.base import (
 )
 from service.operations.examples import BUMP_A, BUMP_B, example
 from service.operations.transport import SinkhornOptions
+from solvers.convolutional.decision import decide_route
 from solvers.convolutional.exact import EXACT_KINDS
 from solvers.convolutional.matrix import (
     SHARED_COST_ENTRIES,
@@ -35,11 +40,19 @@ from solvers.convolutional.matrix import (
     block_pairs,
     distance_matrix,
     pair_state_bytes,
+    zero_diagonal,
 )
-from solvers.errors import CancelledError
+from solvers.emd.beckmann import resolve_method
+from solvers.errors import CancelledError, InputError
 
 MAX_DISTRIBUTIONS = 2000  # per side of a matrix (the request JSON stays a few MB)
 ROUTE_CODES = {"": -1, "identical": 0, "exact": 1, "convolutional": 2, "w1": 3}
+# Pairs decided one by one at submission: an exact-route decision costs ~20-30 us, an
+# automatic regularization ~0.9-2.4 ms per pair (100 bumps on spot, measured), so at most a
+# few seconds of the API's time; above it the decision records the requested arguments and
+# the worker decides per pair, by the same function of the data, as the library does.
+DECIDED_PAIRS = 1000
+LISTED_KERNELS = 32  # heat kernels listed in a decision (more: counted)
 
 
 class DistanceMatrixRequest(SinkhornOptions):
@@ -71,6 +84,30 @@ class KernelGroup(BaseModel):
     debiased: bool
 
 
+class MatrixDecision(BaseModel):
+    """What a distance-matrix job runs, decided at submission from the request and the
+    stored domain alone and stored with the job (module docstring)."""
+
+    metric: Literal["w2", "w1"]
+    route: Literal["auto", "convolutional", "exact"] = Field(description="as requested")
+    reason: str
+    pairs: int = Field(description="pairs to solve (the diagonal of a symmetric matrix "
+                       "included unless it is zero by definition)")
+    per_pair: bool = Field(description="every pair's route and kernel decided at submission "
+                           f"(at most {DECIDED_PAIRS} pairs)")
+    zero_diagonal: bool | None = Field(None, description="symmetric: the diagonal is zero by "
+                                       "definition (debiased or exact), not solved")
+    routes: dict[str, int] = Field(default_factory=dict, description="pairs per route")
+    kernel_count: int = Field(0, description="distinct heat kernels (t, substeps) of the "
+                              "convolutional pairs")
+    kernels: list[KernelGroup] = Field(default_factory=list, description="those kernels "
+                                       f"(the first {LISTED_KERNELS})")
+    solver_arguments: dict | None = Field(None, description="a uniform decision: the "
+                                          "explicit arguments every pair runs with")
+    algorithm: Literal["ipm", "admm", "weiszfeld"] | None = Field(None, description="w1: "
+                                                                  "the solver")
+
+
 class DistanceMatrixValues(BaseModel):
     """Values of a distance-matrix job; the matrix itself is the array ``matrix`` (inline
     when it fits the result's JSON budget, always as ``.npy`` in ``array_files``)."""
@@ -90,6 +127,8 @@ class DistanceMatrixValues(BaseModel):
                                    "measured stopping quantity)")
     converged: bool = Field(description="every pair computed and converged")
     normalization: list[dict]
+    decision: MatrixDecision | None = Field(None, description="the job's decision (taken at "
+                                            "submission)")
 
 
 def _inputs(view: DomainView, req: DistanceMatrixRequest):
@@ -157,7 +196,7 @@ def estimate_cost(points: int, req: DistanceMatrixRequest, context=None) -> floa
     return float(max(points, 1)) * pairs * 60.0
 
 
-def _output(res, reports, complete: bool) -> OperationOutput:
+def _output(res, reports, complete: bool, decision: dict) -> OperationOutput:
     codes = np.vectorize(ROUTE_CODES.get, otypes=[np.int8])(res.routes)
     solved = (res.routes != "") & (res.routes != "identical")
     if res.symmetric:
@@ -173,7 +212,8 @@ def _output(res, reports, complete: bool) -> OperationOutput:
         kernels=[KernelGroup(gamma=g, t=t, substeps=s, debiased=d) for g, t, s, d in
                  res.kernels],
         iterations=int(res.iterations), residual=residual if np.isfinite(residual) else None,
-        converged=bool(res.converged and complete), normalization=reports)
+        converged=bool(res.converged and complete), normalization=reports,
+        decision=decision)
     arrays = {"matrix": np.asarray(res.values, dtype=np.float64),
               "pair_iterations": np.asarray(res.pair_iterations, dtype=np.int64),
               "pair_residuals": np.asarray(res.pair_residuals, dtype=np.float64),
@@ -182,11 +222,112 @@ def _output(res, reports, complete: bool) -> OperationOutput:
     return OperationOutput(values.model_dump(), arrays)
 
 
-def run(domain, req: DistanceMatrixRequest, progress, should_cancel) -> OperationOutput:
-    rows, others, reports = _inputs(view_of_domain(domain), req)
-    optional = {k: getattr(req, k) for k in ("tol", "max_iter") if getattr(req, k) is not None}
+def _pair_list(n: int, m: int, symmetric: bool, diagonal: bool) -> list[tuple[int, int]]:
+    """The pairs the library solves, in its order (row-major, ``i < j`` when symmetric, the
+    diagonal first when it is not zero by definition)."""
+    if not symmetric:
+        return [(i, j) for i in range(n) for j in range(m)]
+    return ([(i, i) for i in range(n)] if diagonal else []) + [
+        (i, j) for i in range(n) for j in range(i + 1, n)]
+
+
+def _kernels(decisions) -> tuple[dict[tuple, tuple], list]:
+    """The convolutional pairs' heat kernels keyed as the library groups them (t, substeps):
+    ``{key: (gamma, t, substeps, debiased) of its first pair}``, and the distinct full
+    tuples."""
+    groups: dict[tuple, tuple] = {}
+    full = []
+    for d in decisions:
+        if d.route != "exact":
+            t = d.t if d.t is not None else d.gamma / 4.0
+            groups.setdefault((t, int(d.substeps)), (d.gamma, t, int(d.substeps),
+                                                     bool(d.debiased)))
+            full.append((d.gamma, t, int(d.substeps), bool(d.debiased)))
+    return groups, sorted(set(full))
+
+
+def decide_matrix_job(view: DomainView, req: DistanceMatrixRequest) -> dict:
+    """The job's :class:`MatrixDecision` at submission (``Operation.decide``): W1's solver,
+    or every W2 pair's route and kernel by the library's ``decide_route`` on the stored
+    domain's sketch (up to :data:`DECIDED_PAIRS` pairs), summarized; a uniform decision
+    carries the explicit solver arguments that execute it."""
+    rows, others, _ = _inputs(view, req)
+    symmetric = others is None
+    cols = rows if symmetric else others
+    common = {"metric": req.metric, "route": req.route}
     if req.metric == "w1":
-        kwargs = {"w1_options": {"algorithm": req.algorithm, **optional}}
+        try:
+            algorithm, _ = resolve_method(req.algorithm, "auto")
+        except InputError as exc:
+            raise InvalidInput(str(exc), field=exc.field or "algorithm") from exc
+        pairs = _pair_list(rows.shape[1], cols.shape[1], symmetric, False)
+        return MatrixDecision(**common, reason="W1 per pair (Beckmann problem)",
+                              pairs=len(pairs), per_pair=True, zero_diagonal=symmetric or None,
+                              routes={"w1": len(pairs)}, algorithm=algorithm,
+                              solver_arguments={"algorithm": algorithm}
+                              ).model_dump(mode="json")
+    sketch = view.sketch().remembering_paths()
+    args = {"route": req.route, "gamma": "auto" if req.gamma is None else float(req.gamma),
+            "substeps": req.substeps, "debiased": req.debiased}
+    zero = None
+    if symmetric:
+        zero = zero_diagonal(sketch, rows, args["gamma"], args["debiased"], args["route"])
+    pairs = _pair_list(rows.shape[1], cols.shape[1], symmetric, zero is False)
+    if len(pairs) > DECIDED_PAIRS:
+        return MatrixDecision(**common, pairs=len(pairs), per_pair=False, zero_diagonal=zero,
+                              reason=f"{len(pairs)} pairs, more than {DECIDED_PAIRS}: each "
+                              "pair's route and kernel decided in the worker by the same "
+                              "function of the data").model_dump(mode="json")
+    decisions = [decide_route(sketch, rows[:, i], cols[:, j], t=None, **args)
+                 for i, j in pairs]
+    routes: dict[str, int] = {}
+    for d in decisions:
+        routes[d.route] = routes.get(d.route, 0) + 1
+    groups, full = _kernels(decisions)
+    uniform = None
+    if routes == {"exact": len(pairs)}:
+        uniform = {"route": "exact"}
+    elif len(full) == 1:
+        uniform = decisions[0].solver_arguments()
+        if symmetric and zero != zero_diagonal(sketch, rows, uniform["gamma"],
+                                               uniform["debiased"], "convolutional"):
+            uniform = None  # the explicit arguments would solve another diagonal
+    reasons = sorted({d.reason for d in decisions})
+    return MatrixDecision(
+        **common, pairs=len(pairs), per_pair=True, zero_diagonal=zero, routes=routes,
+        kernel_count=len(groups),
+        kernels=[KernelGroup(gamma=g, t=t, substeps=s, debiased=b)
+                 for g, t, s, b in list(groups.values())[:LISTED_KERNELS]],
+        solver_arguments=uniform,
+        reason=reasons[0] if len(reasons) == 1 else f"{len(reasons)} reasons over the pairs, "
+        f"e.g. {reasons[0]}").model_dump(mode="json")
+
+
+def _check_ran_as_decided(values: dict, decision: dict) -> None:
+    """A complete matrix ran what its stored decision says (routes and kernels per pair)."""
+    if not decision.get("per_pair") or not values["complete"]:
+        return
+    ran = (values["routes"], len(values["kernels"]))
+    decided = (decision["routes"], decision["kernel_count"] if decision["metric"] == "w2"
+               else 0)
+    if ran != decided:
+        raise RuntimeError(f"the matrix ran {ran}, not its decision {decided}")
+
+
+def run(domain, req: DistanceMatrixRequest, progress, should_cancel,
+        decision: dict | None = None) -> OperationOutput:
+    """Execute the job's stored ``decision`` (taken at submission; decided here only for a
+    job recorded without one)."""
+    view = view_of_domain(domain)
+    rows, others, reports = _inputs(view, req)
+    if decision is None:
+        decision = decide_matrix_job(view, req)
+    optional = {k: getattr(req, k) for k in ("tol", "max_iter") if getattr(req, k) is not None}
+    explicit = decision.get("solver_arguments")
+    if req.metric == "w1":
+        kwargs = {"w1_options": {**explicit, **optional}}
+    elif explicit is not None:
+        kwargs = {**explicit, **optional}
     else:
         kwargs = {"gamma": "auto" if req.gamma is None else float(req.gamma),
                   "substeps": req.substeps, "debiased": req.debiased, "route": req.route,
@@ -197,14 +338,16 @@ def run(domain, req: DistanceMatrixRequest, progress, should_cancel) -> Operatio
     except CancelledError as exc:
         partial = getattr(exc, "partial", None)
         if partial is not None:  # the runner stores it as the cancelled job's result
-            exc.partial_output = _output(partial, reports, complete=False)
+            exc.partial_output = _output(partial, reports, False, decision)
         raise
     except ValueError as exc:  # an input the library refused: name the request's field
         field = getattr(exc, "field", None)
         if field in ("distributions", "others", "route", "metric"):
             raise InvalidInput(str(exc), field=field) from exc
         raise
-    return _output(res, reports, complete=True)
+    output = _output(res, reports, True, decision)
+    _check_ran_as_decided(output.values, decision)
+    return output
 
 
 OPERATIONS = [
@@ -213,5 +356,6 @@ OPERATIONS = [
               "templates (W2^2 per pair as /distances by default, or W1): the matrix, with "
               "progress over pairs; a cancelled job keeps its finished rows",
               DistanceMatrixRequest, run, validate, result_model=DistanceMatrixValues,
-              estimate_bytes=estimate_bytes, estimate_cost=estimate_cost),
+              estimate_bytes=estimate_bytes, estimate_cost=estimate_cost,
+              decide=decide_matrix_job, progress_counts_items=True),
 ]

@@ -282,7 +282,7 @@ def _optional(req) -> dict:
     return {k: getattr(req, k) for k in ("tol", "max_iter") if getattr(req, k) is not None}
 
 
-def _shape_kwargs(domain, req, progress, should_cancel) -> tuple[dict, dict | None]:
+def shape_kwargs(domain, req, progress, should_cancel) -> tuple[dict, dict | None]:
     """Solver arguments of the shape operations and the policy's choice (None when the
     request gave gamma): gamma/substeps left out go through the "shapes" policy."""
     reg, gamma, substeps = shape_regularization(domain, req.gamma, None, req.substeps)
@@ -439,7 +439,7 @@ def _validate_barycenter(view, req) -> list[dict]:
 
 def run_barycenter(domain, req: BarycenterRequest, progress, should_cancel) -> OperationOutput:
     mus, weights, reports = _barycenter_inputs(view_of_domain(domain), req)
-    kwargs, reg = _shape_kwargs(domain, req, progress, should_cancel)
+    kwargs, reg = shape_kwargs(domain, req, progress, should_cancel)
     res = barycenter(domain, mus, weights, sharpen=req.sharpen, entropy_bound=req.entropy_bound,
                      debiased=req.debiased, **kwargs)
     masses = np.asarray(res.masses, dtype=np.float64)
@@ -463,7 +463,7 @@ def run_interpolation(domain, req: InterpolationRequest, progress, should_cancel
                       ) -> OperationOutput:
     _validate_interpolation(view_of_domain(domain), req)
     masses, reports = _pair(view_of_domain(domain), req)
-    kwargs, reg = _shape_kwargs(domain, req, progress, should_cancel)
+    kwargs, reg = shape_kwargs(domain, req, progress, should_cancel)
     res = displacement_interpolation(domain, masses["mu0"], masses["mu1"], list(req.times),
                                      sharpen=req.sharpen, debiased=req.debiased, **kwargs)
     m = np.asarray(res.masses, dtype=np.float64).reshape(domain.n, -1)
@@ -507,7 +507,7 @@ def _validate_propagation(view, req) -> list[dict]:
 def run_propagation(domain, req: PropagationRequest, progress, should_cancel
                     ) -> OperationOutput:
     edges, fixed, reports = _propagation_inputs(view_of_domain(domain), req)
-    kwargs, reg = _shape_kwargs(domain, req, progress, should_cancel)
+    kwargs, reg = shape_kwargs(domain, req, progress, should_cancel)
     res = wasserstein_propagation(domain, req.n_nodes, edges, fixed,
                                   edge_weights=req.edge_weights, **kwargs)
     m = np.asarray(res.masses, dtype=np.float64).reshape(domain.n, req.n_nodes)

@@ -250,7 +250,7 @@ def distance_matrix(
             error.partial = table.result()
             raise error
 
-    if symmetric and (metric == "w1" or _zero_diagonal(domain, A, gamma, debiased, route)):
+    if symmetric and (metric == "w1" or zero_diagonal(domain, A, gamma, debiased, route)):
         for i in range(A.shape[1]):
             table.put(i, i, 0.0, 0, 0.0, True, "identical")
     elif symmetric:
@@ -275,7 +275,7 @@ def distance_matrix(
     return table.result()
 
 
-def _zero_diagonal(domain, A, gamma, debiased, route) -> bool:
+def zero_diagonal(domain, A, gamma, debiased, route) -> bool:
     """Whether ``D(mu_i, mu_i) = 0`` by definition: the pair's own decision is the exact
     route or a debiased divergence (decided on the first distribution; a numeric ``gamma``
     decides the same for every pair)."""

@@ -36,3 +36,11 @@ def make_client(tmp_path):
 @pytest.fixture
 def client(make_client) -> TestClient:
     return make_client()
+
+
+@pytest.fixture
+def woody(client, meshes_dir, shared_mesh):
+    """``(mesh, domain id)`` of woody.obj loaded here and uploaded to ``client``."""
+    from service_testing import upload_mesh
+
+    return shared_mesh("woody.obj"), upload_mesh(client, meshes_dir / "woody.obj").json()["id"]

@@ -42,3 +42,13 @@ def job_result(client, response) -> tuple[str, dict]:
     job = response.json()
     assert job["state"] == "succeeded", job
     return job["id"], client.get(f"/v1/jobs/{job['id']}/result").json()
+
+
+def bump_masses(mesh, vertex: int, radius: float):
+    """A bump distribution ``{"vertex", "radius"}`` as the service resolves it on ``mesh``
+    (masses ``a_j max(0, 1 - d_j / r)``, normalized)."""
+    import numpy as np
+
+    d = np.linalg.norm(mesh.vertices - mesh.vertices[vertex], axis=1)
+    m = mesh.areas * np.clip(1 - d / radius, 0, None)
+    return m / m.sum()

@@ -9,23 +9,12 @@ import time
 
 import numpy as np
 import pytest
-from service_testing import assert_error, upload_mesh
+from service_testing import assert_error, bump_masses, upload_mesh
 
 from solvers.convolutional import wasserstein_distance
 
 BUMPS = [{"vertex": v, "radius": 0.3} for v in (0, 100, 300, 500)]
 SHARED = {"gamma": 0.01, "substeps": 8, "debiased": True}
-
-
-def _bump(mesh, vertex, radius):
-    d = np.linalg.norm(mesh.vertices - mesh.vertices[vertex], axis=1)
-    m = mesh.areas * np.clip(1 - d / radius, 0, None)
-    return m / m.sum()
-
-
-@pytest.fixture
-def woody(client, meshes_dir, shared_mesh):
-    return shared_mesh("woody.obj"), upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
 
 
 def _matrix(client, job_id) -> np.ndarray:
@@ -48,7 +37,7 @@ def test_symmetric_matrix_equals_single_pairs(client, woody):
     inline = np.array(result["arrays"]["matrix"])
     D = _matrix(client, job["id"])
     assert np.array_equal(inline, D) and np.array_equal(D, D.T) and np.all(np.diag(D) == 0)
-    masses = [_bump(mesh, b["vertex"], b["radius"]) for b in BUMPS]
+    masses = [bump_masses(mesh, b["vertex"], b["radius"]) for b in BUMPS]
     for i, j in ((0, 1), (1, 3), (2, 3)):
         single = wasserstein_distance(mesh, masses[i], masses[j], **SHARED)
         assert abs(D[i, j] - single.value) <= 1e-6 * abs(single.value)
@@ -69,8 +58,8 @@ def test_templates_default_route_and_large_result_as_file(make_client, meshes_di
     assert "matrix" not in result["arrays"] and result["array_files"]["matrix"]["shape"] == [3, 2]
     assert result["values"]["routes"] == {"exact": 6} and not result["values"]["symmetric"]
     D = _matrix(client, job["id"])
-    m0 = _bump(mesh, 200, 0.08)
-    m1 = _bump(mesh, 50, 0.08)
+    m0 = bump_masses(mesh, 200, 0.08)
+    m1 = bump_masses(mesh, 50, 0.08)
     single = wasserstein_distance(mesh, m0, m1)
     assert single.route == "exact"
     assert abs(D[1, 1] - single.value) <= 1e-6 * single.value
@@ -137,3 +126,57 @@ def test_bad_inputs_name_the_field(client, woody):
     assert_error(client.post(f"/v1/domains/{grid}/distance-matrices",
                              json={"distributions": [[1.0] * 64], "metric": "w1"}),
                  422, "metric")
+
+
+def test_decision_recorded_at_submission_and_reported(make_client, meshes_dir, shared_mesh):
+    """The 202 carries the matrix's decision (per-pair routes and kernels by the library's
+    decide_route on the stored domain), the job stores it and the result reports it; what
+    ran (routes, kernels) equals it."""
+    from solvers.convolutional.decision import decide_route
+    from solvers.regularization import sketch_of
+
+    client = make_client(queue="sqlite")
+    rt = client.app.state.runtime
+    mesh = shared_mesh("woody.obj")
+    mid = upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
+    body = {"distributions": BUMPS[:3], "route": "convolutional"}
+    r = client.post(f"/v1/domains/{mid}/distance-matrices", json=body)
+    assert r.status_code == 202, r.text
+    job = r.json()
+    decision = job["decision"]
+    masses = [bump_masses(mesh, b["vertex"], b["radius"]) for b in BUMPS[:3]]
+    expected = [decide_route(sketch_of(mesh), masses[i], masses[j], route="convolutional")
+                for i, j in ((0, 1), (0, 2), (1, 2))]
+    assert decision["per_pair"] and decision["zero_diagonal"] and decision["pairs"] == 3
+    assert decision["routes"] == {"convolutional": 3}
+    kernels = {(d.t, d.substeps) for d in expected}
+    assert decision["kernel_count"] == len(kernels)
+    listed = sorted((k["t"], k["substeps"]) for k in decision["kernels"])
+    assert len(listed) == len(kernels)
+    for (t, s), (t_ref, s_ref) in zip(listed, sorted(kernels), strict=True):
+        assert s == s_ref and t == pytest.approx(t_ref, rel=1e-12)
+    rt.runner.run(job["id"])
+    result = client.get(f"/v1/jobs/{job['id']}/result").json()["values"]
+    assert result["decision"] == decision
+    assert result["routes"] == decision["routes"]
+    assert len(result["kernels"]) == decision["kernel_count"]
+
+
+def test_uniform_decision_runs_as_explicit_arguments(client, woody):
+    _, mid = woody
+    job = client.post(f"/v1/domains/{mid}/distance-matrices",
+                      json={"distributions": BUMPS[:3], **SHARED}).json()
+    assert job["state"] == "succeeded", job
+    d = job["decision"]
+    assert d["solver_arguments"] == {"route": "convolutional", "gamma": 0.01, "t": None,
+                                     "substeps": 8, "debiased": True}
+    assert d["kernel_count"] == 1 and d["routes"] == {"convolutional": 3}
+    exact = client.post(f"/v1/domains/{mid}/distance-matrices",
+                        json={"distributions": [{"vertex": v, "radius": 0.08}
+                                                for v in (0, 200, 400)]}).json()
+    assert exact["state"] == "succeeded", exact
+    assert exact["decision"]["solver_arguments"] == {"route": "exact"}
+    assert exact["decision"]["routes"] == {"exact": 3}
+    w1 = client.post(f"/v1/domains/{mid}/distance-matrices",
+                     json={"distributions": BUMPS[:2], "metric": "w1"}).json()
+    assert w1["decision"]["algorithm"] == "ipm" and w1["decision"]["routes"] == {"w1": 1}

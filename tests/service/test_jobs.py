@@ -473,8 +473,9 @@ def _start_worker(tmp_path):
     return proc, log
 
 
-def test_worker_sigterm_hands_running_job_back(make_client, tmp_path):
-    client = make_client(queue="sqlite")
+def _worker_running_long_job(client, tmp_path, stop) -> dict:
+    """Submit a barycenter that runs until stopped, start a worker process, wait until it
+    runs the job, then ``stop(proc)`` (SIGTERM or SIGKILL); returns the job."""
     gid = _grid(client, (120, 120))
     body = {"distributions": [{"vertex": 0, "radius": 0.2}, {"vertex": 14399, "radius": 0.2}],
             "gamma": 1e-4, "tol": 1e-15, "max_iter": 100_000}
@@ -484,16 +485,49 @@ def test_worker_sigterm_hands_running_job_back(make_client, tmp_path):
         deadline = time.monotonic() + 30
         while client.get(f"/v1/jobs/{job['id']}").json()["state"] != "running":
             assert time.monotonic() < deadline, (tmp_path / "worker.log").read_text()[-2000:]
-            time.sleep(0.05)
-        proc.terminate()
-        assert proc.wait(timeout=15) == 0
+            time.sleep(0.02)
+        stop(proc)
     finally:
         if proc.poll() is None:
             proc.kill()
         log.close()
+    return job
+
+
+def test_worker_sigterm_hands_running_job_back(make_client, tmp_path):
+    client = make_client(queue="sqlite")
+
+    def terminate(proc):
+        proc.terminate()
+        assert proc.wait(timeout=15) == 0
+
+    job = _worker_running_long_job(client, tmp_path, terminate)
     back = client.get(f"/v1/jobs/{job['id']}").json()
     assert back["state"] == "queued" and back["attempts"] == 0, back
     assert client.delete(f"/v1/jobs/{job['id']}").json()["state"] == "cancelled"
+
+
+def test_job_of_a_killed_worker_reruns_from_the_job_table(make_client, tmp_path):
+    """Embedded queue (the job table is the queue): a worker killed with SIGKILL mid-job
+    loses nothing; the reaper puts the stale job back in the table and the next worker
+    claims and finishes it (attempt 2)."""
+    client = make_client(queue="sqlite", stale_after=1.0, reaper_interval=0.2)
+    rt = client.app.state.runtime
+
+    def kill(proc):  # SIGKILL: no hand-back
+        proc.kill()
+        proc.wait(timeout=10)
+
+    job = _worker_running_long_job(client, tmp_path, kill)
+    deadline = time.monotonic() + 30
+    while client.get(f"/v1/jobs/{job['id']}").json()["state"] != "queued":
+        rt.reaper.run_once()
+        assert time.monotonic() < deadline
+        time.sleep(0.1)
+    claim = rt.repo.claim_next(("short", "long"), "next-worker")
+    assert claim is not None and claim.job.id == job["id"] and claim.attempt == 2
+    rt.repo.request_cancel(job["id"])  # the re-run need not finish: it was claimed again
+    assert rt.repo.claim_next(("short", "long"), "other") is None
 
 
 def test_real_worker_process(make_client, meshes_dir, tmp_path):

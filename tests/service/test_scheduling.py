@@ -21,19 +21,31 @@ LONG = {"distributions": [{"vertex": 0, "radius": 0.2}, {"vertex": 14399, "radiu
 SHORT = {"mu0": {"vertex": 0, "radius": 0.5}, "mu1": {"vertex": 35, "radius": 0.5}}
 
 
+def _queued(rt: Runtime, job_id: str, queue: str, at: float) -> None:
+    """A queued job row (the embedded queue's message: the job table is the queue)."""
+    from service.jobs.db import QUEUED, JobRow
+
+    rt.repo.create(JobRow(id=job_id, operation="distances", domain_id="", params={},
+                          state=QUEUED, queue=queue, cost=1.0, attempts=0, max_attempts=3,
+                          cancel_requested=False, time_limit=60.0, created_at=at,
+                          enqueued_at=at))
+
+
 def test_consumer_takes_short_jobs_first_and_reserved_ones_only_short(tmp_path):
     rt = Runtime(Settings(data_dir=tmp_path, queue="sqlite"), role="worker")
     ran: list[str] = []
-    rt.runner.run = ran.append
+    rt.runner.run_claimed = lambda claim: ran.append(claim.job.id)
     try:
-        rt.enqueue(A, "long")
-        rt.enqueue(B, "short")
+        _queued(rt, A, "long", 1.0)
+        _queued(rt, B, "short", 2.0)
         reserved = Consumer(rt, ("short",))
         both = Consumer(rt, ("short", "long"))
         assert reserved.step(0.05) == B  # the short job, although enqueued second
         assert reserved.step(0.05) is None  # never takes the long one
         assert both.step(0.05) == A
         assert ran == [B, A]
+        assert both.step(0.05) is None  # each job claimed once
+        assert rt.repo.get(A).state == "running" and rt.repo.get(A).attempts == 1
     finally:
         rt.close()
 

@@ -74,7 +74,8 @@ ALLOWED = [
             r"|materials give the weights|appears twice|must be a square matrix"
             r"|endpoint outside \[0, \d+\]|must be (strictly )?increasing|must be greater than"
             r"|zero total mass|reflects no light|use a coarser slice or fewer points"
-            r"|n_neighbors must be <= \d+|face indices must lie in \[0, \d+\]",
+            r"|n_neighbors must be <= \d+|face indices must lie in \[0, \d+\]"
+            r"|\] sums to 0|sums beyond the float range",
             "a relation between fields or items (equal lengths, order, uniqueness of a node, a "
             "positive total, a total size) that JSON Schema cannot express"),
     Allowed("positive_data_acceptance", r"POST /v1/(domains|domains/upload|color-transfers)",

@@ -12,7 +12,6 @@ import pytest
 
 from service.domains import DomainService
 from service.jobs.db import JOBS
-from service.jobs.queue import TASK_NAME
 from service.jobs.service import JobService
 from service.jobs.wake import JobWaiters, WakeSender, WakeSocket
 from service.operations import build_registry
@@ -38,22 +37,35 @@ def test_sender_reaches_role_and_forgets_closed_sockets(tmp_path):
         sender.close()
 
 
-def test_enqueue_wakes_blocked_worker_dequeue(tmp_path):
+def test_enqueue_wakes_blocked_worker_which_claims_from_the_job_table(tmp_path):
+    """The embedded queue is the job table: enqueue only wakes the local workers (no queue
+    message), and the woken consumer claims the recorded job."""
+    from service.jobs.consumer import Consumer
+    from service.jobs.db import QUEUED, JobRow
+
     rt = Runtime(Settings(data_dir=tmp_path, queue="sqlite"), role="worker")
     wake = WakeSocket(tmp_path, "worker")
-    storage = rt.huey.storage
-    storage.wake, storage.blocking, storage.wake_timeout = wake, True, 10.0
     got: list = []
-    thread = threading.Thread(target=lambda: got.append((storage.dequeue(), time.monotonic())))
+    thread = threading.Thread(target=lambda: got.append((wake.wait(10.0), time.monotonic())))
     try:
         thread.start()
-        time.sleep(0.2)  # the dequeue is blocked on the socket by now
+        time.sleep(0.2)  # blocked on the socket by now
+        rt.repo.create(JobRow(id="abc", operation="distances", domain_id="", params={},
+                              state=QUEUED, queue="short", cost=1.0, attempts=0,
+                              max_attempts=3, cancel_requested=False, time_limit=60.0,
+                              created_at=time.time(), enqueued_at=time.time()))
         sent = time.monotonic()
         rt.enqueue("abc")
         thread.join(5.0)
-        assert got and got[0][0] is not None, "dequeue did not return the message"
+        assert got and got[0][0] == ["abc"], "the worker was not woken"
         assert got[0][1] - sent < 2.0  # woken, not the 10 s timeout
-        assert rt.huey.deserialize_task(got[0][0]).name == TASK_NAME
+        assert sum(int(h.pending_count()) for h in rt.hueys.values()) == 0  # no message
+        assert rt.pending_messages() == 1  # the queued job
+        claimed: list = []
+        rt.runner.run_claimed = claimed.append
+        assert Consumer(rt, ("short", "long")).step(0.05) == "abc"
+        assert claimed[0].job.id == "abc" and claimed[0].attempt == 1
+        assert rt.repo.get("abc").state == "running" and rt.pending_messages() == 0
     finally:
         wake.close()
         rt.close()
