@@ -284,6 +284,11 @@ GAMMA_MAX_FACTOR = 100.0
 GAMMA_MIN = 1e-300  # below it the heat time gamma/4 underflows (subnormals) to 0
 
 
+def gamma_max(extent: float) -> float:
+    """The largest regularization :func:`check_gamma` admits on a domain of this extent."""
+    return GAMMA_MAX_FACTOR * float(extent) ** 2
+
+
 def check_gamma(gamma, extent: float, field: str = "gamma") -> float:
     """A regularization ``GAMMA_MIN <= gamma <= GAMMA_MAX_FACTOR * extent**2`` (finite).
 
@@ -294,7 +299,7 @@ def check_gamma(gamma, extent: float, field: str = "gamma") -> float:
     if g < GAMMA_MIN:
         raise InputError(f"{field} = {g:g} is below {GAMMA_MIN:g} (its heat time would "
                          "underflow to 0)", field=field)
-    top = GAMMA_MAX_FACTOR * float(extent) ** 2
+    top = gamma_max(extent)
     if g > top:
         raise InputError(f"{field} = {g:g} is beyond {top:.3g} ({GAMMA_MAX_FACTOR:g} x the "
                          f"squared domain extent {float(extent):.3g}): the heat kernel would be "

@@ -97,7 +97,8 @@ async def create_color_transfer(
     debiased: bool = Form(False, description="debiased barycenters"),
     recolor: str | None = Form(None, description="JSON list of image indices to recolor"),
     format: Literal["png", "jpeg"] = Form("png", description="output image format"),
-    time_limit: float | None = Form(None, gt=0, description="seconds"),
+    # no null in the spec: a multipart field is text, and "null" is not a number
+    time_limit: float = Form(None, gt=0, description="seconds (absent: no limit)"),
     wait: float = Query(0.0, ge=0, description=WAIT_DESCRIPTION),
 ):
     """Upload the images and create the job; results at `/v1/jobs/{id}/result`, images at

@@ -36,7 +36,8 @@ from service.operations.base import (
     ResultFile,
 )
 from service.operations.examples import example
-from solvers.validation import GAMMA_MIN
+from solvers.convolutional.hemisphere import EXTENT as HEMISPHERE_EXTENT
+from solvers.validation import GAMMA_MIN, gamma_max
 
 MAX_COLUMNS_X_POINTS = 4_000_000  # barycenter columns x hemisphere points of one job
 MAX_HEMISPHERE_POINTS = 4096  # dense kernel: 128 MB
@@ -86,8 +87,10 @@ class BRDFInterpolationRequest(OperationRequest):
     route: Literal["geodesic", "separable"] = Field(
         "geodesic", description="hemisphere kernel: exact great-circle Gaussian, or the "
         "thesis' latitude-modulated separable product (spurious mass near the pole)")
-    gamma: float | None = Field(None, ge=GAMMA_MIN, description="regularization (unit hemisphere "
-                                "area); default (2 h)^2, h the polar cell size")
+    # the hemisphere's extent is fixed, so its domain bound on gamma is part of the spec
+    gamma: float | None = Field(None, ge=GAMMA_MIN, le=gamma_max(HEMISPHERE_EXTENT),
+                                description="regularization (unit hemisphere area); default "
+                                "(2 h)^2, h the polar cell size")
     entropy_bound: float | Literal["inputs"] | None = Field(
         None, description="Alg. 3: a bound H0, or 'inputs' (the largest input entropy of "
         "each incoming direction); null: plain barycenters")

@@ -51,6 +51,7 @@ from solvers.kernels import heat_time
 from solvers.validation import check_int, check_positive
 
 RADIUS = 1.0 / np.sqrt(2.0 * np.pi)  # unit hemisphere area
+EXTENT = float(np.pi * RADIUS)  # pole-to-pole geodesic length of the full sphere / 2
 ROUTES = ("separable", "geodesic")  # kernel: the thesis' product, or exact great circles
 MAX_POINTS = 8192  # the dense kernel holds n^2 floats (512 MB at this size)
 
@@ -138,7 +139,7 @@ class HemisphereGrid(Domain):
 
     @property
     def extent(self) -> float:
-        return float(np.pi * RADIUS)  # pole-to-pole geodesic length of the full sphere / 2
+        return EXTENT
 
     @property
     def points(self) -> np.ndarray:

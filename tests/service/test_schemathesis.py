@@ -66,6 +66,7 @@ ALLOWED = [
             r"out of range \[0, \d+\]|is not a node index in \[0, \d+\]|is outside \[0, \d+\]"
             r"|must have length \d+ \(one value per point\)|has \d+ entries; the mesh has"
             r"|lies more than \d+ mesh sizes away|x the squared domain extent"
+            r"|the smallest regularization this domain can resolve"
             r"|\bk must be <= \d+",
             "bounded by the stored domain (its points, faces, extent, bounding box), which "
             "differs per domain: one spec for every domain cannot state it"),
