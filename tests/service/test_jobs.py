@@ -599,3 +599,33 @@ def test_real_worker_process(make_client, meshes_dir, tmp_path):
         proc.terminate()
         assert proc.wait(timeout=15) == 0
         log.close()
+
+
+def test_progress_arity_read_off_the_code_matches_the_signature():
+    """The worker's progress callback (a bound method) takes the fraction; the fast reading
+    of a callable's arity agrees with ``inspect.signature`` on every kind of callable."""
+    import functools
+
+    from service.jobs.runner import _Heartbeat
+    from solvers.monitor import _arity, _signature_arity
+
+    class Hook:
+        def __call__(self, it, res):
+            pass
+
+        def three(self, it, res, fraction=None):
+            pass
+
+    def wrapped(*args):
+        pass
+
+    @functools.wraps(lambda it, res: None)
+    def decorated(*args):
+        pass
+
+    hb = _Heartbeat.__new__(_Heartbeat)
+    cases = [hb.on_progress, Hook().three, Hook(), lambda it, res: None, wrapped, decorated,
+             functools.partial(lambda a, it, res: None, 1), print]
+    for fn in cases:
+        assert _arity(fn) == _signature_arity(fn), fn
+    assert _arity(hb.on_progress) == 3 and _arity(Hook().three) == 3
