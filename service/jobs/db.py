@@ -303,9 +303,6 @@ class JobRepository:
 
         One conditional ``UPDATE ... RETURNING`` where the database supports it."""
         now = time.time()
-        values = {"state": RUNNING, "attempts": JOBS.c.attempts + 1, "worker": worker,
-                  "started_at": now, "heartbeat_at": now}
-        where = (JOBS.c.id == job_id, JOBS.c.state == QUEUED)
         if self.engine.dialect.update_returning:
             with self.engine.begin() as conn:
                 row = conn.execute(CLAIM, {"b_id": job_id, "b_worker": worker,
@@ -316,7 +313,11 @@ class JobRepository:
         job = self.get(job_id)  # pragma: no cover - databases without RETURNING
         if job is None or job.state != QUEUED:
             return None
-        if not self._update(where + (JOBS.c.attempts == job.attempts,), **values):
+        # (building these per call costs as much as the statement: only on this path)
+        values = {"state": RUNNING, "attempts": JOBS.c.attempts + 1, "worker": worker,
+                  "started_at": now, "heartbeat_at": now}
+        where = (JOBS.c.id == job_id, JOBS.c.state == QUEUED, JOBS.c.attempts == job.attempts)
+        if not self._update(where, **values):
             return None
         return Claim(job.attempts + 1, self.get(job_id))
 
