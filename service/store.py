@@ -5,7 +5,8 @@ Layout (shared by every API and worker process, possibly on several machines)::
     domains/<id>.npz       Domain.to_arrays()            (what workers rebuild from)
     domains/<id>.aux.npz   areas, component labels, points (cheap input validation)
     domains/<id>.json      kind, parameters, summary      (written last: marks complete)
-    results/<job>.json     result payload (scalars, array descriptions)
+    results/<job>.json     result payload (scalars, array descriptions); a small result
+                           without arrays or files is kept in its job row instead (IN_ROW)
     results/<job>.npz      result arrays (per vertex / per face / ...): an uncompressed zip
                            of .npy files (``np.savez``), served member by member
 
@@ -38,6 +39,8 @@ from solvers.domains import Domain, domain_from_arrays
 
 _ID = re.compile(r"^[0-9a-f]{16,64}$")
 _FILE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
+IN_ROW = "row"  # result_location of a result kept in the job row (column ``result``)
+ROW_RESULT_BYTES = 16 * 1024  # largest result JSON kept in the row
 
 
 def atomic_write(path: Path, write, durable: bool = True) -> None:
@@ -366,9 +369,22 @@ class Store:
         _write_json(self.result_dir / f"{job_id}.json", jsonable(payload), durable)
         return f"results/{job_id}.json"
 
-    def get_result_file(self, job_id: str, name: str) -> tuple[bytes, str]:
-        """``(data, media_type)`` of a file a job produced; 404 naming ``name`` otherwise."""
-        listed = self.get_result(job_id).get("files") or {}
+    @staticmethod
+    def row_result(payload: dict, arrays: dict[str, np.ndarray], files: dict | None
+                   ) -> dict | None:
+        """The result document to keep in the job row instead of ``put_result``'s files:
+        a payload without arrays or files whose JSON has at most ``ROW_RESULT_BYTES``
+        (None otherwise). It is then committed with the job's final state, in one write."""
+        if arrays or files:
+            return None
+        doc = jsonable({**payload, "files": {}})
+        return doc if len(json.dumps(doc)) <= ROW_RESULT_BYTES else None
+
+    def get_result_file(self, job_id: str, name: str, payload: dict | None = None
+                        ) -> tuple[bytes, str]:
+        """``(data, media_type)`` of a file a job produced; 404 naming ``name`` otherwise.
+        ``payload``: the job's result document when the caller has it (``row_result``)."""
+        listed = (payload if payload is not None else self.get_result(job_id)).get("files") or {}
         if name not in listed or not _FILE_NAME.match(name):
             raise NotFound(f"job {job_id} has no file {name!r}", field="name")
         try:

@@ -71,6 +71,9 @@ class JobRow(Base):
     finished_at: Mapped[float | None] = mapped_column(Float, nullable=True)
     duration: Mapped[float | None] = mapped_column(Float, nullable=True)
     result_location: Mapped[str | None] = mapped_column(String(256), nullable=True)
+    # a small result without arrays or files, kept in the row (``result_location`` is
+    # service.store.IN_ROW): one file write and read less per job
+    result: Mapped[dict | None] = mapped_column(JSON, nullable=True)
     # automatic choices taken at submission (Operation.decide), executed by every attempt
     decision: Mapped[dict | None] = mapped_column(JSON, nullable=True)
     # who submitted it (service.tenants); NULL for jobs from before tenants: admin-only
@@ -92,7 +95,7 @@ class WorkerRow(Base):
 JOBS = JobRow.__table__
 # columns added after the first release: created on an existing table at start-up
 ADDED_COLUMNS = {"fraction": "FLOAT", "queue": "VARCHAR(16)", "cost": "FLOAT",
-                 "decision": "JSON", "tenant": "VARCHAR(64)"}
+                 "decision": "JSON", "tenant": "VARCHAR(64)", "result": "JSON"}
 ADDED_INDEXES = {"tenant": "ix_jobs_tenant"}
 
 
@@ -157,7 +160,8 @@ def _claim_next_statement(queues: tuple[str, ...]):
                     started_at=bindparam("b_now", type_=Float()),
                     heartbeat_at=bindparam("b_now", type_=Float()))
             .returning(*JOBS.c))
-FINISHED = ("state", "error", "result_location", "finished_at", "heartbeat_at", "duration")
+FINISHED = ("state", "error", "result_location", "result", "finished_at", "heartbeat_at",
+            "duration")
 
 
 @functools.lru_cache(maxsize=16)
@@ -256,7 +260,8 @@ class JobRepository:
         """Newest first (``created_at``, then ``id``, descending); ``after``: the
         ``(created_at, id)`` of the last job of the previous page (cursor paging);
         ``tenant``: only that tenant's jobs (None: every job)."""
-        q = select(JOBS).order_by(JOBS.c.created_at.desc(), JOBS.c.id.desc()).limit(limit)
+        listed = [c for c in JOBS.c if c.name != "result"]  # pages show no results
+        q = select(*listed).order_by(JOBS.c.created_at.desc(), JOBS.c.id.desc()).limit(limit)
         if tenant is not None:
             q = q.where(JOBS.c.tenant == tenant)
         if state:
@@ -298,9 +303,6 @@ class JobRepository:
 
         One conditional ``UPDATE ... RETURNING`` where the database supports it."""
         now = time.time()
-        values = {"state": RUNNING, "attempts": JOBS.c.attempts + 1, "worker": worker,
-                  "started_at": now, "heartbeat_at": now}
-        where = (JOBS.c.id == job_id, JOBS.c.state == QUEUED)
         if self.engine.dialect.update_returning:
             with self.engine.begin() as conn:
                 row = conn.execute(CLAIM, {"b_id": job_id, "b_worker": worker,
@@ -311,7 +313,11 @@ class JobRepository:
         job = self.get(job_id)  # pragma: no cover - databases without RETURNING
         if job is None or job.state != QUEUED:
             return None
-        if not self._update(where + (JOBS.c.attempts == job.attempts,), **values):
+        # (building these per call costs as much as the statement: only on this path)
+        values = {"state": RUNNING, "attempts": JOBS.c.attempts + 1, "worker": worker,
+                  "started_at": now, "heartbeat_at": now}
+        where = (JOBS.c.id == job_id, JOBS.c.state == QUEUED, JOBS.c.attempts == job.attempts)
+        if not self._update(where, **values):
             return None
         return Claim(job.attempts + 1, self.get(job_id))
 
@@ -341,13 +347,16 @@ class JobRepository:
         return True, bool(cancel)  # pragma: no cover
 
     def finish(self, job_id: str, attempt: int, state: str, *, error: dict | None = None,
-               result_location: str | None = None, started_at: float | None = None,
-               **progress) -> bool:
+               result_location: str | None = None, result: dict | None = None,
+               started_at: float | None = None, **progress) -> bool:
+        """Final state of a running attempt (and its result location, or its small result
+        itself), in one conditional UPDATE; False if the attempt no longer owns the job."""
         now = time.time()
         if started_at is None:
             job = self.get(job_id)
             started_at = job.started_at if job and job.started_at else now
         values = {"b_state": state, "b_error": error, "b_result_location": result_location,
+                  "b_result": result,
                   "b_finished_at": now, "b_heartbeat_at": now, "b_duration": now - started_at,
                   **{f"b_{k}": v for k, v in progress.items()}}
         with self.engine.begin() as conn:

@@ -17,7 +17,7 @@ from service.jobs.db import CANCELLED, FAILED, SUCCEEDED, JobRepository, worker_
 from service.operations.base import RunContext
 from service.settings import Settings
 from service.storage_probe import STORAGE_ERRNOS, storage_reason
-from service.store import Store
+from service.store import IN_ROW, Store
 from solvers.errors import CancelledError, OTGeoError
 
 log = logging.getLogger("otgeo.worker")
@@ -175,7 +175,7 @@ class JobRunner:
             return hb.cancel.is_set()
 
         hb.start()
-        state, error, location, built = FAILED, None, None, None
+        state, error, location, kept, built = FAILED, None, None, None, None
         ctx = RunContext(self.store, self.settings, self.domain, job.domain_id)
         try:
             op = self.operations.get_operation(job.operation)
@@ -191,14 +191,14 @@ class JobRunner:
                 self.cache.operator_builds += built
             if should_cancel():
                 raise CancelledError("cancelled")
-            location = self._store_output(job_id, job, output)
+            location, kept = self._store_output(job_id, job, output)
             state, error = SUCCEEDED, not_converged_error(output.values, params)
             if error is not None:  # the partial result stays readable; never a success
                 state = FAILED
         except CancelledError as exc:
             partial = getattr(exc, "partial_output", None)
             if partial is not None:  # e.g. a distance matrix's finished rows
-                location = self._store_output(job_id, job, partial)
+                location, kept = self._store_output(job_id, job, partial)
             if timed_out.is_set():
                 error = {"code": "time_limit_exceeded", "field": "time_limit",
                          "message": f"job exceeded its time limit of {limit:g} s"}
@@ -219,7 +219,7 @@ class JobRunner:
         if state == SUCCEEDED:
             progress["fraction"] = 1.0
         if not self.repo.finish(job_id, attempt, state, error=error, result_location=location,
-                                started_at=job.started_at, **progress):
+                                result=kept, started_at=job.started_at, **progress):
             log.warning("job %s attempt %d lost ownership; result discarded", job_id, attempt)
         else:  # the waiting API on this machine first (a datagram), then the marker
             if self.notify_done is not None:
@@ -238,15 +238,20 @@ class JobRunner:
             except Exception:
                 log.exception("after-job hook failed")
 
-    def _store_output(self, job_id: str, job, output) -> str:
-        """Store an operation's output as the job's result; returns its location."""
+    def _store_output(self, job_id: str, job, output) -> tuple[str, dict | None]:
+        """Store an operation's output as the job's result: ``(location, document)``, the
+        document for the job row when it is small (``Store.row_result``; nothing is written
+        yet: ``finish`` commits it with the final state), else None once in files."""
         payload = {"job_id": job_id, "operation": job.operation,
                    "domain_id": job.domain_id, "decision": job.decision,
                    "values": output.values,
                    "arrays": {k: {"shape": list(v.shape), "dtype": str(v.dtype)}
                               for k, v in output.arrays.items()},
                    "export": output.export}
-        return self.store.put_result(job_id, payload, output.arrays, output.files)
+        kept = self.store.row_result(payload, output.arrays, output.files)
+        if kept is not None:
+            return IN_ROW, kept
+        return self.store.put_result(job_id, payload, output.arrays, output.files), None
 
     def release_current(self) -> str | None:
         """On worker shutdown: hand the running job back to the queue (not an attempt)."""

@@ -20,6 +20,7 @@ from service.operations.base import (
     view_of_info,
 )
 from service.runtime import Runtime
+from service.store import IN_ROW
 from service.tenants import ANONYMOUS, Tenant, check_queued_quota
 
 log = logging.getLogger("otgeo.jobs")
@@ -27,7 +28,7 @@ log = logging.getLogger("otgeo.jobs")
 # job columns without a value until a worker runs the job (set explicitly, so the row
 # returned by ``create`` is complete without reading it back)
 UNSET_AT_CREATION = ("iteration", "residual", "fraction", "error", "worker", "started_at",
-                     "heartbeat_at", "finished_at", "duration", "result_location")
+                     "heartbeat_at", "finished_at", "duration", "result_location", "result")
 
 
 def has_partial_result(job: JobRow) -> bool:
@@ -158,9 +159,15 @@ class JobService:
         from service.export import result_document
 
         store = self.rt.store
-        return result_document(job_id, store.get_result(job_id), store.result_array_index(job_id),
+        return result_document(job_id, self._payload(job), store.result_array_index(job_id),
                                lambda name: store.get_result_array(job_id, name),
                                self.rt.settings.result_json_bytes, include_arrays)
+
+    def _payload(self, job: JobRow) -> dict:
+        """The stored result document of a finished job: in its row, or its JSON file."""
+        if job.result_location == IN_ROW and job.result is not None:
+            return job.result
+        return self.rt.store.get_result(job.id)
 
     def result_npy(self, job_id: str, name: str):
         """``(chunks, size)`` of a result array's .npy file."""
@@ -170,7 +177,7 @@ class JobService:
     def result_file(self, job_id: str, name: str) -> tuple[bytes, str]:
         """``(data, media_type)`` of a file the job produced (an image, a GLB, ...)."""
         self.result(job_id, include_arrays=False)  # state checks
-        return self.rt.store.get_result_file(job_id, name)
+        return self.rt.store.get_result_file(job_id, name, self._payload(self.get(job_id)))
 
     def result_row(self, job_id: str, name: str, row: int) -> list:
         """Row ``row`` of a stored 2-D result array (e.g. one source vertex's distribution
@@ -202,9 +209,9 @@ class JobService:
         from service.export import domain_glb
 
         self.result(job_id, include_arrays=False)  # state checks
-        payload = self.rt.store.get_result(job_id)
+        payload = self._payload(self.get(job_id))
         if "result.glb" in (payload.get("files") or {}):
-            return self.rt.store.get_result_file(job_id, "result.glb")[0]
+            return self.rt.store.get_result_file(job_id, "result.glb", payload)[0]
         if not payload.get("domain_id"):
             raise Conflict(f"job {job_id}'s operation has no glTF export", field="job_id",
                            code="no_glb")

@@ -12,6 +12,7 @@ the polling interval the callers keep as a fallback.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import logging
 import os
@@ -24,9 +25,15 @@ log = logging.getLogger("otgeo.wake")
 ROLES = ("api", "worker")
 
 
+@functools.lru_cache(maxsize=16)
+def _tag(directory: Path) -> bytes:
+    """The data directory's part of the socket addresses (its real path resolved once per
+    process: resolving costs a syscall per path component, on every datagram otherwise)."""
+    return hashlib.sha1(str(directory.resolve()).encode()).hexdigest()[:16].encode()
+
+
 def _address(directory: Path, name: str) -> bytes:
-    tag = hashlib.sha1(str(directory.resolve()).encode()).hexdigest()[:16]
-    return b"\0otgeo-" + tag.encode() + b"/" + name.encode()
+    return b"\0otgeo-" + _tag(directory) + b"/" + name.encode()
 
 
 class WakeSocket:

@@ -88,10 +88,13 @@ class Domain:
         """(n,) component index of every point."""
         return self._components[1]
 
-    @property
+    @cached_property
     def extent(self) -> float:
         """Size of the domain in its own units (the scale that bounds ``gamma``): the
-        bounding-box diagonal of its points (unit area for meshes and point clouds)."""
+        bounding-box diagonal of its points (unit area for meshes and point clouds).
+
+        Computed once per domain: a domain's points are set when it is built and never
+        change (a solver's gamma check reads it on every call)."""
         pts = getattr(self, "points", None)
         if pts is None:
             pts = getattr(self, "vertices", None)

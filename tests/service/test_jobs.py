@@ -28,6 +28,8 @@ ROOT = Path(__file__).resolve().parents[2]
 class LoopRequest(OperationRequest):
     iterations: int = 10
     sleep: float = 0.0
+    arrays: bool = True  # False: a result of values only
+    padding: int = 0  # a list of this many floats among the values
 
 
 def _loop(domain, req, progress, should_cancel):
@@ -36,7 +38,10 @@ def _loop(domain, req, progress, should_cancel):
             raise CancelledError("stopped")
         progress(i + 1, 1.0 / (i + 1))
         time.sleep(req.sleep)
-    return OperationOutput({"iterations": req.iterations}, {"ones": np.ones(domain.n)})
+    values = {"iterations": req.iterations}
+    if req.padding:
+        values["padding"] = [0.125] * req.padding
+    return OperationOutput(values, {"ones": np.ones(domain.n)} if req.arrays else {})
 
 
 LOOP_OP = Operation("test-loop", "createTestLoopJob", "test", LoopRequest, _loop,
@@ -414,6 +419,36 @@ def test_jobs_and_results_survive_app_recreation(make_client, loop_op, tmp_path)
     assert [j["id"] for j in second.get("/v1/jobs").json()["jobs"]] == [job.id]
 
 
+def test_small_results_live_in_the_job_row_large_ones_in_files(make_client, loop_op):
+    from service.store import IN_ROW, ROW_RESULT_BYTES
+
+    first = make_client(queue="sqlite")
+    rt = first.app.state.runtime
+    gid = _grid(first)
+    small = _submit(first, gid, iterations=2, arrays=False, padding=10)
+    large = _submit(first, gid, iterations=2, arrays=False, padding=ROW_RESULT_BYTES // 4)
+    with_arrays = _submit(first, gid, iterations=2)
+    for job in (small, large, with_arrays):
+        rt.runner.run(job.id)
+    files = rt.store.result_dir
+    kept = rt.repo.get(small.id)
+    assert kept.result_location == IN_ROW and kept.result["values"]["iterations"] == 2
+    assert not (files / f"{small.id}.json").exists()
+    for job in (large, with_arrays):  # over the bound, or with arrays: files as before
+        row = rt.repo.get(job.id)
+        assert row.result is None and (files / f"{job.id}.json").exists()
+        assert row.result_location == f"results/{job.id}.json"
+    second = make_client(queue="sqlite")  # read back by another process's API
+    docs = {job.id: second.get(f"/v1/jobs/{job.id}/result").json()
+            for job in (small, large, with_arrays)}
+    assert docs[small.id]["values"] == {"iterations": 2, "padding": [0.125] * 10}
+    assert docs[large.id]["values"]["padding"] == [0.125] * (ROW_RESULT_BYTES // 4)
+    assert docs[with_arrays.id]["arrays"]["ones"] == [1.0] * 36
+    assert set(docs[small.id]) == set(docs[large.id])  # the same document either way
+    assert_error(second.get(f"/v1/jobs/{small.id}/files/result.png"), 404, "name")
+    assert all(j.result is None for j in rt.repo.list())  # pages leave results out
+
+
 def test_server_sent_events(client, loop_op):
     job = _submit(client, _grid(client), iterations=4)
     r = client.get(f"/v1/jobs/{job.id}/events")
@@ -564,3 +599,33 @@ def test_real_worker_process(make_client, meshes_dir, tmp_path):
         proc.terminate()
         assert proc.wait(timeout=15) == 0
         log.close()
+
+
+def test_progress_arity_read_off_the_code_matches_the_signature():
+    """The worker's progress callback (a bound method) takes the fraction; the fast reading
+    of a callable's arity agrees with ``inspect.signature`` on every kind of callable."""
+    import functools
+
+    from service.jobs.runner import _Heartbeat
+    from solvers.monitor import _arity, _signature_arity
+
+    class Hook:
+        def __call__(self, it, res):
+            pass
+
+        def three(self, it, res, fraction=None):
+            pass
+
+    def wrapped(*args):
+        pass
+
+    @functools.wraps(lambda it, res: None)
+    def decorated(*args):
+        pass
+
+    hb = _Heartbeat.__new__(_Heartbeat)
+    cases = [hb.on_progress, Hook().three, Hook(), lambda it, res: None, wrapped, decorated,
+             functools.partial(lambda a, it, res: None, 1), print]
+    for fn in cases:
+        assert _arity(fn) == _signature_arity(fn), fn
+    assert _arity(hb.on_progress) == 3 and _arity(Hook().three) == 3
