@@ -416,20 +416,28 @@ def _max_steps(x, m, z, zm, dx, dm, dz, dzm) -> float:
                nonneg_max_step(zm, dzm))
 
 
+@cached_njit()
+def _centrality_kernel(p, lo, hi):  # pragma: no cover - compiled
+    out = np.empty(p.shape)
+    for t in range(p.shape[0]):
+        norm = np.sqrt(p[t, 1] * p[t, 1] + p[t, 2] * p[t, 2])
+        first, second = p[t, 0] + norm, p[t, 0] - norm
+        d1 = max(min(max(first, lo), hi) - first, -hi)
+        d2 = max(min(max(second, lo), hi) - second, -hi)
+        out[t, 0] = 0.5 * (d1 + d2)
+        half = 0.5 * (d1 - d2)
+        if norm > 0:
+            out[t, 1], out[t, 2] = half * (p[t, 1] / norm), half * (p[t, 2] / norm)
+        else:
+            out[t, 1], out[t, 2] = 0.0, 0.0
+    return out
+
+
 def _centrality_correction(p: np.ndarray, lo: float, hi: float) -> np.ndarray:
     """Per Lorentz cone, the change of the Jordan product ``p`` ``(F, 3)`` that moves its
     spectral values ``p_0 ± ‖p̄‖`` into ``[lo, hi]`` (a decrease at most ``hi``, as in
     Gondzio 1996): ``((d1 + d2)/2, (d1 - d2)/2 · p̄/‖p̄‖)``."""
-    norm = np.linalg.norm(p[:, 1:], axis=1)
-    first, second = p[:, 0] + norm, p[:, 0] - norm
-    d1 = np.maximum(np.clip(first, lo, hi) - first, -hi)
-    d2 = np.maximum(np.clip(second, lo, hi) - second, -hi)
-    out = np.zeros_like(p)
-    out[:, 0] = 0.5 * (d1 + d2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        unit = np.where(norm[:, None] > 0, p[:, 1:] / norm[:, None], 0.0)
-    out[:, 1:] = 0.5 * (d1 - d2)[:, None] * unit
-    return out
+    return _centrality_kernel(p, float(lo), float(hi))
 
 
 def _gondzio(x, m, z, zm, newton, direction, rc, rc_m, target: float, correctors: int):

@@ -58,8 +58,9 @@ from solvers.linalg import PardisoFactor
 FEASIBILITY_TOL = 1e-6
 # Gondzio centrality correctors per iteration (solvers.emd.interior_point.mehrotra_step):
 # the cones limit Mehrotra's steps to ~0.3-0.6 on this program; each corrector is one more
-# solve with the iteration's factorization.
-CORRECTORS = 2
+# solve with the iteration's factorization, cheaper than the factorizations of the iterations
+# it saves up to 3 (bench/results/w1_applications.md: 0-4 compared at 10k vertices, 6 inputs).
+CORRECTORS = 3
 # Cost model of this route (bench/w1_applications.py fits it: measured times and PARDISO's
 # factor sizes in bench/results/w1_applications.md).  Iterations grow slowly with the mesh
 # and the inputs; each passes over the k F face cones and factors the (k V)-row normal matrix,
