@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from solvers.jit import cached_njit
 from solvers.linalg import factorize_spd, have_pardiso
 
 # Fraction of the largest cone-feasible step taken (keeps iterates interior).
@@ -86,25 +87,73 @@ def _structure(div: sp.csr_matrix, faces: np.ndarray, keep: np.ndarray) -> _Stru
 
 
 # -- the Lorentz cone Q^3, batched over faces: arrays (F, 3) ------------------------------
+# The per-face operations run as compiled loops, one pass per operation and no temporaries
+# (they are most of an iteration's work besides the factorization once k F cones are
+# stacked); each evaluates the same float64 expressions in the same order as the formulas
+# in its docstring.
+@cached_njit()
+def _jdot_kernel(x, y):  # pragma: no cover - compiled
+    out = np.empty(x.shape[0])
+    for t in range(x.shape[0]):
+        out[t] = x[t, 0] * y[t, 0] - x[t, 1] * y[t, 1] - x[t, 2] * y[t, 2]
+    return out
+
+
 def _jdot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """``xᵀ J y`` with ``J = diag(1, -1, -1)``."""
-    return x[:, 0] * y[:, 0] - x[:, 1] * y[:, 1] - x[:, 2] * y[:, 2]
+    return _jdot_kernel(x, y)
+
+
+@cached_njit()
+def _jordan_kernel(x, y):  # pragma: no cover - compiled
+    out = np.empty(x.shape)
+    for t in range(x.shape[0]):
+        x0, x1, x2, y0, y1, y2 = x[t, 0], x[t, 1], x[t, 2], y[t, 0], y[t, 1], y[t, 2]
+        out[t, 0] = x0 * y0 + x1 * y1 + x2 * y2
+        out[t, 1] = x0 * y1 + y0 * x1
+        out[t, 2] = x0 * y2 + y0 * x2
+    return out
 
 
 def _jordan(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Jordan product ``x ∘ y = (xᵀy, x_0 ȳ + y_0 x̄)``."""
-    out = x[:, :1] * y + y[:, :1] * x
-    out[:, 0] = _dot(x, y)
+    return _jordan_kernel(x, y)
+
+
+@cached_njit()
+def _jordan_solve_kernel(lam, r):  # pragma: no cover - compiled
+    out = np.empty(r.shape)
+    for t in range(r.shape[0]):
+        l0, l1, l2 = lam[t, 0], lam[t, 1], lam[t, 2]
+        det = l0 * l0 - l1 * l1 - l2 * l2
+        v0 = (l0 * r[t, 0] - l1 * r[t, 1] - l2 * r[t, 2]) / det
+        out[t, 0] = v0
+        out[t, 1] = (r[t, 1] - v0 * l1) / l0
+        out[t, 2] = (r[t, 2] - v0 * l2) / l0
     return out
 
 
 def _jordan_solve(lam: np.ndarray, r: np.ndarray) -> np.ndarray:
     """``v`` with ``lam ∘ v = r`` (the arrow matrix of ``lam`` inverted in closed form)."""
-    det = _jdot(lam, lam)
-    v0 = (lam[:, 0] * r[:, 0] - lam[:, 1] * r[:, 1] - lam[:, 2] * r[:, 2]) / det
-    out = np.empty_like(r)
-    out[:, 0] = v0
-    out[:, 1:] = (r[:, 1:] - v0[:, None] * lam[:, 1:]) / lam[:, :1]
+    return _jordan_solve_kernel(lam, r)
+
+
+@cached_njit()
+def _scale_kernel(v, beta, y, power):  # pragma: no cover - compiled
+    """``power`` = 1: ``W y = β (2 v vᵀ − J) y``; ``power`` = -1 (``v`` then holds ``p``):
+    ``W⁻¹ y = (2 p pᵀ − J) y / β``; ``power`` = -2: ``W⁻¹`` twice."""
+    out = np.empty(y.shape)
+    for t in range(y.shape[0]):
+        v0, v1, v2 = v[t, 0], v[t, 1], v[t, 2]
+        y0, y1, y2 = y[t, 0], y[t, 1], y[t, 2]
+        for _ in range(1 if power > -2 else 2):
+            c = 2.0 * (v0 * y0 + v1 * y1 + v2 * y2)
+            y0, y1, y2 = c * v0 - y0, c * v1 + y1, c * v2 + y2
+            if power == 1:
+                y0, y1, y2 = beta[t] * y0, beta[t] * y1, beta[t] * y2
+            else:
+                y0, y1, y2 = y0 / beta[t], y1 / beta[t], y2 / beta[t]
+        out[t, 0], out[t, 1], out[t, 2] = y0, y1, y2
     return out
 
 
@@ -120,13 +169,13 @@ class _Scaling:
     lam: np.ndarray  # (F, 3), W x
 
     def apply(self, y: np.ndarray) -> np.ndarray:  # W y
-        return self.beta[:, None] * (2.0 * self.v * _dot(self.v, y)[:, None] - _jmul(y))
+        return _scale_kernel(self.v, self.beta, y, 1)
 
     def apply_inverse(self, y: np.ndarray) -> np.ndarray:  # W⁻¹ y
-        return (2.0 * self.p * _dot(self.p, y)[:, None] - _jmul(y)) / self.beta[:, None]
+        return _scale_kernel(self.p, self.beta, y, -1)
 
     def apply_inverse_square(self, y: np.ndarray) -> np.ndarray:  # W⁻² y
-        return self.apply_inverse(self.apply_inverse(y))
+        return _scale_kernel(self.p, self.beta, y, -2)
 
     def inverse_square_tangent(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Entries ``(t11, t12, t22)`` of the tangential 2×2 block of
@@ -153,18 +202,50 @@ def _jmul(y: np.ndarray) -> np.ndarray:
     return out
 
 
+@cached_njit()
+def _nt_kernel(x, z, v, p, beta, lam):  # pragma: no cover - compiled
+    for t in range(x.shape[0]):
+        xn = np.sqrt(x[t, 0] * x[t, 0] - x[t, 1] * x[t, 1] - x[t, 2] * x[t, 2])
+        zn = np.sqrt(z[t, 0] * z[t, 0] - z[t, 1] * z[t, 1] - z[t, 2] * z[t, 2])
+        x0, x1, x2 = x[t, 0] / xn, x[t, 1] / xn, x[t, 2] / xn
+        z0, z1, z2 = z[t, 0] / zn, z[t, 1] / zn, z[t, 2] / zn
+        gamma = np.sqrt(0.5 * (1.0 + (x0 * z0 + x1 * z1 + x2 * z2)))
+        w0, w1, w2 = (z0 + x0) / (2.0 * gamma), (z1 + -x1) / (2.0 * gamma), \
+            (z2 + -x2) / (2.0 * gamma)
+        norm = np.sqrt(2.0 * (w0 + 1.0))
+        v0, v1, v2 = (w0 + 1.0) / norm, w1 / norm, w2 / norm
+        b = np.sqrt(zn / xn)
+        v[t, 0], v[t, 1], v[t, 2] = v0, v1, v2
+        p[t, 0], p[t, 1], p[t, 2] = v0, -v1, -v2
+        beta[t] = b
+        c = 2.0 * (v0 * x[t, 0] + v1 * x[t, 1] + v2 * x[t, 2])
+        lam[t, 0] = b * (c * v0 - x[t, 0])
+        lam[t, 1] = b * (c * v1 + x[t, 1])
+        lam[t, 2] = b * (c * v2 + x[t, 2])
+
+
 def _nt_scaling(x: np.ndarray, z: np.ndarray) -> _Scaling:
-    xn, zn = np.sqrt(_jdot(x, x)), np.sqrt(_jdot(z, z))
-    xb, zb = x / xn[:, None], z / zn[:, None]
-    gamma = np.sqrt(0.5 * (1.0 + _dot(xb, zb)))
-    wb = (zb + _jmul(xb)) / (2.0 * gamma[:, None])
-    v = wb.copy()
-    v[:, 0] += 1.0
-    v /= np.sqrt(2.0 * (wb[:, 0] + 1.0))[:, None]
-    beta = np.sqrt(zn / xn)
-    scaling = _Scaling(v=v, p=_jmul(v), beta=beta, lam=np.empty(0))
-    scaling.lam = scaling.apply(x)
+    n = len(x)
+    scaling = _Scaling(v=np.empty((n, 3)), p=np.empty((n, 3)), beta=np.empty(n),
+                       lam=np.empty((n, 3)))
+    _nt_kernel(x, z, scaling.v, scaling.p, scaling.beta, scaling.lam)
     return scaling
+
+
+@cached_njit()
+def _max_step_kernel(x, d):  # pragma: no cover - compiled
+    best = np.inf
+    for t in range(x.shape[0]):
+        a = d[t, 0] * d[t, 0] - d[t, 1] * d[t, 1] - d[t, 2] * d[t, 2]
+        b = x[t, 0] * d[t, 0] - x[t, 1] * d[t, 1] - x[t, 2] * d[t, 2]
+        c = x[t, 0] * x[t, 0] - x[t, 1] * x[t, 1] - x[t, 2] * x[t, 2]
+        disc = b * b - a * c
+        if a < 0 or (b < 0 and disc >= 0):
+            root = c / (np.sqrt(max(disc, 0.0)) - b)
+            if np.isnan(root):
+                return np.nan
+            best = min(best, root)
+    return best
 
 
 def _max_step(x: np.ndarray, d: np.ndarray) -> float:
@@ -172,12 +253,7 @@ def _max_step(x: np.ndarray, d: np.ndarray) -> float:
     leaves): the smallest positive root of ``q(α) = (x + α d)ᵀ J (x + α d)``.  Leaving
     the cone's sheet means crossing ``q = 0`` first, and with ``q(0) > 0`` that root is
     ``c / (√(b² − a c) − b)`` for ``q = a α² + 2 b α + c`` whenever it exists."""
-    a, b, c = _jdot(d, d), _jdot(x, d), _jdot(x, x)
-    disc = b * b - a * c
-    exists = (a < 0) | ((b < 0) & (disc >= 0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        root = np.where(exists, c / (np.sqrt(np.maximum(disc, 0.0)) - b), np.inf)
-    return float(root.min(initial=np.inf))
+    return float(_max_step_kernel(x, d))
 
 
 def _backend(backend: str) -> str:
@@ -340,20 +416,28 @@ def _max_steps(x, m, z, zm, dx, dm, dz, dzm) -> float:
                nonneg_max_step(zm, dzm))
 
 
+@cached_njit()
+def _centrality_kernel(p, lo, hi):  # pragma: no cover - compiled
+    out = np.empty(p.shape)
+    for t in range(p.shape[0]):
+        norm = np.sqrt(p[t, 1] * p[t, 1] + p[t, 2] * p[t, 2])
+        first, second = p[t, 0] + norm, p[t, 0] - norm
+        d1 = max(min(max(first, lo), hi) - first, -hi)
+        d2 = max(min(max(second, lo), hi) - second, -hi)
+        out[t, 0] = 0.5 * (d1 + d2)
+        half = 0.5 * (d1 - d2)
+        if norm > 0:
+            out[t, 1], out[t, 2] = half * (p[t, 1] / norm), half * (p[t, 2] / norm)
+        else:
+            out[t, 1], out[t, 2] = 0.0, 0.0
+    return out
+
+
 def _centrality_correction(p: np.ndarray, lo: float, hi: float) -> np.ndarray:
     """Per Lorentz cone, the change of the Jordan product ``p`` ``(F, 3)`` that moves its
     spectral values ``p_0 ± ‖p̄‖`` into ``[lo, hi]`` (a decrease at most ``hi``, as in
     Gondzio 1996): ``((d1 + d2)/2, (d1 - d2)/2 · p̄/‖p̄‖)``."""
-    norm = np.linalg.norm(p[:, 1:], axis=1)
-    first, second = p[:, 0] + norm, p[:, 0] - norm
-    d1 = np.maximum(np.clip(first, lo, hi) - first, -hi)
-    d2 = np.maximum(np.clip(second, lo, hi) - second, -hi)
-    out = np.zeros_like(p)
-    out[:, 0] = 0.5 * (d1 + d2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        unit = np.where(norm[:, None] > 0, p[:, 1:] / norm[:, None], 0.0)
-    out[:, 1:] = 0.5 * (d1 - d2)[:, None] * unit
-    return out
+    return _centrality_kernel(p, float(lo), float(hi))
 
 
 def _gondzio(x, m, z, zm, newton, direction, rc, rc_m, target: float, correctors: int):

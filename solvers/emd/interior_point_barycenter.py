@@ -50,6 +50,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from solvers.emd import interior_point as ip
+from solvers.jit import cached_njit
 from solvers.linalg import PardisoFactor
 
 # Largest violation of the divergence constraints (mass units, total mass 1) with which a
@@ -57,8 +58,9 @@ from solvers.linalg import PardisoFactor
 FEASIBILITY_TOL = 1e-6
 # Gondzio centrality correctors per iteration (solvers.emd.interior_point.mehrotra_step):
 # the cones limit Mehrotra's steps to ~0.3-0.6 on this program; each corrector is one more
-# solve with the iteration's factorization.
-CORRECTORS = 2
+# solve with the iteration's factorization, cheaper than the factorizations of the iterations
+# it saves up to 3 (bench/results/w1_applications.md: 0-4 compared at 10k vertices, 6 inputs).
+CORRECTORS = 3
 # Cost model of this route (bench/w1_applications.py fits it: measured times and PARDISO's
 # factor sizes in bench/results/w1_applications.md).  Iterations grow slowly with the mesh
 # and the inputs; each passes over the k F face cones and factors the (k V)-row normal matrix,
@@ -173,6 +175,29 @@ def _slot_coordinates(pattern: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
     return np.repeat(np.arange(pattern.shape[0]), np.diff(pattern.indptr)), pattern.indices
 
 
+@cached_njit()
+def _div_kernel(faces, l0, l1, x, n):  # pragma: no cover - compiled
+    """Per block, ``Σ_t`` of face ``t``'s local divergence ``l0 x_1 + l1 x_2`` scattered to
+    its vertices (faces in order: the sums of ``np.bincount``)."""
+    out = np.zeros((x.shape[0], n))
+    for i in range(x.shape[0]):
+        for t in range(faces.shape[0]):
+            for a in range(3):
+                out[i, faces[t, a]] += l0[t, a] * x[i, t, 1] + l1[t, a] * x[i, t, 2]
+    return out
+
+
+@cached_njit()
+def _div_adjoint_kernel(faces, l0, l1, y):  # pragma: no cover - compiled
+    out = np.zeros((y.shape[0], faces.shape[0], 3))
+    for i in range(y.shape[0]):
+        for t in range(faces.shape[0]):
+            y0, y1, y2 = y[i, faces[t, 0]], y[i, faces[t, 1]], y[i, faces[t, 2]]
+            out[i, t, 1] = l0[t, 0] * y0 + l0[t, 1] * y1 + l0[t, 2] * y2
+            out[i, t, 2] = l1[t, 0] * y0 + l1[t, 1] * y1 + l1[t, 2] * y2
+    return out
+
+
 class _Program:
     """The data of one barycenter program: divergence as per-face ``3 × 2`` blocks
     ``local`` on ``faces``, face weights ``w``, weights ``alpha`` (k,), inputs ``m`` (k, V)."""
@@ -180,23 +205,17 @@ class _Program:
     def __init__(self, structure: ip._Structure, w, alpha, m):
         self.faces, self.w, self.alpha, self.m = structure.faces, w, alpha, m
         self.products = ip.local_products(structure.local)
-        self.l0, self.l1 = structure.local[:, :, 0], structure.local[:, :, 1]
+        self.l0 = np.ascontiguousarray(structure.local[:, :, 0])
+        self.l1 = np.ascontiguousarray(structure.local[:, :, 1])
         self.k, self.n = m.shape
 
     def div(self, x: np.ndarray) -> np.ndarray:
         """``D u_i`` ``(k, V)`` of face vectors ``x`` ``(k, F, 3)`` (their ``u`` part)."""
-        k, n = self.k, self.n
-        per = self.l0 * x[:, :, 1:2] + self.l1 * x[:, :, 2:3]  # (k, F, 3)
-        index = (np.arange(k)[:, None, None] * n + self.faces[None]).ravel()
-        return np.bincount(index, per.ravel(), minlength=k * n).reshape(k, n)
+        return _div_kernel(self.faces, self.l0, self.l1, x, self.n)
 
     def div_adjoint(self, y: np.ndarray) -> np.ndarray:
         """``(0, Dᵀ y_i)`` per face ``(k, F, 3)`` of potentials ``y`` ``(k, V)``."""
-        yf = y[:, self.faces]  # (k, F, 3)
-        out = np.zeros(yf.shape)
-        out[:, :, 1] = (self.l0 * yf).sum(axis=2)
-        out[:, :, 2] = (self.l1 * yf).sum(axis=2)
-        return out
+        return _div_adjoint_kernel(self.faces, self.l0, self.l1, y)
 
     def totals(self, x: np.ndarray) -> np.ndarray:
         """``T_i = Σ_t w_t s_{i,t}`` ``(k,)``."""
