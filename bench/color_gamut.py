@@ -29,6 +29,10 @@ FRESH = [("immunohistochemistry", "chelsea"), ("astronaut", "retina"),
 VARIANTS = {
     "default": {},
     "strength 1e-4": {"GAMUT_SHIFT_STRENGTH": 1e-4},
+    "1e-4, max slope 0.1": {"GAMUT_SHIFT_STRENGTH": 1e-4, "GAMUT_MAX_SLOPE": 0.1},
+    "1e-4, max slope 0.25": {"GAMUT_SHIFT_STRENGTH": 1e-4, "GAMUT_MAX_SLOPE": 0.25},
+    "1e-5, max slope 0.1": {"GAMUT_SHIFT_STRENGTH": 1e-5, "GAMUT_MAX_SLOPE": 0.1},
+    "1e-5, max slope 0.25": {"GAMUT_SHIFT_STRENGTH": 1e-5, "GAMUT_MAX_SLOPE": 0.25},
 }
 
 
