@@ -33,6 +33,8 @@ VARIANTS = {
     "1e-4, max slope 0.25": {"GAMUT_SHIFT_STRENGTH": 1e-4, "GAMUT_MAX_SLOPE": 0.25},
     "1e-5, max slope 0.1": {"GAMUT_SHIFT_STRENGTH": 1e-5, "GAMUT_MAX_SLOPE": 0.1},
     "1e-5, max slope 0.25": {"GAMUT_SHIFT_STRENGTH": 1e-5, "GAMUT_MAX_SLOPE": 0.25},
+    "1e-4, max slope 0.5": {"GAMUT_SHIFT_STRENGTH": 1e-4, "GAMUT_MAX_SLOPE": 0.5},
+    "1e-4, max slope 1": {"GAMUT_SHIFT_STRENGTH": 1e-4, "GAMUT_MAX_SLOPE": 1.0},
 }
 
 
@@ -47,8 +49,11 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--fresh", action="store_true")
     ap.add_argument("--variants", nargs="*", default=list(VARIANTS))
+    ap.add_argument("--first", nargs="*", default=[], help="pairs s:t to run first")
     args = ap.parse_args()
     pairs = FRESH if args.fresh else cb.PAIRS + ho.PAIRS
+    first = [tuple(p.split(":")) for p in args.first]
+    pairs = first + [p for p in pairs if p not in first]
     print("load", cb.loadavg(), flush=True)
     met = {v: 0 for v in args.variants}
     saved = {k: getattr(transfer, k) for v in VARIANTS.values() for k in v}
