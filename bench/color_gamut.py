@@ -34,6 +34,8 @@ VARIANTS = {
     "1e-5, max slope 0.1": {"GAMUT_SHIFT_STRENGTH": 1e-5, "GAMUT_MAX_SLOPE": 0.1},
     "1e-5, max slope 0.25": {"GAMUT_SHIFT_STRENGTH": 1e-5, "GAMUT_MAX_SLOPE": 0.25},
     "1e-4, max slope 0.5": {"GAMUT_SHIFT_STRENGTH": 1e-4, "GAMUT_MAX_SLOPE": 0.5},
+    "1e-4, max slope 0.75": {"GAMUT_SHIFT_STRENGTH": 1e-4, "GAMUT_MAX_SLOPE": 0.75},
+    "1e-4, max slope 0.85": {"GAMUT_SHIFT_STRENGTH": 1e-4, "GAMUT_MAX_SLOPE": 0.85},
     "1e-4, max slope 1": {"GAMUT_SHIFT_STRENGTH": 1e-4, "GAMUT_MAX_SLOPE": 1.0},
 }
 
@@ -50,10 +52,11 @@ def main() -> None:
     ap.add_argument("--fresh", action="store_true")
     ap.add_argument("--variants", nargs="*", default=list(VARIANTS))
     ap.add_argument("--first", nargs="*", default=[], help="pairs s:t to run first")
+    ap.add_argument("--only", type=int, default=None, help="stop after this many pairs")
     args = ap.parse_args()
     pairs = FRESH if args.fresh else cb.PAIRS + ho.PAIRS
     first = [tuple(p.split(":")) for p in args.first]
-    pairs = first + [p for p in pairs if p not in first]
+    pairs = (first + [p for p in pairs if p not in first])[:args.only]
     print("load", cb.loadavg(), flush=True)
     met = {v: 0 for v in args.variants}
     saved = {k: getattr(transfer, k) for v in VARIANTS.values() for k in v}
