@@ -182,3 +182,31 @@ def test_luminance_slope_input_error_and_exact_option():
     limited = rgb_to_lab_reference(color_transfer([img, tgt], [0, 1], recolor=[0]
                                                   ).images[0][0])[..., 0]
     assert np.abs(exact - limited).max() > 1.0  # the option changes the L* map
+
+
+def test_guided_gain_limit_bounds_the_slope_and_keeps_the_window_mean():
+    """``max_gain`` clips each window's gain a of D ~ a I + b and refits b on the window's
+    means: the filtered field's slope along I is bounded, its mean at the mean I kept."""
+    from scipy import ndimage
+
+    from solvers.color import _split_kernels as SK
+    from solvers.color.regularize import guided_solve_moments
+
+    rng = np.random.default_rng(0)
+    h, w = 12, 16
+    I = rng.uniform(0.2, 0.8, (h, w))
+    D = 30.0 * I + rng.normal(0, 0.1, (h, w))  # gain 30 per unit of I
+    mom = np.zeros((SK.n_moments(1), h, w))
+    mom[0], mom[1], mom[2], mom[4], mom[6] = I, I * I, D, I * D, 1.0
+    free = guided_solve_moments(mom.copy(), 1, 1e-6, 2)
+    capped = guided_solve_moments(mom.copy(), 1, 1e-6, 2, max_gain=5.0)
+    assert np.allclose(free[0], 30.0, atol=1.0)  # the limit is what changes the gain
+    assert np.allclose(capped[0], 5.0)  # every window's gain was above the limit
+
+    def mean(x):  # the 5 x 5 window mean (radius 2) the filter uses
+        return ndimage.uniform_filter(x, 5, mode="nearest")
+
+    # b = window mean of D - 5 * window mean of I, then averaged over the windows
+    assert np.allclose(capped[2], mean(mean(D) - 5.0 * mean(I)))
+    with pytest.raises(ValueError):
+        guided_solve_moments(np.zeros((SK.n_moments(2), h, w)), 2, 1e-6, 2, max_gain=1.0)

@@ -41,10 +41,14 @@ def guided_coefficients(lab: np.ndarray, disp: np.ndarray, shape: tuple[int, int
 
 
 def guided_solve_moments(mom: np.ndarray, nguide: int, strength: float,
-                         radius: int, weighted: bool = False) -> np.ndarray:
+                         radius: int, weighted: bool = False,
+                         max_gain: float = np.inf) -> np.ndarray:
     """Box-filtered guided-filter coefficients ``(2 nguide + 2, h, w)`` from block sums
     ``mom`` (:func:`~solvers.color._split_kernels.n_moments` layout; normalized here in
-    place), window radius ``radius`` blocks, regularization ``strength``."""
+    place), window radius ``radius`` blocks, regularization ``strength``.  ``max_gain``
+    (one guide channel only): each window's gain ``a`` clipped to ``[-max_gain,
+    max_gain]`` and ``b = mean D - a mean I`` recomputed (the filtered field's slope
+    along the guide bounded, whatever ``strength``)."""
     size = 2 * radius + 1
     if weighted:  # window sums of the weighted moments over the window's weight
         sums = np.stack([ndimage.uniform_filter(m, size, mode="nearest") for m in mom])
@@ -55,4 +59,9 @@ def guided_solve_moments(mom: np.ndarray, nguide: int, strength: float,
     h, w = mom.shape[1:]
     coef = np.empty((2 * nguide + 2, h, w))
     K.guided_solve(means, nguide, float(strength), coef)
+    if np.isfinite(max_gain):
+        if nguide != 1:
+            raise ValueError("max_gain needs one guide channel")
+        np.clip(coef[:2], -max_gain, max_gain, out=coef[:2])
+        coef[2:] = means[2:4] - coef[:2] * means[0]
     return np.stack([ndimage.uniform_filter(c, size, mode="nearest") for c in coef])

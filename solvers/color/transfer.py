@@ -80,6 +80,10 @@ GAMUT_REACH = 100.0
 # over the pixels that need a move, diluted where they are few); chosen in bench/color.py
 GAMUT_SHIFT_STRENGTH = 1e-3
 GAMUT_IN_WEIGHT = 0.3
+# the shift's slope along the input's L* (dL*_out / dL*_in it adds) kept within
+# [-GAMUT_MAX_SLOPE, GAMUT_MAX_SLOPE] per window, so that it cannot stretch or flatten the
+# input's L* edges much whatever its epsilon (inf: no limit)
+GAMUT_MAX_SLOPE = float("inf")
 # that move is sampled on every min(s, GAMUT_STRIDE)-th row and column (s: the block
 # size of the reduced image; 1 below REDUCED_PIXELS): the filter averages it over many
 # blocks anyway
@@ -499,5 +503,6 @@ def _gamut_shift(lab, lut, disp, shape, s, radius):
     mom = np.zeros((SK.n_moments(1), -(-H // s), -(-W // s)))
     SK.gamut_shift_moments(lab, lut, L_MAX / LBINS, disp, _kernels._M_INV, float(GAMUT_REACH),
                            W, s, min(s, GAMUT_STRIDE), GAMUT_IN_WEIGHT, mom)
-    coef = guided_solve_moments(mom, 1, GAMUT_SHIFT_STRENGTH, radius, weighted=True)
+    coef = guided_solve_moments(mom, 1, GAMUT_SHIFT_STRENGTH, radius, weighted=True,
+                                max_gain=GAMUT_MAX_SLOPE / SK.GUIDE_SCALE)
     return np.ascontiguousarray(coef[[0, 2]])

@@ -1,0 +1,83 @@
+"""Gamut-shift variants of the split transfer against the targets of issue 27, on the 20
+pairs of bench/color.py and bench/color_heldout.py (``--fresh``: on the 4 validation pairs
+chosen before any experiment and never looked at while developing, instead).
+
+Per pair: W2 at or below the best peer's, SSIM and grad at or above color-matcher
+hm-mvgd-hm's (bench/color.py's metrics and peers).  Peer scores are computed once per run.
+Variants set module constants of ``solvers.color.transfer`` (listed in ``VARIANTS``).
+
+Usage: `cpu run env OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/color_gamut.py [--fresh]`
+(quality only: the load is printed for the record).
+"""
+import argparse
+import importlib.util
+import pathlib
+
+from solvers.color import transfer
+
+_here = pathlib.Path(__file__).parent
+_spec = importlib.util.spec_from_file_location("color_bench", _here / "color.py")
+cb = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(cb)
+_spec = importlib.util.spec_from_file_location("color_heldout", _here / "color_heldout.py")
+ho = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(ho)
+
+# chosen before any experiment of this file; in neither bench
+FRESH = [("immunohistochemistry", "chelsea"), ("astronaut", "retina"),
+         ("stereo_motorcycle", "hubble_deep_field"), ("colorwheel", "coffee")]
+VARIANTS = {
+    "default": {},
+    "strength 1e-4": {"GAMUT_SHIFT_STRENGTH": 1e-4},
+    "1e-4, max slope 0.1": {"GAMUT_SHIFT_STRENGTH": 1e-4, "GAMUT_MAX_SLOPE": 0.1},
+    "1e-4, max slope 0.25": {"GAMUT_SHIFT_STRENGTH": 1e-4, "GAMUT_MAX_SLOPE": 0.25},
+    "1e-5, max slope 0.1": {"GAMUT_SHIFT_STRENGTH": 1e-5, "GAMUT_MAX_SLOPE": 0.1},
+    "1e-5, max slope 0.25": {"GAMUT_SHIFT_STRENGTH": 1e-5, "GAMUT_MAX_SLOPE": 0.25},
+    "1e-4, max slope 0.5": {"GAMUT_SHIFT_STRENGTH": 1e-4, "GAMUT_MAX_SLOPE": 0.5},
+    "1e-4, max slope 0.75": {"GAMUT_SHIFT_STRENGTH": 1e-4, "GAMUT_MAX_SLOPE": 0.75},
+    "1e-4, max slope 0.85": {"GAMUT_SHIFT_STRENGTH": 1e-4, "GAMUT_MAX_SLOPE": 0.85},
+    "1e-4, max slope 1": {"GAMUT_SHIFT_STRENGTH": 1e-4, "GAMUT_MAX_SLOPE": 1.0},
+}
+
+
+def peers(src, tgt, th):
+    res = {m: cb.METHODS[m](src, tgt) for m in cb.PEERS}
+    res = {m: (cb.coarse_w2(out, th), *cb.structure(out, src)) for m, out in res.items()}
+    best = min(cb.PEERS, key=lambda m: res[m][0])
+    return res[best][0], res[ho.HM][1], res[ho.HM][2]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--fresh", action="store_true")
+    ap.add_argument("--variants", nargs="*", default=list(VARIANTS))
+    ap.add_argument("--first", nargs="*", default=[], help="pairs s:t to run first")
+    ap.add_argument("--only", type=int, default=None, help="stop after this many pairs")
+    args = ap.parse_args()
+    pairs = FRESH if args.fresh else cb.PAIRS + ho.PAIRS
+    first = [tuple(p.split(":")) for p in args.first]
+    pairs = (first + [p for p in pairs if p not in first])[:args.only]
+    print("load", cb.loadavg(), flush=True)
+    met = {v: 0 for v in args.variants}
+    saved = {k: getattr(transfer, k) for v in VARIANTS.values() for k in v}
+    for s, t in pairs:
+        src, tgt = cb.image(s), cb.image(t)
+        th = cb.ab_histogram(cb.rgb_to_lab(tgt)[..., 1:], cb.BINS)
+        w2, ssim, grad = peers(src, tgt, th)
+        cells = []
+        for v in args.variants:
+            for k, val in {**saved, **VARIANTS[v]}.items():
+                setattr(transfer, k, val)
+            out = cb.METHODS[cb.OURS](src, tgt)
+            o = (cb.coarse_w2(out, th), *cb.structure(out, src))
+            ok = o[0] <= w2 and o[1] >= ssim and o[2] >= grad
+            met[v] += ok
+            cells.append(f"{v}: {o[0]:.2f}/{o[1]:.3f}/{o[2]:.3f}{'' if ok else ' NOT MET'}")
+        print(f"{s}->{t} | targets W2<={w2:.2f} SSIM>={ssim:.3f} grad>={grad:.3f} | "
+              + " | ".join(cells), flush=True)
+    print("MET per variant:", met, "of", len(pairs))
+    print("load", cb.loadavg())
+
+
+if __name__ == "__main__":
+    main()
