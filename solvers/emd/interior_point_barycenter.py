@@ -72,6 +72,9 @@ _FACTOR_SECONDS = 2.0e-9  # per k^2.5 V^1.5 and iteration
 _FACTOR_FILL = 2.0  # factor nonzeros per k² V log2(V)
 _FACTOR_ENTRY_BYTES = 16  # PARDISO's memory per factor nonzero (values, indices, symbolic)
 _FACE_FLOATS = 200  # cones, scalings, directions, per-face blocks: floats per face cone
+# The compiled cone kernels' runtime (numba, LLVM) that a worker's first solve loads: measured
+# peaks in a fresh process exceed the working arrays by 47-82 MiB.
+_JIT_RUNTIME_BYTES = 96 << 20
 MAX_ESTIMATED_SECONDS = 300.0
 # Absolute floor of the relative gap's denominator (objective units: squared length on the
 # unit-area mesh): the objective is 0 when the inputs coincide.
@@ -92,7 +95,8 @@ def estimated_cost(n_vertices: int, n_faces: int, k: int) -> CostEstimate:
     iterations = _ITERATIONS * (n / 1e4) ** 0.2 * (k / 3.0) ** (1.0 / 3.0)
     per_iteration = _FACE_SECONDS * cones + _FACTOR_SECONDS * k**2.5 * n**1.5
     factor = _FACTOR_FILL * k**2 * n * np.log2(n)
-    working = _FACTOR_ENTRY_BYTES * factor + 8 * _FACE_FLOATS * cones + 8 * 40 * k * n
+    working = (_FACTOR_ENTRY_BYTES * factor + 8 * _FACE_FLOATS * cones + 8 * 40 * k * n
+               + _JIT_RUNTIME_BYTES)
     return CostEstimate(seconds=iterations * per_iteration, bytes=int(working))
 
 
