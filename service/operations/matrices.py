@@ -39,6 +39,8 @@ from solvers.convolutional.matrix import (
     STORED_GEODESICS_VERTICES,
     block_pairs,
     distance_matrix,
+    kernel_key,
+    matrix_pairs,
     pair_state_bytes,
     zero_diagonal,
 )
@@ -222,15 +224,6 @@ def _output(res, reports, complete: bool, decision: dict) -> OperationOutput:
     return OperationOutput(values.model_dump(), arrays)
 
 
-def _pair_list(n: int, m: int, symmetric: bool, diagonal: bool) -> list[tuple[int, int]]:
-    """The pairs the library solves, in its order (row-major, ``i < j`` when symmetric, the
-    diagonal first when it is not zero by definition)."""
-    if not symmetric:
-        return [(i, j) for i in range(n) for j in range(m)]
-    return ([(i, i) for i in range(n)] if diagonal else []) + [
-        (i, j) for i in range(n) for j in range(i + 1, n)]
-
-
 def _kernels(decisions) -> tuple[dict[tuple, tuple], list]:
     """The convolutional pairs' heat kernels keyed as the library groups them (t, substeps):
     ``{key: (gamma, t, substeps, debiased) of its first pair}``, and the distinct full
@@ -239,10 +232,9 @@ def _kernels(decisions) -> tuple[dict[tuple, tuple], list]:
     full = []
     for d in decisions:
         if d.route != "exact":
-            t = d.t if d.t is not None else d.gamma / 4.0
-            groups.setdefault((t, int(d.substeps)), (d.gamma, t, int(d.substeps),
-                                                     bool(d.debiased)))
-            full.append((d.gamma, t, int(d.substeps), bool(d.debiased)))
+            key = kernel_key(d)
+            groups.setdefault(key, (d.gamma, *key, bool(d.debiased)))
+            full.append((d.gamma, *key, bool(d.debiased)))
     return groups, sorted(set(full))
 
 
@@ -260,7 +252,7 @@ def decide_matrix_job(view: DomainView, req: DistanceMatrixRequest) -> dict:
             algorithm, _ = resolve_method(req.algorithm, "auto")
         except InputError as exc:
             raise InvalidInput(str(exc), field=exc.field or "algorithm") from exc
-        pairs = _pair_list(rows.shape[1], cols.shape[1], symmetric, False)
+        pairs = matrix_pairs(rows.shape[1], cols.shape[1], symmetric, False)
         return MatrixDecision(**common, reason="W1 per pair (Beckmann problem)",
                               pairs=len(pairs), per_pair=True, zero_diagonal=symmetric or None,
                               routes={"w1": len(pairs)}, algorithm=algorithm,
@@ -272,7 +264,7 @@ def decide_matrix_job(view: DomainView, req: DistanceMatrixRequest) -> dict:
     zero = None
     if symmetric:
         zero = zero_diagonal(sketch, rows, args["gamma"], args["debiased"], args["route"])
-    pairs = _pair_list(rows.shape[1], cols.shape[1], symmetric, zero is False)
+    pairs = matrix_pairs(rows.shape[1], cols.shape[1], symmetric, zero is False)
     if len(pairs) > DECIDED_PAIRS:
         return MatrixDecision(**common, pairs=len(pairs), per_pair=False, zero_diagonal=zero,
                               reason=f"{len(pairs)} pairs, more than {DECIDED_PAIRS}: each "

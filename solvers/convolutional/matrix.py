@@ -173,11 +173,15 @@ def _collection(domain, values, name: str) -> np.ndarray:
     return m
 
 
-def _pairs(n: int, m: int, symmetric: bool) -> list[tuple[int, int]]:
-    """Row-major pairs (only ``i < j`` of a symmetric matrix)."""
-    if symmetric:
-        return [(i, j) for i in range(n) for j in range(i + 1, n)]
-    return [(i, j) for i in range(n) for j in range(m)]
+def matrix_pairs(n: int, m: int, symmetric: bool,
+                 diagonal: bool = False) -> list[tuple[int, int]]:
+    """The pairs :func:`distance_matrix` solves, in its order: row-major (only ``i < j`` of a
+    symmetric matrix, after its diagonal ``(i, i)`` when ``diagonal``: not zero by
+    definition)."""
+    if not symmetric:
+        return [(i, j) for i in range(n) for j in range(m)]
+    return ([(i, i) for i in range(n)] if diagonal else []) + [
+        (i, j) for i in range(n) for j in range(i + 1, n)]
 
 
 def distance_matrix(
@@ -241,7 +245,7 @@ def distance_matrix(
     domain.require_matching_component_masses(np.hstack([A, B]), max(tol, 1e-9),
                                              "distributions" if symmetric else "others")
     thread_count(threads)  # checked before any work
-    pairs = _pairs(A.shape[1], B.shape[1], symmetric)
+    pairs = matrix_pairs(A.shape[1], B.shape[1], symmetric)
     table = _Table(A.shape[1], B.shape[1], symmetric, metric, progress, len(pairs))
 
     def stop(where: str) -> None:
@@ -254,7 +258,7 @@ def distance_matrix(
         for i in range(A.shape[1]):
             table.put(i, i, 0.0, 0, 0.0, True, "identical")
     elif symmetric:
-        pairs = [(i, i) for i in range(A.shape[1])] + pairs
+        pairs = matrix_pairs(A.shape[1], B.shape[1], symmetric, diagonal=True)
         table.total = len(pairs)
     if metric == "w1":
         _w1_pairs(domain, A, B, pairs, table, w1_options or {}, stop)
@@ -268,7 +272,7 @@ def distance_matrix(
     groups: dict[tuple, list] = {}
     for p, d in zip(pairs, decisions, strict=True):
         if d.route != "exact":
-            groups.setdefault(_kernel_key(d), []).append((p, d))
+            groups.setdefault(kernel_key(d), []).append((p, d))
     for members in groups.values():
         _convolutional_pairs(domain, A, B, members, table, tol=tol, max_iter=max_iter,
                              stop=stop)
@@ -284,7 +288,9 @@ def zero_diagonal(domain, A, gamma, debiased, route) -> bool:
     return d.route == "exact" or bool(d.debiased)
 
 
-def _kernel_key(d: DistanceDecision) -> tuple:
+def kernel_key(d: DistanceDecision) -> tuple:
+    """``(t, substeps)``: the heat kernel a convolutional pair runs with (pairs sharing it
+    run as one block)."""
     return (d.t if d.t is not None else d.gamma / 4.0, int(d.substeps))
 
 
