@@ -135,11 +135,12 @@ def _bound(name: str):
 
 
 # the per-job statements, built once (building one costs about as much as running it)
+# a claimed job's new values (CLAIM and the job-table queue's claim of the oldest job)
+_CLAIMED = {"state": RUNNING, "attempts": JOBS.c.attempts + 1, "worker": _bound("worker"),
+            "started_at": bindparam("b_now", type_=Float()),
+            "heartbeat_at": bindparam("b_now", type_=Float())}
 CLAIM = (update(JOBS).where(JOBS.c.id == _bound("id"), JOBS.c.state == QUEUED)
-         .values(state=RUNNING, attempts=JOBS.c.attempts + 1, worker=_bound("worker"),
-                 started_at=bindparam("b_now", type_=Float()),
-                 heartbeat_at=bindparam("b_now", type_=Float()))
-         .returning(*JOBS.c))
+         .values(_CLAIMED).returning(*JOBS.c))
 GET = select(JOBS).where(JOBS.c.id == _bound("id"))
 _QUEUE = func.coalesce(JOBS.c.queue, "short")
 
@@ -156,10 +157,7 @@ def _claim_next_statement(queues: tuple[str, ...]):
               .order_by(rank, func.coalesce(JOBS.c.enqueued_at, JOBS.c.created_at), JOBS.c.id)
               .limit(1).scalar_subquery())
     return (update(JOBS).where(JOBS.c.id == oldest, JOBS.c.state == QUEUED)
-            .values(state=RUNNING, attempts=JOBS.c.attempts + 1, worker=_bound("worker"),
-                    started_at=bindparam("b_now", type_=Float()),
-                    heartbeat_at=bindparam("b_now", type_=Float()))
-            .returning(*JOBS.c))
+            .values(_CLAIMED).returning(*JOBS.c))
 FINISHED = ("state", "error", "result_location", "result", "finished_at", "heartbeat_at",
             "duration")
 
