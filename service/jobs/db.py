@@ -109,16 +109,24 @@ class Claim:
     job: JobRow
 
 
+BUSY_TIMEOUT_MS = 30_000  # how long an SQLite write waits for another writer's lock
+
+
+class WriteBusy(Exception):
+    """A write that was not to wait found the job table locked by another writer."""
+
+
 def make_engine(url: str):
     if url.startswith("sqlite"):
-        engine = create_engine(url, connect_args={"timeout": 30, "check_same_thread": False})
+        engine = create_engine(url, connect_args={"timeout": BUSY_TIMEOUT_MS / 1000,
+                                                  "check_same_thread": False})
 
         @event.listens_for(engine, "connect")
         def _pragmas(dbapi_conn, _record):
             cur = dbapi_conn.cursor()
             cur.execute("PRAGMA journal_mode=WAL")
             cur.execute("PRAGMA synchronous=NORMAL")
-            cur.execute("PRAGMA busy_timeout=30000")
+            cur.execute(f"PRAGMA busy_timeout={BUSY_TIMEOUT_MS}")
             cur.close()
 
         return engine
@@ -235,15 +243,28 @@ class JobRepository:
         self.engine.dispose()
 
     # -- creation / reading ---------------------------------------------
-    def create(self, job: JobRow, *also) -> JobRow:
+    def create(self, job: JobRow, *also, nowait: bool = False) -> JobRow:
         """Insert the job, and ``also`` (e.g. its idempotency key) in the same transaction.
 
         Core INSERTs of the rows' column values (the ORM unit of work costs more than the
-        statement on this path); ``job`` stays a detached row holding what was written."""
+        statement on this path); ``job`` stays a detached row holding what was written.
+        ``nowait`` (SQLite, on the API's event loop): raise :class:`WriteBusy`, writing
+        nothing, instead of waiting while another process holds the write lock."""
+        nowait = nowait and self.local
         with self.engine.begin() as conn:
-            for row in (job, *also):
-                table = type(row).__table__
-                conn.execute(_insert_statement(table), _column_values(row, table))
+            if nowait:
+                conn.exec_driver_sql("PRAGMA busy_timeout=0")
+            try:
+                for row in (job, *also):
+                    table = type(row).__table__
+                    conn.execute(_insert_statement(table), _column_values(row, table))
+            except OperationalError as exc:
+                if nowait and "locked" in str(exc.orig):
+                    raise WriteBusy(str(exc.orig)) from exc
+                raise
+            finally:
+                if nowait:
+                    conn.exec_driver_sql(f"PRAGMA busy_timeout={BUSY_TIMEOUT_MS}")
         return job
 
     def get(self, job_id: str) -> JobRow | None:
