@@ -124,8 +124,10 @@ async def finish_submission(op_name: str, domain_id: str | None, body, wait: flo
         response.headers[REPLAYED] = "true"
     if wait > 0 and job.state not in TERMINAL:
         job = await wait_for(svc, job.id, wait, job)
-    if job.state == QUEUED:  # read by JobOut.from_row
-        job.queue_position = await run_in_threadpool(svc.rt.repo.queue_position, job)
+    if job.state == QUEUED:  # read by JobOut.from_row; a local SQLite read as in wait_for
+        repo = svc.rt.repo
+        job.queue_position = (repo.queue_position(job) if repo.local
+                              else await run_in_threadpool(repo.queue_position, job))
     response.status_code = 200 if job.state in TERMINAL else 202
     response.headers["Location"] = f"/v1/jobs/{job.id}"
     out = JobOut.from_row(job)

@@ -166,6 +166,14 @@ def _claim_next_statement(queues: tuple[str, ...]):
               .limit(1).scalar_subquery())
     return (update(JOBS).where(JOBS.c.id == oldest, JOBS.c.state == QUEUED)
             .values(_CLAIMED).returning(*JOBS.c))
+
+
+@functools.lru_cache(maxsize=4)
+def _any_queued_statement(queues: tuple[str, ...]):
+    """A queued job of ``queues``, if any (a read: the idle worker's check before it claims)."""
+    return select(JOBS.c.id).where(JOBS.c.state == QUEUED, _QUEUE.in_(queues)).limit(1)
+
+
 FINISHED = ("state", "error", "result_location", "result", "finished_at", "heartbeat_at",
             "duration")
 
@@ -344,9 +352,16 @@ class JobRepository:
         """Claim the oldest queued job of ``queues`` (earlier queues first) for this worker;
         None when there is none (or another worker took it first).  The embedded queue: the
         job row written at submission is the message, so nothing is handed over twice and a
-        requeued job (reaper) is simply queued again."""
+        requeued job (reaper) is simply queued again.
+
+        An empty queue is seen by a read first: a worker asks after every job, and the
+        ``UPDATE`` would take the write lock even when it matches nothing."""
+        queues = tuple(queues)
+        with self.engine.connect() as conn:
+            if conn.execute(_any_queued_statement(queues)).first() is None:
+                return None
         with self.engine.begin() as conn:
-            row = conn.execute(_claim_next_statement(tuple(queues)),
+            row = conn.execute(_claim_next_statement(queues),
                                {"b_worker": worker, "b_now": time.time()}).mappings().first()
         return None if row is None else Claim(int(row["attempts"]), JobRow(**row))
 
