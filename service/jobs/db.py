@@ -348,18 +348,21 @@ class JobRepository:
             return None
         return Claim(job.attempts + 1, self.get(job_id))
 
-    def claim_next(self, queues: tuple[str, ...], worker: str) -> Claim | None:
+    def claim_next(self, queues: tuple[str, ...], worker: str, *,
+                   probe: bool = True) -> Claim | None:
         """Claim the oldest queued job of ``queues`` (earlier queues first) for this worker;
         None when there is none (or another worker took it first).  The embedded queue: the
         job row written at submission is the message, so nothing is handed over twice and a
         requeued job (reaper) is simply queued again.
 
-        An empty queue is seen by a read first: a worker asks after every job, and the
-        ``UPDATE`` would take the write lock even when it matches nothing."""
+        With ``probe``, an empty queue is seen by a read first: a worker asks after every
+        job, and the ``UPDATE`` would take the write lock even when it matches nothing
+        (a worker just woken by an enqueue skips the read: a job is most likely there)."""
         queues = tuple(queues)
-        with self.engine.connect() as conn:
-            if conn.execute(_any_queued_statement(queues)).first() is None:
-                return None
+        if probe:
+            with self.engine.connect() as conn:
+                if conn.execute(_any_queued_statement(queues)).first() is None:
+                    return None
         with self.engine.begin() as conn:
             row = conn.execute(_claim_next_statement(queues),
                                {"b_worker": worker, "b_now": time.time()}).mappings().first()
