@@ -62,23 +62,29 @@ def masses_from_density(density: np.ndarray, areas: np.ndarray) -> np.ndarray:
 
 
 def check_weights(weights, k: int, field: str = "weights") -> np.ndarray:
-    """Barycentric weights: ``(k,)`` finite, non-negative, positive sum; normalized to 1.
+    """Barycentric weights: ``(k,)`` finite, non-negative, with a positive finite sum;
+    normalized to 1.
 
-    ``None`` gives uniform weights.
+    ``None`` gives uniform weights. Finite values near the float limit can sum to inf
+    (which would normalize to zeros): refused, naming ``field``.
     """
     if weights is None:
         return np.full(k, 1.0 / k)
     try:
         w = np.asarray(weights, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:  # an int beyond the float range
         raise InputError(f"{field} must be numbers", field=field) from exc
     if w.shape != (k,):
         raise InputError(f"{field} must have one value per distribution ({k}), got shape "
                          f"{w.shape}", field=field)
-    if not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
+    with np.errstate(over="ignore", invalid="ignore"):
+        total = w.sum()
+    if not np.all(np.isfinite(w)) or np.any(w < 0) or total <= 0:
         raise InputError(f"{field} must be finite, non-negative, with a positive sum",
                          field=field)
-    return w / w.sum()
+    if not np.isfinite(total):
+        raise InputError(f"{field} sums beyond the float range; scale it down", field=field)
+    return w / total
 
 
 def check_positive(value, field: str) -> float:

@@ -8,6 +8,7 @@ import pytest
 from solvers.errors import InputError
 from solvers.validation import (
     check_masses,
+    check_weights,
     density_from_masses,
     masses_from_density,
     normalize_masses,
@@ -51,3 +52,25 @@ def test_normalize_and_convert():
     np.testing.assert_allclose(areas @ mu, [1.0, 1.0])
     np.testing.assert_allclose(masses_from_density(mu, areas), x)
     np.testing.assert_allclose(density_from_masses(x[:, 1], areas), x[:, 1] / areas)
+
+
+@pytest.mark.parametrize(
+    ("weights", "words"),
+    [
+        ([1e308, 1e308, 0.0], "float range"),  # each finite, the sum inf
+        ([10**400, 1, 1], "numbers"),  # an int beyond float64
+        ([0.5, np.inf, 0.5], "finite"),
+        ([0.0, 0.0, 0.0], "positive sum"),
+    ],
+)
+def test_bad_weights_raise_input_error_naming_the_field(weights, words):
+    """An overflowing sum would normalize to zeros: refused, for every caller."""
+    with pytest.raises(InputError) as info:
+        check_weights(weights, 3, field="weights[2]")
+    assert info.value.field == "weights[2]" and "weights[2]" in str(info.value)
+    assert words in str(info.value)
+
+
+def test_weights_near_the_float_limit_whose_sum_is_finite_are_kept():
+    w = check_weights([1e307, 1e307, 0.0], 3)
+    np.testing.assert_allclose(w, [0.5, 0.5, 0.0], rtol=1e-15)

@@ -18,6 +18,7 @@ from service.api.deps import IdempotencyKeyDep, JobSvc, RuntimeDep
 from service.errors import InvalidInput, responses
 from service.idempotency import REPLAYED, for_request
 from service.jobs.db import QUEUED, TERMINAL
+from service.jobs.service import PendingJob
 from service.operations import Operation, Registry
 from service.operations.guide_pages import openapi_extra
 from service.schemas import RETRY_AFTER_HEADERS, JobOut, retry_after
@@ -79,16 +80,37 @@ async def wait_for(svc, job_id: str, seconds: float, job=None):
     return job
 
 
-def submit_job(op_name: str, domain_id: str | None, body, wait: float, svc, rt,
-               idempotency_key: str | None = None):
-    """Shared by every operation route (sync part)."""
+def _check_wait(wait: float, rt) -> None:
     if wait > rt.settings.wait_max:
         raise InvalidInput(f"wait must be at most {rt.settings.wait_max:g} seconds",
                            field="wait")
+
+
+def submit_job(op_name: str, domain_id: str | None, body, wait: float, svc, rt,
+               idempotency_key: str | None = None):
+    """Shared by every operation route (sync part)."""
+    _check_wait(wait, rt)
     route = f"POST {op_name}" + (f" on {domain_id}" if domain_id else "")
     idempotency = for_request(rt, svc.tenant.id, idempotency_key, route,
                               body.model_dump(mode="json"))
     return svc.create(op_name, domain_id, body, idempotency)
+
+
+async def submit(op_name: str, domain_id: str | None, body, wait: float, svc, rt,
+                 idempotency_key: str | None = None):
+    """The created (or replayed) job: ``submit_job`` in the thread pool, or on the event loop
+    for a small bounded submission without an ``Idempotency-Key``
+    (``JobService.submits_on_loop``; only the INSERT goes to the pool when another process
+    holds the job table's write lock)."""
+    if idempotency_key is None:
+        _check_wait(wait, rt)
+        if svc.submits_on_loop(op_name, domain_id, body):
+            try:
+                return svc.create(op_name, domain_id, body, nowait=True)
+            except PendingJob as pending:
+                return await run_in_threadpool(svc.record, pending.job)
+    return await run_in_threadpool(submit_job, op_name, domain_id, body, wait, svc, rt,
+                                   idempotency_key)
 
 
 async def finish_submission(op_name: str, domain_id: str | None, body, wait: float,
@@ -97,14 +119,15 @@ async def finish_submission(op_name: str, domain_id: str | None, body, wait: flo
     """Create the job (or, for a repeated ``Idempotency-Key``, find the first one), wait up to
     ``wait`` seconds, set 200/202 and ``Location``; also for families with their own routes
     (``Operation(route=False)``)."""
-    job = await run_in_threadpool(submit_job, op_name, domain_id, body, wait, svc, rt,
-                                  idempotency_key)
+    job = await submit(op_name, domain_id, body, wait, svc, rt, idempotency_key)
     if getattr(job, "replayed", False):
         response.headers[REPLAYED] = "true"
     if wait > 0 and job.state not in TERMINAL:
         job = await wait_for(svc, job.id, wait, job)
-    if job.state == QUEUED:  # read by JobOut.from_row
-        job.queue_position = await run_in_threadpool(svc.rt.repo.queue_position, job)
+    if job.state == QUEUED:  # read by JobOut.from_row; a local SQLite read as in wait_for
+        repo = svc.rt.repo
+        job.queue_position = (repo.queue_position(job) if repo.local
+                              else await run_in_threadpool(repo.queue_position, job))
     response.status_code = 200 if job.state in TERMINAL else 202
     response.headers["Location"] = f"/v1/jobs/{job.id}"
     out = JobOut.from_row(job)

@@ -38,10 +38,13 @@ class Consumer:
         self.dropped = 0
         self._thread: threading.Thread | None = None
         self.poll = runtime.settings.worker_poll_interval
+        self._woken = False  # the last wait ended with a datagram (an enqueue, most likely)
 
     # -- reading ---------------------------------------------------------------
     def _read_sqlite(self, timeout: float):
-        claim = self.rt.repo.claim_next(tuple(self.queues), self.rt.runner.worker_id)
+        woken, self._woken = self._woken, False
+        claim = self.rt.repo.claim_next(tuple(self.queues), self.rt.runner.worker_id,
+                                        probe=not woken)
         if claim is not None:
             return CLAIMED, claim
         for q in self.queues:
@@ -49,7 +52,7 @@ class Consumer:
             if data is not None:
                 return q, data
         if self.wake is not None and self.wake.sock is not None:
-            self.wake.wait(timeout)
+            self._woken = bool(self.wake.wait(timeout))
         else:
             time.sleep(min(self.poll, timeout))
         return None

@@ -109,16 +109,24 @@ class Claim:
     job: JobRow
 
 
+BUSY_TIMEOUT_MS = 30_000  # how long an SQLite write waits for another writer's lock
+
+
+class WriteBusy(Exception):
+    """A write that was not to wait found the job table locked by another writer."""
+
+
 def make_engine(url: str):
     if url.startswith("sqlite"):
-        engine = create_engine(url, connect_args={"timeout": 30, "check_same_thread": False})
+        engine = create_engine(url, connect_args={"timeout": BUSY_TIMEOUT_MS / 1000,
+                                                  "check_same_thread": False})
 
         @event.listens_for(engine, "connect")
         def _pragmas(dbapi_conn, _record):
             cur = dbapi_conn.cursor()
             cur.execute("PRAGMA journal_mode=WAL")
             cur.execute("PRAGMA synchronous=NORMAL")
-            cur.execute("PRAGMA busy_timeout=30000")
+            cur.execute(f"PRAGMA busy_timeout={BUSY_TIMEOUT_MS}")
             cur.close()
 
         return engine
@@ -158,6 +166,14 @@ def _claim_next_statement(queues: tuple[str, ...]):
               .limit(1).scalar_subquery())
     return (update(JOBS).where(JOBS.c.id == oldest, JOBS.c.state == QUEUED)
             .values(_CLAIMED).returning(*JOBS.c))
+
+
+@functools.lru_cache(maxsize=4)
+def _any_queued_statement(queues: tuple[str, ...]):
+    """A queued job of ``queues``, if any (a read: the idle worker's check before it claims)."""
+    return select(JOBS.c.id).where(JOBS.c.state == QUEUED, _QUEUE.in_(queues)).limit(1)
+
+
 FINISHED = ("state", "error", "result_location", "result", "finished_at", "heartbeat_at",
             "duration")
 
@@ -235,15 +251,28 @@ class JobRepository:
         self.engine.dispose()
 
     # -- creation / reading ---------------------------------------------
-    def create(self, job: JobRow, *also) -> JobRow:
+    def create(self, job: JobRow, *also, nowait: bool = False) -> JobRow:
         """Insert the job, and ``also`` (e.g. its idempotency key) in the same transaction.
 
         Core INSERTs of the rows' column values (the ORM unit of work costs more than the
-        statement on this path); ``job`` stays a detached row holding what was written."""
+        statement on this path); ``job`` stays a detached row holding what was written.
+        ``nowait`` (SQLite, on the API's event loop): raise :class:`WriteBusy`, writing
+        nothing, instead of waiting while another process holds the write lock."""
+        nowait = nowait and self.local
         with self.engine.begin() as conn:
-            for row in (job, *also):
-                table = type(row).__table__
-                conn.execute(_insert_statement(table), _column_values(row, table))
+            if nowait:
+                conn.exec_driver_sql("PRAGMA busy_timeout=0")
+            try:
+                for row in (job, *also):
+                    table = type(row).__table__
+                    conn.execute(_insert_statement(table), _column_values(row, table))
+            except OperationalError as exc:
+                if nowait and "locked" in str(exc.orig):
+                    raise WriteBusy(str(exc.orig)) from exc
+                raise
+            finally:
+                if nowait:
+                    conn.exec_driver_sql(f"PRAGMA busy_timeout={BUSY_TIMEOUT_MS}")
         return job
 
     def get(self, job_id: str) -> JobRow | None:
@@ -319,13 +348,23 @@ class JobRepository:
             return None
         return Claim(job.attempts + 1, self.get(job_id))
 
-    def claim_next(self, queues: tuple[str, ...], worker: str) -> Claim | None:
+    def claim_next(self, queues: tuple[str, ...], worker: str, *,
+                   probe: bool = True) -> Claim | None:
         """Claim the oldest queued job of ``queues`` (earlier queues first) for this worker;
         None when there is none (or another worker took it first).  The embedded queue: the
         job row written at submission is the message, so nothing is handed over twice and a
-        requeued job (reaper) is simply queued again."""
+        requeued job (reaper) is simply queued again.
+
+        With ``probe``, an empty queue is seen by a read first: a worker asks after every
+        job, and the ``UPDATE`` would take the write lock even when it matches nothing
+        (a worker just woken by an enqueue skips the read: a job is most likely there)."""
+        queues = tuple(queues)
+        if probe:
+            with self.engine.connect() as conn:
+                if conn.execute(_any_queued_statement(queues)).first() is None:
+                    return None
         with self.engine.begin() as conn:
-            row = conn.execute(_claim_next_statement(tuple(queues)),
+            row = conn.execute(_claim_next_statement(queues),
                                {"b_worker": worker, "b_now": time.time()}).mappings().first()
         return None if row is None else Claim(int(row["attempts"]), JobRow(**row))
 

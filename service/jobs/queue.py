@@ -90,7 +90,13 @@ class WalNormalSqliteStorage(SqliteStorage):
     wake_timeout = 1.0  # longest block on it; then the queue is read anyway
 
     def dequeue_now(self):
-        """The next message without blocking (None when empty)."""
+        """The next message without blocking (None when empty). An empty queue (the usual
+        case: the job table is the queue) is seen by a read, without the exclusive
+        transaction huey's dequeue opens."""
+        with self.db() as curs:
+            curs.execute("SELECT 1 FROM task WHERE queue = ? LIMIT 1", (self.name,))
+            if curs.fetchone() is None:
+                return None
         return SqliteStorage.dequeue(self)
 
     def dequeue(self):

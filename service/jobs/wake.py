@@ -18,6 +18,7 @@ import logging
 import os
 import select
 import socket
+from collections import OrderedDict
 from pathlib import Path
 
 log = logging.getLogger("otgeo.wake")
@@ -123,9 +124,15 @@ class JobWaiters:
     """API side: asyncio events of the requests waiting for jobs, set by "done" datagrams
     read on the event loop (``attach`` inside the running loop, ``detach`` on shutdown)."""
 
+    RECENT_DONE = 1024  # "done" job ids remembered for requests that register late
+
     def __init__(self, data_dir: Path):
         self.socket = WakeSocket(data_dir, "api")
         self._events: dict[str, set] = {}
+        # a job can finish before its submitting request registers (the submission ran in
+        # the thread pool and the worker was quicker than the hop back): its "done"
+        # datagram is kept here, so the late request wakes at once, not at its next poll
+        self._done: OrderedDict[str, None] = OrderedDict()
         self._loop = None
 
     @property
@@ -147,6 +154,8 @@ class JobWaiters:
         import asyncio
 
         event = asyncio.Event()
+        if job_id in self._done:
+            event.set()
         self._events.setdefault(job_id, set()).add(event)
         return event
 
@@ -159,5 +168,8 @@ class JobWaiters:
 
     def _on_readable(self) -> None:
         for job_id in self.socket.drain():
+            self._done[job_id] = None
+            if len(self._done) > self.RECENT_DONE:
+                self._done.popitem(last=False)
             for event in self._events.get(job_id, ()):
                 event.set()

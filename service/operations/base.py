@@ -292,6 +292,10 @@ class Operation:
     # progress counts items (pairs, problems) with their own fraction, not iterations: the
     # request's max_iter bounds each item, not the count
     progress_counts_items: bool = False
+    # ``(view, request) -> bool``: this request's ``validate`` and ``decide`` are bounded
+    # array work over the domain's points (no estimate, no solve, no operator built), so a
+    # small domain's submission may run on the API's event loop (JobService.submits_on_loop)
+    bounded_submission: Callable[..., bool] | None = None
 
     def check_kind(self, view: DomainView, field: str = "domain_id") -> None:
         if view.kind not in self.kinds:

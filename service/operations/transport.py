@@ -343,6 +343,13 @@ def decide_distance_job(view: DomainView, req: DistanceRequest) -> dict:
     return {"metric": "w2", **decision.as_dict()}
 
 
+def distance_submission_bounded(view: DomainView, req: DistanceRequest) -> bool:
+    """W2 with an explicit gamma off the exact route: the decision takes no automatic choice
+    (no exact-route estimate, no regularization policy), so validating and deciding is
+    resolving two distributions (``Operation.bounded_submission``)."""
+    return req.metric == "w2" and req.gamma is not None and req.route != "exact"
+
+
 def _decided(view: DomainView, req: DistanceRequest) -> dict:
     """The job's decision (deterministic: the one ``decide`` stores), memoized per request
     on the view, for the estimates."""
@@ -581,7 +588,7 @@ OPERATIONS = [
               "supports or convolutional; or W1)",
               DistanceRequest, run_distance, _validate_distance, result_model=DistanceResult,
               decide=decide_distance_job, estimate_bytes=distance_bytes,
-              estimate_cost=distance_cost),
+              estimate_cost=distance_cost, bounded_submission=distance_submission_bounded),
     Operation("barycenters", "createBarycenterJob",
               "Wasserstein barycenter of distributions (convolutional, optional sharpening)",
               BarycenterRequest, run_barycenter, _validate_barycenter,

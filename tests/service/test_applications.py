@@ -46,6 +46,7 @@ def test_brdf_interpolation_job_slices_and_png(client):
     ({"incoming_theta": [60, 30]}, "incoming_theta"),
     ({"weights": [[1, 0]]}, "weights"),
     ({"weights": [[1, -1]] * 4}, "weights[0]"),
+    ({"weights": [[1, 0]] * 3 + [[1e308, 1e308]]}, "weights[3]"),  # the sum overflows
     ({"light": [0, 0, 0]}, "light"),
     ({"gamma": 1e3}, "gamma"),
 ])

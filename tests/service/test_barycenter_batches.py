@@ -65,6 +65,17 @@ def test_bad_weights_name_the_field_and_index(client, woody, weights, field, nam
     assert named in err["message"] and field in err["message"]
 
 
+def test_single_barycenter_weights_whose_sum_overflows_are_a_422(client, woody):
+    """``/barycenters`` checks its weights with the same library validator: a finite row
+    whose sum overflows is refused at submission naming ``weights`` (was normalized to
+    zeros)."""
+    _, mid = woody
+    r = client.post(f"/v1/domains/{mid}/barycenters",
+                    json={"distributions": BUMPS[:2], "weights": [1e308, 1e308]})
+    err = assert_error(r, 422, "weights")
+    assert "float range" in err["message"]
+
+
 def test_bad_inputs_refused(client, woody):
     _, mid = woody
     url = f"/v1/domains/{mid}/barycenter-batches"
