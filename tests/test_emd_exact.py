@@ -277,6 +277,9 @@ def test_input_validation(sphere):
     with pytest.raises(InputError) as err:
         w1_barycenter(sphere, np.stack([a, a], 1), [1.0, -1.0])
     assert err.value.field == "weights"
+    with pytest.raises(InputError, match="float range") as err:
+        w1_barycenter(sphere, np.stack([a, a], 1), [1e308, 1e308])
+    assert err.value.field == "weights"
     # two disjoint spheres: mass cannot cross components
     s = trimesh.creation.icosphere(subdivisions=1)
     two = TriangleMesh(np.vstack([s.vertices, s.vertices + 3.0]),

@@ -124,6 +124,9 @@ def test_invalid_inputs_are_refused(ball):
     with pytest.raises(InputError) as err:
         shape_interpolation([np.ones((8, 8))] * 2, [1.0, -1.0], gamma=GAMMA)
     assert err.value.field == "weights"
+    with pytest.raises(InputError, match="float range") as err:  # sums to inf
+        shape_interpolation([np.ones((8, 8))] * 2, [1e308, 1e308], gamma=GAMMA)
+    assert err.value.field == "weights"
     with pytest.raises(InputError) as err:
         shape_interpolation([np.ones((8, 8)), -np.ones((8, 8))], gamma=GAMMA)
     assert err.value.field == "shapes"

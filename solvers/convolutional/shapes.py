@@ -40,6 +40,7 @@ import numpy as np
 from solvers.domains.grid import Grid
 from solvers.errors import InputError
 from solvers.monitor import SolverResult
+from solvers.validation import check_weights
 
 
 @dataclass
@@ -291,17 +292,6 @@ def _volumes_from_meshes(shapes, resolution: int, padding: int):
     return arrays, grid, origin, scale, sizes
 
 
-def _check_weights(weights, k: int, field: str = "weights") -> np.ndarray:
-    if weights is None:
-        return np.full(k, 1.0 / k)
-    weights = np.asarray(weights, dtype=np.float64)
-    if weights.shape != (k,) or not np.all(np.isfinite(weights)) or np.any(weights < 0) \
-            or weights.sum() <= 0:
-        raise InputError(f"{field} must be {k} non-negative numbers, not all zero",
-                         field=field)
-    return weights / weights.sum()
-
-
 @dataclass
 class PreparedShapes:
     """Input volumes on one grid: ``arrays`` (k volumes of ``grid.shape``), their sizes
@@ -407,7 +397,7 @@ def shape_interpolation(
     ``converged``.
     """
     prepared = prepare_shapes(shapes, resolution=resolution, grid=grid, padding=padding)
-    weights = _check_weights(weights, len(prepared.arrays))
+    weights = check_weights(weights, len(prepared.arrays))
     options = _barycenter_options(t, substeps, sharpen, tol, max_iter, progress,
                                   should_cancel)
     return _interpolate(prepared, weights, gamma, options)
@@ -444,7 +434,7 @@ def shape_interpolations(
     if rows.ndim != 2 or rows.shape[1] != k or len(rows) == 0:
         raise InputError(f"weights must be a (T, {k}) array, one row per frame",
                          field="weights")
-    rows = [_check_weights(row, k, f"weights[{i}]") for i, row in enumerate(rows)]
+    rows = [check_weights(row, k, f"weights[{i}]") for i, row in enumerate(rows)]
     done = 0
 
     def frame_progress(iteration, residual, *rest):

@@ -50,7 +50,7 @@ import scipy.sparse as sp
 from solvers.domains.mesh import TriangleMesh
 from solvers.errors import CancelledError, InputError, UnsupportedDomainError
 from solvers.monitor import Monitor, SolverResult
-from solvers.validation import check_masses
+from solvers.validation import check_masses, check_weights
 
 MAX_VERTICES = 5000
 # The eq. 2.7 interior point (algorithm "ipm"): certified relative gap and iteration cap.
@@ -556,13 +556,9 @@ def _barycenter_inputs(mesh, mus, weights, max_vertices: int | None):
     k = M.shape[1]
     if max_vertices is not None:
         _check_mesh(mesh, max_vertices, blocks=k + 1)
-    alpha = np.full(k, 1.0 / k) if weights is None else np.asarray(weights, dtype=np.float64)
-    if alpha.shape != (k,) or not np.all(np.isfinite(alpha)) or np.any(alpha < 0) \
-            or alpha.sum() <= 0:
-        raise InputError(f"weights must be {k} non-negative numbers, not all zero",
-                         field="weights")
+    alpha = check_weights(weights, k)
     mesh.require_matching_component_masses(M, _BALANCE_TOL, "mus")
-    return M, alpha / alpha.sum()
+    return M, alpha
 
 
 def _barycenter_ipm(mesh, mus, weights, fw, tol, max_iter, progress,
