@@ -440,6 +440,21 @@ def _render_lp_designs(d: dict | None) -> list[str]:
             "the route's solve.", ""]
 
 
+def _render_profile(d: dict | None) -> list[str]:
+    """The per-pair profile of the exact pairs (``spot_profile``: written by a profiling
+    script on the warm spot matrix, every 5th pair, best of 2 rounds)."""
+    if not d:
+        return []
+    return ["### Where one exact pair's time goes", "",
+            f"{d['pairs']} pairs of the spot matrix (every 5th), best of 2 rounds, "
+            f"`cpu bench`; load {d['load'][0]:.1f} / {d['load'][1]:.1f}. Main: costs cut "
+            "with `np.ix_` from the support cost matrix, `ot.emd`, value in numpy; this "
+            "branch: costs cut from the pair's row block, POT's compiled core `emd_c`. "
+            f"Largest relative gap between the two: {d['gap']:.1e}.", "",
+            "| step | ms per pair |", "|---|---|",
+            *[f"| {k} | {v:.3f} |" for k, v in d["rows"].items()], ""]
+
+
 def render(data: dict) -> str:
     out = ["# Distance matrices", "",
            "Command: `cpu bench env OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 .venv/bin/python "
@@ -479,6 +494,7 @@ def render(data: dict) -> str:
                     f"{p['factor']:g}: {100 * p['worst_relative_error']:.2f} % / "
                     f"{p['seconds_per_pair']:.3g} s" for p in s["pot"]) + ".", ""]
         out += _render_lp_designs(s.get("lp_designs"))
+    out += _render_profile(data.get("spot_profile"))
     ab = data.get("spot_pipeline_ab")
     if ab:
         out += ["### Threads: chunk barriers vs one chunk submitted ahead", "",
