@@ -454,7 +454,7 @@ def _render_profile(d: dict | None) -> list[str]:
             "| step | ms per pair |", "|---|---|",
             *[f"| {k} | {v:.3f} |" for k, v in d["rows"].items()], "",
             *([f"The 4,950 LPs alone at {lp:.2f} ms (`emd_c`) take {4950 * lp / 2e3:.2f} s "
-               "on 2 threads, which scale ~2x already: the rest of the 5 s budget is the "
+               "on 2 threads (which scale ~2x already), leaving under 0.5 s of the 5 s for the "
                "cost cuts, residuals, decisions and table; the target needs a cheaper LP, "
                "not less overhead.", ""] if (lp := d["rows"].get("emd_c alone")) else [])]
 
