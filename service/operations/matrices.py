@@ -35,6 +35,7 @@ from service.operations.transport import SinkhornOptions
 from solvers.convolutional.decision import decide_route
 from solvers.convolutional.exact import EXACT_KINDS
 from solvers.convolutional.matrix import (
+    ROW_BLOCK_ENTRIES,
     SHARED_COST_ENTRIES,
     STORED_GEODESICS_VERTICES,
     block_pairs,
@@ -166,7 +167,8 @@ def _sizes(req: DistanceMatrixRequest) -> tuple[int, int, int]:
 def estimate_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
     """Inputs (one float per point and distribution), the block's per-pair solver state,
     the matrix and its per-pair arrays, and for exact pairs the largest shared cost matrix
-    (:data:`~solvers.convolutional.matrix.SHARED_COST_ENTRIES`) and the stored all-pairs
+    (:data:`~solvers.convolutional.matrix.SHARED_COST_ENTRIES`), the rows' cost blocks
+    (:data:`~solvers.convolutional.matrix.ROW_BLOCK_ENTRIES`) and the stored all-pairs
     geodesics of small meshes."""
     n, m, _ = _sizes(req)
     points = int(view.n)
@@ -176,8 +178,9 @@ def estimate_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
         return total + 8 * 120 * points  # Beckmann operators and interior-point state
     total += block_pairs(points) * (pair_state_bytes(points) + 8 * 8 * points)
     exact = req.route == "exact" or (req.route == "auto" and req.gamma is None)
-    if exact and view.kind in EXACT_KINDS:  # the exact pairs' shared cost matrix, at most
-        total += 8 * min(SHARED_COST_ENTRIES, points * points)
+    if exact and view.kind in EXACT_KINDS:  # the exact pairs' shared cost matrix, at most,
+        total += 8 * min(SHARED_COST_ENTRIES, points * points)  # and the rows' cost blocks
+        total += 8 * min(ROW_BLOCK_ENTRIES, points * points)
         if view.kind == "mesh" and points <= STORED_GEODESICS_VERTICES:
             total += 8 * points * points  # the stored all-pairs geodesics it is cut from
     return total

@@ -35,7 +35,8 @@ finished rows come first).
 
 from __future__ import annotations
 
-from collections import deque
+import threading
+from collections import OrderedDict, deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -69,6 +70,8 @@ SHARED_COST_ENTRIES = 2**25
 # store (at most 128 MB) when a matrix's supports cover at least half of the vertices:
 # the next matrix on the domain reuses it.
 STORED_GEODESICS_VERTICES = 4096
+# Squared costs kept per row of the exact pairs (entries; 32 MB): :class:`_RowBlocks`.
+ROW_BLOCK_ENTRIES = 2**22
 # Exact pairs solved between two cancellation checks (LPs of ~150 x 150 points: ~0.1 s).
 EXACT_CHUNK = 64
 
@@ -295,20 +298,17 @@ def kernel_key(d: DistanceDecision) -> tuple:
 
 
 def _exact_pairs(domain, A, B, pairs, table: _Table, stop, threads: int | None = None) -> None:
-    """The exact route: one cost matrix between the supports of the exact pairs' rows and
-    those of their columns, then one transport LP per pair on its sub-matrix.  The LPs run in
-    ``threads`` threads (POT's network simplex releases the GIL; each pair's LP is the same
-    whichever thread solves it) and enter the table in row order (:func:`_in_order`), so
-    cancellation, checked every :data:`EXACT_CHUNK` pairs, keeps the finished rows."""
+    """The exact route: the ground distances between the supports of the exact pairs' rows
+    and those of their columns, computed once, then one transport LP per pair on its squared
+    sub-matrix, cut from its row's block (:class:`_RowBlocks`).  The LPs run in ``threads``
+    threads (POT's network simplex releases the GIL; each pair's LP is the same whichever
+    thread solves it) and enter the table in row order (:func:`_in_order`), so cancellation,
+    checked every :data:`EXACT_CHUNK` pairs, keeps the finished rows."""
     rows = np.flatnonzero((A[:, sorted({i for i, _ in pairs})] > 0).any(axis=1))
     cols = np.flatnonzero((B[:, sorted({j for _, j in pairs})] > 0).any(axis=1))
     if len(rows) * len(cols) > SHARED_COST_ENTRIES:
         _exact_single_pairs(domain, A, B, pairs, table, stop)
         return
-    at_row, at_col = np.full(A.shape[0], -1), np.full(A.shape[0], -1)
-    at_row[rows], at_col[cols] = np.arange(len(rows)), np.arange(len(cols))
-    stop("before the cost matrix")
-    cost = _support_costs(domain, rows, cols, stop)
     row_support = {i: np.flatnonzero(A[:, i] > 0) for i in {i for i, _ in pairs}}
     col_support = {j: np.flatnonzero(B[:, j] > 0) for j in {j for _, j in pairs}}
     for i, j in pairs:
@@ -317,14 +317,52 @@ def _exact_pairs(domain, A, B, pairs, table: _Table, stop, threads: int | None =
             raise InputError(f"the exact route's LP of pair ({i}, {j}) has {len(src)} x "
                              f"{len(dst)} entries, above its limit of {MAX_SUPPORT_PRODUCT}",
                              field="route")
+    stop("before the cost matrix")
+    blocks = _RowBlocks(*_support_distances(domain, rows, cols, stop))
 
     def solve(pair: tuple[int, int]) -> tuple:
         i, j = pair
         src, dst = row_support[i], col_support[j]
-        return _support_lp(A[src, i], B[dst, j], cost[np.ix_(at_row[src], at_col[dst])])
+        return _support_lp(A[src, i], B[dst, j], blocks.costs(i, src, dst))
 
     for (i, j), solved in _in_order(solve, pairs, thread_count(threads), stop):
         table.put(i, j, *solved, "exact")
+
+
+class _RowBlocks:
+    """Squared costs of the exact pairs, cut row by row.
+
+    ``distances[at_row[v], at_col[w]]`` is the ground distance (or, ``squared``, its square)
+    between vertices ``v`` and ``w``.  A pair's costs are gathered from its row's block (the
+    squared costs from the row's support to every column point, contiguous) rather than
+    from the whole matrix: pairs run row by row, so a block serves a row's pairs from cache,
+    where gathering each pair from the whole matrix misses it.  The last blocks are kept
+    within :data:`ROW_BLOCK_ENTRIES` entries (at least one); the values do not depend on it.
+    """
+
+    def __init__(self, distances, at_row, at_col, squared: bool):
+        self.distances, self.at_row, self.at_col = distances, at_row, at_col
+        self.squared = squared
+        self.kept: OrderedDict = OrderedDict()
+        self.lock = threading.Lock()
+
+    def block(self, i: int, src: np.ndarray) -> np.ndarray:
+        with self.lock:
+            block = self.kept.get(i)
+        if block is None:
+            block = np.take(self.distances, self.at_row[src], axis=0)
+            if not self.squared:
+                np.square(block, out=block)
+            with self.lock:
+                self.kept[i] = block
+                while (len(self.kept) > 1
+                       and sum(b.size for b in self.kept.values()) > ROW_BLOCK_ENTRIES):
+                    self.kept.popitem(last=False)
+        return block
+
+    def costs(self, i: int, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+        """``(len(src), len(dst))`` squared costs of row ``i``'s pair with support ``dst``."""
+        return np.take(self.block(i, src), self.at_col[dst], axis=1)
 
 
 def _in_order(solve, pairs: list, count: int, stop) -> Iterator[tuple]:
@@ -356,14 +394,26 @@ def _in_order(solve, pairs: list, count: int, stop) -> Iterator[tuple]:
 
 def _support_lp(a: np.ndarray, b: np.ndarray, sub: np.ndarray) -> tuple:
     """``(value, 1, residual, converged)`` of the transport LP (eq. 1.1) between the
-    support masses ``a``, ``b`` on the squared costs ``sub``."""
-    import ot
+    support masses ``a``, ``b`` on the squared costs ``sub``.
 
-    plan, log = ot.emd(a, b, _finite_cost(sub), numItermax=10_000_000, log=True)
-    used = plan > 0
+    The very solve of ``ot.emd(a, b, sub)`` (POT's network simplex, ``b`` rescaled to the
+    mass of ``a`` as ``ot.emd`` does), called through its compiled core: the wrapper's
+    backend and marginal checks, dual centering and result conversions are per-pair Python
+    work held under the GIL while the other thread's LP waits for it.
+    """
+    from ot.lp.emd_wrap import emd_c
+
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    b = np.ascontiguousarray(b, dtype=np.float64)
+    finite = _finite_cost(sub)
+    plan, value, _, _, code = emd_c(a, b * (a.sum() / b.sum()),
+                                    np.ascontiguousarray(finite, dtype=np.float64),
+                                    10_000_000, 1, None, None)
+    if finite is not sub:  # priced-above arcs carry no flow; a plan using one costs inf
+        used = plan > 0
+        value = np.sum(plan[used] * sub[used])
     residual = float(np.abs(plan.sum(axis=1) - a).sum() + np.abs(plan.sum(axis=0) - b).sum())
-    return (float(np.sum(plan[used] * sub[used])), 1, residual,
-            int(log.get("result_code", 0)) == 1)
+    return float(value), 1, residual, int(code) == 1
 
 
 def _exact_single_pairs(domain, A, B, pairs, table: _Table, stop) -> None:
@@ -388,11 +438,15 @@ def _exact_single_pairs(domain, A, B, pairs, table: _Table, stop) -> None:
         table.put(i, j, res.value, res.iterations, res.residual, res.converged, "exact")
 
 
-def _support_costs(domain, rows: np.ndarray, cols: np.ndarray, stop) -> np.ndarray:
-    """Squared ground distances between ``rows`` and ``cols`` (exact geodesics on meshes:
-    one MMP solve per point of the smaller side, or the stored all-pairs matrix)."""
+def _support_distances(domain, rows: np.ndarray, cols: np.ndarray, stop) -> tuple:
+    """``(distances, at_row, at_col, squared)`` between the vertices ``rows`` and ``cols``
+    (:class:`_RowBlocks`): squared straight/periodic distances on grids and point clouds,
+    exact geodesics on meshes (one MMP solve per point of the smaller side, or the stored
+    all-pairs matrix itself, indexed by vertex)."""
+    at_row, at_col = np.full(domain.n, -1), np.full(domain.n, -1)
+    at_row[rows], at_col[cols] = np.arange(len(rows)), np.arange(len(cols))
     if domain.kind != "mesh":
-        return _cost_matrix(domain, rows, cols)
+        return _cost_matrix(domain, rows, cols), at_row, at_col, True
     from solvers.geodesics import geodesic_distances
 
     def cancelled() -> bool:
@@ -407,13 +461,12 @@ def _support_costs(domain, rows: np.ndarray, cols: np.ndarray, stop) -> np.ndarr
         if stored:
             every = domain.operators.get(("exact_geodesics",), lambda: geodesic_distances(
                 domain, np.arange(domain.n), should_cancel=cancelled))
-            d = every[np.ix_(rows, cols)]
-        else:
-            d = geodesic_distances(domain, rows, cols, should_cancel=cancelled)
+            return every, np.arange(domain.n), np.arange(domain.n), False
+        d = geodesic_distances(domain, rows, cols, should_cancel=cancelled)
     except CancelledError:
         stop("between geodesic solves")  # re-raise with the partial result
         raise
-    return d * d
+    return d, at_row, at_col, False
 
 
 def _convolutional_pairs(domain, A, B, members, table: _Table, *, tol, max_iter, stop) -> None:
