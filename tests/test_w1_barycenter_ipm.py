@@ -149,18 +149,26 @@ def test_zero_pivot_hands_over_to_ldlt(sphere, monkeypatch, from_iteration):
     normal matrix to PARDISO's L D Lᵀ, which factors the remaining iterations; the optimum
     is Clarabel's, within the certified bracket, and the constraints hold to rounding."""
     calls, used = [0], []
-    cholesky = ipb.ip.factor_normal_matrix
+    first, refactor = ipb.ip.factor_normal_matrix, ipb.PardisoFactor.refactor_data
 
-    def zero_pivot_from(normal, factor, backend):
+    def zero_pivot(mtype):
         calls[0] += 1
-        if factor is not None and getattr(factor, "mtype", 2) == -2:
-            used.append(factor.backend)
-            return cholesky(normal, factor, backend)  # the L D Lᵀ refactors in place
-        if calls[0] >= from_iteration:
-            raise ValueError("PARDISO phase 22 failed (-4: zero pivot)")
-        return cholesky(normal, factor, backend)
+        return mtype == 2 and calls[0] >= from_iteration
 
-    monkeypatch.setattr(ipb.ip, "factor_normal_matrix", zero_pivot_from)
+    def first_factor(normal, factor, backend):
+        if zero_pivot(2):
+            raise ValueError("PARDISO phase 22 failed (-4: zero pivot)")
+        return first(normal, factor, backend)
+
+    def refactor_data(self, data):  # the later iterations refactor in place
+        if self.mtype == -2:
+            used.append(self.backend)
+        if zero_pivot(self.mtype):
+            raise ValueError("PARDISO phase 22 failed (-4: zero pivot)")
+        return refactor(self, data)
+
+    monkeypatch.setattr(ipb.ip, "factor_normal_matrix", first_factor)
+    monkeypatch.setattr(ipb.PardisoFactor, "refactor_data", refactor_data)
     mus = np.stack([_bump(sphere, c) for c in (0, 50, 100)], axis=1)
     alpha = [0.2, 0.3, 0.5]
     ipm = w1_barycenter(sphere, mus, alpha, tol=1e-6)

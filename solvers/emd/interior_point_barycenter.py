@@ -153,11 +153,15 @@ class _CoupledPattern:
             + self.pattern.indices
         self.slots = np.searchsorted(keys, rows * size + cols)
 
-    def matrix(self, blocks: np.ndarray, d: np.ndarray, full: bool) -> sp.csr_matrix:
-        """The sparse part of the normal matrix from per-face blocks ``(k F, 9)`` and ``d``
-        ``(V,)``: its upper triangle, or with ``full`` the whole symmetric matrix."""
+    def data(self, blocks: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """CSR data, on :attr:`pattern` (the upper triangle), of the normal matrix's sparse
+        part from per-face blocks ``(k F, 9)`` and ``d`` ``(V,)``."""
         values = np.concatenate([blocks.ravel(), d])[self.src]
-        data = np.bincount(self.slots, values, minlength=self.pattern.nnz)
+        return np.bincount(self.slots, values, minlength=self.pattern.nnz)
+
+    def matrix(self, data: np.ndarray, full: bool) -> sp.csr_matrix:
+        """The matrix of :meth:`data`: its upper triangle, or with ``full`` the whole
+        symmetric matrix."""
         upper = sp.csr_matrix((data, self.pattern.indices, self.pattern.indptr),
                               shape=self.pattern.shape)
         return (upper + sp.triu(upper, 1).T).tocsr() if full else upper
@@ -257,12 +261,8 @@ class _Newton:
         ghg = self.h[:, :, 0] @ prog.w
         self.c = 2.0 * prog.alpha / (1.0 + 2.0 * prog.alpha * ghg)
         self.v = prog.div(self.h)  # (k, V): D (W⁻² g)_u per block
-        blocks = ip.face_blocks(self.scaling, prog.products)
-        normal = layout.matrix(blocks, self.d, full=ip._backend(backend) != "pardiso")
-        try:
-            self.factor = ip.factor_normal_matrix(normal, factor, backend)
-        except ValueError:  # zero pivot: the Cholesky lost definiteness to rounding
-            self.factor = _pivoting_factor(normal, factor, backend)
+        data = layout.data(ip.face_blocks(self.scaling, prog.products), self.d)
+        self.factor = _factor_coupled(layout, data, factor, backend)
         if self.factor is None:
             return
         self.V = np.zeros((int(layout.offsets[-1]), k))  # column i: v_i on block i's rows
@@ -298,17 +298,36 @@ class _Newton:
         return dx.reshape(-1, 3), drho, dy, dz.reshape(-1, 3), dy.sum(axis=0)
 
 
+def _factor_coupled(layout: _CoupledPattern, data: np.ndarray, factor, backend: str):
+    """Factor of the normal matrix's sparse part with CSR ``data`` (:meth:`_CoupledPattern.
+    data`), refactoring ``factor`` in place when it can (a PARDISO factor takes the values
+    on the pattern it analysed); None if ``data`` is not finite."""
+    if not np.all(np.isfinite(data)):
+        return None
+    pardiso = ip._backend(backend) == "pardiso"
+    try:
+        if isinstance(factor, PardisoFactor):
+            factor.refactor_data(data)
+            return factor
+        return ip.factor_normal_matrix(layout.matrix(data, full=not pardiso), factor, backend)
+    except ValueError:  # zero pivot: the Cholesky lost definiteness to rounding
+        return _pivoting_factor(layout.matrix(data, full=not pardiso), factor, backend)
+
+
 def _pivoting_factor(normal: sp.csr_matrix, failed, backend: str):
     """The normal matrix's factor once its Cholesky ``failed`` met a zero pivot (rounding
     near the end of the path; the matrix is positive semidefinite in exact arithmetic):
     PARDISO's symmetric-indefinite ``L D Lᵀ`` with pivot perturbation and iterative
     refinement, which then refactors in place for the remaining iterations (the Cholesky's
-    memory is released first: it is not used again); without PARDISO, LU with partial
-    pivoting (``normal`` is then the whole symmetric matrix)."""
+    memory is released first: it is not used again, but its fill-reducing ordering is:
+    the pattern is the same, so the analysis skips the ordering); without PARDISO, LU with
+    partial pivoting (``normal`` is then the whole symmetric matrix)."""
     if ip._backend(backend) == "pardiso":
+        ordering = "metis"
         if isinstance(failed, PardisoFactor):
+            ordering = failed.permutation
             failed.release()
-        return PardisoFactor(normal, pivoting=True)
+        return PardisoFactor(normal, ordering=ordering, pivoting=True)
     return ip.factor_normal_matrix(normal, None, "splu")
 
 
