@@ -490,7 +490,9 @@ def mehrotra_step(x, m, z, zm, newton, correctors: int = 0):
     lam, lam_m = newton.scaling.lam, np.sqrt(m * zm)
     degree = len(x) + len(m)
     mu = (float(_dot(x, z).sum()) + float(m @ zm)) / degree
-    dx, dm, _, dz, dzm = newton(-_jordan(lam, lam), -lam_m**2)
+    # a Newton system may have solved the affine right-hand sides already (`affine`)
+    affine = getattr(newton, "affine", None)
+    dx, dm, _, dz, dzm = affine() if affine else newton(-_jordan(lam, lam), -lam_m**2)
     alpha = min(1.0, _max_step(x, dx), _max_step(z, dz), nonneg_max_step(m, dm),
                 nonneg_max_step(zm, dzm))
     mu_a = (float(_dot(x + alpha * dx, z + alpha * dz).sum())

@@ -156,8 +156,8 @@ class _CoupledPattern:
     def data(self, blocks: np.ndarray, d: np.ndarray) -> np.ndarray:
         """CSR data, on :attr:`pattern` (the upper triangle), of the normal matrix's sparse
         part from per-face blocks ``(k F, 9)`` and ``d`` ``(V,)``."""
-        values = np.concatenate([blocks.ravel(), d])[self.src]
-        return np.bincount(self.slots, values, minlength=self.pattern.nnz)
+        return _assemble_kernel(blocks.reshape(-1), d, self.src, self.slots,
+                                self.pattern.nnz)
 
     def matrix(self, data: np.ndarray, full: bool) -> sp.csr_matrix:
         """The matrix of :meth:`data`: its upper triangle, or with ``full`` the whole
@@ -177,6 +177,17 @@ class _CoupledPattern:
         for i in range(self.k):
             out[i, self.rows_of[i]] = vector[self.offsets[i]:self.offsets[i + 1]]
         return out
+
+
+@cached_njit()
+def _assemble_kernel(blocks, d, src, slots, nnz):  # pragma: no cover - compiled
+    """``np.bincount(slots, concatenate([blocks, d])[src])``: the sums in the same order."""
+    out = np.zeros(nnz)
+    m = blocks.shape[0]
+    for j in range(src.shape[0]):
+        s = src[j]
+        out[slots[j]] += blocks[s] if s < m else d[s - m]
+    return out
 
 
 def _slot_coordinates(pattern: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
@@ -268,26 +279,49 @@ class _Newton:
         self.V = np.zeros((int(layout.offsets[-1]), k))  # column i: v_i on block i's rows
         for i in range(k):
             self.V[layout.offsets[i]:layout.offsets[i + 1], i] = self.v[i, layout.rows_of[i]]
-        self.Z = np.asarray(self.factor.solve(self.V))
+        # Mehrotra's affine right-hand side is known now: it rides along with the Woodbury
+        # block (one multi-column solve instead of a separate one; :meth:`affine`)
+        lam = self.scaling.lam
+        self._affine = self._rhs(-ip._jordan(lam, lam), -self.lam_rho**2)
+        solved = np.asarray(self.factor.solve(
+            np.column_stack([self.V, layout.scatter(self._affine[-1])])))
+        self.Z = solved[:, :k]
         self.cap_inv = np.linalg.inv(np.diag(1.0 / self.c) - self.V.T @ self.Z)
+        self._affine_solution = self._woodbury(solved[:, k])
+
+    def _woodbury(self, s: np.ndarray) -> np.ndarray:
+        return s + self.Z @ (self.cap_inv @ (self.V.T @ s))
 
     def _solve(self, r: np.ndarray) -> np.ndarray:
-        s = self.factor.solve(r)
-        return s + self.Z @ (self.cap_inv @ (self.V.T @ s))
+        return self._woodbury(self.factor.solve(r))
+
+    def _rhs(self, rc: np.ndarray, rc_rho: np.ndarray):
+        """``(W⁻¹ (λ \\ rc), rc_ρ / z_ρ, gᵀ of the former, r)``: ``r`` ``(k, V)`` the
+        normal equations' right-hand side."""
+        prog, sc = self.prog, self.scaling
+        wq = sc.apply_inverse(ip._jordan_solve(sc.lam, rc)).reshape(prog.k, len(prog.faces), 3)
+        wq_rho = rc_rho / self.z_rho
+        g_wq = wq[:, :, 0] @ prog.w
+        r = -prog.div(wq) + (self.c * g_wq)[:, None] * self.v + wq_rho[None] - self.residual
+        return wq, wq_rho, g_wq, r
+
+    def affine(self):
+        """:meth:`__call__` for Mehrotra's affine right-hand sides ``rc = -λ ∘ λ``,
+        ``rc_ρ = -λ_ρ²`` (solved with the Woodbury block)."""
+        return self._direction(*self._affine[:3], self._affine_solution)
 
     def __call__(self, rc: np.ndarray, rc_rho: np.ndarray):
         """Directions ``(dx (k F, 3), dρ, dy (k, V), dz (k F, 3), dz_ρ)`` for the
         complementarity right-hand sides ``rc`` ``(k F, 3)`` and ``rc_rho`` ``(V,)``; they
         also cancel the primal residual ``e = D u_i - ρ + m_i`` (:attr:`residual`), which
         rounding leaves, so a full step restores the divergence constraints."""
-        prog, sc = self.prog, self.scaling
+        wq, wq_rho, g_wq, r = self._rhs(rc, rc_rho)
+        return self._direction(wq, wq_rho, g_wq, self._solve(self.layout.scatter(r)))
+
+    def _direction(self, wq, wq_rho, g_wq, solution):
+        prog, sc, v = self.prog, self.scaling, self.v
         k, n_faces = prog.k, len(prog.faces)
-        wq = sc.apply_inverse(ip._jordan_solve(sc.lam, rc)).reshape(k, n_faces, 3)
-        wq_rho = rc_rho / self.z_rho
-        g_wq = wq[:, :, 0] @ prog.w
-        v = self.v
-        r = -prog.div(wq) + (self.c * g_wq)[:, None] * v + wq_rho[None] - self.residual
-        dy = self.layout.gather(self._solve(self.layout.scatter(r)))
+        dy = self.layout.gather(solution)
         a = prog.div_adjoint(dy)
         coef = self.c * (np.sum(v * dy, axis=1) + g_wq)
         dx = sc.apply_inverse_square(a.reshape(-1, 3)).reshape(k, n_faces, 3) + wq \
