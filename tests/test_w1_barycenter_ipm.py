@@ -177,6 +177,34 @@ def test_zero_pivot_hands_over_to_ldlt(sphere, monkeypatch, from_iteration):
     assert ipm.iterations > from_iteration and used and set(used) == {"pardiso-ldlt"}
 
 
+@pytest.mark.parametrize("iterations", [1, 8])
+def test_affine_direction_solved_with_the_woodbury_block(sphere, monkeypatch, iterations):
+    """The affine (predictor) direction a Newton system solves with its Woodbury block
+    (``affine``) is the one its own single solve gives for Mehrotra's affine right-hand
+    sides ``-λ ∘ λ``, ``-λ_ρ²``, and it solves the Newton system: the divergence
+    constraints hold along it (``D du_i - dρ = -e_i``)."""
+    seen = []
+
+    class Recording(ipb._Newton):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            seen.append(self)
+
+    monkeypatch.setattr(ipb, "_Newton", Recording)
+    mus = np.stack([_bump(sphere, c) for c in (0, 50, 100)], axis=1)
+    w1_barycenter(sphere, mus, [0.2, 0.3, 0.5], tol=1e-12, max_iter=iterations)
+    newton = seen[-1]
+    lam = newton.scaling.lam
+    direct = newton(-ipb.ip._jordan(lam, lam), -newton.lam_rho**2)
+    for bundled, single in zip(newton.affine(), direct, strict=True):
+        scale = np.abs(single).max()
+        np.testing.assert_allclose(bundled, single, rtol=0, atol=1e-9 * scale)
+    dx, drho = newton.affine()[:2]
+    prog = newton.prog
+    change = prog.div(dx.reshape(prog.k, -1, 3)) - drho[None]
+    np.testing.assert_allclose(change, -newton.residual, atol=1e-9)
+
+
 def test_centrality_correction_moves_spectral_values_into_the_band():
     """Gondzio's target per Lorentz cone: the corrected Jordan product's spectral values
     ``p_0 ± ‖p̄‖`` lie in the band (where the decrease cap does not bind), and products

@@ -30,10 +30,12 @@ in the ``k`` potentials,
 between every pair of blocks, minus a rank-``k`` term.  The sparse part is one SPD matrix of
 the mesh's sparsity with ``k × k`` blocks per vertex, factored by PARDISO (ordering and
 symbolic analysis once, a numeric refactorization per iteration) or cholespy; the rank-``k``
-term is handled by the Woodbury identity with ``k`` extra solves.  Near the end of the path
-rounding can cost the Cholesky a pivot; the matrix then goes to PARDISO's
-symmetric-indefinite ``L D Lᵀ`` (pivot perturbation, iterative refinement) for the remaining
-iterations.  Steps are Mehrotra's with Gondzio's centrality correctors (:data:`CORRECTORS`).
+term is handled by the Woodbury identity with ``k`` extra right-hand sides, solved in one
+block together with Mehrotra's affine right-hand side.  Near the end of the path rounding
+can cost the Cholesky a pivot; the matrix then goes to PARDISO's symmetric-indefinite
+``L D Lᵀ`` (pivot perturbation, iterative refinement; the Cholesky's ordering reused) for
+the remaining iterations.  Steps are Mehrotra's with Gondzio's centrality correctors
+(:data:`CORRECTORS`).
 
 The start is primal and dual feasible (uniform :math:`\rho`, the Poisson flows that carry it
 to every input, :math:`y_1` a positive constant, the other potentials 0), and steps keep both
