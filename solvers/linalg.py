@@ -147,8 +147,9 @@ def have_pardiso() -> bool:
 
 
 def _pardiso_call(lib, handle, phase: int, n: int, data, indptr, indices, iparm, nrhs: int,
-                  b=None, x=None, mtype: int = 2) -> int:
-    # mtype 2: real symmetric positive definite; -2: real symmetric indefinite
+                  b=None, x=None, mtype: int = 2, perm=None) -> int:
+    # mtype 2: real symmetric positive definite; -2: real symmetric indefinite; perm: the
+    # fill-reducing permutation (int32, n), read or written as iparm[4] says
     i32 = ctypes.c_int32
     err = i32(0)
     one, mtype = i32(1), i32(mtype)  # maxfct = mnum = 1
@@ -157,7 +158,8 @@ def _pardiso_call(lib, handle, phase: int, n: int, data, indptr, indices, iparm,
                 None if data is None else data.ctypes.data,
                 None if indptr is None else indptr.ctypes.data_as(ctypes.POINTER(i32)),
                 None if indices is None else indices.ctypes.data_as(ctypes.POINTER(i32)),
-                None, ctypes.byref(i32(nrhs)), iparm.ctypes.data_as(ctypes.POINTER(i32)),
+                None if perm is None else perm.ctypes.data_as(ctypes.POINTER(i32)),
+                ctypes.byref(i32(nrhs)), iparm.ctypes.data_as(ctypes.POINTER(i32)),
                 ctypes.byref(i32(0)), None if b is None else b.ctypes.data,
                 None if x is None else x.ctypes.data, ctypes.byref(err))
     return int(err.value)
@@ -191,8 +193,8 @@ class PardisoFactor:
 
     backend = "pardiso"
 
-    def __init__(self, matrix: sp.spmatrix, ordering: Literal["metis", "parallel-metis",
-                                                               "amd"] = "metis",
+    def __init__(self, matrix: sp.spmatrix,
+                 ordering: Literal["metis", "parallel-metis", "amd"] | np.ndarray = "metis",
                  pivoting: bool = False):
         lib = _pardiso_lib()
         if lib is None:
@@ -214,7 +216,15 @@ class PardisoFactor:
         self._handle = np.zeros(64, dtype=np.int64)
         iparm = np.zeros(64, dtype=np.int32)
         iparm[0] = 1  # the values below, not the defaults
-        iparm[1] = {"amd": 0, "metis": 2, "parallel-metis": 3}[ordering]
+        if isinstance(ordering, str):
+            iparm[1] = {"amd": 0, "metis": 2, "parallel-metis": 3}[ordering]
+            iparm[4] = 2  # return the ordering's permutation in `permutation`
+            self.permutation = np.zeros(n, dtype=np.int32)
+        else:  # a given fill-reducing permutation (e.g. another factor's `permutation`)
+            iparm[4] = 1
+            self.permutation = np.array(ordering, dtype=np.int32)
+            if self.permutation.shape != (n,):
+                raise ValueError(f"ordering must be a ({n},) permutation")
         # pivot perturbation 1e-13 (unused for SPD); 1e-8 for L D Lᵀ (MKL's default there)
         iparm[9] = 8 if pivoting else 13
         # L D Lᵀ: two refinement steps when pivots were perturbed (MKL's default, made
@@ -233,7 +243,8 @@ class PardisoFactor:
         with self._lock:
             for phase in (11, 22):  # analysis (ordering + symbolic), numeric factorization
                 err = _pardiso_call(lib, self._handle, phase, n, self._data, self._indptr,
-                                    self._indices, iparm, 1, mtype=self.mtype)
+                                    self._indices, iparm, 1, mtype=self.mtype,
+                                    perm=self.permutation)
                 if err:
                     raise ValueError(f"PARDISO phase {phase} failed ({err}: "
                                      f"{PARDISO_ERRORS.get(err, 'error')})")
@@ -259,11 +270,19 @@ class PardisoFactor:
         if (upper.nnz != len(self._indices) or not np.array_equal(upper.indptr, self._indptr)
                 or not np.array_equal(upper.indices, self._indices)):
             raise ValueError("refactor needs the pattern the factor was analysed with")
+        self.refactor_data(upper.data)
+
+    def refactor_data(self, data: np.ndarray) -> None:
+        """:meth:`refactor` from the values ``data`` of the analysed upper-triangular CSR
+        pattern (``indptr``/``indices`` as handed over), without rebuilding the matrix."""
+        if len(data) != len(self._data):
+            raise ValueError("refactor needs the pattern the factor was analysed with")
         self._check_alive()
         with self._lock:
-            self._data[:] = upper.data
+            self._data[:] = data
             err = _pardiso_call(self._lib, self._handle, 22, self.n, self._data, self._indptr,
-                                self._indices, self._iparm, 1, mtype=self.mtype)
+                                self._indices, self._iparm, 1, mtype=self.mtype,
+                                perm=self.permutation)
             self.perturbed = int(self._iparm[13])
         if err:
             raise ValueError(f"PARDISO phase 22 failed ({err}: {PARDISO_ERRORS.get(err, 'error')})")
@@ -283,7 +302,8 @@ class PardisoFactor:
         with self._lock:
             iparm = self._iparm.copy()
             err = _pardiso_call(self._lib, self._handle, 33, self.n, self._data, self._indptr,
-                                self._indices, iparm, nrhs, b, x, mtype=self.mtype)
+                                self._indices, iparm, nrhs, b, x, mtype=self.mtype,
+                                perm=self.permutation)
         if err:
             raise ValueError(f"PARDISO solve failed ({err}: {PARDISO_ERRORS.get(err, 'error')})")
         return x

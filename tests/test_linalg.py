@@ -167,3 +167,30 @@ def test_pardiso_ldlt_takes_over_where_cholesky_meets_a_zero_pivot():
     f.release()  # memory freed now; the factor refuses further use
     with pytest.raises(ValueError, match="released"):
         f.solve(rhs[:, 0])
+
+
+@pytest.mark.skipif(not have_pardiso(), reason="the mkl wheel (pardiso extra) is not installed")
+def test_pardiso_reuses_a_given_ordering_and_refactors_from_data():
+    """A factor reports its fill-reducing permutation; another factor of the same pattern
+    given it (here the L D Lᵀ) skips the ordering and factors the same way (same factor
+    size, same solves to rounding); ``refactor_data`` takes new values on the analysed
+    upper-triangular pattern and refuses values of another length."""
+    from solvers.linalg import PardisoFactor
+
+    a = _random_spd(300, 9).tocsr()
+    cholesky = PardisoFactor(a)
+    perm = cholesky.permutation
+    assert np.array_equal(np.sort(perm), np.arange(300))
+    own = PardisoFactor(a, pivoting=True)
+    given = PardisoFactor(a, ordering=perm, pivoting=True)
+    assert np.array_equal(own.permutation, perm) and given.factor_nnz == own.factor_nnz
+    rhs = np.random.default_rng(10).normal(size=300)
+    np.testing.assert_allclose(given.solve(rhs), own.solve(rhs), rtol=0, atol=1e-12)
+    b = (a + sp.identity(300)).tocsr()
+    upper = sp.triu(b, format="csr")
+    cholesky.refactor_data(upper.data)
+    np.testing.assert_allclose(b @ cholesky.solve(rhs), rhs, atol=1e-10 * np.abs(rhs).max())
+    with pytest.raises(ValueError, match="pattern"):
+        cholesky.refactor_data(upper.data[:-1])
+    with pytest.raises(ValueError, match="permutation"):
+        PardisoFactor(a, ordering=perm[:-1])

@@ -149,24 +149,60 @@ def test_zero_pivot_hands_over_to_ldlt(sphere, monkeypatch, from_iteration):
     normal matrix to PARDISO's L D Lᵀ, which factors the remaining iterations; the optimum
     is Clarabel's, within the certified bracket, and the constraints hold to rounding."""
     calls, used = [0], []
-    cholesky = ipb.ip.factor_normal_matrix
+    first, refactor = ipb.ip.factor_normal_matrix, ipb.PardisoFactor.refactor_data
 
-    def zero_pivot_from(normal, factor, backend):
+    def zero_pivot(mtype):
         calls[0] += 1
-        if factor is not None and getattr(factor, "mtype", 2) == -2:
-            used.append(factor.backend)
-            return cholesky(normal, factor, backend)  # the L D Lᵀ refactors in place
-        if calls[0] >= from_iteration:
-            raise ValueError("PARDISO phase 22 failed (-4: zero pivot)")
-        return cholesky(normal, factor, backend)
+        return mtype == 2 and calls[0] >= from_iteration
 
-    monkeypatch.setattr(ipb.ip, "factor_normal_matrix", zero_pivot_from)
+    def first_factor(normal, factor, backend):
+        if zero_pivot(2):
+            raise ValueError("PARDISO phase 22 failed (-4: zero pivot)")
+        return first(normal, factor, backend)
+
+    def refactor_data(self, data):  # the later iterations refactor in place
+        if self.mtype == -2:
+            used.append(self.backend)
+        if zero_pivot(self.mtype):
+            raise ValueError("PARDISO phase 22 failed (-4: zero pivot)")
+        return refactor(self, data)
+
+    monkeypatch.setattr(ipb.ip, "factor_normal_matrix", first_factor)
+    monkeypatch.setattr(ipb.PardisoFactor, "refactor_data", refactor_data)
     mus = np.stack([_bump(sphere, c) for c in (0, 50, 100)], axis=1)
     alpha = [0.2, 0.3, 0.5]
     ipm = w1_barycenter(sphere, mus, alpha, tol=1e-6)
     ref = w1_barycenter(sphere, mus, alpha, algorithm="socp", tol=1e-10)
     _check_bracket(ipm, ref, 1e-6)
     assert ipm.iterations > from_iteration and used and set(used) == {"pardiso-ldlt"}
+
+
+@pytest.mark.parametrize("iterations", [1, 8])
+def test_affine_direction_solved_with_the_woodbury_block(sphere, monkeypatch, iterations):
+    """The affine (predictor) direction a Newton system solves with its Woodbury block
+    (``affine``) is the one its own single solve gives for Mehrotra's affine right-hand
+    sides ``-λ ∘ λ``, ``-λ_ρ²``, and it solves the Newton system: the divergence
+    constraints hold along it (``D du_i - dρ = -e_i``)."""
+    seen = []
+
+    class Recording(ipb._Newton):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            seen.append(self)
+
+    monkeypatch.setattr(ipb, "_Newton", Recording)
+    mus = np.stack([_bump(sphere, c) for c in (0, 50, 100)], axis=1)
+    w1_barycenter(sphere, mus, [0.2, 0.3, 0.5], tol=1e-12, max_iter=iterations)
+    newton = seen[-1]
+    lam = newton.scaling.lam
+    direct = newton(-ipb.ip._jordan(lam, lam), -newton.lam_rho**2)
+    for bundled, single in zip(newton.affine(), direct, strict=True):
+        scale = np.abs(single).max()
+        np.testing.assert_allclose(bundled, single, rtol=0, atol=1e-9 * scale)
+    dx, drho = newton.affine()[:2]
+    prog = newton.prog
+    change = prog.div(dx.reshape(prog.k, -1, 3)) - drho[None]
+    np.testing.assert_allclose(change, -newton.residual, atol=1e-9)
 
 
 def test_centrality_correction_moves_spectral_values_into_the_band():

@@ -301,16 +301,31 @@ def local_products(local: np.ndarray) -> np.ndarray:
     return np.stack([outer(l0, l0), outer(l0, l1) + outer(l1, l0), outer(l1, l1)], axis=1)
 
 
+@cached_njit()
+def _face_blocks_kernel(v, p, beta, products):  # pragma: no cover - compiled
+    n_faces = products.shape[0]
+    out = np.empty((v.shape[0], 9))
+    for t in range(v.shape[0]):
+        f = t % n_faces
+        v0, v1, v2, p1, p2 = v[t, 0], v[t, 1], v[t, 2], p[t, 1], p[t, 2]
+        vv = 4.0 * (v0 * v0 + v1 * v1 + v2 * v2)
+        scale = 1.0 / beta[t] ** 2
+        t11 = scale * (vv * p1 * p1 - 2.0 * (p1 * v1 + v1 * p1) + 1.0)
+        t12 = scale * (vv * p1 * p2 - 2.0 * (p1 * v2 + v1 * p2) + 0.0)
+        t22 = scale * (vv * p2 * p2 - 2.0 * (p2 * v2 + v2 * p2) + 1.0)
+        for j in range(9):
+            out[t, j] = t11 * products[f, 0, j] + t12 * products[f, 1, j] \
+                + t22 * products[f, 2, j]
+    return out
+
+
 def face_blocks(scaling: _Scaling, products: np.ndarray) -> np.ndarray:
     """Each face's ``3 × 3`` block ``D_t W_t⁻² D_tᵀ`` of the normal matrix, flattened
     ``(F', 9)``, from :func:`local_products` ``(F, 3, 9)``; ``scaling`` is over ``F' = k F``
-    faces (``k`` stacked copies of the mesh's faces)."""
-    copies = len(scaling.beta) // len(products)
-    t11, t12, t22 = (t.reshape(copies, -1, 1) for t in scaling.inverse_square_tangent())
-    out = t11 * products[None, :, 0]
-    out += t12 * products[None, :, 1]
-    out += t22 * products[None, :, 2]
-    return out.reshape(-1, 9)
+    faces (``k`` stacked copies of the mesh's faces).  The tangential entries of ``W⁻²``
+    are those of :meth:`_Scaling.inverse_square_tangent` (same expressions, one compiled
+    pass)."""
+    return _face_blocks_kernel(scaling.v, scaling.p, scaling.beta, products)
 
 
 def normal_matrix_data(scaling: _Scaling, st: _Structure) -> np.ndarray:
@@ -475,7 +490,9 @@ def mehrotra_step(x, m, z, zm, newton, correctors: int = 0):
     lam, lam_m = newton.scaling.lam, np.sqrt(m * zm)
     degree = len(x) + len(m)
     mu = (float(_dot(x, z).sum()) + float(m @ zm)) / degree
-    dx, dm, _, dz, dzm = newton(-_jordan(lam, lam), -lam_m**2)
+    # a Newton system may have solved the affine right-hand sides already (`affine`)
+    affine = getattr(newton, "affine", None)
+    dx, dm, _, dz, dzm = affine() if affine else newton(-_jordan(lam, lam), -lam_m**2)
     alpha = min(1.0, _max_step(x, dx), _max_step(z, dz), nonneg_max_step(m, dm),
                 nonneg_max_step(zm, dzm))
     mu_a = (float(_dot(x + alpha * dx, z + alpha * dz).sum())

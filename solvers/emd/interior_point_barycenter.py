@@ -30,10 +30,12 @@ in the ``k`` potentials,
 between every pair of blocks, minus a rank-``k`` term.  The sparse part is one SPD matrix of
 the mesh's sparsity with ``k × k`` blocks per vertex, factored by PARDISO (ordering and
 symbolic analysis once, a numeric refactorization per iteration) or cholespy; the rank-``k``
-term is handled by the Woodbury identity with ``k`` extra solves.  Near the end of the path
-rounding can cost the Cholesky a pivot; the matrix then goes to PARDISO's
-symmetric-indefinite ``L D Lᵀ`` (pivot perturbation, iterative refinement) for the remaining
-iterations.  Steps are Mehrotra's with Gondzio's centrality correctors (:data:`CORRECTORS`).
+term is handled by the Woodbury identity with ``k`` extra right-hand sides, solved in one
+block together with Mehrotra's affine right-hand side.  Near the end of the path rounding
+can cost the Cholesky a pivot; the matrix then goes to PARDISO's symmetric-indefinite
+``L D Lᵀ`` (pivot perturbation, iterative refinement; the Cholesky's ordering reused) for
+the remaining iterations.  Steps are Mehrotra's with Gondzio's centrality correctors
+(:data:`CORRECTORS`).
 
 The start is primal and dual feasible (uniform :math:`\rho`, the Poisson flows that carry it
 to every input, :math:`y_1` a positive constant, the other potentials 0), and steps keep both
@@ -153,11 +155,15 @@ class _CoupledPattern:
             + self.pattern.indices
         self.slots = np.searchsorted(keys, rows * size + cols)
 
-    def matrix(self, blocks: np.ndarray, d: np.ndarray, full: bool) -> sp.csr_matrix:
-        """The sparse part of the normal matrix from per-face blocks ``(k F, 9)`` and ``d``
-        ``(V,)``: its upper triangle, or with ``full`` the whole symmetric matrix."""
-        values = np.concatenate([blocks.ravel(), d])[self.src]
-        data = np.bincount(self.slots, values, minlength=self.pattern.nnz)
+    def data(self, blocks: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """CSR data, on :attr:`pattern` (the upper triangle), of the normal matrix's sparse
+        part from per-face blocks ``(k F, 9)`` and ``d`` ``(V,)``."""
+        return _assemble_kernel(blocks.reshape(-1), d, self.src, self.slots,
+                                self.pattern.nnz)
+
+    def matrix(self, data: np.ndarray, full: bool) -> sp.csr_matrix:
+        """The matrix of :meth:`data`: its upper triangle, or with ``full`` the whole
+        symmetric matrix."""
         upper = sp.csr_matrix((data, self.pattern.indices, self.pattern.indptr),
                               shape=self.pattern.shape)
         return (upper + sp.triu(upper, 1).T).tocsr() if full else upper
@@ -173,6 +179,17 @@ class _CoupledPattern:
         for i in range(self.k):
             out[i, self.rows_of[i]] = vector[self.offsets[i]:self.offsets[i + 1]]
         return out
+
+
+@cached_njit()
+def _assemble_kernel(blocks, d, src, slots, nnz):  # pragma: no cover - compiled
+    """``np.bincount(slots, concatenate([blocks, d])[src])``: the sums in the same order."""
+    out = np.zeros(nnz)
+    m = blocks.shape[0]
+    for j in range(src.shape[0]):
+        s = src[j]
+        out[slots[j]] += blocks[s] if s < m else d[s - m]
+    return out
 
 
 def _slot_coordinates(pattern: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
@@ -257,37 +274,56 @@ class _Newton:
         ghg = self.h[:, :, 0] @ prog.w
         self.c = 2.0 * prog.alpha / (1.0 + 2.0 * prog.alpha * ghg)
         self.v = prog.div(self.h)  # (k, V): D (W⁻² g)_u per block
-        blocks = ip.face_blocks(self.scaling, prog.products)
-        normal = layout.matrix(blocks, self.d, full=ip._backend(backend) != "pardiso")
-        try:
-            self.factor = ip.factor_normal_matrix(normal, factor, backend)
-        except ValueError:  # zero pivot: the Cholesky lost definiteness to rounding
-            self.factor = _pivoting_factor(normal, factor, backend)
+        data = layout.data(ip.face_blocks(self.scaling, prog.products), self.d)
+        self.factor = _factor_coupled(layout, data, factor, backend)
         if self.factor is None:
             return
         self.V = np.zeros((int(layout.offsets[-1]), k))  # column i: v_i on block i's rows
         for i in range(k):
             self.V[layout.offsets[i]:layout.offsets[i + 1], i] = self.v[i, layout.rows_of[i]]
-        self.Z = np.asarray(self.factor.solve(self.V))
+        # Mehrotra's affine right-hand side is known now: it rides along with the Woodbury
+        # block (one multi-column solve instead of a separate one; :meth:`affine`)
+        lam = self.scaling.lam
+        self._affine = self._rhs(-ip._jordan(lam, lam), -self.lam_rho**2)
+        solved = np.asarray(self.factor.solve(
+            np.column_stack([self.V, layout.scatter(self._affine[-1])])))
+        self.Z = solved[:, :k]
         self.cap_inv = np.linalg.inv(np.diag(1.0 / self.c) - self.V.T @ self.Z)
+        self._affine_solution = self._woodbury(solved[:, k])
+
+    def _woodbury(self, s: np.ndarray) -> np.ndarray:
+        return s + self.Z @ (self.cap_inv @ (self.V.T @ s))
 
     def _solve(self, r: np.ndarray) -> np.ndarray:
-        s = self.factor.solve(r)
-        return s + self.Z @ (self.cap_inv @ (self.V.T @ s))
+        return self._woodbury(self.factor.solve(r))
+
+    def _rhs(self, rc: np.ndarray, rc_rho: np.ndarray):
+        """``(W⁻¹ (λ \\ rc), rc_ρ / z_ρ, gᵀ of the former, r)``: ``r`` ``(k, V)`` the
+        normal equations' right-hand side."""
+        prog, sc = self.prog, self.scaling
+        wq = sc.apply_inverse(ip._jordan_solve(sc.lam, rc)).reshape(prog.k, len(prog.faces), 3)
+        wq_rho = rc_rho / self.z_rho
+        g_wq = wq[:, :, 0] @ prog.w
+        r = -prog.div(wq) + (self.c * g_wq)[:, None] * self.v + wq_rho[None] - self.residual
+        return wq, wq_rho, g_wq, r
+
+    def affine(self):
+        """:meth:`__call__` for Mehrotra's affine right-hand sides ``rc = -λ ∘ λ``,
+        ``rc_ρ = -λ_ρ²`` (solved with the Woodbury block)."""
+        return self._direction(*self._affine[:3], self._affine_solution)
 
     def __call__(self, rc: np.ndarray, rc_rho: np.ndarray):
         """Directions ``(dx (k F, 3), dρ, dy (k, V), dz (k F, 3), dz_ρ)`` for the
         complementarity right-hand sides ``rc`` ``(k F, 3)`` and ``rc_rho`` ``(V,)``; they
         also cancel the primal residual ``e = D u_i - ρ + m_i`` (:attr:`residual`), which
         rounding leaves, so a full step restores the divergence constraints."""
-        prog, sc = self.prog, self.scaling
+        wq, wq_rho, g_wq, r = self._rhs(rc, rc_rho)
+        return self._direction(wq, wq_rho, g_wq, self._solve(self.layout.scatter(r)))
+
+    def _direction(self, wq, wq_rho, g_wq, solution):
+        prog, sc, v = self.prog, self.scaling, self.v
         k, n_faces = prog.k, len(prog.faces)
-        wq = sc.apply_inverse(ip._jordan_solve(sc.lam, rc)).reshape(k, n_faces, 3)
-        wq_rho = rc_rho / self.z_rho
-        g_wq = wq[:, :, 0] @ prog.w
-        v = self.v
-        r = -prog.div(wq) + (self.c * g_wq)[:, None] * v + wq_rho[None] - self.residual
-        dy = self.layout.gather(self._solve(self.layout.scatter(r)))
+        dy = self.layout.gather(solution)
         a = prog.div_adjoint(dy)
         coef = self.c * (np.sum(v * dy, axis=1) + g_wq)
         dx = sc.apply_inverse_square(a.reshape(-1, 3)).reshape(k, n_faces, 3) + wq \
@@ -298,17 +334,36 @@ class _Newton:
         return dx.reshape(-1, 3), drho, dy, dz.reshape(-1, 3), dy.sum(axis=0)
 
 
+def _factor_coupled(layout: _CoupledPattern, data: np.ndarray, factor, backend: str):
+    """Factor of the normal matrix's sparse part with CSR ``data`` (:meth:`_CoupledPattern.
+    data`), refactoring ``factor`` in place when it can (a PARDISO factor takes the values
+    on the pattern it analysed); None if ``data`` is not finite."""
+    if not np.all(np.isfinite(data)):
+        return None
+    pardiso = ip._backend(backend) == "pardiso"
+    try:
+        if isinstance(factor, PardisoFactor):
+            factor.refactor_data(data)
+            return factor
+        return ip.factor_normal_matrix(layout.matrix(data, full=not pardiso), factor, backend)
+    except ValueError:  # zero pivot: the Cholesky lost definiteness to rounding
+        return _pivoting_factor(layout.matrix(data, full=not pardiso), factor, backend)
+
+
 def _pivoting_factor(normal: sp.csr_matrix, failed, backend: str):
     """The normal matrix's factor once its Cholesky ``failed`` met a zero pivot (rounding
     near the end of the path; the matrix is positive semidefinite in exact arithmetic):
     PARDISO's symmetric-indefinite ``L D Lᵀ`` with pivot perturbation and iterative
     refinement, which then refactors in place for the remaining iterations (the Cholesky's
-    memory is released first: it is not used again); without PARDISO, LU with partial
-    pivoting (``normal`` is then the whole symmetric matrix)."""
+    memory is released first: it is not used again, but its fill-reducing ordering is:
+    the pattern is the same, so the analysis skips the ordering); without PARDISO, LU with
+    partial pivoting (``normal`` is then the whole symmetric matrix)."""
     if ip._backend(backend) == "pardiso":
+        ordering = "metis"
         if isinstance(failed, PardisoFactor):
+            ordering = failed.permutation
             failed.release()
-        return PardisoFactor(normal, pivoting=True)
+        return PardisoFactor(normal, ordering=ordering, pivoting=True)
     return ip.factor_normal_matrix(normal, None, "splu")
 
 
