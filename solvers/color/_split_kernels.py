@@ -19,6 +19,7 @@ from solvers.color._kernels import (
     _nearest_node,
     _store,
     _store_linear,
+    sub_bin,
 )
 
 
@@ -552,6 +553,53 @@ def moved_histogram(lab, disp, lo, h, nbins, counts, sums):
             counts[c, q] += 1.0
             sums[c, 0, q] += a
             sums[c, 1, q] += b
+
+
+@_jit(parallel=True)
+def moved_subhistogram(lab, disp, lo, h, nbins, sub):
+    """Per chunk, ``sub`` ``(chunks, 2, nbins², K)``: counts of the a*, b* offsets of the
+    moved colours ``lab[:, 1:] + disp`` from their nearest node, in ``K`` sub-bins of
+    ``[-h/2, h/2]`` (as :func:`~solvers.color._kernels.analyze` counts an image's)."""
+    n = lab.shape[0]
+    chunks, nsub = sub.shape[0], sub.shape[3]
+    step = (n + chunks - 1) // chunks
+    inv_h = 1.0 / h
+    for c in numba.prange(chunks):
+        for p in range(c * step, min(n, (c + 1) * step)):
+            a = np.float64(np.float32(lab[p, 1] + disp[p, 0]))
+            b = np.float64(np.float32(lab[p, 2] + disp[p, 1]))
+            ia = _nearest_node(a, lo, inv_h, nbins)
+            ib = _nearest_node(b, lo, inv_h, nbins)
+            q = ia * nbins + ib
+            sub[c, 0, q, sub_bin(a, lo, h, ia, nsub)] += 1.0
+            sub[c, 1, q, sub_bin(b, lo, h, ib, nsub)] += 1.0
+
+
+@_jit(parallel=True)
+def remap_in_nodes(lab, disp, lo, h, nbins, table):
+    """Move each colour ``lab[:, 1:] + disp`` within its nearest node: per axis, its offset
+    from the node (``K`` sub-bins of ``[-h/2, h/2]``, linear within one) goes to the
+    piecewise-linear ``table`` ``(2, nbins², K + 1)`` (the new offset, in units of ``h``,
+    of each sub-bin edge); ``disp`` updated in place."""
+    n = lab.shape[0]
+    nsub = table.shape[2] - 1
+    inv_h = 1.0 / h
+    for p in numba.prange(n):
+        a = np.float64(np.float32(lab[p, 1] + disp[p, 0]))
+        b = np.float64(np.float32(lab[p, 2] + disp[p, 1]))
+        ia = _nearest_node(a, lo, inv_h, nbins)
+        ib = _nearest_node(b, lo, inv_h, nbins)
+        q = ia * nbins + ib
+        disp[p, 0] += np.float32(_remap(table[0, q], (a - lo) * inv_h - ia, nsub) * h)
+        disp[p, 1] += np.float32(_remap(table[1, q], (b - lo) * inv_h - ib, nsub) * h)
+
+
+@_jit(inline="always")
+def _remap(row, u, nsub):
+    """The change of offset ``u`` (node units) by the piecewise-linear ``row``."""
+    t = min(max((u + 0.5) * nsub, 0.0), np.float64(nsub))
+    j = min(int(t), nsub - 1)
+    return row[j] + (t - j) * (row[j + 1] - row[j]) - u
 
 
 @_jit(parallel=True)
