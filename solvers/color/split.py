@@ -206,7 +206,7 @@ def moved_histogram(lab: np.ndarray, disp: np.ndarray, grid: AbGrid):
 
 
 def quantile_tables(moved: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """``(2, n, K + 1)`` piecewise-linear 1-D maps (offsets in node units, sub-bin edges
+    r"""``(2, n, K + 1)`` piecewise-linear 1-D maps (offsets in node units, sub-bin edges
     ``-1/2 + k/K``) sending the counts ``moved`` ``(2, n, K)`` to ``target`` (same shape)
     by quantiles: :math:`F_t^{-1} \circ F_m` at each edge; the identity where either
     has no mass."""
