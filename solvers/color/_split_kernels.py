@@ -576,13 +576,12 @@ def moved_subhistogram(lab, disp, lo, h, nbins, sub):
 
 
 @_jit(parallel=True)
-def remap_in_nodes(lab, disp, lo, h, nbins, table):
+def remap_in_nodes(lab, disp, lo, h, nbins, fm, ft):
     """Move each colour ``lab[:, 1:] + disp`` within its nearest node: per axis, its offset
-    from the node (``K`` sub-bins of ``[-h/2, h/2]``, linear within one) goes to the
-    piecewise-linear ``table`` ``(2, nbins², K + 1)`` (the new offset, in units of ``h``,
-    of each sub-bin edge); ``disp`` updated in place."""
+    from the node goes through the CDF ``fm`` of the moved colours' offsets and the inverse
+    of the target's ``ft`` (``(2, nbins², K + 1)``, at the edges of ``K`` sub-bins of
+    ``[-h/2, h/2]``, linear inside one); ``disp`` updated in place."""
     n = lab.shape[0]
-    nsub = table.shape[2] - 1
     inv_h = 1.0 / h
     for p in numba.prange(n):
         a = np.float64(np.float32(lab[p, 1] + disp[p, 0]))
@@ -590,16 +589,27 @@ def remap_in_nodes(lab, disp, lo, h, nbins, table):
         ia = _nearest_node(a, lo, inv_h, nbins)
         ib = _nearest_node(b, lo, inv_h, nbins)
         q = ia * nbins + ib
-        disp[p, 0] += np.float32(_remap(table[0, q], (a - lo) * inv_h - ia, nsub) * h)
-        disp[p, 1] += np.float32(_remap(table[1, q], (b - lo) * inv_h - ib, nsub) * h)
+        ua = (a - lo) * inv_h - ia
+        ub = (b - lo) * inv_h - ib
+        disp[p, 0] += np.float32((_quantile_map(fm[0, q], ft[0, q], ua) - ua) * h)
+        disp[p, 1] += np.float32((_quantile_map(fm[1, q], ft[1, q], ub) - ub) * h)
 
 
 @_jit(inline="always")
-def _remap(row, u, nsub):
-    """The change of offset ``u`` (node units) by the piecewise-linear ``row``."""
+def _quantile_map(fm, ft, u):
+    """``ft^{-1}(fm(u))`` for an offset ``u`` in node units (CDFs piecewise linear on
+    ``K`` equal sub-bins of ``[-1/2, 1/2]``)."""
+    nsub = fm.shape[0] - 1
     t = min(max((u + 0.5) * nsub, 0.0), np.float64(nsub))
     j = min(int(t), nsub - 1)
-    return row[j] + (t - j) * (row[j + 1] - row[j]) - u
+    y = fm[j] + (t - j) * (fm[j + 1] - fm[j])
+    y = min(max(y, 1e-9), 1.0 - 1e-9)
+    k = 0
+    while k < nsub - 1 and ft[k + 1] < y:  # first sub-bin whose upper CDF reaches y
+        k += 1
+    w = ft[k + 1] - ft[k]
+    f = (y - ft[k]) / w if w > 0 else 0.5
+    return (k + f) / nsub - 0.5
 
 
 @_jit(parallel=True)

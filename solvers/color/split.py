@@ -32,9 +32,10 @@ Within a node the pixels keep their offsets from their source node's mean, so th
 output's distribution inside each node is the source's, not the target's; where a node
 holds much mass (a grey atom, a dark sky) that shows at scales finer than the grid.
 :func:`remap_within_nodes` moves every colour inside its node by the 1-D monotone
-(quantile) map, per axis, from the output's offsets to the target's, both counted in
-``K`` sub-bins per node: the output's per-axis marginals in every node become the
-target's up to the sub-bins, and no colour leaves its node.
+(quantile) map :math:`F_t^{-1} \circ F_m`, per axis, from the output's offsets to the
+target's, both counted in ``K`` sub-bins per node (CDFs linear inside a sub-bin): the
+output's per-axis marginals in every node become the target's up to the sub-bins, and
+no colour leaves its node.
 """
 
 from __future__ import annotations
@@ -205,30 +206,20 @@ def moved_histogram(lab: np.ndarray, disp: np.ndarray, grid: AbGrid):
     return total.reshape(grid.bins, grid.bins), sums.sum(axis=0) / np.maximum(total, 1.0)
 
 
-def quantile_tables(moved: np.ndarray, target: np.ndarray) -> np.ndarray:
-    r"""``(2, n, K + 1)`` piecewise-linear 1-D maps (offsets in node units, sub-bin edges
-    ``-1/2 + k/K``) sending the counts ``moved`` ``(2, n, K)`` to ``target`` (same shape)
-    by quantiles: :math:`F_t^{-1} \circ F_m` at each edge; the identity where either
-    has no mass."""
+def within_node_cdfs(moved: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per axis and node, the CDFs ``(2, n, K + 1)`` at the ``K + 1`` sub-bin edges of the
+    counts ``moved`` and ``target`` ``(2, n, K)``; both the uniform CDF (the remap is then
+    the identity) where either has no mass."""
     K = moved.shape[-1]
-    edges = -0.5 + np.arange(K + 1) / K
-    table = np.broadcast_to(edges, moved.shape[:2] + (K + 1,)).copy()
+    uniform = np.arange(K + 1) / K
+
+    def cdf(counts, total):
+        c = np.concatenate([np.zeros(counts.shape[:2] + (1,)), np.cumsum(counts, -1)], -1)
+        return c / np.where(total > 0, total, 1.0)[..., None]
+
     tm, tt = moved.sum(-1), target.sum(-1)
-    ax, q = np.nonzero((tm > 0) & (tt > 0))
-    if len(q) == 0:
-        return table
-    zero = np.zeros((len(q), 1))
-    Fm = np.hstack([zero, np.cumsum(moved[ax, q], axis=1)]) / tm[ax, q][:, None]
-    Ft = np.hstack([zero, np.cumsum(target[ax, q], axis=1)]) / tt[ax, q][:, None]
-    y = np.clip(Fm, 1e-9, 1 - 1e-9)
-    # batched search: row r's values shifted by 2 r so one sorted array holds every row
-    shift = 2.0 * np.arange(len(q))[:, None]
-    j = np.searchsorted((Ft[:, 1:] + shift).ravel(), (y + shift).ravel(), side="left")
-    j = (j - K * np.repeat(np.arange(len(q)), K + 1)).reshape(y.shape).clip(0, K - 1)
-    lo = np.take_along_axis(Ft, j, 1)
-    w = np.take_along_axis(Ft, j + 1, 1) - lo
-    table[ax, q] = edges[j] + np.where(w > 0, (y - lo) / np.where(w > 0, w, 1.0), 0.5) / K
-    return table
+    both = ((tm > 0) & (tt > 0))[..., None]
+    return (np.where(both, cdf(moved, tm), uniform), np.where(both, cdf(target, tt), uniform))
 
 
 def remap_within_nodes(lab: np.ndarray, disp: np.ndarray, grid: AbGrid,
@@ -242,5 +233,5 @@ def remap_within_nodes(lab: np.ndarray, disp: np.ndarray, grid: AbGrid,
     sub = np.zeros((chunks,) + target_sub.shape)
     lo, h = np.float32(grid.nodes[0]), np.float32(grid.spacing)
     K.moved_subhistogram(lab, disp, lo, h, grid.bins, sub)
-    table = quantile_tables(sub.sum(axis=0), target_sub)
-    K.remap_in_nodes(lab, disp, lo, h, grid.bins, table)
+    fm, ft = within_node_cdfs(sub.sum(axis=0), target_sub)
+    K.remap_in_nodes(lab, disp, lo, h, grid.bins, fm, ft)
