@@ -14,9 +14,14 @@ the regularized transport maps of Rabin, Delon and Gousseau).  L* goes through t
 1-D map with its slope limited (``luminance_slope``, :func:`~solvers.color.luminance.
 limit_slope`; ``inf`` = the exact map).  Colours out of the sRGB gamut: each pixel's move
 to its nearest in-gamut L* (within ``GAMUT_REACH``) is guided-filtered by the input's L*
-and the smooth shift applied to all pixels (a per-pixel move would add L* texture); a
-colour still out of the gamut loses chroma at its L* and hue.  The re-split's correction
-is itself guided-filtered over a window of radius ``CORRECTION_RADIUS`` cells.
+(the shift's slope along the input's L* limited per window, ``GAMUT_MAX_SLOPE``) and the
+smooth shift applied to all pixels (a per-pixel move would add L* texture); a colour
+still out of the gamut loses chroma at its L* and hue.  The re-split's correction is
+itself guided-filtered over a window of radius ``CORRECTION_RADIUS`` cells.  Towards an
+input, every colour is then remapped inside its histogram node to the target's colours
+there (per-axis quantiles on ``WITHIN_NODE_SUBBINS`` sub-bins,
+:func:`~solvers.color.split.remap_within_nodes`): the grid fixes the histogram to the
+node, this to a sixteenth of a node.
 Towards a vertex of the simplex (``alphas`` with a single 1) the plan goes to that image's
 histogram; for ``k = 2`` and :math:`\alpha = (1 - s, s)` every pixel moves the fraction
 :math:`s` of its displacement (McCann's interpolation, the exact W2 geodesic between the
@@ -84,12 +89,13 @@ GAMUT_REACH = 100.0
 # the L* move into the gamut is guided-filtered (window: the guided filter's) with this
 # epsilon, each pixel weighted 1 if out of the gamut and GAMUT_IN_WEIGHT if in it (a mean
 # over the pixels that need a move, diluted where they are few); chosen in bench/color.py
-GAMUT_SHIFT_STRENGTH = 1e-3
+# and bench/color_gamut.py (bench/results/color.md)
+GAMUT_SHIFT_STRENGTH = 1e-4
 GAMUT_IN_WEIGHT = 0.3
 # the shift's slope along the input's L* (dL*_out / dL*_in it adds) kept within
 # [-GAMUT_MAX_SLOPE, GAMUT_MAX_SLOPE] per window, so that it cannot stretch or flatten the
-# input's L* edges much whatever its epsilon (inf: no limit)
-GAMUT_MAX_SLOPE = float("inf")
+# input's L* edges much whatever its epsilon (inf: no limit); bench/color_gamut.py
+GAMUT_MAX_SLOPE = 0.85
 # that move is sampled on every min(s, GAMUT_STRIDE)-th row and column (s: the block
 # size of the reduced image; 1 below REDUCED_PIXELS): the filter averages it over many
 # blocks anyway
