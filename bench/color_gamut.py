@@ -42,6 +42,8 @@ VARIANTS = {
     "1e-4, max slope 0.75": {"GAMUT_SHIFT_STRENGTH": 1e-4, "GAMUT_MAX_SLOPE": 0.75},
     "1e-4, max slope 0.85": {"GAMUT_SHIFT_STRENGTH": 1e-4, "GAMUT_MAX_SLOPE": 0.85},
     "1e-4, max slope 1": {"GAMUT_SHIFT_STRENGTH": 1e-4, "GAMUT_MAX_SLOPE": 1.0},
+    # the default before branch color27h (GAMUT_* constants; since then 1e-4, slope 0.85)
+    "1e-3, no slope limit": {"GAMUT_SHIFT_STRENGTH": 1e-3, "GAMUT_MAX_SLOPE": float("inf")},
     # the within-node remap (WITHIN_NODE_SUBBINS, on by default since branch color27h)
     "no remap": {"WITHIN_NODE_SUBBINS": 0},
     "1e-4, max slope 0.85, no remap": {"GAMUT_SHIFT_STRENGTH": 1e-4, "GAMUT_MAX_SLOPE": 0.85,
