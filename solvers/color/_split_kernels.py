@@ -576,11 +576,13 @@ def moved_subhistogram(lab, disp, lo, h, nbins, sub):
 
 
 @_jit(parallel=True)
-def remap_in_nodes(lab, disp, lo, h, nbins, fm, ft):
+def remap_in_nodes(lab, disp, lo, h, nbins, cdfs):
     """Move each colour ``lab[:, 1:] + disp`` within its nearest node: per axis, its offset
-    from the node goes through the CDF ``fm`` of the moved colours' offsets and the inverse
-    of the target's ``ft`` (``(2, nbins², K + 1)``, at the edges of ``K`` sub-bins of
-    ``[-h/2, h/2]``, linear inside one); ``disp`` updated in place."""
+    from the node goes through the CDF of the moved colours' offsets and the inverse of
+    the target's (``cdfs`` ``(nbins², 2, 3, K + 1)``: node, axis, then the moved and the
+    target CDFs at the edges of ``K`` sub-bins of ``[-h/2, h/2]``, linear inside one, and
+    for each sub-bin ``j`` the target sub-bin holding the moved CDF at its lower edge;
+    a node's rows side by side, as a pixel reads them all); ``disp`` updated in place."""
     n = lab.shape[0]
     inv_h = 1.0 / h
     for p in numba.prange(n):
@@ -591,25 +593,29 @@ def remap_in_nodes(lab, disp, lo, h, nbins, fm, ft):
         q = ia * nbins + ib
         ua = (a - lo) * inv_h - ia
         ub = (b - lo) * inv_h - ib
-        disp[p, 0] += np.float32((_quantile_map(fm[0, q], ft[0, q], ua) - ua) * h)
-        disp[p, 1] += np.float32((_quantile_map(fm[1, q], ft[1, q], ub) - ub) * h)
+        disp[p, 0] += np.float32((_quantile_map(cdfs, q, 0, ua) - ua) * h)
+        disp[p, 1] += np.float32((_quantile_map(cdfs, q, 1, ub) - ub) * h)
 
 
 @_jit(inline="always")
-def _quantile_map(fm, ft, u):
-    """``ft^{-1}(fm(u))`` for an offset ``u`` in node units (CDFs piecewise linear on
-    ``K`` equal sub-bins of ``[-1/2, 1/2]``)."""
-    nsub = fm.shape[0] - 1
+def _quantile_map(cdfs, q, ax, u):
+    """``ft^{-1}(fm(u))`` (``fm, ft = cdfs[q, ax]``) for an offset ``u`` in node units."""
+    nsub = cdfs.shape[3] - 1
     t = min(max((u + 0.5) * nsub, 0.0), np.float64(nsub))
     j = min(int(t), nsub - 1)
-    y = fm[j] + (t - j) * (fm[j + 1] - fm[j])
-    y = min(max(y, 1e-9), 1.0 - 1e-9)
-    k = 0
-    while k < nsub - 1 and ft[k + 1] < y:  # first sub-bin whose upper CDF reaches y
-        k += 1
-    w = ft[k + 1] - ft[k]
-    f = (y - ft[k]) / w if w > 0 else 0.5
-    return (k + f) / nsub - 0.5
+    y = cdfs[q, ax, 0, j] + (t - j) * (cdfs[q, ax, 0, j + 1] - cdfs[q, ax, 0, j])
+    y = min(max(y, 1e-7), 1.0 - 1e-7)
+    # the first target sub-bin whose upper CDF reaches y, stepping from the one that
+    # holds fm[j] (y >= fm[j]: usually no step; a search's branches would mispredict)
+    lo = int(cdfs[q, ax, 2, j])
+    while lo < nsub - 1 and cdfs[q, ax, 1, lo + 1] < y:
+        lo += 1
+    while lo > 0 and cdfs[q, ax, 1, lo] >= y:
+        lo -= 1
+    f0 = cdfs[q, ax, 1, lo]
+    w = cdfs[q, ax, 1, lo + 1] - f0
+    f = (y - f0) / w if w > 0 else 0.5
+    return (lo + f) / nsub - 0.5
 
 
 @_jit(parallel=True)
