@@ -536,43 +536,35 @@ def guided_field(lab, coef, nguide, s, width, disp):
             disp[p, 1] = db
 
 
+@_jit(inline="always")
+def _moved(lab, disp, p, lo, inv_h, nbins):
+    """Pixel ``p``'s moved a*, b* (float32, as stored) and their nearest node indices."""
+    a = np.float64(np.float32(lab[p, 1] + disp[p, 0]))
+    b = np.float64(np.float32(lab[p, 2] + disp[p, 1]))
+    return a, b, _nearest_node(a, lo, inv_h, nbins), _nearest_node(b, lo, inv_h, nbins)
+
+
 @_jit(parallel=True)
-def moved_histogram(lab, disp, lo, h, nbins, counts, sums):
+def moved_histogram(lab, disp, lo, h, nbins, counts, sums, sub):
     """Nearest-node histogram of the moved colours ``lab[:, 1:] + disp`` (float32, as
     stored), per chunk: ``counts`` ``(chunks, nbins²)``, ``sums`` ``(chunks, 2, nbins²)``
-    their a*, b*."""
+    their a*, b*, and if ``K = sub.shape[3] > 0`` ``sub`` ``(chunks, 2, nbins², K)`` the
+    counts of their offsets from the node in ``K`` sub-bins of ``[-h/2, h/2]`` (as
+    :func:`~solvers.color._kernels.analyze` counts an image's)."""
     n = lab.shape[0]
-    chunks = counts.shape[0]
+    chunks, nsub = counts.shape[0], sub.shape[3]
     step = (n + chunks - 1) // chunks
     inv_h = 1.0 / h
     for c in numba.prange(chunks):
         for p in range(c * step, min(n, (c + 1) * step)):
-            a = np.float64(np.float32(lab[p, 1] + disp[p, 0]))
-            b = np.float64(np.float32(lab[p, 2] + disp[p, 1]))
-            q = _nearest_node(a, lo, inv_h, nbins) * nbins + _nearest_node(b, lo, inv_h, nbins)
+            a, b, ia, ib = _moved(lab, disp, p, lo, inv_h, nbins)
+            q = ia * nbins + ib
             counts[c, q] += 1.0
             sums[c, 0, q] += a
             sums[c, 1, q] += b
-
-
-@_jit(parallel=True)
-def moved_subhistogram(lab, disp, lo, h, nbins, sub):
-    """Per chunk, ``sub`` ``(chunks, 2, nbins², K)``: counts of the a*, b* offsets of the
-    moved colours ``lab[:, 1:] + disp`` from their nearest node, in ``K`` sub-bins of
-    ``[-h/2, h/2]`` (as :func:`~solvers.color._kernels.analyze` counts an image's)."""
-    n = lab.shape[0]
-    chunks, nsub = sub.shape[0], sub.shape[3]
-    step = (n + chunks - 1) // chunks
-    inv_h = 1.0 / h
-    for c in numba.prange(chunks):
-        for p in range(c * step, min(n, (c + 1) * step)):
-            a = np.float64(np.float32(lab[p, 1] + disp[p, 0]))
-            b = np.float64(np.float32(lab[p, 2] + disp[p, 1]))
-            ia = _nearest_node(a, lo, inv_h, nbins)
-            ib = _nearest_node(b, lo, inv_h, nbins)
-            q = ia * nbins + ib
-            sub[c, 0, q, sub_bin(a, lo, h, ia, nsub)] += 1.0
-            sub[c, 1, q, sub_bin(b, lo, h, ib, nsub)] += 1.0
+            if nsub > 0:
+                sub[c, 0, q, sub_bin(a, lo, h, ia, nsub)] += 1.0
+                sub[c, 1, q, sub_bin(b, lo, h, ib, nsub)] += 1.0
 
 
 @_jit(parallel=True)
@@ -586,10 +578,7 @@ def remap_in_nodes(lab, disp, lo, h, nbins, cdfs):
     n = lab.shape[0]
     inv_h = 1.0 / h
     for p in numba.prange(n):
-        a = np.float64(np.float32(lab[p, 1] + disp[p, 0]))
-        b = np.float64(np.float32(lab[p, 2] + disp[p, 1]))
-        ia = _nearest_node(a, lo, inv_h, nbins)
-        ib = _nearest_node(b, lo, inv_h, nbins)
+        a, b, ia, ib = _moved(lab, disp, p, lo, inv_h, nbins)
         q = ia * nbins + ib
         ua = (a - lo) * inv_h - ia
         ub = (b - lo) * inv_h - ib

@@ -191,19 +191,22 @@ def split_displacements(lab: np.ndarray, shape: tuple[int, int], plan: ExactPlan
     return out
 
 
-def moved_histogram(lab: np.ndarray, disp: np.ndarray, grid: AbGrid):
+def moved_histogram(lab: np.ndarray, disp: np.ndarray, grid: AbGrid, subbins: int = 0):
     """Nearest-node histogram ``(bins, bins)`` (pixel counts) of ``lab[:, 1:] + disp`` and
-    the mean ab ``(2, bins²)`` at each node."""
+    the mean ab ``(2, bins²)`` at each node (with ``subbins > 0`` also the counts
+    ``(2, bins², subbins)`` of the offsets from the node in that many sub-bins)."""
     from solvers.color._kernels import _chunks
 
     n2 = grid.bins**2
     chunks = _chunks(lab.shape[0])
     counts = np.zeros((chunks, n2))
     sums = np.zeros((chunks, 2, n2))
+    sub = np.zeros((chunks, 2, n2, subbins) if subbins else (chunks, 1, 1, 0))
     K.moved_histogram(lab, disp, np.float32(grid.nodes[0]), np.float32(grid.spacing),
-                      grid.bins, counts, sums)
+                      grid.bins, counts, sums, sub)
     total = counts.sum(axis=0)
-    return total.reshape(grid.bins, grid.bins), sums.sum(axis=0) / np.maximum(total, 1.0)
+    out = total.reshape(grid.bins, grid.bins), sums.sum(axis=0) / np.maximum(total, 1.0)
+    return (*out, sub.sum(axis=0)) if subbins else out
 
 
 def within_node_cdfs(moved: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -227,13 +230,9 @@ def remap_within_nodes(lab: np.ndarray, disp: np.ndarray, grid: AbGrid,
     """Move each colour ``lab[:, 1:] + disp`` inside its nearest node so that, per node
     and axis, the offsets' distribution is ``target_sub`` ``(2, bins², K)`` (module doc);
     ``disp`` updated in place."""
-    from solvers.color._kernels import _chunks
-
-    chunks = _chunks(lab.shape[0])
-    sub = np.zeros((chunks,) + target_sub.shape)
+    moved = moved_histogram(lab, disp, grid, target_sub.shape[-1])[2]
     lo, h = np.float32(grid.nodes[0]), np.float32(grid.spacing)
-    K.moved_subhistogram(lab, disp, lo, h, grid.bins, sub)
-    fm, ft = (c.astype(np.float32) for c in within_node_cdfs(sub.sum(axis=0), target_sub))
+    fm, ft = (c.astype(np.float32) for c in within_node_cdfs(moved, target_sub))
     # per moved sub-bin j: the target sub-bin holding fm[j] (the kernel steps on from it)
     y = np.clip(fm[..., :-1], np.float32(1e-7), np.float32(1 - 1e-7))
     start = np.zeros_like(fm)
