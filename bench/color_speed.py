@@ -31,12 +31,21 @@ sys.path.insert(0, str(ROOT / "bench"))
 from color import color_matcher, loadavg, upscale  # noqa: E402
 from skimage import data  # noqa: E402
 
-from solvers.color import color_transfer  # noqa: E402
+from solvers.color import color_transfer, transfer  # noqa: E402
 
 
-def otgeo(**kw):
+def otgeo(constants=None, **kw):
+    """Our transfer with keyword options, and module constants of solvers.color.transfer
+    set for the duration of the call (``constants``)."""
     def run(src, tgt):
-        r = color_transfer([src, tgt], [0.0, 1.0], recolor=[0], **kw)
+        saved = {k: getattr(transfer, k) for k in constants or {}}
+        for k, v in (constants or {}).items():
+            setattr(transfer, k, v)
+        try:
+            r = color_transfer([src, tgt], [0.0, 1.0], recolor=[0], **kw)
+        finally:
+            for k, v in saved.items():
+                setattr(transfer, k, v)
         run.timings = r.timings
         return r.images[0][0]
 
@@ -45,7 +54,7 @@ def otgeo(**kw):
 
 METHODS = {
     "otgeo split (default)": otgeo(),
-    "otgeo split, resplit=0.3": otgeo(resplit=0.3),
+    "otgeo split, no within-node remap": otgeo({"WITHIN_NODE_SUBBINS": 0}),
     "color-matcher mkl": color_matcher("mkl"),
     "color-matcher hm-mvgd-hm": color_matcher("hm-mvgd-hm"),
 }

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from skimage import data
 
-from solvers.color import color_transfer
+from solvers.color import color_transfer, transfer
 from solvers.color.chrominance import AbGrid
 from solvers.color.lab import lab_to_rgb_reference, rgb_to_lab_reference
 from solvers.color.split import exact_plan, integer_split
@@ -59,6 +59,36 @@ def test_constant_image_stays_constant_towards_a_constant_target():
                                                   **kw).images[0][0]).reshape(-1, 3)
         assert out.std(axis=0).max() < 1e-3
         assert np.abs(out[0] - [70, -20, 30]).max() < 0.1
+
+
+def test_within_node_remap_reproduces_the_targets_colours_inside_a_node(monkeypatch):
+    # source: a* and b* vary smoothly by +-1.4 around the node (20, -8); target: two
+    # colours inside the single node (4, 28).  The split moves every pixel by the same
+    # node-to-node step; the remap then gives each axis the target's values inside the node
+    y, x = np.mgrid[0:40, 0:60]
+    lab = np.stack([55 + 0 * x, 20 + 2.8 * (x / 59 - 0.5), -8 + 2.8 * (y / 39 - 0.5)], -1)
+    src = lab_to_rgb_reference(lab).astype(np.float32)
+    tgt = np.concatenate([flat((55, 4.9, 27.3), (20, 50)), flat((55, 3.2, 28.6), (20, 50))])
+    targets = {1: (4.9, 3.2), 2: (27.3, 28.6)}
+
+    def spread(subbins):
+        monkeypatch.setattr(transfer, "WITHIN_NODE_SUBBINS", subbins)
+        out = color_transfer([src, tgt], [0, 1], recolor=[0], luminance=False).images[0][0]
+        o = rgb_to_lab_reference(out).reshape(-1, 3)
+        far, share = [], []
+        for ax, (v1, v2) in targets.items():
+            d1, d2 = np.abs(o[:, ax] - v1), np.abs(o[:, ax] - v2)
+            far.append(np.minimum(d1, d2).max())
+            share.append(np.mean(d1 < d2))
+        return max(far), share
+
+    far, share = spread(16)
+    # every value within one sub-bin (h / 16 = 0.25 ab units) of one of the target's, and
+    # the two values in the target's proportions (half each) on each axis
+    assert far < 0.26
+    assert np.allclose(share, 0.5, atol=0.02)
+    far_off, _ = spread(0)  # without the remap the source's spread is kept
+    assert far_off > 0.5
 
 
 def test_no_new_edges_on_a_smooth_gradient():

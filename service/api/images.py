@@ -79,7 +79,9 @@ async def create_color_transfer(
                               "e.g. [[1,0],[0.5,0.5],[0,1]])"),
     mode: Literal["split", "barycentric"] = Form(
         "split", description="split: exact plan, each color's pixels split among its "
-        "targets, guided filter; barycentric: the thesis' map (Fig. 3.12)"),
+        "targets, guided filter, second split, colors moved inside their histogram node to "
+        "the target's, smooth L* shift into the sRGB gamut; barycentric: the thesis' map "
+        "(Fig. 3.12)"),
     bins: int | None = Form(None, ge=8, le=512, description="nodes per axis of the ab grid "
                             "(8..512; default 65 split, 256 barycentric)"),
     gamma: float = Form(16.0, gt=0, description="entropic regularization (squared ab units)"),

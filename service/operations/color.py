@@ -10,7 +10,9 @@ numerical reasons.
 
 ``mode`` picks the transfer: ``split`` (default; exact plan, pixels split in its
 proportions, guided-filter regularization of strength ``regularization``, a second split
-to the target's histogram, a smooth L* shift into the sRGB gamut) or
+to the target's histogram, each colour moved inside its histogram node to the target's
+colours there, a smooth L* shift into the sRGB gamut whose slope along the input's L* is
+limited) or
 ``barycentric`` (the thesis' map, Fig. 3.12); ``luminance=false`` transfers chrominance
 only.
 
@@ -71,8 +73,10 @@ class ColorTransferRequest(OperationRequest):
     mode: Literal["split", "barycentric"] = Field(
         "split", description="split: exact plan between the ab histograms, each color's "
         "pixels split among its targets in the plan's proportions (spatially coherent), "
-        "then a guided filter on the color shift; barycentric: the thesis' barycentric "
-        "projection of the entropic plans (Fig. 3.12)")
+        "then a guided filter on the color shift, a second split to the target's histogram, "
+        "each color moved inside its histogram node to the target's colors there (towards "
+        "an input), and a smooth L* shift into the sRGB gamut; barycentric: the thesis' "
+        "barycentric projection of the entropic plans (Fig. 3.12)")
     bins: Int | None = Field(None, ge=8, le=512, description="nodes per axis of the ab "
                              "histogram grid over [-128, 128]^2 (default "
                              f"{DEFAULT_BINS['split']} for split, "

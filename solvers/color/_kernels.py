@@ -204,19 +204,28 @@ def _nearest_node(v, lo, inv_h, n):
     return n - 1 if k > n - 1 else k
 
 
+@_jit(inline="always")
+def sub_bin(v, lo, h, k, nsub):
+    """Sub-bin (of ``nsub`` over ``[-h/2, h/2]`` around node ``k``) holding ``v``."""
+    t = int(((v - lo) / h - k + 0.5) * nsub)
+    return min(max(t, 0), nsub - 1)
+
+
 def _chunks(n: int) -> int:
     return max(1, min(4 * numba.get_num_threads(), n // 4096 + 1))
 
 
 @_jit(parallel=True, fastmath=False)
-def _analyze(px, lut, m, lab, nbins, lo, h, lbins, lmax, hist, lhist, nearest, sums):
+def _analyze(px, lut, m, lab, nbins, lo, h, lbins, lmax, hist, lhist, nearest, sums, sub):
     """Lab of every pixel (into ``lab``) and the ab / L histograms of the block.
 
     ``px`` (N, C) uint8/uint16 (``lut``: the linear value of each code) or float in
     [0, 1] (``lut`` unused).  ``hist`` (chunks, nbins*nbins) receives each pixel's unit
     mass split bilinearly over the 4 ab nodes ``lo + h*k`` around it (the weights
     :func:`_apply` looks the map up with), or with ``nearest`` all of it to the nearest
-    node, and ``sums`` (chunks, 2, nbins*nbins) the a*, b* of the pixels at each node;
+    node, and ``sums`` (chunks, 2, nbins*nbins) the a*, b* of the pixels at each node,
+    and ``sub`` (chunks, 2, nbins*nbins, K) (if ``K > 0``) the counts of their a*, b*
+    offsets from the node in ``K`` equal sub-bins of ``[-h/2, h/2]``;
     ``lhist`` (chunks, lbins) counts L over [0, lmax].
     """
     n = px.shape[0]
@@ -224,6 +233,7 @@ def _analyze(px, lut, m, lab, nbins, lo, h, lbins, lmax, hist, lhist, nearest, s
     step = (n + chunks - 1) // chunks
     keep = lab.shape[0] == n
     inv_h = 1.0 / h
+    nsub = sub.shape[3]
     for c in numba.prange(chunks):
         for p in range(c * step, min(n, (c + 1) * step)):
             r = _linear(px[p, 0], lut)
@@ -236,11 +246,17 @@ def _analyze(px, lut, m, lab, nbins, lo, h, lbins, lmax, hist, lhist, nearest, s
                 lab[p, 2] = B
             if nbins > 0 and nearest:
                 # bin the stored (float32) values, as every later pass reads them
-                q = (_nearest_node(np.float64(np.float32(A)), lo, inv_h, nbins) * nbins
-                     + _nearest_node(np.float64(np.float32(B)), lo, inv_h, nbins))
+                a32 = np.float64(np.float32(A))
+                b32 = np.float64(np.float32(B))
+                ia = _nearest_node(a32, lo, inv_h, nbins)
+                ib = _nearest_node(b32, lo, inv_h, nbins)
+                q = ia * nbins + ib
                 hist[c, q] += 1.0
                 sums[c, 0, q] += A
                 sums[c, 1, q] += B
+                if nsub > 0:
+                    sub[c, 0, q, sub_bin(a32, lo, h, ia, nsub)] += 1.0
+                    sub[c, 1, q, sub_bin(b32, lo, h, ib, nsub)] += 1.0
             elif nbins > 0:  # bilinear ("cloud in cell") splat onto the 4 nearest nodes
                 i, j, fu, fv = _cell((A - lo) * inv_h, (B - lo) * inv_h, nbins, nbins)
                 q = i * nbins + j
@@ -255,23 +271,30 @@ def _analyze(px, lut, m, lab, nbins, lo, h, lbins, lmax, hist, lhist, nearest, s
 
 
 def analyze(px: np.ndarray, lut: np.ndarray, scale: float, nbins: int, lo: float, h: float,
-            lbins: int, lmax: float, keep_lab: bool = True, nearest: bool = False):
+            lbins: int, lmax: float, keep_lab: bool = True, nearest: bool = False,
+            subbins: int = 0):
     """Run :func:`_analyze`; returns ``(lab (N, 3) float32, ab counts, L counts)`` (``lab``
     empty unless ``keep_lab``: images that only contribute histograms need no Lab copy;
     ``nearest``: each pixel counted at its nearest ab node instead of split bilinearly, and
-    then a fourth item, the mean ``(2, nbins²)`` a*, b* of the pixels at each node)."""
+    then a fourth item, the mean ``(2, nbins²)`` a*, b* of the pixels at each node, and
+    with ``subbins > 0`` a fifth, the counts ``(2, nbins², subbins)`` of their a*, b*
+    offsets from the node in ``subbins`` sub-bins of the node's cell)."""
     n = px.shape[0]
     chunks = _chunks(n)
     lab = np.empty((n if keep_lab else 0, 3), dtype=np.float32)
     hist = np.zeros((chunks, max(nbins, 1) ** 2), dtype=np.float64)
     lhist = np.zeros((chunks, max(lbins, 1)), dtype=np.int64)
     sums = np.zeros((chunks, 2, max(nbins, 1) ** 2) if nearest else (1, 2, 1))
+    nsub = subbins if nearest else 0
+    sub = np.zeros((chunks, 2, nbins**2, nsub) if nsub else (1, 1, 1, 0))
     _analyze(px, lut, _M_FWD, lab, nbins, np.float32(lo), np.float32(h),
-             lbins, np.float32(lmax), hist, lhist, bool(nearest), sums)
+             lbins, np.float32(lmax), hist, lhist, bool(nearest), sums, sub)
     counts = hist.sum(axis=0)
     if not nearest:
         return lab, counts, lhist.sum(axis=0)
     means = sums.sum(axis=0) / np.maximum(counts, 1.0)
+    if nsub:
+        return lab, counts, lhist.sum(axis=0), means, sub.sum(axis=0)
     return lab, counts, lhist.sum(axis=0), means
 
 

@@ -19,6 +19,7 @@ from solvers.color._kernels import (
     _nearest_node,
     _store,
     _store_linear,
+    sub_bin,
 )
 
 
@@ -535,23 +536,75 @@ def guided_field(lab, coef, nguide, s, width, disp):
             disp[p, 1] = db
 
 
+@_jit(inline="always")
+def _moved(lab, disp, p, lo, inv_h, nbins):
+    """Pixel ``p``'s moved a*, b* (float32, as stored) and their nearest node indices."""
+    a = np.float64(np.float32(lab[p, 1] + disp[p, 0]))
+    b = np.float64(np.float32(lab[p, 2] + disp[p, 1]))
+    return a, b, _nearest_node(a, lo, inv_h, nbins), _nearest_node(b, lo, inv_h, nbins)
+
+
 @_jit(parallel=True)
-def moved_histogram(lab, disp, lo, h, nbins, counts, sums):
+def moved_histogram(lab, disp, lo, h, nbins, counts, sums, sub):
     """Nearest-node histogram of the moved colours ``lab[:, 1:] + disp`` (float32, as
     stored), per chunk: ``counts`` ``(chunks, nbins²)``, ``sums`` ``(chunks, 2, nbins²)``
-    their a*, b*."""
+    their a*, b*, and if ``K = sub.shape[3] > 0`` ``sub`` ``(chunks, 2, nbins², K)`` the
+    counts of their offsets from the node in ``K`` sub-bins of ``[-h/2, h/2]`` (as
+    :func:`~solvers.color._kernels.analyze` counts an image's)."""
     n = lab.shape[0]
-    chunks = counts.shape[0]
+    chunks, nsub = counts.shape[0], sub.shape[3]
     step = (n + chunks - 1) // chunks
     inv_h = 1.0 / h
     for c in numba.prange(chunks):
         for p in range(c * step, min(n, (c + 1) * step)):
-            a = np.float64(np.float32(lab[p, 1] + disp[p, 0]))
-            b = np.float64(np.float32(lab[p, 2] + disp[p, 1]))
-            q = _nearest_node(a, lo, inv_h, nbins) * nbins + _nearest_node(b, lo, inv_h, nbins)
+            a, b, ia, ib = _moved(lab, disp, p, lo, inv_h, nbins)
+            q = ia * nbins + ib
             counts[c, q] += 1.0
             sums[c, 0, q] += a
             sums[c, 1, q] += b
+            if nsub > 0:
+                sub[c, 0, q, sub_bin(a, lo, h, ia, nsub)] += 1.0
+                sub[c, 1, q, sub_bin(b, lo, h, ib, nsub)] += 1.0
+
+
+@_jit(parallel=True)
+def remap_in_nodes(lab, disp, lo, h, nbins, cdfs):
+    """Move each colour ``lab[:, 1:] + disp`` within its nearest node: per axis, its offset
+    from the node goes through the CDF of the moved colours' offsets and the inverse of
+    the target's (``cdfs`` ``(nbins², 2, 3, K + 1)``: node, axis, then the moved and the
+    target CDFs at the edges of ``K`` sub-bins of ``[-h/2, h/2]``, linear inside one, and
+    for each sub-bin ``j`` the target sub-bin holding the moved CDF at its lower edge;
+    a node's rows side by side, as a pixel reads them all); ``disp`` updated in place."""
+    n = lab.shape[0]
+    inv_h = 1.0 / h
+    for p in numba.prange(n):
+        a, b, ia, ib = _moved(lab, disp, p, lo, inv_h, nbins)
+        q = ia * nbins + ib
+        ua = (a - lo) * inv_h - ia
+        ub = (b - lo) * inv_h - ib
+        disp[p, 0] += np.float32((_quantile_map(cdfs, q, 0, ua) - ua) * h)
+        disp[p, 1] += np.float32((_quantile_map(cdfs, q, 1, ub) - ub) * h)
+
+
+@_jit(inline="always")
+def _quantile_map(cdfs, q, ax, u):
+    """``ft^{-1}(fm(u))`` (``fm, ft = cdfs[q, ax]``) for an offset ``u`` in node units."""
+    nsub = cdfs.shape[3] - 1
+    t = min(max((u + 0.5) * nsub, 0.0), np.float64(nsub))
+    j = min(int(t), nsub - 1)
+    y = cdfs[q, ax, 0, j] + (t - j) * (cdfs[q, ax, 0, j + 1] - cdfs[q, ax, 0, j])
+    y = min(max(y, 1e-7), 1.0 - 1e-7)
+    # the first target sub-bin whose upper CDF reaches y, stepping from the one that
+    # holds fm[j] (y >= fm[j]: usually no step; a search's branches would mispredict)
+    lo = int(cdfs[q, ax, 2, j])
+    while lo < nsub - 1 and cdfs[q, ax, 1, lo + 1] < y:
+        lo += 1
+    while lo > 0 and cdfs[q, ax, 1, lo] >= y:
+        lo -= 1
+    f0 = cdfs[q, ax, 1, lo]
+    w = cdfs[q, ax, 1, lo + 1] - f0
+    f = (y - f0) / w if w > 0 else 0.5
+    return (lo + f) / nsub - 0.5
 
 
 @_jit(parallel=True)

@@ -27,6 +27,15 @@ gets a third colour neither image has.  Here the plan itself is kept:
 Every pixel then lands at the target node the plan sends it to, so the output histogram
 is the target's up to the binning and the integer rounding (before regularization,
 :mod:`solvers.color.regularize`, and the clipping to the sRGB gamut).
+
+Within a node the pixels keep their offsets from their source node's mean, so the
+output's distribution inside each node is the source's, not the target's; where a node
+holds much mass (a grey atom, a dark sky) that shows at scales finer than the grid.
+:func:`remap_within_nodes` moves every colour inside its node by the 1-D monotone
+(quantile) map :math:`F_t^{-1} \circ F_m`, per axis, from the output's offsets to the
+target's, both counted in ``K`` sub-bins per node (CDFs linear inside a sub-bin): the
+output's per-axis marginals in every node become the target's up to the sub-bins, and
+no colour leaves its node.
 """
 
 from __future__ import annotations
@@ -182,16 +191,51 @@ def split_displacements(lab: np.ndarray, shape: tuple[int, int], plan: ExactPlan
     return out
 
 
-def moved_histogram(lab: np.ndarray, disp: np.ndarray, grid: AbGrid):
+def moved_histogram(lab: np.ndarray, disp: np.ndarray, grid: AbGrid, subbins: int = 0):
     """Nearest-node histogram ``(bins, bins)`` (pixel counts) of ``lab[:, 1:] + disp`` and
-    the mean ab ``(2, bins²)`` at each node."""
+    the mean ab ``(2, bins²)`` at each node (with ``subbins > 0`` also the counts
+    ``(2, bins², subbins)`` of the offsets from the node in that many sub-bins)."""
     from solvers.color._kernels import _chunks
 
     n2 = grid.bins**2
     chunks = _chunks(lab.shape[0])
     counts = np.zeros((chunks, n2))
     sums = np.zeros((chunks, 2, n2))
+    sub = np.zeros((chunks, 2, n2, subbins) if subbins else (chunks, 1, 1, 0))
     K.moved_histogram(lab, disp, np.float32(grid.nodes[0]), np.float32(grid.spacing),
-                      grid.bins, counts, sums)
+                      grid.bins, counts, sums, sub)
     total = counts.sum(axis=0)
-    return total.reshape(grid.bins, grid.bins), sums.sum(axis=0) / np.maximum(total, 1.0)
+    out = total.reshape(grid.bins, grid.bins), sums.sum(axis=0) / np.maximum(total, 1.0)
+    return (*out, sub.sum(axis=0)) if subbins else out
+
+
+def within_node_cdfs(moved: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per axis and node, the CDFs ``(2, n, K + 1)`` at the ``K + 1`` sub-bin edges of the
+    counts ``moved`` and ``target`` ``(2, n, K)``; both the uniform CDF (the remap is then
+    the identity) where either has no mass."""
+    K = moved.shape[-1]
+    uniform = np.arange(K + 1) / K
+
+    def cdf(counts, total):
+        c = np.concatenate([np.zeros(counts.shape[:2] + (1,)), np.cumsum(counts, -1)], -1)
+        return c / np.where(total > 0, total, 1.0)[..., None]
+
+    tm, tt = moved.sum(-1), target.sum(-1)
+    both = ((tm > 0) & (tt > 0))[..., None]
+    return (np.where(both, cdf(moved, tm), uniform), np.where(both, cdf(target, tt), uniform))
+
+
+def remap_within_nodes(lab: np.ndarray, disp: np.ndarray, grid: AbGrid,
+                       target_sub: np.ndarray) -> None:
+    """Move each colour ``lab[:, 1:] + disp`` inside its nearest node so that, per node
+    and axis, the offsets' distribution is ``target_sub`` ``(2, bins², K)`` (module doc);
+    ``disp`` updated in place."""
+    moved = moved_histogram(lab, disp, grid, target_sub.shape[-1])[2]
+    lo, h = np.float32(grid.nodes[0]), np.float32(grid.spacing)
+    fm, ft = (c.astype(np.float32) for c in within_node_cdfs(moved, target_sub))
+    # per moved sub-bin j: the target sub-bin holding fm[j] (the kernel steps on from it)
+    y = np.clip(fm[..., :-1], np.float32(1e-7), np.float32(1 - 1e-7))
+    start = np.zeros_like(fm)
+    start[..., :-1] = (ft[..., None, 1:-1] < y[..., :, None]).sum(-1)
+    cdfs = np.ascontiguousarray(np.stack([fm, ft, start], axis=2).transpose(1, 0, 2, 3))
+    K.remap_in_nodes(lab, disp, lo, h, grid.bins, cdfs)

@@ -14,9 +14,14 @@ the regularized transport maps of Rabin, Delon and Gousseau).  L* goes through t
 1-D map with its slope limited (``luminance_slope``, :func:`~solvers.color.luminance.
 limit_slope`; ``inf`` = the exact map).  Colours out of the sRGB gamut: each pixel's move
 to its nearest in-gamut L* (within ``GAMUT_REACH``) is guided-filtered by the input's L*
-and the smooth shift applied to all pixels (a per-pixel move would add L* texture); a
-colour still out of the gamut loses chroma at its L* and hue.  The re-split's correction
-is itself guided-filtered over a window of radius ``CORRECTION_RADIUS`` cells.
+(the shift's slope along the input's L* limited per window, ``GAMUT_MAX_SLOPE``) and the
+smooth shift applied to all pixels (a per-pixel move would add L* texture); a colour
+still out of the gamut loses chroma at its L* and hue.  The re-split's correction is
+itself guided-filtered over a window of radius ``CORRECTION_RADIUS`` cells.  Towards an
+input, every colour is then remapped inside its histogram node to the target's colours
+there (per-axis quantiles on ``WITHIN_NODE_SUBBINS`` sub-bins,
+:func:`~solvers.color.split.remap_within_nodes`): the grid fixes the histogram to the
+node, this to a sixteenth of a node.
 Towards a vertex of the simplex (``alphas`` with a single 1) the plan goes to that image's
 histogram; for ``k = 2`` and :math:`\alpha = (1 - s, s)` every pixel moves the fraction
 :math:`s` of its displacement (McCann's interpolation, the exact W2 geodesic between the
@@ -53,7 +58,13 @@ from solvers.color.chrominance import AbGrid, check_bins, chrominance_barycenter
 from solvers.color.lab import check_image, code_scale, lut_for, pixels
 from solvers.color.luminance import L_MAX, LBINS, limit_slope, luminance_maps
 from solvers.color.regularize import guided_coefficients, guided_solve_moments
-from solvers.color.split import ExactPlan, exact_plan, moved_histogram, split_displacements
+from solvers.color.split import (
+    ExactPlan,
+    exact_plan,
+    moved_histogram,
+    remap_within_nodes,
+    split_displacements,
+)
 from solvers.errors import InputError
 from solvers.monitor import SolverResult
 from solvers.validation import check_positive, check_weights
@@ -78,12 +89,13 @@ GAMUT_REACH = 100.0
 # the L* move into the gamut is guided-filtered (window: the guided filter's) with this
 # epsilon, each pixel weighted 1 if out of the gamut and GAMUT_IN_WEIGHT if in it (a mean
 # over the pixels that need a move, diluted where they are few); chosen in bench/color.py
-GAMUT_SHIFT_STRENGTH = 1e-3
+# and bench/color_gamut.py (bench/results/color.md)
+GAMUT_SHIFT_STRENGTH = 1e-4
 GAMUT_IN_WEIGHT = 0.3
 # the shift's slope along the input's L* (dL*_out / dL*_in it adds) kept within
 # [-GAMUT_MAX_SLOPE, GAMUT_MAX_SLOPE] per window, so that it cannot stretch or flatten the
-# input's L* edges much whatever its epsilon (inf: no limit)
-GAMUT_MAX_SLOPE = float("inf")
+# input's L* edges much whatever its epsilon (inf: no limit); bench/color_gamut.py
+GAMUT_MAX_SLOPE = 0.85
 # that move is sampled on every min(s, GAMUT_STRIDE)-th row and column (s: the block
 # size of the reduced image; 1 below REDUCED_PIXELS): the filter averages it over many
 # blocks anyway
@@ -98,6 +110,10 @@ DEFAULT_RESPLIT = 1.0
 # window radius (cells of the reduced image) of the guided filter of the re-split's
 # correction: small, so the histogram stays the target's but no single pixel steps alone
 CORRECTION_RADIUS = 1
+# sub-bins per node and axis of the within-node quantile remap towards an input's colours
+# (split.remap_within_nodes; 0: off): the grid fixes the output histogram to the node,
+# this to h / WITHIN_NODE_SUBBINS inside it (photographs' atoms, e.g. greys, sit inside)
+WITHIN_NODE_SUBBINS = 16
 
 
 @dataclass(kw_only=True)
@@ -298,21 +314,27 @@ def check_regularization(value) -> float:
 
 def _analyze_all(images, bins, luminance, todo, nearest):
     """Lab of the images to recolor, ab histograms, L* counts (and with ``nearest`` the
-    mean ab at each node, ``(k, 2, bins²)``)."""
+    mean ab at each node, ``(k, 2, bins²)``, and the within-node offset counts
+    ``(k, 2, bins², WITHIN_NODE_SUBBINS)``, ``None`` if that is 0)."""
     grid = AbGrid(bins)
     lbins = LBINS if luminance else 0
-    labs, hists, lcounts, means = [], [], [], []
+    sub = WITHIN_NODE_SUBBINS if nearest else 0
+    labs, hists, lcounts, means, subs = [], [], [], [], []
     for i, img in enumerate(images):
         px = pixels(img)
         lut, scale = lut_for(px.dtype)
-        lab, counts, lc, *mean = _kernels.analyze(px, lut, scale, bins, -128.0,
-                                                  grid.spacing, lbins, L_MAX,
-                                                  keep_lab=i in todo, nearest=nearest)
+        lab, counts, lc, *extra = _kernels.analyze(px, lut, scale, bins, -128.0,
+                                                   grid.spacing, lbins, L_MAX,
+                                                   keep_lab=i in todo, nearest=nearest,
+                                                   subbins=sub)
         labs.append(lab)
         hists.append(counts.reshape(bins, bins) / px.shape[0])
         lcounts.append(lc)
-        means.extend(mean)
-    return labs, np.stack(hists), lcounts, (np.stack(means) if nearest else None)
+        means.extend(extra[:1])
+        subs.extend(extra[1:])
+    if not nearest:
+        return labs, np.stack(hists), lcounts, None
+    return labs, np.stack(hists), lcounts, (np.stack(means), np.stack(subs) if sub else None)
 
 
 def _barycentric(images, A, bins, luminance, todo, t0, opts) -> ColorTransferResult:
@@ -395,7 +417,7 @@ def _split(images, A, bins, luminance, settings, todo, t0, opts) -> ColorTransfe
     times: dict[str, float] = {}
     k = len(images)
     grid = AbGrid(bins)
-    labs, H, lcounts, means = _analyze_all(images, bins, luminance, todo, nearest=True)
+    labs, H, lcounts, (means, subs) = _analyze_all(images, bins, luminance, todo, nearest=True)
     times["analyze"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
@@ -424,14 +446,14 @@ def _split(images, A, bins, luminance, settings, todo, t0, opts) -> ColorTransfe
                 continue
             if kind == "vertex":
                 p, scale = plan(i, (i, data), H[data], means[data]), 1.0
-                target = (H[data], means[data])
+                target = (H[data], means[data], None if subs is None else subs[data])
             elif kind == "pair":
                 j = 1 - i
                 p, scale = plan(i, (i, j), H[j], means[j]), float(A[b, j])
-                target = (targets[b], None)
+                target = (targets[b], None, None)
             else:
                 p, scale = plan(i, (i, f"b{data}"), targets[b]), 1.0
-                target = (targets[b], None)
+                target = (targets[b], None, None)
             lut_l = None if lmaps is None else limit_slope(lmaps[b, i], lcounts[i], slope)
             out_images[b][i] = _recolor_split(images[i], labs[i], p, grid, scale, lut_l,
                                               (regularization, resplit), target)
@@ -461,9 +483,12 @@ def reduction(shape: tuple[int, int]) -> tuple[int, int, int]:
 
 def _recolor_split(img, lab, plan, grid, scale, lut_l, settings, target):
     """Split (module doc), guided filter, then the filtered colours split again by the
-    exact plan from their histogram to ``target`` = ``(histogram, node means or None)``,
-    the fraction ``resplit`` of that correction applied (1: the output histogram is the
-    target's again); ``settings`` = ``(regularization, resplit)``."""
+    exact plan from their histogram to ``target`` = ``(histogram, node means or None,
+    within-node offset counts or None)``, the fraction ``resplit`` of that correction
+    applied (1: the output histogram is the target's again), then with offset counts (a
+    target that is an input) every colour remapped inside its node to the target's
+    offsets (:func:`~solvers.color.split.remap_within_nodes`); ``settings`` =
+    ``(regularization, resplit)``."""
     regularization, resplit = settings
     shape = img.shape[:2]
     s, key_radius, filter_radius = reduction(shape)
@@ -481,6 +506,8 @@ def _recolor_split(img, lab, plan, grid, scale, lut_l, settings, target):
                                        radius=CORRECTION_RADIUS, nguide=GUIDE_CHANNELS)
             SK.guided_field(lab, coef, GUIDE_CHANNELS, s, shape[1], corr)
             disp += corr
+    if target[2] is not None:
+        remap_within_nodes(lab, disp, grid, target[2])
     lut = np.zeros(0, dtype=np.float32) if lut_l is None else lut_l.astype(np.float32)
     shift = _gamut_shift(lab, lut, disp, shape, s, filter_radius)
     src = pixels(img)
