@@ -196,12 +196,6 @@ def _dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return x[:, 0] * y[:, 0] + x[:, 1] * y[:, 1] + x[:, 2] * y[:, 2]
 
 
-def _jmul(y: np.ndarray) -> np.ndarray:
-    out = -y
-    out[:, 0] = y[:, 0]
-    return out
-
-
 @cached_njit()
 def _nt_kernel(x, z, v, p, beta, lam):  # pragma: no cover - compiled
     for t in range(x.shape[0]):
