@@ -80,16 +80,9 @@ async def wait_for(svc, job_id: str, seconds: float, job=None):
     return job
 
 
-def _check_wait(wait: float, rt) -> None:
-    if wait > rt.settings.wait_max:
-        raise InvalidInput(f"wait must be at most {rt.settings.wait_max:g} seconds",
-                           field="wait")
-
-
-def submit_job(op_name: str, domain_id: str | None, body, wait: float, svc, rt,
+def submit_job(op_name: str, domain_id: str | None, body, svc, rt,
                idempotency_key: str | None = None):
     """Shared by every operation route (sync part)."""
-    _check_wait(wait, rt)
     route = f"POST {op_name}" + (f" on {domain_id}" if domain_id else "")
     idempotency = for_request(rt, svc.tenant.id, idempotency_key, route,
                               body.model_dump(mode="json"))
@@ -102,14 +95,15 @@ async def submit(op_name: str, domain_id: str | None, body, wait: float, svc, rt
     for a small bounded submission without an ``Idempotency-Key``
     (``JobService.submits_on_loop``; only the INSERT goes to the pool when another process
     holds the job table's write lock)."""
-    if idempotency_key is None:
-        _check_wait(wait, rt)
-        if svc.submits_on_loop(op_name, domain_id, body):
-            try:
-                return svc.create(op_name, domain_id, body, nowait=True)
-            except PendingJob as pending:
-                return await run_in_threadpool(svc.record, pending.job)
-    return await run_in_threadpool(submit_job, op_name, domain_id, body, wait, svc, rt,
+    if wait > rt.settings.wait_max:
+        raise InvalidInput(f"wait must be at most {rt.settings.wait_max:g} seconds",
+                           field="wait")
+    if idempotency_key is None and svc.submits_on_loop(op_name, domain_id, body):
+        try:
+            return svc.create(op_name, domain_id, body, nowait=True)
+        except PendingJob as pending:
+            return await run_in_threadpool(svc.record, pending.job)
+    return await run_in_threadpool(submit_job, op_name, domain_id, body, svc, rt,
                                    idempotency_key)
 
 
