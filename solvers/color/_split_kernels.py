@@ -19,7 +19,7 @@ from solvers.color._kernels import (
     _nearest_node,
     _store,
     _store_linear,
-    sub_bin,
+    count_at_node,
 )
 
 
@@ -579,15 +579,8 @@ def _moved(lab, disp, p, lo, inv_h, nbins):
 @_jit(inline="always")
 def _count_moved(lab, disp, p, c, lo, h, inv_h, nbins, counts, sums, sub):
     """Add pixel ``p``'s moved colour to chunk ``c`` of :func:`moved_histogram`'s sums."""
-    nsub = sub.shape[3]
     a, b, ia, ib = _moved(lab, disp, p, lo, inv_h, nbins)
-    q = ia * nbins + ib
-    counts[c, q] += 1.0
-    sums[c, 0, q] += a
-    sums[c, 1, q] += b
-    if nsub > 0:
-        sub[c, 0, q, sub_bin(a, lo, h, ia, nsub)] += 1.0
-        sub[c, 1, q, sub_bin(b, lo, h, ib, nsub)] += 1.0
+    count_at_node(counts, sums, sub, c, ia, ib, a, b, a, b, lo, h, nbins)
 
 
 @_jit(parallel=True)
