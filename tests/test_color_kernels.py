@@ -120,13 +120,28 @@ def _rank_problem(seed=2, n=20000, nrows=7):
 
 
 def _run_assign(key, row, offsets, ends, disp, levels):
-    lo, hi = SK.key_ranges(key, row, len(offsets) - 1)
-    counts = np.zeros((len(offsets) - 1, levels), dtype=np.int64)
+    nrows = len(offsets) - 1
+    lo, hi, missing = SK.key_ranges(key, row, nrows)
+    assert not missing
+    for r in range(nrows):
+        assert (lo[r], hi[r]) == (key[row == r].min(), key[row == r].max())
+    counts = np.zeros((nrows, levels), dtype=np.int64)
     SK.level_counts(key, row, lo, hi, counts)
-    start = np.cumsum(counts, axis=1) - counts
+    start = counts.copy()
+    SK.exclusive_cumsum(start)
+    np.testing.assert_array_equal(start, np.cumsum(counts, axis=1) - counts)
     out = np.empty((len(key), 2), dtype=np.float32)
-    SK.assign(key, row, lo, hi, start, offsets, ends, disp, 1.0, out)
+    SK.assign(key, row, lo, hi, start, offsets, ends, disp, 1.0, out,
+              np.ones(len(key), dtype=np.bool_))  # flags scratch: any content
     return out, counts, lo, hi
+
+
+def test_key_ranges_flags_a_pixel_without_row():
+    key = np.arange(6, dtype=np.float32)
+    row = np.array([0, 1, 0, -1, 1, 1], dtype=np.int32)
+    lo, hi, missing = SK.key_ranges(key, row, 2)
+    assert missing and lo.tolist() == [0, 1] and hi.tolist() == [2, 5]
+    assert not SK.key_ranges(key, np.abs(row), 2)[2]
 
 
 def test_parallel_assign_matches_stable_sort_for_any_thread_count():

@@ -211,6 +211,21 @@ def sub_bin(v, lo, h, k, nsub):
     return min(max(t, 0), nsub - 1)
 
 
+@_jit(inline="always")
+def count_at_node(hist, sums, sub, c, ia, ib, a, b, sa, sb, lo, h, nbins):
+    """Count a colour ``(a, b)`` at its nearest node ``(ia, ib)`` in chunk ``c``: one in
+    ``hist``, ``(sa, sb)`` added to the node's ``sums``, and (``K = sub.shape[3] > 0``)
+    its offsets from the node counted in ``K`` sub-bins."""
+    nsub = sub.shape[3]
+    q = ia * nbins + ib
+    hist[c, q] += 1.0
+    sums[c, 0, q] += sa
+    sums[c, 1, q] += sb
+    if nsub > 0:
+        sub[c, 0, q, sub_bin(a, lo, h, ia, nsub)] += 1.0
+        sub[c, 1, q, sub_bin(b, lo, h, ib, nsub)] += 1.0
+
+
 def _chunks(n: int) -> int:
     return max(1, min(4 * numba.get_num_threads(), n // 4096 + 1))
 
@@ -233,7 +248,6 @@ def _analyze(px, lut, m, lab, nbins, lo, h, lbins, lmax, hist, lhist, nearest, s
     step = (n + chunks - 1) // chunks
     keep = lab.shape[0] == n
     inv_h = 1.0 / h
-    nsub = sub.shape[3]
     for c in numba.prange(chunks):
         for p in range(c * step, min(n, (c + 1) * step)):
             r = _linear(px[p, 0], lut)
@@ -250,13 +264,7 @@ def _analyze(px, lut, m, lab, nbins, lo, h, lbins, lmax, hist, lhist, nearest, s
                 b32 = np.float64(np.float32(B))
                 ia = _nearest_node(a32, lo, inv_h, nbins)
                 ib = _nearest_node(b32, lo, inv_h, nbins)
-                q = ia * nbins + ib
-                hist[c, q] += 1.0
-                sums[c, 0, q] += A
-                sums[c, 1, q] += B
-                if nsub > 0:
-                    sub[c, 0, q, sub_bin(a32, lo, h, ia, nsub)] += 1.0
-                    sub[c, 1, q, sub_bin(b32, lo, h, ib, nsub)] += 1.0
+                count_at_node(hist, sums, sub, c, ia, ib, a32, b32, A, B, lo, h, nbins)
             elif nbins > 0:  # bilinear ("cloud in cell") splat onto the 4 nearest nodes
                 i, j, fu, fv = _cell((A - lo) * inv_h, (B - lo) * inv_h, nbins, nbins)
                 q = i * nbins + j

@@ -19,7 +19,7 @@ from solvers.color._kernels import (
     _nearest_node,
     _store,
     _store_linear,
-    sub_bin,
+    count_at_node,
 )
 
 
@@ -115,18 +115,36 @@ def block_sums_ab(lab, base, width, s, sums):
                 sums[2, by, bx] += 1.0
 
 
-@_jit()
+@_jit(parallel=True)
 def key_ranges(key, row, nrows):
+    """Smallest and largest key of each row ``(nrows,)`` (per-chunk extremes, exact in any
+    order), and whether some pixel has no row (``row < 0``)."""
+    n = key.shape[0]
+    chunks = max(1, min(8, n // 65536 + 1))
+    step = (n + chunks - 1) // chunks
+    los = np.full((chunks, nrows), np.inf)
+    his = np.full((chunks, nrows), -np.inf)
+    missing = np.zeros(chunks, dtype=np.bool_)
+    for c in numba.prange(chunks):
+        for p in range(c * step, min(n, (c + 1) * step)):
+            r = row[p]
+            if r < 0:
+                missing[c] = True
+                continue
+            k = key[p]
+            if k < los[c, r]:
+                los[c, r] = k
+            if k > his[c, r]:
+                his[c, r] = k
     lo = np.full(nrows, np.inf)
     hi = np.full(nrows, -np.inf)
-    for p in range(key.shape[0]):
-        r = row[p]
-        k = key[p]
-        if k < lo[r]:
-            lo[r] = k
-        if k > hi[r]:
-            hi[r] = k
-    return lo, hi
+    for c in range(chunks):
+        for r in range(nrows):
+            if los[c, r] < lo[r]:
+                lo[r] = los[c, r]
+            if his[c, r] > hi[r]:
+                hi[r] = his[c, r]
+    return lo, hi, missing.any()
 
 
 @_jit(inline="always")
@@ -181,7 +199,7 @@ def _level_counts(key, row, lo, hi, counts, ngroups):
                 counts[r, _level(key[p], lo[r], hi[r], levels)] += 1
 
 
-def assign(key, row, lo, hi, start, offsets, ends, disp, scale, out):
+def assign(key, row, lo, hi, start, offsets, ends, disp, scale, out, straddle):
     """Rank every pixel within its row (key level, then raster order) and give it the
     displacement of the target its rank falls in: targets ``offsets[r]..offsets[r+1]``
     of row ``r`` hold ``ends`` (cumulative pixel counts) and ``disp`` ``(T, 2)``;
@@ -189,14 +207,25 @@ def assign(key, row, lo, hi, start, offsets, ends, disp, scale, out):
 
     The pixels of a level whose ranks all fall in one target need no rank: they are
     assigned in parallel; only the levels that straddle a target's end are walked in
-    raster order.  The result does not depend on the number of threads."""
+    raster order (``straddle`` ``(N,)`` bool scratch marks their pixels).  The result does
+    not depend on the number of threads."""
     nrows, levels = start.shape
     target = np.empty((nrows, levels), dtype=np.int32)
     _uniform_levels(start, offsets, ends, target)
-    straddle = np.zeros(key.shape[0], dtype=np.bool_)
     _assign_uniform(key, row, lo, hi, target, disp, float(scale), out, straddle)
     _assign_straddling(key, row, lo, hi, start, offsets, ends, disp, float(scale), out,
                        straddle)
+
+
+@_jit(parallel=True)
+def exclusive_cumsum(counts):
+    """Each row of ``counts`` ``(R, L)`` replaced in place by its exclusive prefix sums."""
+    for r in numba.prange(counts.shape[0]):
+        acc = 0
+        for q in range(counts.shape[1]):
+            c = counts[r, q]
+            counts[r, q] = acc
+            acc += c
 
 
 @_jit(inline="always")
@@ -241,9 +270,8 @@ def _assign_uniform(key, row, lo, hi, target, disp, scale, out, straddle):
     for p in numba.prange(key.shape[0]):
         r = row[p]
         t = target[r, _level(key[p], lo[r], hi[r], levels)]
-        if t < 0:
-            straddle[p] = True
-        else:
+        straddle[p] = t < 0
+        if t >= 0:
             out[p, 0] = disp[t, 0] * scale
             out[p, 1] = disp[t, 1] * scale
 
@@ -512,26 +540,30 @@ def gamut_map(L, a, b, m, reach):
     return _gamut_map_out(L, a, b, m, reach)
 
 
+@_jit(inline="always")
+def _guided_at(lab, coef, c, p, i0, i1, w, j0, j1, v):
+    """The guided filter's displacement ``a · I + b`` at pixel ``p`` (coefficients bilinear
+    between cells ``i0, i1`` / ``j0, j1`` at fractions ``w`` / ``v``)."""
+    da = _bilinear(coef[2 * c], i0, i1, w, j0, j1, v)
+    db = _bilinear(coef[2 * c + 1], i0, i1, w, j0, j1, v)
+    for u in range(c):
+        g = np.float64(lab[p, u]) * GUIDE_SCALE
+        da += _bilinear(coef[u], i0, i1, w, j0, j1, v) * g
+        db += _bilinear(coef[c + u], i0, i1, w, j0, j1, v) * g
+    return da, db
+
+
 @_jit(parallel=True)
 def guided_field(lab, coef, nguide, s, width, disp):
     """The guided filter's displacement ``a · I + b`` at every pixel (``I =
     lab[:, :nguide] / 100``, coefficients from :func:`guided_solve`, box-filtered, bilinear
     at pixel centres), written into ``disp`` ``(N, 2)``."""
-    c = nguide
     ys, ys1, fy, xs, xs1, fx = _axes(lab.shape[0], width, s, coef.shape[1], coef.shape[2])
     for y in numba.prange(ys.shape[0]):
         i0, i1, w = ys[y], ys1[y], fy[y]
         for x in range(width):
             p = y * width + x
-            j0 = xs[x]
-            j1 = xs1[x]
-            v = fx[x]
-            da = _bilinear(coef[2 * c], i0, i1, w, j0, j1, v)
-            db = _bilinear(coef[2 * c + 1], i0, i1, w, j0, j1, v)
-            for u in range(c):
-                g = np.float64(lab[p, u]) * GUIDE_SCALE
-                da += _bilinear(coef[u], i0, i1, w, j0, j1, v) * g
-                db += _bilinear(coef[c + u], i0, i1, w, j0, j1, v) * g
+            da, db = _guided_at(lab, coef, nguide, p, i0, i1, w, xs[x], xs1[x], fx[x])
             disp[p, 0] = da
             disp[p, 1] = db
 
@@ -544,6 +576,13 @@ def _moved(lab, disp, p, lo, inv_h, nbins):
     return a, b, _nearest_node(a, lo, inv_h, nbins), _nearest_node(b, lo, inv_h, nbins)
 
 
+@_jit(inline="always")
+def _count_moved(lab, disp, p, c, lo, h, inv_h, nbins, counts, sums, sub):
+    """Add pixel ``p``'s moved colour to chunk ``c`` of :func:`moved_histogram`'s sums."""
+    a, b, ia, ib = _moved(lab, disp, p, lo, inv_h, nbins)
+    count_at_node(counts, sums, sub, c, ia, ib, a, b, a, b, lo, h, nbins)
+
+
 @_jit(parallel=True)
 def moved_histogram(lab, disp, lo, h, nbins, counts, sums, sub):
     """Nearest-node histogram of the moved colours ``lab[:, 1:] + disp`` (float32, as
@@ -552,19 +591,49 @@ def moved_histogram(lab, disp, lo, h, nbins, counts, sums, sub):
     counts of their offsets from the node in ``K`` sub-bins of ``[-h/2, h/2]`` (as
     :func:`~solvers.color._kernels.analyze` counts an image's)."""
     n = lab.shape[0]
-    chunks, nsub = counts.shape[0], sub.shape[3]
+    chunks = counts.shape[0]
     step = (n + chunks - 1) // chunks
     inv_h = 1.0 / h
     for c in numba.prange(chunks):
         for p in range(c * step, min(n, (c + 1) * step)):
-            a, b, ia, ib = _moved(lab, disp, p, lo, inv_h, nbins)
-            q = ia * nbins + ib
-            counts[c, q] += 1.0
-            sums[c, 0, q] += a
-            sums[c, 1, q] += b
-            if nsub > 0:
-                sub[c, 0, q, sub_bin(a, lo, h, ia, nsub)] += 1.0
-                sub[c, 1, q, sub_bin(b, lo, h, ib, nsub)] += 1.0
+            _count_moved(lab, disp, p, c, lo, h, inv_h, nbins, counts, sums, sub)
+
+
+@_jit(parallel=True)
+def guided_moved_histogram(lab, coef, nguide, s, width, disp, add, lo, h, nbins, counts,
+                           sums, sub):
+    """:func:`guided_field` into ``disp`` (``add``: added to it, in float32 as stored) and
+    :func:`moved_histogram` of the result, in one pass over the pixels (the same chunks
+    and order as :func:`moved_histogram`, so the same sums)."""
+    n = lab.shape[0]
+    chunks = counts.shape[0]
+    step = (n + chunks - 1) // chunks
+    inv_h = 1.0 / h
+    ys, ys1, fy, xs, xs1, fx = _axes(n, width, s, coef.shape[1], coef.shape[2])
+    for c in numba.prange(chunks):
+        p0 = c * step
+        p1 = min(n, (c + 1) * step)
+        for y in range(p0 // width, (p1 + width - 1) // width):
+            i0, i1, w = ys[y], ys1[y], fy[y]
+            row = y * width
+            x0 = max(p0 - row, 0)
+            x1 = min(p1 - row, width)
+            # the row's part of the chunk: the field first (a loop the compiler vectorizes),
+            # then its colours counted in pixel order
+            if add:
+                for x in range(x0, x1):
+                    da, db = _guided_at(lab, coef, nguide, row + x, i0, i1, w, xs[x],
+                                        xs1[x], fx[x])
+                    disp[row + x, 0] = disp[row + x, 0] + np.float32(da)
+                    disp[row + x, 1] = disp[row + x, 1] + np.float32(db)
+            else:
+                for x in range(x0, x1):
+                    da, db = _guided_at(lab, coef, nguide, row + x, i0, i1, w, xs[x],
+                                        xs1[x], fx[x])
+                    disp[row + x, 0] = da
+                    disp[row + x, 1] = db
+            for x in range(x0, x1):
+                _count_moved(lab, disp, row + x, c, lo, h, inv_h, nbins, counts, sums, sub)
 
 
 @_jit(parallel=True)

@@ -43,10 +43,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
 from solvers.color import _split_kernels as K
 from solvers.color.chrominance import AbGrid
+from solvers.color.regularize import box_filter
 from solvers.errors import ConvergenceError
 
 KEY_LEVELS = 4096
@@ -141,33 +141,36 @@ def block_mean_ab(lab: np.ndarray, base: np.ndarray, shape: tuple[int, int],
 
 def split_displacements(lab: np.ndarray, shape: tuple[int, int], plan: ExactPlan,
                         grid: AbGrid, *, scale: float, s: int, radius: int,
-                        base: np.ndarray | None = None) -> np.ndarray:
+                        base: np.ndarray | None = None,
+                        scratch: tuple | None = None) -> np.ndarray:
     """Per-pixel ab displacements ``(N, 2)`` float32: ``scale`` times ``y_j - x_i`` for the
     target node ``j`` each pixel of source node ``i`` is given (module doc).
 
     ``lab`` ``(N, 3)`` the image's Lab (C order over ``shape``), its ab moved by ``base``
     ``(N, 2)`` if given; the ordering key smooths ab by a box of ``2 radius + 1`` cells
-    on the image reduced by ``s``."""
+    on the image reduced by ``s``; ``scratch``: :func:`scratch_buffers` for the image, to
+    reuse across calls (fresh pages of a 12 Mpx buffer cost more than filling it)."""
     H, W = shape
+    key, row, straddle = scratch_buffers(lab.shape[0]) if scratch is None else scratch
     if base is None:
         base = np.zeros((0, 2), dtype=np.float32)
     a, b = block_mean_ab(lab, base, shape, s)
     size = 2 * radius + 1
-    sa = ndimage.uniform_filter(a, size, mode="nearest")
-    sb = ndimage.uniform_filter(b, size, mode="nearest")
+    sa, sb = box_filter([a, b], size)  # in place
     R = len(plan.rows)
     row_of = np.full(grid.bins**2, -1, dtype=np.int64)
     row_of[plan.rows] = np.arange(R)
     targets = plan.targets
     dirs = _principal_directions(targets, plan.plan)
-    key = np.empty(lab.shape[0], dtype=np.float32)
-    row = np.empty(lab.shape[0], dtype=np.int64)
     # the same float32 grid constants as the histogram pass, so both bin pixels alike
     K.keys(lab, base, W, s, sa, sb, np.float32(grid.nodes[0]), np.float32(grid.spacing), grid.bins,
            row_of, dirs, key, row)
-    if row.min() < 0:  # the plan was built from this image's own histogram
+    lo, hi, missing = K.key_ranges(key, row, R)
+    if missing:  # the plan was built from this image's own histogram
         raise RuntimeError("a pixel's ab node is missing from the plan's support")
-    counts = np.bincount(row, minlength=R)
+    levels = np.zeros((R, KEY_LEVELS), dtype=row.dtype)
+    K.level_counts(key, row, lo, hi, levels)
+    counts = levels.sum(axis=1, dtype=np.int64)  # pixels per row
     split = integer_split(plan.plan, counts)
     # each row's targets in the order of their projection on the row's direction
     proj = targets @ dirs.T  # (C, R)
@@ -182,19 +185,30 @@ def split_displacements(lab: np.ndarray, shape: tuple[int, int], plan: ExactPlan
     cols = np.concatenate(cols_list)
     ends = np.concatenate(ends_list).astype(np.int64)
     disp = targets[cols] - np.repeat(plan.sources, np.diff(offsets), axis=0)
-    lo, hi = K.key_ranges(key, row, R)
-    levels = np.zeros((R, KEY_LEVELS), dtype=np.int64)
-    K.level_counts(key, row, lo, hi, levels)
-    start = np.cumsum(levels, axis=1) - levels
+    K.exclusive_cumsum(levels)  # now each level's first rank in its row
     out = np.empty((lab.shape[0], 2), dtype=np.float32)
-    K.assign(key, row, lo, hi, start, offsets, ends, disp, float(scale), out)
+    K.assign(key, row, lo, hi, levels, offsets, ends, disp, float(scale), out, straddle)
     return out
 
 
-def moved_histogram(lab: np.ndarray, disp: np.ndarray, grid: AbGrid, subbins: int = 0):
+def scratch_buffers(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-pixel scratch of :func:`split_displacements` for ``n`` pixels: ordering key
+    (float32), source row and pixel flags; rows (and the rank counters, which share
+    their dtype) in int32 when ``n`` fits it."""
+    index = np.int32 if n < 2**31 else np.int64
+    return (np.empty(n, dtype=np.float32), np.empty(n, dtype=index),
+            np.empty(n, dtype=np.bool_))
+
+
+def moved_histogram(lab: np.ndarray, disp: np.ndarray, grid: AbGrid, subbins: int = 0,
+                    guided: tuple | None = None):
     """Nearest-node histogram ``(bins, bins)`` (pixel counts) of ``lab[:, 1:] + disp`` and
     the mean ab ``(2, bins²)`` at each node (with ``subbins > 0`` also the counts
-    ``(2, bins², subbins)`` of the offsets from the node in that many sub-bins)."""
+    ``(2, bins², subbins)`` of the offsets from the node in that many sub-bins).
+
+    ``guided`` = ``(coef, nguide, s, width, add)``: ``disp`` is first set to (``add``:
+    increased by) the guided filter's field of those coefficients
+    (:func:`~solvers.color._split_kernels.guided_field`), in the same pass."""
     from solvers.color._kernels import _chunks
 
     n2 = grid.bins**2
@@ -202,8 +216,13 @@ def moved_histogram(lab: np.ndarray, disp: np.ndarray, grid: AbGrid, subbins: in
     counts = np.zeros((chunks, n2))
     sums = np.zeros((chunks, 2, n2))
     sub = np.zeros((chunks, 2, n2, subbins) if subbins else (chunks, 1, 1, 0))
-    K.moved_histogram(lab, disp, np.float32(grid.nodes[0]), np.float32(grid.spacing),
-                      grid.bins, counts, sums, sub)
+    lo, h = np.float32(grid.nodes[0]), np.float32(grid.spacing)
+    if guided is None:
+        K.moved_histogram(lab, disp, lo, h, grid.bins, counts, sums, sub)
+    else:
+        coef, nguide, s, width, add = guided
+        K.guided_moved_histogram(lab, coef, nguide, s, width, disp, bool(add), lo, h,
+                                 grid.bins, counts, sums, sub)
     total = counts.sum(axis=0)
     out = total.reshape(grid.bins, grid.bins), sums.sum(axis=0) / np.maximum(total, 1.0)
     return (*out, sub.sum(axis=0)) if subbins else out
@@ -226,11 +245,13 @@ def within_node_cdfs(moved: np.ndarray, target: np.ndarray) -> tuple[np.ndarray,
 
 
 def remap_within_nodes(lab: np.ndarray, disp: np.ndarray, grid: AbGrid,
-                       target_sub: np.ndarray) -> None:
+                       target_sub: np.ndarray, moved: np.ndarray | None = None) -> None:
     """Move each colour ``lab[:, 1:] + disp`` inside its nearest node so that, per node
     and axis, the offsets' distribution is ``target_sub`` ``(2, bins², K)`` (module doc);
-    ``disp`` updated in place."""
-    moved = moved_histogram(lab, disp, grid, target_sub.shape[-1])[2]
+    ``disp`` updated in place.  ``moved``: the colours' own offset counts (same layout,
+    :func:`moved_histogram`) if already counted."""
+    if moved is None:
+        moved = moved_histogram(lab, disp, grid, target_sub.shape[-1])[2]
     lo, h = np.float32(grid.nodes[0]), np.float32(grid.spacing)
     fm, ft = (c.astype(np.float32) for c in within_node_cdfs(moved, target_sub))
     # per moved sub-bin j: the target sub-bin holding fm[j] (the kernel steps on from it)

@@ -57,12 +57,13 @@ from solvers.color import _split_kernels as SK
 from solvers.color.chrominance import AbGrid, check_bins, chrominance_barycenters
 from solvers.color.lab import check_image, code_scale, lut_for, pixels
 from solvers.color.luminance import L_MAX, LBINS, limit_slope, luminance_maps
-from solvers.color.regularize import guided_coefficients, guided_solve_moments
+from solvers.color.regularize import guided_coefficients, guided_solve_moments, moment_buffer
 from solvers.color.split import (
     ExactPlan,
     exact_plan,
     moved_histogram,
     remap_within_nodes,
+    scratch_buffers,
     split_displacements,
 )
 from solvers.errors import InputError
@@ -492,24 +493,37 @@ def _recolor_split(img, lab, plan, grid, scale, lut_l, settings, target):
     regularization, resplit = settings
     shape = img.shape[:2]
     s, key_radius, filter_radius = reduction(shape)
-    disp = split_displacements(lab, shape, plan, grid, scale=scale, s=s, radius=key_radius)
+    scratch = scratch_buffers(lab.shape[0])
+    disp = split_displacements(lab, shape, plan, grid, scale=scale, s=s, radius=key_radius,
+                               scratch=scratch)
+    moved = None  # the remap's offset counts of the final colours, if counted on the way
+    moments = moment_buffer(shape, s, GUIDE_CHANNELS)  # reused by each filter below
     if regularization > 0:
         coef = guided_coefficients(lab, disp, shape, strength=regularization, s=s,
-                                   radius=filter_radius, nguide=GUIDE_CHANNELS)
-        SK.guided_field(lab, coef, GUIDE_CHANNELS, s, shape[1], disp)
-        if resplit > 0:
-            hist, hmeans = moved_histogram(lab, disp, grid)
+                                   radius=filter_radius, nguide=GUIDE_CHANNELS,
+                                   moments=moments)
+        if resplit > 0:  # filtered field and its histogram in one pass
+            hist, hmeans = moved_histogram(lab, disp, grid,
+                                           guided=(coef, GUIDE_CHANNELS, s, shape[1], False))
             again = exact_plan(hist, target[0], grid, hmeans, target[1])
             corr = split_displacements(lab, shape, again, grid, scale=resplit, s=s,
-                                       radius=key_radius, base=disp)
+                                       radius=key_radius, base=disp, scratch=scratch)
             coef = guided_coefficients(lab, corr, shape, strength=regularization, s=s,
-                                       radius=CORRECTION_RADIUS, nguide=GUIDE_CHANNELS)
-            SK.guided_field(lab, coef, GUIDE_CHANNELS, s, shape[1], corr)
-            disp += corr
+                                       radius=CORRECTION_RADIUS, nguide=GUIDE_CHANNELS,
+                                       moments=moments)
+            if target[2] is None:
+                SK.guided_field(lab, coef, GUIDE_CHANNELS, s, shape[1], corr)
+                disp += corr
+            else:  # disp += the filtered correction, and the remap's counts, in one pass
+                del corr
+                moved = moved_histogram(lab, disp, grid, target[2].shape[-1],
+                                        guided=(coef, GUIDE_CHANNELS, s, shape[1], True))[2]
+        else:
+            SK.guided_field(lab, coef, GUIDE_CHANNELS, s, shape[1], disp)
     if target[2] is not None:
-        remap_within_nodes(lab, disp, grid, target[2])
+        remap_within_nodes(lab, disp, grid, target[2], moved)
     lut = np.zeros(0, dtype=np.float32) if lut_l is None else lut_l.astype(np.float32)
-    shift = _gamut_shift(lab, lut, disp, shape, s, filter_radius)
+    shift = _gamut_shift(lab, lut, disp, shape, s, filter_radius, moments)
     src = pixels(img)
     out = np.empty_like(src)
     scale_out = code_scale(img.dtype)
@@ -519,15 +533,17 @@ def _recolor_split(img, lab, plan, grid, scale, lut_l, settings, target):
     return out.reshape(img.shape).astype(img.dtype, copy=False)
 
 
-def _gamut_shift(lab, lut, disp, shape, s, radius):
+def _gamut_shift(lab, lut, disp, shape, s, radius, mom):
     """Coefficients ``(2, h, w)`` (``a``, ``b`` of ``a L*/100 + b``) of a smooth L* shift
     towards the gamut: each recolored pixel's move to its nearest in-gamut L*
     (:func:`~solvers.color._split_kernels.gamut_lightness`, 0 in the gamut),
     guided-filtered by the input's L* with in-gamut pixels down-weighted.  A per-pixel
     move adds L* texture the input does not have; the smooth shift keeps the input's
-    structure, and the colours it leaves out of the gamut lose chroma at their L*."""
-    H, W = shape
-    mom = np.zeros((SK.n_moments(1), -(-H // s), -(-W // s)))
+    structure, and the colours it leaves out of the gamut lose chroma at their L*.
+    ``mom``: a :func:`~solvers.color.regularize.moment_buffer` (overwritten)."""
+    W = shape[1]
+    mom = mom[:SK.n_moments(1)]  # one guide channel
+    mom.fill(0.0)
     SK.gamut_shift_moments(lab, lut, L_MAX / LBINS, disp, _kernels._M_INV, float(GAMUT_REACH),
                            W, s, min(s, GAMUT_STRIDE), GAMUT_IN_WEIGHT, mom)
     coef = guided_solve_moments(mom, 1, GAMUT_SHIFT_STRENGTH, radius, weighted=True,
