@@ -178,11 +178,12 @@ def test_zero_pivot_hands_over_to_ldlt(sphere, monkeypatch, from_iteration):
 
 
 @pytest.mark.parametrize("iterations", [1, 8])
-def test_affine_direction_solved_with_the_woodbury_block(sphere, monkeypatch, iterations):
-    """The affine (predictor) direction a Newton system solves with its Woodbury block
-    (``affine``) is the one its own single solve gives for Mehrotra's affine right-hand
-    sides ``-λ ∘ λ``, ``-λ_ρ²``, and it solves the Newton system: the divergence
-    constraints hold along it (``D du_i - dρ = -e_i``)."""
+def test_bordered_solve_is_the_normal_equations(sphere, monkeypatch, iterations):
+    """The bordered matrix ``[[A, V], [Vᵀ, C⁻¹]]`` one factorization per iteration solves:
+    its border holds ``v_i`` on block ``i``'s rows and ``1 / c_i``, its solve's first rows
+    solve the normal equations ``(A - V C Vᵀ) Δy = r`` (dense check), and the directions
+    built on them satisfy the Newton system's divergence constraints
+    (``D du_i - dρ = -e_i``)."""
     seen = []
 
     class Recording(ipb._Newton):
@@ -194,14 +195,25 @@ def test_affine_direction_solved_with_the_woodbury_block(sphere, monkeypatch, it
     mus = np.stack([_bump(sphere, c) for c in (0, 50, 100)], axis=1)
     w1_barycenter(sphere, mus, [0.2, 0.3, 0.5], tol=1e-12, max_iter=iterations)
     newton = seen[-1]
+    prog, layout = newton.prog, newton.layout
+    size, k = layout.size, prog.k
+    data = layout.data(ipb.ip.face_blocks(newton.scaling, prog.products), newton.d, newton.v,
+                       newton.c)
+    bordered = layout.matrix(data, full=True).toarray()
+    a, border = bordered[:size, :size], bordered[:size, size:]
+    for i in range(k):
+        expected = np.zeros(size)
+        expected[layout.offsets[i]:layout.offsets[i + 1]] = newton.v[i, layout.rows_of[i]]
+        np.testing.assert_array_equal(border[:, i], expected)
+    np.testing.assert_allclose(np.diag(bordered[size:, size:]), 1.0 / newton.c, rtol=1e-15)
+    normal = a - border @ np.diag(newton.c) @ border.T
+    r = np.random.default_rng(1).normal(size=(k, prog.n))
+    dy = newton._solve(r)
+    np.testing.assert_allclose(normal @ dy, layout.scatter(r), rtol=0,
+                               atol=1e-8 * np.abs(layout.scatter(r)).max())
     lam = newton.scaling.lam
-    direct = newton(-ipb.ip._jordan(lam, lam), -newton.lam_rho**2)
-    for bundled, single in zip(newton.affine(), direct, strict=True):
-        scale = np.abs(single).max()
-        np.testing.assert_allclose(bundled, single, rtol=0, atol=1e-9 * scale)
-    dx, drho = newton.affine()[:2]
-    prog = newton.prog
-    change = prog.div(dx.reshape(prog.k, -1, 3)) - drho[None]
+    dx, drho = newton(-ipb.ip._jordan(lam, lam), -newton.lam_rho**2)[:2]
+    change = prog.div(dx.reshape(k, -1, 3)) - drho[None]
     np.testing.assert_allclose(change, -newton.residual, atol=1e-9)
 
 

@@ -139,6 +139,16 @@ def _jordan_solve(lam: np.ndarray, r: np.ndarray) -> np.ndarray:
 
 
 @cached_njit()
+def _scale_point(v0, v1, v2, b, y0, y1, y2, forward):  # pragma: no cover - compiled
+    """One face's ``β (2 v vᵀ − J) y`` (``forward``) or ``(2 v vᵀ − J) y / β``."""
+    c = 2.0 * (v0 * y0 + v1 * y1 + v2 * y2)
+    y0, y1, y2 = c * v0 - y0, c * v1 + y1, c * v2 + y2
+    if forward:
+        return b * y0, b * y1, b * y2
+    return y0 / b, y1 / b, y2 / b
+
+
+@cached_njit()
 def _scale_kernel(v, beta, y, power):  # pragma: no cover - compiled
     """``power`` = 1: ``W y = β (2 v vᵀ − J) y``; ``power`` = -1 (``v`` then holds ``p``):
     ``W⁻¹ y = (2 p pᵀ − J) y / β``; ``power`` = -2: ``W⁻¹`` twice."""
@@ -147,13 +157,39 @@ def _scale_kernel(v, beta, y, power):  # pragma: no cover - compiled
         v0, v1, v2 = v[t, 0], v[t, 1], v[t, 2]
         y0, y1, y2 = y[t, 0], y[t, 1], y[t, 2]
         for _ in range(1 if power > -2 else 2):
-            c = 2.0 * (v0 * y0 + v1 * y1 + v2 * y2)
-            y0, y1, y2 = c * v0 - y0, c * v1 + y1, c * v2 + y2
-            if power == 1:
-                y0, y1, y2 = beta[t] * y0, beta[t] * y1, beta[t] * y2
-            else:
-                y0, y1, y2 = y0 / beta[t], y1 / beta[t], y2 / beta[t]
+            y0, y1, y2 = _scale_point(v0, v1, v2, beta[t], y0, y1, y2, power == 1)
         out[t, 0], out[t, 1], out[t, 2] = y0, y1, y2
+    return out
+
+
+@cached_njit()
+def _scaled_jordan_solve_kernel(lam, p, beta, r):  # pragma: no cover - compiled
+    """``W⁻¹ (λ \\ r)``: :func:`_jordan_solve_kernel`, then ``W⁻¹``, in one pass."""
+    out = np.empty(r.shape)
+    for t in range(r.shape[0]):
+        l0, l1, l2 = lam[t, 0], lam[t, 1], lam[t, 2]
+        det = l0 * l0 - l1 * l1 - l2 * l2
+        v0 = (l0 * r[t, 0] - l1 * r[t, 1] - l2 * r[t, 2]) / det
+        out[t, 0], out[t, 1], out[t, 2] = _scale_point(
+            p[t, 0], p[t, 1], p[t, 2], beta[t], v0, (r[t, 1] - v0 * l1) / l0,
+            (r[t, 2] - v0 * l2) / l0, False)
+    return out
+
+
+@cached_njit()
+def _corrector_rhs_kernel(lam, v, p, beta, dx, dz, shift):  # pragma: no cover - compiled
+    """Mehrotra's ``-λ ∘ λ - (W⁻¹ Δz) ∘ (W Δx) + shift e`` in one pass (the same
+    expressions as :func:`_jordan_kernel` and :func:`_scale_kernel`)."""
+    out = np.empty(dx.shape)
+    for t in range(dx.shape[0]):
+        l0, l1, l2 = lam[t, 0], lam[t, 1], lam[t, 2]
+        u0, u1, u2 = _scale_point(p[t, 0], p[t, 1], p[t, 2], beta[t], dz[t, 0], dz[t, 1],
+                                  dz[t, 2], False)
+        w0, w1, w2 = _scale_point(v[t, 0], v[t, 1], v[t, 2], beta[t], dx[t, 0], dx[t, 1],
+                                  dx[t, 2], True)
+        out[t, 0] = (-(l0 * l0 + l1 * l1 + l2 * l2) - (u0 * w0 + u1 * w1 + u2 * w2)) + shift
+        out[t, 1] = -(l0 * l1 + l0 * l1) - (u0 * w1 + w0 * u1)
+        out[t, 2] = -(l0 * l2 + l0 * l2) - (u0 * w2 + w0 * u2)
     return out
 
 
@@ -176,6 +212,15 @@ class _Scaling:
 
     def apply_inverse_square(self, y: np.ndarray) -> np.ndarray:  # W⁻² y
         return _scale_kernel(self.p, self.beta, y, -2)
+
+    def inverse_jordan_solve(self, r: np.ndarray) -> np.ndarray:
+        """``W⁻¹ (λ \\ r)`` (:func:`_jordan_solve`, then :meth:`apply_inverse`)."""
+        return _scaled_jordan_solve_kernel(self.lam, self.p, self.beta, r)
+
+    def corrector_rhs(self, dx: np.ndarray, dz: np.ndarray, shift: float) -> np.ndarray:
+        """Mehrotra's corrector right-hand side ``-λ ∘ λ - (W⁻¹ Δz) ∘ (W Δx) + shift e``
+        (``e = (1, 0, 0)``) of the affine directions ``dx``, ``dz``."""
+        return _corrector_rhs_kernel(self.lam, self.v, self.p, self.beta, dx, dz, float(shift))
 
     def inverse_square_tangent(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Entries ``(t11, t12, t22)`` of the tangential 2×2 block of
@@ -360,8 +405,7 @@ def _iterate(x, z, st, newton, backend, factor):
     alpha_a = min(1.0, _max_step(x, dx_a), _max_step(z, dz_a))
     mu_a = float(_dot(x + alpha_a * dx_a, z + alpha_a * dz_a).sum()) / len(x)
     sigma = (max(mu_a, 0.0) / mu) ** 3
-    rc = -_jordan(lam, lam) - _jordan(scaling.apply_inverse(dz_a), scaling.apply(dx_a))
-    rc[:, 0] += sigma * mu
+    rc = scaling.corrector_rhs(dx_a, dz_a, sigma * mu)
     dx, dy, dz = newton(scaling, rc, factor)
     alpha = min(1.0, STEP_FRACTION * min(_max_step(x, dx), _max_step(z, dz)))
     return factor, dx, dy, dz, alpha
@@ -426,19 +470,39 @@ def _max_steps(x, m, z, zm, dx, dm, dz, dzm) -> float:
 
 
 @cached_njit()
+def _centrality_point(p0, p1, p2, lo, hi):  # pragma: no cover - compiled
+    norm = np.sqrt(p1 * p1 + p2 * p2)
+    first, second = p0 + norm, p0 - norm
+    d1 = max(min(max(first, lo), hi) - first, -hi)
+    d2 = max(min(max(second, lo), hi) - second, -hi)
+    half = 0.5 * (d1 - d2)
+    if norm > 0:
+        return 0.5 * (d1 + d2), half * (p1 / norm), half * (p2 / norm)
+    return 0.5 * (d1 + d2), 0.0, 0.0
+
+
+@cached_njit()
 def _centrality_kernel(p, lo, hi):  # pragma: no cover - compiled
     out = np.empty(p.shape)
     for t in range(p.shape[0]):
-        norm = np.sqrt(p[t, 1] * p[t, 1] + p[t, 2] * p[t, 2])
-        first, second = p[t, 0] + norm, p[t, 0] - norm
-        d1 = max(min(max(first, lo), hi) - first, -hi)
-        d2 = max(min(max(second, lo), hi) - second, -hi)
-        out[t, 0] = 0.5 * (d1 + d2)
-        half = 0.5 * (d1 - d2)
-        if norm > 0:
-            out[t, 1], out[t, 2] = half * (p[t, 1] / norm), half * (p[t, 2] / norm)
-        else:
-            out[t, 1], out[t, 2] = 0.0, 0.0
+        out[t, 0], out[t, 1], out[t, 2] = _centrality_point(p[t, 0], p[t, 1], p[t, 2], lo, hi)
+    return out
+
+
+@cached_njit()
+def _gondzio_rhs_kernel(x, dx, z, dz, trial, v, p, beta, rc, lo,
+                        hi):  # pragma: no cover - compiled
+    """``rc`` plus :func:`_centrality_correction` of ``W (x + trial Δx) ∘ W⁻¹ (z + trial
+    Δz)``, in one pass (the same expressions as the separate kernels)."""
+    out = np.empty(rc.shape)
+    for t in range(x.shape[0]):
+        a0, a1, a2 = _scale_point(v[t, 0], v[t, 1], v[t, 2], beta[t], x[t, 0] + trial * dx[t, 0],
+                                  x[t, 1] + trial * dx[t, 1], x[t, 2] + trial * dx[t, 2], True)
+        b0, b1, b2 = _scale_point(p[t, 0], p[t, 1], p[t, 2], beta[t], z[t, 0] + trial * dz[t, 0],
+                                  z[t, 1] + trial * dz[t, 1], z[t, 2] + trial * dz[t, 2], False)
+        c0, c1, c2 = _centrality_point(a0 * b0 + a1 * b1 + a2 * b2, a0 * b1 + b0 * a1,
+                                       a0 * b2 + b0 * a2, lo, hi)
+        out[t, 0], out[t, 1], out[t, 2] = rc[t, 0] + c0, rc[t, 1] + c1, rc[t, 2] + c2
     return out
 
 
@@ -463,9 +527,9 @@ def _gondzio(x, m, z, zm, newton, direction, rc, rc_m, target: float, correctors
             break
         trial = min(1.0, alpha + CORRECTOR_REACH)
         dx, dm, _, dz, dzm = direction
-        p = _jordan(sc.apply(x + trial * dx), sc.apply_inverse(z + trial * dz))
+        rc_new = _gondzio_rhs_kernel(x, dx, z, dz, float(trial), sc.v, sc.p, sc.beta, rc,
+                                     float(lo), float(hi))
         p_m = (m + trial * dm) * (zm + trial * dzm)
-        rc_new = rc + _centrality_correction(p, lo, hi)
         rc_m_new = rc_m + np.maximum(np.clip(p_m, lo, hi) - p_m, -hi)
         candidate = newton(rc_new, rc_m_new)
         step = _max_steps(x, m, z, zm, *candidate[:2], *candidate[3:])
@@ -484,17 +548,14 @@ def mehrotra_step(x, m, z, zm, newton, correctors: int = 0):
     lam, lam_m = newton.scaling.lam, np.sqrt(m * zm)
     degree = len(x) + len(m)
     mu = (float(_dot(x, z).sum()) + float(m @ zm)) / degree
-    # a Newton system may have solved the affine right-hand sides already (`affine`)
-    affine = getattr(newton, "affine", None)
-    dx, dm, _, dz, dzm = affine() if affine else newton(-_jordan(lam, lam), -lam_m**2)
+    dx, dm, _, dz, dzm = newton(-_jordan(lam, lam), -lam_m**2)
     alpha = min(1.0, _max_step(x, dx), _max_step(z, dz), nonneg_max_step(m, dm),
                 nonneg_max_step(zm, dzm))
     mu_a = (float(_dot(x + alpha * dx, z + alpha * dz).sum())
             + float((m + alpha * dm) @ (zm + alpha * dzm))) / degree
     sigma = (max(mu_a, 0.0) / mu) ** 3
     sc = newton.scaling
-    rc = -_jordan(lam, lam) - _jordan(sc.apply_inverse(dz), sc.apply(dx))
-    rc[:, 0] += sigma * mu
+    rc = sc.corrector_rhs(dx, dz, sigma * mu)
     rc_m = -lam_m**2 - dzm * dm + sigma * mu
     direction = newton(rc, rc_m)
     if correctors:
@@ -541,7 +602,7 @@ def beckmann_interior_point(div: sp.csr_matrix, faces: np.ndarray, weights: np.n
     def newton(scaling: _Scaling, rc: np.ndarray, factor):
         # λ ∘ (W Δx + W⁻¹ Δz) = rc with D Δu = 0 and Δz = −Dᵀ Δy (primal and dual
         # residuals stay zero): (D W⁻² Dᵀ) Δy = −D (W⁻¹ q), q = λ \ rc
-        wq = scaling.apply_inverse(_jordan_solve(scaling.lam, rc))
+        wq = scaling.inverse_jordan_solve(rc)
         rhs = np.bincount(flat, (l0 * wq[:, 1:2] + l1 * wq[:, 2:3]).ravel(), minlength=n)
         dy = np.zeros(n)
         dy[st.keep] = factor.solve(-rhs[st.keep])

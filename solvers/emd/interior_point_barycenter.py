@@ -27,11 +27,15 @@ in the ``k`` potentials,
     \operatorname{diag}(d) - \sum_i c_i \hat v_i \hat v_i^\top\Big)\, \Delta y = r ,
 
 ``k`` weighted Laplacians (those of the W1 solver) coupled through :math:`\rho` by a diagonal
-between every pair of blocks, minus a rank-``k`` term.  The sparse part is one SPD matrix of
-the mesh's sparsity with ``k × k`` blocks per vertex, factored by PARDISO (ordering and
-symbolic analysis once, a numeric refactorization per iteration) or cholespy; the rank-``k``
-term is handled by the Woodbury identity with ``k`` extra right-hand sides, solved in one
-block together with Mehrotra's affine right-hand side.  Near the end of the path rounding
+between every pair of blocks, minus a rank-``k`` term.  Both parts go into one sparse SPD
+matrix, the sparse part (the mesh's sparsity with ``k × k`` blocks per vertex) bordered by
+``k`` rows and columns: :math:`\begin{pmatrix} A & V \\ V^\top & C^{-1}\end{pmatrix}`
+(``V`` the :math:`\hat v_i`, ``C = diag(c)``), whose Schur complement on the potentials is
+the normal matrix :math:`A - V C V^\top`; it is positive definite when that is (``C > 0``),
+and its factor is that of ``A`` plus ``k`` dense rows, so each Newton solve is a single
+solve (Woodbury's identity on ``A``'s factor would need ``k`` more right-hand sides per
+iteration).  PARDISO factors it (ordering and symbolic analysis once, a numeric
+refactorization per iteration), or cholespy.  Near the end of the path rounding
 can cost the Cholesky a pivot; the matrix then goes to PARDISO's symmetric-indefinite
 ``L D Lᵀ`` (pivot perturbation, iterative refinement; the Cholesky's ordering reused) for
 the remaining iterations.  Steps are Mehrotra's with Gondzio's centrality correctors
@@ -117,10 +121,12 @@ class BarycenterOutput:
 
 
 class _CoupledPattern:
-    """The normal matrix's pattern over the ``k`` blocks of potentials and the gather/slot
-    maps that fill its CSR data from per-face blocks and ``d`` (built once per solve).
+    """The bordered normal matrix's pattern over the ``k`` blocks of potentials and ``k``
+    border rows, and the gather/slot maps that fill its CSR data from per-face blocks,
+    ``d`` and the border (built once per solve).
 
-    Block 0 holds every vertex (``full``), blocks 1.. the kept vertices (``kept``)."""
+    Block 0 holds every vertex (``full``), blocks 1.. the kept vertices (``kept``); rows
+    ``size + i`` are the border's."""
 
     def __init__(self, full: ip._Structure, kept: ip._Structure, k: int, n: int):
         self.k, self.n = k, n
@@ -144,10 +150,18 @@ class _CoupledPattern:
                 rows.append(position[i][common])
                 cols.append(position[j][common])
                 src.append(k * 9 * n_faces + common)
+        size = int(self.offsets[-1])  # the border: row/column size + i holds v_i, 1 / c_i
+        for i in range(k):
+            block = np.arange(self.offsets[i], self.offsets[i + 1] + 1)
+            block[-1] = size + i
+            rows.append(block)
+            cols.append(np.full(len(block), size + i))
+            src.append(k * 9 * n_faces + n + block)
         rows, cols, src = np.concatenate(rows), np.concatenate(cols), np.concatenate(src)
         upper = rows <= cols  # symmetric: PARDISO reads the upper triangle
         rows, cols, self.src = rows[upper], cols[upper], src[upper]
-        size = int(self.offsets[-1])
+        self.size = size
+        size += k
         self.pattern = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(size, size))
         self.pattern.sum_duplicates()
         self.pattern.sort_indices()
@@ -155,10 +169,13 @@ class _CoupledPattern:
             + self.pattern.indices
         self.slots = np.searchsorted(keys, rows * size + cols)
 
-    def data(self, blocks: np.ndarray, d: np.ndarray) -> np.ndarray:
-        """CSR data, on :attr:`pattern` (the upper triangle), of the normal matrix's sparse
-        part from per-face blocks ``(k F, 9)`` and ``d`` ``(V,)``."""
-        return _assemble_kernel(blocks.reshape(-1), d, self.src, self.slots,
+    def data(self, blocks: np.ndarray, d: np.ndarray, v: np.ndarray,
+             c: np.ndarray) -> np.ndarray:
+        """CSR data, on :attr:`pattern` (the upper triangle), of the bordered matrix from
+        per-face blocks ``(k F, 9)``, ``d`` ``(V,)``, the border's columns ``v`` (``(k, V)``,
+        :meth:`scatter` order) and ``c`` ``(k,)``."""
+        tail = np.concatenate([d, self.scatter(v), 1.0 / c])
+        return _assemble_kernel(blocks.reshape(-1), tail, self.src, self.slots,
                                 self.pattern.nnz)
 
     def matrix(self, data: np.ndarray, full: bool) -> sp.csr_matrix:
@@ -172,9 +189,14 @@ class _CoupledPattern:
         """``(k, V)`` vertex arrays to one vector over the blocks' rows."""
         return np.concatenate([per_block[i, self.rows_of[i]] for i in range(self.k)], axis=0)
 
+    def bordered(self, per_block: np.ndarray) -> np.ndarray:
+        """:meth:`scatter` with the border's ``k`` rows (zero) appended: a right-hand side
+        of the bordered matrix."""
+        return np.concatenate([self.scatter(per_block), np.zeros(self.k)])
+
     def gather(self, vector: np.ndarray) -> np.ndarray:
-        """Inverse of :meth:`scatter` (``(k, V)``, zero on dropped rows); a trailing axis of
-        ``vector`` is kept."""
+        """Inverse of :meth:`scatter` (``(k, V)``, zero on dropped rows; border rows of
+        ``vector`` ignored); a trailing axis of ``vector`` is kept."""
         out = np.zeros((self.k, self.n) + vector.shape[1:])
         for i in range(self.k):
             out[i, self.rows_of[i]] = vector[self.offsets[i]:self.offsets[i + 1]]
@@ -182,13 +204,13 @@ class _CoupledPattern:
 
 
 @cached_njit()
-def _assemble_kernel(blocks, d, src, slots, nnz):  # pragma: no cover - compiled
-    """``np.bincount(slots, concatenate([blocks, d])[src])``: the sums in the same order."""
+def _assemble_kernel(blocks, tail, src, slots, nnz):  # pragma: no cover - compiled
+    """``np.bincount(slots, concatenate([blocks, tail])[src])``: the sums in the same order."""
     out = np.zeros(nnz)
     m = blocks.shape[0]
     for j in range(src.shape[0]):
         s = src[j]
-        out[slots[j]] += blocks[s] if s < m else d[s - m]
+        out[slots[j]] += blocks[s] if s < m else tail[s - m]
     return out
 
 
@@ -217,6 +239,28 @@ def _div_adjoint_kernel(faces, l0, l1, y):  # pragma: no cover - compiled
             out[i, t, 1] = l0[t, 0] * y0 + l0[t, 1] * y1 + l0[t, 2] * y2
             out[i, t, 2] = l1[t, 0] * y0 + l1[t, 1] * y1 + l1[t, 2] * y2
     return out
+
+
+@cached_njit()
+def _direction_kernel(faces, l0, l1, dy, p, beta, wq, coef, h):  # pragma: no cover - compiled
+    """Per block ``i`` and face ``t``, ``a = (0, Dᵀ Δy_i)_t`` (:func:`_div_adjoint_kernel`),
+    ``Δx = (W⁻² a + wq) - coef_i h`` and ``Δz = -a`` (its first coordinate left 0 for
+    the caller), in one pass with the same expressions as the separate kernels."""
+    k, n_faces = wq.shape[0], wq.shape[1]
+    dx, dz = np.empty(wq.shape), np.empty(wq.shape)
+    for i in range(k):
+        for t in range(n_faces):
+            y0, y1, y2 = dy[i, faces[t, 0]], dy[i, faces[t, 1]], dy[i, faces[t, 2]]
+            a1 = l0[t, 0] * y0 + l0[t, 1] * y1 + l0[t, 2] * y2
+            a2 = l1[t, 0] * y0 + l1[t, 1] * y1 + l1[t, 2] * y2
+            q0, q1, q2, b = p[i, t, 0], p[i, t, 1], p[i, t, 2], beta[i, t]
+            s0, s1, s2 = ip._scale_point(q0, q1, q2, b, 0.0, a1, a2, False)
+            s0, s1, s2 = ip._scale_point(q0, q1, q2, b, s0, s1, s2, False)
+            dx[i, t, 0] = (s0 + wq[i, t, 0]) - coef[i] * h[i, t, 0]
+            dx[i, t, 1] = (s1 + wq[i, t, 1]) - coef[i] * h[i, t, 1]
+            dx[i, t, 2] = (s2 + wq[i, t, 2]) - coef[i] * h[i, t, 2]
+            dz[i, t, 0], dz[i, t, 1], dz[i, t, 2] = 0.0, -a1, -a2
+    return dx, dz
 
 
 class _Program:
@@ -257,7 +301,7 @@ class _Program:
 
 class _Newton:
     """Newton directions for fixed scalings (module docstring): one factorization of the
-    coupled sparse part, Woodbury for the rank-``k`` objective term."""
+    coupled sparse part bordered by the rank-``k`` objective term."""
 
     def __init__(self, prog: _Program, layout: _CoupledPattern, x, rho, z, z_rho, factor,
                  backend):
@@ -274,43 +318,24 @@ class _Newton:
         ghg = self.h[:, :, 0] @ prog.w
         self.c = 2.0 * prog.alpha / (1.0 + 2.0 * prog.alpha * ghg)
         self.v = prog.div(self.h)  # (k, V): D (W⁻² g)_u per block
-        data = layout.data(ip.face_blocks(self.scaling, prog.products), self.d)
+        data = layout.data(ip.face_blocks(self.scaling, prog.products), self.d, self.v,
+                           self.c)
         self.factor = _factor_coupled(layout, data, factor, backend)
-        if self.factor is None:
-            return
-        self.V = np.zeros((int(layout.offsets[-1]), k))  # column i: v_i on block i's rows
-        for i in range(k):
-            self.V[layout.offsets[i]:layout.offsets[i + 1], i] = self.v[i, layout.rows_of[i]]
-        # Mehrotra's affine right-hand side is known now: it rides along with the Woodbury
-        # block (one multi-column solve instead of a separate one; :meth:`affine`)
-        lam = self.scaling.lam
-        self._affine = self._rhs(-ip._jordan(lam, lam), -self.lam_rho**2)
-        solved = np.asarray(self.factor.solve(
-            np.column_stack([self.V, layout.scatter(self._affine[-1])])))
-        self.Z = solved[:, :k]
-        self.cap_inv = np.linalg.inv(np.diag(1.0 / self.c) - self.V.T @ self.Z)
-        self._affine_solution = self._woodbury(solved[:, k])
-
-    def _woodbury(self, s: np.ndarray) -> np.ndarray:
-        return s + self.Z @ (self.cap_inv @ (self.V.T @ s))
 
     def _solve(self, r: np.ndarray) -> np.ndarray:
-        return self._woodbury(self.factor.solve(r))
+        """``Δy`` (:meth:`_CoupledPattern.scatter` order) of the normal equations with
+        right-hand side ``r`` ``(k, V)``: the bordered system's first rows."""
+        return self.factor.solve(self.layout.bordered(r))[:self.layout.size]
 
     def _rhs(self, rc: np.ndarray, rc_rho: np.ndarray):
         """``(W⁻¹ (λ \\ rc), rc_ρ / z_ρ, gᵀ of the former, r)``: ``r`` ``(k, V)`` the
         normal equations' right-hand side."""
         prog, sc = self.prog, self.scaling
-        wq = sc.apply_inverse(ip._jordan_solve(sc.lam, rc)).reshape(prog.k, len(prog.faces), 3)
+        wq = sc.inverse_jordan_solve(rc).reshape(prog.k, len(prog.faces), 3)
         wq_rho = rc_rho / self.z_rho
         g_wq = wq[:, :, 0] @ prog.w
         r = -prog.div(wq) + (self.c * g_wq)[:, None] * self.v + wq_rho[None] - self.residual
         return wq, wq_rho, g_wq, r
-
-    def affine(self):
-        """:meth:`__call__` for Mehrotra's affine right-hand sides ``rc = -λ ∘ λ``,
-        ``rc_ρ = -λ_ρ²`` (solved with the Woodbury block)."""
-        return self._direction(*self._affine[:3], self._affine_solution)
 
     def __call__(self, rc: np.ndarray, rc_rho: np.ndarray):
         """Directions ``(dx (k F, 3), dρ, dy (k, V), dz (k F, 3), dz_ρ)`` for the
@@ -318,24 +343,22 @@ class _Newton:
         also cancel the primal residual ``e = D u_i - ρ + m_i`` (:attr:`residual`), which
         rounding leaves, so a full step restores the divergence constraints."""
         wq, wq_rho, g_wq, r = self._rhs(rc, rc_rho)
-        return self._direction(wq, wq_rho, g_wq, self._solve(self.layout.scatter(r)))
+        return self._direction(wq, wq_rho, g_wq, self._solve(r))
 
     def _direction(self, wq, wq_rho, g_wq, solution):
         prog, sc, v = self.prog, self.scaling, self.v
         k, n_faces = prog.k, len(prog.faces)
         dy = self.layout.gather(solution)
-        a = prog.div_adjoint(dy)
         coef = self.c * (np.sum(v * dy, axis=1) + g_wq)
-        dx = sc.apply_inverse_square(a.reshape(-1, 3)).reshape(k, n_faces, 3) + wq \
-            - coef[:, None, None] * self.h
+        dx, dz = _direction_kernel(prog.faces, prog.l0, prog.l1, dy, sc.p.reshape(k, n_faces, 3),
+                                   sc.beta.reshape(k, n_faces), wq, coef, self.h)
         drho = -self.d * dy.sum(axis=0) + wq_rho
-        dz = -a
         dz[:, :, 0] = (2.0 * prog.alpha * (dx[:, :, 0] @ prog.w))[:, None] * prog.w[None]
         return dx.reshape(-1, 3), drho, dy, dz.reshape(-1, 3), dy.sum(axis=0)
 
 
 def _factor_coupled(layout: _CoupledPattern, data: np.ndarray, factor, backend: str):
-    """Factor of the normal matrix's sparse part with CSR ``data`` (:meth:`_CoupledPattern.
+    """Factor of the bordered normal matrix with CSR ``data`` (:meth:`_CoupledPattern.
     data`), refactoring ``factor`` in place when it can (a PARDISO factor takes the values
     on the pattern it analysed); None if ``data`` is not finite."""
     if not np.all(np.isfinite(data)):

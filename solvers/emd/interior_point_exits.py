@@ -31,7 +31,6 @@ import numpy as np
 from solvers.emd.interior_point import (
     _factor_normal,
     _interior,
-    _jordan_solve,
     _nt_scaling,
     _Structure,
     certified_loop,
@@ -86,7 +85,7 @@ class _ExitNewton:
 
     def __call__(self, rc, rc_m):
         sc, st, n = self.scaling, self.st, self.n
-        wq = sc.apply_inverse(_jordan_solve(sc.lam, rc))
+        wq = sc.inverse_jordan_solve(rc)
         lam_m = np.sqrt(self.m * self.zm)
         wq_m = (rc_m / lam_m) * np.sqrt(self.m / self.zm)
         rhs = np.bincount(self.faces.ravel(), (self.l0 * wq[:, 1:2] + self.l1 * wq[:, 2:3])
