@@ -37,7 +37,6 @@ from solvers.convolutional.exact import EXACT_KINDS
 from solvers.convolutional.matrix import (
     ROW_BLOCK_ENTRIES,
     SHARED_COST_ENTRIES,
-    STORED_GEODESICS_VERTICES,
     block_pairs,
     distance_matrix,
     kernel_key,
@@ -45,6 +44,7 @@ from solvers.convolutional.matrix import (
     pair_state_bytes,
     zero_diagonal,
 )
+from solvers.domains.mesh import STORED_GEODESICS_VERTICES
 from solvers.emd.beckmann import resolve_method
 from solvers.errors import CancelledError, InputError
 

@@ -51,7 +51,7 @@ from solvers.convolutional.distance import (
     pair_steps,
     watch_stagnation,
 )
-from solvers.convolutional.exact import MAX_SUPPORT_PRODUCT, _cost_matrix, _finite_cost
+from solvers.convolutional.exact import MAX_SUPPORT_PRODUCT, _finite_cost
 from solvers.errors import CancelledError, InputError
 from solvers.monitor import SolverResult, _arity
 from solvers.parallel import thread_count
@@ -66,10 +66,6 @@ _PAIR_VECTORS = 2 * ANDERSON_MEMORY + 12
 # Largest shared cost matrix of the exact pairs (entries; 256 MB): beyond it each exact pair
 # computes its own costs as a single-pair call does (bounded geodesic solves).
 SHARED_COST_ENTRIES = 2**25
-# Meshes up to this many vertices keep their all-pairs exact geodesic matrix in the operator
-# store (at most 128 MB) when a matrix's supports cover at least half of the vertices:
-# the next matrix on the domain reuses it.
-STORED_GEODESICS_VERTICES = 4096
 # Squared costs kept per row of the exact pairs (entries; 32 MB): :class:`_RowBlocks`.
 ROW_BLOCK_ENTRIES = 2**22
 # Exact pairs solved between two cancellation checks (LPs of ~150 x 150 points: ~0.1 s).
@@ -416,18 +412,25 @@ def _support_lp(a: np.ndarray, b: np.ndarray, sub: np.ndarray) -> tuple:
     return float(value), 1, residual, int(code) == 1
 
 
+def _should_cancel(stop, where: str) -> Callable[[], bool]:
+    """A solver's ``should_cancel()`` from ``stop(where)``: True where ``stop`` raises."""
+
+    def cancelled() -> bool:
+        try:
+            stop(where)
+        except CancelledError:
+            return True
+        return False
+
+    return cancelled
+
+
 def _exact_single_pairs(domain, A, B, pairs, table: _Table, stop) -> None:
     """Exact pairs one at a time (:func:`~solvers.convolutional.exact.
     exact_wasserstein_distance`): when the shared cost matrix would be too large."""
     from solvers.convolutional.exact import exact_wasserstein_distance
 
-    def cancelled() -> bool:
-        try:
-            stop("between geodesic solves")
-        except CancelledError:
-            return True
-        return False
-
+    cancelled = _should_cancel(stop, "between geodesic solves")
     for i, j in pairs:
         stop(f"before pair ({i}, {j})")
         try:
@@ -440,33 +443,23 @@ def _exact_single_pairs(domain, A, B, pairs, table: _Table, stop) -> None:
 
 def _support_distances(domain, rows: np.ndarray, cols: np.ndarray, stop) -> tuple:
     """``(distances, at_row, at_col, squared)`` between the vertices ``rows`` and ``cols``
-    (:class:`_RowBlocks`): squared straight/periodic distances on grids and point clouds,
-    exact geodesics on meshes (one MMP solve per point of the smaller side, or the stored
-    all-pairs matrix itself, indexed by vertex)."""
-    at_row, at_col = np.full(domain.n, -1), np.full(domain.n, -1)
-    at_row[rows], at_col[cols] = np.arange(len(rows)), np.arange(len(cols))
-    if domain.kind != "mesh":
-        return _cost_matrix(domain, rows, cols), at_row, at_col, True
-    from solvers.geodesics import geodesic_distances
-
-    def cancelled() -> bool:
-        try:
-            stop("between geodesic solves")
-        except CancelledError:
-            return True
-        return False
-
-    stored = domain.n <= STORED_GEODESICS_VERTICES and 2 * min(len(rows), len(cols)) >= domain.n
+    (:class:`_RowBlocks`): the domain's ground distances between them (squared straight or
+    periodic distances on grids and point clouds, exact geodesics on meshes: one MMP solve
+    per point of the smaller side), or, when they cover at least half of the domain, its
+    stored all-pairs ones where it keeps them (small meshes), indexed by vertex."""
+    cancelled = _should_cancel(stop, "between geodesic solves")
     try:
-        if stored:
-            every = domain.operators.get(("exact_geodesics",), lambda: geodesic_distances(
-                domain, np.arange(domain.n), should_cancel=cancelled))
-            return every, np.arange(domain.n), np.arange(domain.n), False
-        d = geodesic_distances(domain, rows, cols, should_cancel=cancelled)
+        every = (domain.stored_ground_distances(should_cancel=cancelled)
+                 if 2 * min(len(rows), len(cols)) >= domain.n else None)
+        if every is not None:
+            return every[0], np.arange(domain.n), np.arange(domain.n), every[1]
+        d, squared = domain.ground_distances(rows, cols, should_cancel=cancelled)
     except CancelledError:
         stop("between geodesic solves")  # re-raise with the partial result
         raise
-    return d, at_row, at_col, False
+    at_row, at_col = np.full(domain.n, -1), np.full(domain.n, -1)
+    at_row[rows], at_col[cols] = np.arange(len(rows)), np.arange(len(cols))
+    return d, at_row, at_col, squared
 
 
 def _convolutional_pairs(domain, A, B, members, table: _Table, *, tol, max_iter, stop) -> None:
@@ -545,13 +538,7 @@ def run_block(logk, jobs: Iterator, capacity: int, done, stop) -> None:
 def _w1_pairs(domain, A, B, pairs, table: _Table, options: dict, stop) -> None:
     from solvers.emd import earth_movers_distance
 
-    def cancelled() -> bool:
-        try:
-            stop("in a W1 solve")
-        except CancelledError:
-            return True
-        return False
-
+    cancelled = _should_cancel(stop, "in a W1 solve")
     for i, j in pairs:
         stop(f"before pair ({i}, {j})")
         try:
