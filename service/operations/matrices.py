@@ -44,7 +44,6 @@ from solvers.convolutional.matrix import (
     pair_state_bytes,
     zero_diagonal,
 )
-from solvers.domains.mesh import STORED_GEODESICS_VERTICES
 from solvers.emd.beckmann import resolve_method
 from solvers.errors import CancelledError, InputError
 
@@ -56,6 +55,9 @@ ROUTE_CODES = {"": -1, "identical": 0, "exact": 1, "convolutional": 2, "w1": 3}
 # the worker decides per pair, by the same function of the data, as the library does.
 DECIDED_PAIRS = 1000
 LISTED_KERNELS = 32  # heat kernels listed in a decision (more: counted)
+# n-vectors of one exact geodesic solve's work (MMP frontier and distances, measured ~8 on
+# a 642-vertex sphere beside the n x n matrix: tests/service/test_distance_matrices.py)
+SOLVE_WORK_VECTORS = 16
 
 
 class DistanceMatrixRequest(SinkhornOptions):
@@ -166,10 +168,9 @@ def _sizes(req: DistanceMatrixRequest) -> tuple[int, int, int]:
 
 def estimate_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
     """Inputs (one float per point and distribution), the block's per-pair solver state,
-    the matrix and its per-pair arrays, and for exact pairs the largest shared cost matrix
-    (:data:`~solvers.convolutional.matrix.SHARED_COST_ENTRIES`), the rows' cost blocks
-    (:data:`~solvers.convolutional.matrix.ROW_BLOCK_ENTRIES`) and the stored all-pairs
-    geodesics of small meshes."""
+    the matrix and its per-pair arrays, and for exact pairs their ground distances
+    (:func:`ground_distance_bytes`) and the rows' cost blocks
+    (:data:`~solvers.convolutional.matrix.ROW_BLOCK_ENTRIES`)."""
     n, m, _ = _sizes(req)
     points = int(view.n)
     total = 8 * points * (n + (m if req.others is not None else 0))
@@ -178,12 +179,26 @@ def estimate_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
         return total + 8 * 120 * points  # Beckmann operators and interior-point state
     total += block_pairs(points) * (pair_state_bytes(points) + 8 * 8 * points)
     exact = req.route == "exact" or (req.route == "auto" and req.gamma is None)
-    if exact and view.kind in EXACT_KINDS:  # the exact pairs' shared cost matrix, at most,
-        total += 8 * min(SHARED_COST_ENTRIES, points * points)  # and the rows' cost blocks
-        total += 8 * min(ROW_BLOCK_ENTRIES, points * points)
-        if view.kind == "mesh" and points <= STORED_GEODESICS_VERTICES:
-            total += 8 * points * points  # the stored all-pairs geodesics it is cut from
+    if exact and view.kind in EXACT_KINDS:
+        total += ground_distance_bytes(view) + 8 * min(ROW_BLOCK_ENTRIES, points * points)
     return total
+
+
+def ground_distance_bytes(view: DomainView) -> int:
+    """The exact pairs' ground distances at most (supports covering the domain), as the
+    route builds them (:func:`solvers.convolutional.matrix._support_distances`, at most
+    :data:`~solvers.convolutional.matrix.SHARED_COST_ENTRIES` entries): on meshes either the
+    geodesics between the supports or, on a mesh small enough to keep them, the stored
+    all-pairs matrix instead (``n^2`` entries, below the cap), never both, plus a geodesic
+    solve's work vectors; on grids and point clouds the squared distances and the ``(rows,
+    columns, dimension)`` coordinate differences they are summed from (and the gathered
+    coordinates)."""
+    points = int(view.n)
+    entries = min(SHARED_COST_ENTRIES, points * points)
+    if view.kind == "mesh":
+        return 8 * entries + SOLVE_WORK_VECTORS * 8 * points
+    dim = 3 if view.points is None else int(np.shape(view.points)[1])
+    return 8 * (dim + 1) * entries + 8 * (2 * dim + 2) * points  # + gathers, indices
 
 
 EXACT_PAIR_COST = 20.0  # cost units per points^2 of one exact pair (measured, with margin)
