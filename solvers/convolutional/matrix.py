@@ -70,6 +70,47 @@ SHARED_COST_ENTRIES = 2**25
 ROW_BLOCK_ENTRIES = 2**22
 # Exact pairs solved between two cancellation checks (LPs of ~150 x 150 points: ~0.1 s).
 EXACT_CHUNK = 64
+# Threads solving the exact pairs' LPs by default, at most (fewer when the process may use
+# fewer CPUs): a fixed cap, so that a memory bound counting this many LP working sets
+# (:func:`exact_route_bytes`) holds on any machine; more cores serve more worker processes.
+EXACT_THREADS = 2
+# Bytes per entry of one exact pair's LP (:func:`_support_lp`): its squared costs (8), their
+# finite copy (8, pairs across components), the plan (8) and the network simplex's own
+# per-arc arrays (~24, measured: peak RSS of ``emd_c`` on 1000^2 and 2000^2 entries is
+# 32 bytes an entry above its input), and an allowance of 10 numbers per point of its
+# supports (masses, potentials, the simplex's node arrays).
+LP_ENTRY_BYTES = 48
+LP_POINT_BYTES = 80
+
+
+def exact_threads(threads: int | None = None) -> int:
+    """Threads of the exact route: ``threads`` checked, or by default the CPUs this process
+    may use, at most :data:`EXACT_THREADS`."""
+    return thread_count(threads) if threads is not None else min(thread_count(),
+                                                                 EXACT_THREADS)
+
+
+def exact_route_bytes(row_supports, col_supports, width: int, pairs: int,
+                      threads: int = EXACT_THREADS) -> int:
+    """Bytes of the exact route's row cost blocks and LPs at most, beside its ground distances
+    (:func:`_exact_pairs`): ``row_supports``, ``col_supports``: the support sizes of the
+    exact pairs' rows and columns; ``width``: columns of the ground distances (the columns'
+    support points, or every point where the domain's stored all-pairs ones serve); ``pairs``:
+    the exact pairs.
+
+    :class:`_RowBlocks` keeps blocks (``support x width`` entries each) within
+    :data:`ROW_BLOCK_ENTRIES` or one block, adds the next before trimming, and each thread
+    may hold one more (being built, or just trimmed while its pair is cut from it); each of
+    ``min(threads, pairs)`` threads holds one LP (:data:`LP_ENTRY_BYTES` an entry), counted
+    at the largest pair's size."""
+    largest = max(row_supports, default=0)
+    block = largest * int(width)
+    kept = min(max(ROW_BLOCK_ENTRIES, block), int(sum(row_supports)) * int(width))
+    running = min(int(threads), int(pairs))
+    biggest = max(col_supports, default=0)
+    lp = (LP_ENTRY_BYTES * min(largest * biggest, MAX_SUPPORT_PRODUCT)
+          + LP_POINT_BYTES * (largest + biggest))
+    return 8 * (kept + running * block) + running * lp
 
 
 def pair_state_bytes(n: int) -> int:
@@ -224,7 +265,7 @@ def distance_matrix(
         :class:`~solvers.errors.CancelledError` is raised with ``partial``, the result so
         far (finished entries kept, the rest ``nan``).
     threads : threads solving the exact route's LPs (default: the CPUs this process may
-        use); the values do not depend on it.
+        use, at most :data:`EXACT_THREADS`); the values do not depend on it.
 
     Returns
     -------
@@ -243,7 +284,7 @@ def distance_matrix(
     B = A if symmetric else _collection(domain, others, "others")
     domain.require_matching_component_masses(np.hstack([A, B]), max(tol, 1e-9),
                                              "distributions" if symmetric else "others")
-    thread_count(threads)  # checked before any work
+    exact_threads(threads)  # checked before any work
     pairs = matrix_pairs(A.shape[1], B.shape[1], symmetric)
     table = _Table(A.shape[1], B.shape[1], symmetric, metric, progress, len(pairs))
 
@@ -321,7 +362,7 @@ def _exact_pairs(domain, A, B, pairs, table: _Table, stop, threads: int | None =
         src, dst = row_support[i], col_support[j]
         return _support_lp(A[src, i], B[dst, j], blocks.costs(i, src, dst))
 
-    for (i, j), solved in _in_order(solve, pairs, thread_count(threads), stop):
+    for (i, j), solved in _in_order(solve, pairs, exact_threads(threads), stop):
         table.put(i, j, *solved, "exact")
 
 
