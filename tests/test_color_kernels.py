@@ -67,7 +67,9 @@ def test_gamut_map_matches_the_plain_scan(reach):
     assert out_of_gamut > 500  # the search really ran
 
 
-def test_apply_field_is_gamut_map_then_lab_to_rgb():
+def test_apply_field_is_chroma_loss_then_lab_to_rgb():
+    """Out-of-gamut colours keep their L* (the smooth shift is the only L* move) and lose
+    chroma: the plain reference with no L* reach."""
     rng = np.random.default_rng(1)
     n = 2000
     lab = np.ascontiguousarray(_colours(n, 1).astype(np.float32))
@@ -77,10 +79,11 @@ def test_apply_field_is_gamut_map_then_lab_to_rgb():
     src[:, 3] = rng.integers(0, 256, n)
     out = np.empty_like(src)
     empty = np.zeros(0, dtype=np.float32)
-    SK.apply_field(lab, src, out, empty, 1.0, disp, M, 255.0, 0.5, 100.0,
-                   np.zeros((2, 0, 0)), 1, n)
-    mapped = np.array([_gamut_map_ref(float(L), float(a) + float(da), float(b) + float(db), 100.0)
-                       for (L, a, b), (da, db) in zip(lab, disp, strict=True)])
+    SK.apply_field(lab, src, out, empty, 1.0, disp, M, 255.0, 0.5, np.zeros((2, 0, 0)), 1, n)
+    moved = [(float(L), float(a) + float(da), float(b) + float(db))
+             for (L, a, b), (da, db) in zip(lab, disp, strict=True)]
+    assert sum(not _in_gamut_ref(*c) for c in moved) > 500  # the chroma loss really ran
+    mapped = np.array([_gamut_map_ref(*c, 0.0) for c in moved])
     want = np.empty((n, 3), dtype=np.uint8)
     lab64 = np.ascontiguousarray(mapped)
     empty2 = np.zeros((0, 0), dtype=np.float32)

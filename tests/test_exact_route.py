@@ -153,3 +153,49 @@ def test_decision_is_a_pure_function_of_the_stored_domain(shared_mesh, monkeypat
     assert conv.regularization is not None
     assert (conv.gamma, conv.substeps, conv.debiased) == (
         conv.regularization.gamma, conv.regularization.substeps, True)
+
+
+def test_ground_distances_per_domain_kind(monkeypatch):
+    """The exact route's ground metric, owned by each domain: squared straight distances on
+    point clouds, squared with periodic axes wrapped on grids, exact geodesics (not
+    squared) on meshes, the all-pairs ones kept only on small meshes; none on graphs."""
+    import trimesh
+    from scipy.spatial.distance import cdist
+
+    import solvers.domains.mesh as mesh_module
+    from solvers import PointCloud, TriangleMesh
+
+    rng = np.random.default_rng(0)
+    grid = Grid((8, 6), bounds=[(0.0, 2.0), (0.0, 3.0)], periodic=(True, False))
+    src, dst = rng.choice(grid.n, 9, replace=False), rng.choice(grid.n, 11, replace=False)
+    d, squared = grid.ground_distances(src, dst)
+    diff = np.abs(grid.points[src][:, None, :] - grid.points[dst][None, :, :])
+    assert (diff[..., 0] > 1.0).any()  # some pairs are nearer across the period
+    diff[..., 0] = np.minimum(diff[..., 0], 2.0 - diff[..., 0])
+    assert squared and np.allclose(d, (diff**2).sum(axis=2), rtol=1e-12, atol=1e-15)
+    assert grid.stored_ground_distances() is None
+
+    sphere = rng.normal(size=(120, 3))
+    cloud = PointCloud(sphere / np.linalg.norm(sphere, axis=1, keepdims=True))
+    d, squared = cloud.ground_distances(src[:5], dst[:7])
+    want = cdist(cloud.points[src[:5]], cloud.points[dst[:7]], "sqeuclidean")
+    assert squared and np.allclose(d, want, rtol=1e-12, atol=1e-15)
+
+    ico = trimesh.creation.icosphere(subdivisions=2)  # 162 vertices
+    mesh = TriangleMesh(ico.vertices, ico.faces)
+    src, dst = rng.choice(mesh.n, 4, replace=False), rng.choice(mesh.n, 6, replace=False)
+    d, squared = mesh.ground_distances(src, dst)
+    assert not squared and np.array_equal(d, geodesic_distances(mesh, src, dst))
+    monkeypatch.setattr(mesh_module, "STORED_GEODESICS_VERTICES", mesh.n - 1)
+    assert mesh.stored_ground_distances() is None
+    assert mesh.operators.peek(("exact_geodesics",)) is None
+    monkeypatch.undo()
+    every, squared = mesh.stored_ground_distances()
+    assert not squared and every.shape == (mesh.n, mesh.n)
+    assert mesh.stored_ground_distances()[0] is every  # kept in the operator store
+    np.testing.assert_allclose(every[np.ix_(src, dst)], d, rtol=1e-9)
+
+    graph = Graph(3, [[0, 1], [1, 2]])
+    assert graph.stored_ground_distances() is None
+    with pytest.raises(NotImplementedError, match="graph"):
+        graph.ground_distances([0], [2])

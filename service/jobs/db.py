@@ -221,9 +221,22 @@ def create_tables(metadata, engine) -> None:
             time.sleep(0.05 * (attempt + 1))
 
 
+def require_returning(engine) -> None:
+    """Refuse, at start, a job database without ``UPDATE ... RETURNING`` (SQLite before
+    3.35): claiming a job (``claim``, and ``claim_next``, the embedded queue) and a
+    heartbeat are each one conditional ``UPDATE ... RETURNING``."""
+    if not engine.dialect.update_returning:
+        linked = getattr(engine.dialect.dbapi, "sqlite_version", None)
+        raise RuntimeError(
+            f"the job database ({engine.dialect.name}"
+            + (f" {linked}" if linked else "") + ") has no UPDATE ... RETURNING, which "
+            "claiming a job needs: use SQLite >= 3.35 or PostgreSQL")
+
+
 class JobRepository:
     def __init__(self, url: str):
         self.engine = make_engine(url)
+        require_returning(self.engine)
         create_tables(Base.metadata, self.engine)
         self._add_columns()
         self.Session = sessionmaker(self.engine, expire_on_commit=False)
@@ -328,25 +341,11 @@ class JobRepository:
     def claim(self, job_id: str, worker: str) -> Claim | None:
         """Move a queued job to running for this worker; None if someone else has it.
 
-        One conditional ``UPDATE ... RETURNING`` where the database supports it."""
-        now = time.time()
-        if self.engine.dialect.update_returning:
-            with self.engine.begin() as conn:
-                row = conn.execute(CLAIM, {"b_id": job_id, "b_worker": worker,
-                                           "b_now": now}).mappings().first()
-            if row is None:
-                return None
-            return Claim(int(row["attempts"]), JobRow(**row))
-        job = self.get(job_id)  # pragma: no cover - databases without RETURNING
-        if job is None or job.state != QUEUED:
-            return None
-        # (building these per call costs as much as the statement: only on this path)
-        values = {"state": RUNNING, "attempts": JOBS.c.attempts + 1, "worker": worker,
-                  "started_at": now, "heartbeat_at": now}
-        where = (JOBS.c.id == job_id, JOBS.c.state == QUEUED, JOBS.c.attempts == job.attempts)
-        if not self._update(where, **values):
-            return None
-        return Claim(job.attempts + 1, self.get(job_id))
+        One conditional ``UPDATE ... RETURNING`` (:func:`require_returning`)."""
+        with self.engine.begin() as conn:
+            row = conn.execute(CLAIM, {"b_id": job_id, "b_worker": worker,
+                                       "b_now": time.time()}).mappings().first()
+        return None if row is None else Claim(int(row["attempts"]), JobRow(**row))
 
     def claim_next(self, queues: tuple[str, ...], worker: str, *,
                    probe: bool = True) -> Claim | None:
@@ -372,16 +371,10 @@ class JobRepository:
         """Refresh the heartbeat (and progress); returns (still owned, cancel requested)."""
         where = (JOBS.c.id == job_id, JOBS.c.state == RUNNING, JOBS.c.attempts == attempt)
         values = {"heartbeat_at": time.time(), **progress}
-        if self.engine.dialect.update_returning:
-            with self.engine.begin() as conn:
-                row = conn.execute(update(JOBS).where(*where).values(**values)
-                                   .returning(JOBS.c.cancel_requested)).first()
-            return (False, True) if row is None else (True, bool(row[0]))
-        if not self._update(where, **values):  # pragma: no cover
-            return False, True
-        with self.Session() as s:  # pragma: no cover
-            cancel = s.scalar(select(JobRow.cancel_requested).where(JobRow.id == job_id))
-        return True, bool(cancel)  # pragma: no cover
+        with self.engine.begin() as conn:
+            row = conn.execute(update(JOBS).where(*where).values(**values)
+                               .returning(JOBS.c.cancel_requested)).first()
+        return (False, True) if row is None else (True, bool(row[0]))
 
     def finish(self, job_id: str, attempt: int, state: str, *, error: dict | None = None,
                result_location: str | None = None, result: dict | None = None,

@@ -35,11 +35,10 @@ from service.operations.transport import SinkhornOptions
 from solvers.convolutional.decision import decide_route
 from solvers.convolutional.exact import EXACT_KINDS
 from solvers.convolutional.matrix import (
-    ROW_BLOCK_ENTRIES,
     SHARED_COST_ENTRIES,
-    STORED_GEODESICS_VERTICES,
     block_pairs,
     distance_matrix,
+    exact_route_bytes,
     kernel_key,
     matrix_pairs,
     pair_state_bytes,
@@ -56,6 +55,9 @@ ROUTE_CODES = {"": -1, "identical": 0, "exact": 1, "convolutional": 2, "w1": 3}
 # the worker decides per pair, by the same function of the data, as the library does.
 DECIDED_PAIRS = 1000
 LISTED_KERNELS = 32  # heat kernels listed in a decision (more: counted)
+# n-vectors of one exact geodesic solve's work (MMP frontier and distances, measured ~8 on
+# a 642-vertex sphere beside the n x n matrix: tests/service/test_distance_matrices.py)
+SOLVE_WORK_VECTORS = 16
 
 
 class DistanceMatrixRequest(SinkhornOptions):
@@ -165,25 +167,59 @@ def _sizes(req: DistanceMatrixRequest) -> tuple[int, int, int]:
 
 
 def estimate_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
-    """Inputs (one float per point and distribution), the block's per-pair solver state,
-    the matrix and its per-pair arrays, and for exact pairs the largest shared cost matrix
-    (:data:`~solvers.convolutional.matrix.SHARED_COST_ENTRIES`), the rows' cost blocks
-    (:data:`~solvers.convolutional.matrix.ROW_BLOCK_ENTRIES`) and the stored all-pairs
-    geodesics of small meshes."""
+    """Inputs (one float per point and distribution), the matrix and its per-pair arrays,
+    and the larger of the block's per-pair solver state (unless every pair is exact) and,
+    where pairs may take the exact route, their ground distances
+    (:func:`ground_distance_bytes`), the rows' cost blocks and the LPs
+    (:func:`exact_working_bytes`)."""
     n, m, _ = _sizes(req)
     points = int(view.n)
     total = 8 * points * (n + (m if req.others is not None else 0))
     total += 40 * n * m
     if req.metric == "w1":
         return total + 8 * 120 * points  # Beckmann operators and interior-point state
-    total += block_pairs(points) * (pair_state_bytes(points) + 8 * 8 * points)
-    exact = req.route == "exact" or (req.route == "auto" and req.gamma is None)
-    if exact and view.kind in EXACT_KINDS:  # the exact pairs' shared cost matrix, at most,
-        total += 8 * min(SHARED_COST_ENTRIES, points * points)  # and the rows' cost blocks
-        total += 8 * min(ROW_BLOCK_ENTRIES, points * points)
-        if view.kind == "mesh" and points <= STORED_GEODESICS_VERTICES:
-            total += 8 * points * points  # the stored all-pairs geodesics it is cut from
-    return total
+    blocks = exact = 0
+    if req.route != "exact":  # route "exact": every pair is exact, no block runs
+        blocks = block_pairs(points) * (pair_state_bytes(points) + 8 * 8 * points)
+    if view.kind in EXACT_KINDS and (req.route == "exact" or (req.route == "auto"
+                                                              and req.gamma is None)):
+        exact = ground_distance_bytes(view) + exact_working_bytes(view, req)
+    # the exact pairs run first and release their working memory before the blocks run
+    return total + max(blocks, exact)
+
+
+def exact_working_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
+    """The exact route's row cost blocks and LPs
+    (:func:`~solvers.convolutional.matrix.exact_route_bytes`) with every pair exact, from
+    the distributions' support sizes: ``EXACT_THREADS`` LPs of the largest pair (a fixed
+    cap, not this machine's CPUs, so every process estimates the same)."""
+    rows, others, _ = _inputs(view, req)
+    cols = rows if others is None else others
+    row_sizes = np.count_nonzero(rows > 0, axis=0).tolist()
+    col_sizes = np.count_nonzero(cols > 0, axis=0).tolist()
+    covered = (int(np.count_nonzero((rows > 0).any(axis=1))),
+               int(np.count_nonzero((cols > 0).any(axis=1))))
+    # the distances' columns: the columns' support points, or every point where the
+    # domain's stored all-pairs distances serve (matrix._support_distances)
+    width = int(view.n) if 2 * min(covered) >= view.n else covered[1]
+    return exact_route_bytes(row_sizes, col_sizes, width, _sizes(req)[2])
+
+
+def ground_distance_bytes(view: DomainView) -> int:
+    """The exact pairs' ground distances at most (supports covering the domain), as the
+    route builds them (:func:`solvers.convolutional.matrix._support_distances`, at most
+    :data:`~solvers.convolutional.matrix.SHARED_COST_ENTRIES` entries): on meshes either the
+    geodesics between the supports or, on a mesh small enough to keep them, the stored
+    all-pairs matrix instead (``n^2`` entries, below the cap), never both, plus a geodesic
+    solve's work vectors; on grids and point clouds the squared distances and the ``(rows,
+    columns, dimension)`` coordinate differences they are summed from (and the gathered
+    coordinates)."""
+    points = int(view.n)
+    entries = min(SHARED_COST_ENTRIES, points * points)
+    if view.kind == "mesh":
+        return 8 * entries + SOLVE_WORK_VECTORS * 8 * points
+    dim = 3 if view.points is None else int(np.shape(view.points)[1])
+    return 8 * (dim + 1) * entries + 8 * (2 * dim + 2) * points  # + gathers, indices
 
 
 EXACT_PAIR_COST = 20.0  # cost units per points^2 of one exact pair (measured, with margin)

@@ -518,6 +518,13 @@ def _gamut_map_out(L, a, b, m, reach):
         Lg = gamut_lightness(L, a, b, m, reach)
         if Lg != L:
             return Lg, a, b
+    return _chroma_map(L, a, b, m)
+
+
+@_jit(inline="always")
+def _chroma_map(L, a, b, m):
+    """The same L* and hue with the largest in-gamut chroma (bisection on the factor of
+    ``(a, b)``) of a colour out of the gamut at ``L``."""
     lo = 0.0
     hi = 1.0
     for _ in range(12):
@@ -677,13 +684,13 @@ def _quantile_map(cdfs, q, ax, u):
 
 
 @_jit(parallel=True)
-def apply_field(lab, src, out, lut_l, lstep, disp, m, scale, offset, reach, shift, s, width):
+def apply_field(lab, src, out, lut_l, lstep, disp, m, scale, offset, shift, s, width):
     """Recolor every pixel: ``L -> lut_l[bin]`` (empty: keep) plus the L* shift ``a I + b``
     (``shift`` ``(2, h, w)`` the coefficients ``a, b`` of a guided filter on ``s × s``
     blocks, bilinear at pixel centres, ``I = L*/100`` of the input; empty: none), ``ab +=
-    disp``; a colour still out of the gamut moves to the nearest in-gamut L* within
-    ``reach`` L* units, else loses chroma (:func:`gamut_map`; ``reach < 0``: clipped in
-    RGB); Lab -> sRGB, ``out = v * scale + offset``; a fourth channel of ``src`` is copied."""
+    disp``; L* clamped to [0, 100], a colour still out of the gamut loses chroma at its L*
+    (:func:`_chroma_map`: the smooth shift is the only L* move, no per-pixel one);
+    Lab -> sRGB, ``out = v * scale + offset``; a fourth channel of ``src`` is copied."""
     use_l = lut_l.shape[0] > 0
     use_shift = shift.shape[1] > 0
     alpha = src.shape[1] > 3 and out.shape[1] > 3
@@ -703,13 +710,12 @@ def apply_field(lab, src, out, lut_l, lstep, disp, m, scale, offset, reach, shif
                 j0, j1, v = xs[x], xs1[x], fx[x]
                 L += (_bilinear(shift[0], i0, i1, u, j0, j1, v) * L0 * GUIDE_SCALE
                       + _bilinear(shift[1], i0, i1, u, j0, j1, v))
-            if reach >= 0:
-                L = min(max(L, 0.0), 100.0)
-                r, g, bb = _linear_rgb(L, A, B, m)
-                if _in_box(r, g, bb):  # most pixels: linear RGB computed once
-                    _store_linear(out, src, p, r, g, bb, scale, offset, alpha)
-                    continue
-                L, A, B = _gamut_map_out(L, A, B, m, reach)
+            L = min(max(L, 0.0), 100.0)
+            r, g, bb = _linear_rgb(L, A, B, m)
+            if _in_box(r, g, bb):  # most pixels: linear RGB computed once
+                _store_linear(out, src, p, r, g, bb, scale, offset, alpha)
+                continue
+            L, A, B = _chroma_map(L, A, B, m)
             _store(out, src, p, L, A, B, m, scale, offset, alpha)
 
 

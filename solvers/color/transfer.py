@@ -529,7 +529,7 @@ def _recolor_split(img, lab, plan, grid, scale, lut_l, settings, target):
     scale_out = code_scale(img.dtype)
     offset = 0.5 if img.dtype.kind in "ui" else 0.0
     SK.apply_field(lab, src, out, lut, L_MAX / LBINS, disp, _kernels._M_INV, scale_out,
-                   offset, 0.0, shift, s, shape[1])
+                   offset, shift, s, shape[1])
     return out.reshape(img.shape).astype(img.dtype, copy=False)
 
 

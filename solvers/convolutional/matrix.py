@@ -51,7 +51,7 @@ from solvers.convolutional.distance import (
     pair_steps,
     watch_stagnation,
 )
-from solvers.convolutional.exact import MAX_SUPPORT_PRODUCT, _cost_matrix, _finite_cost
+from solvers.convolutional.exact import MAX_SUPPORT_PRODUCT, _finite_cost
 from solvers.errors import CancelledError, InputError
 from solvers.monitor import SolverResult, _arity
 from solvers.parallel import thread_count
@@ -66,14 +66,51 @@ _PAIR_VECTORS = 2 * ANDERSON_MEMORY + 12
 # Largest shared cost matrix of the exact pairs (entries; 256 MB): beyond it each exact pair
 # computes its own costs as a single-pair call does (bounded geodesic solves).
 SHARED_COST_ENTRIES = 2**25
-# Meshes up to this many vertices keep their all-pairs exact geodesic matrix in the operator
-# store (at most 128 MB) when a matrix's supports cover at least half of the vertices:
-# the next matrix on the domain reuses it.
-STORED_GEODESICS_VERTICES = 4096
 # Squared costs kept per row of the exact pairs (entries; 32 MB): :class:`_RowBlocks`.
 ROW_BLOCK_ENTRIES = 2**22
 # Exact pairs solved between two cancellation checks (LPs of ~150 x 150 points: ~0.1 s).
 EXACT_CHUNK = 64
+# Threads solving the exact pairs' LPs by default, at most (fewer when the process may use
+# fewer CPUs): a fixed cap, so that a memory bound counting this many LP working sets
+# (:func:`exact_route_bytes`) holds on any machine; more cores serve more worker processes.
+EXACT_THREADS = 2
+# Bytes per entry of one exact pair's LP (:func:`_support_lp`): its squared costs (8), their
+# finite copy (8, pairs across components), the plan (8) and the network simplex's own
+# per-arc arrays (~24, measured: peak RSS of ``emd_c`` on 1000^2 and 2000^2 entries is
+# 32 bytes an entry above its input), and an allowance of 10 numbers per point of its
+# supports (masses, potentials, the simplex's node arrays).
+LP_ENTRY_BYTES = 48
+LP_POINT_BYTES = 80
+
+
+def exact_threads(threads: int | None = None) -> int:
+    """Threads of the exact route: ``threads`` checked, or by default the CPUs this process
+    may use, at most :data:`EXACT_THREADS`."""
+    return thread_count(threads) if threads is not None else min(thread_count(),
+                                                                 EXACT_THREADS)
+
+
+def exact_route_bytes(row_supports, col_supports, width: int, pairs: int,
+                      threads: int = EXACT_THREADS) -> int:
+    """Bytes of the exact route's row cost blocks and LPs at most, beside its ground distances
+    (:func:`_exact_pairs`): ``row_supports``, ``col_supports``: the support sizes of the
+    exact pairs' rows and columns; ``width``: columns of the ground distances (the columns'
+    support points, or every point where the domain's stored all-pairs ones serve); ``pairs``:
+    the exact pairs.
+
+    :class:`_RowBlocks` keeps blocks (``support x width`` entries each) within
+    :data:`ROW_BLOCK_ENTRIES` or one block, adds the next before trimming, and each thread
+    may hold one more (being built, or just trimmed while its pair is cut from it); each of
+    ``min(threads, pairs)`` threads holds one LP (:data:`LP_ENTRY_BYTES` an entry), counted
+    at the largest pair's size."""
+    largest = max(row_supports, default=0)
+    block = largest * int(width)
+    kept = min(max(ROW_BLOCK_ENTRIES, block), int(sum(row_supports)) * int(width))
+    running = min(int(threads), int(pairs))
+    biggest = max(col_supports, default=0)
+    lp = (LP_ENTRY_BYTES * min(largest * biggest, MAX_SUPPORT_PRODUCT)
+          + LP_POINT_BYTES * (largest + biggest))
+    return 8 * (kept + running * block) + running * lp
 
 
 def pair_state_bytes(n: int) -> int:
@@ -228,7 +265,7 @@ def distance_matrix(
         :class:`~solvers.errors.CancelledError` is raised with ``partial``, the result so
         far (finished entries kept, the rest ``nan``).
     threads : threads solving the exact route's LPs (default: the CPUs this process may
-        use); the values do not depend on it.
+        use, at most :data:`EXACT_THREADS`); the values do not depend on it.
 
     Returns
     -------
@@ -247,7 +284,7 @@ def distance_matrix(
     B = A if symmetric else _collection(domain, others, "others")
     domain.require_matching_component_masses(np.hstack([A, B]), max(tol, 1e-9),
                                              "distributions" if symmetric else "others")
-    thread_count(threads)  # checked before any work
+    exact_threads(threads)  # checked before any work
     pairs = matrix_pairs(A.shape[1], B.shape[1], symmetric)
     table = _Table(A.shape[1], B.shape[1], symmetric, metric, progress, len(pairs))
 
@@ -325,7 +362,7 @@ def _exact_pairs(domain, A, B, pairs, table: _Table, stop, threads: int | None =
         src, dst = row_support[i], col_support[j]
         return _support_lp(A[src, i], B[dst, j], blocks.costs(i, src, dst))
 
-    for (i, j), solved in _in_order(solve, pairs, thread_count(threads), stop):
+    for (i, j), solved in _in_order(solve, pairs, exact_threads(threads), stop):
         table.put(i, j, *solved, "exact")
 
 
@@ -416,18 +453,25 @@ def _support_lp(a: np.ndarray, b: np.ndarray, sub: np.ndarray) -> tuple:
     return float(value), 1, residual, int(code) == 1
 
 
+def _should_cancel(stop, where: str) -> Callable[[], bool]:
+    """A solver's ``should_cancel()`` from ``stop(where)``: True where ``stop`` raises."""
+
+    def cancelled() -> bool:
+        try:
+            stop(where)
+        except CancelledError:
+            return True
+        return False
+
+    return cancelled
+
+
 def _exact_single_pairs(domain, A, B, pairs, table: _Table, stop) -> None:
     """Exact pairs one at a time (:func:`~solvers.convolutional.exact.
     exact_wasserstein_distance`): when the shared cost matrix would be too large."""
     from solvers.convolutional.exact import exact_wasserstein_distance
 
-    def cancelled() -> bool:
-        try:
-            stop("between geodesic solves")
-        except CancelledError:
-            return True
-        return False
-
+    cancelled = _should_cancel(stop, "between geodesic solves")
     for i, j in pairs:
         stop(f"before pair ({i}, {j})")
         try:
@@ -440,33 +484,23 @@ def _exact_single_pairs(domain, A, B, pairs, table: _Table, stop) -> None:
 
 def _support_distances(domain, rows: np.ndarray, cols: np.ndarray, stop) -> tuple:
     """``(distances, at_row, at_col, squared)`` between the vertices ``rows`` and ``cols``
-    (:class:`_RowBlocks`): squared straight/periodic distances on grids and point clouds,
-    exact geodesics on meshes (one MMP solve per point of the smaller side, or the stored
-    all-pairs matrix itself, indexed by vertex)."""
-    at_row, at_col = np.full(domain.n, -1), np.full(domain.n, -1)
-    at_row[rows], at_col[cols] = np.arange(len(rows)), np.arange(len(cols))
-    if domain.kind != "mesh":
-        return _cost_matrix(domain, rows, cols), at_row, at_col, True
-    from solvers.geodesics import geodesic_distances
-
-    def cancelled() -> bool:
-        try:
-            stop("between geodesic solves")
-        except CancelledError:
-            return True
-        return False
-
-    stored = domain.n <= STORED_GEODESICS_VERTICES and 2 * min(len(rows), len(cols)) >= domain.n
+    (:class:`_RowBlocks`): the domain's ground distances between them (squared straight or
+    periodic distances on grids and point clouds, exact geodesics on meshes: one MMP solve
+    per point of the smaller side), or, when they cover at least half of the domain, its
+    stored all-pairs ones where it keeps them (small meshes), indexed by vertex."""
+    cancelled = _should_cancel(stop, "between geodesic solves")
     try:
-        if stored:
-            every = domain.operators.get(("exact_geodesics",), lambda: geodesic_distances(
-                domain, np.arange(domain.n), should_cancel=cancelled))
-            return every, np.arange(domain.n), np.arange(domain.n), False
-        d = geodesic_distances(domain, rows, cols, should_cancel=cancelled)
+        every = (domain.stored_ground_distances(should_cancel=cancelled)
+                 if 2 * min(len(rows), len(cols)) >= domain.n else None)
+        if every is not None:
+            return every[0], np.arange(domain.n), np.arange(domain.n), every[1]
+        d, squared = domain.ground_distances(rows, cols, should_cancel=cancelled)
     except CancelledError:
         stop("between geodesic solves")  # re-raise with the partial result
         raise
-    return d, at_row, at_col, False
+    at_row, at_col = np.full(domain.n, -1), np.full(domain.n, -1)
+    at_row[rows], at_col[cols] = np.arange(len(rows)), np.arange(len(cols))
+    return d, at_row, at_col, squared
 
 
 def _convolutional_pairs(domain, A, B, members, table: _Table, *, tol, max_iter, stop) -> None:
@@ -545,13 +579,7 @@ def run_block(logk, jobs: Iterator, capacity: int, done, stop) -> None:
 def _w1_pairs(domain, A, B, pairs, table: _Table, options: dict, stop) -> None:
     from solvers.emd import earth_movers_distance
 
-    def cancelled() -> bool:
-        try:
-            stop("in a W1 solve")
-        except CancelledError:
-            return True
-        return False
-
+    cancelled = _should_cancel(stop, "in a W1 solve")
     for i, j in pairs:
         stop(f"before pair ({i}, {j})")
         try:

@@ -39,6 +39,17 @@ def points_extent(points) -> float:
     return diag if np.isfinite(diag) and diag > 0 else 1.0
 
 
+def squared_straight_distances(points, src, dst, periods=None) -> np.ndarray:
+    """``(len(src), len(dst))`` squared Euclidean distances between ``points[src]`` and
+    ``points[dst]``; an axis with a period (``periods[axis] > 0``) wraps (nearest image)."""
+    pts = np.asarray(points, dtype=np.float64)
+    diff = pts[src][:, None, :] - pts[dst][None, :, :]
+    for ax, width in enumerate(() if periods is None else periods):
+        if width > 0:
+            diff[..., ax] -= width * np.round(diff[..., ax] / width)
+    return np.einsum("ijk,ijk->ij", diff, diff)
+
+
 class Domain:
     """A discretized space carrying distributions.
 
@@ -69,6 +80,20 @@ class Domain:
 
     def _build_heat_kernel(self, t: float, substeps: int, backend: Backend) -> HeatKernel:
         raise NotImplementedError  # pragma: no cover
+
+    def ground_distances(self, src, dst, *, should_cancel=None) -> tuple[np.ndarray, bool]:
+        """``(d, squared)``: the ``(len(src), len(dst))`` ground distances between the points
+        ``src`` and ``dst`` (indices), the metric whose squares are the costs of the exact
+        transport route (thesis eq. 1.1); ``squared``: the entries are already the squares
+        (where the squares are what is computed).  ``should_cancel()`` is checked between
+        the solves of domains that solve for them."""
+        raise NotImplementedError(f"no ground distances on a {self.kind} domain")
+
+    def stored_ground_distances(self, should_cancel=None) -> tuple[np.ndarray, bool] | None:
+        """``(d, squared)`` of :meth:`ground_distances` between all points, ``(n, n)``, kept
+        in the operator store, on domains where they are costly to compute and small enough
+        to keep; None elsewhere (compute what is asked)."""
+        return None
 
     def _adjacency(self) -> sp.spmatrix:
         """Sparsity graph used for connected components."""

@@ -9,7 +9,7 @@ from functools import cached_property
 import numpy as np
 import scipy.sparse as sp
 
-from solvers.domains.base import Domain
+from solvers.domains.base import Domain, squared_straight_distances
 from solvers.errors import DomainError
 from solvers.kernels import GaussianGridHeatKernel, ImplicitEulerHeatKernel
 from solvers.linalg import Backend
@@ -160,6 +160,13 @@ class Grid(Domain):
                                            backend)
 
         return self.operators.get(key, build)
+
+    def ground_distances(self, src, dst, *, should_cancel=None) -> tuple[np.ndarray, bool]:
+        """Squared straight distances between the nodes, periodic axes wrapped: the metric
+        whose Gaussian the grid heat kernel is."""
+        width = self.bounds[:, 1] - self.bounds[:, 0]
+        periods = np.where(self.periodic, width, 0.0)
+        return squared_straight_distances(self.points, src, dst, periods), True
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         return {

@@ -31,6 +31,11 @@ POSITION_WELD_FORMATS = ("ply", "off", "stl", "glb", "gltf")
 
 # Relative area below which a face counts as degenerate (fraction of mean face area).
 DEGENERATE_AREA_FRACTION = 1e-12
+# Meshes up to this many vertices keep their all-pairs exact geodesic matrix (at most
+# 128 MB) in the operator store when asked for it (stored_ground_distances: the exact
+# distance matrices ask when their supports cover at least half of the vertices), so the
+# next matrix on the domain reuses it.
+STORED_GEODESICS_VERTICES = 4096
 
 
 @dataclass
@@ -643,6 +648,23 @@ class TriangleMesh(Domain):
 
     def _build_heat_kernel(self, t: float, substeps: int, backend: Backend):
         return ImplicitEulerHeatKernel(self.areas, self.laplacian, t, substeps, backend)
+
+    def ground_distances(self, src, dst, *, should_cancel=None) -> tuple[np.ndarray, bool]:
+        """Exact polyhedral geodesics (not squared): one MMP solve per point of the smaller
+        side (:func:`solvers.geodesics.geodesic_distances`)."""
+        from solvers.geodesics import geodesic_distances
+
+        return geodesic_distances(self, src, dst, should_cancel=should_cancel), False
+
+    def stored_ground_distances(self, should_cancel=None) -> tuple[np.ndarray, bool] | None:
+        """All-pairs exact geodesics, kept up to :data:`STORED_GEODESICS_VERTICES`."""
+        if self.n > STORED_GEODESICS_VERTICES:
+            return None
+        from solvers.geodesics import geodesic_distances
+
+        every = self.operators.get(("exact_geodesics",), lambda: geodesic_distances(
+            self, np.arange(self.n), should_cancel=should_cancel))
+        return every, False
 
     # -- storage / reporting -----------------------------------------------
     def to_arrays(self) -> dict[str, np.ndarray]:

@@ -6,7 +6,7 @@ import numpy as np
 import robust_laplacian
 import scipy.sparse as sp
 
-from solvers.domains.base import Domain, domain_input
+from solvers.domains.base import Domain, domain_input, squared_straight_distances
 from solvers.errors import DomainError
 from solvers.kernels import ImplicitEulerHeatKernel
 from solvers.linalg import Backend
@@ -92,6 +92,10 @@ class PointCloud(Domain):
 
     def _build_heat_kernel(self, t: float, substeps: int, backend: Backend):
         return ImplicitEulerHeatKernel(self.areas, self.laplacian, t, substeps, backend)
+
+    def ground_distances(self, src, dst, *, should_cancel=None) -> tuple[np.ndarray, bool]:
+        """Squared straight distances between the points (unit-area scale)."""
+        return squared_straight_distances(self.points, src, dst), True
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         return {"points": self._input_points}

@@ -180,3 +180,116 @@ def test_uniform_decision_runs_as_explicit_arguments(client, woody):
     w1 = client.post(f"/v1/domains/{mid}/distance-matrices",
                      json={"distributions": BUMPS[:2], "metric": "w1"}).json()
     assert w1["decision"]["algorithm"] == "ipm" and w1["decision"]["routes"] == {"w1": 1}
+
+
+def _traced_peak(fn) -> int:
+    import tracemalloc
+
+    tracemalloc.start()
+    try:
+        fn()
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+def _go(where: str) -> None:  # a matrix's stop(): never cancelled
+    pass
+
+
+def _sparse_masses(n, k, per, seed):
+    rng = np.random.default_rng(seed)
+    M = np.zeros((n, k))
+    for j in range(k):
+        M[rng.choice(n, per, replace=False), j] = rng.random(per) + 0.5
+    return M / M.sum(axis=0)
+
+
+def test_exact_matrix_memory_estimate_counts_what_the_route_builds():
+    """The estimate's ground distances cover the measured peak of building them with the
+    supports covering the domain (tracemalloc, warm: the geodesic pieces are the domain's
+    cached operators): a small mesh's stored all-pairs geodesics (counted once: the route
+    builds them instead of the supports' matrix, not beside it), the pairwise geodesics of
+    supports covering less than half of it, a point cloud's squared distances and the
+    coordinate differences they are summed from; and the whole job's estimate covers the
+    whole exact matrix in both mesh cases."""
+    import trimesh
+
+    from service.operations.base import view_of_domain
+    from service.operations.matrices import (
+        DistanceMatrixRequest,
+        estimate_bytes,
+        ground_distance_bytes,
+    )
+    from solvers import PointCloud, TriangleMesh
+    from solvers.convolutional.matrix import (
+        SHARED_COST_ENTRIES,
+        _support_distances,
+        distance_matrix,
+    )
+    from solvers.domains.mesh import STORED_GEODESICS_VERTICES
+
+    assert STORED_GEODESICS_VERTICES**2 <= SHARED_COST_ENTRIES  # stored: below the cap
+    ico = trimesh.creation.icosphere(subdivisions=3)  # 642 vertices
+    mesh = TriangleMesh(ico.vertices, ico.faces)
+    n, everything = mesh.n, np.arange(mesh.n)
+    counted = ground_distance_bytes(view_of_domain(mesh))
+    assert counted < 2 * 8 * n * n  # the n x n geodesics once
+    mesh.ground_distances([0], [1])  # the geodesic pieces (cached operators)
+    stored = _traced_peak(lambda: _support_distances(mesh, everything, everything, _go))
+    assert mesh.operators.peek(("exact_geodesics",)) is not None
+    assert 8 * n * n <= stored <= counted, (stored, counted)
+    half = _traced_peak(lambda: _support_distances(mesh, everything[:300],
+                                                   everything[300:], _go))
+    assert mesh.operators.peek(("exact_geodesics",)) is not None and half <= counted
+
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(n, 3))
+    cloud = PointCloud(p / np.linalg.norm(p, axis=1, keepdims=True))
+    cloud_peak = _traced_peak(lambda: _support_distances(cloud, everything, everything, _go))
+    assert 4 * 8 * n * n <= cloud_peak <= ground_distance_bytes(view_of_domain(cloud))
+
+    for per, keeps in ((80, True), (10, False)):  # supports over / under half the mesh
+        M = _sparse_masses(n, 8, per, seed=per)
+        distance_matrix(mesh, M, route="exact")  # warm (imports, compiled kernels)
+        mesh.operators.discard(("exact_geodesics",))
+        peak = _traced_peak(lambda M=M: distance_matrix(mesh, M, route="exact"))
+        assert (mesh.operators.peek(("exact_geodesics",)) is not None) == keeps
+        req = DistanceMatrixRequest(distributions=_listed(M), route="exact")
+        assert estimate_bytes(view_of_domain(mesh), req) >= peak
+
+
+def _listed(M) -> list[dict]:
+    """The columns of ``M`` as a request's sparse distributions."""
+    return [{"indices": np.flatnonzero(c).tolist(), "masses": c[c > 0].tolist()} for c in M.T]
+
+
+def test_exact_matrix_memory_estimate_counts_row_blocks_and_lps():
+    """Where the rows' cost blocks and the LPs dominate (a small mesh, supports of half of
+    it overlapping from row to row, two threads), the estimate covers the measured peak of
+    the whole exact matrix (tracemalloc, warm; the network simplex's own per-arc arrays,
+    outside tracemalloc, are in the estimate too) and stays within 3x of it; the terms
+    counted before (ground distances and n^2 entries of blocks) were short of it."""
+    import trimesh
+
+    from service.operations.base import view_of_domain
+    from service.operations.matrices import (
+        DistanceMatrixRequest,
+        estimate_bytes,
+        ground_distance_bytes,
+    )
+    from solvers import TriangleMesh
+    from solvers.convolutional.matrix import EXACT_THREADS, distance_matrix
+
+    assert EXACT_THREADS == 2  # the threads the estimate counts LPs for
+    ico = trimesh.creation.icosphere(subdivisions=3)  # 642 vertices
+    mesh = TriangleMesh(ico.vertices, ico.faces)
+    n = mesh.n
+    M = _sparse_masses(n, 6, n // 2, seed=3)  # 6 rows of 321 points: rows overlap
+    distance_matrix(mesh, M, route="exact", threads=2)  # warm: stored geodesics, imports
+    peak = _traced_peak(lambda: distance_matrix(mesh, M, route="exact", threads=2))
+    view = view_of_domain(mesh)
+    estimate = estimate_bytes(view, DistanceMatrixRequest(distributions=_listed(M),
+                                                          route="exact"))
+    assert ground_distance_bytes(view) + 8 * n * n < peak <= estimate <= 3 * peak, (
+        peak, estimate)

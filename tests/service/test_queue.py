@@ -178,3 +178,25 @@ def test_older_job_table_gains_the_new_columns(tmp_path):
         JobRepository(url).dispose()  # a second process starting on it: nothing to add
     finally:
         repo.dispose()
+
+
+def test_a_job_database_without_update_returning_is_refused_at_start(tmp_path, monkeypatch):
+    """Claims and heartbeats are one ``UPDATE ... RETURNING`` each (no fallback): an SQLite
+    before 3.35 is refused when the repository opens, naming what is needed, before the
+    job table is created."""
+    from sqlite3 import dbapi2
+
+    from service.jobs.db import JobRepository
+
+    path = tmp_path / "jobs.sqlite3"
+    monkeypatch.setattr(dbapi2, "sqlite_version_info", (3, 31, 1))
+    with pytest.raises(RuntimeError, match=r"RETURNING.*SQLite >= 3\.35"):
+        JobRepository(f"sqlite:///{path}")
+    assert not path.exists()
+    monkeypatch.undo()
+    repo = JobRepository(f"sqlite:///{path}")  # the SQLite this Python links has it
+    try:
+        assert repo.engine.dialect.update_returning
+        assert repo.claim("no-such-job", "w") is None
+    finally:
+        repo.dispose()
