@@ -105,13 +105,17 @@ def _jdot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 @cached_njit()
+def _jordan_point(x0, x1, x2, y0, y1, y2):  # pragma: no cover - compiled
+    """One face's Jordan product ``x ∘ y``."""
+    return x0 * y0 + x1 * y1 + x2 * y2, x0 * y1 + y0 * x1, x0 * y2 + y0 * x2
+
+
+@cached_njit()
 def _jordan_kernel(x, y):  # pragma: no cover - compiled
     out = np.empty(x.shape)
     for t in range(x.shape[0]):
-        x0, x1, x2, y0, y1, y2 = x[t, 0], x[t, 1], x[t, 2], y[t, 0], y[t, 1], y[t, 2]
-        out[t, 0] = x0 * y0 + x1 * y1 + x2 * y2
-        out[t, 1] = x0 * y1 + y0 * x1
-        out[t, 2] = x0 * y2 + y0 * x2
+        out[t, 0], out[t, 1], out[t, 2] = _jordan_point(x[t, 0], x[t, 1], x[t, 2], y[t, 0],
+                                                        y[t, 1], y[t, 2])
     return out
 
 
@@ -121,15 +125,18 @@ def _jordan(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 @cached_njit()
+def _jordan_solve_point(l0, l1, l2, r0, r1, r2):  # pragma: no cover - compiled
+    """One face's ``v`` with ``λ ∘ v = r``."""
+    v0 = (l0 * r0 - l1 * r1 - l2 * r2) / (l0 * l0 - l1 * l1 - l2 * l2)
+    return v0, (r1 - v0 * l1) / l0, (r2 - v0 * l2) / l0
+
+
+@cached_njit()
 def _jordan_solve_kernel(lam, r):  # pragma: no cover - compiled
     out = np.empty(r.shape)
     for t in range(r.shape[0]):
-        l0, l1, l2 = lam[t, 0], lam[t, 1], lam[t, 2]
-        det = l0 * l0 - l1 * l1 - l2 * l2
-        v0 = (l0 * r[t, 0] - l1 * r[t, 1] - l2 * r[t, 2]) / det
-        out[t, 0] = v0
-        out[t, 1] = (r[t, 1] - v0 * l1) / l0
-        out[t, 2] = (r[t, 2] - v0 * l2) / l0
+        out[t, 0], out[t, 1], out[t, 2] = _jordan_solve_point(
+            lam[t, 0], lam[t, 1], lam[t, 2], r[t, 0], r[t, 1], r[t, 2])
     return out
 
 
@@ -167,12 +174,10 @@ def _scaled_jordan_solve_kernel(lam, p, beta, r):  # pragma: no cover - compiled
     """``W⁻¹ (λ \\ r)``: :func:`_jordan_solve_kernel`, then ``W⁻¹``, in one pass."""
     out = np.empty(r.shape)
     for t in range(r.shape[0]):
-        l0, l1, l2 = lam[t, 0], lam[t, 1], lam[t, 2]
-        det = l0 * l0 - l1 * l1 - l2 * l2
-        v0 = (l0 * r[t, 0] - l1 * r[t, 1] - l2 * r[t, 2]) / det
-        out[t, 0], out[t, 1], out[t, 2] = _scale_point(
-            p[t, 0], p[t, 1], p[t, 2], beta[t], v0, (r[t, 1] - v0 * l1) / l0,
-            (r[t, 2] - v0 * l2) / l0, False)
+        q0, q1, q2 = _jordan_solve_point(lam[t, 0], lam[t, 1], lam[t, 2], r[t, 0], r[t, 1],
+                                         r[t, 2])
+        out[t, 0], out[t, 1], out[t, 2] = _scale_point(p[t, 0], p[t, 1], p[t, 2], beta[t],
+                                                       q0, q1, q2, False)
     return out
 
 
@@ -187,9 +192,9 @@ def _corrector_rhs_kernel(lam, v, p, beta, dx, dz, shift):  # pragma: no cover -
                                   dz[t, 2], False)
         w0, w1, w2 = _scale_point(v[t, 0], v[t, 1], v[t, 2], beta[t], dx[t, 0], dx[t, 1],
                                   dx[t, 2], True)
-        out[t, 0] = (-(l0 * l0 + l1 * l1 + l2 * l2) - (u0 * w0 + u1 * w1 + u2 * w2)) + shift
-        out[t, 1] = -(l0 * l1 + l0 * l1) - (u0 * w1 + w0 * u1)
-        out[t, 2] = -(l0 * l2 + l0 * l2) - (u0 * w2 + w0 * u2)
+        s0, s1, s2 = _jordan_point(l0, l1, l2, l0, l1, l2)
+        c0, c1, c2 = _jordan_point(u0, u1, u2, w0, w1, w2)
+        out[t, 0], out[t, 1], out[t, 2] = (-s0 - c0) + shift, -s1 - c1, -s2 - c2
     return out
 
 
@@ -500,8 +505,8 @@ def _gondzio_rhs_kernel(x, dx, z, dz, trial, v, p, beta, rc, lo,
                                   x[t, 1] + trial * dx[t, 1], x[t, 2] + trial * dx[t, 2], True)
         b0, b1, b2 = _scale_point(p[t, 0], p[t, 1], p[t, 2], beta[t], z[t, 0] + trial * dz[t, 0],
                                   z[t, 1] + trial * dz[t, 1], z[t, 2] + trial * dz[t, 2], False)
-        c0, c1, c2 = _centrality_point(a0 * b0 + a1 * b1 + a2 * b2, a0 * b1 + b0 * a1,
-                                       a0 * b2 + b0 * a2, lo, hi)
+        j0, j1, j2 = _jordan_point(a0, a1, a2, b0, b1, b2)
+        c0, c1, c2 = _centrality_point(j0, j1, j2, lo, hi)
         out[t, 0], out[t, 1], out[t, 2] = rc[t, 0] + c0, rc[t, 1] + c1, rc[t, 2] + c2
     return out
 
