@@ -226,6 +226,8 @@ def test_color_transfer_histogram_row(page, live_api, tmp_path):
     open_color_transfer(page, live_api, tmp_path)
     page.click("#run")
     page.wait_for_selector("#progress[data-state=succeeded]", timeout=4 * TIMEOUT)
+    # the gallery renders after the progress bar flips: wait for its third row's heading
+    page.locator("#gallery h3").nth(2).wait_for(timeout=TIMEOUT)
     heads = page.locator("#gallery h3").all_inner_texts()
     assert [h.split(" ")[0] for h in heads] == ["inputs", "results", "ab"], heads
     row = page.locator("#gallery .strip").nth(2)  # the histogram row, after the results
