@@ -251,3 +251,25 @@ def test_flat_image_goes_to_the_target_means(photos):
     assert out.std(axis=0).max() < 1e-6
     mean = rgb_to_lab_reference(tgt).reshape(-1, 3).mean(axis=0)
     assert np.abs(out[0] - mean).max() < 0.5  # 8-bit output rounding
+
+
+def test_default_gamma_resolves_coarse_grids(photos):
+    """On a coarse ab grid (h = 36.6 at 8 nodes) 16 squared ab units would not resolve the
+    kernel; the default follows the grid there and stays 16 at the default bins."""
+    from solvers.color.transfer import DEFAULT_BINS, DEFAULT_GAMMA, default_gamma
+
+    assert default_gamma(DEFAULT_BINS["split"]) == DEFAULT_GAMMA
+    assert default_gamma(DEFAULT_BINS["barycentric"]) == DEFAULT_GAMMA
+    assert default_gamma(8) == pytest.approx(AbGrid(8).spacing ** 2)
+    small = [p[::8, ::8] for p in (photos["coffee"], photos["chelsea"], photos["astronaut"])]
+    r = color_transfer(small[:2], [0.5, 0.5], mode="barycentric", bins=8)
+    assert r.gamma == pytest.approx(AbGrid(8).spacing ** 2) and r.converged
+    moved = r.images[0][0].astype(float)
+    assert np.isfinite(moved).all() and np.abs(moved - small[0]).mean() > 1.0
+    # an explicit gamma the grid cannot resolve: refused where it acts, unused otherwise
+    with pytest.raises(InputError, match="smallest regularization") as e:
+        color_transfer(small[:2], mode="barycentric", bins=8, gamma=16.0)
+    assert e.value.field == "gamma"
+    with pytest.raises(InputError, match="smallest regularization"):
+        color_transfer(small, [1 / 3] * 3, bins=8, gamma=16.0)
+    assert color_transfer(small[:2], bins=8, gamma=16.0).gamma == 16.0

@@ -74,17 +74,21 @@ async def create_color_transfer(
     images: Annotated[list[UploadFile], File(min_length=2, max_length=MAX_IMAGES,
                                              description="2 to 16 image files (PNG, JPEG, "
                                              "TIFF, WebP; 8 or 16 bits; alpha kept)")],
-    weights: str | None = Form(None, description="JSON list: one weight per image"),
-    alphas: str | None = Form(None, description="JSON list of weight vectors (a sequence, "
+    # optional fields are absent, never null, in the spec: a multipart field is text, and a
+    # client sending null would write "null", which is neither a number nor a JSON list
+    weights: str = Form(None, description="JSON list: one weight per image"),
+    alphas: str = Form(None, description="JSON list of weight vectors (a sequence, "
                               "e.g. [[1,0],[0.5,0.5],[0,1]])"),
     mode: Literal["split", "barycentric"] = Form(
         "split", description="split: exact plan, each color's pixels split among its "
         "targets, guided filter, second split, colors moved inside their histogram node to "
         "the target's, smooth L* shift into the sRGB gamut; barycentric: the thesis' map "
         "(Fig. 3.12)"),
-    bins: int | None = Form(None, ge=8, le=512, description="nodes per axis of the ab grid "
+    bins: int = Form(None, ge=8, le=512, description="nodes per axis of the ab grid "
                             "(8..512; default 65 split, 256 barycentric)"),
-    gamma: float = Form(16.0, gt=0, description="entropic regularization (squared ab units)"),
+    gamma: float = Form(None, gt=0, description="entropic regularization (squared ab "
+                        "units); default 16, or the squared node spacing on grids coarser "
+                        "than 4 ab units per node"),
     regularization: float = Form(DEFAULT_REGULARIZATION, ge=0, le=1, description="split mode: "
                                  "guided filter strength (0..1; 0 = off)"),
     luminance: bool = Form(True, description="also transfer L* (1-D OT); false: "
@@ -97,9 +101,8 @@ async def create_color_transfer(
                           "(default): the target's histogram up to the binning"),
     sharpen: bool = Form(False, description="entropic sharpening of the barycenters"),
     debiased: bool = Form(False, description="debiased barycenters"),
-    recolor: str | None = Form(None, description="JSON list of image indices to recolor"),
+    recolor: str = Form(None, description="JSON list of image indices to recolor"),
     format: Literal["png", "jpeg"] = Form("png", description="output image format"),
-    # no null in the spec: a multipart field is text, and "null" is not a number
     time_limit: float = Form(None, gt=0, description="seconds (absent: no limit)"),
     wait: float = Query(0.0, ge=0, description=WAIT_DESCRIPTION),
 ):

@@ -43,7 +43,7 @@ from solvers.color import (
     rgb_to_lab,
     write_image,
 )
-from solvers.color.chrominance import AbGrid, check_bins
+from solvers.color.chrominance import check_bins
 from solvers.color.transfer import (
     DEFAULT_BINS,
     DEFAULT_GAMMA,
@@ -52,8 +52,8 @@ from solvers.color.transfer import (
     DEFAULT_RESPLIT,
     MAX_IMAGES,
     check_alphas,
+    resolve_gamma,
 )
-from solvers.validation import check_gamma_resolved
 
 MAX_ALPHAS = 32
 MEDIA = {"png": "image/png", "jpeg": "image/jpeg"}
@@ -81,9 +81,11 @@ class ColorTransferRequest(OperationRequest):
                              "histogram grid over [-128, 128]^2 (default "
                              f"{DEFAULT_BINS['split']} for split, "
                              f"{DEFAULT_BINS['barycentric']} for barycentric)")
-    gamma: float = Field(DEFAULT_GAMMA, gt=0, description="entropic regularization in "
-                         "squared ab units (blur of standard deviation sqrt(gamma/2)) of the "
-                         "entropic barycenters (barycentric mode; split mode with 3+ images)")
+    gamma: float | None = Field(None, gt=0, description="entropic regularization in "
+                                "squared ab units (blur of standard deviation sqrt(gamma/2)) "
+                                "of the entropic barycenters (barycentric mode; split mode "
+                                f"with 3+ images); default {DEFAULT_GAMMA:g}, or the squared "
+                                "node spacing on grids coarser than 4 ab units per node")
     regularization: float = Field(
         DEFAULT_REGULARIZATION, ge=0, le=1, description="split mode: strength (epsilon) of "
         "the edge-aware guided filter of the color shift, guided by the input's Lab; "
@@ -193,8 +195,7 @@ def validate(ctx, req: ColorTransferRequest) -> list[dict]:
     A = _alphas(req)
     if req.bins is not None:
         check_bins(req.bins)
-    # the barycentric mode's kernel: gamma must resolve the ab grid it runs on
-    check_gamma_resolved(req.gamma, AbGrid(req.bins or DEFAULT_BINS[req.mode]).spacing, "gamma")
+    resolve_gamma(req.gamma, req.bins or DEFAULT_BINS[req.mode], req.mode, A)
     _recolor(req)
     blobs = [ctx.blob(blob_id, f"images[{i}]") for i, blob_id in enumerate(req.images)]
     total = 0

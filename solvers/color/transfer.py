@@ -68,7 +68,7 @@ from solvers.color.split import (
 )
 from solvers.errors import InputError
 from solvers.monitor import SolverResult
-from solvers.validation import check_positive, check_weights
+from solvers.validation import check_gamma_resolved, check_positive, check_weights
 
 DEFAULT_GAMMA = 16.0
 MAX_IMAGES = 16
@@ -177,7 +177,7 @@ def color_transfer(
     *,
     mode: str = "split",
     bins: int | None = None,
-    gamma: float = DEFAULT_GAMMA,
+    gamma: float | None = None,
     luminance: bool = True,
     regularization: float = DEFAULT_REGULARIZATION,
     luminance_slope: float = DEFAULT_LUMINANCE_SLOPE,
@@ -224,7 +224,8 @@ def color_transfer(
     bins : nodes per axis of the ab grid over ``[-128, 128]^2`` (8..1024; default 65 for
         ``split``, 256 for ``barycentric``).
     gamma : entropic regularization in squared ab units (kernel ``exp(-|x-y|^2/gamma)``,
-        blur of standard deviation ``sqrt(gamma/2)``) of the entropic barycenters.
+        blur of standard deviation ``sqrt(gamma/2)``) of the entropic barycenters; default
+        :func:`default_gamma` (16, or the squared node spacing on grids coarser than 4).
     luminance : also transfer L* (1-D OT); ``False`` transfers chrominance only and keeps
         each pixel's L*.
     regularization : ``split`` only: guided-filter epsilon (>= 0; 0: no filter).  With a
@@ -262,7 +263,7 @@ def color_transfer(
     mode = check_mode(mode)
     A = check_alphas(alphas, k)
     bins = check_bins(DEFAULT_BINS[mode] if bins is None else bins)
-    gamma = check_positive(gamma, "gamma")
+    gamma = resolve_gamma(gamma, bins, mode, A)
     regularization = check_regularization(regularization)
     luminance_slope = check_luminance_slope(luminance_slope)
     resplit = check_fraction(resplit, "resplit")
@@ -275,6 +276,32 @@ def color_transfer(
         return _barycentric(images, A, bins, luminance, todo, t0, opts)
     return _split(images, A, bins, luminance, (regularization, luminance_slope, resplit), todo,
                   t0, opts)
+
+
+def default_gamma(bins: int) -> float:
+    """The default entropic regularization on an ab grid of ``bins`` nodes per axis:
+    ``DEFAULT_GAMMA`` squared ab units, or the squared node spacing ``h**2`` on grids coarser
+    than 4 ab units per node, where 16 would not resolve the grid (the kernel between
+    neighbouring nodes, ``exp(-h**2 / gamma)``, would underflow)."""
+    return max(DEFAULT_GAMMA, AbGrid(bins).spacing ** 2)
+
+
+def uses_barycenters(mode: str, alphas: np.ndarray) -> bool:
+    """Whether a transfer solves entropic barycenters (where ``gamma`` acts): the
+    barycentric mode, or split mode with 3+ images and a weight row that is no vertex."""
+    k = alphas.shape[1]
+    return mode == "barycentric" or (k > 2 and not all(np.any(row == 1.0) for row in alphas))
+
+
+def resolve_gamma(gamma, bins: int, mode: str, alphas: np.ndarray) -> float:
+    """``gamma`` checked (positive; resolving the ab grid where it acts), or its default
+    :func:`default_gamma` when ``None``."""
+    if gamma is None:
+        return default_gamma(bins)
+    gamma = check_positive(gamma, "gamma")
+    if uses_barycenters(mode, alphas):
+        check_gamma_resolved(gamma, AbGrid(bins).spacing, "gamma")
+    return gamma
 
 
 def check_mode(mode) -> str:

@@ -162,8 +162,22 @@ def test_refusals_name_the_field(client, make_client, photos):
         assert_error(post(client, [("a.png", good), ("b.png", good)], luminance_slope=slope),
                      422, "luminance_slope")
     assert_error(post(client, [("a.png", good), ("b.png", good)], resplit=2), 422, "resplit")
+    # 16 squared ab units cannot resolve an 8-node grid (h = 36.6) where gamma acts
+    body = assert_error(post(client, [("a.png", good), ("b.png", good)], bins=8, gamma=16,
+                             mode="barycentric"), 422, "gamma")
+    assert "smallest regularization" in body["message"]
     # nothing was queued by the refused submissions
     assert client.get("/v1/jobs?operation=color-transfers").json()["jobs"] == []
+
+
+def test_coarse_grid_takes_its_default_gamma(client, photos):
+    """bins alone (no gamma) is a valid request on every grid: the default gamma follows a
+    coarse grid (an 8-node grid's squared spacing) and the result reports it."""
+    files = [("a.png", png(photos["coffee"])), ("b.png", png(photos["chelsea"]))]
+    r = post(client, files, bins=8, mode="barycentric")
+    assert r.status_code == 200 and r.json()["state"] == "succeeded", r.text
+    values = client.get(f"/v1/jobs/{r.json()['id']}/result").json()["values"]
+    assert values["gamma"] == pytest.approx((256 / 7) ** 2) and values["converged"]
 
 
 def test_pixel_limits_are_413(make_client, photos):
