@@ -49,8 +49,8 @@ class GridSpec(BaseModel):
         min_length=1, max_length=3, description="nodes per axis (at least 2; their product at "
         "most OTGEO_MAX_VERTICES)")
     bounds: list[Annotated[list[float], Field(min_length=2, max_length=2)]] | None = Field(
-        None, description="(lo, hi) per axis; "
-                                             "default [0, 1]")
+        None, min_length=1, max_length=3, description="(lo, hi) per axis, one per axis of "
+        "shape; default [0, 1]")
     periodic: bool | list[bool] = False
 
 

@@ -67,7 +67,7 @@ ALLOWED = [
             r"|must have length \d+ \(one value per point\)|has \d+ entries; the mesh has"
             r"|lies more than \d+ mesh sizes away|x the squared domain extent"
             r"|the smallest regularization this domain can resolve"
-            r"|\bk must be <= \d+",
+            r"|\bk must be <= \d+|the entropy of a point mass on this domain",
             "bounded by the stored domain (its points, faces, extent, bounding box), which "
             "differs per domain: one spec for every domain cannot state it"),
     Allowed("positive_data_acceptance", r"POST /v1/.*", 422,
@@ -76,11 +76,14 @@ ALLOWED = [
             r"|endpoint outside \[0, \d+\]|must be (strictly )?increasing|must be greater than"
             r"|zero total mass|reflects no light|use a coarser slice or fewer points"
             r"|n_neighbors must be <= \d+|face indices must lie in \[0, \d+\]"
-            r"|\] sums to 0|sums beyond the float range",
+            r"|\] sums to 0|sums beyond the float range"
+            r"|basis 'spectral' needs k|bounds must have shape \(\d, 2\)"
+            r"|bins of width \(hi - lo\) / count must be positive",
             "a relation between fields or items (equal lengths, order, uniqueness of a node, a "
             "positive total, a total size) that JSON Schema cannot express"),
     Allowed("positive_data_acceptance", r"POST /v1/(domains|domains/upload|color-transfers)",
             422, r"mesh format|[A-Z]+ file is binary data|not a valid|could not be read"
+            r"|could not read the [A-Z]+ file|the uploaded file is empty"
             r"|no triangles|non-degenerate faces|is not an image file|must be a JSON list",
             "the content of an uploaded file (a mesh, an image; its format from the file name), "
             "a mesh's geometry (faces of zero area) and JSON text in a form field: `format: "
