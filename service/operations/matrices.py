@@ -137,6 +137,14 @@ class DistanceMatrixValues(BaseModel):
 
 
 def _inputs(view: DomainView, req: DistanceMatrixRequest):
+    """``(rows, others, reports)``: the request's distributions as read-only ``(n, k)``
+    columns (``others`` None for a symmetric matrix) and their normalization reports,
+    resolved once per request on ``view`` (validation, memory estimate and decision share
+    them: :meth:`~service.operations.base.DomainView.per_request`)."""
+    return view.per_request("distance-matrix inputs", req, lambda: _resolve(view, req))
+
+
+def _resolve(view: DomainView, req: DistanceMatrixRequest):
     check_options(view, req)
     if req.metric == "w1" and view.kind != "mesh":
         raise UnsupportedOperation("metric 'w1' is available on triangle meshes only",
@@ -151,6 +159,9 @@ def _inputs(view: DomainView, req: DistanceMatrixRequest):
     columns = list(masses.values())
     rows = np.stack(columns[:len(req.distributions)], axis=1)
     others = None if req.others is None else np.stack(columns[len(req.distributions):], axis=1)
+    for shared in (rows, others):
+        if shared is not None:
+            shared.flags.writeable = False  # shared by every reader of the request's inputs
     return rows, others, reports
 
 
