@@ -330,15 +330,9 @@ def test_input_errors_and_cancel(woody):
 def test_interior_point_cone_algebra():
     """The Lorentz-cone pieces of the interior point on random interior points: the
     Nesterov–Todd scaling maps x and z to the same λ, W⁻¹ inverts W, the closed-form W⁻²
-    block equals the product, the Jordan solve inverts the Jordan product, and the step to
-    the boundary lands on it."""
-    from solvers.emd.interior_point import (
-        _jdot,
-        _jordan,
-        _jordan_solve,
-        _max_step,
-        _nt_scaling,
-    )
+    block equals the product, the scaled Jordan solve ``W⁻¹ (λ \\ r)`` inverts ``λ ∘`` and
+    ``W``, and the step to the boundary lands on it."""
+    from solvers.emd.interior_point import _jdot, _jordan, _max_step, _nt_scaling
 
     rng = np.random.default_rng(4)
 
@@ -357,7 +351,10 @@ def test_interior_point_cone_algebra():
         e = np.zeros((50, 3))
         e[:, j] = 1.0
         np.testing.assert_allclose(s.apply_inverse_square(e)[:, i], t, atol=1e-12)
-    np.testing.assert_allclose(_jordan(x, _jordan_solve(x, r)), r, atol=1e-10)
+    wq = s.inverse_jordan_solve(r)  # W⁻¹ (λ \ r), as the Newton directions solve it
+    c = 2.0 * np.sum(s.v * wq, axis=1, keepdims=True)
+    q = s.beta[:, None] * (c * s.v - np.array([1.0, -1.0, -1.0]) * wq)  # W, written out
+    np.testing.assert_allclose(_jordan(s.lam, q), r, atol=1e-10)
     d = rng.normal(size=(50, 3))
     alpha = _max_step(x, d)
     edge = x + alpha * d

@@ -217,24 +217,48 @@ def test_bordered_solve_is_the_normal_equations(sphere, monkeypatch, iterations)
     np.testing.assert_allclose(change, -newton.residual, atol=1e-9)
 
 
+def _interior_cones(rng, k):
+    v = rng.normal(size=(k, 3))
+    v[:, 0] = np.linalg.norm(v[:, 1:], axis=1) + rng.uniform(0.1, 1.0, k)
+    return v
+
+
+def _nt_apply(w, beta, y, power):
+    """``W y = β (2 v vᵀ − J) y`` (``power`` 1, ``w = v``) or ``W⁻¹ y = (2 p pᵀ − J) y / β``
+    (``power`` -1, ``w = p``), written out in numpy."""
+    c = 2.0 * np.sum(w * y, axis=1, keepdims=True)
+    return (c * w - np.array([1.0, -1.0, -1.0]) * y) * beta[:, None] ** power
+
+
 def test_centrality_correction_moves_spectral_values_into_the_band():
-    """Gondzio's target per Lorentz cone: the corrected Jordan product's spectral values
-    ``p_0 ± ‖p̄‖`` lie in the band (where the decrease cap does not bind), and products
-    already inside are left alone."""
+    """Gondzio's target per Lorentz cone, as the correctors' right-hand side adds it to
+    ``rc`` (``_gondzio_rhs_kernel``): after the change, the scaled product ``p = W (x +
+    trial Δx) ∘ W⁻¹ (z + trial Δz)`` has its spectral values ``p_0 ± ‖p̄‖`` in the band
+    (where the decrease cap does not bind), and products already inside are left alone."""
+    ip = ipb.ip
     rng = np.random.default_rng(3)
-    bar = rng.normal(size=(500, 2))
-    bar *= np.minimum(1.0, 3.0 / np.linalg.norm(bar, axis=1))[:, None]
-    p = np.column_stack([rng.uniform(0.0, 6.0, 500), bar])
-    lo, hi = 0.5, 5.0  # spectral values <= 9 < 2 hi: the decrease cap does not bind
-    q = p + ipb.ip._centrality_correction(p, lo, hi)
-    spectra = [q[:, 0] + np.linalg.norm(q[:, 1:], axis=1),
-               q[:, 0] - np.linalg.norm(q[:, 1:], axis=1)]
-    for s in spectra:
-        assert np.all((s >= lo - 1e-12) & (s <= hi + 1e-12))
-    inside = p[:, 0] + np.linalg.norm(p[:, 1:], axis=1) <= hi
-    inside &= p[:, 0] - np.linalg.norm(p[:, 1:], axis=1) >= lo
-    assert inside.any()
-    np.testing.assert_allclose(q[inside], p[inside], atol=1e-15)
+    x, z = _interior_cones(rng, 500), _interior_cones(rng, 500)
+    dx, dz, rc = rng.normal(size=(3, 500, 3))
+    trial = 0.3
+    sc = ip._nt_scaling(x, z)
+    p = ip._jordan(_nt_apply(sc.v, sc.beta, x + trial * dx, 1),
+                   _nt_apply(sc.p, sc.beta, z + trial * dz, -1))
+
+    def spectra(a):
+        norm = np.linalg.norm(a[:, 1:], axis=1)
+        return a[:, 0] - norm, a[:, 0] + norm
+
+    low, high = spectra(p)
+    hi = 0.6 * high.max()  # every decrease is below hi: the cap does not bind
+    lo = float(np.median(low))
+    inside = (low >= lo) & (high <= hi)
+    assert 0 < lo < hi and inside.any() and (low < lo).any() and (high > hi).any()
+    out = ip._gondzio_rhs_kernel(x, dx, z, dz, trial, sc.v, sc.p, sc.beta, rc, lo, hi)
+    q = p + (out - rc)
+    tol = 1e-12 * np.abs(p).max()
+    for s in spectra(q):
+        assert np.all((s >= lo - tol) & (s <= hi + tol))
+    np.testing.assert_allclose(q[inside], p[inside], rtol=0, atol=tol)
 
 
 @pytest.mark.parametrize("correctors", [0, 1, 4])

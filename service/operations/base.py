@@ -110,6 +110,8 @@ class DomainView:
     summary: dict = field(default_factory=dict)  # the stored domain's summary (API side)
     load_faces: Callable[[], np.ndarray] | None = None  # a mesh's (F, 3) faces, on demand
     sketch_builder: Callable[[], object] | None = None
+    # what one request derives (per_request): on this view object, not its source
+    request_memo: dict = field(default_factory=dict)
 
     def sketch(self):
         """The domain's :class:`~solvers.domains.sketch.DomainSketch` (what default decisions
@@ -117,6 +119,17 @@ class DomainView:
         if "sketch" not in self.memo:
             self.memo["sketch"] = self.sketch_builder()
         return self.memo["sketch"]
+
+    def per_request(self, name: str, req, compute: Callable[[], object]):
+        """``compute()`` once per request object on this view (the last request's value
+        kept per ``name``): a submission's ``validate``, memory estimate and ``decide`` run
+        on the one view ``JobService`` makes for it, so what they all derive from the
+        request (its resolved distributions) is derived once. Kept on the view, not on the
+        domain's memo: it lives as long as the submission (or the worker's run)."""
+        hit = self.request_memo.get(name)
+        if hit is None or hit[0] is not req:
+            hit = self.request_memo[name] = (req, compute())
+        return hit[1]
 
     def point_tree(self):
         """k-d tree of ``points`` (bumps touch only the points within their radius)."""
@@ -242,6 +255,9 @@ class Operation:
     ``scope="domain"``: route ``POST /v1/domains/{domain_id}/<name>``; ``validate(view,
     req)`` runs at submission on the stored domain's :class:`DomainView` and returns the
     normalization reports; ``run(domain, req, progress, should_cancel)`` runs in a worker.
+    One submission's ``validate``, ``estimate_bytes``, ``decide`` and ``estimate_cost`` get
+    the same view: what several of them derive from the request (resolved distributions)
+    is derived once through :meth:`DomainView.per_request`.
 
     ``scope="global"`` (operations over several domains, or over uploaded blobs): route
     ``POST /v1/<name>``; ``validate(ctx: SubmitContext, req)`` and ``run(ctx: RunContext,

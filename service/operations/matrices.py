@@ -42,8 +42,10 @@ from solvers.convolutional.matrix import (
     kernel_key,
     matrix_pairs,
     pair_state_bytes,
+    prefers_stored_distances,
     zero_diagonal,
 )
+from solvers.domains import DOMAIN_CLASSES
 from solvers.emd.beckmann import resolve_method
 from solvers.errors import CancelledError, InputError
 
@@ -55,9 +57,6 @@ ROUTE_CODES = {"": -1, "identical": 0, "exact": 1, "convolutional": 2, "w1": 3}
 # the worker decides per pair, by the same function of the data, as the library does.
 DECIDED_PAIRS = 1000
 LISTED_KERNELS = 32  # heat kernels listed in a decision (more: counted)
-# n-vectors of one exact geodesic solve's work (MMP frontier and distances, measured ~8 on
-# a 642-vertex sphere beside the n x n matrix: tests/service/test_distance_matrices.py)
-SOLVE_WORK_VECTORS = 16
 
 
 class DistanceMatrixRequest(SinkhornOptions):
@@ -137,6 +136,14 @@ class DistanceMatrixValues(BaseModel):
 
 
 def _inputs(view: DomainView, req: DistanceMatrixRequest):
+    """``(rows, others, reports)``: the request's distributions as read-only ``(n, k)``
+    columns (``others`` None for a symmetric matrix) and their normalization reports,
+    resolved once per request on ``view`` (validation, memory estimate and decision share
+    them: :meth:`~service.operations.base.DomainView.per_request`)."""
+    return view.per_request("distance-matrix inputs", req, lambda: _resolve(view, req))
+
+
+def _resolve(view: DomainView, req: DistanceMatrixRequest):
     check_options(view, req)
     if req.metric == "w1" and view.kind != "mesh":
         raise UnsupportedOperation("metric 'w1' is available on triangle meshes only",
@@ -151,6 +158,9 @@ def _inputs(view: DomainView, req: DistanceMatrixRequest):
     columns = list(masses.values())
     rows = np.stack(columns[:len(req.distributions)], axis=1)
     others = None if req.others is None else np.stack(columns[len(req.distributions):], axis=1)
+    for shared in (rows, others):
+        if shared is not None:
+            shared.flags.writeable = False  # shared by every reader of the request's inputs
     return rows, others, reports
 
 
@@ -199,27 +209,20 @@ def exact_working_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
     col_sizes = np.count_nonzero(cols > 0, axis=0).tolist()
     covered = (int(np.count_nonzero((rows > 0).any(axis=1))),
                int(np.count_nonzero((cols > 0).any(axis=1))))
-    # the distances' columns: the columns' support points, or every point where the
-    # domain's stored all-pairs distances serve (matrix._support_distances)
-    width = int(view.n) if 2 * min(covered) >= view.n else covered[1]
+    # the distances' columns: every point where the stored all-pairs ones may serve
+    width = int(view.n) if prefers_stored_distances(view.n, *covered) else covered[1]
     return exact_route_bytes(row_sizes, col_sizes, width, _sizes(req)[2])
 
 
 def ground_distance_bytes(view: DomainView) -> int:
     """The exact pairs' ground distances at most (supports covering the domain), as the
     route builds them (:func:`solvers.convolutional.matrix._support_distances`, at most
-    :data:`~solvers.convolutional.matrix.SHARED_COST_ENTRIES` entries): on meshes either the
-    geodesics between the supports or, on a mesh small enough to keep them, the stored
-    all-pairs matrix instead (``n^2`` entries, below the cap), never both, plus a geodesic
-    solve's work vectors; on grids and point clouds the squared distances and the ``(rows,
-    columns, dimension)`` coordinate differences they are summed from (and the gathered
-    coordinates)."""
+    :data:`~solvers.convolutional.matrix.SHARED_COST_ENTRIES` entries): what the domain's
+    kind needs for that many (``Domain.ground_distance_bytes``)."""
     points = int(view.n)
-    entries = min(SHARED_COST_ENTRIES, points * points)
-    if view.kind == "mesh":
-        return 8 * entries + SOLVE_WORK_VECTORS * 8 * points
     dim = 3 if view.points is None else int(np.shape(view.points)[1])
-    return 8 * (dim + 1) * entries + 8 * (2 * dim + 2) * points  # + gathers, indices
+    return DOMAIN_CLASSES[view.kind].ground_distance_bytes(
+        points, min(SHARED_COST_ENTRIES, points * points), dim)
 
 
 EXACT_PAIR_COST = 20.0  # cost units per points^2 of one exact pair (measured, with margin)

@@ -113,6 +113,14 @@ def exact_route_bytes(row_supports, col_supports, width: int, pairs: int,
     return 8 * (kept + running * block) + running * lp
 
 
+def prefers_stored_distances(n: int, covered_rows: int, covered_cols: int) -> bool:
+    """Whether the exact route's ground distances are the domain's stored all-pairs ones
+    (where it keeps them: ``Domain.stored_ground_distances``; ``n`` columns wide) rather
+    than those between the supports (as wide as the columns' support): when the supports
+    of its rows and those of its columns each cover at least half of the ``n`` points."""
+    return 2 * min(int(covered_rows), int(covered_cols)) >= int(n)
+
+
 def pair_state_bytes(n: int) -> int:
     """Bytes of one active convolutional pair's state on an ``n``-vertex domain."""
     return 8 * int(n) * _PAIR_VECTORS
@@ -486,12 +494,12 @@ def _support_distances(domain, rows: np.ndarray, cols: np.ndarray, stop) -> tupl
     """``(distances, at_row, at_col, squared)`` between the vertices ``rows`` and ``cols``
     (:class:`_RowBlocks`): the domain's ground distances between them (squared straight or
     periodic distances on grids and point clouds, exact geodesics on meshes: one MMP solve
-    per point of the smaller side), or, when they cover at least half of the domain, its
-    stored all-pairs ones where it keeps them (small meshes), indexed by vertex."""
+    per point of the smaller side), or its stored all-pairs ones where it keeps them
+    (small meshes) and :func:`prefers_stored_distances`, indexed by vertex."""
     cancelled = _should_cancel(stop, "between geodesic solves")
     try:
         every = (domain.stored_ground_distances(should_cancel=cancelled)
-                 if 2 * min(len(rows), len(cols)) >= domain.n else None)
+                 if prefers_stored_distances(domain.n, len(rows), len(cols)) else None)
         if every is not None:
             return every[0], np.arange(domain.n), np.arange(domain.n), every[1]
         d, squared = domain.ground_distances(rows, cols, should_cancel=cancelled)

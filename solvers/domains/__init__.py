@@ -20,7 +20,9 @@ from solvers.domains.mesh import MESH_FORMATS, MeshDiagnostics, TriangleMesh
 from solvers.domains.pointcloud import PointCloud
 from solvers.errors import DomainError
 
-DOMAIN_KINDS = ("mesh", "grid", "graph", "pointcloud")
+DOMAIN_CLASSES: dict[str, type[Domain]] = {"mesh": TriangleMesh, "grid": Grid, "graph": Graph,
+                                           "pointcloud": PointCloud}
+DOMAIN_KINDS = tuple(DOMAIN_CLASSES)
 
 
 def load_mesh(source, file_type: str | None = None, **kwargs) -> TriangleMesh:
@@ -46,6 +48,7 @@ def domain_from_arrays(kind: str, arrays: dict[str, np.ndarray], parameters: dic
 
 
 __all__ = [
+    "DOMAIN_CLASSES",
     "DOMAIN_KINDS",
     "MESH_FORMATS",
     "Domain",

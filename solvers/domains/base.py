@@ -50,6 +50,14 @@ def squared_straight_distances(points, src, dst, periods=None) -> np.ndarray:
     return np.einsum("ijk,ijk->ij", diff, diff)
 
 
+def squared_straight_distance_bytes(n: int, entries: int, dim: int) -> int:
+    """Bytes of :func:`squared_straight_distances` giving ``entries`` distances between
+    points of an ``n``-point, ``dim``-dimensional domain, at most: the squares, the
+    ``(rows, columns, dim)`` coordinate differences they are summed from, and the gathered
+    coordinates and indices (``2 dim + 2`` numbers a point)."""
+    return 8 * (dim + 1) * entries + 8 * (2 * dim + 2) * n
+
+
 class Domain:
     """A discretized space carrying distributions.
 
@@ -94,6 +102,13 @@ class Domain:
         in the operator store, on domains where they are costly to compute and small enough
         to keep; None elsewhere (compute what is asked)."""
         return None
+
+    @classmethod
+    def ground_distance_bytes(cls, n: int, entries: int, dim: int) -> int:
+        """Bytes of :meth:`ground_distances` (or :meth:`stored_ground_distances`) giving
+        ``entries`` distances on an ``n``-point domain whose points have ``dim``
+        coordinates, at most: a memory estimate taken before the domain is built."""
+        raise NotImplementedError(f"no ground distances on a {cls.kind} domain")
 
     def _adjacency(self) -> sp.spmatrix:
         """Sparsity graph used for connected components."""

@@ -9,7 +9,11 @@ from functools import cached_property
 import numpy as np
 import scipy.sparse as sp
 
-from solvers.domains.base import Domain, squared_straight_distances
+from solvers.domains.base import (
+    Domain,
+    squared_straight_distance_bytes,
+    squared_straight_distances,
+)
 from solvers.errors import DomainError
 from solvers.kernels import GaussianGridHeatKernel, ImplicitEulerHeatKernel
 from solvers.linalg import Backend
@@ -167,6 +171,11 @@ class Grid(Domain):
         width = self.bounds[:, 1] - self.bounds[:, 0]
         periods = np.where(self.periodic, width, 0.0)
         return squared_straight_distances(self.points, src, dst, periods), True
+
+    @classmethod
+    def ground_distance_bytes(cls, n: int, entries: int, dim: int) -> int:
+        """:func:`~solvers.domains.base.squared_straight_distance_bytes`."""
+        return squared_straight_distance_bytes(n, entries, dim)
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         return {

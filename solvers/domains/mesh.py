@@ -36,6 +36,9 @@ DEGENERATE_AREA_FRACTION = 1e-12
 # distance matrices ask when their supports cover at least half of the vertices), so the
 # next matrix on the domain reuses it.
 STORED_GEODESICS_VERTICES = 4096
+# n-vectors of one exact geodesic solve's work (MMP frontier and distances, measured ~8 on
+# a 642-vertex sphere beside the n x n matrix: tests/service/test_distance_matrices.py)
+GEODESIC_WORK_VECTORS = 16
 
 
 @dataclass
@@ -665,6 +668,13 @@ class TriangleMesh(Domain):
         every = self.operators.get(("exact_geodesics",), lambda: geodesic_distances(
             self, np.arange(self.n), should_cancel=should_cancel))
         return every, False
+
+    @classmethod
+    def ground_distance_bytes(cls, n: int, entries: int, dim: int) -> int:
+        """The geodesics between the supports or, on a mesh small enough to keep them, the
+        stored all-pairs ones instead (``entries`` of either, never both), plus a geodesic
+        solve's work vectors."""
+        return 8 * entries + GEODESIC_WORK_VECTORS * 8 * n
 
     # -- storage / reporting -----------------------------------------------
     def to_arrays(self) -> dict[str, np.ndarray]:

@@ -6,7 +6,12 @@ import numpy as np
 import robust_laplacian
 import scipy.sparse as sp
 
-from solvers.domains.base import Domain, domain_input, squared_straight_distances
+from solvers.domains.base import (
+    Domain,
+    domain_input,
+    squared_straight_distance_bytes,
+    squared_straight_distances,
+)
 from solvers.errors import DomainError
 from solvers.kernels import ImplicitEulerHeatKernel
 from solvers.linalg import Backend
@@ -96,6 +101,11 @@ class PointCloud(Domain):
     def ground_distances(self, src, dst, *, should_cancel=None) -> tuple[np.ndarray, bool]:
         """Squared straight distances between the points (unit-area scale)."""
         return squared_straight_distances(self.points, src, dst), True
+
+    @classmethod
+    def ground_distance_bytes(cls, n: int, entries: int, dim: int) -> int:
+        """:func:`~solvers.domains.base.squared_straight_distance_bytes`."""
+        return squared_straight_distance_bytes(n, entries, dim)
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         return {"points": self._input_points}

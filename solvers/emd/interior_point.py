@@ -126,23 +126,10 @@ def _jordan(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 @cached_njit()
 def _jordan_solve_point(l0, l1, l2, r0, r1, r2):  # pragma: no cover - compiled
-    """One face's ``v`` with ``λ ∘ v = r``."""
+    """One face's ``v`` with ``λ ∘ v = r`` (the arrow matrix of ``λ`` inverted in closed
+    form)."""
     v0 = (l0 * r0 - l1 * r1 - l2 * r2) / (l0 * l0 - l1 * l1 - l2 * l2)
     return v0, (r1 - v0 * l1) / l0, (r2 - v0 * l2) / l0
-
-
-@cached_njit()
-def _jordan_solve_kernel(lam, r):  # pragma: no cover - compiled
-    out = np.empty(r.shape)
-    for t in range(r.shape[0]):
-        out[t, 0], out[t, 1], out[t, 2] = _jordan_solve_point(
-            lam[t, 0], lam[t, 1], lam[t, 2], r[t, 0], r[t, 1], r[t, 2])
-    return out
-
-
-def _jordan_solve(lam: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """``v`` with ``lam ∘ v = r`` (the arrow matrix of ``lam`` inverted in closed form)."""
-    return _jordan_solve_kernel(lam, r)
 
 
 @cached_njit()
@@ -171,7 +158,7 @@ def _scale_kernel(v, beta, y, power):  # pragma: no cover - compiled
 
 @cached_njit()
 def _scaled_jordan_solve_kernel(lam, p, beta, r):  # pragma: no cover - compiled
-    """``W⁻¹ (λ \\ r)``: :func:`_jordan_solve_kernel`, then ``W⁻¹``, in one pass."""
+    """``W⁻¹ (λ \\ r)``: :func:`_jordan_solve_point`, then ``W⁻¹``, in one pass."""
     out = np.empty(r.shape)
     for t in range(r.shape[0]):
         q0, q1, q2 = _jordan_solve_point(lam[t, 0], lam[t, 1], lam[t, 2], r[t, 0], r[t, 1],
@@ -219,7 +206,7 @@ class _Scaling:
         return _scale_kernel(self.p, self.beta, y, -2)
 
     def inverse_jordan_solve(self, r: np.ndarray) -> np.ndarray:
-        """``W⁻¹ (λ \\ r)`` (:func:`_jordan_solve`, then :meth:`apply_inverse`)."""
+        """``W⁻¹ (λ \\ r)``: the ``v`` with ``λ ∘ v = r``, then :meth:`apply_inverse`."""
         return _scaled_jordan_solve_kernel(self.lam, self.p, self.beta, r)
 
     def corrector_rhs(self, dx: np.ndarray, dz: np.ndarray, shift: float) -> np.ndarray:
@@ -476,6 +463,9 @@ def _max_steps(x, m, z, zm, dx, dm, dz, dzm) -> float:
 
 @cached_njit()
 def _centrality_point(p0, p1, p2, lo, hi):  # pragma: no cover - compiled
+    """One Lorentz cone's change of the Jordan product ``p`` that moves its spectral values
+    ``p_0 ± ‖p̄‖`` into ``[lo, hi]`` (a decrease at most ``hi``, as in Gondzio 1996):
+    ``((d1 + d2)/2, (d1 - d2)/2 · p̄/‖p̄‖)``."""
     norm = np.sqrt(p1 * p1 + p2 * p2)
     first, second = p0 + norm, p0 - norm
     d1 = max(min(max(first, lo), hi) - first, -hi)
@@ -487,18 +477,11 @@ def _centrality_point(p0, p1, p2, lo, hi):  # pragma: no cover - compiled
 
 
 @cached_njit()
-def _centrality_kernel(p, lo, hi):  # pragma: no cover - compiled
-    out = np.empty(p.shape)
-    for t in range(p.shape[0]):
-        out[t, 0], out[t, 1], out[t, 2] = _centrality_point(p[t, 0], p[t, 1], p[t, 2], lo, hi)
-    return out
-
-
-@cached_njit()
 def _gondzio_rhs_kernel(x, dx, z, dz, trial, v, p, beta, rc, lo,
                         hi):  # pragma: no cover - compiled
-    """``rc`` plus :func:`_centrality_correction` of ``W (x + trial Δx) ∘ W⁻¹ (z + trial
-    Δz)``, in one pass (the same expressions as the separate kernels)."""
+    """``rc`` plus the centrality correction (:func:`_centrality_point`) of ``W (x + trial
+    Δx) ∘ W⁻¹ (z + trial Δz)`` per face, in one pass (the same expressions as
+    :func:`_scale_kernel` and :func:`_jordan_kernel`)."""
     out = np.empty(rc.shape)
     for t in range(x.shape[0]):
         a0, a1, a2 = _scale_point(v[t, 0], v[t, 1], v[t, 2], beta[t], x[t, 0] + trial * dx[t, 0],
@@ -509,13 +492,6 @@ def _gondzio_rhs_kernel(x, dx, z, dz, trial, v, p, beta, rc, lo,
         c0, c1, c2 = _centrality_point(j0, j1, j2, lo, hi)
         out[t, 0], out[t, 1], out[t, 2] = rc[t, 0] + c0, rc[t, 1] + c1, rc[t, 2] + c2
     return out
-
-
-def _centrality_correction(p: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """Per Lorentz cone, the change of the Jordan product ``p`` ``(F, 3)`` that moves its
-    spectral values ``p_0 ± ‖p̄‖`` into ``[lo, hi]`` (a decrease at most ``hi``, as in
-    Gondzio 1996): ``((d1 + d2)/2, (d1 - d2)/2 · p̄/‖p̄‖)``."""
-    return _centrality_kernel(p, float(lo), float(hi))
 
 
 def _gondzio(x, m, z, zm, newton, direction, rc, rc_m, target: float, correctors: int):

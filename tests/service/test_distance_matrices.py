@@ -162,6 +162,27 @@ def test_decision_recorded_at_submission_and_reported(make_client, meshes_dir, s
     assert len(result["kernels"]) == decision["kernel_count"]
 
 
+def test_submission_resolves_the_distributions_once(make_client, meshes_dir, monkeypatch):
+    """Validation, the memory estimate (route auto without gamma: the exact route's terms
+    count the supports) and the decision of one submission share one resolution of the
+    request's distributions; the next request is resolved anew."""
+    import service.operations.matrices as matrices
+
+    calls = []
+    resolve_all = matrices.resolve_all
+    monkeypatch.setattr(matrices, "resolve_all",
+                        lambda *args: calls.append(len(args[1])) or resolve_all(*args))
+    client = make_client(queue="sqlite")  # recorded, not run
+    mid = upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
+    url = f"/v1/domains/{mid}/distance-matrices"
+    first = client.post(url, json={"distributions": BUMPS})
+    assert first.status_code == 202 and first.json()["decision"]["pairs"] == 6, first.text
+    assert calls == [4]
+    second = client.post(url, json={"distributions": BUMPS[:3], "others": BUMPS[3:]})
+    assert second.status_code == 202 and second.json()["decision"]["pairs"] == 3
+    assert calls == [4, 4]
+
+
 def test_uniform_decision_runs_as_explicit_arguments(client, woody):
     _, mid = woody
     job = client.post(f"/v1/domains/{mid}/distance-matrices",
