@@ -83,7 +83,7 @@ ALLOWED = [
             "positive total, a total size) that JSON Schema cannot express"),
     Allowed("positive_data_acceptance", r"POST /v1/(domains|domains/upload|color-transfers)",
             422, r"mesh format|[A-Z]+ file is binary data|not a valid|could not be read"
-            r"|could not read the [A-Z]+ file|the uploaded file is empty"
+            r"|could not (read|parse) the [A-Z]+ file|the uploaded file is empty"
             r"|no triangles|non-degenerate faces|is not an image file|must be a JSON list",
             "the content of an uploaded file (a mesh, an image; its format from the file name), "
             "a mesh's geometry (faces of zero area) and JSON text in a form field: `format: "
