@@ -175,6 +175,18 @@ PARDISO_ERRORS = {-1: "input inconsistent", -2: "not enough memory", -3: "reorde
                   -7: "diagonal matrix is singular", -8: "32-bit integer overflow"}
 
 
+def _mkl_major_version(lib) -> int:
+    """MKL's major version (the release year, e.g. 2026) from ``mkl_get_version``."""
+    version = (ctypes.c_int * 16)()  # MKLVersion begins with int MajorVersion
+    lib.mkl_get_version(ctypes.byref(version))
+    return int(version[0])
+
+
+# First MKL release whose PARDISO reads iparm[1] as 10 L + K (K the ordering, L the effort
+# of the analysis' data-structure and reordering optimizations for phases 2 and 3).
+_ANALYSIS_EFFORT_MKL = 2026
+
+
 class PardisoFactor:
     """Supernodal sparse Cholesky by MKL PARDISO (``mtype=2``, METIS nested dissection), or
     with ``pivoting`` its symmetric-indefinite ``L D Lᵀ`` (``mtype=-2``: Bunch–Kaufman
@@ -183,6 +195,9 @@ class PardisoFactor:
     the Cholesky meets a zero pivot on a symmetric positive (semi)definite matrix whose
     conditioning rounding has spoiled, e.g. interior-point normal equations near the end of
     the central path; ``perturbed`` counts the perturbed pivots of the last factorization.
+    ``effort`` (0-10, MKL 2026 and later; 0 elsewhere): how hard the analysis optimizes its
+    data structures and ordering for the numeric factorizations and solves that follow
+    (``iparm[1] = 10 effort + K``), worth it for a pattern refactored many times.
 
     The upper triangle is handed over in CSR (0-based, sorted, diagonal stored), copied so
     the caller's arrays are never touched.  ``nbytes``: PARDISO's own report of the
@@ -195,10 +210,14 @@ class PardisoFactor:
 
     def __init__(self, matrix: sp.spmatrix,
                  ordering: Literal["metis", "parallel-metis", "amd"] | np.ndarray = "metis",
-                 pivoting: bool = False):
+                 pivoting: bool = False, effort: int = 0):
         lib = _pardiso_lib()
         if lib is None:
             raise RuntimeError("PARDISO needs the mkl wheel (pip install mkl)")
+        if not 0 <= effort <= 10:
+            raise ValueError(f"effort must be in 0..10, got {effort}")
+        if _mkl_major_version(lib) < _ANALYSIS_EFFORT_MKL:
+            effort = 0  # older PARDISO reads iparm[1] as the ordering alone
         upper = sp.triu(sp.csr_matrix(matrix, dtype=np.float64), format="csr")
         upper.sum_duplicates()  # also sorts the indices
         n = upper.shape[0]
@@ -217,10 +236,11 @@ class PardisoFactor:
         iparm = np.zeros(64, dtype=np.int32)
         iparm[0] = 1  # the values below, not the defaults
         if isinstance(ordering, str):
-            iparm[1] = {"amd": 0, "metis": 2, "parallel-metis": 3}[ordering]
+            iparm[1] = {"amd": 0, "metis": 2, "parallel-metis": 3}[ordering] + 10 * effort
             iparm[4] = 2  # return the ordering's permutation in `permutation`
             self.permutation = np.zeros(n, dtype=np.int32)
         else:  # a given fill-reducing permutation (e.g. another factor's `permutation`)
+            iparm[1] = 10 * effort + 2 if effort else 0  # K unused with a given ordering
             iparm[4] = 1
             self.permutation = np.array(ordering, dtype=np.int32)
             if self.permutation.shape != (n,):

@@ -194,3 +194,26 @@ def test_pardiso_reuses_a_given_ordering_and_refactors_from_data():
         cholesky.refactor_data(upper.data[:-1])
     with pytest.raises(ValueError, match="permutation"):
         PardisoFactor(a, ordering=perm[:-1])
+
+
+@pytest.mark.skipif(not have_pardiso(), reason="the mkl wheel (pardiso extra) is not installed")
+@pytest.mark.parametrize("pivoting", [False, True])
+def test_pardiso_analysis_effort_solves_the_same_system(pivoting):
+    """``effort`` changes how PARDISO's analysis lays out the factor (MKL 2026 on: ``iparm[1]
+    = 10 effort + 2``), not what it solves: the Cholesky (or, with a given ordering, the
+    L D Lᵀ) solves and refactors to rounding; efforts outside 0..10 are refused."""
+    from solvers import linalg
+    from solvers.linalg import PardisoFactor
+
+    a = _random_spd(300, 11).tocsr()
+    ordering = PardisoFactor(a).permutation if pivoting else "metis"
+    f = PardisoFactor(a, ordering=ordering, pivoting=pivoting, effort=1)
+    if linalg._mkl_major_version(linalg._pardiso_lib()) >= linalg._ANALYSIS_EFFORT_MKL:
+        assert f._iparm[1] == 12
+    rhs = np.random.default_rng(12).normal(size=(300, 2))
+    np.testing.assert_allclose(a @ f.solve(rhs), rhs, atol=1e-10 * np.abs(rhs).max())
+    b = (a + sp.identity(300)).tocsr()
+    f.refactor(b)
+    np.testing.assert_allclose(b @ f.solve(rhs), rhs, atol=1e-10 * np.abs(rhs).max())
+    with pytest.raises(ValueError, match="effort"):
+        PardisoFactor(a, effort=11)

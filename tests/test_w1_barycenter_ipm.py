@@ -149,16 +149,16 @@ def test_zero_pivot_hands_over_to_ldlt(sphere, monkeypatch, from_iteration):
     normal matrix to PARDISO's L D Lᵀ, which factors the remaining iterations; the optimum
     is Clarabel's, within the certified bracket, and the constraints hold to rounding."""
     calls, used = [0], []
-    first, refactor = ipb.ip.factor_normal_matrix, ipb.PardisoFactor.refactor_data
+    first, refactor = ipb._first_factor, ipb.PardisoFactor.refactor_data
 
     def zero_pivot(mtype):
         calls[0] += 1
         return mtype == 2 and calls[0] >= from_iteration
 
-    def first_factor(normal, factor, backend):
+    def first_factor(normal, backend):
         if zero_pivot(2):
             raise ValueError("PARDISO phase 22 failed (-4: zero pivot)")
-        return first(normal, factor, backend)
+        return first(normal, backend)
 
     def refactor_data(self, data):  # the later iterations refactor in place
         if self.mtype == -2:
@@ -167,7 +167,7 @@ def test_zero_pivot_hands_over_to_ldlt(sphere, monkeypatch, from_iteration):
             raise ValueError("PARDISO phase 22 failed (-4: zero pivot)")
         return refactor(self, data)
 
-    monkeypatch.setattr(ipb.ip, "factor_normal_matrix", first_factor)
+    monkeypatch.setattr(ipb, "_first_factor", first_factor)
     monkeypatch.setattr(ipb.PardisoFactor, "refactor_data", refactor_data)
     mus = np.stack([_bump(sphere, c) for c in (0, 50, 100)], axis=1)
     alpha = [0.2, 0.3, 0.5]

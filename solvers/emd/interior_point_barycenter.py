@@ -67,6 +67,10 @@ FEASIBILITY_TOL = 1e-6
 # solve with the iteration's factorization, cheaper than the factorizations of the iterations
 # it saves up to 3 (bench/results/w1_applications.md: 0-4 compared at 10k vertices, 6 inputs).
 CORRECTORS = 3
+# PARDISO's analysis effort (:class:`solvers.linalg.PardisoFactor`'s ``effort``): the one
+# analysis serves every iteration's refactorization and solves, and effort 1 made them
+# cheaper (bench/results/w1_applications.md: 0, 1, 2, 5, 10 compared at 10k vertices).
+PARDISO_EFFORT = 1
 # Cost model of this route (bench/w1_applications.py fits it: measured times and PARDISO's
 # factor sizes in bench/results/w1_applications.md).  Iterations grow slowly with the mesh
 # and the inputs; each passes over the k F face cones and factors the (k V)-row normal matrix,
@@ -368,9 +372,17 @@ def _factor_coupled(layout: _CoupledPattern, data: np.ndarray, factor, backend: 
         if isinstance(factor, PardisoFactor):
             factor.refactor_data(data)
             return factor
-        return ip.factor_normal_matrix(layout.matrix(data, full=not pardiso), factor, backend)
+        return _first_factor(layout.matrix(data, full=not pardiso), backend)
     except ValueError:  # zero pivot: the Cholesky lost definiteness to rounding
         return _pivoting_factor(layout.matrix(data, full=not pardiso), factor, backend)
+
+
+def _first_factor(normal: sp.csr_matrix, backend: str):
+    """The first iteration's factor: PARDISO's Cholesky with the analysis that the later
+    iterations' refactorizations reuse (:data:`PARDISO_EFFORT`), else ``backend``'s."""
+    if ip._backend(backend) == "pardiso":
+        return PardisoFactor(normal, effort=PARDISO_EFFORT)
+    return ip.factor_normal_matrix(normal, None, backend)
 
 
 def _pivoting_factor(normal: sp.csr_matrix, failed, backend: str):
@@ -386,7 +398,7 @@ def _pivoting_factor(normal: sp.csr_matrix, failed, backend: str):
         if isinstance(failed, PardisoFactor):
             ordering = failed.permutation
             failed.release()
-        return PardisoFactor(normal, ordering=ordering, pivoting=True)
+        return PardisoFactor(normal, ordering=ordering, pivoting=True, effort=PARDISO_EFFORT)
     return ip.factor_normal_matrix(normal, None, "splu")
 
 
