@@ -266,10 +266,8 @@ def test_default_gamma_resolves_coarse_grids(photos):
     assert r.gamma == pytest.approx(AbGrid(8).spacing ** 2) and r.converged
     moved = r.images[0][0].astype(float)
     assert np.isfinite(moved).all() and np.abs(moved - small[0]).mean() > 1.0
-    # an explicit gamma the grid cannot resolve: refused where it acts, unused otherwise
-    with pytest.raises(InputError, match="smallest regularization") as e:
-        color_transfer(small[:2], mode="barycentric", bins=8, gamma=16.0)
-    assert e.value.field == "gamma"
-    with pytest.raises(InputError, match="smallest regularization"):
-        color_transfer(small, [1 / 3] * 3, bins=8, gamma=16.0)
-    assert color_transfer(small[:2], bins=8, gamma=16.0).gamma == 16.0
+    # an explicit gamma the grid cannot resolve is refused, in either mode
+    for mode in ("barycentric", "split"):
+        with pytest.raises(InputError, match="smallest regularization") as e:
+            color_transfer(small[:2], mode=mode, bins=8, gamma=16.0)
+        assert e.value.field == "gamma"

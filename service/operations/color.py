@@ -195,7 +195,7 @@ def validate(ctx, req: ColorTransferRequest) -> list[dict]:
     A = _alphas(req)
     if req.bins is not None:
         check_bins(req.bins)
-    resolve_gamma(req.gamma, req.bins or DEFAULT_BINS[req.mode], req.mode, A)
+    resolve_gamma(req.gamma, req.bins or DEFAULT_BINS[req.mode])
     _recolor(req)
     blobs = [ctx.blob(blob_id, f"images[{i}]") for i, blob_id in enumerate(req.images)]
     total = 0

@@ -263,7 +263,7 @@ def color_transfer(
     mode = check_mode(mode)
     A = check_alphas(alphas, k)
     bins = check_bins(DEFAULT_BINS[mode] if bins is None else bins)
-    gamma = resolve_gamma(gamma, bins, mode, A)
+    gamma = resolve_gamma(gamma, bins)
     regularization = check_regularization(regularization)
     luminance_slope = check_luminance_slope(luminance_slope)
     resplit = check_fraction(resplit, "resplit")
@@ -286,22 +286,13 @@ def default_gamma(bins: int) -> float:
     return max(DEFAULT_GAMMA, AbGrid(bins).spacing ** 2)
 
 
-def uses_barycenters(mode: str, alphas: np.ndarray) -> bool:
-    """Whether a transfer solves entropic barycenters (where ``gamma`` acts): the
-    barycentric mode, or split mode with 3+ images and a weight row that is no vertex."""
-    k = alphas.shape[1]
-    return mode == "barycentric" or (k > 2 and not all(np.any(row == 1.0) for row in alphas))
-
-
-def resolve_gamma(gamma, bins: int, mode: str, alphas: np.ndarray) -> float:
-    """``gamma`` checked (positive; resolving the ab grid where it acts), or its default
-    :func:`default_gamma` when ``None``."""
+def resolve_gamma(gamma, bins: int) -> float:
+    """``gamma`` checked (positive, resolving the ab grid of ``bins`` nodes per axis: an
+    explicit value is held to the grid whether or not the transfer's mode uses it), or its
+    default :func:`default_gamma` when ``None``."""
     if gamma is None:
         return default_gamma(bins)
-    gamma = check_positive(gamma, "gamma")
-    if uses_barycenters(mode, alphas):
-        check_gamma_resolved(gamma, AbGrid(bins).spacing, "gamma")
-    return gamma
+    return check_gamma_resolved(check_positive(gamma, "gamma"), AbGrid(bins).spacing, "gamma")
 
 
 def check_mode(mode) -> str:

@@ -78,7 +78,8 @@ ALLOWED = [
             r"|n_neighbors must be <= \d+|face indices must lie in \[0, \d+\]"
             r"|\] sums to 0|sums beyond the float range"
             r"|basis 'spectral' needs k|bounds must have shape \(\d, 2\)"
-            r"|bins of width \(hi - lo\) / count must be positive",
+            r"|bins of width \(hi - lo\) / count must be positive"
+            r"|the smallest regularization this domain can resolve",
             "a relation between fields or items (equal lengths, order, uniqueness of a node, a "
             "positive total, a total size) that JSON Schema cannot express"),
     Allowed("positive_data_acceptance", r"POST /v1/(domains|domains/upload|color-transfers)",
