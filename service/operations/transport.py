@@ -466,17 +466,21 @@ def run_barycenter(domain, req: BarycenterRequest, progress, should_cancel) -> O
 
 
 # -- interpolations -------------------------------------------------------------
-def _validate_interpolation(view, req: InterpolationRequest) -> list[dict]:
+def _interpolation_inputs(view: DomainView, req: InterpolationRequest
+                          ) -> tuple[dict[str, np.ndarray], list[dict]]:
     for i, t in enumerate(req.times):
         if not 0.0 <= t <= 1.0:
             raise InvalidInput(f"times[{i}] = {t} is outside [0, 1]", field=f"times[{i}]")
-    return _validate_pair(view, req)
+    return _pair(view, req)
+
+
+def _validate_interpolation(view, req: InterpolationRequest) -> list[dict]:
+    return _interpolation_inputs(view, req)[1]
 
 
 def run_interpolation(domain, req: InterpolationRequest, progress, should_cancel
                       ) -> OperationOutput:
-    _validate_interpolation(view_of_domain(domain), req)
-    masses, reports = _pair(view_of_domain(domain), req)
+    masses, reports = _interpolation_inputs(view_of_domain(domain), req)
     kwargs, reg = shape_kwargs(domain, req, progress, should_cancel)
     res = displacement_interpolation(domain, masses["mu0"], masses["mu1"], list(req.times),
                                      sharpen=req.sharpen, debiased=req.debiased, **kwargs)
