@@ -328,10 +328,12 @@ def test_input_errors_and_cancel(woody):
 
 
 def test_interior_point_cone_algebra():
-    """The Lorentz-cone pieces of the interior point on random interior points: the
-    Nesterov–Todd scaling maps x and z to the same λ, W⁻¹ inverts W, the closed-form W⁻²
-    block equals the product, the scaled Jordan solve ``W⁻¹ (λ \\ r)`` inverts ``λ ∘`` and
-    ``W``, and the step to the boundary lands on it."""
+    """The Lorentz-cone pieces of the interior point on random interior points, against
+    ``W`` and ``W⁻¹`` written out in numpy from the scaling's ``v``, ``p`` and ``β``: the
+    Nesterov–Todd scaling maps x and z to the same λ, W⁻¹ inverts W, the W⁻² the Newton
+    systems apply is W⁻¹ twice and its closed-form tangential block is that product's, the
+    scaled Jordan solve ``W⁻¹ (λ \\ r)`` inverts ``λ ∘`` and ``W``, and the step to the
+    boundary lands on it."""
     from solvers.emd.interior_point import _jdot, _jordan, _max_step, _nt_scaling
 
     rng = np.random.default_rng(4)
@@ -343,18 +345,24 @@ def test_interior_point_cone_algebra():
 
     x, z = interior(50), interior(50)
     s = _nt_scaling(x, z)
-    np.testing.assert_allclose(s.apply_inverse(z), s.lam, atol=1e-12)
+
+    def nt(w, y, power):  # W y = β (2 v vᵀ − J) y (w = v, power 1), W⁻¹ y (w = p, power -1)
+        c = 2.0 * np.sum(w * y, axis=1, keepdims=True)
+        return (c * w - np.array([1.0, -1.0, -1.0]) * y) * s.beta[:, None] ** power
+
+    np.testing.assert_allclose(nt(s.v, x, 1), s.lam, atol=1e-12)
+    np.testing.assert_allclose(nt(s.p, z, -1), s.lam, atol=1e-12)
     r = rng.normal(size=(50, 3))
-    np.testing.assert_allclose(s.apply_inverse(s.apply(r)), r, atol=1e-12)
+    np.testing.assert_allclose(nt(s.p, nt(s.v, r, 1), -1), r, atol=1e-12)
+    np.testing.assert_allclose(s.apply_inverse_square(r), nt(s.p, nt(s.p, r, -1), -1),
+                               rtol=1e-12, atol=1e-12)
     t11, t12, t22 = s.inverse_square_tangent()
     for i, j, t in ((1, 1, t11), (1, 2, t12), (2, 2, t22)):
         e = np.zeros((50, 3))
         e[:, j] = 1.0
         np.testing.assert_allclose(s.apply_inverse_square(e)[:, i], t, atol=1e-12)
     wq = s.inverse_jordan_solve(r)  # W⁻¹ (λ \ r), as the Newton directions solve it
-    c = 2.0 * np.sum(s.v * wq, axis=1, keepdims=True)
-    q = s.beta[:, None] * (c * s.v - np.array([1.0, -1.0, -1.0]) * wq)  # W, written out
-    np.testing.assert_allclose(_jordan(s.lam, q), r, atol=1e-10)
+    np.testing.assert_allclose(_jordan(s.lam, nt(s.v, wq, 1)), r, atol=1e-10)
     d = rng.normal(size=(50, 3))
     alpha = _max_step(x, d)
     edge = x + alpha * d

@@ -303,6 +303,20 @@ def _convergence(result) -> dict:
 
 
 # -- distances ------------------------------------------------------------------
+def _distance_inputs(view: DomainView, req: DistanceRequest
+                     ) -> tuple[dict[str, np.ndarray], list[dict]]:
+    """``mu0`` and ``mu1`` resolved (read-only) and their normalization reports, once per
+    request on ``view``: validation, memory estimate and decision share them
+    (:meth:`~service.operations.base.DomainView.per_request`)."""
+    return view.per_request("distance inputs", req, lambda: _read_only(_pair(view, req)))
+
+
+def _read_only(pair: tuple[dict[str, np.ndarray], list[dict]]):
+    for masses in pair[0].values():
+        masses.flags.writeable = False  # shared by every reader of the request's inputs
+    return pair
+
+
 def _validate_distance(view: DomainView, req: DistanceRequest) -> list[dict]:
     from service.errors import UnsupportedOperation
 
@@ -312,7 +326,7 @@ def _validate_distance(view: DomainView, req: DistanceRequest) -> list[dict]:
     if req.metric == "w2" and req.route == "exact" and view.kind not in EXACT_KINDS:
         raise UnsupportedOperation(f"route 'exact' is available on {', '.join(EXACT_KINDS)} "
                                    "domains; use route 'convolutional'", field="route")
-    masses, reports = _pair(view, req)
+    masses, reports = _distance_inputs(view, req)
     if req.metric == "w2" and req.route == "exact":
         n0, n1 = (int(np.count_nonzero(masses[k])) for k in ("mu0", "mu1"))
         if n0 * n1 > MAX_SUPPORT_PRODUCT:
@@ -325,7 +339,12 @@ def _validate_distance(view: DomainView, req: DistanceRequest) -> list[dict]:
 def decide_distance_job(view: DomainView, req: DistanceRequest) -> dict:
     """The job's decision at submission (``Operation.decide``): the W2 route and
     regularization (:func:`solvers.convolutional.decision.decide_distance` on the stored
-    domain's sketch), or the W1 solver and flow space."""
+    domain's sketch), or the W1 solver and flow space; taken once per request on ``view``
+    (the memory and cost estimates read the same decision)."""
+    return view.per_request("distance decision", req, lambda: _decide_distance(view, req))
+
+
+def _decide_distance(view: DomainView, req: DistanceRequest) -> dict:
     if req.metric == "w1":
         try:
             algorithm, basis = resolve_method(req.algorithm, req.basis)
@@ -336,7 +355,7 @@ def decide_distance_job(view: DomainView, req: DistanceRequest) -> dict:
             f"auto: ADMM for the {basis} basis")
         return DistanceDecision(metric="w1", route="beckmann", reason=why,
                                 algorithm=algorithm, basis=basis).model_dump(mode="json")
-    masses, _ = _pair(view, req)
+    masses, _ = _distance_inputs(view, req)
     decision = decide_distance(view.sketch(), masses["mu0"], masses["mu1"], route=req.route,
                                gamma="auto" if req.gamma is None else float(req.gamma),
                                substeps=req.substeps, debiased=req.debiased)
@@ -350,25 +369,13 @@ def distance_submission_bounded(view: DomainView, req: DistanceRequest) -> bool:
     return req.metric == "w2" and req.gamma is not None and req.route != "exact"
 
 
-def _decided(view: DomainView, req: DistanceRequest) -> dict:
-    """The job's decision (deterministic: the one ``decide`` stores), memoized per request
-    on the view, for the estimates."""
-    memo = view.memo.setdefault("distance_decisions", {})
-    key = req.model_dump_json()
-    if key not in memo:
-        if len(memo) >= 64:
-            memo.clear()
-        memo[key] = decide_distance_job(view, req)
-    return memo[key]
-
-
 def distance_bytes(view: DomainView, req: DistanceRequest) -> int:
     """The default estimate, plus on the exact route the LP's cost matrix, plan and the
     solver's copy (support x support, three float64 arrays; two missed a fifth of a
     measured peak: bench/results/operation_memory.md)."""
     total = estimate_job_bytes(view, req)
-    if req.metric == "w2" and _decided(view, req)["route"] == "exact":
-        masses, _ = _pair(view, req)
+    if req.metric == "w2" and decide_distance_job(view, req)["route"] == "exact":
+        masses, _ = _distance_inputs(view, req)
         n0, n1 = (int(np.count_nonzero(masses[k])) for k in ("mu0", "mu1"))
         total += 24 * n0 * n1
     return total
@@ -380,7 +387,7 @@ def distance_cost(n: int, req: DistanceRequest, context=None) -> float:
     default = estimate_cost(n, req)
     if context is None or req.metric != "w2":
         return default
-    seconds = _decided(context, req).get("estimated_seconds")
+    seconds = decide_distance_job(context, req).get("estimated_seconds")
     return default if seconds is None else max(default, float(seconds) * COST_PER_SECOND)
 
 
@@ -401,7 +408,7 @@ def run_distance(domain, req: DistanceRequest, progress, should_cancel,
     job recorded without one): explicit solver arguments, so every worker and every
     attempt runs the same thing."""
     view = view_of_domain(domain)
-    masses, reports = _pair(view, req)
+    masses, reports = _distance_inputs(view, req)
     if decision is None:
         decision = decide_distance_job(view, req)
     stored = DistanceDecision.model_validate(decision)
@@ -459,17 +466,21 @@ def run_barycenter(domain, req: BarycenterRequest, progress, should_cancel) -> O
 
 
 # -- interpolations -------------------------------------------------------------
-def _validate_interpolation(view, req: InterpolationRequest) -> list[dict]:
+def _interpolation_inputs(view: DomainView, req: InterpolationRequest
+                          ) -> tuple[dict[str, np.ndarray], list[dict]]:
     for i, t in enumerate(req.times):
         if not 0.0 <= t <= 1.0:
             raise InvalidInput(f"times[{i}] = {t} is outside [0, 1]", field=f"times[{i}]")
-    return _validate_pair(view, req)
+    return _pair(view, req)
+
+
+def _validate_interpolation(view, req: InterpolationRequest) -> list[dict]:
+    return _interpolation_inputs(view, req)[1]
 
 
 def run_interpolation(domain, req: InterpolationRequest, progress, should_cancel
                       ) -> OperationOutput:
-    _validate_interpolation(view_of_domain(domain), req)
-    masses, reports = _pair(view_of_domain(domain), req)
+    masses, reports = _interpolation_inputs(view_of_domain(domain), req)
     kwargs, reg = shape_kwargs(domain, req, progress, should_cancel)
     res = displacement_interpolation(domain, masses["mu0"], masses["mu1"], list(req.times),
                                      sharpen=req.sharpen, debiased=req.debiased, **kwargs)

@@ -143,15 +143,14 @@ def _scale_point(v0, v1, v2, b, y0, y1, y2, forward):  # pragma: no cover - comp
 
 
 @cached_njit()
-def _scale_kernel(v, beta, y, power):  # pragma: no cover - compiled
-    """``power`` = 1: ``W y = β (2 v vᵀ − J) y``; ``power`` = -1 (``v`` then holds ``p``):
-    ``W⁻¹ y = (2 p pᵀ − J) y / β``; ``power`` = -2: ``W⁻¹`` twice."""
+def _inverse_square_kernel(p, beta, y):  # pragma: no cover - compiled
+    """``W⁻² y``: ``W⁻¹ y = (2 p pᵀ − J) y / β`` (:func:`_scale_point`) twice."""
     out = np.empty(y.shape)
     for t in range(y.shape[0]):
-        v0, v1, v2 = v[t, 0], v[t, 1], v[t, 2]
+        p0, p1, p2 = p[t, 0], p[t, 1], p[t, 2]
         y0, y1, y2 = y[t, 0], y[t, 1], y[t, 2]
-        for _ in range(1 if power > -2 else 2):
-            y0, y1, y2 = _scale_point(v0, v1, v2, beta[t], y0, y1, y2, power == 1)
+        for _ in range(2):
+            y0, y1, y2 = _scale_point(p0, p1, p2, beta[t], y0, y1, y2, False)
         out[t, 0], out[t, 1], out[t, 2] = y0, y1, y2
     return out
 
@@ -171,7 +170,7 @@ def _scaled_jordan_solve_kernel(lam, p, beta, r):  # pragma: no cover - compiled
 @cached_njit()
 def _corrector_rhs_kernel(lam, v, p, beta, dx, dz, shift):  # pragma: no cover - compiled
     """Mehrotra's ``-λ ∘ λ - (W⁻¹ Δz) ∘ (W Δx) + shift e`` in one pass (the same
-    expressions as :func:`_jordan_kernel` and :func:`_scale_kernel`)."""
+    expressions as :func:`_jordan_kernel` and :func:`_scale_point`)."""
     out = np.empty(dx.shape)
     for t in range(dx.shape[0]):
         l0, l1, l2 = lam[t, 0], lam[t, 1], lam[t, 2]
@@ -196,17 +195,11 @@ class _Scaling:
     beta: np.ndarray  # (F,)
     lam: np.ndarray  # (F, 3), W x
 
-    def apply(self, y: np.ndarray) -> np.ndarray:  # W y
-        return _scale_kernel(self.v, self.beta, y, 1)
-
-    def apply_inverse(self, y: np.ndarray) -> np.ndarray:  # W⁻¹ y
-        return _scale_kernel(self.p, self.beta, y, -1)
-
     def apply_inverse_square(self, y: np.ndarray) -> np.ndarray:  # W⁻² y
-        return _scale_kernel(self.p, self.beta, y, -2)
+        return _inverse_square_kernel(self.p, self.beta, y)
 
     def inverse_jordan_solve(self, r: np.ndarray) -> np.ndarray:
-        """``W⁻¹ (λ \\ r)``: the ``v`` with ``λ ∘ v = r``, then :meth:`apply_inverse`."""
+        """``W⁻¹ (λ \\ r)``: the ``v`` with ``λ ∘ v = r``, then ``W⁻¹``."""
         return _scaled_jordan_solve_kernel(self.lam, self.p, self.beta, r)
 
     def corrector_rhs(self, dx: np.ndarray, dz: np.ndarray, shift: float) -> np.ndarray:
@@ -481,7 +474,7 @@ def _gondzio_rhs_kernel(x, dx, z, dz, trial, v, p, beta, rc, lo,
                         hi):  # pragma: no cover - compiled
     """``rc`` plus the centrality correction (:func:`_centrality_point`) of ``W (x + trial
     Δx) ∘ W⁻¹ (z + trial Δz)`` per face, in one pass (the same expressions as
-    :func:`_scale_kernel` and :func:`_jordan_kernel`)."""
+    :func:`_scale_point` and :func:`_jordan_kernel`)."""
     out = np.empty(rc.shape)
     for t in range(x.shape[0]):
         a0, a1, a2 = _scale_point(v[t, 0], v[t, 1], v[t, 2], beta[t], x[t, 0] + trial * dx[t, 0],

@@ -164,6 +164,33 @@ def test_decision_is_taken_at_submission_and_kept_by_a_rerun(make_client, meshes
     assert result["values"]["value"] == pytest.approx(0.020168, abs=5e-7)
 
 
+def test_submission_resolves_and_decides_once(make_client, meshes_dir, monkeypatch):
+    """Validation, the memory estimate (on the exact route it counts the supports), the
+    decision and the cost estimate of one submission share one resolution of mu0 and mu1
+    and one decision; the next request, even with the same body, is resolved and decided
+    anew."""
+    import service.operations.transport as transport
+
+    resolved, decided = [], []
+    resolve_all, decide = transport.resolve_all, transport.decide_distance
+    monkeypatch.setattr(transport, "resolve_all",
+                        lambda *args: resolved.append(sorted(args[1])) or resolve_all(*args))
+    monkeypatch.setattr(transport, "decide_distance",
+                        lambda *args, **kw: decided.append(kw["route"]) or decide(*args, **kw))
+    client = make_client(queue="sqlite")  # recorded, not run
+    mid = upload_mesh(client, meshes_dir / "spot.obj").json()["id"]
+    url = f"/v1/domains/{mid}/distances"
+    first = client.post(url, json=SPOT_REQUEST)
+    assert first.status_code == 202 and first.json()["decision"]["route"] == "exact", first.text
+    assert resolved == [["mu0", "mu1"]] and decided == ["auto"]
+    again = client.post(url, json=SPOT_REQUEST)
+    assert again.status_code == 202 and again.json()["decision"] == first.json()["decision"]
+    assert len(resolved) == 2 and decided == ["auto", "auto"]
+    w1 = client.post(url, json={**SPOT_REQUEST, "metric": "w1"})
+    assert w1.status_code == 202 and w1.json()["decision"]["route"] == "beckmann", w1.text
+    assert len(resolved) == 3 and len(decided) == 2
+
+
 def test_pointwise_cost_is_checked_at_submission(client, meshes_dir):
     mid = upload_mesh(client, meshes_dir / "spot.obj").json()["id"]
     err = assert_error(client.post(f"/v1/domains/{mid}/pointwise-distances",
