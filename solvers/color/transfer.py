@@ -282,7 +282,8 @@ def default_gamma(bins: int) -> float:
     """The default entropic regularization on an ab grid of ``bins`` nodes per axis:
     ``DEFAULT_GAMMA`` squared ab units, or the squared node spacing ``h**2`` on grids coarser
     than 4 ab units per node, where 16 would not resolve the grid (the kernel between
-    neighbouring nodes, ``exp(-h**2 / gamma)``, would underflow)."""
+    neighbouring nodes, ``exp(-h**2 / gamma)``, would fall below machine epsilon: 8 nodes
+    give h = 36.6)."""
     return max(DEFAULT_GAMMA, AbGrid(bins).spacing ** 2)
 
 
