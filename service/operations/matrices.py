@@ -297,7 +297,7 @@ def decide_matrix_job(view: DomainView, req: DistanceMatrixRequest) -> dict:
         pairs = matrix_pairs(rows.shape[1], cols.shape[1], symmetric, False)
         return MatrixDecision(**common, reason="W1 per pair (Beckmann problem)",
                               pairs=len(pairs), per_pair=True, zero_diagonal=symmetric or None,
-                              routes={"w1": len(pairs)}, algorithm=algorithm,
+                              routes={"w1": len(pairs)} if pairs else {}, algorithm=algorithm,
                               solver_arguments={"algorithm": algorithm}
                               ).model_dump(mode="json")
     sketch = view.sketch().remembering_paths()
@@ -326,7 +326,8 @@ def decide_matrix_job(view: DomainView, req: DistanceMatrixRequest) -> dict:
         if symmetric and zero != zero_diagonal(sketch, rows, uniform["gamma"],
                                                uniform["debiased"], "convolutional"):
             uniform = None  # the explicit arguments would solve another diagonal
-    reasons = sorted({d.reason for d in decisions})
+    reasons = sorted({d.reason for d in decisions}) or [
+        "no pair to solve: one distribution, whose diagonal entry is zero"]
     return MatrixDecision(
         **common, pairs=len(pairs), per_pair=True, zero_diagonal=zero, routes=routes,
         kernel_count=len(groups),

@@ -116,6 +116,22 @@ def test_memory_refused_at_submission_naming_the_size(make_client, meshes_dir):
     assert "GiB" in err["message"]
 
 
+def test_one_distribution_is_its_zero_diagonal(client, woody):
+    """A symmetric matrix of one distribution has no pair to solve: [[0]] (a fuzz run sent
+    one and the decision's reason, taken from the pairs, raised a server error; with W1 the
+    decision's route count differed from the run's and the job failed)."""
+    _, mid = woody
+    for body in ({"distributions": [BUMPS[0]]},
+                 {"distributions": [{"indices": [0], "masses": [1.7e189]}]},
+                 {"distributions": [BUMPS[0]], "metric": "w1"}):
+        job = client.post(f"/v1/domains/{mid}/distance-matrices", json=body).json()
+        assert job["state"] == "succeeded", job
+        assert job["decision"]["pairs"] == 0 and not job["decision"]["routes"]
+        values = client.get(f"/v1/jobs/{job['id']}/result").json()["values"]
+        assert values["shape"] == [1, 1] and values["pairs_solved"] == 0
+        assert _matrix(client, job["id"]).tolist() == [[0.0]]
+
+
 def test_bad_inputs_name_the_field(client, woody):
     _, mid = woody
     url = f"/v1/domains/{mid}/distance-matrices"

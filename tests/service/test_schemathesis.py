@@ -93,6 +93,10 @@ ALLOWED = [
             r"more than the limit of|points exceed the limit of",
             "OTGEO_MAX_VERTICES is a deployment setting (the committed spec cannot carry it), "
             "and for a grid it bounds the product of the axes, not each axis"),
+    Allowed("positive_data_acceptance", r"POST /v1/brdf-interpolations", 413,
+            r"n_theta \* n_phi = \d+ exceeds \d+",
+            "a bound on the product of two fields (the dense hemisphere kernel's size), which "
+            "JSON Schema cannot state without excluding valid pairs (32 x 128)"),
     Allowed("positive_data_acceptance", r"POST /v1/.*", 422,
             r"Idempotency-Key '.*' was used for a different request",
             "an Idempotency-Key names one request: the generator reuses its few header values "
