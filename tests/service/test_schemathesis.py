@@ -78,6 +78,7 @@ ALLOWED = [
             r"|n_neighbors must be <= \d+|face indices must lie in \[0, \d+\]"
             r"|\] sums to 0|sums beyond the float range"
             r"|basis 'spectral' needs k|bounds must have shape \(\d, 2\)"
+            r"|bounds must be finite with lo < hi"
             r"|bins of width \(hi - lo\) / count must be positive"
             r"|the smallest regularization this domain can resolve",
             "a relation between fields or items (equal lengths, order, uniqueness of a node, a "
