@@ -43,7 +43,6 @@ from solvers.color import (
     rgb_to_lab,
     write_image,
 )
-from solvers.color.chrominance import check_bins
 from solvers.color.transfer import (
     DEFAULT_BINS,
     DEFAULT_GAMMA,
@@ -52,6 +51,7 @@ from solvers.color.transfer import (
     DEFAULT_RESPLIT,
     MAX_IMAGES,
     check_alphas,
+    resolve_bins,
     resolve_gamma,
 )
 
@@ -193,9 +193,7 @@ def check_header(data: bytes, field: str, settings):
 
 def validate(ctx, req: ColorTransferRequest) -> list[dict]:
     A = _alphas(req)
-    if req.bins is not None:
-        check_bins(req.bins)
-    resolve_gamma(req.gamma, req.bins or DEFAULT_BINS[req.mode])
+    resolve_gamma(req.gamma, resolve_bins(req.bins, req.mode))
     _recolor(req)
     blobs = [ctx.blob(blob_id, f"images[{i}]") for i, blob_id in enumerate(req.images)]
     total = 0
@@ -272,7 +270,7 @@ def run(ctx, req: ColorTransferRequest, progress, should_cancel) -> OperationOut
 def _job_sizes(ctx, req: ColorTransferRequest) -> tuple[int, int, int]:
     """(ab grid nodes per axis, pixels over every image, largest product of two images'
     histogram supports: at most bins^2 or the image's pixels each) of a request."""
-    bins = int(req.bins or DEFAULT_BINS[req.mode])
+    bins = resolve_bins(req.bins, req.mode)
     each = sorted(check_header(ctx.blob(b, f"images[{i}]"), f"images[{i}]",
                                ctx.settings).pixels for i, b in enumerate(req.images))
     supports = [min(bins * bins, p) for p in each[-2:]]

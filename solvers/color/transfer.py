@@ -262,7 +262,7 @@ def color_transfer(
     images = [check_image(img, f"images[{i}]") for i, img in enumerate(images)]
     mode = check_mode(mode)
     A = check_alphas(alphas, k)
-    bins = check_bins(DEFAULT_BINS[mode] if bins is None else bins)
+    bins = resolve_bins(bins, mode)
     gamma = resolve_gamma(gamma, bins)
     regularization = check_regularization(regularization)
     luminance_slope = check_luminance_slope(luminance_slope)
@@ -276,6 +276,12 @@ def color_transfer(
         return _barycentric(images, A, bins, luminance, todo, t0, opts)
     return _split(images, A, bins, luminance, (regularization, luminance_slope, resplit), todo,
                   t0, opts)
+
+
+def resolve_bins(bins, mode: str) -> int:
+    """``bins`` checked (:func:`~solvers.color.chrominance.check_bins`), or the ``mode``'s
+    default (:data:`DEFAULT_BINS`) when ``None``."""
+    return check_bins(DEFAULT_BINS[mode] if bins is None else bins)
 
 
 def default_gamma(bins: int) -> float:
