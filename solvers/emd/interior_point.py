@@ -168,19 +168,18 @@ def _scaled_jordan_solve_kernel(lam, p, beta, r):  # pragma: no cover - compiled
 
 
 @cached_njit()
-def _corrector_rhs_kernel(lam, v, p, beta, dx, dz, shift):  # pragma: no cover - compiled
-    """Mehrotra's ``-λ ∘ λ - (W⁻¹ Δz) ∘ (W Δx) + shift e`` in one pass (the same
+def _corrector_rhs_kernel(affine, v, p, beta, dx, dz, shift):  # pragma: no cover - compiled
+    """Mehrotra's ``affine - (W⁻¹ Δz) ∘ (W Δx) + shift e`` in one pass (the same
     expressions as :func:`_jordan_kernel` and :func:`_scale_point`)."""
     out = np.empty(dx.shape)
     for t in range(dx.shape[0]):
-        l0, l1, l2 = lam[t, 0], lam[t, 1], lam[t, 2]
         u0, u1, u2 = _scale_point(p[t, 0], p[t, 1], p[t, 2], beta[t], dz[t, 0], dz[t, 1],
                                   dz[t, 2], False)
         w0, w1, w2 = _scale_point(v[t, 0], v[t, 1], v[t, 2], beta[t], dx[t, 0], dx[t, 1],
                                   dx[t, 2], True)
-        s0, s1, s2 = _jordan_point(l0, l1, l2, l0, l1, l2)
         c0, c1, c2 = _jordan_point(u0, u1, u2, w0, w1, w2)
-        out[t, 0], out[t, 1], out[t, 2] = (-s0 - c0) + shift, -s1 - c1, -s2 - c2
+        out[t, 0] = (affine[t, 0] - c0) + shift
+        out[t, 1], out[t, 2] = affine[t, 1] - c1, affine[t, 2] - c2
     return out
 
 
@@ -202,10 +201,12 @@ class _Scaling:
         """``W⁻¹ (λ \\ r)``: the ``v`` with ``λ ∘ v = r``, then ``W⁻¹``."""
         return _scaled_jordan_solve_kernel(self.lam, self.p, self.beta, r)
 
-    def corrector_rhs(self, dx: np.ndarray, dz: np.ndarray, shift: float) -> np.ndarray:
+    def corrector_rhs(self, affine: np.ndarray, dx: np.ndarray, dz: np.ndarray,
+                      shift: float) -> np.ndarray:
         """Mehrotra's corrector right-hand side ``-λ ∘ λ - (W⁻¹ Δz) ∘ (W Δx) + shift e``
-        (``e = (1, 0, 0)``) of the affine directions ``dx``, ``dz``."""
-        return _corrector_rhs_kernel(self.lam, self.v, self.p, self.beta, dx, dz, float(shift))
+        (``e = (1, 0, 0)``) of the affine directions ``dx``, ``dz``; ``affine``: the affine
+        right-hand side ``-λ ∘ λ`` they were solved for (not computed again)."""
+        return _corrector_rhs_kernel(affine, self.v, self.p, self.beta, dx, dz, float(shift))
 
     def inverse_square_tangent(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Entries ``(t11, t12, t22)`` of the tangential 2×2 block of
@@ -386,11 +387,12 @@ def _iterate(x, z, st, newton, backend, factor):
     factor = _factor_normal(normal_matrix_data(scaling, st), st, factor, backend)
     if factor is None:
         return None
-    dx_a, _, dz_a = newton(scaling, -_jordan(lam, lam), factor)
+    affine = -_jordan(lam, lam)
+    dx_a, _, dz_a = newton(scaling, affine, factor)
     alpha_a = min(1.0, _max_step(x, dx_a), _max_step(z, dz_a))
     mu_a = float(_dot(x + alpha_a * dx_a, z + alpha_a * dz_a).sum()) / len(x)
     sigma = (max(mu_a, 0.0) / mu) ** 3
-    rc = scaling.corrector_rhs(dx_a, dz_a, sigma * mu)
+    rc = scaling.corrector_rhs(affine, dx_a, dz_a, sigma * mu)
     dx, dy, dz = newton(scaling, rc, factor)
     alpha = min(1.0, STEP_FRACTION * min(_max_step(x, dx), _max_step(z, dz)))
     return factor, dx, dy, dz, alpha
@@ -522,14 +524,15 @@ def mehrotra_step(x, m, z, zm, newton, correctors: int = 0):
     lam, lam_m = newton.scaling.lam, np.sqrt(m * zm)
     degree = len(x) + len(m)
     mu = (float(_dot(x, z).sum()) + float(m @ zm)) / degree
-    dx, dm, _, dz, dzm = newton(-_jordan(lam, lam), -lam_m**2)
+    affine = -_jordan(lam, lam)
+    dx, dm, _, dz, dzm = newton(affine, -lam_m**2)
     alpha = min(1.0, _max_step(x, dx), _max_step(z, dz), nonneg_max_step(m, dm),
                 nonneg_max_step(zm, dzm))
     mu_a = (float(_dot(x + alpha * dx, z + alpha * dz).sum())
             + float((m + alpha * dm) @ (zm + alpha * dzm))) / degree
     sigma = (max(mu_a, 0.0) / mu) ** 3
     sc = newton.scaling
-    rc = sc.corrector_rhs(dx, dz, sigma * mu)
+    rc = sc.corrector_rhs(affine, dx, dz, sigma * mu)
     rc_m = -lam_m**2 - dzm * dm + sigma * mu
     direction = newton(rc, rc_m)
     if correctors:
