@@ -204,11 +204,12 @@ def exact_working_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
     the distributions' support sizes: ``EXACT_THREADS`` LPs of the largest pair (a fixed
     cap, not this machine's CPUs, so every process estimates the same)."""
     rows, others, _ = _inputs(view, req)
-    cols = rows if others is None else others
-    row_sizes = np.count_nonzero(rows > 0, axis=0).tolist()
-    col_sizes = np.count_nonzero(cols > 0, axis=0).tolist()
-    covered = (int(np.count_nonzero((rows > 0).any(axis=1))),
-               int(np.count_nonzero((cols > 0).any(axis=1))))
+    in_rows = rows > 0
+    in_cols = in_rows if others is None else others > 0
+    row_sizes = np.count_nonzero(in_rows, axis=0).tolist()
+    col_sizes = np.count_nonzero(in_cols, axis=0).tolist()
+    covered = (int(np.count_nonzero(in_rows.any(axis=1))),
+               int(np.count_nonzero(in_cols.any(axis=1))))
     # the distances' columns: every point where the stored all-pairs ones may serve
     width = int(view.n) if prefers_stored_distances(view.n, *covered) else covered[1]
     return exact_route_bytes(row_sizes, col_sizes, width, _sizes(req)[2])
