@@ -255,15 +255,19 @@ def test_flat_image_goes_to_the_target_means(photos):
 
 def test_default_gamma_resolves_coarse_grids(photos):
     """On a coarse ab grid (h = 36.6 at 8 nodes) 16 squared ab units would not resolve the
-    kernel; the default follows the grid there and stays 16 at the default bins."""
+    kernel; the default is twice the smallest the grid resolves there (below 17 nodes) and
+    stays 16 elsewhere."""
     from solvers.color.transfer import DEFAULT_BINS, DEFAULT_GAMMA, default_gamma
+    from solvers.validation import GAMMA_RESOLUTION
 
+    coarse = 2 * GAMMA_RESOLUTION * AbGrid(8).spacing ** 2
     assert default_gamma(DEFAULT_BINS["split"]) == DEFAULT_GAMMA
     assert default_gamma(DEFAULT_BINS["barycentric"]) == DEFAULT_GAMMA
-    assert default_gamma(8) == pytest.approx(AbGrid(8).spacing ** 2)
+    assert default_gamma(17) == DEFAULT_GAMMA < default_gamma(16)
+    assert default_gamma(8) == pytest.approx(coarse)
     small = [p[::8, ::8] for p in (photos["coffee"], photos["chelsea"], photos["astronaut"])]
     r = color_transfer(small[:2], [0.5, 0.5], mode="barycentric", bins=8)
-    assert r.gamma == pytest.approx(AbGrid(8).spacing ** 2) and r.converged
+    assert r.gamma == pytest.approx(coarse) and r.converged
     moved = r.images[0][0].astype(float)
     assert np.isfinite(moved).all() and np.abs(moved - small[0]).mean() > 1.0
     # an explicit gamma the grid cannot resolve is refused, in either mode

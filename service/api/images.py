@@ -87,8 +87,8 @@ async def create_color_transfer(
     bins: int = Form(None, ge=8, le=512, description="nodes per axis of the ab grid "
                             "(8..512; default 65 split, 256 barycentric)"),
     gamma: float = Form(None, gt=0, description="entropic regularization (squared ab "
-                        "units); default 16, or the squared node spacing on grids coarser "
-                        "than 4 ab units per node"),
+                        "units); default 16, or on grids below 17 nodes twice the smallest "
+                        "the grid resolves"),
     regularization: float = Form(DEFAULT_REGULARIZATION, ge=0, le=1, description="split mode: "
                                  "guided filter strength (0..1; 0 = off)"),
     luminance: bool = Form(True, description="also transfer L* (1-D OT); false: "

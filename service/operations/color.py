@@ -84,8 +84,8 @@ class ColorTransferRequest(OperationRequest):
     gamma: float | None = Field(None, gt=0, description="entropic regularization in "
                                 "squared ab units (blur of standard deviation sqrt(gamma/2)) "
                                 "of the entropic barycenters (barycentric mode; split mode "
-                                f"with 3+ images); default {DEFAULT_GAMMA:g}, or the squared "
-                                "node spacing on grids coarser than 4 ab units per node")
+                                f"with 3+ images); default {DEFAULT_GAMMA:g}, or on grids "
+                                "below 17 nodes twice the smallest the grid resolves")
     regularization: float = Field(
         DEFAULT_REGULARIZATION, ge=0, le=1, description="split mode: strength (epsilon) of "
         "the edge-aware guided filter of the color shift, guided by the input's Lab; "

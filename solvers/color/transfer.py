@@ -68,7 +68,12 @@ from solvers.color.split import (
 )
 from solvers.errors import InputError
 from solvers.monitor import SolverResult
-from solvers.validation import check_gamma_resolved, check_positive, check_weights
+from solvers.validation import (
+    GAMMA_RESOLUTION,
+    check_gamma_resolved,
+    check_positive,
+    check_weights,
+)
 
 DEFAULT_GAMMA = 16.0
 MAX_IMAGES = 16
@@ -225,7 +230,7 @@ def color_transfer(
         ``split``, 256 for ``barycentric``).
     gamma : entropic regularization in squared ab units (kernel ``exp(-|x-y|^2/gamma)``,
         blur of standard deviation ``sqrt(gamma/2)``) of the entropic barycenters; default
-        :func:`default_gamma` (16, or the squared node spacing on grids coarser than 4).
+        :func:`default_gamma` (16, or twice the smallest the grid resolves below 17 nodes).
     luminance : also transfer L* (1-D OT); ``False`` transfers chrominance only and keeps
         each pixel's L*.
     regularization : ``split`` only: guided-filter epsilon (>= 0; 0: no filter).  With a
@@ -286,11 +291,11 @@ def resolve_bins(bins, mode: str) -> int:
 
 def default_gamma(bins: int) -> float:
     """The default entropic regularization on an ab grid of ``bins`` nodes per axis:
-    ``DEFAULT_GAMMA`` squared ab units, or the squared node spacing ``h**2`` on grids coarser
-    than 4 ab units per node, where 16 would not resolve the grid (the kernel between
-    neighbouring nodes, ``exp(-h**2 / gamma)``, would fall below machine epsilon: 8 nodes
-    give h = 36.6)."""
-    return max(DEFAULT_GAMMA, AbGrid(bins).spacing ** 2)
+    ``DEFAULT_GAMMA`` squared ab units, or twice the smallest the grid resolves
+    (``2 GAMMA_RESOLUTION h**2``) on grids too coarse for 16 (below 17 nodes: 8 nodes give
+    h = 36.6, where the kernel between neighbouring nodes, ``exp(-h**2 / 16)``, falls below
+    machine epsilon).  Measured against larger choices: bench/results/color.md."""
+    return max(DEFAULT_GAMMA, 2.0 * GAMMA_RESOLUTION * AbGrid(bins).spacing ** 2)
 
 
 def resolve_gamma(gamma, bins: int) -> float:

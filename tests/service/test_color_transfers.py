@@ -172,12 +172,15 @@ def test_refusals_name_the_field(client, make_client, photos):
 
 def test_coarse_grid_takes_its_default_gamma(client, photos):
     """bins alone (no gamma) is a valid request on every grid: the default gamma follows a
-    coarse grid (an 8-node grid's squared spacing) and the result reports it."""
+    coarse grid (twice the smallest an 8-node grid resolves) and the result reports it."""
     files = [("a.png", png(photos["coffee"])), ("b.png", png(photos["chelsea"]))]
     r = post(client, files, bins=8, mode="barycentric")
     assert r.status_code == 200 and r.json()["state"] == "succeeded", r.text
     values = client.get(f"/v1/jobs/{r.json()['id']}/result").json()["values"]
-    assert values["gamma"] == pytest.approx((256 / 7) ** 2) and values["converged"]
+    from solvers.validation import GAMMA_RESOLUTION
+
+    assert values["gamma"] == pytest.approx(2 * GAMMA_RESOLUTION * (256 / 7) ** 2)
+    assert values["converged"]
 
 
 def test_pixel_limits_are_413(make_client, photos):
