@@ -8,15 +8,14 @@ grid resolves (h^2 / 36); h^2 the squared node spacing (a blur of 0.7 nodes).
 Usage: ``cpu run env OPENBLAS_NUM_THREADS=1 .venv/bin/python bench/color_coarse_gamma.py``.
 """
 
-import importlib.util
 import pathlib
 import sys
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-_spec = importlib.util.spec_from_file_location("color_bench", ROOT / "bench" / "color.py")
-cb = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(cb)
+sys.path.insert(0, str(ROOT / "bench"))
+
+import color as cb  # noqa: E402
 
 from solvers.color import color_transfer  # noqa: E402
 from solvers.color.chrominance import AbGrid  # noqa: E402
