@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import atexit
 import ctypes
+import functools
 import glob
 import os
 import sys
@@ -175,6 +176,7 @@ PARDISO_ERRORS = {-1: "input inconsistent", -2: "not enough memory", -3: "reorde
                   -7: "diagonal matrix is singular", -8: "32-bit integer overflow"}
 
 
+@functools.cache
 def _mkl_major_version(lib) -> int:
     """MKL's major version (the release year, e.g. 2026) from ``mkl_get_version``."""
     version = (ctypes.c_int * 16)()  # MKLVersion begins with int MajorVersion
@@ -367,7 +369,8 @@ class TriangularFactor:
         return x.reshape(b.shape)
 
 
-def factorize_spd(matrix: sp.spmatrix, backend: Backend = "auto") -> Factorization:
+def factorize_spd(matrix: sp.spmatrix, backend: Backend = "auto", *,
+                  pardiso_effort: int = 0) -> Factorization:
     """Factor a sparse symmetric positive definite ``matrix`` for repeated solves.
 
     Parameters
@@ -375,6 +378,8 @@ def factorize_spd(matrix: sp.spmatrix, backend: Backend = "auto") -> Factorizati
     matrix : (n, n) sparse SPD matrix.
     backend : ``"auto"`` (cholespy if installed, else splu), ``"cholespy"``, ``"splu"`` or
         ``"pardiso"`` (MKL PARDISO; never chosen by ``"auto"``).
+    pardiso_effort : PARDISO's analysis effort (:class:`PardisoFactor`'s ``effort``), for a
+        pattern refactored many times; ignored by the other backends.
     """
     if matrix.shape[0] != matrix.shape[1]:
         raise ValueError(f"matrix must be square, got shape {matrix.shape}")
@@ -387,7 +392,7 @@ def factorize_spd(matrix: sp.spmatrix, backend: Backend = "auto") -> Factorizati
     if backend == "splu":
         return SpluFactor(matrix)
     if backend == "pardiso":
-        return PardisoFactor(matrix)
+        return PardisoFactor(matrix, effort=pardiso_effort)
     if backend == "triangular":
         return TriangularFactor(matrix)
     raise ValueError(f"unknown backend {backend!r}")

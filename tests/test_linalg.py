@@ -217,3 +217,20 @@ def test_pardiso_analysis_effort_solves_the_same_system(pivoting):
     np.testing.assert_allclose(b @ f.solve(rhs), rhs, atol=1e-10 * np.abs(rhs).max())
     with pytest.raises(ValueError, match="effort"):
         PardisoFactor(a, effort=11)
+
+
+@pytest.mark.skipif(not have_pardiso(), reason="the mkl wheel (pardiso extra) is not installed")
+def test_factorize_spd_passes_the_pardiso_effort():
+    """``factorize_spd(..., pardiso_effort=e)`` is PARDISO's factor with that analysis effort
+    (MKL 2026 on), and the other backends ignore it."""
+    from solvers import linalg
+
+    a = _random_spd(200, 5).tocsr()
+    f = linalg.factorize_spd(a, "pardiso", pardiso_effort=1)
+    plain = linalg.factorize_spd(a, "pardiso")
+    if linalg._mkl_major_version(linalg._pardiso_lib()) >= linalg._ANALYSIS_EFFORT_MKL:
+        assert (f._iparm[1], plain._iparm[1]) == (12, 2)
+    rhs = np.random.default_rng(6).normal(size=200)
+    np.testing.assert_allclose(a @ f.solve(rhs), rhs, atol=1e-10 * np.abs(rhs).max())
+    np.testing.assert_allclose(linalg.factorize_spd(a, "splu", pardiso_effort=1).solve(rhs),
+                               f.solve(rhs), rtol=1e-9)

@@ -368,15 +368,16 @@ def _factor_normal(data: np.ndarray, st: _Structure, factor, backend: str):
         factor, backend)
 
 
-def factor_normal_matrix(normal: sp.csr_matrix, factor, backend: str):
+def factor_normal_matrix(normal: sp.csr_matrix, factor, backend: str, pardiso_effort: int = 0):
     """Factor ``normal``, or refactor ``factor`` in place when it can (PARDISO keeps the
-    ordering and symbolic analysis of the fixed pattern); None if ``normal`` is not finite."""
+    ordering and symbolic analysis of the fixed pattern); None if ``normal`` is not finite.
+    ``pardiso_effort``: a first PARDISO factor's analysis effort (``factorize_spd``)."""
     if not np.all(np.isfinite(normal.data)):
         return None
     if factor is not None and hasattr(factor, "refactor"):
         factor.refactor(normal)
         return factor
-    return factorize_spd(normal, _backend(backend))
+    return factorize_spd(normal, _backend(backend), pardiso_effort=pardiso_effort)
 
 
 def _iterate(x, z, st, newton, backend, factor):

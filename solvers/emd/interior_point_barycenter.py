@@ -380,9 +380,7 @@ def _factor_coupled(layout: _CoupledPattern, data: np.ndarray, factor, backend: 
 def _first_factor(normal: sp.csr_matrix, backend: str):
     """The first iteration's factor: PARDISO's Cholesky with the analysis that the later
     iterations' refactorizations reuse (:data:`PARDISO_EFFORT`), else ``backend``'s."""
-    if ip._backend(backend) == "pardiso":
-        return PardisoFactor(normal, effort=PARDISO_EFFORT)
-    return ip.factor_normal_matrix(normal, None, backend)
+    return ip.factor_normal_matrix(normal, None, backend, pardiso_effort=PARDISO_EFFORT)
 
 
 def _pivoting_factor(normal: sp.csr_matrix, failed, backend: str):
