@@ -12,6 +12,15 @@ def load1() -> float:
     return float(Path("/proc/loadavg").read_text().split()[0])
 
 
+def cpu_model() -> str:
+    """The machine's processor (``model name`` of /proc/cpuinfo), recorded beside figures
+    that differ by machine."""
+    for line in Path("/proc/cpuinfo").read_text().splitlines():
+        if line.startswith("model name"):
+            return line.split(":", 1)[1].strip()
+    return "unknown"
+
+
 def service_bump(mesh, i: int, r: float = 0.1) -> np.ndarray:
     """The service's bump ``{"vertex": i, "radius": r}``: masses ``a_j max(0, 1 - |x_j - x_i| /
     r)`` (unit-area coordinates), normalized."""
