@@ -576,10 +576,11 @@ def render(data: dict) -> str:
         if "floor_per_pair" in n:
             cols = ", ".join(f"{k}: {1e3 * v:.3f} ms" for k, v in n["solve_per_column"].items())
             out += ["", f"A floor, measured in the same run: one substep's factored solve costs "
-                    f"per column ({cols} in blocks of that many columns). A pair needs at least "
-                    f"{n['block_iterations_mean']:.0f} iterations (the block's mean) x 2 kernel "
-                    f"applications x {n['floor_substeps']} substeps (the fewest of the sampled "
-                    f"defaults) of these solves: {n['floor_per_pair']:.3g} s per pair, "
+                    f"per column ({cols} in blocks of that many columns). The block's pairs took "
+                    f"{n['block_iterations_mean']:.0f} iterations on average; at that count, 2 "
+                    f"kernel applications per iteration and {n['floor_substeps']} substeps per "
+                    "application (the fewest of the sampled defaults), these solves alone cost "
+                    f"{n['floor_per_pair']:.3g} s per pair, "
                     f"{_fmt(n['floor_per_pair'] * 10_000)} for the 10,000 pairs "
                     f"({n['floor_per_pair'] * 10_000 / 60:.0f} x the 60 s budget) before any "
                     "element-wise work, debiasing terms or larger substep counts."]
