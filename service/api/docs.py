@@ -4,7 +4,8 @@ work without network access to a CDN. Create the app with ``docs_url=None, redoc
 and call ``install(app)``.
 
 ``/guide/`` serves the built documentation site (``make docs``: Sphinx, MathJax included)
-from ``OTGEO_GUIDE_DIR`` (default: the checkout's ``docs/_build/html``) when it is there;
+from ``OTGEO_GUIDE_DIR`` (default: the checkout's ``docs/_build/html``) when it is there,
+looked for on every request (a build made while the server runs is served at once);
 otherwise ``/guide/`` answers 404 saying how to build it."""
 
 from __future__ import annotations
@@ -33,20 +34,32 @@ GUIDE_URL = "/guide"
 DEFAULT_GUIDE_DIR = Path(__file__).resolve().parents[2] / "docs" / "_build" / "html"
 
 
+class GuideFiles(StaticFiles):
+    """The built guide, looked for on every request: ``make docs`` run while the server is up
+    is served at once, and a removed build answers 404 saying how to build it again."""
+
+    def __init__(self, directory: Path):
+        super().__init__(directory=directory, html=True, check_dir=False)
+        self.index = Path(directory) / "index.html"
+
+    async def check_config(self) -> None:
+        """Starlette checks the directory once, at the first request; the guide may come
+        later (get_response checks it each time)."""
+
+    async def get_response(self, path: str, scope):
+        if not self.index.is_file():
+            from service.errors import NotFound
+
+            raise NotFound("the guide is not built on this server (make docs builds it into "
+                           "docs/_build/html, or set OTGEO_GUIDE_DIR)", field=None)
+        return await super().get_response(path, scope)
+
+
 def install_guide(app: FastAPI, guide_dir: Path | None) -> None:
-    """Mount the built guide at /guide/ (offline, like /docs), or a 404 that says why."""
+    """Mount the guide at /guide/ (offline, like /docs): the built site, or a 404 that says
+    how to build it, decided per request."""
     directory = Path(guide_dir) if guide_dir is not None else DEFAULT_GUIDE_DIR
-    if (directory / "index.html").is_file():
-        app.mount(GUIDE_URL, StaticFiles(directory=directory, html=True), name="guide")
-        return
-
-    @app.get(GUIDE_URL + "/{path:path}", include_in_schema=False)
-    async def guide_missing(path: str):
-        """The user guide (the built docs site)."""
-        from service.errors import NotFound
-
-        raise NotFound("the guide is not built on this server (make docs builds it into "
-                       "docs/_build/html, or set OTGEO_GUIDE_DIR)", field=None)
+    app.mount(GUIDE_URL, GuideFiles(directory), name="guide")
 
 
 def install(app: FastAPI) -> None:

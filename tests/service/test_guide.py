@@ -34,3 +34,18 @@ def test_missing_guide_says_how_to_build_it(tmp_path):
         error = response.json()["error"]
         assert "make docs" in error["message"]
         assert str(tmp_path) not in error["message"]  # no server paths in responses
+
+
+def test_guide_built_while_the_server_runs_is_served(tmp_path):
+    """``make docs`` with ``make serve`` running: the guide is served without a restart (and
+    a removed build answers the 404 again)."""
+    site = tmp_path / "html"
+    with _client(tmp_path, site) as client:
+        assert client.get("/guide/").status_code == 404
+        site.mkdir()
+        (site / "index.html").write_text("<html><body>otgeo guide</body></html>")
+        index = client.get("/guide/")
+        assert index.status_code == 200 and "otgeo guide" in index.text
+        (site / "index.html").unlink()
+        missing = client.get("/guide/")
+        assert missing.status_code == 404 and "make docs" in missing.json()["error"]["message"]
