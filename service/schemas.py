@@ -187,11 +187,14 @@ class JobOut(BaseModel):
     started_at: datetime | None = None
     finished_at: datetime | None = None
     duration_seconds: float | None = None
-    links: dict[str, str] = Field(description="self, result, result_glb, events and, for a "
-                                  "domain-scoped job, domain")
+    links: dict[str, str] = Field(description="self, result, events; result_glb for an "
+                                  "operation with a glTF export (not e.g. a color transfer); "
+                                  "domain for a job on a domain")
 
     @classmethod
-    def from_row(cls, row) -> JobOut:
+    def from_row(cls, row, operations) -> JobOut:
+        """The job ``row`` as the API shows it; ``operations`` (the registry) tells which
+        links its operation serves."""
         base = f"/v1/jobs/{row.id}"
         return cls(
             id=row.id, operation=row.operation, domain_id=row.domain_id, state=row.state,
@@ -205,14 +208,17 @@ class JobOut(BaseModel):
             decision=getattr(row, "decision", None), created_at=timestamp(row.created_at),
             started_at=timestamp(row.started_at),
             finished_at=timestamp(row.finished_at), duration_seconds=row.duration,
-            links=_job_links(base, row.domain_id))
+            links=_job_links(base, row.domain_id,
+                             operations.serves_glb(row.operation, row.domain_id)))
 
 
-def _job_links(base: str, domain_id: str) -> dict[str, str]:
-    """A job's links; ``domain`` only for a domain-scoped job (a global one, e.g. a color
-    transfer, has no domain: ``/v1/domains/`` would be the listing)."""
-    links = {"self": base, "result": f"{base}/result", "result_glb": f"{base}/result.glb",
-             "events": f"{base}/events"}
+def _job_links(base: str, domain_id: str, glb: bool) -> dict[str, str]:
+    """A job's links, each one served: ``result_glb`` only when the operation has a glTF
+    (a color transfer has none: 409); ``domain`` only for a job on a domain (a global one,
+    e.g. a color transfer, has none: ``/v1/domains/`` would be the listing)."""
+    links = {"self": base, "result": f"{base}/result", "events": f"{base}/events"}
+    if glb:
+        links["result_glb"] = f"{base}/result.glb"
     if domain_id:
         links["domain"] = f"/v1/domains/{domain_id}"
     return links

@@ -43,7 +43,7 @@ def list_jobs(svc: JobSvc,
     for row in page:
         _with_position(svc, row)
     more = len(rows) > limit
-    return JobList(jobs=[JobOut.from_row(j) for j in page],
+    return JobList(jobs=[JobOut.from_row(j, svc.rt.operations) for j in page],
                    next_cursor=encode_cursor(page[-1].created_at, page[-1].id) if more else None)
 
 
@@ -59,7 +59,8 @@ def _with_position(svc, job):
 def get_job(job_id: str, svc: JobSvc):
     """State, progress (iteration, residual, fraction done, estimated seconds left) and,
     while queued, the position in its queue."""
-    return JobOut.from_row(svc.get(job_id))  # with its queue position (JobService.get)
+    # with its queue position (JobService.get)
+    return JobOut.from_row(svc.get(job_id), svc.rt.operations)
 
 
 @router.delete("/{job_id}", operation_id="cancelJob", response_model=JobOut,
@@ -74,7 +75,7 @@ def cancel_job(job_id: str, svc: JobSvc):
     """Cancel: a queued job at once, a running one between two solver iterations. This does
     not delete the job: it stays listed and readable, in state `cancelled` once stopped (the
     partial progress kept), so a client can still follow it."""
-    return JobOut.from_row(svc.cancel(job_id))
+    return JobOut.from_row(svc.cancel(job_id), svc.rt.operations)
 
 
 def result_models(operations) -> list[type[BaseModel]]:
@@ -125,7 +126,9 @@ def build_result_router(operations) -> APIRouter:
                                      "schema": {"type": "string", "format": "binary"}}},
                              "description": "glTF 2.0 binary of the result on its domain "
                              "(sent as model/gltf-binary)"},
-                       409: {"model": ErrorResponse, "description": "job not finished"},
+                       409: {"model": ErrorResponse, "description": "job not finished, "
+                             "or its operation has no glTF (code `no_glb`: a color transfer, "
+                             "a BRDF interpolation; the job then has no `links.result_glb`)"},
                        **responses(401, 404, 422)})
 def get_job_result_glb(job_id: str, svc: JobSvc):
     return Response(svc.result_glb(job_id), media_type="model/gltf-binary")
@@ -191,7 +194,7 @@ async def stream_job_events(job_id: str, request: Request, svc: JobSvc):
         last, idle = None, 0.0
         current = job
         while True:
-            data = JobOut.from_row(current).model_dump_json()
+            data = JobOut.from_row(current, svc.rt.operations).model_dump_json()
             if data != last:
                 yield f"event: progress\nid: {current.attempts}-{current.iteration or 0}\n" \
                       f"data: {data}\n\n"

@@ -124,7 +124,7 @@ async def finish_submission(op_name: str, domain_id: str | None, body, wait: flo
                               else await run_in_threadpool(repo.queue_position, job))
     response.status_code = 200 if job.state in TERMINAL else 202
     response.headers["Location"] = f"/v1/jobs/{job.id}"
-    out = JobOut.from_row(job)
+    out = JobOut.from_row(job, rt.operations)
     if job.state not in TERMINAL:  # poll, at the pace the job suggests
         response.headers["Retry-After"] = str(retry_after(out))
     return out

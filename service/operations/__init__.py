@@ -45,6 +45,12 @@ class Registry(dict):
         except KeyError:
             raise NotFound(f"unknown operation {name!r}", field="operation") from None
 
+    def serves_glb(self, name: str, domain_id: str | None) -> bool:
+        """Whether a job of operation ``name`` on ``domain_id`` has a ``result.glb`` (an
+        operation no longer registered: none)."""
+        op = self.get(name)
+        return op is not None and op.serves_glb(domain_id)
+
 
 def build_registry(families=FAMILIES) -> Registry:
     registry = Registry()

@@ -312,6 +312,14 @@ class Operation:
     # array work over the domain's points (no estimate, no solve, no operator built), so a
     # small domain's submission may run on the API's event loop (JobService.submits_on_loop)
     bounded_submission: Callable[..., bool] | None = None
+    # ``run`` always writes the file ``result.glb``: /result.glb serves it even for a job
+    # without a domain (a job with one gets the generic export of its domain otherwise)
+    writes_glb: bool = False
+
+    def serves_glb(self, domain_id: str | None) -> bool:
+        """Whether ``GET /v1/jobs/{id}/result.glb`` has a glTF for this operation's job (on
+        ``domain_id``): what service.jobs.service.JobService.result_glb returns."""
+        return self.writes_glb or bool(domain_id)
 
     def check_kind(self, view: DomainView, field: str = "domain_id") -> None:
         if view.kind not in self.kinds:

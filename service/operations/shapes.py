@@ -211,5 +211,5 @@ OPERATIONS = [
               "volumes (thesis §3.7): one mesh per frame in a GLB, and a PNG",
               ShapeInterpolationRequest, run, validate, ("mesh",), scope="global",
               result_model=ShapeInterpolationValues, estimate_cost=estimate_cost,
-              estimate_bytes=job_bytes),
+              estimate_bytes=job_bytes, writes_glb=True),
 ]

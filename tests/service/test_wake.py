@@ -101,7 +101,8 @@ def test_created_job_is_complete_without_reading_it_back(tmp_path):
             {"mu0": {"vertex": 0, "radius": 0.2}, "mu1": {"vertex": 35, "radius": 0.2}})
         job = JobService(rt).create("distances", meta["id"], body)
         assert set(JOBS.c.keys()) <= set(vars(job))
-        assert JobOut.from_row(job) == JobOut.from_row(rt.repo.get(job.id))
+        assert JobOut.from_row(job, rt.operations) == JobOut.from_row(rt.repo.get(job.id),
+                                                            rt.operations)
     finally:
         rt.close()
 
