@@ -80,7 +80,7 @@ def main() -> None:
     args = ap.parse_args()
     problem = engine_problem()
     if problem:
-        raise SystemExit(f"no Docker engine: {problem}")
+        raise SystemExit(f"the compose stack cannot run here: {problem}")
     tmp = Path(tempfile.mkdtemp(prefix="otgeo-bench-docker-"))
     la = load()
     built = build_images(tmp / "build.log")

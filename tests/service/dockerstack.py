@@ -44,24 +44,33 @@ def compose_cli() -> list[str] | None:
 
 
 def engine_problem() -> str | None:
-    """Why no container can run here (None: the engine answers and the tools are there)."""
+    """What is missing for the containers to run here, every missing part named (None: the
+    client, the engine, compose and the base image or its builder are all there)."""
     cli = docker_cli()
     if cli is None:
         return "no docker client on PATH (apt-get install docker.io)"
-    if compose_cli() is None:
-        return "neither docker-compose nor the compose plugin is installed"
+    missing = []
     try:
         info = subprocess.run([cli, "info", "--format", "{{json .ServerVersion}}"],
                               capture_output=True, text=True, timeout=30)
     except subprocess.TimeoutExpired:
-        return "`docker info` did not answer within 30 s"
-    if info.returncode != 0:
-        text = (info.stderr or info.stdout).strip() or "no output"
-        return f"the Docker engine does not answer (`{cli} info` exit {info.returncode}): {text}"
-    probe = subprocess.run([cli, "image", "inspect", BASE_IMAGE], capture_output=True)
-    if probe.returncode != 0 and shutil.which("debootstrap") is None:
-        return f"no {BASE_IMAGE} image and no debootstrap to build it"
-    return None
+        info = None
+        missing.append("the Docker engine: `docker info` did not answer within 30 s")
+    if info is not None and info.returncode != 0:
+        lines = [ln.strip() for ln in (info.stderr or info.stdout).splitlines() if ln.strip()]
+        # the engine's own words (e.g. "Cannot connect to the Docker daemon ... Is the docker
+        # daemon running?") rather than the client's section that precedes them
+        said = next((ln for ln in lines if "daemon" in ln.lower()), lines[-1] if lines else
+                    "no output")
+        missing.append(f"a running Docker engine (`{cli} info` exit {info.returncode}: {said})")
+    if compose_cli() is None:
+        missing.append("docker compose (neither the compose plugin nor docker-compose is "
+                       "installed)")
+    if info is not None and info.returncode == 0:  # the image store answers only then
+        probe = subprocess.run([cli, "image", "inspect", BASE_IMAGE], capture_output=True)
+        if probe.returncode != 0 and shutil.which("debootstrap") is None:
+            missing.append(f"the {BASE_IMAGE} image, or debootstrap to build it")
+    return "missing " + "; ".join(missing) if missing else None
 
 
 def run(args: list[str], timeout: float = 300, env: dict | None = None, check: bool = True,

@@ -12,9 +12,10 @@ docker-compose (api, two workers, redis, postgres on the project's private netwo
 override docker/compose.test.yaml), a real mesh is uploaded and a barycenter, a distance and a
 W1 flow run through the API's port published on 127.0.0.1; a worker container is killed
 mid-job and the other one finishes it; the API container is recreated and the jobs and results
-are still there; everything is removed at the end, also on failure. It skips only when no
-engine can run here (the reason is printed); with ``OTGEO_REQUIRE_DOCKER=1`` (set by .ci/run
-once dockerd answers) that is a failure instead.
+are still there; everything is removed at the end, also on failure. It skips only when the
+stack cannot run here, naming every missing part (a running engine, compose, the base image or
+debootstrap); with ``OTGEO_REQUIRE_DOCKER=1`` (set by .ci/run once dockerd answers) that is a
+failure instead.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import json
 import os
 import re
 import shlex
+import shutil
 import subprocess
 import time
 import tomllib
@@ -352,6 +354,33 @@ def test_docker_client_sh_skips_a_client_that_cannot_build(tmp_path):
                           text=True).stdout.strip() == "/x/docker"
 
 
+DAEMON_DOWN = ('[ "$1" = info ] && { echo "Cannot connect to the Docker daemon at '
+               'unix:///var/run/docker.sock. Is the docker daemon running?" >&2; exit 1; }')
+
+
+@pytest.mark.parametrize("engine,compose_ok", [(False, True), (True, False), (False, False)],
+                         ids=["daemon-down", "no-compose", "both"])
+def test_skip_reason_names_what_is_missing(tmp_path, monkeypatch, engine, compose_ok):
+    """The docker tests' skip message names the missing part: a stopped daemon is not
+    reported as a missing compose, nor the other way round; both when both are missing."""
+    from dockerstack import engine_problem
+
+    docker = ('case "$1" in buildx) exit 0;; compose) ' + ("exit 0" if compose_ok else
+                                                            "exit 1") + ';; esac\n'
+              + ("" if engine else DAEMON_DOWN) + "\nexit 0")
+    fake_tools(tmp_path, {"docker": docker, "debootstrap": "exit 0"})
+    only = tmp_path / "only"  # the fakes and bash alone: no real docker-compose or docker
+    only.mkdir()
+    (only / "bash").symlink_to(shutil.which("bash"))
+    monkeypatch.setenv("PATH", f"{tmp_path / 'bin'}:{only}")
+    monkeypatch.delenv("DOCKER", raising=False)
+    problem = engine_problem()
+    assert problem is not None
+    assert ("Docker engine" in problem) == (not engine), problem
+    assert ("Is the docker daemon running?" in problem) == (not engine), problem
+    assert ("compose" in problem) == (not compose_ok), problem
+
+
 @pytest.mark.parametrize("service", OTGEO_SERVICES)
 def test_compose_env_names_are_settings(compose, service):
     env = compose["services"][service]["environment"]
@@ -386,7 +415,7 @@ def stack(tmp_path_factory):
     if problem is not None:
         if os.environ.get("OTGEO_REQUIRE_DOCKER") == "1":
             pytest.fail(f"OTGEO_REQUIRE_DOCKER=1 but no container can run: {problem}")
-        pytest.skip(f"no Docker engine can run here: {problem}")
+        pytest.skip(f"the compose stack cannot run here: {problem}")
     logs = tmp_path_factory.mktemp("docker")
     build_seconds = build_images(logs / "build.log")
     s = ComposeStack(workers=2)
