@@ -27,7 +27,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from solvers.errors import UnsupportedDomainError
-from solvers.linalg import factorize_spd
+from solvers.linalg import eigsh, factorize_spd
 
 
 def mesh_operators(mesh) -> EMDOperators:
@@ -251,7 +251,7 @@ class EMDOperators:
             op_inv = spla.LinearOperator(stiff.shape, matvec=factor.solve, dtype=np.float64)
             want = max(k, 2 * (0 if eigen is None else eigen[0].shape[0]))
             want = min(want, n_c - 2)
-            vals, vecs = spla.eigsh(stiff, k=want, M=mass, sigma=0.0, OPinv=op_inv,
+            vals, vecs = eigsh(stiff, k=want, M=mass, sigma=0.0, OPinv=op_inv,
                                     which="LM")
             order = np.argsort(vals)
             self._store.discard(key)  # replaced by the larger basis
