@@ -75,14 +75,6 @@ class EMDOperators:
         """``Gᵀ diag(A) field`` for a (F, 3) field, i.e. ``-D field`` (V,)."""
         return self.gradient_matrix.T @ (self.face_areas[:, None] * field).ravel()
 
-    def rotate(self, field: np.ndarray) -> np.ndarray:
-        """Quarter turn in each face plane, ``N × field`` (the operator R)."""
-        return np.cross(self.normals, field)
-
-    def rotate_adjoint(self, field: np.ndarray) -> np.ndarray:
-        """``Rᵀ field = -N × field``."""
-        return -np.cross(self.normals, field)
-
     def inner(self, x: np.ndarray, y: np.ndarray) -> float:
         """Area-weighted inner product of two (F, 3) fields."""
         return float(np.einsum("f,fc,fc->", self.face_areas, x, y))
