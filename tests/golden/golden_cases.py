@@ -403,9 +403,10 @@ class Comparison:
     leaves: int = 0
 
     def report(self) -> str:
+        same = self.leaves - len(self.not_bitwise) - len(self.mismatches)
         lines = [f"{self.leaves} recorded leaves; {len(self.mismatches)} mismatches beyond "
-                 f"{RTOL:g} relative; {self.leaves - len(self.not_bitwise)} bit-identical, "
-                 f"{len(self.not_bitwise)} not"]
+                 f"{RTOL:g} relative; {same} bit-identical, {len(self.not_bitwise)} within "
+                 "it but not bit-identical"]
         lines += ["MISMATCH " + m for m in self.mismatches]
         lines += ["differs in its last bits: " + m for m in self.not_bitwise[:40]]
         return "\n".join(lines)
