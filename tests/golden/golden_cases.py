@@ -29,6 +29,9 @@ from example_inputs import png_images  # noqa: E402
 GOLDEN_FILE = Path(__file__).with_name("golden_outputs.json")
 WAIT = 60  # ?wait= seconds (the most allowed; jobs run within their submission anyway)
 RTOL = 1e-12
+# Round-off floor: numbers that are rounding noise (a compression error of 1e-15, a residual
+# of an exact solve) differ by more than RTOL of themselves between BLAS thread counts
+ATOL = 1e-14
 SMALL_ARRAY = 64  # arrays up to this many entries are recorded whole
 SAMPLES = 16  # entries recorded of larger arrays (evenly spaced)
 # Measured durations in results (not values of the computation), left out of the record:
@@ -329,11 +332,19 @@ def run_case(client, case: Case, ids: dict[str, str]) -> dict:
 
 
 def run_cases(cases=None, progress: Callable[[str, float], None] | None = None) -> dict:
-    """``case name -> record`` of every case (``cases``: a subset), run in one app."""
+    """``case name -> record`` of every case (``cases``: a subset), run in one app, with one
+    BLAS thread: the last bits of BLAS reductions depend on the thread count, so a record
+    compares bit for bit on any machine and under any ``OMP_NUM_THREADS``."""
     import time
 
+    import scipy.linalg  # noqa: F401 (loads scipy's BLAS before the limit is set)
+    import scipy.sparse.linalg  # noqa: F401
+    from threadpoolctl import threadpool_limits
+
+    import service.app  # noqa: F401 (every library the jobs use, loaded)
+
     out = {}
-    with golden_client() as client:
+    with threadpool_limits(limits=1), golden_client() as client:
         ids = create_domains(client)
         for case in CASES if cases is None else cases:
             t0 = time.perf_counter()
@@ -455,7 +466,7 @@ def _leaf(out: Comparison, path: str, g, a, scale: float | None) -> None:
     if numbers and isinstance(g, float) | isinstance(a, float):
         if g == a:
             return
-        tol = RTOL * (max(abs(g), abs(a)) if scale is None else scale)
+        tol = max(RTOL * (max(abs(g), abs(a)) if scale is None else scale), ATOL)
         if not abs(g - a) <= tol:
             out.mismatches.append(f"{path}: {a!r}, golden {g!r} (tolerance {tol:.3g})")
         else:
