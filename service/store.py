@@ -299,20 +299,11 @@ class Store:
     def has_domain(self, domain_id: str) -> bool:
         return self._meta_path(domain_id).exists()
 
-    def delete_domain(self, domain_id: str) -> None:
-        """Remove a domain: metadata first (it disappears atomically), then its arrays.
-
-        Processes that already opened or cached the domain keep working on their copy.
-        """
-        folder = self.retire_domain(domain_id)
-        if folder is None:
-            raise NotFound(f"unknown domain {domain_id!r}", field="domain_id")
-        self.purge_retired(folder)
-
     def retire_domain(self, domain_id: str) -> Path | None:
-        """Move the domain's files into a folder of their own (it disappears at once, as by
-        ``delete_domain``); returns the folder, for ``restore_domain`` or ``purge_retired``,
-        or None if the domain is not stored."""
+        """Move the domain's files into a folder of their own (it disappears at once;
+        processes that already opened or cached it keep working on their copy); returns the
+        folder, for ``restore_domain`` or ``purge_retired``, or None if the domain is not
+        stored."""
         self.check_id(domain_id)
         with self._lock:
             self._infos.pop(domain_id, None)

@@ -369,6 +369,18 @@ class TriangularFactor:
         return x.reshape(b.shape)
 
 
+def eigsh(matrix, k: int, **kwargs):
+    """:func:`scipy.sparse.linalg.eigsh` started from a fixed vector (``v0``, unless given).
+
+    Without ``v0``, scipy (1.15 and later) starts ARPACK from a fresh, unseeded random vector:
+    the same matrix then gives eigenvectors differing in their last bits from call to call,
+    and any basis of a repeated eigenvalue, so a result built on them (spectral W1 bases,
+    WKS descriptors, ZoomOut) would differ between two runs of one request."""
+    if kwargs.get("v0") is None:
+        kwargs["v0"] = np.random.default_rng(0).uniform(-1.0, 1.0, matrix.shape[0])
+    return spla.eigsh(matrix, k=k, **kwargs)
+
+
 def factorize_spd(matrix: sp.spmatrix, backend: Backend = "auto", *,
                   pardiso_effort: int = 0) -> Factorization:
     """Factor a sparse symmetric positive definite ``matrix`` for repeated solves.

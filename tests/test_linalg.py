@@ -234,3 +234,22 @@ def test_factorize_spd_passes_the_pardiso_effort():
     np.testing.assert_allclose(a @ f.solve(rhs), rhs, atol=1e-10 * np.abs(rhs).max())
     np.testing.assert_allclose(linalg.factorize_spd(a, "splu", pardiso_effort=1).solve(rhs),
                                f.solve(rhs), rtol=1e-9)
+
+
+def test_eigenpairs_are_the_same_bits_on_every_call():
+    """The spectral bases start ARPACK from a fixed vector: two fresh meshes (no shared cache)
+    give the same bits, so a request's result does not vary from run to run."""
+    import trimesh
+
+    from solvers import TriangleMesh
+    from solvers.emd.operators import EMDOperators
+    from solvers.softmaps.descriptors import eigenpairs
+
+    def fresh():
+        s = trimesh.creation.icosphere(subdivisions=2)
+        return TriangleMesh(s.vertices * [1.3, 1.0, 0.8], s.faces)
+
+    first, second = eigenpairs(fresh(), 12), eigenpairs(fresh(), 12)
+    assert all(np.array_equal(a, b) for a, b in zip(first, second, strict=True))
+    first, second = (EMDOperators(fresh()).stream_eigenbasis(8) for _ in range(2))
+    assert all(np.array_equal(a, b) for a, b in zip(first, second, strict=True))

@@ -27,6 +27,7 @@ from scipy.sparse.csgraph import shortest_path
 
 from service.errors import InvalidInput, NotFound, UnsupportedOperation
 from service.schemas import Int, NodePair  # noqa: F401 (NodePair: for the families)
+from solvers.emd.green import GREEN_MAX_VERTICES
 from solvers.validation import (
     COMPONENT_MASS_TOL,
     check_component_masses,
@@ -536,7 +537,6 @@ def check_options(view: DomainView, req) -> None:
 # (``long_job_cost``, 5e7) means about one second of work for every operation.
 COST_PER_SECOND = 5e7
 
-GREEN_MAX_VERTICES = 20_000  # the d_W^0 route caches a dense float32 Green's matrix below
 
 
 def estimate_job_bytes(view: DomainView, req) -> int:
@@ -601,16 +601,3 @@ def check_job_memory(op: Operation, view: DomainView | SubmitContext, req, limit
                               "(OTGEO_JOB_MEMORY_BYTES): use fewer points or columns",
                               field=field)
     return estimate
-
-
-def default_gamma(domain_or_view) -> float:
-    """A regularization that blurs over a few mesh edges / grid cells: (2h)^2."""
-    kind = domain_or_view.kind
-    if kind == "graph":
-        return 1.0
-    h = getattr(domain_or_view, "mean_edge_length", None)
-    if h is None and kind == "grid":
-        h = max(domain_or_view.spacing)
-    if h is None:
-        h = float(np.sqrt(1.0 / max(domain_or_view.n, 1)))  # unit area, n points
-    return float((2.0 * h) ** 2)

@@ -82,19 +82,6 @@ class SinkhornResult(SolverResult):
     decision: DistanceDecision | None = None
 
 
-
-def sinkhorn_log(logk: LogKernel, areas, m0, m1, *, tol, max_iter, monitor: Monitor,
-                 acceleration: str = "anderson", init=None):
-    r"""Log-domain Sinkhorn (Alg. 1), accelerated: :func:`sinkhorn_steps` driven by ``logk``.
-
-    Returns ``(f, g, iterations, residual, converged, omega)`` with ``f = log v``,
-    ``g = log w`` (``-inf`` where the mass is zero).
-    """
-    return run_steps(sinkhorn_steps(areas, m0, m1, tol=tol, max_iter=max_iter,
-                                    monitor=monitor, acceleration=acceleration, init=init),
-                     logk)
-
-
 def sinkhorn_steps(areas, m0, m1, *, tol, max_iter, monitor: Monitor,
                    acceleration: str = "anderson", init=None):
     r"""Log-domain Sinkhorn (Alg. 1) as a step generator (:func:`run_steps`).
@@ -148,13 +135,6 @@ def sinkhorn_steps(areas, m0, m1, *, tol, max_iter, monitor: Monitor,
 # and the residual growth, relative to the best so far, at which the history is dropped.
 ANDERSON_MEMORY = 20
 _ANDERSON_RESTART = 10.0
-
-
-def _sinkhorn_anderson(logk: LogKernel, areas, m0, l0, l1, f, *, tol, max_iter,
-                       monitor: Monitor, memory: int = ANDERSON_MEMORY):
-    """:func:`anderson_steps` driven by ``logk`` (one problem)."""
-    return run_steps(anderson_steps(areas, m0, l0, l1, f, tol=tol, max_iter=max_iter,
-                                    monitor=monitor, memory=memory), logk)
 
 
 def run_steps(steps, logk: LogKernel):
@@ -273,12 +253,6 @@ def _l1_gap(m, areas, f, lk) -> float:
     x *= areas
     x -= m
     return float(np.abs(x, out=x).sum())
-
-
-def symmetric_sinkhorn_log(logk: LogKernel, areas, m, *, tol, max_iter, monitor: Monitor):
-    """:func:`symmetric_steps` driven by ``logk``."""
-    return run_steps(symmetric_steps(areas, m, tol=tol, max_iter=max_iter, monitor=monitor),
-                     logk)
 
 
 def symmetric_steps(areas, m, *, tol, max_iter, monitor: Monitor):

@@ -93,12 +93,6 @@ class OperatorStore:
         """The entry if built, else ``default`` (never builds)."""
         return self._items.get(key, default)
 
-    def remeasure(self, key: Hashable) -> None:
-        """Measure an entry again (for entries that fill lazily after being stored)."""
-        with self._guard:
-            if key in self._items:
-                self._sizes[key] = nbytes_of(self._items[key])
-
     def discard(self, key: Hashable) -> None:
         with self._guard:
             self._items.pop(key, None)

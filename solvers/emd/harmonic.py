@@ -25,7 +25,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from solvers.linalg import factorize_spd
+from solvers.linalg import eigsh, factorize_spd
 
 
 def _face_edges(mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -63,7 +63,7 @@ def cohomology_basis(mesh) -> np.ndarray:
     shift = 1e-8 * float(hodge.diagonal().mean())
     factor = factorize_spd((hodge + shift * sp.identity(n_e)).tocsc())
     op_inv = spla.LinearOperator(hodge.shape, matvec=factor.solve, dtype=np.float64)
-    vals, vecs = spla.eigsh(hodge, k=h, sigma=-shift, OPinv=op_inv, which="LM")
+    vals, vecs = eigsh(hodge, k=h, sigma=-shift, OPinv=op_inv, which="LM")
     return vecs
 
 

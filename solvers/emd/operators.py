@@ -27,7 +27,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from solvers.errors import UnsupportedDomainError
-from solvers.linalg import factorize_spd
+from solvers.linalg import eigsh, factorize_spd
 
 
 def mesh_operators(mesh) -> EMDOperators:
@@ -74,14 +74,6 @@ class EMDOperators:
     def grad_adjoint(self, field: np.ndarray) -> np.ndarray:
         """``Gᵀ diag(A) field`` for a (F, 3) field, i.e. ``-D field`` (V,)."""
         return self.gradient_matrix.T @ (self.face_areas[:, None] * field).ravel()
-
-    def rotate(self, field: np.ndarray) -> np.ndarray:
-        """Quarter turn in each face plane, ``N × field`` (the operator R)."""
-        return np.cross(self.normals, field)
-
-    def rotate_adjoint(self, field: np.ndarray) -> np.ndarray:
-        """``Rᵀ field = -N × field``."""
-        return -np.cross(self.normals, field)
 
     def inner(self, x: np.ndarray, y: np.ndarray) -> float:
         """Area-weighted inner product of two (F, 3) fields."""
@@ -251,7 +243,7 @@ class EMDOperators:
             op_inv = spla.LinearOperator(stiff.shape, matvec=factor.solve, dtype=np.float64)
             want = max(k, 2 * (0 if eigen is None else eigen[0].shape[0]))
             want = min(want, n_c - 2)
-            vals, vecs = spla.eigsh(stiff, k=want, M=mass, sigma=0.0, OPinv=op_inv,
+            vals, vecs = eigsh(stiff, k=want, M=mass, sigma=0.0, OPinv=op_inv,
                                     which="LM")
             order = np.argsort(vals)
             self._store.discard(key)  # replaced by the larger basis

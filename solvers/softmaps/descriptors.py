@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import eigsh
 
 from solvers.errors import InputError
+from solvers.linalg import eigsh
 from solvers.validation import check_int, check_positive
 
 LANDMARK_ROUTES = ("geodesic", "heat")
