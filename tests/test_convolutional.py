@@ -258,10 +258,12 @@ def test_sharpening_lowers_entropy_to_bound(woody):
 
 
 def test_interpolation_and_propagation_agree(woody):
-    """A path 0-1-2 with fixed ends propagates the midpoint barycenter (Alg. 4 = Alg. 2)."""
+    """A path 0-1-2 with fixed ends propagates the midpoint barycenter (Alg. 4 = Alg. 2,
+    both with the thesis' heat kernel, which propagation runs)."""
     mesh, D = woody
     p, q = _bumps(mesh, D, 100, 500)
-    interp = displacement_interpolation(mesh, p, q, [0.0, 0.5, 1.0], gamma=0.01)
+    interp = displacement_interpolation(mesh, p, q, [0.0, 0.5, 1.0], gamma=0.01,
+                                        method="convolutional")
     assert interp.converged and interp.masses.shape == (mesh.n, 3)
     assert np.allclose(interp.masses.sum(0), 1.0)
     prop = wasserstein_propagation(mesh, 3, [[0, 1], [1, 2]], {0: p, 2: q}, gamma=0.01)
