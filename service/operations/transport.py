@@ -478,6 +478,13 @@ def shape_bytes(view: DomainView, req) -> int:
     return estimate_job_bytes(view, req) + kernel_bytes(view, req)
 
 
+def shape_size_field(view: DomainView, req) -> str:
+    """The field a 413 names: ``method`` where the kernel's matrices are the larger part."""
+    if kernel_bytes(view, req) > estimate_job_bytes(view, req):
+        return "method"
+    return "distributions" if hasattr(req, "distributions") else "times"
+
+
 def _barycenter_inputs(view: DomainView, req: BarycenterRequest):
     check_options(view, req)
     check_shape_method(view, req)
@@ -645,11 +652,13 @@ OPERATIONS = [
               "Wasserstein barycenter of distributions (geodesic or convolutional kernel, "
               "optional sharpening)",
               BarycenterRequest, run_barycenter, _validate_barycenter,
-              result_model=BarycenterValues, estimate_bytes=shape_bytes),
+              result_model=BarycenterValues, estimate_bytes=shape_bytes,
+              size_field=shape_size_field),
     Operation("interpolations", "createInterpolationJob",
               "Displacement interpolation between two distributions at given times",
               InterpolationRequest, run_interpolation, _validate_interpolation,
-              result_model=InterpolationValues, estimate_bytes=shape_bytes),
+              result_model=InterpolationValues, estimate_bytes=shape_bytes,
+              size_field=shape_size_field),
     Operation("propagations", "createPropagationJob",
               "Wasserstein propagation: distributions at the free nodes of a graph from the "
               "fixed ones (thesis Alg. 4)", PropagationRequest, run_propagation,
