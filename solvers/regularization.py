@@ -218,6 +218,31 @@ def choose_regularization(domain, m0=None, m1=None, *, purpose: str = "values",
                           purpose=purpose, h=h, distance=distance, reason=why)
 
 
+# Kernels of the shape solvers (barycenters, interpolations): "geodesic" is the Gibbs kernel of
+# squared heat-method geodesics, exact in the log domain (sharp at every distance);
+# "convolutional" the thesis' implicit-Euler heat kernel (Alg. 2, §3.5).
+SHAPE_METHODS = ("auto", "convolutional", "geodesic")
+
+
+def shape_method(domain, method: str = "auto") -> str:
+    """The kernel of a shape solver: ``method`` when given, else ``"geodesic"`` where the
+    domain offers it (triangle meshes up to ``GEODESIC_KERNEL_VERTICES`` vertices: the
+    implicit-Euler kernel's exponential tail smears results along the direction of travel,
+    ``bench/results/sharp_transport.md``) and ``"convolutional"`` elsewhere (on grids the
+    heat kernel already is the exact Gaussian).  A function of the domain's kind and size."""
+    if method not in SHAPE_METHODS:
+        raise InputError(f"method must be one of {', '.join(map(repr, SHAPE_METHODS))}, "
+                         f"got {method!r}", field="method")
+    available = sketch_of(domain).geodesic_kernel_available
+    if method == "geodesic" and not available:
+        raise InputError("method 'geodesic' is available on triangle meshes of at most "
+                         "GEODESIC_KERNEL_VERTICES vertices; use 'convolutional'",
+                         field="method")
+    if method == "auto":
+        return "geodesic" if available else "convolutional"
+    return method
+
+
 def shape_regularization(domain, gamma, t, substeps) -> tuple[Regularization | None, float, int]:
     """``(policy or None, gamma, substeps)`` of the shape solvers (barycenters,
     interpolations, propagation): ``gamma="auto"`` takes the ``"shapes"`` policy; an

@@ -258,10 +258,12 @@ def test_sharpening_lowers_entropy_to_bound(woody):
 
 
 def test_interpolation_and_propagation_agree(woody):
-    """A path 0-1-2 with fixed ends propagates the midpoint barycenter (Alg. 4 = Alg. 2)."""
+    """A path 0-1-2 with fixed ends propagates the midpoint barycenter (Alg. 4 = Alg. 2,
+    both with the thesis' heat kernel, which propagation runs)."""
     mesh, D = woody
     p, q = _bumps(mesh, D, 100, 500)
-    interp = displacement_interpolation(mesh, p, q, [0.0, 0.5, 1.0], gamma=0.01)
+    interp = displacement_interpolation(mesh, p, q, [0.0, 0.5, 1.0], gamma=0.01,
+                                        method="convolutional")
     assert interp.converged and interp.masses.shape == (mesh.n, 3)
     assert np.allclose(interp.masses.sum(0), 1.0)
     prop = wasserstein_propagation(mesh, 3, [[0, 1], [1, 2]], {0: p, 2: q}, gamma=0.01)
@@ -270,7 +272,7 @@ def test_interpolation_and_propagation_agree(woody):
     # Unequal edge weights pull the free node toward the heavier edge's end.
     skew = wasserstein_propagation(mesh, 3, [[0, 1], [1, 2]], {0: p, 2: q},
                                    edge_weights=[3.0, 1.0], gamma=0.01)
-    quarter = displacement_interpolation(mesh, p, q, [0.25], gamma=0.01)
+    quarter = displacement_interpolation(mesh, p, q, [0.25], gamma=0.01, method="convolutional")
     assert np.abs(skew.masses[:, 1] - quarter.masses[:, 0]).sum() < 1e-4
     # eq. 3.18: a per-edge diagonal rescaling of the kernel changes the coupling.
     phi = np.exp(-D[100] ** 2 / 0.01)

@@ -1,55 +1,74 @@
 """
-Barycenters on a surface (Fig. 3.4)
-===================================
+Displacement interpolation on a surface (Fig. 3.4)
+==================================================
 
-The Wasserstein barycenter of distributions :math:`\\mu_1, \\dots, \\mu_k` with weights
-:math:`\\alpha_i` minimizes :math:`\\sum_i \\alpha_i W_2^2(\\mu_i, \\mu)` (eq. 3.13). Unlike a
-weighted average of the densities, which is a mixture of bumps, the barycenter is *one*
-bump that travels across the surface as the weights change.
+The thesis' Fig. 3.4 interpolates between *multi-peaked* distributions on a surface by
+barycenters with weights :math:`(1 - s, s)` (eq. 3.16), with and without an entropy bound
+(Alg. 3).  Mass must split and travel: the two peaks of the first distribution become the
+three peaks of the second.
 
-:func:`solvers.convolutional.barycenter` computes it by Alg. 2 with heat kernels: all
-inputs advance together, one multi-column sparse solve per iteration. Its default
-regularization is chosen for shapes (``gamma = (2h)²`` with 8 heat substeps, ``h`` the
-mean edge length), so the result stays sharp.
+Three rows, the same inputs and regularization (``gamma = (2h)²``, ``h`` the mean edge
+length):
+
+* **the thesis' heat kernel** (``method="convolutional"``: implicit Euler with 8 substeps).
+  Its tail beyond a few substep lengths is exponential rather than Gaussian, so the cost it
+  implies grows almost linearly with distance and the frames smear along the direction of
+  travel;
+* **the geodesic kernel** (``method="geodesic"``, the default on meshes): the Gibbs kernel
+  :math:`e^{-d^2/\\gamma}` of squared heat-method geodesics, applied exactly in the log
+  domain, so every frame is a set of bumps of the inputs' size;
+* **the geodesic kernel with the entropy bound** (``sharpen=True``: no frame more diffuse
+  than the inputs), as in the thesis' second row.
+
+What to look for: in the first row the middle frames are streaks; in the second and third,
+separate peaks that move.  Where this differs from the thesis: the surface is spot (public)
+rather than the thesis' models, and the thesis ran its heat kernel only, which its figure
+shows sharper than ours because it used more substeps on a coarser mesh.
 """
 
 import matplotlib.pyplot as plt
 import numpy as np
 from _plotting import View, mesh_axes, shared_mesh
 
-from solvers.convolutional import barycenter
+from solvers.convolutional import displacement_interpolation
 
-mesh = shared_mesh("cow.obj")
+mesh = shared_mesh("spot.obj")
 
 
-def bump(vertex, radius=0.12):
+def bump(vertex, radius=0.1):
     d = np.linalg.norm(mesh.vertices - mesh.vertices[vertex], axis=1)
-    masses = mesh.areas * np.clip(1 - d / radius, 0, None)
+    return mesh.areas * np.clip(1 - d / radius, 0, None)
+
+
+def peaks(vertices):
+    masses = sum(bump(v) for v in vertices)
     return masses / masses.sum()
 
 
-# Three bumps on the cow's flank: behind the shoulder, on the thigh and on the back.
-corners = [389, 306, 2435]
-inputs = np.stack([bump(v) for v in corners], axis=1)
+# Two peaks on the flank become three on the other side of the body.
+mu0 = peaks([1497, 2492])
+mu1 = peaks([772, 1716, 935])
+times = [0.0, 0.25, 0.5, 0.75, 1.0]
+rows = [("heat kernel (thesis, Alg. 2)", {"method": "convolutional"}),
+        ("geodesic kernel (default)", {"method": "geodesic"}),
+        ("geodesic kernel, entropy bound", {"method": "geodesic", "sharpen": True})]
+results = []
+for title, options in rows:
+    res = displacement_interpolation(mesh, mu0, mu1, times, **options)
+    print(f"{title}: {res.iterations} iterations, residual {res.residual:.1e}")
+    results.append(res)
 
 # %%
-# Barycentric weights on a triangle, as in the thesis' figure: the corners reproduce the
-# inputs, the other points blend them.
-weights = [(1, 0, 0), (0.5, 0.5, 0), (0, 1, 0), (0.5, 0, 0.5), (1 / 3, 1 / 3, 1 / 3),
-           (0, 0.5, 0.5), (0, 0, 1)]
-results = [barycenter(mesh, inputs, weights=w) for w in weights]
-for w, r in zip(weights, results, strict=True):
-    print(f"weights {np.round(w, 2)}: {r.iterations} iterations, residual {r.residual:.1e}")
-
-fig, axes = plt.subplots(2, 4, figsize=(12, 5.5))
-view = View(mesh.vertices, azim=-100, elev=20)
-for ax, w, r in zip(axes.ravel(), weights, results, strict=False):
-    density = r.masses / mesh.areas
-    mesh_axes(ax, mesh, density, view=view, cmap="viridis", vmin=0,
-              vmax=np.percentile(density, 99.5),
-              title=", ".join(f"{v:.2g}" for v in w))
-mixture = inputs @ np.full(3, 1 / 3)
-mesh_axes(axes.ravel()[-1], mesh, mixture / mesh.areas, view=view, cmap="viridis", vmin=0,
-          title="mixture (not a barycenter)")
-fig.suptitle("Wasserstein barycenters of three bumps on a cow")
+# One colour scale per row, starting at 0 (densities).
+fig, axes = plt.subplots(len(rows), len(times), figsize=(13, 8))
+view = View(mesh.vertices, azim=-60, elev=25)
+for r, ((title, _), res) in enumerate(zip(rows, results, strict=True)):
+    density = res.masses / mesh.areas[:, None]
+    top = float(np.percentile(density, 99.8))
+    for c, s in enumerate(times):
+        mesh_axes(axes[r, c], mesh, density[:, c], view=view, cmap="viridis", vmin=0,
+                  vmax=top, title=f"s = {s:g}" if r == 0 else None)
+    axes[r, 0].text(-0.1, 0.5, title, transform=axes[r, 0].transAxes, rotation=90,
+                    va="center", ha="right", fontsize=9)
+fig.suptitle("Displacement interpolation between a two- and a three-peaked distribution")
 plt.show()

@@ -29,7 +29,13 @@ from service.operations.base import (
     view_of_domain,
 )
 from service.operations.examples import BUMP_A, BUMP_B, example
-from service.operations.transport import ShapeValues, SinkhornOptions, shape_kwargs
+from service.operations.transport import (
+    ShapeMethodOption,
+    ShapeMethodValues,
+    check_shape_method,
+    kernel_bytes,
+    shape_kwargs,
+)
 from solvers.convolutional import barycenters
 from solvers.convolutional.matrix import block_pairs
 from solvers.errors import InputError
@@ -45,7 +51,7 @@ PROBLEM_ARRAYS = 12
 RESULT_ARRAYS = 4
 
 
-class BarycenterBatchRequest(SinkhornOptions):
+class BarycenterBatchRequest(ShapeMethodOption):
     model_config = example({"distributions": [BUMP_A, BUMP_B],
                             "weights": [[1.0, 0.0], [0.75, 0.25], [0.5, 0.5], [0.25, 0.75]]})
     distributions: list[Distribution] = Field(min_length=1, max_length=MAX_DISTRIBUTIONS,
@@ -59,7 +65,7 @@ class BarycenterBatchRequest(SinkhornOptions):
     debiased: bool = False
 
 
-class BarycenterBatchValues(ShapeValues):
+class BarycenterBatchValues(ShapeMethodValues):
     """Values of a batched-barycenter job: ``iterations`` (sum over problems), ``residual``
     (largest) and ``converged`` (all) summarize the problems; per problem, the arrays
     ``masses``/``density`` (V x B), ``problem_iterations``, ``problem_residuals``,
@@ -91,6 +97,7 @@ def _weights(req: BarycenterBatchRequest) -> np.ndarray:
 
 def _inputs(view: DomainView, req: BarycenterBatchRequest):
     check_options(view, req)
+    check_shape_method(view, req)
     weights = _weights(req)
     mus, _, reports = resolve_weighted(view, req.distributions, None, req.input)
     return mus, weights, reports
@@ -102,11 +109,12 @@ def validate(view: DomainView, req: BarycenterBatchRequest) -> list[dict]:
 
 def _memory_parts(view: DomainView, req: BarycenterBatchRequest) -> dict[str, int]:
     """Bytes growing with the inputs (``distributions``: the inputs and the active problems'
-    (n, k) state) and with the problems (``weights``: the (n, B) results)."""
+    (n, k) state), with the problems (``weights``: the (n, B) results) and the kernel's
+    (``method``: the geodesic kernel's dense matrices)."""
     n, k, B = int(view.n), len(req.distributions), len(req.weights)
     active = min(B, block_pairs(n * k))  # as barycenters() sizes its block
     return {"distributions": 8 * n * k * (2 + PROBLEM_ARRAYS * active),
-            "weights": 8 * n * B * RESULT_ARRAYS}
+            "weights": 8 * n * B * RESULT_ARRAYS, "method": kernel_bytes(view, req)}
 
 
 def estimate_bytes(view: DomainView, req: BarycenterBatchRequest) -> int:
@@ -136,13 +144,14 @@ def run(domain, req: BarycenterBatchRequest, progress, should_cancel) -> Operati
 
     kwargs, reg = shape_kwargs(domain, req, over_problems, should_cancel)
     res = barycenters(domain, mus, weights, sharpen=req.sharpen,
-                      entropy_bound=req.entropy_bound, debiased=req.debiased, **kwargs)
+                      entropy_bound=req.entropy_bound, debiased=req.debiased,
+                      method=req.method, **kwargs)
     masses = np.asarray(res.masses, dtype=np.float64)
     values = BarycenterBatchValues(
         gamma=kwargs["gamma"], substeps=kwargs["substeps"], regularization=reg,
         normalization=reports, iterations=int(res.iterations), residual=float(res.residual),
         converged=bool(res.converged), problems=problems, weights=res.weights.tolist(),
-        entropy_bound=res.entropy_bound)
+        entropy_bound=res.entropy_bound, method=res.method)
     arrays = {"masses": masses, "density": masses / np.asarray(domain.areas)[:, None],
               "problem_iterations": np.asarray(res.problem_iterations, dtype=np.int64),
               "problem_residuals": np.asarray(res.problem_residuals, dtype=np.float64),

@@ -596,8 +596,9 @@ def check_job_memory(op: Operation, view: DomainView | SubmitContext, req, limit
         field = next((f for f in SIZE_FIELDS if getattr(req, f, None)), None)
         if op.size_field is not None:
             field = op.size_field(view, req)
+        advice = ("use method 'convolutional' (no dense kernel) or a coarser domain"
+                  if field == "method" else "use fewer points or columns")
         raise PayloadTooLarge(f"this job would need about {estimate / 2**30:.3g} GiB of "
                               f"working memory, more than the limit of {limit / 2**30:.3g} GiB "
-                              "(OTGEO_JOB_MEMORY_BYTES): use fewer points or columns",
-                              field=field)
+                              f"(OTGEO_JOB_MEMORY_BYTES): {advice}", field=field)
     return estimate

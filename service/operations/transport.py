@@ -37,12 +37,13 @@ from solvers.convolutional import (
 from solvers.convolutional.decision import DistanceDecision as SolverDecision
 from solvers.convolutional.decision import decide_distance
 from solvers.convolutional.exact import EXACT_KINDS, MAX_SUPPORT_PRODUCT
+from solvers.domains.mesh import GEODESIC_KERNEL_VERTICES, TriangleMesh
 from solvers.emd import earth_movers_distance, pointwise_distances
 from solvers.emd.beckmann import resolve_method
 from solvers.emd.green import GREEN_MAX_VERTICES
 from solvers.emd.pointwise import check_cost
 from solvers.errors import InputError
-from solvers.regularization import shape_regularization
+from solvers.regularization import shape_method, shape_regularization
 from solvers.validation import (
     GAMMA_MIN,
     check_anchored,
@@ -182,12 +183,17 @@ class ShapeValues(ConvergenceValues):
     normalization: list[dict]
 
 
-class BarycenterValues(ShapeValues):
+class ShapeMethodValues(ShapeValues):
+    method: Literal["convolutional", "geodesic"] = Field(
+        description="the kernel that ran (the request's 'method', 'auto' resolved)")
+
+
+class BarycenterValues(ShapeMethodValues):
     weights: list[float] = Field(description="the normalized barycentric weights")
     entropy: float | None = Field(None, description="entropy of the barycenter")
 
 
-class InterpolationValues(ShapeValues):
+class InterpolationValues(ShapeMethodValues):
     times: list[float] = Field(description="frame times; arrays are (V, len(times))")
 
 
@@ -212,7 +218,15 @@ class FlowValues(ConvergenceValues):
     normalization: list[dict]
 
 
-class BarycenterRequest(SinkhornOptions):
+class ShapeMethodOption(SinkhornOptions):
+    method: Literal["auto", "convolutional", "geodesic"] = Field(
+        "auto", description="kernel: auto (geodesic on triangle meshes of at most "
+        f"{GEODESIC_KERNEL_VERTICES} vertices, else convolutional), geodesic (exp(-d^2/gamma) "
+        "of heat-method geodesics, exact in the log domain: keeps shapes sharp) or "
+        "convolutional (the thesis' implicit-Euler heat kernel, Alg. 2; substeps apply)")
+
+
+class BarycenterRequest(ShapeMethodOption):
     model_config = example({"distributions": [BUMP_A, BUMP_B], "weights": [0.5, 0.5]})
     distributions: list[Distribution] = Field(min_length=1, max_length=64)
     weights: list[float] | None = Field(None, description="barycentric weights (default "
@@ -222,7 +236,7 @@ class BarycenterRequest(SinkhornOptions):
     debiased: bool = False
 
 
-class InterpolationRequest(SinkhornOptions):
+class InterpolationRequest(ShapeMethodOption):
     model_config = example({"mu0": BUMP_A, "mu1": BUMP_B, "times": [0.0, 0.5, 1.0]})
     mu0: Distribution
     mu1: Distribution
@@ -442,8 +456,38 @@ def run_distance(domain, req: DistanceRequest, progress, should_cancel,
 
 
 # -- barycenters --------------------------------------------------------------
+def check_shape_method(view: DomainView, req) -> str:
+    """The request's kernel, 'auto' resolved from the stored domain (a 4xx on 'method' where
+    the domain does not offer it)."""
+    try:
+        return shape_method(view.sketch(), req.method)
+    except InputError as exc:
+        raise InvalidInput(str(exc), field="method") from exc
+
+
+def kernel_bytes(view: DomainView, req) -> int:
+    """Memory of the request's kernel beyond the default estimate: the geodesic kernel's
+    dense matrices (none for the heat kernel's factorization, counted by the default)."""
+    if check_shape_method(view, req) != "geodesic":
+        return 0
+    return TriangleMesh.geodesic_kernel_bytes(int(view.n))
+
+
+def shape_bytes(view: DomainView, req) -> int:
+    """The default estimate plus the kernel's (:func:`kernel_bytes`)."""
+    return estimate_job_bytes(view, req) + kernel_bytes(view, req)
+
+
+def shape_size_field(view: DomainView, req) -> str:
+    """The field a 413 names: ``method`` where the kernel's matrices are the larger part."""
+    if kernel_bytes(view, req) > estimate_job_bytes(view, req):
+        return "method"
+    return "distributions" if hasattr(req, "distributions") else "times"
+
+
 def _barycenter_inputs(view: DomainView, req: BarycenterRequest):
     check_options(view, req)
+    check_shape_method(view, req)
     return resolve_weighted(view, req.distributions, req.weights, req.input)
 
 
@@ -455,9 +499,10 @@ def run_barycenter(domain, req: BarycenterRequest, progress, should_cancel) -> O
     mus, weights, reports = _barycenter_inputs(view_of_domain(domain), req)
     kwargs, reg = shape_kwargs(domain, req, progress, should_cancel)
     res = barycenter(domain, mus, weights, sharpen=req.sharpen, entropy_bound=req.entropy_bound,
-                     debiased=req.debiased, **kwargs)
+                     debiased=req.debiased, method=req.method, **kwargs)
     masses = np.asarray(res.masses, dtype=np.float64)
     values = {"gamma": kwargs["gamma"], "substeps": kwargs["substeps"], "regularization": reg,
+              "method": res.method,
               "weights": weights.tolist(), **_convergence(res),
               "entropy": getattr(res, "entropy", None), "normalization": reports}
     arrays = {"masses": masses, "density": masses / np.asarray(domain.areas)}
@@ -471,6 +516,7 @@ def _interpolation_inputs(view: DomainView, req: InterpolationRequest
     for i, t in enumerate(req.times):
         if not 0.0 <= t <= 1.0:
             raise InvalidInput(f"times[{i}] = {t} is outside [0, 1]", field=f"times[{i}]")
+    check_shape_method(view, req)
     return _pair(view, req)
 
 
@@ -483,9 +529,11 @@ def run_interpolation(domain, req: InterpolationRequest, progress, should_cancel
     masses, reports = _interpolation_inputs(view_of_domain(domain), req)
     kwargs, reg = shape_kwargs(domain, req, progress, should_cancel)
     res = displacement_interpolation(domain, masses["mu0"], masses["mu1"], list(req.times),
-                                     sharpen=req.sharpen, debiased=req.debiased, **kwargs)
+                                     sharpen=req.sharpen, debiased=req.debiased,
+                                     method=req.method, **kwargs)
     m = np.asarray(res.masses, dtype=np.float64).reshape(domain.n, -1)
     values = {"gamma": kwargs["gamma"], "substeps": kwargs["substeps"], "regularization": reg,
+              "method": res.method,
               "times": list(req.times), **_convergence(res),
               "normalization": reports}
     arrays = {"masses": m, "density": m / np.asarray(domain.areas)[:, None]}
@@ -601,13 +649,16 @@ OPERATIONS = [
               decide=decide_distance_job, estimate_bytes=distance_bytes,
               estimate_cost=distance_cost, bounded_submission=distance_submission_bounded),
     Operation("barycenters", "createBarycenterJob",
-              "Wasserstein barycenter of distributions (convolutional, optional sharpening)",
+              "Wasserstein barycenter of distributions (geodesic or convolutional kernel, "
+              "optional sharpening)",
               BarycenterRequest, run_barycenter, _validate_barycenter,
-              result_model=BarycenterValues),
+              result_model=BarycenterValues, estimate_bytes=shape_bytes,
+              size_field=shape_size_field),
     Operation("interpolations", "createInterpolationJob",
               "Displacement interpolation between two distributions at given times",
               InterpolationRequest, run_interpolation, _validate_interpolation,
-              result_model=InterpolationValues),
+              result_model=InterpolationValues, estimate_bytes=shape_bytes,
+              size_field=shape_size_field),
     Operation("propagations", "createPropagationJob",
               "Wasserstein propagation: distributions at the free nodes of a graph from the "
               "fixed ones (thesis Alg. 4)", PropagationRequest, run_propagation,

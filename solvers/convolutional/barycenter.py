@@ -38,7 +38,7 @@ from solvers.convolutional.common import (
 )
 from solvers.convolutional.distance import run_steps, watch_stagnation
 from solvers.monitor import SolverResult
-from solvers.regularization import Regularization, shape_regularization
+from solvers.regularization import Regularization, shape_method, shape_regularization
 from solvers.validation import check_entropy_bound, check_weights
 
 
@@ -61,6 +61,7 @@ class BarycenterResult(SolverResult):
     log_scalings: tuple[np.ndarray, np.ndarray] | None = None
     substeps: int = 1
     regularization: Regularization | None = None
+    method: str = "convolutional"
 
 
 def sharpen_log(lbar: np.ndarray, areas: np.ndarray, bound: float) -> np.ndarray:
@@ -216,6 +217,7 @@ def barycenter(
     tol: float = 1e-5,
     max_iter: int | None = None,
     acceleration: str = "over-relaxation",
+    method: str = "auto",
     progress: Callable[[int, float], None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
 ) -> BarycenterResult:
@@ -246,6 +248,13 @@ def barycenter(
     acceleration : ``"over-relaxation"`` (default: adaptive over-relaxation of both
         scaling updates, same fixed point, typically 3-5x fewer iterations; used
         without sharpening/debiasing) or ``"none"`` (plain Alg. 2).
+    method : the kernel (:func:`solvers.regularization.shape_method`): ``"auto"``
+        (default: ``"geodesic"`` on triangle meshes where offered, else
+        ``"convolutional"``), ``"geodesic"`` (the Gibbs kernel :math:`e^{-d^2/\gamma}` of
+        squared heat-method geodesics, applied exactly in the log domain: Alg. 2's
+        iterations with the kernel that the heat kernel approximates; sharp at every
+        distance; substeps unused) or ``"convolutional"`` (the thesis' heat kernel, Alg. 2
+        as published).  ``result.method`` says which ran.
     progress, should_cancel : called every iteration.
 
     Returns
@@ -257,8 +266,8 @@ def barycenter(
     reg, setup, options = _prepared(domain, M, gamma=gamma, t=t, substeps=substeps,
                                     entropy_bound=entropy_bound, sharpen=sharpen,
                                     debiased=debiased, tol=tol, max_iter=max_iter,
-                                    acceleration=acceleration, progress=progress,
-                                    should_cancel=should_cancel)
+                                    acceleration=acceleration, method=method,
+                                    progress=progress, should_cancel=should_cancel)
     bound = options["entropy_bounds"]
     bound = None if bound is None else float(bound[0])
     scalings: dict = {}
@@ -271,7 +280,8 @@ def barycenter(
                             converged=conv, entropy=float(entropy(masses, setup.areas)),
                             entropy_bound=bound, gamma=setup.gamma, t=setup.t,
                             log_scalings=(scalings["log_v"], scalings["log_w"]),
-                            substeps=setup.substeps, regularization=reg)
+                            substeps=setup.substeps, regularization=reg,
+                            method=setup.method)
 
 
 def _inputs(domain, mus) -> np.ndarray:
@@ -281,13 +291,14 @@ def _inputs(domain, mus) -> np.ndarray:
 
 
 def _prepared(domain, M, *, gamma, t, substeps, entropy_bound, sharpen, debiased, tol,
-              max_iter, acceleration, progress, should_cancel):
+              max_iter, acceleration, method, progress, should_cancel):
     """``(policy or None, prepared setup, options of barycenter_steps)`` of
     :func:`barycenter` / :func:`barycenters` (their shared checks and regularization)."""
     acceleration = check_acceleration(acceleration, BARYCENTER_ACCELERATIONS)
+    method = shape_method(domain, method)
     reg, gamma, substeps = shape_regularization(domain, gamma, t, substeps)
     setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
-                    progress=progress, should_cancel=should_cancel)
+                    progress=progress, should_cancel=should_cancel, method=method)
     check_components(domain, M, setup.tol, "mus")
     bound = None
     if entropy_bound is not None:
@@ -318,6 +329,7 @@ class BarycentersResult(SolverResult):
     t: float = 0.0
     substeps: int = 1
     regularization: Regularization | None = None
+    method: str = "convolutional"
 
 
 # Batched barycenters: problems per block step such that the block's kernel columns (n
@@ -347,6 +359,7 @@ def barycenters(
     tol: float = 1e-5,
     max_iter: int | None = None,
     acceleration: str = "over-relaxation",
+    method: str = "auto",
     block: int | None = None,
     progress: Callable[..., None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
@@ -368,7 +381,7 @@ def barycenters(
     mus : ``(n, k)`` input masses (columns normalized here).
     weights : ``(B, k)`` non-negative weight vectors (each normalized), e.g. a grid of
         ``alphas`` (thesis Fig. 3.4).
-    gamma, t, substeps, entropy_bound, sharpen, debiased, tol, max_iter, acceleration :
+    gamma, t, substeps, entropy_bound, sharpen, debiased, tol, max_iter, acceleration, method :
         as :func:`barycenter`.
     block : problems advanced together (default :func:`cached_problems`: their kernel
         columns fit :data:`BLOCK_CACHE_BYTES`); each problem's result does not depend on it.
@@ -399,8 +412,8 @@ def barycenters(
     reg, setup, options = _prepared(domain, M, gamma=gamma, t=t, substeps=substeps,
                                     entropy_bound=entropy_bound, sharpen=sharpen,
                                     debiased=debiased, tol=tol, max_iter=max_iter,
-                                    acceleration=acceleration, progress=None,
-                                    should_cancel=None)
+                                    acceleration=acceleration, method=method,
+                                    progress=None, should_cancel=None)
     bound = options["entropy_bounds"]
     bound = None if bound is None else float(bound[0])
     B = W.shape[0]
@@ -432,4 +445,4 @@ def barycenters(
         problem_converged=out["conv"], entropies=entropy(masses, setup.areas),
         entropy_bound=bound, gamma=setup.gamma, t=setup.t, substeps=setup.substeps,
         regularization=reg, iterations=int(out["it"].sum()), residual=float(out["res"].max()),
-        converged=bool(out["conv"].all()))
+        converged=bool(out["conv"].all()), method=setup.method)

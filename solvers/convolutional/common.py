@@ -221,6 +221,7 @@ class Setup:
     logk: LogKernel
     areas: np.ndarray
     monitor: Monitor
+    method: str = "convolutional"
 
 
 # Sinkhorn accelerations (same fixed point): Anderson mixing of the scaling map
@@ -238,9 +239,12 @@ def check_acceleration(value, allowed: tuple[str, ...]) -> str:
 
 
 def prepare(domain, *, gamma, t, substeps, tol, max_iter, progress, should_cancel,
-            default_max_iter: int = 10000, backend: Backend = "auto") -> Setup:
-    """Check ``gamma, t, substeps, tol, max_iter`` and fetch the domain's heat kernel
-    (factored by ``backend``, :func:`solvers.linalg.factorize_spd`)."""
+            default_max_iter: int = 10000, backend: Backend = "auto",
+            method: str = "convolutional") -> Setup:
+    """Check ``gamma, t, substeps, tol, max_iter`` and fetch the domain's kernel: the heat
+    kernel (factored by ``backend``, :func:`solvers.linalg.factorize_spd`), or with
+    ``method="geodesic"`` the Gibbs kernel of squared geodesics
+    (:meth:`~solvers.domains.TriangleMesh.geodesic_kernel`)."""
     extent = getattr(domain, "extent", None)
     gamma = check_positive(gamma, "gamma") if extent is None else check_gamma(gamma, extent)
     t = heat_time(gamma) if t is None else check_positive(t, "t")
@@ -258,9 +262,13 @@ def prepare(domain, *, gamma, t, substeps, tol, max_iter, progress, should_cance
         raise InputError("progress must be callable", field="progress")
     if should_cancel is not None and not callable(should_cancel):
         raise InputError("should_cancel must be callable", field="should_cancel")
-    kernel = domain.heat_kernel(t, substeps, backend)
+    if method == "geodesic":
+        kernel = domain.geodesic_kernel(t)
+    else:
+        kernel = domain.heat_kernel(t, substeps, backend)
     return Setup(gamma, t, substeps, tol, max_iter, kernel, LogKernel(kernel),
-                 np.asarray(domain.areas, dtype=np.float64), Monitor(progress, should_cancel))
+                 np.asarray(domain.areas, dtype=np.float64), Monitor(progress, should_cancel),
+                 method)
 
 
 def masses_block(domain, values, field: str, columns: int | None = None) -> np.ndarray:

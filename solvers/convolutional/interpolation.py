@@ -26,7 +26,7 @@ from solvers.convolutional.common import (
 from solvers.convolutional.distance import watch_stagnation
 from solvers.errors import InputError
 from solvers.monitor import SolverResult
-from solvers.regularization import Regularization, shape_regularization
+from solvers.regularization import Regularization, shape_method, shape_regularization
 
 
 @dataclass
@@ -39,6 +39,7 @@ class InterpolationResult(SolverResult):
     t: float = 0.0
     substeps: int = 1
     regularization: Regularization | None = None
+    method: str = "convolutional"
 
 
 def displacement_interpolation(
@@ -55,6 +56,7 @@ def displacement_interpolation(
     tol: float = 1e-5,
     max_iter: int | None = None,
     acceleration: str = "over-relaxation",
+    method: str = "auto",
     progress: Callable[[int, float], None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
 ) -> InterpolationResult:
@@ -67,8 +69,9 @@ def displacement_interpolation(
     Parameters
     ----------
     mu0, mu1 : ``(n,)`` masses; times : sequence of ``s`` in ``[0, 1]``.
-    gamma, t, substeps, tol, max_iter, acceleration, progress, should_cancel :
-        as :func:`barycenter` (``gamma="auto"``: the ``"shapes"`` policy).
+    gamma, t, substeps, tol, max_iter, acceleration, method, progress, should_cancel :
+        as :func:`barycenter` (``gamma="auto"``: the ``"shapes"`` policy; ``method="auto"``:
+        the geodesic kernel on triangle meshes where offered).
 
     Returns
     -------
@@ -86,9 +89,10 @@ def displacement_interpolation(
     if s.size == 0 or not np.all(np.isfinite(s)) or np.any((s < 0) | (s > 1)):
         raise InputError("times must be a non-empty list of numbers in [0, 1]", field="times")
     acceleration = check_acceleration(acceleration, BARYCENTER_ACCELERATIONS)
+    method = shape_method(domain, method)
     reg, gamma, substeps = shape_regularization(domain, gamma, t, substeps)
     setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
-                    progress=progress, should_cancel=should_cancel)
+                    progress=progress, should_cancel=should_cancel, method=method)
     monitor = watch_stagnation(setup, project=max_iter is None)
     check_components(domain, np.stack([m0, m1], axis=1), setup.tol, "mu1")
     T = s.size
@@ -107,4 +111,5 @@ def displacement_interpolation(
     masses = masses_from_log(lbar, setup.areas)
     return InterpolationResult(masses=masses, times=s, iterations=int(it), residual=float(res),
                                converged=conv, gamma=setup.gamma, t=setup.t,
-                               substeps=setup.substeps, regularization=reg)
+                               substeps=setup.substeps, regularization=reg,
+                               method=setup.method)

@@ -89,6 +89,21 @@ class Domain:
     def _build_heat_kernel(self, t: float, substeps: int, backend: Backend) -> HeatKernel:
         raise NotImplementedError  # pragma: no cover
 
+    @property
+    def geodesic_kernel_available(self) -> bool:
+        """Whether :meth:`geodesic_kernel` is offered (method ``"geodesic"``)."""
+        return False
+
+    @classmethod
+    def geodesic_kernel_bytes(cls, n: int) -> int:
+        """Memory of :meth:`geodesic_kernel` on ``n`` points (0 where not offered)."""
+        return 0
+
+    def geodesic_kernel(self, t: float) -> HeatKernel:
+        """The exact Gibbs kernel of squared geodesic distances (triangle meshes)."""
+        raise InputError(f"method 'geodesic' is not available on a {self.kind} domain",
+                         field="method")
+
     def ground_distances(self, src, dst, *, should_cancel=None) -> tuple[np.ndarray, bool]:
         """``(d, squared)``: the ``(len(src), len(dst))`` ground distances between the points
         ``src`` and ``dst`` (indices), the metric whose squares are the costs of the exact

@@ -14,8 +14,9 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from solvers.domains.base import Domain
-from solvers.errors import DomainError, MeshFormatError
-from solvers.kernels import ImplicitEulerHeatKernel
+from solvers.errors import DomainError, InputError, MeshFormatError
+from solvers.heat_geodesics import all_pairs_heat_distances
+from solvers.kernels import GeodesicGaussianKernel, ImplicitEulerHeatKernel, morton_order
 from solvers.linalg import Backend
 
 log = logging.getLogger("otgeo.solvers")
@@ -39,6 +40,10 @@ STORED_GEODESICS_VERTICES = 4096
 # n-vectors of one exact geodesic solve's work (MMP frontier and distances, measured ~8 on
 # a 642-vertex sphere beside the n x n matrix: tests/service/test_distance_matrices.py)
 GEODESIC_WORK_VECTORS = 16
+# Meshes up to this many vertices offer the geodesic Gaussian kernel (method "geodesic"):
+# its all-pairs distances and log-kernel blocks are two dense n x n float64 arrays (576 MB at
+# this size), and one application reads n^2 entries.
+GEODESIC_KERNEL_VERTICES = 6144
 
 
 @dataclass
@@ -651,6 +656,30 @@ class TriangleMesh(Domain):
 
     def _build_heat_kernel(self, t: float, substeps: int, backend: Backend):
         return ImplicitEulerHeatKernel(self.areas, self.laplacian, t, substeps, backend)
+
+    @property
+    def geodesic_kernel_available(self) -> bool:
+        """Whether :meth:`geodesic_kernel` fits (:data:`GEODESIC_KERNEL_VERTICES`)."""
+        return self.n <= GEODESIC_KERNEL_VERTICES
+
+    @classmethod
+    def geodesic_kernel_bytes(cls, n: int) -> int:
+        """Memory of :meth:`geodesic_kernel` on ``n`` vertices: the all-pairs distances and
+        the kernel's scaled blocks (``n x n`` float64 each), plus one transient copy."""
+        return 3 * 8 * n * n
+
+    def geodesic_kernel(self, t: float) -> GeodesicGaussianKernel:
+        """The Gibbs kernel of squared heat-method geodesics at heat time ``t``
+        (:class:`~solvers.kernels.GeodesicGaussianKernel`), kept in the operator store."""
+        if not self.geodesic_kernel_available:
+            raise InputError(f"method 'geodesic' needs at most {GEODESIC_KERNEL_VERTICES} "
+                             f"vertices (this mesh has {self.n})", field="method")
+
+        def build():
+            d = all_pairs_heat_distances(self)
+            return GeodesicGaussianKernel(self.areas, d * d, t, morton_order(self.vertices))
+
+        return self.operators.get(("geodesic_kernel", float(t)), build)
 
     def ground_distances(self, src, dst, *, should_cancel=None) -> tuple[np.ndarray, bool]:
         """Exact polyhedral geodesics (not squared): one MMP solve per point of the smaller

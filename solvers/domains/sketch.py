@@ -53,6 +53,14 @@ class DomainSketch:
     junctions: int = 0
     _memo: dict = field(default_factory=dict, repr=False)
 
+    @property
+    def geodesic_kernel_available(self) -> bool:
+        """Whether the domain offers the geodesic Gaussian kernel (method ``"geodesic"``):
+        triangle meshes up to ``GEODESIC_KERNEL_VERTICES`` vertices."""
+        from solvers.domains.mesh import GEODESIC_KERNEL_VERTICES
+
+        return self.kind == "mesh" and self.n <= GEODESIC_KERNEL_VERTICES
+
     # -- construction ---------------------------------------------------------------
     @classmethod
     def from_stored(cls, kind: str, arrays: dict[str, np.ndarray], points, component_labels,

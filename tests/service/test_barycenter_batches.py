@@ -88,17 +88,21 @@ def test_memory_refused_at_submission_naming_the_larger_part(make_client, meshes
     client = make_client(job_memory_bytes=8 * 2**20)
     mid = upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
     url = f"/v1/domains/{mid}/barycenter-batches"
-    ok = client.post(url, json={"distributions": BUMPS[:2], "weights": [[0.5, 0.5]]})
+    # the default geodesic kernel's dense matrices (3 x 8 x 694^2 bytes) exceed 8 MiB alone
+    assert_error(client.post(url, json={"distributions": BUMPS[:2], "weights": [[0.5, 0.5]]}),
+                 413, "method")
+    heat = {"method": "convolutional"}
+    ok = client.post(url, json={"distributions": BUMPS[:2], "weights": [[0.5, 0.5]], **heat})
     assert ok.status_code in (200, 202), ok.text
     # many problems over two inputs: the (V, B) results dominate
     many = [[b / 4000, 1 - b / 4000] for b in range(4000)]
-    err = assert_error(client.post(url, json={"distributions": BUMPS[:2], "weights": many}),
-                       413, "weights")
+    err = assert_error(client.post(url, json={"distributions": BUMPS[:2], "weights": many,
+                                              **heat}), 413, "weights")
     assert "GiB" in err["message"]
     # many inputs, one problem: the active problems' (V, k) state dominates
     inputs = [{"vertex": v, "radius": 0.3} for v in range(0, 640, 10)]
     err = assert_error(client.post(url, json={"distributions": inputs,
-                                              "weights": [[1.0] * 64] * 64}),
+                                              "weights": [[1.0] * 64] * 64, **heat}),
                        413, "distributions")
 
 
