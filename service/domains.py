@@ -84,7 +84,8 @@ class DomainService:
         from fastapi.concurrency import run_in_threadpool
 
         args = file_arguments(data, filename, file_type, laplacian, weld)
-        counts = mesh_file_counts(data, args[1])
+        counts = (mesh_file_counts(data, args[1]) if len(data) < 2**20 else  # an OBJ: scanned
+                  await run_in_threadpool(mesh_file_counts, data, args[1]))
         if counts is None:
             here = len(data) <= IN_PROCESS_UNKNOWN_FILE_BYTES
         else:

@@ -203,3 +203,39 @@ def test_builder_child_is_replaced_when_left_large(client, monkeypatch):
     assert client.post("/v1/domains", json=_cloud(200, seed=1)).status_code == 201
     assert not domain_builder.BUILDER.active  # retired
     assert client.post("/v1/domains", json=_cloud(200, seed=2)).status_code == 201
+
+
+def test_large_upload_is_hashed_and_sized_off_the_event_loop(client, monkeypatch):
+    """Hashing an 80 MB upload (for Idempotency-Key) and counting an OBJ's lines take tenths
+    of a second: they run in the thread pool, not on the loop that answers /healthz."""
+    import asyncio
+    import hashlib
+    import types
+
+    from service.api import domains as domains_api
+
+    on_loop = []
+
+    def running_loop() -> bool:
+        try:
+            asyncio.get_running_loop()
+            return True
+        except RuntimeError:
+            return False
+
+    def sha256(data):
+        on_loop.append(("sha256", len(data), running_loop()))
+        return hashlib.sha256(data)
+
+    def counts(data, ext):
+        on_loop.append(("counts", len(data), running_loop()))
+        return mesh_file_counts(data, ext)
+
+    monkeypatch.setattr(domains_api, "hashlib", types.SimpleNamespace(sha256=sha256))
+    monkeypatch.setattr(domains, "mesh_file_counts", counts)
+    obj = _grid_mesh(150).export(file_type="obj").encode()
+    assert len(obj) > 2**20
+    r = client.post("/v1/domains/upload", files={"file": ("grid.obj", obj)})
+    assert r.status_code == 201, r.text
+    assert [c for c in on_loop if c[1] > 2**20 and c[2]] == [], on_loop
+    assert {c[0] for c in on_loop} == {"sha256", "counts"}
