@@ -95,11 +95,14 @@ class BodyGuard:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        settings = scope["app"].state.runtime.settings
         headers = dict(scope["headers"])
+        declared = headers.get(b"content-length", b"").decode("latin-1")
+        if declared in ("", "0") and b"transfer-encoding" not in headers:
+            await self.app(scope, receive, send)  # no body to guard (GET, /healthz, ...)
+            return
+        settings = scope["app"].state.runtime.settings
         ctype = headers.get(b"content-type", b"").decode("latin-1").lower()
         limit, field, setting = body_limit(scope.get("path", ""), ctype, settings)
-        declared = headers.get(b"content-length", b"").decode("latin-1")
         if declared.isdigit() and int(declared) > limit:
             await _refuse(scope, send, PayloadTooLarge(
                 f"request body of {declared} bytes exceeds the limit of {limit} bytes "
