@@ -8,6 +8,8 @@ the answer is a 422 naming ``mu0``, whose length does not match: the body is par
 either way; beyond it a 413) while another client polls /healthz every 20 ms and the API's
 resident memory is sampled. Prints the answer, its time, the health checks' latencies (max,
 p99, p50) and the API's RSS (idle, highest sampled, ``VmHWM``). Records /proc/loadavg.
+Then sends a chunked operation body of ``--chunked-mb`` MiB (300) and a chunked colour upload
+of twice that on raw sockets, and prints when the answer came and the API's highest RSS.
 Run: ``.venv/bin/python bench/operation_body_latency.py [--floats 2000000,800000]``.
 """
 
@@ -56,9 +58,47 @@ def post_during_health(api: API, path: str, body: bytes, ctype: str) -> str:
             f"; load {loadavg()}")
 
 
+def send_chunked(api: API, path: str, ctype: str, first: bytes, megabytes: int) -> str:
+    """Send a chunked body of ``megabytes`` MiB (``first``, then JSON-like filler) on a raw
+    socket, stopping when the server answers or closes; one line: the answer's status, the
+    MiB sent, the seconds, and the API's highest sampled RSS."""
+    import select
+    import socket
+
+    rss, sent, t0 = [status_kib(api.pid, "VmRSS")], 0, time.monotonic()
+    filler = b"1," * 2**19  # 1 MiB
+    head = (f"POST {path} HTTP/1.1\r\nHost: x\r\nContent-Type: {ctype}\r\n"
+            "Transfer-Encoding: chunked\r\n\r\n").encode()
+    with socket.create_connection(("127.0.0.1", api.port), timeout=600) as sock:
+        sock.sendall(head + f"{len(first):x}\r\n".encode() + first + b"\r\n")
+        answer = b""
+        try:
+            for _ in range(megabytes):
+                if select.select([sock], [], [], 0)[0]:  # the server answered (or closed)
+                    break
+                sock.sendall(f"{len(filler):x}\r\n".encode() + filler + b"\r\n")
+                sent += len(filler)
+                rss.append(status_kib(api.pid, "VmRSS"))
+            else:
+                sock.sendall(b"0\r\n\r\n")
+        except OSError:  # closed while sending
+            pass
+        try:
+            while b"\r\n\r\n" not in answer and (chunk := sock.recv(65536)):
+                answer += chunk
+                rss.append(status_kib(api.pid, "VmRSS"))
+        except OSError:
+            pass
+    status = answer.split(b" ", 2)[1].decode() if answer.startswith(b"HTTP/1.1") else "none"
+    return (f"{status} after {sent / 2**20:.0f} MiB sent, {time.monotonic() - t0:.1f} s; API "
+            f"RSS {rss[0] / 2**20:.2f} -> max {max(rss) / 2**20:.2f} GiB; load {loadavg()}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--floats", default="2000000,800000")
+    parser.add_argument("--chunked-mb", type=int, default=300,
+                        help="size of the chunked operation body (the colour upload: twice)")
     args = parser.parse_args()
     rng = np.random.default_rng(0)
     with tempfile.TemporaryDirectory() as tmp:
@@ -74,6 +114,15 @@ def main() -> None:
                 print(f"{n} floats, body {len(body) / 1e6:.1f} MB; load before {loadavg()}")
                 print("  " + post_during_health(api, f"/v1/domains/{gid}/distances", body,
                                                 "application/json"), flush=True)
+            del body
+            print(f"chunked operation body of {args.chunked_mb} MiB: " + send_chunked(
+                api, f"/v1/domains/{gid}/distances", "application/json", b'{"mu0": [',
+                args.chunked_mb), flush=True)
+            part = (b'--b\r\nContent-Disposition: form-data; name="images"; filename="a.png"'
+                    b"\r\nContent-Type: image/png\r\n\r\n")
+            print(f"chunked colour upload of {2 * args.chunked_mb} MiB: " + send_chunked(
+                api, "/v1/color-transfers", "multipart/form-data; boundary=b", part,
+                2 * args.chunked_mb), flush=True)
         finally:
             api.stop()
 
