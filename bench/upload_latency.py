@@ -23,8 +23,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "service"
 from liveserver import API  # noqa: E402
 
 
-def health_latencies_during(url: str, work) -> list[float]:
-    """Seconds of each ``GET /healthz`` sent every 20 ms while ``work()`` runs in a thread."""
+def health_latencies_during(url: str, work, sample=None) -> list[float]:
+    """Seconds of each ``GET /healthz`` sent every 20 ms while ``work()`` runs in a thread;
+    ``sample()`` (e.g. of the API's memory) is called after each."""
     thread = threading.Thread(target=work)
     thread.start()
     lat = []
@@ -32,9 +33,17 @@ def health_latencies_during(url: str, work) -> list[float]:
         t0 = time.monotonic()
         httpx.get(url + "/healthz", timeout=60)
         lat.append(time.monotonic() - t0)
+        if sample is not None:
+            sample()
         time.sleep(0.02)
     thread.join()
     return lat
+
+
+def p99(values: list[float]) -> float:
+    """The 99th percentile (the largest value below 100 samples)."""
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(0.99 * len(ordered)))]
 
 
 def graph_body(megabytes: float) -> bytes:

@@ -1,12 +1,13 @@
-"""Peak memory of the API process during a large JSON point-cloud upload (issue 31).
+"""Memory of the API process and /healthz latency during domain uploads (issues 31, 44).
 
-Starts ``otgeo serve`` with no workers, posts a point cloud of ``--points`` random points
-(1.9 million by default: a body of about 106 MB, as in the issue) while another client
-polls /healthz every 20 ms, and prints the answer, the upload time, the /healthz latencies
-and the peak resident memory (``VmHWM``) of the API process and of its domain-builder child
-(service.domain_builder). Records /proc/loadavg before and after.
+Starts ``otgeo serve`` with no workers and sends, one scenario after another, the uploads of
+issue 44 item 13: a JSON point cloud of ``--points`` random points (100k), four concurrent
+binary PLYs of about 7.8 MB, and a 2.1M-vertex binary PLY (80 MB), while another client polls
+/healthz every 20 ms. Prints the answers, the API's resident memory (idle, highest sampled,
+after), its children's (the parser and builder processes of service.api.bodies and
+service.domain_builder) and the /healthz latencies (max, p99, p50), with /proc/loadavg.
 
-Run: ``.venv/bin/python bench/upload_memory.py [--points 1900000]``.
+Run: ``.venv/bin/python bench/upload_memory.py [--points 100000]``.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import httpx
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "service"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 from liveserver import API  # noqa: E402
 
 
@@ -54,51 +56,94 @@ def children(pid: int) -> list[int]:
         return []
 
 
+def grid_ply(side: int, seed: int) -> bytes:
+    """A binary PLY of a ``side`` x ``side`` grid of vertices (two triangles per cell)."""
+    import trimesh
+
+    y, x = np.mgrid[0:side, 0:side].astype(float)
+    z = np.random.default_rng(seed).random(side * side) * 0.1
+    idx = (np.arange(side - 1)[:, None] * side + np.arange(side - 1)[None, :]).ravel()
+    faces = np.concatenate([np.stack([idx, idx + 1, idx + side], 1),
+                            np.stack([idx + 1, idx + side + 1, idx + side], 1)])
+    mesh = trimesh.Trimesh(np.stack([x.ravel(), y.ravel(), z], 1), faces, process=False)
+    return mesh.export(file_type="ply")
+
+
+def run_uploads(api: API, uploads: list) -> None:
+    """Send ``uploads`` (``(path, kwargs)`` for httpx.post) at once while /healthz is polled
+    and the API's and its children's resident memory sampled; print the figures."""
+    from upload_latency import p99
+
+    idle, results, rss, child_rss = status_kib(api.pid, "VmRSS"), [], [], {}
+
+    def send(path, kwargs):
+        start = time.monotonic()
+        r = httpx.post(api.url + path, timeout=900, **kwargs)
+        results.append(f"{r.status_code} in {time.monotonic() - start:.1f} s "
+                       f"{r.text[:120] if r.status_code >= 400 else ''}")
+
+    threads = [threading.Thread(target=send, args=u) for u in uploads]
+    for t in threads:
+        t.start()
+    lat = []
+    while any(t.is_alive() for t in threads):
+        start = time.monotonic()
+        httpx.get(api.url + "/healthz", timeout=120)
+        lat.append(time.monotonic() - start)
+        rss.append(status_kib(api.pid, "VmRSS") or 0)
+        for c in children(api.pid):
+            child_rss[c] = max(child_rss.get(c, 0), status_kib(c, "VmRSS") or 0)
+        time.sleep(0.02)
+    for t in threads:
+        t.join()
+    time.sleep(2)  # a retired builder child exits once its queue is done
+    after = {c: status_kib(c, "VmRSS") for c in children(api.pid)}
+    print("  answers: " + "; ".join(results))
+    print(f"  API RSS: idle {idle / 2**20:.2f} GiB, highest sampled {max(rss) / 2**20:.2f} "
+          f"GiB, after {status_kib(api.pid, 'VmRSS') / 2**20:.2f} GiB")
+    print("  children: highest " + ", ".join(f"{c} {v / 2**20:.2f} GiB"
+                                             for c, v in child_rss.items())
+          + "; after " + ", ".join(f"{c} {(v or 0) / 2**20:.2f} GiB" for c, v in after.items()))
+    print(f"  {len(lat)} /healthz: max {max(lat) * 1000:.0f} ms, p99 {p99(lat) * 1000:.0f} ms, "
+          f"p50 {statistics.median(lat) * 1000:.1f} ms; load {loadavg()}", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("--points", type=int, default=1_900_000)
+    parser.add_argument("--points", type=int, default=100_000,
+                        help="points of the JSON cloud (issue 31 used 1.9 million)")
+    parser.add_argument("--ply-side", type=int, default=453,
+                        help="side of the grid of each of the four PLYs (453: 7.8 MB)")
+    parser.add_argument("--big-side", type=int, default=1450,
+                        help="side of the grid of the big PLY (1450: 2.1M vertices, 80 MB)")
+    parser.add_argument("--only", default="cloud,plies,big",
+                        help="scenarios to run, comma-separated")
     args = parser.parse_args()
     t0 = time.monotonic()
-    body = cloud_body(args.points)
-    print(f"{args.points} points, body {len(body) / 1e6:.1f} MB (built in "
-          f"{time.monotonic() - t0:.1f} s); load before {loadavg()}")
+    cloud = cloud_body(args.points)
+    plies = [grid_ply(args.ply_side, seed) for seed in range(4)]
+    big = grid_ply(args.big_side, 9)
+    print(f"bodies built in {time.monotonic() - t0:.1f} s; load before {loadavg()}")
+    json_header = {"content-type": "application/json"}
+    scenarios = [
+        ("cloud", f"JSON cloud, {args.points} points, {len(cloud) / 1e6:.1f} MB",
+         [("/v1/domains", {"content": cloud, "headers": json_header})]),
+        ("plies", f"4 concurrent PLYs of {args.ply_side ** 2} vertices, "
+         f"{len(plies[0]) / 1e6:.1f} MB",
+         [("/v1/domains/upload", {"files": {"file": (f"g{i}.ply", p)}})
+          for i, p in enumerate(plies)]),
+        ("big", f"binary PLY of {args.big_side ** 2} vertices, {len(big) / 1e6:.1f} MB",
+         [("/v1/domains/upload", {"files": {"file": ("big.ply", big)}})]),
+    ]
     with tempfile.TemporaryDirectory() as tmp:
         api = API({"OTGEO_DATA_DIR": tmp, "OTGEO_WORKERS": "0"}, Path(tmp))
         try:
             api.wait_healthy(60)
-            idle = status_kib(api.pid, "VmRSS")
-            done: dict = {}
-
-            def upload():
-                start = time.monotonic()
-                r = httpx.post(api.url + "/v1/domains", content=body, timeout=900,
-                               headers={"content-type": "application/json"})
-                done.update(status=r.status_code, seconds=time.monotonic() - start,
-                            body=r.text[:300])
-
-            thread = threading.Thread(target=upload)
-            thread.start()
-            lat, child_peak = [], {}
-            while thread.is_alive():
-                start = time.monotonic()
-                httpx.get(api.url + "/healthz", timeout=120)
-                lat.append(time.monotonic() - start)
-                for c in children(api.pid):
-                    peak = status_kib(c, "VmHWM")
-                    if peak is not None:
-                        child_peak[c] = max(child_peak.get(c, 0), peak)
-                time.sleep(0.02)
-            thread.join()
-            api_peak = status_kib(api.pid, "VmHWM")
-            print(f"upload: {done['status']} in {done['seconds']:.1f} s: {done['body']}")
-            print(f"API process: RSS idle {idle / 2**20:.2f} GiB, peak (VmHWM) "
-                  f"{api_peak / 2**20:.2f} GiB")
-            for c, peak in child_peak.items():
-                print(f"child {c}: peak (VmHWM, last seen) {peak / 2**20:.2f} GiB")
-            print(f"{len(lat)} /healthz during the upload: max {max(lat) * 1000:.0f} ms, "
-                  f"p50 {statistics.median(lat) * 1000:.1f} ms, over 1 s: "
-                  f"{sum(x > 1 for x in lat)}")
-            print(f"load after {loadavg()}")
+            for name, title, uploads in scenarios:
+                if name not in args.only.split(","):
+                    continue
+                print(title, flush=True)
+                run_uploads(api, uploads)
         finally:
             api.stop()
 

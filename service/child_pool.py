@@ -29,7 +29,8 @@ def die_with_parent() -> None:
 
 class ChildPool:
     """``get(*initargs)`` -> a live single-process executor whose child ran
-    ``initializer(*initargs)``; ``discard()`` drops it (the next ``get`` starts another)."""
+    ``initializer(*initargs)``; ``discard()`` or ``retire()`` drops it (the next ``get``
+    starts another)."""
 
     def __init__(self, initializer=die_with_parent):
         self.initializer = initializer
@@ -56,7 +57,15 @@ class ChildPool:
         return self._pool is not None
 
     def discard(self) -> None:
+        """Drop the pool, cancelling the work queued in it."""
+        self._drop(cancel=True)
+
+    def retire(self) -> None:
+        """Drop the pool once the work queued in it is done (its child then exits)."""
+        self._drop(cancel=False)
+
+    def _drop(self, cancel: bool) -> None:
         with self._lock:
             pool, self._pool = self._pool, None
         if pool is not None:
-            pool.shutdown(wait=False, cancel_futures=True)
+            pool.shutdown(wait=False, cancel_futures=cancel)

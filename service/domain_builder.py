@@ -2,11 +2,14 @@
 
 A domain's construction (k-nearest-neighbour graphs, Laplacians, component labels, a mesh
 file's parsing and welding) can take many times the upload's size: a 1.9-million-point cloud
-once raised the API process to 15 GiB. Uploads above ``IN_PROCESS_POINTS`` points (or, for
-mesh files, ``IN_PROCESS_FILE_BYTES``) are built and stored by a child process whose address
-space is capped (``RLIMIT_AS`` at :func:`builder_memory_limit`); the API only receives the
-stored domain's metadata. A build that runs out of that bound answers 413 naming the upload's
-size field. Small uploads are built in the calling thread (no process hop).
+once raised the API process to 15 GiB, a 3 MB point cloud to 1.3 GB. Every build is
+estimated first, from a JSON domain's sizes or a mesh file's declared counts
+(service.mesh_sizes); one above ``OTGEO_JOB_MEMORY_BYTES`` is refused (413), one above
+``IN_PROCESS_BUILD_BYTES`` is built and stored by a child process whose address space is
+capped (``RLIMIT_AS`` at :func:`builder_memory_limit`), and the API only receives the stored
+domain's metadata. A build that runs out of that bound answers 413 naming the upload's size
+field. Small builds run in the calling thread (no process hop). A child left holding more
+than ``RECYCLE_RSS_BYTES`` after a build is replaced, so it does not stay large.
 """
 
 from __future__ import annotations
@@ -22,8 +25,14 @@ from service.limits import WORKER_BASE_BYTES
 
 log = logging.getLogger("otgeo.service")
 
-IN_PROCESS_POINTS = 100_000  # domains up to this many points are built in the API process
-IN_PROCESS_FILE_BYTES = 8 * 2**20  # mesh files up to this size too (~150k vertices as OBJ)
+# builds estimated up to this run in the API process (a few thousand points, ~20k vertices):
+# four at once keep the API well under 600 MB (bench/upload_memory.py)
+IN_PROCESS_BUILD_BYTES = 32 * 2**20
+# a mesh file whose header tells nothing (service.mesh_sizes) is built here only when tiny
+IN_PROCESS_UNKNOWN_FILE_BYTES = 256 * 2**10
+# a builder child resident above this after a build is replaced by a fresh one (its idle
+# size with the mesh libraries loaded is about 250 MB)
+RECYCLE_RSS_BYTES = 320 * 2**20
 
 
 # Bytes a JSON domain's build needs per unit of its size (bench/domain_build_memory.py,
@@ -31,7 +40,10 @@ IN_PROCESS_FILE_BYTES = 8 * 2**20  # mesh files up to this size too (~150k verti
 # triangulations, Laplacian), a graph's per node and per edge, a mesh's per vertex and per
 # face, a grid's per cell.
 BUILD_BYTES = {"pointcloud_neighbor": 400, "graph_node": 32, "graph_edge": 32,
-               "mesh_vertex": 800, "mesh_face": 400, "grid_cell": 16}
+               "mesh_vertex": 800, "mesh_face": 400, "grid_cell": 16,
+               # a mesh file's (parse, weld, robust Laplacian): 1.70-1.72 kB per vertex
+               # measured for 90k and 360k vertices (OBJ, PLY), with two faces per vertex
+               "file_vertex": 1000, "file_face": 400}
 
 
 def estimate_build_bytes(spec) -> int:
@@ -50,10 +62,20 @@ def estimate_build_bytes(spec) -> int:
     return b["mesh_vertex"] * len(spec.vertices) + b["mesh_face"] * len(spec.faces)
 
 
+def estimate_file_build_bytes(vertices: int, faces: int) -> int:
+    """Working memory of building a mesh file of these declared counts."""
+    return BUILD_BYTES["file_vertex"] * vertices + BUILD_BYTES["file_face"] * faces
+
+
 def check_build_memory(settings, spec, field: str) -> None:
     """413 naming ``field`` (the spec's size field) when building ``spec`` would need more
     than ``OTGEO_JOB_MEMORY_BYTES``: refused at submission, before any build starts."""
-    need, limit = estimate_build_bytes(spec), int(settings.job_memory_bytes)
+    check_memory_need(settings, estimate_build_bytes(spec), field)
+
+
+def check_memory_need(settings, need: int, field: str) -> None:
+    """413 naming ``field`` when a build's estimate ``need`` exceeds the job memory bound."""
+    limit = int(settings.job_memory_bytes)
     if need > limit:
         raise PayloadTooLarge(f"building this domain would need about {need / 2**30:.3g} GiB "
                               f"of working memory, more than the limit of {limit / 2**30:.3g} "
@@ -76,6 +98,24 @@ def _init_child(limit: int) -> None:
         limit = min(limit, hard)
     if soft == resource.RLIM_INFINITY or soft > limit:
         resource.setrlimit(resource.RLIMIT_AS, (limit, hard))
+
+
+def _resident_bytes() -> int:
+    try:
+        with open("/proc/self/status") as status:
+            for line in status:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 0
+
+
+def _build_store_measure(settings, method: str, args: tuple) -> tuple[tuple, int]:
+    """In the child: ``_build_and_store``'s answer and the child's resident bytes after it
+    (the domain freed)."""
+    out = _build_and_store(settings, method, args)
+    return out, _resident_bytes()
 
 
 def _build_and_store(settings, method: str, args: tuple) -> tuple:
@@ -116,12 +156,14 @@ async def build_in_child(settings, method: str, args: tuple, field: str) -> tupl
     laplacian, weld, source)."""
     limit = builder_memory_limit(settings)
     try:
-        out = await asyncio.wrap_future(
-            BUILDER.get(limit).submit(_build_and_store, settings, method, args))
+        out, resident = await asyncio.wrap_future(
+            BUILDER.get(limit).submit(_build_store_measure, settings, method, args))
     except BrokenProcessPool as exc:  # killed by the bound (an allocation that aborted)
         log.warning("domain builder process died (%s)", exc)
         BUILDER.discard()
         raise _too_large(settings, field) from exc
+    if resident > RECYCLE_RSS_BYTES:  # a fresh child for the next build; queued ones finish
+        BUILDER.retire()
     if out[0] == "memory":
         BUILDER.discard()  # a fresh child: the failed build's fragments go with the old one
         raise _too_large(settings, field)

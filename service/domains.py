@@ -14,12 +14,16 @@ import os
 import numpy as np
 
 from service.domain_builder import (
-    IN_PROCESS_FILE_BYTES,
-    IN_PROCESS_POINTS,
+    IN_PROCESS_BUILD_BYTES,
+    IN_PROCESS_UNKNOWN_FILE_BYTES,
     build_in_child,
     check_build_memory,
+    check_memory_need,
+    estimate_build_bytes,
+    estimate_file_build_bytes,
 )
 from service.errors import InvalidInput, NotFound, PayloadTooLarge
+from service.mesh_sizes import mesh_file_counts
 from service.runtime import Runtime
 from service.schemas import GraphSpec, GridSpec, MeshSpec, PointCloudSpec
 from service.tenants import ANONYMOUS, QuotaExceeded, Tenant, check_bytes_quota
@@ -74,25 +78,39 @@ class DomainService:
     async def create_from_file(self, data: bytes, filename: str | None, file_type: str | None,
                                laplacian: str = "robust", weld: bool | str | None = None
                                ) -> tuple[dict, bool]:
-        """As :meth:`from_file`; a large file is built in the bounded builder process."""
+        """As :meth:`from_file`, sized first from the file's declared counts: 413 beyond
+        ``max_vertices`` or the job memory bound, and a build estimated above
+        ``IN_PROCESS_BUILD_BYTES`` runs in the bounded builder process."""
         from fastapi.concurrency import run_in_threadpool
 
-        if len(data) <= IN_PROCESS_FILE_BYTES:
+        args = file_arguments(data, filename, file_type, laplacian, weld)
+        counts = (mesh_file_counts(data, args[1]) if len(data) < 2**20 else  # an OBJ: scanned
+                  await run_in_threadpool(mesh_file_counts, data, args[1]))
+        if counts is None:
+            here = len(data) <= IN_PROCESS_UNKNOWN_FILE_BYTES
+        else:
+            vertices, faces = counts
+            if vertices > self.settings.max_vertices:
+                raise PayloadTooLarge(f"the file declares {vertices} vertices, more than the "
+                                      f"limit of {self.settings.max_vertices}", field="file")
+            need = estimate_file_build_bytes(vertices, faces)
+            check_memory_need(self.settings, need, "file")
+            here = need <= IN_PROCESS_BUILD_BYTES
+        if here:
             return await run_in_threadpool(self.from_file, data, filename, file_type,
                                            laplacian, weld)
-        args = file_arguments(data, filename, file_type, laplacian, weld)
         meta, created = await build_in_child(self.settings, "file", args, "file")
         return self._stored(meta, created, args[-1])
 
     async def create_from_spec(self, spec) -> tuple[dict, bool]:
-        """As :meth:`from_spec`; a domain of more than ``IN_PROCESS_POINTS`` points is built
-        in the bounded builder process."""
+        """As :meth:`from_spec`; a domain whose build is estimated above
+        ``IN_PROCESS_BUILD_BYTES`` is built in the bounded builder process."""
         from fastapi.concurrency import run_in_threadpool
 
         field, n = spec_size(spec)
         self._check_points(n, field)
         check_build_memory(self.settings, spec, field)  # 413 before any build
-        if n <= IN_PROCESS_POINTS:
+        if estimate_build_bytes(spec) <= IN_PROCESS_BUILD_BYTES:
             return await run_in_threadpool(self.from_spec, spec)
         source = {"format": "json"}
         meta, created = await build_in_child(self.settings, "spec", (spec, source), field)

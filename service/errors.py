@@ -75,6 +75,11 @@ class PayloadTooLarge(ApiError):
     code = "payload_too_large"
 
 
+class RequestTimeout(ApiError):
+    status_code = 408
+    code = "request_timeout"
+
+
 class Conflict(ApiError):
     status_code = 409
     code = "conflict"
@@ -194,28 +199,6 @@ def responses(*codes: int) -> dict:
     return {c: ERROR_RESPONSES.get(c, {"model": ErrorResponse}) for c in codes}
 
 
-class _BodyLimit:
-    """413 for a declared body over the upload limit (plain ASGI middleware: no extra task
-    and body streaming per request, unlike ``@app.middleware("http")``)."""
-
-    def __init__(self, app):
-        self.app = app
-
-    async def __call__(self, scope, receive, send):
-        if scope["type"] == "http":
-            headers = dict(scope["headers"])
-            declared = headers.get(b"content-length", b"").decode("latin-1")
-            limit = scope["app"].state.runtime.settings.max_upload_bytes
-            if declared.isdigit() and int(declared) > limit:
-                ctype = headers.get(b"content-type", b"").decode("latin-1")
-                err = PayloadTooLarge(f"request body of {declared} bytes exceeds the limit of "
-                                      f"{limit}",
-                                      field="file" if ctype.startswith("multipart/") else "body")
-                await JSONResponse(err.body(), status_code=413)(scope, receive, send)
-                return
-        await self.app(scope, receive, send)
-
-
 HTTP_METHODS = ("get", "put", "post", "delete", "options", "head", "patch", "trace")
 
 
@@ -282,8 +265,6 @@ def install_handlers(app: FastAPI) -> None:
         log.warning("job table unavailable: %s", exc)
         err = ServiceUnavailable("the job database is unavailable; retry shortly")
         return JSONResponse(err.body(), status_code=503, headers={"Retry-After": "2"})
-
-    app.add_middleware(_BodyLimit)
 
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception):

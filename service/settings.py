@@ -45,7 +45,17 @@ class Settings(BaseSettings):
     database_url: str | None = Field(
         None, description="SQLAlchemy URL of the job table; default sqlite in data_dir "
         "(use postgresql://... when scaled out)")
-    max_upload_bytes: int = Field(200 * 2**20, gt=0)
+    max_upload_bytes: int = Field(200 * 2**20, gt=0, description="largest request body of "
+                                  "an upload: a domain (JSON or mesh file) or a color "
+                                  "transfer's images (413 beyond)")
+    max_json_body_bytes: int = Field(
+        16 * 2**20, gt=0, description="largest JSON body of an operation (413 beyond, counted "
+        "as the body arrives): its parse and validation in the API process take many times "
+        "its size (bench/results/operation_body_latency.md); send large distributions as "
+        "sparse or bump distributions")
+    body_read_timeout: float = Field(
+        15.0, gt=0, description="seconds the server waits for the next part of a request "
+        "body before answering 408 and closing the connection")
     max_vertices: int = Field(2_000_000, gt=0, description="largest domain (points) accepted")
     cache_bytes: int = Field(2 * 2**30, ge=0, description="per-process operator cache bound")
     job_memory_bytes: int = Field(4 * 2**30, gt=0, description="largest working memory a job "

@@ -177,3 +177,104 @@ def test_healthz_answers_during_a_big_json_upload(client):
     # 7-9 s, bench/results/upload_latency.md); allow scheduling noise on a loaded machine
     slowest = max(latencies)
     assert slowest < max(1.5, done["seconds"] / 3), (slowest, done["seconds"], latencies)
+
+
+# -- body size and pace (issue 44, items 11-12) ---------------------------------------------
+def test_operation_body_over_the_json_limit_is_413_naming_the_limit(make_client):
+    """Operation bodies have their own limit (OTGEO_MAX_JSON_BODY_BYTES), far below the
+    upload limit: a declared body beyond it is refused before it is read or parsed."""
+    client = make_client(max_json_body_bytes=4096)
+    gid = client.post("/v1/domains", json={"kind": "grid", "shape": [30, 30]}).json()["id"]
+    small = client.post(f"/v1/domains/{gid}/distances?wait=30",
+                        json={"mu0": {"vertex": 0, "radius": 0.2},
+                              "mu1": {"vertex": 899, "radius": 0.2}})
+    assert small.status_code == 200, small.text
+    big = {"mu0": [1.0] * 900, "mu1": [1.0] * 900}
+    err = assert_error(client.post(f"/v1/domains/{gid}/distances", json=big), 413, "body",
+                       "payload_too_large")
+    assert "4096" in err["message"] and "OTGEO_MAX_JSON_BODY_BYTES" in err["message"]
+    # uploads keep the upload limit
+    cloud = {"kind": "pointcloud", "points": np.random.default_rng(0).random((400, 3)).tolist()}
+    assert client.post("/v1/domains", json=cloud).status_code == 201
+
+
+def _raw_request(port: int, head: str, parts, pause: float = 0.0) -> tuple[bytes, int]:
+    """Send ``head`` then each of ``parts`` (stopping when the server closes); ``(the whole
+    answer, bytes of parts sent)``."""
+    import socket
+
+    sent = 0
+    with socket.create_connection(("127.0.0.1", port), timeout=30) as sock:
+        sock.sendall(head.encode())
+        try:
+            for part in parts:
+                sock.sendall(part)
+                sent += len(part)
+                time.sleep(pause)
+        except OSError:  # the server answered and closed the connection
+            pass
+        answer = b""
+        try:
+            while chunk := sock.recv(65536):
+                answer += chunk
+        except OSError:  # reset after the answer
+            pass
+    return answer, sent
+
+
+def _status(answer: bytes) -> int:
+    return int(answer.split(b" ", 2)[1]) if answer.startswith(b"HTTP/1.1 ") else 0
+
+
+@pytest.fixture(scope="module")
+def live_api(tmp_path_factory):
+    from liveserver import API
+
+    tmp = tmp_path_factory.mktemp("bodies")
+    api = API({"OTGEO_DATA_DIR": str(tmp), "OTGEO_WORKERS": "0",
+               "OTGEO_BODY_READ_TIMEOUT": "1", "OTGEO_MAX_JSON_BODY_BYTES": str(2**20),
+               "OTGEO_MAX_UPLOAD_BYTES": str(4 * 2**20)}, tmp)
+    try:
+        api.wait_healthy(60)
+        yield api
+    finally:
+        api.stop()
+
+
+def test_body_that_stops_coming_is_408_and_closed(live_api):
+    """A client announcing more body than it sends gets 408 after OTGEO_BODY_READ_TIMEOUT
+    (here 1 s) and its connection is closed, on JSON and multipart routes alike."""
+    for path, ctype in (("/v1/domains/x/distances", "application/json"),
+                        ("/v1/domains/upload", "multipart/form-data; boundary=b"),
+                        ("/v1/color-transfers", "multipart/form-data; boundary=b")):
+        t0 = time.monotonic()
+        head = (f"POST {path} HTTP/1.1\r\nHost: x\r\nContent-Type: {ctype}\r\n"
+                "Content-Length: 100000\r\n\r\n")
+        answer, _ = _raw_request(live_api.port, head, [b"--b\r\n"])
+        seconds = time.monotonic() - t0
+        assert _status(answer) == 408, (path, answer[:300])
+        assert b'"request_timeout"' in answer and b"OTGEO_BODY_READ_TIMEOUT" in answer
+        assert seconds < 10, (path, seconds)  # answered and closed (recv saw the end)
+
+
+def test_chunked_bodies_are_counted_against_the_limit_as_they_arrive(live_api):
+    """A chunked body (no Content-Length) is refused once it passes its route's limit, not
+    after it has been read in full: here 1 MiB for an operation body, 4 MiB for an upload."""
+    def framed(data: bytes) -> bytes:
+        return f"{len(data):x}\r\n".encode() + data + b"\r\n"
+
+    part = (b'--b\r\nContent-Disposition: form-data; name="images"; filename="a.png"\r\n'
+            b"Content-Type: image/png\r\n\r\n")
+    for path, ctype, field, first in (
+            ("/v1/domains/x/distances", "application/json", b'"body"', b"["),
+            ("/v1/domains/upload", "multipart/form-data; boundary=b", b'"file"',
+             part.replace(b"images", b"file").replace(b"a.png", b"a.ply")),
+            ("/v1/color-transfers", "multipart/form-data; boundary=b", b'"images"', part)):
+        head = (f"POST {path} HTTP/1.1\r\nHost: x\r\nContent-Type: {ctype}\r\n"
+                "Transfer-Encoding: chunked\r\n\r\n")
+        # 64 MiB offered; the answer must come long before
+        parts = [framed(first)] + [framed(b"1," * 32768)] * 1024
+        answer, sent = _raw_request(live_api.port, head, parts, pause=0.002)
+        assert _status(answer) == 413, (path, answer[:300])
+        assert field in answer and b"exceeds the limit" in answer, answer
+        assert sent < 32 * 2**20, (path, sent)
