@@ -2,6 +2,8 @@
 VENV ?= .venv
 PYTHON ?= python3
 PY := $(VENV)/bin/python
+# pytest-xdist processes for make test (auto: one per core)
+TEST_WORKERS ?= auto
 
 .PHONY: install browser serve test lint openapi bench docs
 
@@ -23,9 +25,11 @@ browser:
 serve: install
 	$(VENV)/bin/otgeo serve
 
+# Tests in parallel: a module whose tests share a module-scoped fixture (a live server, a
+# browser, a compose stack) runs on one worker (tests/conftest.py groups it).
 test: install browser
 	$(VENV)/bin/ruff check .
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup
 
 lint: install
 	$(VENV)/bin/ruff check .

@@ -5,6 +5,7 @@ Helpers live in ``tests/shared_meshes.py``; import them from there, not from ``c
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -30,3 +31,34 @@ def shared_mesh(meshes_dir):
 def flip_geodesics():
     """``flip_geodesics(mesh, sources, targets)`` -> exact-in-practice geodesic lengths."""
     return polyhedral_geodesic_distances
+
+
+# BLAS/OpenMP pools (service.cli.BLAS_ENV): one thread per pytest-xdist worker
+BLAS_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+                    "BLIS_NUM_THREADS", "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
+
+
+def pytest_configure(config):
+    """With ``-n N``, each worker gets one BLAS thread unless the caller set a number: N
+    workers of one thread per core, rather than N x cores threads spinning on the cores. Set
+    in the controller, before it starts the workers (numpy reads it when it loads)."""
+    if getattr(config.option, "numprocesses", None) and "PYTEST_XDIST_WORKER" not in os.environ:
+        for name in BLAS_THREAD_VARS:
+            os.environ.setdefault(name, "1")
+
+
+# Scopes whose fixtures (a live server, a browser, a compose stack, a solved problem) are set
+# up once per module: under pytest-xdist, the tests that use one stay on one worker.
+SHARED_SCOPES = ("module", "class", "package")
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist's own hook reads the groups
+def pytest_collection_modifyitems(config, items):
+    """Group each module's tests that use a module-scoped fixture (``make test`` runs
+    ``pytest -n auto --dist loadgroup``); other tests are spread one by one."""
+    for item in items:
+        fixtures = getattr(item, "_fixtureinfo", None)
+        defs = fixtures.name2fixturedefs if fixtures is not None else {}
+        if any(defs[name][-1].scope in SHARED_SCOPES for name in item.fixturenames
+               if defs.get(name)):
+            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
