@@ -25,11 +25,12 @@ browser:
 serve: install
 	$(VENV)/bin/otgeo serve
 
-# Tests in parallel: a module whose tests share a module-scoped fixture (a live server, a
-# browser, a compose stack) runs on one worker (tests/conftest.py groups it).
+# Tests in parallel, one test file per worker at a time: the module-scoped fixtures (a live
+# server, a browser, a compose stack) are set up once. (Not --dist loadgroup: pytest 9.2 drops
+# its groups, pytest-xdist issue 1386.) Each worker has one BLAS thread (tests/conftest.py).
 test: install browser
 	$(VENV)/bin/ruff check .
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 lint: install
 	$(VENV)/bin/ruff check .

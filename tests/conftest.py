@@ -45,20 +45,3 @@ def pytest_configure(config):
     if getattr(config.option, "numprocesses", None) and "PYTEST_XDIST_WORKER" not in os.environ:
         for name in BLAS_THREAD_VARS:
             os.environ.setdefault(name, "1")
-
-
-# Scopes whose fixtures (a live server, a browser, a compose stack, a solved problem) are set
-# up once per module: under pytest-xdist, the tests that use one stay on one worker.
-SHARED_SCOPES = ("module", "class", "package")
-
-
-@pytest.hookimpl(tryfirst=True)  # before xdist's own hook reads the groups
-def pytest_collection_modifyitems(config, items):
-    """Group each module's tests that use a module-scoped fixture (``make test`` runs
-    ``pytest -n auto --dist loadgroup``); other tests are spread one by one."""
-    for item in items:
-        fixtures = getattr(item, "_fixtureinfo", None)
-        defs = fixtures.name2fixturedefs if fixtures is not None else {}
-        if any(defs[name][-1].scope in SHARED_SCOPES for name in item.fixturenames
-               if defs.get(name)):
-            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
