@@ -27,10 +27,11 @@ serve: install
 
 # Tests in parallel, one test file per worker at a time: the module-scoped fixtures (a live
 # server, a browser, a compose stack) are set up once. (Not --dist loadgroup: pytest 9.2 drops
-# its groups, pytest-xdist issue 1386.) Each worker has one BLAS thread (tests/conftest.py).
+# its groups, pytest-xdist issue 1386.) Files go in collection order, the longest first, and
+# each worker has one BLAS thread (tests/conftest.py).
 test: install browser
 	$(VENV)/bin/ruff check .
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 lint: install
 	$(VENV)/bin/ruff check .

@@ -54,3 +54,13 @@ def test_make_test_runs_each_file_on_one_worker_with_one_blas_thread(tmp_path):
         seen = {(tmp_path / f"{name}-{i}.txt").read_text() for i in range(4)}
         assert len(seen) == 1, seen  # one worker ran the whole file
         assert seen.pop().endswith(" 1")  # BLAS pools of one thread
+
+
+def test_longest_files_named_for_the_order_exist():
+    import ast
+
+    tree = ast.parse((TESTS / "conftest.py").read_text())
+    names = next(ast.literal_eval(node.value) for node in ast.walk(tree)
+                 if isinstance(node, ast.Assign) and getattr(node.targets[0], "id", "") ==
+                 "LONGEST_FILES")
+    assert names and all((TESTS / name).is_file() for name in names), names
