@@ -2,13 +2,15 @@
 VENV ?= .venv
 PYTHON ?= python3
 PY := $(VENV)/bin/python
+# pytest-xdist processes for make test (auto: one per core)
+TEST_WORKERS ?= auto
 
 .PHONY: install browser serve test lint openapi bench docs
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[dev,docs]'
+	$(PY) -m pip install -q -e '.[service,dev,docs]'
 	touch $@
 
 install: $(VENV)/.installed
@@ -23,9 +25,13 @@ browser:
 serve: install
 	$(VENV)/bin/otgeo serve
 
+# Tests in parallel, one test file per worker at a time: the module-scoped fixtures (a live
+# server, a browser, a compose stack) are set up once. (Not --dist loadgroup: pytest 9.2 drops
+# its groups, pytest-xdist issue 1386.) Files go in collection order, the longest first, and
+# each worker has one BLAS thread (tests/conftest.py).
 test: install browser
 	$(VENV)/bin/ruff check .
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 lint: install
 	$(VENV)/bin/ruff check .

@@ -21,6 +21,10 @@ from pathlib import Path
 BLAS_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
             "BLIS_NUM_THREADS", "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
 DEFAULT_OPENAPI = Path("openapi") / "openapi.json"
+# top-level modules of the `service` extra (pyproject.toml), absent from a library-only install
+SERVICE_PACKAGES = frozenset({"fastapi", "fastapi_offline", "starlette", "uvicorn", "uvloop",
+                              "httptools", "multipart", "python_multipart", "pydantic",
+                              "pydantic_settings", "huey", "sqlalchemy", "redis", "psycopg2"})
 
 
 def limit_blas_threads(threads: int, env: dict | None = None) -> dict:
@@ -329,8 +333,16 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO,
                         format="%(asctime)s %(process)d %(name)s %(levelname)s %(message)s")
-    {"serve": cmd_serve, "worker": cmd_worker, "openapi": cmd_openapi,
-     "routes": cmd_routes, "hash-key": cmd_hash_key}[args.command](args)
+    command = {"serve": cmd_serve, "worker": cmd_worker, "openapi": cmd_openapi,
+               "routes": cmd_routes, "hash-key": cmd_hash_key}[args.command]
+    try:
+        command(args)
+    except ModuleNotFoundError as exc:
+        # the library installs alone (`pip install otgeo`); the service is an extra
+        if (exc.name or "").split(".")[0] not in SERVICE_PACKAGES:
+            raise
+        parser.exit(2, f"otgeo {args.command}: the service's packages are not installed "
+                       f"(no module {exc.name!r}): pip install 'otgeo[service]'\n")
 
 
 if __name__ == "__main__":

@@ -1,25 +1,72 @@
-"""pyproject.toml installs without setuptools' deprecation warnings: ``project.license`` is
-an SPDX expression (a TOML table makes ``pip install -e .`` warn "`project.license` as a TOML
-table is deprecated", once per build step), and the build requires a setuptools that reads
-it (77.0, PEP 639)."""
+"""The library installs without the service (issue 44, item 9): ``pip install otgeo`` is the
+library; ``otgeo[service]`` adds the web stack. The built wheel itself is checked in a fresh
+virtualenv outside the checkout by ``.ci/check_wheel.py`` (a step of .ci/run)."""
 
 from __future__ import annotations
 
+import re
+import subprocess
+import sys
 import tomllib
+from importlib.metadata import packages_distributions
+from pathlib import Path
 
-from doc_examples import ROOT
-from packaging.requirements import Requirement
-from packaging.version import Version
+from service.cli import SERVICE_PACKAGES
 
-SPDX_SETUPTOOLS = Version("77.0")
+ROOT = Path(__file__).resolve().parents[1]
+PROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
 
 
-def test_license_is_an_spdx_string_and_the_build_reads_it():
-    project = tomllib.loads((ROOT / "pyproject.toml").read_text())
-    assert project["project"]["license"] == "MIT"
-    setuptools = [Requirement(r) for r in project["build-system"]["requires"]
-                  if Requirement(r).name == "setuptools"]
-    assert len(setuptools) == 1, project["build-system"]
-    spec = setuptools[0].specifier
-    assert spec, "setuptools needs a lower bound"
-    assert not spec.contains(Version("76.9")) and spec.contains(SPDX_SETUPTOOLS), spec
+def _distribution(requirement: str) -> str:
+    name = re.match(r"[A-Za-z0-9._-]+", requirement).group(0)
+    return re.sub(r"[-_.]+", "-", name).lower()
+
+
+def _modules_of(requirements: list[str]) -> dict[str, set[str]]:
+    """Top-level modules each required distribution installs (in this environment)."""
+    installed: dict[str, set[str]] = {}
+    for module, dists in packages_distributions().items():
+        for dist in dists:
+            installed.setdefault(_distribution(dist), set()).add(module)
+    return {_distribution(r): installed.get(_distribution(r), set()) for r in requirements}
+
+
+def test_service_packages_are_an_extra_not_core_dependencies():
+    service = _modules_of(PROJECT["optional-dependencies"]["service"])
+    assert all(service.values()), f"service extra not installed here: {service}"
+    unnamed = {d: m - SERVICE_PACKAGES for d, m in service.items() if m - SERVICE_PACKAGES}
+    assert not unnamed, f"service.cli.SERVICE_PACKAGES misses {unnamed}"
+    core = _modules_of(PROJECT["dependencies"])
+    in_core = {d: m & SERVICE_PACKAGES for d, m in core.items() if m & SERVICE_PACKAGES}
+    assert not in_core, f"service packages among the core dependencies: {in_core}"
+
+
+# Every module under solvers/ imported with the service's packages made unimportable
+IMPORT_ALL_SOLVERS = """
+import importlib, pkgutil, sys
+for name in {blocked!r}:
+    sys.modules[name] = None  # `import name` now raises ModuleNotFoundError
+import solvers
+names = [m.name for m in pkgutil.walk_packages(solvers.__path__, "solvers.")]
+for name in names:
+    importlib.import_module(name)
+print(len(names))
+"""
+
+
+def test_every_solvers_module_imports_without_the_service_packages():
+    code = IMPORT_ALL_SOLVERS.format(blocked=sorted(SERVICE_PACKAGES))
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          cwd=ROOT, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert int(done.stdout) > 20  # the walk found the library's modules
+
+
+def test_otgeo_serve_without_the_service_extra_says_what_to_install():
+    code = (f"import sys\nfor m in {sorted(SERVICE_PACKAGES)!r}: sys.modules[m] = None\n"
+            "from service.cli import main\nmain(['serve', '--port', '1'])\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          cwd=ROOT, timeout=120)
+    assert done.returncode == 2, done.stderr[-3000:]
+    assert "pip install 'otgeo[service]'" in done.stderr
+    assert "Traceback" not in done.stderr

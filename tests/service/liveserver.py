@@ -88,14 +88,31 @@ class Process:
 class API(Process):
     def __init__(self, env: dict[str, str], log_dir: Path, name: str = "api",
                  port: int | None = None):
+        self._start = (env, log_dir, name)
+        self._fixed_port = port is not None
         self.port = port or free_port()
         self.url = f"http://127.0.0.1:{self.port}"
+        log = Path(log_dir) / f"{name}.log"
+        self._log_start = log.stat().st_size if log.exists() else 0
         super().__init__(name, otgeo_command() + ["serve", "--host", "127.0.0.1",
                                                   "--port", str(self.port)], env, log_dir)
+
+    def _lost_its_port(self) -> bool:
+        """Another process (a parallel test worker) bound the free port first."""
+        if self._fixed_port:
+            return False
+        if not self._log.closed:
+            self._log.flush()
+        with open(self.log_path, "rb") as fh:
+            fh.seek(self._log_start)
+            return b"address already in use" in fh.read()
 
     def wait_healthy(self, timeout: float = 30.0) -> None:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
+            if not self.alive() and self._lost_its_port():
+                self.stop()
+                API.__init__(self, *self._start)  # again, on another free port
             if not self.alive():
                 raise RuntimeError(f"{self.name} exited:\n{self.log()}")
             try:
