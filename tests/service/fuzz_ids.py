@@ -42,6 +42,14 @@ def domain_bodies() -> dict[str, dict]:
     }
 
 
+# A quick BRDF interpolation (coarse hemisphere, loose tolerance: well within a 5 s time limit
+# on a loaded machine), the finished job with files and 2-D arrays the fuzzers read
+QUICK_BRDF = {"materials": [{"model": "blinn-phong", "exponent": 20.0},
+                            {"model": "blinn-phong", "exponent": 5.0, "ks": 0.6, "kd": 0.4}],
+              "rows": 1, "cols": 3, "incoming_theta": [30.0], "n_theta": 6, "n_phi": 16,
+              "tol": 1e-2}
+
+
 def with_mesh_ids(body, mesh_ids: list[str], salt: int = 0):
     """``body`` with every well-formed domain id of a mesh field (``source_id``,
     ``target_id``, the items of ``shapes``, in nested objects too: ``maps[i].source_id``)

@@ -34,7 +34,7 @@ from schemathesis import GenerationMode  # noqa: E402
 from schemathesis.checks import not_a_server_error  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fuzz_ids import domain_bodies, with_mesh_ids  # noqa: E402
+from fuzz_ids import QUICK_BRDF, domain_bodies, with_mesh_ids  # noqa: E402
 
 SUITE_EXAMPLES = 8  # per operation, generation mode (positive, negative) and seed
 SUITE_SEEDS = (7, 11)
@@ -67,7 +67,6 @@ class Data:
 
 
 def _data(client) -> Data:
-    from service.operations import build_registry
 
     ids = _domains(client)
     data = Data(domains=[v for k, v in ids.items() if k != "box"],
@@ -75,8 +74,7 @@ def _data(client) -> Data:
     data.sizes = {m: client.get(f"/v1/domains/{m}").json()["n"] for m in data.meshes}
     spare = client.post("/v1/domains", json={"kind": "grid", "shape": [3, 3]})
     data.spare = spare.json()["id"]
-    body = build_registry()["brdf-interpolations"].request_model.model_json_schema()
-    r = client.post("/v1/brdf-interpolations", json=body["examples"][0])
+    r = client.post("/v1/brdf-interpolations", json=QUICK_BRDF)
     assert r.status_code in (200, 201) and r.json()["state"] == "succeeded", r.text
     data.files_job = r.json()["id"]
     result = client.get(f"/v1/jobs/{data.files_job}/result").json()

@@ -38,7 +38,7 @@ import pytest
 pytest.importorskip("schemathesis")
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fuzz_ids import domain_bodies  # noqa: E402
+from fuzz_ids import QUICK_BRDF, domain_bodies  # noqa: E402
 from liveserver import API  # noqa: E402
 
 HOOKS = Path(__file__).resolve().parent / "schemathesis_hooks.py"
@@ -83,6 +83,9 @@ DOMAIN_BOUNDS = [
             r"out of range \[0, \d+\]|is not a node index in \[0, \d+\]|is outside \[0, \d+\]"),
     Allowed("one value per point of the domain", ON_DOMAINS, 422,
             r"must have length \d+ \(one value per point\)|has \d+ entries; the mesh has"),
+    Allowed("a point map with one target vertex per source vertex (soft-map analyses)",
+            r"POST /v1/soft-map-analyses", 422,
+            r"correspondence has \d+ entries; the source has \d+ vertices"),
     Allowed("a point within reach of the mesh (volumetric)", ON_DOMAINS, 422,
             r"lies more than \d+ mesh sizes away"),
     Allowed("gamma between the domain's resolution and its extent", ON_DOMAINS, 422,
@@ -144,12 +147,8 @@ def _domains(url: str, headers: dict) -> dict[str, str]:
 def _job_with_files(url: str, headers: dict) -> tuple[str, str]:
     """A finished job with files and 2-D arrays (a BRDF interpolation: PNGs, ``slices``); its
     id and a file name."""
-    from service.operations import build_registry
-
-    op = build_registry()["brdf-interpolations"]
-    example = op.request_model.model_json_schema()["examples"][0]
-    r = httpx.post(f"{url}/v1/{op.name}", json=example, params={"wait": 2}, headers=headers,
-                   timeout=60)
+    r = httpx.post(f"{url}/v1/brdf-interpolations", json=QUICK_BRDF, params={"wait": 2},
+                   headers=headers, timeout=60)
     assert r.status_code in (200, 202), r.text
     job_id = r.json()["id"]
     deadline = time.monotonic() + 60
