@@ -91,7 +91,7 @@ DOMAIN_BOUNDS = [
     Allowed("gamma between the domain's resolution and its extent", ON_DOMAINS, 422,
             r"x the squared domain extent|the smallest regularization this domain can resolve"),
     Allowed("a spectral basis size k below the domain's point count", ON_DOMAINS, 422,
-            r"\bk must be <= \d+"),
+            r"\bk must be <= \d+|\b(descriptor_)?k must be below \d+"),
     Allowed("an entropy bound above a point mass's on the domain", ON_DOMAINS, 422,
             r"the entropy of a point mass on this domain"),
     Allowed("a row index below the result array's row count",
@@ -104,6 +104,7 @@ DOMAIN_BOUNDS = [
 UNSTATABLE = [
     Allowed("lists paired item by item have equal lengths", ANY_POST, 422,
             r"differ in length|one value per bin|every row of weights needs \d+ values"
+            r"|must have one value per distribution"
             r"|weights has \d+ rows, not rows \* cols|must be a square matrix"
             r"|bounds must have shape \(\d, 2\)"),
     Allowed("indices below the request's own n_nodes / vertex / point count", ANY_POST, 422,

@@ -127,3 +127,14 @@ def test_domain_path_ids_are_one_url_segment_in_the_spec(client):
         assert [v for v in (".", "..", "", "a/b") if re.match(pattern, v)] == []
         assert all(re.match(pattern, v) for v in ("not-an-id", "...", "0" * 32))
     assert_error(client.delete("/v1/domains/not-an-id"), 404, "domain_id")
+
+
+def test_shape_interpolation_times_take_two_shapes_and_no_weights(client):
+    mesh = client.post("/v1/domains", json={"kind": "mesh", **_tetrahedron()}).json()["id"]
+    for body, field in (({"shapes": [mesh] * 3, "times": [0.5]}, "times"),
+                        ({"shapes": [mesh] * 2, "times": [0.5], "weights": [[1, 1]]},
+                         "weights")):
+        assert not valid("shape-interpolations", body)
+        assert_error(client.post("/v1/shape-interpolations", json=body), 422, field)
+    assert valid("shape-interpolations", {"shapes": [mesh] * 3, "weights": [[1, 1, 1]]})
+    assert valid("shape-interpolations", {"shapes": [mesh] * 2, "times": [0.5]})
