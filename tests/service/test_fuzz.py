@@ -1,13 +1,16 @@
 """schemathesis over the app's own OpenAPI spec, in process (ASGI transport, immediate queue):
-no request the fuzzer makes, valid or not, gets a 5xx, and no job it submits fails with an
-internal error.
+no request the fuzzer makes, valid or not, gets a 5xx, no job it submits fails with an
+internal error, and every operation is reached (some positive case gets past its id lookups).
 
-Path parameters ``domain_id`` / ``job_id`` are mostly replaced by ids that exist (small
-domains of every kind uploaded first, jobs the fuzzer created), so request bodies reach the
-operations' validation and, when valid, the solvers. Bounded examples and a fixed seed
-(hypothesis ``derandomize``) keep the suite run at ~30 s; run longer outside the suite::
+Three cases in four get ids that exist (tests/service/fuzz_ids.py): small domains of every
+kind and two meshes (also in the bodies of soft maps, soft-map analyses and shape
+interpolations), a finished job with files and 2-D arrays (``/files``, ``/arrays``, ``/rows``
+with a row inside), the jobs the fuzzer created, a spare domain for DELETE; so request bodies
+reach the operations' validation and, when valid, the solvers. Bounded examples and two fixed
+seeds keep the suite run short; run longer outside the suite (it prints the status codes of
+every operation, as in bench/results/schemathesis_failures.md)::
 
-    .venv/bin/python tests/service/test_fuzz.py --examples 150   # per operation and mode
+    .venv/bin/python tests/service/test_fuzz.py --examples 150 --seed 11  # per operation, mode
 """
 
 from __future__ import annotations
