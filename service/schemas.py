@@ -35,6 +35,13 @@ Int = Annotated[int, BeforeValidator(_integral)]
 Index = Annotated[Int, Field(ge=0, le=2**63 - 1)]  # within int64
 NodePair = Annotated[list[Index],
                      Field(min_length=2, max_length=2, json_schema_extra={"uniqueItems": True})]
+# A stored domain's id (service.store): the content hash, lowercase hex
+DOMAIN_ID_PATTERN = r"^[0-9a-f]{16,64}$"
+DomainId = Annotated[str, Field(pattern=DOMAIN_ID_PATTERN)]
+# An id in a URL path: one non-empty segment, neither "." nor ".." (a client's URL
+# normalization removes those and so reaches another route); well-formed or not, an
+# unknown id is a 404
+PATH_SEGMENT = r"^([^/.][^/]*|\.[^/.][^/]*|\.\.[^/]+)$"
 # A point in 3-D, a triangle's vertex indices
 Point = Annotated[list[float], Field(min_length=3, max_length=3)]
 Triangle = Annotated[list[Index],

@@ -35,9 +35,10 @@ import numpy as np
 
 from service.errors import NotFound
 from service.export import to_jsonable as jsonable
+from service.schemas import DOMAIN_ID_PATTERN
 from solvers.domains import Domain, domain_from_arrays
 
-_ID = re.compile(r"^[0-9a-f]{16,64}$")
+_ID = re.compile(DOMAIN_ID_PATTERN)
 _FILE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
 IN_ROW = "row"  # result_location of a result kept in the job row (column ``result``)
 ROW_RESULT_BYTES = 16 * 1024  # largest result JSON kept in the row

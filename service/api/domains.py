@@ -6,13 +6,13 @@ import asyncio
 import hashlib
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, Query, Request, Response
+from fastapi import APIRouter, Path, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from pydantic import TypeAdapter
 
 from service.api.bodies import parse_spec
 from service.api.deps import DomainSvc, IdempotencyKeyDep, get_runtime
-from service.api.paging import decode_cursor, encode_cursor
+from service.api.paging import Cursor, decode_cursor, encode_cursor
 from service.errors import (
     ApiError,
     ErrorResponse,
@@ -22,7 +22,7 @@ from service.errors import (
     responses,
 )
 from service.idempotency import REPLAYED, for_request
-from service.schemas import DomainList, DomainOut, DomainSpec
+from service.schemas import PATH_SEGMENT, DomainList, DomainOut, DomainSpec
 from solvers.domains.mesh import MESH_FORMATS
 
 router = APIRouter(prefix="/v1/domains", tags=["domains"])
@@ -186,8 +186,7 @@ async def upload_domain(request: Request, response: Response, svc: DomainSvc,
             responses=responses(401, 422))
 def list_domains(svc: DomainSvc,
                  limit: Annotated[int, Query(ge=1, le=1000, description="page size")] = 100,
-                 cursor: Annotated[str | None, Query(
-                     description="`next_cursor` of the previous page")] = None,
+                 cursor: Cursor = None,
                  kind: Annotated[Literal["mesh", "grid", "graph", "pointcloud"] | None,
                                  Query(description="only domains of this kind")] = None):
     """Stored domains, oldest first, a page at a time (follow `next_cursor` until null)."""
@@ -205,14 +204,17 @@ def list_domains(svc: DomainSvc,
                       next_cursor=encode_cursor(*key(page[-1])) if more else None)
 
 
+DomainPathId = Annotated[str, Path(pattern=PATH_SEGMENT)]
+
+
 @router.get("/{domain_id}", operation_id="getDomain", response_model=DomainOut,
             responses=responses(401, 404))
-def get_domain(domain_id: str, svc: DomainSvc):
+def get_domain(domain_id: DomainPathId, svc: DomainSvc):
     return DomainOut.from_meta(svc.get(domain_id))
 
 
 @router.delete("/{domain_id}", operation_id="deleteDomain", status_code=204,
                responses=responses(401, 404))
-def delete_domain(domain_id: str, svc: DomainSvc):
+def delete_domain(domain_id: DomainPathId, svc: DomainSvc):
     svc.delete(domain_id)
     return Response(status_code=204)

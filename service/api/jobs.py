@@ -7,13 +7,13 @@ import json
 from typing import Annotated, Literal, Union
 from urllib.parse import quote
 
-from fastapi import APIRouter, Query, Request, Response
+from fastapi import APIRouter, Path, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse, StreamingResponse
 from pydantic import BaseModel, Field, create_model
 
 from service.api.deps import JobSvc
-from service.api.paging import decode_cursor, encode_cursor
+from service.api.paging import Cursor, decode_cursor, encode_cursor
 from service.errors import ErrorResponse, responses
 from service.export import NPY_MEDIA_TYPE
 from service.jobs.db import TERMINAL
@@ -34,8 +34,7 @@ def list_jobs(svc: JobSvc,
                   description="only jobs of this operation (e.g. barycenters)")] = None,
               domain_id: Annotated[str | None, Query(
                   description="only jobs on this domain")] = None,
-              cursor: Annotated[str | None, Query(
-                  description="`next_cursor` of the previous page")] = None):
+              cursor: Cursor = None):
     """Jobs, newest first, a page at a time (follow `next_cursor` until it is null)."""
     rows = svc.list(limit + 1, state, after=decode_cursor(cursor), operation=operation,
                     domain_id=domain_id)
@@ -176,7 +175,9 @@ def get_job_result_array(job_id: str, name: str, svc: JobSvc):
             response_model=ArrayRow,
             responses={409: {"model": ErrorResponse, "description": "job not finished"},
                        **responses(401, 404, 422)})
-def get_job_result_row(job_id: str, name: str, row: int, svc: JobSvc):
+def get_job_result_row(job_id: str, name: str, svc: JobSvc,
+                       row: Annotated[int, Path(ge=0, description="row index, below the "
+                                                "array's row count (else 422)")]):
     """One row of a 2-D result array (e.g. a soft map's distribution of one source vertex)."""
     return ArrayRow(name=name, row=row, values=svc.result_row(job_id, name, row))
 

@@ -1,29 +1,32 @@
-"""Cursor paging of listings (``?limit=&cursor=`` → ``next_cursor``): a cursor is the opaque,
-URL-safe encoding of the sort key ``(created_at, id)`` of the last item of a page; the next
-page starts strictly after it, so items created meanwhile never shift a page."""
+"""Cursor paging of listings (``?limit=&cursor=`` → ``next_cursor``): a cursor is a position in
+the listing's order, the sort key ``(created_at, id)`` of the last item of a page written as
+``<created_at>~<id>`` (URL-safe); the next page starts strictly after it, so items created
+meanwhile never shift a page. Every value of the cursor's pattern is a position (a page,
+maybe empty), so the spec states all there is to know: clients pass back ``next_cursor``."""
 
 from __future__ import annotations
 
-import base64
-import json
+from decimal import Decimal
+from typing import Annotated
 
-from service.errors import InvalidInput
+from fastapi import Query
+
+# created_at in plain decimal notation (an exact float), then the item's id
+# (domains: lowercase hex; jobs: letters, digits, '_' and '-')
+CURSOR_PATTERN = r"^[0-9]{1,20}(\.[0-9]{1,40})?~[0-9A-Za-z_-]{1,64}$"
+
+Cursor = Annotated[str | None, Query(pattern=CURSOR_PATTERN, max_length=128,
+                                     description="`next_cursor` of the previous page")]
 
 
 def encode_cursor(created_at: float, item_id: str) -> str:
-    raw = json.dumps([float(created_at), str(item_id)], separators=(",", ":")).encode()
-    return base64.urlsafe_b64encode(raw).decode().rstrip("=")
+    # repr round-trips the float exactly; Decimal writes it without an exponent
+    return f"{Decimal(repr(float(created_at))):f}~{item_id}"
 
 
 def decode_cursor(cursor: str | None) -> tuple[float, str] | None:
+    """The position a cursor names (the route's ``Cursor`` query checked its pattern)."""
     if not cursor:
         return None
-    try:
-        raw = base64.urlsafe_b64decode(cursor + "=" * (-len(cursor) % 4))
-        created, item_id = json.loads(raw)
-        if not isinstance(item_id, str) or not isinstance(created, (int, float)):
-            raise ValueError
-        return float(created), item_id
-    except (ValueError, TypeError):
-        raise InvalidInput("cursor is not one returned as next_cursor by this listing",
-                           field="cursor") from None
+    created, item_id = cursor.split("~", 1)
+    return float(created), item_id

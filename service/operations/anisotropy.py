@@ -29,7 +29,9 @@ from service.operations.base import (
     check_options,
     check_same_components,
     given,
+    needs,
     resolve_all,
+    rules,
     view_of_domain,
 )
 
@@ -50,7 +52,10 @@ class CurvatureWeights(BaseModel):
 class AnisotropicDistanceRequest(OperationRequest):
     model_config = ConfigDict(json_schema_extra={"examples": [
         {"mu0": {"vertex": 0, "radius": 0.1}, "mu1": {"vertex": 40, "radius": 0.1},
-         "curvature": {"strength": 2.0}}], **given("face_weights", "curvature")})
+         "curvature": {"strength": 2.0}}], **given("face_weights", "curvature"),
+        **rules(({"basis": {"const": "spectral"}}, needs("k")),
+                ({"algorithm": {"const": "ipm"}},
+                 {"properties": {"basis": {"enum": ["auto", "flow"]}}}))})
     mu0: Distribution
     mu1: Distribution
     face_weights: list[float] | list[list[list[float]]] | None = Field(

@@ -22,7 +22,7 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, ConfigDict, Field
 
 from service.errors import InvalidInput, PayloadTooLarge, UnsupportedOperation
 from service.operations.base import (
@@ -34,6 +34,8 @@ from service.operations.base import (
     OperationOutput,
     OperationRequest,
     ResultFile,
+    needs,
+    rules,
 )
 from service.operations.examples import example
 from solvers.convolutional.hemisphere import EXTENT as HEMISPHERE_EXTENT
@@ -45,8 +47,16 @@ MAX_SKELETON_NODES = 10_000
 
 
 # -- BRDF interpolation -------------------------------------------------------------------
+def reflects_light(specular: str, diffuse: str) -> ConfigDict:
+    """The request config stating, as the library checks (check_material), that a material's
+    coefficients are not all 0 (the diffuse one defaults to 0: a specular 0 needs it)."""
+    zero = {"const": 0}
+    return ConfigDict(**REQUEST_CONFIG, json_schema_extra={"not": {
+        "required": [specular], "properties": {specular: zero, diffuse: zero}}})
+
+
 class BlinnPhong(BaseModel):
-    model_config = REQUEST_CONFIG
+    model_config = reflects_light("ks", "kd")
     model: Literal["blinn-phong"]
     exponent: float = Field(50.0, ge=0, le=1e5, description="specular exponent e")
     ks: float = Field(1.0, ge=0, le=1e3, description="specular coefficient")
@@ -54,7 +64,7 @@ class BlinnPhong(BaseModel):
 
 
 class AshikhminShirley(BaseModel):
-    model_config = REQUEST_CONFIG
+    model_config = reflects_light("rs", "rd")
     model: Literal["ashikhmin-shirley"]
     nu: float = Field(100.0, ge=0, le=1e5, description="exponent along the tangent u")
     nv: float = Field(100.0, ge=0, le=1e5, description="exponent along v")
@@ -69,7 +79,8 @@ class BRDFInterpolationRequest(OperationRequest):
     model_config = example({
         "materials": [{"model": "blinn-phong", "exponent": 100.0},
                       {"model": "blinn-phong", "exponent": 5.0, "ks": 0.6, "kd": 0.4}],
-        "rows": 1, "cols": 3, "incoming_theta": [30.0]})
+        "rows": 1, "cols": 3, "incoming_theta": [30.0]},
+        **rules(({"materials": {"minItems": 3, "maxItems": 3}}, needs("weights"))))
     materials: list[Material] = Field(min_length=2, max_length=4, description="the corner "
                                       "materials; with 4, bilinear weights over the parameter "
                                       "square (corners (0,0), (0,1), (1,0), (1,1))")

@@ -68,6 +68,20 @@ def given(*groups: str | tuple[str, ...], exactly: bool = True, nonempty: bool =
     return {"oneOf" if exactly else "anyOf": [branch(g) for g in groups]}
 
 
+def rules(*pairs: tuple[dict, dict]) -> dict:
+    """JSON Schema keywords (for ``json_schema_extra``) stating conditional rules the
+    operation's validation enforces: for each ``(when, then)``, a body whose fields match
+    ``when`` (field -> schema; the fields present) must also match ``then`` (a schema)."""
+    return {"allOf": [{"if": {"required": list(when), "properties": when}, "then": then}
+                      for when, then in pairs]}
+
+
+def needs(*fields: str) -> dict:
+    """A ``then`` of :func:`rules`: ``fields`` given (present and not null)."""
+    return {"required": list(fields),
+            "properties": {name: {"not": {"type": "null"}} for name in fields}}
+
+
 class SparseDistribution(BaseModel):
     model_config = REQUEST_CONFIG
     indices: list[Int] = Field(min_length=1, description="point indices")

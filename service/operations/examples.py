@@ -15,6 +15,7 @@ BUMP_B = {"vertex": 100, "radius": 0.2}
 EXAMPLE_ID = "0123456789abcdef0123456789abcdef"
 
 
-def example(body: dict) -> ConfigDict:
-    """``model_config`` giving a request model its OpenAPI example."""
-    return ConfigDict(json_schema_extra={"examples": [body]})
+def example(body: dict, **schema) -> ConfigDict:
+    """``model_config`` giving a request model its OpenAPI example (and the JSON Schema
+    keywords ``schema``: rules between fields, see service.operations.base.rules)."""
+    return ConfigDict(json_schema_extra={"examples": [body], **schema})

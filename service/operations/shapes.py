@@ -18,8 +18,16 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from service.errors import InvalidInput, PayloadTooLarge, UnsupportedOperation
-from service.operations.base import Int, Operation, OperationOutput, OperationRequest, ResultFile
+from service.operations.base import (
+    Int,
+    Operation,
+    OperationOutput,
+    OperationRequest,
+    ResultFile,
+    rules,
+)
 from service.operations.examples import EXAMPLE_ID
+from service.schemas import DomainId
 
 MAX_SHAPES = 8
 MAX_FRAMES = 16
@@ -33,8 +41,10 @@ GRID_NODE_COST = 0.1
 
 class ShapeInterpolationRequest(OperationRequest):
     model_config = ConfigDict(json_schema_extra={"examples": [
-        {"shapes": [EXAMPLE_ID, EXAMPLE_ID], "times": [0.0, 0.5, 1.0], "resolution": 16}]})
-    shapes: list[str] = Field(min_length=2, max_length=MAX_SHAPES, description="closed mesh "
+        {"shapes": [EXAMPLE_ID, EXAMPLE_ID], "times": [0.0, 0.5, 1.0], "resolution": 16}],
+        **rules(({"times": {"not": {"type": "null"}}},  # times: two shapes, no weights
+                 {"properties": {"shapes": {"maxItems": 2}, "weights": {"type": "null"}}}))})
+    shapes: list[DomainId] = Field(min_length=2, max_length=MAX_SHAPES, description="closed mesh "
                               "domain ids (voxelized in their uploaded coordinates)")
     times: list[float] | None = Field(None, min_length=1, max_length=MAX_FRAMES,
                                       description="two shapes: frame times t in [0, 1] "

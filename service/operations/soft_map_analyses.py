@@ -32,6 +32,7 @@ from service.operations.base import (
 )
 from service.operations.examples import EXAMPLE_ID
 from service.operations.softmaps import _mesh_view  # meshes of one component
+from service.schemas import DomainId
 
 MAX_MAPS = 8
 MAX_SINGULAR_VALUES = 64  # reported per map (all are in no array: the rank kept is)
@@ -48,7 +49,7 @@ class PointMap(BaseModel):
     """A point map from a source mesh to the target: one target vertex per source vertex."""
 
     model_config = REQUEST_CONFIG
-    source_id: str = Field(description="source mesh domain id")
+    source_id: DomainId = Field(description="source mesh domain id")
     correspondence: list[Int] = Field(min_length=1, description="target vertex of every "
                                       "source vertex, in the source's vertex order")
 
@@ -58,7 +59,7 @@ class SoftMapAnalysisRequest(OperationRequest):
         {"target_id": EXAMPLE_ID,
          "maps": [{"source_id": EXAMPLE_ID, "correspondence": [0, 2, 1, 3]}],
          "samples": 64, "rank": 6, "dirichlet": "potential"}]})
-    target_id: str = Field(description="target mesh domain id (the job's domain)")
+    target_id: DomainId = Field(description="target mesh domain id (the job's domain)")
     maps: list[PointMap] = Field(min_length=1, max_length=MAX_MAPS, description="point maps "
                                  "into the target; two or more give a collection basis")
     samples: Int = Field(128, ge=2, le=4096, description="farthest-point samples of each "

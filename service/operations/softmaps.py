@@ -35,6 +35,7 @@ from service.operations.base import (
     ResultFile,
 )
 from service.operations.examples import EXAMPLE_ID, example
+from service.schemas import DomainId
 
 
 class LandmarkPair(BaseModel):
@@ -48,8 +49,9 @@ class SoftMapRequest(OperationRequest):
         "source_id": EXAMPLE_ID, "target_id": EXAMPLE_ID,
         "landmarks": [{"source": 0, "target": 0}, {"source": 100, "target": 100}],
         "samples": 64, "k": 20, "max_iter": 50})
-    source_id: str = Field(description="source mesh domain id (the map goes source -> target)")
-    target_id: str = Field(description="target mesh domain id")
+    source_id: DomainId = Field(description="source mesh domain id (the map goes source -> "
+                                "target)")
+    target_id: DomainId = Field(description="target mesh domain id")
     landmarks: list[LandmarkPair] = Field(min_length=1, max_length=256, description="known "
                                           "pairs: fixed nodes of the propagation and landmark "
                                           "descriptors")

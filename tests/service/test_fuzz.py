@@ -1,13 +1,16 @@
 """schemathesis over the app's own OpenAPI spec, in process (ASGI transport, immediate queue):
-no request the fuzzer makes, valid or not, gets a 5xx, and no job it submits fails with an
-internal error.
+no request the fuzzer makes, valid or not, gets a 5xx, no job it submits fails with an
+internal error, and every operation is reached (some positive case gets past its id lookups).
 
-Path parameters ``domain_id`` / ``job_id`` are mostly replaced by ids that exist (small
-domains of every kind uploaded first, jobs the fuzzer created), so request bodies reach the
-operations' validation and, when valid, the solvers. Bounded examples and a fixed seed
-(hypothesis ``derandomize``) keep the suite run at ~30 s; run longer outside the suite::
+Three cases in four get ids that exist (tests/service/fuzz_ids.py): small domains of every
+kind and two meshes (also in the bodies of soft maps, soft-map analyses and shape
+interpolations), a finished job with files and 2-D arrays (``/files``, ``/arrays``, ``/rows``
+with a row inside), the jobs the fuzzer created, a spare domain for DELETE; so request bodies
+reach the operations' validation and, when valid, the solvers. Bounded examples and two fixed
+seeds keep the suite run short; run longer outside the suite (it prints the status codes of
+every operation, as in bench/results/schemathesis_failures.md)::
 
-    .venv/bin/python tests/service/test_fuzz.py --examples 150   # per operation and mode
+    .venv/bin/python tests/service/test_fuzz.py --examples 150 --seed 11  # per operation, mode
 """
 
 from __future__ import annotations
@@ -20,45 +23,95 @@ import tempfile
 import time
 import warnings
 from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
 
-import numpy as np
 import pytest
 
 schemathesis = pytest.importorskip("schemathesis")
 
+import hypothesis  # noqa: E402
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis.errors import Unsatisfiable  # noqa: E402
 from schemathesis import GenerationMode  # noqa: E402
 from schemathesis.checks import not_a_server_error  # noqa: E402
 
-SUITE_EXAMPLES = 12  # per operation and generation mode (positive, negative)
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from fuzz_ids import QUICK_BRDF, domain_bodies, with_mesh_ids  # noqa: E402
+
+SUITE_EXAMPLES = 8  # per operation, generation mode (positive, negative) and seed
+SUITE_SEEDS = (7, 11)
 SKIP = {("get", "/v1/jobs/{job_id}/events")}  # streams until the job ends (covered elsewhere)
 
 
 def _domains(client) -> dict[str, str]:
-    import trimesh
-
-    sphere = trimesh.creation.icosphere(subdivisions=1)
-    rng = np.random.default_rng(0)
-    pts = rng.normal(size=(40, 3))
-    bodies = {
-        "mesh": {"kind": "mesh", "vertices": sphere.vertices.tolist(),
-                 "faces": sphere.faces.tolist()},
-        "grid": {"kind": "grid", "shape": [6, 6]},
-        "graph": {"kind": "graph", "n_nodes": 8, "edges": [[i, i + 1] for i in range(7)]},
-        "pointcloud": {"kind": "pointcloud", "points": (pts / np.linalg.norm(pts, axis=1)[:, None])
-                       .tolist(), "n_neighbors": 8},
-    }
+    """Upload a small domain of every kind (two meshes); their ids by name."""
     ids = {}
-    for kind, body in bodies.items():
+    for name, body in domain_bodies().items():
         r = client.post("/v1/domains", json=body)
         assert r.status_code in (200, 201), r.text
-        ids[kind] = r.json()["id"]
+        ids[name] = r.json()["id"]
     return ids
 
 
-def fuzz(data_dir, examples: int, log=None) -> dict:
-    """Run every operation of the spec with ``examples`` cases per generation mode.
+@dataclass
+class Data:
+    """What the fuzzed requests' ids point at: stored domains, two meshes (bodies of the
+    global operations), finished jobs, and one finished job with files and a 2-D array."""
+
+    domains: list[str]
+    meshes: list[str]
+    job_ids: list[str]
+    files_job: str = ""
+    files: list[str] = field(default_factory=list)
+    arrays: dict[str, int] = field(default_factory=dict)  # 2-D array name -> rows
+    sizes: dict[str, int] = field(default_factory=dict)  # mesh id -> vertices
+    spare: str = ""  # a domain DELETE may remove
+
+
+def _data(client) -> Data:
+
+    ids = _domains(client)
+    data = Data(domains=[v for k, v in ids.items() if k != "box"],
+                meshes=[ids["mesh"], ids["box"]], job_ids=[])
+    data.sizes = {m: client.get(f"/v1/domains/{m}").json()["n"] for m in data.meshes}
+    spare = client.post("/v1/domains", json={"kind": "grid", "shape": [3, 3]})
+    data.spare = spare.json()["id"]
+    r = client.post("/v1/brdf-interpolations", json=QUICK_BRDF)
+    assert r.status_code in (200, 201) and r.json()["state"] == "succeeded", r.text
+    data.files_job = r.json()["id"]
+    result = client.get(f"/v1/jobs/{data.files_job}/result").json()
+    data.files = sorted(result["files"])
+    data.arrays = {name: f["shape"][0] for name, f in result["array_files"].items()
+                   if len(f["shape"]) == 2}
+    data.job_ids.append(data.files_job)
+    return data
+
+
+def _real_ids(case, op, i: int, data: Data) -> None:
+    """Point three cases in four at stored data (the fourth keeps its generated ids: 404s):
+    path ids, a file or array of the finished job, a row within the array, and the mesh
+    ids in global operations' bodies (``source_id``, ``shapes``, ...)."""
+    if i % 4 == 0:
+        return
+    params = case.path_parameters or {}
+    if "domain_id" in params:
+        params["domain_id"] = data.spare if op.method.lower() == "delete" \
+            else data.domains[i % len(data.domains)]
+    if "job_id" in params:
+        params["job_id"] = data.job_ids[i % len(data.job_ids)]
+    if "name" in params:
+        params["job_id"] = data.files_job
+        names = sorted(data.arrays) if "/arrays/" in op.path else data.files
+        params["name"] = names[i % len(names)]
+        if "row" in params and i % 2:
+            params["row"] = i % data.arrays[params["name"]]
+    case.body = with_mesh_ids(case.body, data.meshes, i)
+
+
+def fuzz(data_dir, examples: int, seed: int = 0, log=None) -> dict:
+    """Run every operation of the spec with ``examples`` cases per generation mode, drawn
+    from ``seed`` (the same cases on every run).
 
     Returns counts: cases, statuses, server errors (method, path, status, body excerpt),
     jobs submitted and jobs that failed with ``internal_error``."""
@@ -72,18 +125,18 @@ def fuzz(data_dir, examples: int, log=None) -> dict:
     stats = {"cases": 0, "statuses": Counter(), "server_errors": [], "jobs": 0,
              "job_states": Counter(), "internal_job_errors": [], "by_operation": Counter(),
              "job_errors": Counter(),
-             "by_status": Counter()}
+             "by_status": Counter(), "operations": set(), "reached": Counter()}
     with TestClient(app) as client:
-        domains = list(_domains(client).values())
-        job_ids: list[str] = []
+        data = _data(client)
         schema = schemathesis.openapi.from_asgi("/openapi.json", app)
         operations = [r.ok() for r in schema.get_all_operations()]
         for op in operations:
             if (op.method.lower(), op.path) in SKIP:
                 continue
+            stats["operations"].add(f"{op.method.upper()} {op.path}")
             for mode in (GenerationMode.POSITIVE, GenerationMode.NEGATIVE):
                 counter = {"i": 0}
-                run = _make_run(op, mode, examples, counter, domains, job_ids, stats)
+                run = _make_run(op, mode, examples, seed, counter, data, stats)
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
                     try:
@@ -96,21 +149,18 @@ def fuzz(data_dir, examples: int, log=None) -> dict:
     return stats
 
 
-def _make_run(op, mode, examples, counter, domains, job_ids, stats):
+def _make_run(op, mode, examples, seed, counter, data, stats):
     """One hypothesis test: ``examples`` cases of ``op`` in ``mode`` (fixed seed)."""
 
-    @settings(max_examples=examples, derandomize=True, deadline=None,
+    @hypothesis.seed(seed)
+    @settings(max_examples=examples, derandomize=False, deadline=None,
               database=None, suppress_health_check=list(HealthCheck))
     @given(case=op.as_strategy(generation_mode=mode))
     def run(case):
         counter["i"] += 1
-        params = case.path_parameters or {}
-        if "domain_id" in params and counter["i"] % 4 and op.method.lower() != "delete":
-            params["domain_id"] = domains[counter["i"] % len(domains)]
-        if "job_id" in params and job_ids and counter["i"] % 4:
-            params["job_id"] = job_ids[counter["i"] % len(job_ids)]
+        _real_ids(case, op, counter["i"], data)
         if mode == GenerationMode.POSITIVE and counter["i"] % 2 == 0:
-            _repair(case)
+            _repair(case, data)
         if case.query and "wait" in case.query:
             case.query["wait"] = 0  # jobs run inside the request anyway
         response = case.call()
@@ -118,6 +168,8 @@ def _make_run(op, mode, examples, counter, domains, job_ids, stats):
         stats["statuses"][response.status_code // 100 * 100] += 1
         stats["by_operation"][f"{op.method.upper()} {op.path}"] += 1
         stats["by_status"][(f"{op.method.upper()} {op.path}", response.status_code)] += 1
+        if mode == GenerationMode.POSITIVE and response.status_code != 404:
+            stats["reached"][f"{op.method.upper()} {op.path}"] += 1  # past the id lookups
         try:
             case.validate_response(response, checks=[not_a_server_error])
         except AssertionError:
@@ -130,7 +182,7 @@ def _make_run(op, mode, examples, counter, domains, job_ids, stats):
             if "state" in job:
                 stats["jobs"] += 1
                 stats["job_states"][job["state"]] += 1
-                job_ids.append(job["id"])
+                data.job_ids.append(job["id"])
                 err = job.get("error") or {}
                 if err:
                     stats["job_errors"][err.get("code")] += 1
@@ -146,10 +198,10 @@ def _make_run(op, mode, examples, counter, domains, job_ids, stats):
 BUMP = {"vertex": 0, "radius": 0.6}
 
 
-def _repair(case) -> None:
-    """Give a fuzzed operation body valid distributions (and a short time limit), keeping
-    its fuzzed scalars (gamma, tol, substeps, max_iter, k, times, sharpen, ...), so the
-    solvers run on them too."""
+def _repair(case, data: Data) -> None:
+    """Give a fuzzed operation body valid distributions, landmarks and point maps (and a
+    short time limit), keeping its fuzzed scalars (gamma, tol, substeps, max_iter, times,
+    sharpen, ...), so the solvers run on them too."""
     body = case.body
     if not isinstance(body, dict):
         return
@@ -166,6 +218,15 @@ def _repair(case) -> None:
                            {"node": 2, "distribution": dict(BUMP, vertex=3)}])
     if "source" in body:
         body["source"] = 1
+    if "landmarks" in body:  # soft maps: vertices of both meshes, few eigenpairs
+        body.update(landmarks=[{"source": 0, "target": 0}, {"source": 5, "target": 5}], k=10)
+    n_target = data.sizes.get(body.get("target_id"))
+    for point_map in body.get("maps") or []:  # soft-map analyses: one vertex per vertex
+        n_source = data.sizes.get(point_map.get("source_id")) if isinstance(point_map, dict) \
+            else None
+        if n_source and n_target:
+            point_map["correspondence"] = [j % n_target for j in range(n_source)]
+            body["descriptor_k"] = 10
     body["time_limit"] = 2.0
 
 
@@ -175,17 +236,38 @@ def _body_excerpt(case) -> str:
     return repr(case.body)[:300]
 
 
-def test_fuzz_no_server_errors(tmp_path):
+@pytest.mark.parametrize("seed", SUITE_SEEDS)
+def test_fuzz_no_server_errors(tmp_path, seed):
     start = time.monotonic()
-    stats = fuzz(tmp_path, SUITE_EXAMPLES)
+    stats = fuzz(tmp_path, SUITE_EXAMPLES, seed)
     assert stats["cases"] > 100
     assert stats["server_errors"] == [], stats["server_errors"][:5]
     assert stats["internal_job_errors"] == [], stats["internal_job_errors"][:5]
+    assert stats["operations"] - set(stats["reached"]) == set(), stats["reached"]
     assert time.monotonic() - start < 120
+
+
+def test_mesh_ids_replace_only_well_formed_ids():
+    body = {"source_id": "0" * 32, "target_id": "bad", "maps": [{"source_id": "1" * 16}],
+            "shapes": ["2" * 20, 5], "samples": 3}
+    mesh = "a" * 32
+    assert with_mesh_ids(body, [mesh]) == {
+        "source_id": mesh, "target_id": "bad", "maps": [{"source_id": mesh}],
+        "shapes": [mesh, 5], "samples": 3}
+
+
+def status_table(stats: dict) -> str:
+    """The status codes of every operation's cases, one line per operation."""
+    table: dict[str, Counter] = {}
+    for (operation, status), count in stats["by_status"].items():
+        table.setdefault(operation, Counter())[status] = count
+    return "\n".join(f"{op:<60} " + " ".join(f"{s}:{n}" for s, n in sorted(c.items()))
+                     for op, c in sorted(table.items()))
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seed", type=int, default=SUITE_SEEDS[0])
     parser.add_argument("--examples", type=int, default=100,
                         help="cases per operation and generation mode")
     args = parser.parse_args(argv)
@@ -193,7 +275,7 @@ def main(argv=None) -> int:
     with open("/proc/loadavg") as fh:
         load_before = fh.read().split()[:3]
     with tempfile.TemporaryDirectory() as d:
-        stats = fuzz(d, args.examples, log=lambda m: print(m, flush=True))
+        stats = fuzz(d, args.examples, args.seed, log=lambda m: print(m, flush=True))
     with open("/proc/loadavg") as fh:
         load_after = fh.read().split()[:3]
     print(f"cases {stats['cases']} in {time.monotonic() - start:.0f} s; statuses "
@@ -203,6 +285,7 @@ def main(argv=None) -> int:
           f"{len(stats['internal_job_errors'])}; load {load_before} -> {load_after}")
     for item in stats["server_errors"][:20] + stats["internal_job_errors"][:20]:
         print("  ", item)
+    print(status_table(stats))
     return 1 if stats["server_errors"] or stats["internal_job_errors"] else 0
 
 

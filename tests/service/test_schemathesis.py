@@ -1,12 +1,17 @@
 """schemathesis (``st run``, every check) against a live ``otgeo serve``: the OpenAPI document
 tells the truth about the server.
 
-A real server (API process and one worker) gets small domains of every kind and one finished
-job with files; a generated ``schemathesis.toml`` points each operation's path parameters at
-them (a domain of a kind the operation supports), so cases reach validation and the solvers.
-The run is bounded (``EXAMPLES`` cases per operation and phase, fixed seed) to a few minutes
-on two cores. Every failure must match an entry of ``ALLOWED``, each with its reason: what a
-single JSON Schema cannot say (values relative to the stored domain, opaque cursors).
+A real server (API process and one worker) gets small domains of every kind (two meshes) and
+one finished job with files and 2-D arrays; a generated ``schemathesis.toml`` points each
+operation's path parameters at them (a domain of a kind the operation supports), and
+schemathesis_hooks.py puts the stored meshes in the bodies of the global operations and gives
+each request its own ``Idempotency-Key``, so cases reach validation and the solvers. The run
+is bounded (``EXAMPLES`` cases per operation and phase, two seeds: one without keys, one with)
+to a few minutes on two cores. Every failure must match an entry of ``ALLOWED``, each named:
+``DOMAIN_BOUNDS``, the bounds of the stored domain that one spec for every domain cannot
+state (the server answers 422 naming the field), and ``UNSTATABLE``, what JSON Schema cannot
+say at all. bench/schemathesis_failures.py counts the failures per seed and entry
+(bench/results/schemathesis_failures.md).
 
 Run it longer by hand::
 
@@ -18,6 +23,7 @@ from __future__ import annotations
 import argparse
 import base64
 import json
+import os
 import re
 import subprocess
 import sys
@@ -27,33 +33,38 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import httpx
-import numpy as np
 import pytest
 
 pytest.importorskip("schemathesis")
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from fuzz_ids import QUICK_BRDF, domain_bodies  # noqa: E402
 from liveserver import API  # noqa: E402
+
+HOOKS = Path(__file__).resolve().parent / "schemathesis_hooks.py"
 
 ST = Path(sys.executable).parent / "st"
 EXAMPLES = 25  # per operation and phase
 KEYED_EXAMPLES = EXAMPLES  # the run with API keys configured (and the key sent): the same spec
 KEY = "schemathesis-key"  # a plain OTGEO_API_KEYS entry: its own (non-admin) tenant
-SEED = 20261203
+SEEDS = {None: 7, KEY: 11}  # per run: without keys, with a key (two seeds in the suite)
+SEED = SEEDS[None]
+ARRAY = "slices"  # a 2-D array of the BRDF job's result (rows: one per sphere and direction)
 SKIP_PATHS = ["/v1/jobs/{job_id}/events"]  # streams until the job ends (tests/service/test_jobs)
 ENV = {"OTGEO_WORKERS": "1", "OTGEO_JOB_TIME_LIMIT": "5", "OTGEO_WAIT_MAX": "2"}
 
 
 @dataclass(frozen=True)
 class Allowed:
-    """A failure the spec cannot prevent: ``check`` failing on ``operation`` (regex) with a
-    response whose status is ``status`` and whose error message matches ``message``."""
+    """A failure the spec cannot prevent, named: ``check`` failing on ``operation`` (regex)
+    with a response whose status is ``status`` and whose error message matches
+    ``message``."""
 
-    check: str
+    name: str
     operation: str
     status: int
     message: str
-    reason: str
+    check: str = "positive_data_acceptance"
 
     def matches(self, failure: dict) -> bool:
         return (failure["check"] == self.check and failure["status"] == self.status
@@ -61,90 +72,84 @@ class Allowed:
                 and re.search(self.message, failure["error_message"]) is not None)
 
 
-ALLOWED = [
-    Allowed("positive_data_acceptance", r"POST /v1/domains/\{domain_id\}/.*", 422,
-            r"out of range \[0, \d+\]|is not a node index in \[0, \d+\]|is outside \[0, \d+\]"
-            r"|must have length \d+ \(one value per point\)|has \d+ entries; the mesh has"
-            r"|lies more than \d+ mesh sizes away|x the squared domain extent"
-            r"|the smallest regularization this domain can resolve"
-            r"|\bk must be <= \d+|the entropy of a point mass on this domain",
-            "bounded by the stored domain (its points, faces, extent, bounding box), which "
-            "differs per domain: one spec for every domain cannot state it"),
-    Allowed("positive_data_acceptance", r"POST /v1/.*", 422,
-            r"differ in length|one value per bin|every row of weights needs \d+ values"
-            r"|materials give the weights|appears twice|must be a square matrix"
-            r"|endpoint outside \[0, \d+\]|must be (strictly )?increasing|must be greater than"
-            r"|zero total mass|reflects no light|use a coarser slice or fewer points"
-            r"|n_neighbors must be <= \d+|face indices must lie in \[0, \d+\]"
-            r"|\] sums to 0|sums beyond the float range"
-            r"|basis 'spectral' needs k|bounds must have shape \(\d, 2\)"
-            r"|bounds must be finite with lo < hi"
-            r"|bins of width \(hi - lo\) / count must be positive"
-            r"|the smallest regularization this domain can resolve",
-            "a relation between fields or items (equal lengths, order, uniqueness of a node, a "
-            "positive total, a total size) that JSON Schema cannot express"),
-    Allowed("positive_data_acceptance", r"POST /v1/(domains|domains/upload|color-transfers)",
-            422, r"mesh format|[A-Z]+ file is binary data|not a valid|could not be read"
-            r"|could not (read|parse) the [A-Z]+ file|the uploaded file is empty"
-            r"|no triangles|non-degenerate faces|is not an image file|must be a JSON list",
-            "the content of an uploaded file (a mesh, an image; its format from the file name), "
-            "a mesh's geometry (faces of zero area) and JSON text in a form field: `format: "
-            "binary` and `type: string` say nothing of it"),
-    Allowed("positive_data_acceptance", r"POST /v1/domains", 413,
-            r"more than the limit of|points exceed the limit of",
-            "OTGEO_MAX_VERTICES is a deployment setting (the committed spec cannot carry it), "
-            "and for a grid it bounds the product of the axes, not each axis"),
-    Allowed("positive_data_acceptance", r"POST /v1/brdf-interpolations", 413,
-            r"n_theta \* n_phi = \d+ exceeds \d+",
-            "a bound on the product of two fields (the dense hemisphere kernel's size), which "
-            "JSON Schema cannot state without excluding valid pairs (32 x 128)"),
-    Allowed("positive_data_acceptance", r"POST /v1/.*", 422,
-            r"Idempotency-Key '.*' was used for a different request",
-            "an Idempotency-Key names one request: the generator reuses its few header values "
-            "('0', 'null') across different bodies and routes, which the server must refuse"),
-    Allowed("ensure_resource_availability", r"POST /v1/domains", 404, r"unknown domain '",
-            "the stateful phase may follow POST /v1/domains with a DELETE of another id than "
-            "the one the POST returned (in a CI run: the POST returned 39ab..., the DELETE asked "
-            "for 9dd8..., which a DELETE case had removed earlier, 204 then 404): a deleted "
-            "domain's 404 is the right answer"),
-    Allowed("positive_data_acceptance", r"GET /v1/(domains|jobs)", 422,
-            r"cursor is not one returned as next_cursor",
-            "a cursor is an opaque token: only values the server returned are valid"),
+# The operations whose requests refer to stored domains: by path, or by ids in the body
+ON_DOMAINS = r"POST /v1/(domains/\{domain_id\}/.*|soft-maps|soft-map-analyses|shape-interpolations)"
+ANY_POST = r"POST /v1/.*"
+
+# Bounds that depend on the stored domain (or result): one spec serves every domain, so it
+# cannot state them; the server answers the documented 422 naming the field and the bound.
+DOMAIN_BOUNDS = [
+    Allowed("a point index below the domain's point count", ON_DOMAINS, 422,
+            r"out of range \[0, \d+\]|is not a node index in \[0, \d+\]|is outside \[0, \d+\]"),
+    Allowed("one value per point of the domain", ON_DOMAINS, 422,
+            r"must have length \d+ \(one value per point\)|has \d+ entries; the mesh has"),
+    Allowed("a point map with one target vertex per source vertex (soft-map analyses)",
+            r"POST /v1/soft-map-analyses", 422,
+            r"correspondence has \d+ entries; the source has \d+ vertices"),
+    Allowed("a point within reach of the mesh (volumetric)", ON_DOMAINS, 422,
+            r"lies more than \d+ mesh sizes away"),
+    Allowed("gamma between the domain's resolution and its extent", ON_DOMAINS, 422,
+            r"x the squared domain extent|the smallest regularization this domain can resolve"),
+    Allowed("a spectral basis size k below the domain's point count", ON_DOMAINS, 422,
+            r"\bk must be <= \d+|\b(descriptor_)?k must be below \d+"),
+    Allowed("an entropy bound above a point mass's on the domain", ON_DOMAINS, 422,
+            r"the entropy of a point mass on this domain"),
+    Allowed("a row index below the result array's row count",
+            r"GET /v1/jobs/\{job_id\}/arrays/\{name\}/rows/\{row\}", 422,
+            r"row \d+ out of range \[0, \d+\]"),
 ]
+
+# What JSON Schema cannot state at all: relations between a request's own fields or items,
+# the contents of uploaded files, and a deployment setting.
+UNSTATABLE = [
+    Allowed("lists paired item by item have equal lengths", ANY_POST, 422,
+            r"differ in length|one value per bin|every row of weights needs \d+ values"
+            r"|must have one value per distribution"
+            r"|weights has \d+ rows, not rows \* cols|must be a square matrix"
+            r"|bounds must have shape \(\d, 2\)"),
+    Allowed("indices below the request's own n_nodes / vertex / point count", ANY_POST, 422,
+            r"endpoint outside \[0, \d+\]|face indices must lie in \[0, \d+\]"
+            r"|n_neighbors must be <= \d+|appears twice"),
+    Allowed("values in increasing order (edges, angles, lo < hi)", ANY_POST, 422,
+            r"must be (strictly )?increasing|must be greater than"
+            r"|bounds must be finite with lo < hi|bins of width \(hi - lo\) / count must be"),
+    Allowed("a positive, finite total", ANY_POST, 422,
+            r"zero total mass|\] sums to 0|sums beyond the float range"),
+    Allowed("gamma resolvable on the request's own histogram grid (its bins)",
+            r"POST /v1/color-transfers", 422,
+            r"the smallest regularization this domain can resolve"),
+    Allowed("a bounded product of sizes", ANY_POST, 422,
+            r"use a coarser slice or fewer points"),
+    Allowed("a bounded product of sizes (BRDF hemisphere: n_theta * n_phi; 32 x 128 is "
+            "valid)", r"POST /v1/brdf-interpolations", 413, r"n_theta \* n_phi = \d+ exceeds"),
+    Allowed("an uploaded file's contents (format: binary says nothing of them)",
+            r"POST /v1/(domains|domains/upload|color-transfers)", 422,
+            r"mesh format|[A-Z]+ file is binary data|not a valid|could not be read"
+            r"|could not (read|parse) the [A-Z]+ file|the uploaded file is empty"
+            r"|no triangles|non-degenerate faces|is not an image file|must be a JSON list"),
+    Allowed("OTGEO_MAX_VERTICES, a deployment setting (for a grid: the axes' product)",
+            r"POST /v1/domains", 413, r"more than the limit of|points exceed the limit of"),
+]
+
+ALLOWED = DOMAIN_BOUNDS + UNSTATABLE
 
 
 # -- the server and its data ----------------------------------------------------------------
 def _domains(url: str, headers: dict) -> dict[str, str]:
-    """Upload a small domain of every kind; their ids (content hashes) by kind."""
-    import trimesh
-
-    sphere = trimesh.creation.icosphere(subdivisions=1)
-    pts = np.random.default_rng(0).normal(size=(40, 3))
-    bodies = {
-        "mesh": {"kind": "mesh", "vertices": sphere.vertices.tolist(),
-                 "faces": sphere.faces.tolist()},
-        "grid": {"kind": "grid", "shape": [6, 6]},
-        "graph": {"kind": "graph", "n_nodes": 8, "edges": [[i, i + 1] for i in range(7)]},
-        "pointcloud": {"kind": "pointcloud", "n_neighbors": 8,
-                       "points": (pts / np.linalg.norm(pts, axis=1)[:, None]).tolist()},
-        "spare": {"kind": "grid", "shape": [3, 3]},  # the one DELETE may remove
-    }
+    """Upload a small domain of every kind (two meshes); their ids (content hashes) by name."""
     ids = {}
-    for kind, body in bodies.items():
+    for name, body in domain_bodies().items():
         r = httpx.post(f"{url}/v1/domains", json=body, headers=headers, timeout=60)
         assert r.status_code in (200, 201), r.text
-        ids[kind] = r.json()["id"]
+        ids[name] = r.json()["id"]
     return ids
 
 
 def _job_with_files(url: str, headers: dict) -> tuple[str, str]:
-    """A finished job with files (a BRDF interpolation: PNG and GLB); its id and a file name."""
-    from service.operations import build_registry
-
-    op = build_registry()["brdf-interpolations"]
-    example = op.request_model.model_json_schema()["examples"][0]
-    r = httpx.post(f"{url}/v1/{op.name}", json=example, params={"wait": 2}, headers=headers,
-                   timeout=60)
+    """A finished job with files and 2-D arrays (a BRDF interpolation: PNGs, ``slices``); its
+    id and a file name."""
+    r = httpx.post(f"{url}/v1/brdf-interpolations", json=QUICK_BRDF, params={"wait": 2},
+                   headers=headers, timeout=60)
     assert r.status_code in (200, 202), r.text
     job_id = r.json()["id"]
     deadline = time.monotonic() + 60
@@ -174,18 +179,22 @@ def _config(domains: dict[str, str], job_id: str, file_name: str) -> str:
         if op.scope == "domain":
             kind = "mesh" if "mesh" in op.kinds else op.kinds[0]
             operation(f"/v1/domains/{{domain_id}}/{op.name}", domain_id=domains[kind])
-    operation("/v1/domains/{domain_id}", domain_id=domains["spare"])
+    # not /v1/domains/{domain_id} (GET, DELETE): pinned ids override the stateful phase's,
+    # which follows POST /v1/domains to the created domain (ensure_resource_availability)
     operation("/v1/domains/{domain_id}/geometry", domain_id=domains["mesh"])
     for path in ("/v1/jobs/{job_id}", "/v1/jobs/{job_id}/result",
                  "/v1/jobs/{job_id}/result.glb"):
         operation(path, job_id=job_id)
     operation("/v1/jobs/{job_id}/files/{name}", job_id=job_id, name=file_name)
+    for path in ("/v1/jobs/{job_id}/arrays/{name}.npy",
+                 "/v1/jobs/{job_id}/arrays/{name}/rows/{row}"):
+        operation(path, job_id=job_id, name=ARRAY)
     return "\n".join(sections)
 
 
 # -- the run and its failures ---------------------------------------------------------------
-def run_schemathesis(work: Path, examples: int, seed: int = SEED, key: str | None = None
-                     ) -> tuple[list[dict], str]:
+def run_schemathesis(work: Path, examples: int, seed: int = SEED, key: str | None = None,
+                     port: int | None = None) -> tuple[list[dict], str]:
     """Start ``otgeo serve``, run ``st run`` with every check; the failures and the output.
     ``key``: the server requires API keys (``OTGEO_API_KEYS=key``) and every request sends
     it (the ``ignored_auth`` check then also sends requests without it, expecting 401)."""
@@ -194,7 +203,7 @@ def run_schemathesis(work: Path, examples: int, seed: int = SEED, key: str | Non
     if key is not None:
         env["OTGEO_API_KEYS"] = key
         headers = {"X-API-Key": key}
-    api = API(env, work)
+    api = API(env, work, port=port)
     try:
         api.wait_healthy(60)
         domains = _domains(api.url, headers)
@@ -207,7 +216,10 @@ def run_schemathesis(work: Path, examples: int, seed: int = SEED, key: str | Non
                "--workers", "1", "--no-shrink", "--report", "ndjson", "--report-dir", str(report),
                *[a for p in SKIP_PATHS for a in ("--exclude-path", p)],
                *[a for k, v in headers.items() for a in ("--header", f"{k}: {v}")]]
-        proc = subprocess.run(cmd, cwd=work, capture_output=True, text=True, timeout=900)
+        hooks = {"SCHEMATHESIS_HOOKS": str(HOOKS),
+                 "OTGEO_FUZZ_MESHES": f"{domains['mesh']},{domains['box']}"}
+        proc = subprocess.run(cmd, cwd=work, capture_output=True, text=True, timeout=900,
+                              env=dict(os.environ, **hooks))
         events = next(report.glob("*.ndjson"))
         return failures(events), proc.stdout[-3000:]
     finally:
@@ -262,7 +274,7 @@ def unexplained(found: list[dict]) -> list[dict]:
                          ids=["open", "with-api-key"])
 def test_schemathesis_finds_no_unexplained_failure(tmp_path, key, examples):
     start = time.monotonic()
-    found, output = run_schemathesis(tmp_path, examples, key=key)
+    found, output = run_schemathesis(tmp_path, examples, SEEDS[key], key=key)
     assert "test cases" in output.lower() or "Test cases" in output, output
     left = unexplained(found)
     assert left == [], json.dumps(left[:8], indent=1)
@@ -270,12 +282,17 @@ def test_schemathesis_finds_no_unexplained_failure(tmp_path, key, examples):
 
 
 def test_allow_list_entries_match_only_their_failures():
-    cursor = {"check": "positive_data_acceptance", "operation": "GET /v1/jobs", "status": 422,
-              "error_message": "cursor is not one returned as next_cursor by this listing"}
-    assert unexplained([cursor]) == []
+    row = {"check": "positive_data_acceptance", "status": 422,
+           "operation": "GET /v1/jobs/{job_id}/arrays/{name}/rows/{row}",
+           "error_message": "row 7 out of range [0, 5]"}
+    assert unexplained([row]) == []
     for changed in ({"status": 400}, {"check": "negative_data_rejection"},
-                    {"error_message": "wait must be at most 2 seconds"}):
-        assert unexplained([dict(cursor, **changed)]) != []
+                    {"error_message": "row must be at least 0"},
+                    {"operation": "GET /v1/jobs/{job_id}/result"}):
+        assert unexplained([dict(row, **changed)]) != []
+    for gone in ("cursor is not one returned as next_cursor by this listing",
+                 "Idempotency-Key '0' was used for a different request"):
+        assert unexplained([dict(row, operation="GET /v1/jobs", error_message=gone)]) != []
 
 
 def _app(tmp_path, **settings):
@@ -327,12 +344,14 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=SEED)
     parser.add_argument("--all", action="store_true", help="list allowed failures too")
     parser.add_argument("--key", help="configure this API key on the server and send it")
+    parser.add_argument("--port", type=int, help="the server's port (default: a free one)")
     args = parser.parse_args(argv)
     with open("/proc/loadavg") as fh:
         load_before = fh.read().split()[:3]
     start = time.monotonic()
     with tempfile.TemporaryDirectory() as d:
-        found, output = run_schemathesis(Path(d), args.examples, args.seed, args.key)
+        found, output = run_schemathesis(Path(d), args.examples, args.seed, args.key,
+                                         args.port)
     with open("/proc/loadavg") as fh:
         load_after = fh.read().split()[:3]
     left = unexplained(found)
