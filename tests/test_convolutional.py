@@ -259,20 +259,20 @@ def test_sharpening_lowers_entropy_to_bound(woody):
 
 def test_interpolation_and_propagation_agree(woody):
     """A path 0-1-2 with fixed ends propagates the midpoint barycenter (Alg. 4 = Alg. 2,
-    both with the thesis' heat kernel, which propagation runs)."""
+    with the default kernel of both: the geodesic one on this mesh)."""
     mesh, D = woody
     p, q = _bumps(mesh, D, 100, 500)
-    interp = displacement_interpolation(mesh, p, q, [0.0, 0.5, 1.0], gamma=0.01,
-                                        method="convolutional")
+    interp = displacement_interpolation(mesh, p, q, [0.0, 0.5, 1.0], gamma=0.01)
     assert interp.converged and interp.masses.shape == (mesh.n, 3)
     assert np.allclose(interp.masses.sum(0), 1.0)
     prop = wasserstein_propagation(mesh, 3, [[0, 1], [1, 2]], {0: p, 2: q}, gamma=0.01)
     assert prop.converged and list(prop.free_nodes) == [1]
+    assert prop.method == interp.method == "geodesic"
     assert np.abs(prop.masses[:, 1] - interp.masses[:, 1]).sum() < 1e-4
     # Unequal edge weights pull the free node toward the heavier edge's end.
     skew = wasserstein_propagation(mesh, 3, [[0, 1], [1, 2]], {0: p, 2: q},
                                    edge_weights=[3.0, 1.0], gamma=0.01)
-    quarter = displacement_interpolation(mesh, p, q, [0.25], gamma=0.01, method="convolutional")
+    quarter = displacement_interpolation(mesh, p, q, [0.25], gamma=0.01)
     assert np.abs(skew.masses[:, 1] - quarter.masses[:, 0]).sum() < 1e-4
     # eq. 3.18: a per-edge diagonal rescaling of the kernel changes the coupling.
     phi = np.exp(-D[100] ** 2 / 0.01)
@@ -331,7 +331,8 @@ def test_propagation_matches_textbook_alg4_on_a_cycle(woody):
     log_d = -0.3 * rng.random((5, mesh.n))
     fixed = {0: p, 4: q}
     ours = wasserstein_propagation(mesh, 5, edges, fixed, edge_weights=weights,
-                                   node_scalings=log_d, gamma=gamma, tol=1e-10)
+                                   node_scalings=log_d, gamma=gamma, tol=1e-10,
+                                   method="convolutional")  # the textbook's heat kernel
     assert ours.converged and ours.iterations < 200
     ref = _textbook_propagation(mesh, 5, edges, fixed, weights, log_d, ours.t, 2000)
     assert np.allclose(ref.sum(axis=0), 1.0, atol=1e-8)  # the textbook run has converged
@@ -348,7 +349,8 @@ def test_propagation_active_nodes_and_threads_keep_the_fixed_point(woody):
     k = 24
     edges = [[i, (i + 1) % k] for i in range(k)] + [[i, (i + 7) % k] for i in range(0, k, 3)]
     fixed = {0: p, 8: q, 16: r}
-    opts = dict(gamma=0.01, acceleration="over-relaxation")
+    # the heat kernel: its threaded triangular solves are what the thread counts exercise
+    opts = dict(gamma=0.01, acceleration="over-relaxation", method="convolutional")
     one = wasserstein_propagation(mesh, k, edges, fixed, tol=1e-6, threads=1, **opts)
     two = wasserstein_propagation(mesh, k, edges, fixed, tol=1e-6, threads=2, **opts)
     assert one.converged and one.residual <= 1e-6
@@ -368,7 +370,7 @@ def test_propagation_warm_start_keeps_the_fixed_point(woody):
     k = 12
     edges = [[i, (i + 1) % k] for i in range(k)] + [[0, 6]]
     fixed = {0: p, 6: q}
-    opts = dict(acceleration="over-relaxation", tol=1e-8)
+    opts = dict(acceleration="over-relaxation", tol=1e-8, method="convolutional")
     cold = wasserstein_propagation(mesh, k, edges, fixed, gamma=0.01, keep_scalings=True,
                                    **opts)
     assert cold.converged and cold.scalings.shape == (2 * len(edges), mesh.n)

@@ -13,6 +13,7 @@ from service.jobs.queue import DEFAULT_ITERATIONS, estimate_cost
 from service.operations.base import (
     COST_PER_SECOND,
     REQUEST_CONFIG,
+    SIZE_FIELDS,
     Distribution,
     DomainView,
     Int,
@@ -197,7 +198,7 @@ class InterpolationValues(ShapeMethodValues):
     times: list[float] = Field(description="frame times; arrays are (V, len(times))")
 
 
-class PropagationValues(ShapeValues):
+class PropagationValues(ShapeMethodValues):
     free_nodes: list[Int] = Field(description="nodes whose distributions were propagated")
 
 
@@ -254,7 +255,7 @@ class FixedDistribution(BaseModel):
     distribution: Distribution
 
 
-class PropagationRequest(SinkhornOptions):
+class PropagationRequest(ShapeMethodOption):
     model_config = example({
         "n_nodes": 3, "edges": [[0, 1], [1, 2]],
         "fixed": [{"node": 0, "distribution": BUMP_A}, {"node": 2, "distribution": BUMP_B}]})
@@ -482,7 +483,7 @@ def shape_size_field(view: DomainView, req) -> str:
     """The field a 413 names: ``method`` where the kernel's matrices are the larger part."""
     if kernel_bytes(view, req) > estimate_job_bytes(view, req):
         return "method"
-    return "distributions" if hasattr(req, "distributions") else "times"
+    return next((f for f in SIZE_FIELDS if getattr(req, f, None)), None)
 
 
 def _barycenter_inputs(view: DomainView, req: BarycenterRequest):
@@ -544,6 +545,7 @@ def run_interpolation(domain, req: InterpolationRequest, progress, should_cancel
 # -- propagation on a graph of distributions (thesis Alg. 4) -----------------------------
 def _propagation_inputs(view: DomainView, req: PropagationRequest):
     check_options(view, req)
+    check_shape_method(view, req)
     if req.n_nodes < 2:
         raise InvalidInput("propagation needs at least two nodes", field="n_nodes")
     e = check_edges(req.edges, req.n_nodes, "edges")
@@ -575,9 +577,10 @@ def run_propagation(domain, req: PropagationRequest, progress, should_cancel
     edges, fixed, reports = _propagation_inputs(view_of_domain(domain), req)
     kwargs, reg = shape_kwargs(domain, req, progress, should_cancel)
     res = wasserstein_propagation(domain, req.n_nodes, edges, fixed,
-                                  edge_weights=req.edge_weights, **kwargs)
+                                  edge_weights=req.edge_weights, method=req.method, **kwargs)
     m = np.asarray(res.masses, dtype=np.float64).reshape(domain.n, req.n_nodes)
     values = {"gamma": kwargs["gamma"], "substeps": kwargs["substeps"], "regularization": reg,
+              "method": res.method,
               **_convergence(res),
               "free_nodes": np.asarray(res.free_nodes).tolist(), "normalization": reports}
     arrays = {"masses": m, "density": m / np.asarray(domain.areas)[:, None]}
@@ -663,7 +666,8 @@ OPERATIONS = [
               "Wasserstein propagation: distributions at the free nodes of a graph from the "
               "fixed ones (thesis Alg. 4)", PropagationRequest, run_propagation,
               _validate_propagation, result_model=PropagationValues,
-              estimate_cost=propagation_cost),
+              estimate_cost=propagation_cost, estimate_bytes=shape_bytes,
+              size_field=shape_size_field),
     Operation("pointwise-distances", "createPointwiseDistanceJob",
               "Distances from a source vertex to every vertex (W1 between Diracs)",
               PointwiseDistanceRequest, run_pointwise, _validate_pointwise, MESH,

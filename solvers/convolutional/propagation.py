@@ -75,6 +75,7 @@ from solvers.convolutional.common import (
 from solvers.convolutional.distance import watch_stagnation
 from solvers.errors import InputError
 from solvers.parallel import thread_count
+from solvers.regularization import shape_method
 from solvers.validation import check_anchored, check_edge_weights, check_edges
 
 
@@ -104,6 +105,7 @@ class PropagationResult:
     kernel_columns: int = 0
     scalings: np.ndarray | None = None
     end_order: np.ndarray | None = None
+    method: str = "convolutional"
 
 
 def _check_graph(n_nodes, edges, edge_weights, fixed):
@@ -238,6 +240,7 @@ def wasserstein_propagation(
     keep_scalings: bool = False,
     start_masses=None,
     scalings_dtype=np.float64,
+    method: str = "auto",
 ) -> PropagationResult:
     r"""Propagate distributions from fixed graph nodes to the others (Alg. 4, eq. 3.17).
 
@@ -283,6 +286,8 @@ def wasserstein_propagation(
         log-densities and of the returned ``masses``.  float32 halves them; the kernel
         applications, barycenters and gaps are computed in float64 either way, so only the
         stored values are rounded (relative 6e-8).
+    method : the kernel, as in :func:`barycenter` (``"auto"``: the geodesic kernel on
+        triangle meshes where offered, else the heat kernel; ``result.method`` says which).
 
     Returns
     -------
@@ -295,7 +300,8 @@ def wasserstein_propagation(
     best = np.inf
     # The sweeps solve in threads: the triangular backend's solves release the GIL.
     setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
-                    progress=progress, should_cancel=should_cancel, backend="triangular")
+                    progress=progress, should_cancel=should_cancel, backend="triangular",
+                    method=shape_method(domain, method))
     setup.monitor = watch_stagnation(setup, project=max_iter is None)  # stalled -> stop
     a = setup.areas
     n = domain.n
@@ -424,7 +430,7 @@ def wasserstein_propagation(
                              edge_values=setup.gamma * values, colors=len(by_color),
                              kernel_columns=sweeper.columns,
                              scalings=T if keep_scalings else None,
-                             end_order=end_order)
+                             end_order=end_order, method=setup.method)
 
 
 def _sinkhorn_start(sweeper, start_masses, end_side, end_node, opposite, n_nodes, a) -> None:

@@ -178,7 +178,7 @@ def skeleton_layout(
     result = wasserstein_propagation(
         mesh, n_nodes, e, {u: M[:, j] for j, u in enumerate(nodes)}, gamma=gamma,
         substeps=substeps, tol=tol, max_iter=max_iter, progress=progress,
-        should_cancel=should_cancel)
+        should_cancel=should_cancel, method="convolutional")
     X = result.masses.T @ mesh.vertices
     X[nodes] = pos
     lin = linear_layout(n_nodes, e, {u: p for u, p in zip(nodes, pos, strict=True)})

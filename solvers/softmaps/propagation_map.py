@@ -552,7 +552,8 @@ def _propagate(solved, coarse, graph, cells, pairs, log_d, *, tau, gamma, start_
     prop = wasserstein_propagation(solved, graph.n, graph.edges, fixed, edge_weights=w,
                                    node_scalings=log_d, gamma=gamma,
                                    start_masses=start_masses,
-                                   scalings_dtype=log_d.dtype, **options)
+                                   scalings_dtype=log_d.dtype, method="convolutional",
+                                   **options)
     # Descriptor energy (eq. 4.6) with the normalized cost c = -log_d * gamma * W_u / tau.
     descriptor = -(gamma / tau) * float((cells * wu) @ np.einsum("ij,ji->i", log_d,
                                                                   prop.masses,
