@@ -312,6 +312,9 @@ class Operation:
     # array work over the domain's points (no estimate, no solve, no operator built), so a
     # small domain's submission may run on the API's event loop (JobService.submits_on_loop)
     bounded_submission: Callable[..., bool] | None = None
+    # ``() -> None``: a tiny run that compiles the numba kernels a job runs (or loads them
+    # from numba's cache); service.warm runs it at worker start and before a first job
+    warm: Callable[[], None] | None = None
 
     def check_kind(self, view: DomainView, field: str = "domain_id") -> None:
         if view.kind not in self.kinds:
