@@ -308,17 +308,18 @@ class _WarmContext:
 
 
 def warm() -> None:
-    """A job's run on two tiny PNGs in each mode, at the request's defaults otherwise: it
-    compiles (or loads from numba's cache) the kernels a first color transfer needs."""
+    """A job's run on two tiny images in each mode, 8-bit (PNG) and 16-bit (TIFF): kernels
+    are compiled per pixel type. It compiles (or loads from numba's cache) the kernels a
+    first color transfer needs."""
     y, x = np.mgrid[0:24, 0:32]
     pictures = (np.stack([200 + 0 * x, 60 + x, 40 + y], -1),
                 np.stack([30 + 0 * x, 80 + y, 150 + x], -1))
-    ctx = _WarmContext({f"{i:032x}": write_image(p.astype(np.uint8))
-                        for i, p in enumerate(pictures)})
-    ids = list(ctx.blobs)
-    for mode in ("split", "barycentric"):
-        req = ColorTransferRequest(images=ids, mode=mode, bins=16)
-        run(ctx, req, lambda *progress: None, lambda: False)
+    for dtype, scale, fmt in ((np.uint8, 1, "png"), (np.uint16, 257, "tiff")):
+        ctx = _WarmContext({f"{i:032x}": write_image((p * scale).astype(dtype), fmt)
+                            for i, p in enumerate(pictures)})
+        for mode in ("split", "barycentric"):
+            req = ColorTransferRequest(images=list(ctx.blobs), mode=mode, bins=16)
+            run(ctx, req, lambda *progress: None, lambda: False)
 
 
 OPERATIONS = [

@@ -62,10 +62,9 @@ def test_a_first_job_says_it_waits_for_its_kernels(make_client):
 
 
 COVERAGE = """
-import io, sys
+import sys
 import numpy as np
 from numba.core.dispatcher import Dispatcher
-from PIL import Image
 from service.operations import color
 
 def compiled():
@@ -76,24 +75,25 @@ def compiled():
 color.warm()
 before = compiled()
 rng = np.random.default_rng(1)
-blobs = {}
-for i in range(2):
-    out = io.BytesIO()
-    Image.fromarray(rng.integers(0, 255, (30 + 7 * i, 41, 3), dtype=np.uint8)).save(out, "PNG")
-    blobs[f"{i:032x}"] = out.getvalue()
-ctx = color._WarmContext(blobs)
-for mode in ("split", "barycentric"):  # the request's defaults otherwise (bins: small here)
-    req = color.ColorTransferRequest(images=list(blobs), mode=mode,
-                                     bins=24 if mode == "barycentric" else None)
-    color.run(ctx, req, lambda *a: None, lambda: False)
+rgb = [rng.integers(0, 255, (30 + 7 * i, 41, 3), dtype=np.uint8) for i in range(2)]
+inputs = {"8-bit RGB": [color.write_image(x) for x in rgb],
+          "8-bit RGBA": [color.write_image(np.dstack([x, x[..., :1]])) for x in rgb],
+          "16-bit RGB": [color.write_image(x.astype(np.uint16) * 257, "tiff") for x in rgb]}
+for files in inputs.values():
+    ctx = color._WarmContext({f"{i:032x}": data for i, data in enumerate(files)})
+    for mode in ("split", "barycentric"):  # the request's defaults otherwise (bins: small)
+        req = color.ColorTransferRequest(images=list(ctx.blobs), mode=mode,
+                                         bins=24 if mode == "barycentric" else None)
+        color.run(ctx, req, lambda *a: None, lambda: False)
 after = compiled()
 print({k: v - before.get(k, 0) for k, v in after.items() if v != before.get(k, 0)})
 """
 
 
 def test_color_warm_up_compiles_what_a_job_runs():
-    """After ``warm()`` a color transfer of other images, in either mode, compiles no
-    kernel (a fresh process: nothing compiled by other tests)."""
+    """After ``warm()`` a color transfer of other images (8 or 16 bits, with or without
+    alpha), in either mode, compiles no kernel (a fresh process: nothing compiled by other
+    tests)."""
     out = subprocess.run([sys.executable, "-c", COVERAGE], cwd=ROOT, capture_output=True,
                          text=True, timeout=900)
     assert out.returncode == 0, out.stderr[-3000:]
