@@ -60,18 +60,15 @@ def test_a_refused_request_leaves_no_previous_job_shown(spot_page):
     assert page.js_errors == []
 
 
-def test_an_exact_job_shows_its_estimated_run_time(page, live_api):
-    """A running exact-route job reports no iterations; its decision's estimate gives the
-    text and a bar that fills with time (the job's routes are stubbed in the browser)."""
-    open_viewer(page, live_api)
-    job_id = "7" * 32
-    job = {"id": job_id, "operation": "distances", "domain_id": "", "state": "running",
-           "progress": {"iteration": 0, "residual": None, "fraction": None,
-                        "eta_seconds": None, "stage": None},
-           "decision": {"route": "exact", "reason": "small domain", "estimated_seconds": 20.0},
-           "attempts": 1, "error": None, "cancel_requested": False, "time_limit": 600,
-           "created_at": "2026-12-01T19:00:00Z", "started_at": "2026-12-01T19:00:01Z",
-           "duration_seconds": None, "links": {}}
+def show_running_job(page, job_id: str, operation: str, progress: dict,
+                     decision: dict | None) -> None:
+    """Open a running job whose routes (list, events) are stubbed in the browser."""
+    job = {"id": job_id, "operation": operation, "domain_id": "", "state": "running",
+           "progress": {"iteration": None, "residual": None, "fraction": None,
+                        "eta_seconds": None, "stage": None, **progress},
+           "decision": decision, "attempts": 1, "error": None, "cancel_requested": False,
+           "time_limit": 600, "created_at": "2026-12-01T19:00:00Z",
+           "started_at": "2026-12-01T19:00:01Z", "duration_seconds": None, "links": {}}
     events = f"event: progress\ndata: {json.dumps(job)}\n\n"  # still running: no end event
     page.route(f"**/v1/jobs/{job_id}/events", lambda route: route.fulfill(
         status=200, body=events, content_type="text/event-stream"))
@@ -79,6 +76,14 @@ def test_an_exact_job_shows_its_estimated_run_time(page, live_api):
         "jobs": [job, *route.fetch().json()["jobs"]], "next_cursor": None}))
     page.click("#refresh-jobs")
     page.click(f"#jobs li[data-id='{job_id}']")
+
+
+def test_an_exact_job_shows_its_estimated_run_time(page, live_api):
+    """A running exact-route job reports no iterations; its decision's estimate gives the
+    text and a bar that fills with time."""
+    open_viewer(page, live_api)
+    show_running_job(page, "7" * 32, "distances", {"iteration": 0},
+                     {"route": "exact", "reason": "small domain", "estimated_seconds": 20.0})
     page.wait_for_function("document.getElementById('progress-text').textContent"
                            ".includes('about 20 s')", timeout=TIMEOUT)
     assert "iteration 0" not in page.inner_text("#progress-text")
@@ -89,6 +94,16 @@ def test_an_exact_job_shows_its_estimated_run_time(page, live_api):
     first = width()
     page.wait_for_timeout(1500)
     assert first < width() < 95, (first, width())  # ~5% a second, never full while running
+    assert page.js_errors == []
+
+
+def test_a_job_waiting_for_its_kernels_says_so(page, live_api):
+    open_viewer(page, live_api)
+    stage = "preparing compiled kernels (the first run compiles them)"
+    show_running_job(page, "8" * 32, "color-transfers", {"stage": stage}, None)
+    page.wait_for_function("(s) => document.getElementById('progress-text').textContent"
+                           ".includes(s)", arg=stage, timeout=TIMEOUT)
+    assert "iteration" not in page.inner_text("#progress-text")
     assert page.js_errors == []
 
 
