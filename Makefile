@@ -11,6 +11,7 @@ $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[service,dev,docs]'
+	$(PY) -m service.warm  # numba's compiled kernels: a first job need not compile them
 	touch $@
 
 install: $(VENV)/.installed

@@ -155,6 +155,9 @@ def run_worker(settings, queues=("short", "long")) -> None:
     runtime.start_background(publish=True)
     logging.getLogger("otgeo").info("worker %s ready (queue %s: %s)", runtime.process_id,
                                     settings.queue, ", ".join(consumer.queues))
+    from service import warm
+
+    warm.start_background(runtime.operations)  # a first job waits for it (runner), no one else
     try:
         consumer.run()
     finally:

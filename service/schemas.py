@@ -167,6 +167,8 @@ class JobProgress(BaseModel):
                                    "the residual's decrease towards tol, or iteration/max_iter)")
     eta_seconds: float | None = Field(None, description="estimated seconds left while running "
                                       "(elapsed × (1 − fraction) / fraction)")
+    stage: str | None = Field(None, description="what a running job does before its solver "
+                              "reports iterations (e.g. compiling its kernels on first use)")
 
 
 class JobOut(BaseModel):
@@ -207,7 +209,7 @@ class JobOut(BaseModel):
             id=row.id, operation=row.operation, domain_id=row.domain_id, state=row.state,
             progress=JobProgress(iteration=row.iteration, residual=row.residual,
                                  fraction=getattr(row, "fraction", None),
-                                 eta_seconds=_eta(row)),
+                                 eta_seconds=_eta(row), stage=getattr(row, "stage", None)),
             queue=getattr(row, "queue", None) or "short",
             queue_position=getattr(row, "queue_position", None),
             attempts=row.attempts, error=ErrorBody(**row.error) if row.error else None,

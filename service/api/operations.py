@@ -177,7 +177,10 @@ def _domain_route(router: APIRouter, op: Operation) -> None:
     router.add_api_route(
         f"/domains/{{domain_id}}/{op.name}", create_job, methods=["POST"],
         operation_id=op.operation_id, summary=op.summary, status_code=202,
-        response_model=JobOut, responses=ROUTE_RESPONSES, openapi_extra=openapi_extra(op.name),
+        response_model=JobOut, responses=ROUTE_RESPONSES,
+        # x-domain-kinds: the kinds of domain it runs on (others get a 422): what the viewer
+        # offers on the domain shown
+        openapi_extra={**(openapi_extra(op.name) or {}), "x-domain-kinds": list(op.kinds)},
         route_class_override=JsonBodyRoute)
 
 

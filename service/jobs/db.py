@@ -56,6 +56,7 @@ class JobRow(Base):
     iteration: Mapped[int | None] = mapped_column(Integer, nullable=True)
     residual: Mapped[float | None] = mapped_column(Float, nullable=True)
     fraction: Mapped[float | None] = mapped_column(Float, nullable=True)
+    stage: Mapped[str | None] = mapped_column(String(160), nullable=True)
     queue: Mapped[str | None] = mapped_column(String(16), nullable=True)
     cost: Mapped[float | None] = mapped_column(Float, nullable=True)
     error: Mapped[dict | None] = mapped_column(JSON, nullable=True)
@@ -95,7 +96,8 @@ class WorkerRow(Base):
 JOBS = JobRow.__table__
 # columns added after the first release: created on an existing table at start-up
 ADDED_COLUMNS = {"fraction": "FLOAT", "queue": "VARCHAR(16)", "cost": "FLOAT",
-                 "decision": "JSON", "tenant": "VARCHAR(64)", "result": "JSON"}
+                 "decision": "JSON", "tenant": "VARCHAR(64)", "result": "JSON",
+                 "stage": "VARCHAR(160)"}
 ADDED_INDEXES = {"tenant": "ix_jobs_tenant"}
 
 

@@ -11,6 +11,7 @@ import logging
 import threading
 import time
 
+from service import warm
 from service.cache import OperatorCache
 from service.errors import ApiError, error_dict
 from service.jobs.db import CANCELLED, FAILED, SUCCEEDED, JobRepository, worker_identity
@@ -97,6 +98,12 @@ class _Heartbeat:
 
     max_iter: int | None = None  # the request's iteration bound (fraction fallback)
 
+    def on_stage(self, stage: str | None) -> None:
+        """What the job does before its solver reports iterations (written at once)."""
+        with self._lock:
+            self.progress = {**self.progress, "stage": stage}
+        self.beat()
+
     def on_progress(self, iteration: int, residual: float, fraction: float | None = None
                     ) -> None:
         """``progress(iteration, residual[, fraction])`` (solvers.monitor.Monitor passes the
@@ -106,7 +113,7 @@ class _Heartbeat:
             by_count = min(int(iteration) / self.max_iter, 1.0)
             done = by_count if done is None else max(done, by_count)
         with self._lock:
-            self.progress = {"iteration": int(iteration),
+            self.progress = {"stage": None, "iteration": int(iteration),
                              "residual": float(residual) if residual == residual else None,
                              "fraction": None if done is None else
                              float(min(max(done, 0.0), 1.0))}
@@ -184,6 +191,10 @@ class JobRunner:
             max_iter = getattr(params, "max_iter", None)
             if isinstance(max_iter, int) and max_iter > 0 and not op.progress_counts_items:
                 hb.max_iter = max_iter
+            if not warm.is_warm(op):  # the first job of this worker: compiled kernels first
+                hb.on_stage(warm.WARM_STAGE)
+                warm.ensure(op)
+                hb.on_stage(None)
             try:
                 output = ctx.run(op, params, hb.on_progress, should_cancel, job.decision)
             finally:

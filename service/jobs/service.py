@@ -27,8 +27,9 @@ log = logging.getLogger("otgeo.jobs")
 
 # job columns without a value until a worker runs the job (set explicitly, so the row
 # returned by ``create`` is complete without reading it back)
-UNSET_AT_CREATION = ("iteration", "residual", "fraction", "error", "worker", "started_at",
-                     "heartbeat_at", "finished_at", "duration", "result_location", "result")
+UNSET_AT_CREATION = ("iteration", "residual", "fraction", "stage", "error", "worker",
+                     "started_at", "heartbeat_at", "finished_at", "duration",
+                     "result_location", "result")
 
 
 # domains up to this many points have their bounded submissions validated on the event loop

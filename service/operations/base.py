@@ -336,6 +336,10 @@ class Operation:
         ``domain_id``): what service.jobs.service.JobService.result_glb returns."""
         return self.writes_glb or bool(domain_id)
 
+    # ``() -> None``: a tiny run that compiles the numba kernels a job runs (or loads them
+    # from numba's cache); service.warm runs it at worker start and before a first job
+    warm: Callable[[], None] | None = None
+
     def check_kind(self, view: DomainView, field: str = "domain_id") -> None:
         if view.kind not in self.kinds:
             raise UnsupportedOperation(

@@ -51,6 +51,17 @@ $("key-button").onclick = async () => {
 };
 
 // -- domains ------------------------------------------------------------------------
+// The names the user gave uploads, by domain id (kept across reloads of the page).
+const NAMES_KEY = "otgeo.uploadNames";
+function givenNames() {
+  try { return JSON.parse(localStorage.getItem(NAMES_KEY)) || {}; } catch { return {}; }
+}
+function rememberName(id, name) {
+  const names = givenNames();
+  names[id] = name;
+  try { localStorage.setItem(NAMES_KEY, JSON.stringify(names)); } catch { /* storage full or off */ }
+}
+
 async function refreshDomains() {
   const domains = [];
   let cursor = null;
@@ -60,6 +71,8 @@ async function refreshDomains() {
     cursor = out.next_cursor;
     if (!cursor) break;
   }
+  const names = givenNames();
+  for (const d of domains) if (names[d.id]) d.givenName = names[d.id];
   state.domains = domains;
   const ul = $("domains");
   ul.replaceChildren(...domains.map((d) => {
@@ -88,6 +101,7 @@ async function selectDomain(id, { keepPicks = false, keepJob = false } = {}) {
   const geom = await geometry(id);
   state.domain = meta;
   state.geometry = geom;
+  renderOperations();
   state.second = null;
   if (!keepPicks) state.picks = [];
   state.targetPicks = [];
@@ -107,6 +121,8 @@ async function uploadFiles(files) {
   for (const f of files) {
     status(`uploading ${f.name}…`);
     try { last = await api.upload(f); } catch (e) { showError(e); status(""); return; }
+    // a mesh file is stored once: a later upload of it returns the first upload's record
+    if (f.name && last.source && last.source.filename) rememberName(last.id, f.name);
   }
   await refreshDomains();
   if (last) await selectDomain(last.id);
@@ -209,6 +225,20 @@ function selectOperation() {
   state.op = op;
 }
 
+// The operation selector: global operations, and the domain-scoped ones that run on the
+// kind of domain shown (x-domain-kinds). The selection stays while offered; else distances.
+const DEFAULT_OPERATION = "distances";
+function renderOperations() {
+  const sel = $("operation");
+  const kind = state.domain ? state.domain.kind : null;
+  const offered = state.ops.filter((o) => !o.scoped || !kind || !o.kinds || o.kinds.includes(kind));
+  const kept = sel.value;
+  sel.replaceChildren(...offered.map((o) => new Option(o.scoped ? o.name : `${o.name} (global)`, o.id)));
+  const fallback = offered.find((o) => o.scoped && o.name === DEFAULT_OPERATION) || offered[0];
+  sel.value = offered.some((o) => o.id === kept) ? kept : (fallback ? fallback.id : "");
+  if (sel.value !== kept || !state.op) selectOperation();
+}
+
 async function runOperation() {
   showError(null);
   const op = state.op;
@@ -217,6 +247,7 @@ async function runOperation() {
     const body = await state.form.collect();
     const path = op.scoped ? op.path.replace("{domain_id}", state.domain.id) : op.path;
     $("run").disabled = true;
+    if (state.job) closeJob(); // the panel shows this submission's job, or none if refused
     const job = body instanceof FormData ? await api.postForm(path, body)
       : await api.postJSON(path, body);
     state.jobRequest = body instanceof FormData ? {} : body;
@@ -261,14 +292,33 @@ async function openJob(job) {
   await followJob(job);
 }
 
+// A running job that reports no iterations (an exact solver: one long step) but whose
+// decision estimated its run time: {seconds, elapsed} for a time-based bar, else null.
+function runTimeEstimate(job) {
+  const p = job.progress || {};
+  const seconds = Number((job.decision || {}).estimated_seconds);
+  if (job.state !== "running" || !(seconds > 0) || p.iteration || p.fraction > 0) return null;
+  if (!state.runningSince) state.runningSince = performance.now(); // the page's clock only
+  return { seconds, elapsed: (performance.now() - state.runningSince) / 1000 };
+}
+
+function aboutSeconds(s) {
+  return s < 90 ? `about ${Math.max(1, Math.round(s))} s` : `about ${Math.round(s / 60)} min`;
+}
+
 function setProgress(job) {
   const bar = $("progress");
   bar.dataset.state = job.state;
+  state.shownJob = job;
   const p = job.progress || {};
+  const est = runTimeEstimate(job);
   let frac = 0.03;
   if (job.state === "succeeded") frac = 1;
   else if (["failed", "cancelled"].includes(job.state)) frac = 1;
-  else if (p.fraction !== null && p.fraction !== undefined) frac = Math.max(frac, p.fraction);
+  else if (est) {
+    frac = Math.max(frac, Math.min(0.95, est.elapsed / est.seconds));
+    setTimeout(() => { if (state.shownJob === job) setProgress(job); }, 500); // the bar moves
+  } else if (p.fraction !== null && p.fraction !== undefined) frac = Math.max(frac, p.fraction);
   else if (p.iteration) {
     const req = state.jobRequest || {};
     if (req.max_iter) frac = Math.max(frac, p.iteration / req.max_iter);
@@ -280,7 +330,11 @@ function setProgress(job) {
   }
   bar.style.width = `${(100 * frac).toFixed(1)}%`;
   const parts = [job.state];
-  if (p.iteration !== null && p.iteration !== undefined) parts.push(`iteration ${p.iteration}`);
+  if (p.stage) parts.push(p.stage); // e.g. compiling kernels before the first iteration
+  if (est) parts.push(`${aboutSeconds(est.seconds)} (estimated)`);
+  else if (p.iteration !== null && p.iteration !== undefined && !(p.stage && !p.iteration)) {
+    parts.push(`iteration ${p.iteration}`);
+  }
   if (p.residual !== null && p.residual !== undefined) parts.push(`residual ${formatNumber(p.residual)}`);
   if (p.eta_seconds) parts.push(`≈${p.eta_seconds.toFixed(1)} s left`);
   if (job.duration_seconds) parts.push(`${job.duration_seconds.toFixed(2)} s`);
@@ -294,6 +348,7 @@ function closeJob() {
   if (state.stream) state.stream.abort();
   state.stream = null;
   state.job = null;
+  state.shownJob = null;
   $("job-panel").hidden = true;
   $("job-title").textContent = "";
   clearResultView();
@@ -306,6 +361,7 @@ async function followJob(job) {
   state.stream = ctrl;
   state.job = job;
   state.firstResidual = null;
+  state.runningSince = null;
   clearResultView();
   $("job-panel").hidden = false;
   $("job-title").textContent = `${job.operation} ${job.id.slice(0, 8)}`;
@@ -708,8 +764,6 @@ async function loadOperations() {
   state.ops = listOperations(state.openapi);
   const up = state.openapi.paths["/v1/domains/upload"];
   if (up && up.post) api.setUploadPath("/v1/domains/upload");
-  const sel = $("operation");
-  sel.replaceChildren(...state.ops.map((o) => new Option(o.scoped ? o.name : `${o.name} (global)`, o.id)));
   const blobRoute = Object.keys(state.openapi.paths).find((p) => /^\/v1\/blobs$/.test(p)
     && state.openapi.paths[p].post);
   formCtx.uploadBlob = blobRoute ? async (file) => {
@@ -718,7 +772,7 @@ async function loadOperations() {
     const out = await (await api.request(blobRoute, { method: "POST", body: form })).json();
     return out.id;
   } : null;
-  selectOperation();
+  renderOperations();
 }
 
 async function refreshAll() {

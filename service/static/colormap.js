@@ -15,7 +15,7 @@ export function viridis(t) {
   return [a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), a[2] + f * (b[2] - a[2])];
 }
 
-// Finite min/max of a list (nulls stand for non-finite values).
+// Finite min/max of a list (nulls stand for non-finite values), for a color scale.
 export function range(values) {
   let lo = Infinity, hi = -Infinity;
   for (const v of values) {
@@ -24,6 +24,8 @@ export function range(values) {
     if (v > hi) hi = v;
   }
   if (lo === Infinity) return [0, 1];
+  // a minimum that is round-off next to the maximum (a density's empty part) is 0
+  if (hi > 0 && Math.abs(lo) <= 1e-9 * hi) lo = 0;
   if (hi === lo) return [lo, lo + (Math.abs(lo) || 1) * 1e-9];
   return [lo, hi];
 }

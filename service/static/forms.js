@@ -18,6 +18,7 @@ export function listOperations(openapi) {
     ops.push({
       path, scoped, id: op.operationId, summary: op.summary || op.operationId,
       guide: op["x-guide"] || null, thesis: op["x-thesis"] || null,
+      kinds: op["x-domain-kinds"] || null, // the domain kinds it runs on (null: any)
       name: path.split("/").pop(), schema: (json || multipart).schema, multipart: !json,
     });
   }
@@ -373,8 +374,10 @@ function pickTemplate(root, s) {
   return (p) => ({ [key]: p.vertex });
 }
 
+// givenName: the name this browser uploaded the domain under (an upload of an already
+// stored mesh is the same domain, recorded under its first file's name)
 export function domainLabel(d) {
-  const name = (d.source && d.source.filename) || d.kind;
+  const name = d.givenName || (d.source && d.source.filename) || d.kind;
   return `${name} · ${d.kind} · ${d.n} · ${d.id.slice(0, 8)}`;
 }
 
