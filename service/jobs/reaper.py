@@ -51,7 +51,7 @@ class Reaper:
                      "message": f"job exceeded its time limit of {job.time_limit:g} s"}
             if self.repo.fail_overdue(job, error):
                 failed.append(job.id)
-        for job in self.repo.stale_queued(now - self.settings.requeue_queued_after):
+        for job in self._unsent(now):
             if self.repo.touch_queued(job):
                 resent.append(job.id)
                 self._send(job.id, job.queue)
@@ -61,6 +61,13 @@ class Reaper:
         if requeued or failed or resent:
             log.warning("reaper: requeued %s, failed %s, re-sent %s", requeued, failed, resent)
         return {"requeued": requeued, "failed": failed, "resent": resent}
+
+    def _unsent(self, now: float) -> list:
+        """Queued jobs to re-send as a last resort: none on the embedded queue, where the
+        job row is the message (nothing to lose, and a re-send only woke the workers)."""
+        if self.settings.queue != "redis":
+            return []
+        return self.repo.stale_queued(now - self.settings.requeue_queued_after)
 
     def _send(self, job_id: str, queue: str | None = None) -> None:
         try:
