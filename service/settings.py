@@ -61,7 +61,9 @@ class Settings(BaseSettings):
         "seconds (a last resort: lost messages are re-sent within broker_check_interval); "
         "duplicates are harmless. The embedded SQLite queue is the job table: nothing to "
         "re-send")
-    reaper_interval: float = Field(5.0, gt=0)
+    reaper_interval: float = Field(5.0, gt=0, description="seconds between reaper passes: "
+                                   "jobs of dead workers, and the sweep of domains released "
+                                   "by their last holder")
     broker_check_interval: float = Field(
         1.0, gt=0, description="seconds between comparisons of the broker with the job "
         "table: queued jobs whose messages were lost (a Redis restart) are re-sent at once")
