@@ -14,7 +14,7 @@ and in how many rounds the shared case was the faster one (about half when nothi
 Start the server outside ``cpu bench`` (a server must not inherit its lock), e.g.
 ``OTGEO_API_KEYS=alpha-key,beta-key PYTHONPATH=TREE .venv/bin/python -m service.cli serve
 --port 18420 --workers 1 --data-dir /tmp/t``, then ``cpu bench .venv/bin/python
-bench/tenant_timing.py --url http://127.0.0.1:18420``.
+bench/tenant_timing.py --url http://127.0.0.1:18420 [more URLs, measured in turn]``.
 """
 
 from __future__ import annotations
@@ -65,29 +65,37 @@ def summary(xs: list[float]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--url", required=True)
+    parser.add_argument("--url", required=True, nargs="+",
+                        help="one or more services (e.g. before and after), measured in turn "
+                        "within every round so that they see the same load")
     parser.add_argument("--rounds", type=int, default=40)
     args = parser.parse_args()
     load = Path("/proc/loadavg").read_text().strip()
-    times = {(case, req): [] for case in ("shared", "alone") for req in ("upload", "delete")}
+    times = {(url, case, req): [] for url in args.url for case in ("shared", "alone")
+             for req in ("upload", "delete")}
     tag = int(time.time())  # content new to this server run too
-    with httpx.Client(base_url=args.url, timeout=60) as c:
+    clients = {url: httpx.Client(base_url=url, timeout=60) for url in args.url}
+    for c in clients.values():
         for i in range(3):  # warm-up
             one_case(c, mesh_body(tag * 1000 + 900 + i), shared=bool(i % 2))
-        for i in range(args.rounds):
+    for i in range(args.rounds):
+        for url, c in clients.items():
             cases = ("shared", "alone") if i % 2 == 0 else ("alone", "shared")
             for k, case in enumerate(cases):
                 up, down = one_case(c, mesh_body(tag * 1000 + 2 * i + k), case == "shared")
-                times[case, "upload"].append(up)
-                times[case, "delete"].append(down)
-    for req in ("upload", "delete"):
-        for case in ("shared", "alone"):
-            print(f"{req} ({case}): {summary(times[case, req])}")
-        faster = sum(s < a for s, a in zip(times["shared", req], times["alone", req],
-                                           strict=True))
-        diff = statistics.median(times["alone", req]) - statistics.median(times["shared", req])
-        print(f"{req}: shared faster in {faster} of {args.rounds} rounds; median alone - "
-              f"shared {diff * 1e3:+.2f} ms")
+                times[url, case, "upload"].append(up)
+                times[url, case, "delete"].append(down)
+    for url in args.url:
+        print(url)
+        for req in ("upload", "delete"):
+            for case in ("shared", "alone"):
+                print(f"  {req} ({case}): {summary(times[url, case, req])}")
+            faster = sum(s < a for s, a in zip(times[url, "shared", req],
+                                               times[url, "alone", req], strict=True))
+            diff = statistics.median(times[url, "alone", req]) - \
+                statistics.median(times[url, "shared", req])
+            print(f"  {req}: shared faster in {faster} of {args.rounds} rounds; median alone "
+                  f"- shared {diff * 1e3:+.2f} ms")
     print(f"load before: {load}; after: {Path('/proc/loadavg').read_text().strip()}")
 
 
