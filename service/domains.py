@@ -201,27 +201,44 @@ class DomainService:
             if not self._drop_if_unheld(domain_id) and not released:
                 raise NotFound(f"unknown domain {domain_id!r}", field="domain_id")
             return
+        # the same work whether or not another tenant holds the domain (the time taken told
+        # which): the files go, if nobody holds them, at the next background sweep
         self.rt.tenancy.release(self.tenant.id, "domain", domain_id)
-        self._drop_if_unheld(domain_id)
+        self.rt.store.mark_released(domain_id)
 
     def _drop_if_unheld(self, domain_id: str) -> bool:
-        """Remove the stored domain if no tenant holds it; True if removed.
+        return drop_if_unheld(self.rt, domain_id)
 
-        Safe against a concurrent upload of the same content: the files are moved aside, then
-        the holdings counted again; an upload that took a holding meanwhile gets them back
-        (and one that looked after the move stores the domain again, see ``_put``)."""
-        tenancy, store = self.rt.tenancy, self.rt.store
-        if tenancy.holders("domain", domain_id):
-            return False
-        folder = store.retire_domain(domain_id)
-        if folder is None:
-            return False
-        if tenancy.holders("domain", domain_id):
-            store.restore_domain(domain_id, folder)
-            return False
-        store.purge_retired(folder)
-        self.rt.cache.discard(("domain", domain_id))
-        return True
+
+def drop_if_unheld(rt, domain_id: str) -> bool:
+    """Remove the stored domain if no tenant holds it; True if removed.
+
+    Safe against a concurrent upload of the same content: the files are moved aside, then
+    the holdings counted again; an upload that took a holding meanwhile gets them back
+    (and one that looked after the move stores the domain again, see ``DomainService._put``)."""
+    tenancy, store = rt.tenancy, rt.store
+    if tenancy.holders("domain", domain_id):
+        return False
+    folder = store.retire_domain(domain_id)
+    if folder is None:
+        return False
+    if tenancy.holders("domain", domain_id):
+        store.restore_domain(domain_id, folder)
+        return False
+    store.purge_retired(folder)
+    rt.cache.discard(("domain", domain_id))
+    return True
+
+
+def sweep_released_domains(rt) -> list[str]:
+    """Remove the domains tenants released (``DomainService.delete``) that nobody holds now;
+    returns their ids. Run by the reaper's loop, off the request path."""
+    removed = []
+    for domain_id in rt.store.released_domains():
+        rt.store.clear_released(domain_id)  # first: a release meanwhile marks it again
+        if drop_if_unheld(rt, domain_id):
+            removed.append(domain_id)
+    return removed
 
 
 def _as_held(meta: dict, held) -> dict:

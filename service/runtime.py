@@ -42,7 +42,8 @@ class Runtime:
         self.tasks = {q: register_task(h, self.runner.run) for q, h in self.hueys.items()}
         self.task = self.tasks["short"]
         self.broker_watch = BrokerWatch(settings, self.repo, self.hueys, self.enqueue)
-        self.reaper = Reaper(settings, self.repo, self.enqueue, self.store, self.broker_watch)
+        self.reaper = Reaper(settings, self.repo, self.enqueue, self.store, self.broker_watch,
+                             sweep=self.sweep_released)
         # wake-up datagrams to this machine's processes (enqueued -> workers, done -> API)
         self.wake = WakeSender(settings.data_dir) if settings.queue != "immediate" else None
         if self.wake is not None:
@@ -51,6 +52,12 @@ class Runtime:
         self._published = threading.Event()
         self._presence: threading.Thread | None = None
         self.waiters = None  # API: JobWaiters while the app runs (service.jobs.wake)
+
+    def sweep_released(self) -> list[str]:
+        """Remove the stored domains that tenants released and nobody holds now."""
+        from service.domains import sweep_released_domains
+
+        return sweep_released_domains(self)
 
     @property
     def process_id(self) -> str:
@@ -117,8 +124,7 @@ class Runtime:
     # -- background threads ---------------------------------------------
     def start_background(self, publish: bool) -> None:
         """Start the reaper (and, in workers, publishing of cache statistics)."""
-        if self.settings.queue != "immediate":
-            self.reaper.start()
+        self.reaper.start(sweep_only=self.settings.queue == "immediate")
         if publish:
             self.runner.on_finished = self._published.set  # publish once idle, see below
             self._presence = threading.Thread(target=self._publish_loop, daemon=True,

@@ -318,17 +318,14 @@ class ArrayRow(BaseModel):
 
 class StorageHealth(BaseModel):
     writable: bool = Field(description="the data directory takes writes (probed)")
-    free_bytes: int | None = None
-    low_space: bool = Field(False, description="free_bytes below OTGEO_MIN_FREE_BYTES")
+    low_space: bool = Field(False, description="free space below OTGEO_MIN_FREE_BYTES (the "
+                            "free bytes are on /metrics, behind a key)")
     reason: str | None = Field(None, description="why it does not take writes")
 
 
 class BrokerHealth(BaseModel):
     reachable: bool = Field(description="the queue's broker answers (Redis: PING; the "
                             "embedded SQLite queue: always)")
-    messages: int | None = Field(None, description="messages waiting in the broker's queues")
-    restarts: int = Field(0, description="broker restarts this process has seen (its queued "
-                          "jobs were re-sent from the job table at once)")
     reason: str | None = Field(None, description="why it is unreachable")
 
 

@@ -67,10 +67,13 @@ class Settings(BaseSettings):
     stale_after: float = Field(30.0, gt=0, description="heartbeat age after which a running "
                                "job's worker counts as dead")
     requeue_queued_after: float = Field(
-        300.0, gt=0, description="re-enqueue a job still queued after this many seconds "
-        "(a last resort: lost messages are re-sent within broker_check_interval); "
-        "duplicates are harmless")
-    reaper_interval: float = Field(5.0, gt=0)
+        300.0, gt=0, description="Redis: re-enqueue a job still queued after this many "
+        "seconds (a last resort: lost messages are re-sent within broker_check_interval); "
+        "duplicates are harmless. The embedded SQLite queue is the job table: nothing to "
+        "re-send")
+    reaper_interval: float = Field(5.0, gt=0, description="seconds between reaper passes: "
+                                   "jobs of dead workers, and the sweep of domains released "
+                                   "by their last holder")
     broker_check_interval: float = Field(
         1.0, gt=0, description="seconds between comparisons of the broker with the job "
         "table: queued jobs whose messages were lost (a Redis restart) are re-sent at once")

@@ -206,12 +206,11 @@ class Store:
     def put_domain(self, domain: Domain, source: dict | None = None) -> tuple[dict, bool]:
         """Store ``domain``; returns ``(meta, created)`` (created False if already stored)."""
         domain_id = domain.content_hash()
-        existing = self._meta_path(domain_id)
-        if existing.exists():
-            try:
-                return json.loads(existing.read_text()), False
-            except (OSError, ValueError):
-                pass  # unreadable: rewrite below
+        stored = None
+        try:
+            stored = json.loads(self._meta_path(domain_id).read_text())
+        except (OSError, ValueError):
+            pass  # not stored yet (or unreadable: rewritten below)
         labels = np.asarray(domain.component_labels, dtype=np.int32)
         aux = {"areas": np.asarray(domain.areas, dtype=np.float64), "component_labels": labels}
         pts = domain_points(domain)
@@ -226,10 +225,32 @@ class Store:
             "source": source or {},
             "created_at": time.time(),
         }
+        # written also when stored already (the same content, replaced atomically): an
+        # upload then takes as long whether or not another tenant holds the domain
         _write_npz(self.domain_dir / f"{domain_id}.npz", domain.to_arrays())
         _write_npz(self.domain_dir / f"{domain_id}.aux.npz", aux)
-        _write_json(self._meta_path(domain_id), meta)
-        return meta, True
+        _write_json(self._meta_path(domain_id), stored or meta)
+        return stored or meta, stored is None
+
+    # -- domains released by a tenant, removed by the background sweep if nobody holds them
+    @property
+    def _released_dir(self) -> Path:
+        return self.domain_dir / ".released"
+
+    def mark_released(self, domain_id: str) -> None:
+        """Note that a holding of the domain was dropped (``released_domains``)."""
+        self.check_id(domain_id)
+        self._released_dir.mkdir(exist_ok=True)
+        (self._released_dir / domain_id).touch()
+
+    def released_domains(self) -> list[str]:
+        try:
+            return sorted(p.name for p in self._released_dir.iterdir() if _ID.match(p.name))
+        except FileNotFoundError:
+            return []
+
+    def clear_released(self, domain_id: str) -> None:
+        (self._released_dir / domain_id).unlink(missing_ok=True)
 
     def _meta_path(self, domain_id: str) -> Path:
         return self.domain_dir / f"{domain_id}.json"

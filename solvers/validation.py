@@ -21,6 +21,8 @@ from solvers.errors import InputError
 def check_masses(values, n: int, field: str = "masses") -> np.ndarray:
     """Return ``values`` as a float ``(n,)`` or ``(n, k)`` array; finite, non-negative, non-zero.
 
+    Finite values whose sum overflows (e.g. ``[1.7e308, 1.7e308]``) are valid: normalize
+    them with :func:`normalized_columns`, never by dividing by ``x.sum()`` (which is inf).
     Raises ``InputError`` naming ``field`` otherwise.
     """
     try:
@@ -38,16 +40,29 @@ def check_masses(values, n: int, field: str = "masses") -> np.ndarray:
         bad = int(np.argwhere(x < 0)[0, 0])
         raise InputError(f"{field}[{bad}] is negative ({x.flat[np.argmax(x < 0)]:g})",
                          field=field)
-    totals = x.sum(axis=0)
-    if np.any(totals <= 0):
+    if n == 0 or np.any(x.max(axis=0) <= 0):
         raise InputError(f"{field} has zero total mass", field=field)
     return x
 
 
+def mass_totals(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(peak, relative)`` per column of checked masses: the largest value and the sum
+    of the values divided by it, so that the total is ``peak * relative`` without the sum
+    overflowing (finite values near 1.7e308) or losing subnormals' digits (5e-324)."""
+    peak = x.max(axis=0)
+    return peak, (x / peak).sum(axis=0)
+
+
+def normalized_columns(x: np.ndarray) -> np.ndarray:
+    """Checked masses (:func:`check_masses`) rescaled to sum to 1 per column; the scaling
+    by the largest value first keeps every finite input finite and non-zero."""
+    peak, relative = mass_totals(x)
+    return (x / peak) / relative
+
+
 def normalize_masses(values, n: int, field: str = "masses") -> np.ndarray:
     """Validated masses rescaled to sum to 1 (per column)."""
-    x = check_masses(values, n, field)
-    return x / x.sum(axis=0)
+    return normalized_columns(check_masses(values, n, field))
 
 
 def density_from_masses(masses: np.ndarray, areas: np.ndarray) -> np.ndarray:

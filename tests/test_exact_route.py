@@ -199,3 +199,15 @@ def test_ground_distances_per_domain_kind(monkeypatch):
     assert graph.stored_ground_distances() is None
     with pytest.raises(NotImplementedError, match="graph"):
         graph.ground_distances([0], [2])
+
+
+@pytest.mark.parametrize("masses", [np.zeros(0), np.zeros(3), np.array([np.nan, 1.0, 0.0])])
+def test_the_lp_refuses_empty_or_massless_supports_instead_of_crashing(masses):
+    """POT's network simplex on an empty support read out of bounds: a segfault of the API
+    process (its client saw the connection close), reached when an overflowing sum had
+    zeroed the masses. Such a call now raises."""
+    from solvers.convolutional.exact import _network_simplex
+
+    other = np.full(len(masses), 1.0 / max(len(masses), 1))
+    with pytest.raises(ValueError, match="empty or massless"):
+        _network_simplex(masses, other, np.ones((len(masses), len(masses))))

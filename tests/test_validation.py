@@ -74,3 +74,15 @@ def test_bad_weights_raise_input_error_naming_the_field(weights, words):
 def test_weights_near_the_float_limit_whose_sum_is_finite_are_kept():
     w = check_weights([1e307, 1e307, 0.0], 3)
     np.testing.assert_allclose(w, [0.5, 0.5, 0.0], rtol=1e-15)
+
+
+@pytest.mark.parametrize("peak", [1.7e308, np.finfo(float).max, 5e-324])
+def test_masses_whose_sum_overflows_or_is_subnormal_normalize_exactly(peak):
+    """Finite masses are valid however large or small: the sum is taken after scaling by
+    the largest value, so [1.7e308, 1.7e308] is [0.5, 0.5] (dividing by the inf sum gave
+    zeros, which crashed the LP downstream) and subnormals keep their ratios."""
+    x = normalize_masses(np.array([peak, peak, 0.0, peak]), 4, field="mu0")
+    np.testing.assert_array_equal(x, [1 / 3, 1 / 3, 0.0, 1 / 3])
+    block = normalize_masses(np.array([[peak, 1.0], [peak, 3.0]]), 2)
+    np.testing.assert_array_equal(block, [[0.5, 0.25], [0.5, 0.75]])
+    assert np.all(np.isfinite(normalize_masses(np.full(10_000, peak), 10_000)))

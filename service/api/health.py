@@ -25,8 +25,9 @@ router = APIRouter(tags=["health"])
                              "`storage` and `broker` say why"}})
 async def healthz(rt: RuntimeDep):
     """Liveness plus storage (the data directory takes writes: a probe file is written and
-    removed, at most once a second; its free bytes) and the queue's broker (reachable, its
-    messages, restarts seen; probed at most once a second)."""
+    removed, at most once a second) and the queue's broker (reachable; probed at most once a
+    second): up or down per component, without counts. Unauthenticated, so it shows nothing
+    of other tenants (queue depths, messages) nor free bytes: those are on /metrics."""
     storage = await run_in_threadpool(rt.storage_status)
     broker = await run_in_threadpool(rt.broker_status)
     ok = storage["writable"] and not storage["low_space"] and broker["reachable"]
@@ -64,7 +65,8 @@ def metrics(rt: RuntimeDep, tenant: Annotated[str | None, Depends(metrics_scope)
     """Job counts and durations and queue depth (from the job table). A tenant's key sees
     its own jobs only; an admin key (or the open service, or OTGEO_METRICS_OPEN) sees every
     tenant's, and the processes: cache hits/misses and sizes (this process and every live
-    worker), live workers, broker messages."""
+    worker), live workers, broker messages, reachability and restarts, the data directory's
+    free bytes."""
     out = _Exposition()
     if tenant is None:
         _process_metrics(rt, out)
@@ -104,6 +106,18 @@ def _process_metrics(rt, out: _Exposition) -> None:
     if pending is not None:
         out.metric("otgeo_queue_messages", "gauge", "messages in the Huey queue",
                    [({}, float(pending))])
+    broker = rt.broker_status()
+    out.metric("otgeo_broker_reachable", "gauge", "the queue's broker answers (1) or not (0)",
+               [({}, float(broker["reachable"]))])
+    out.metric("otgeo_broker_restarts_total", "counter", "broker restarts this process has "
+               "seen (its queued jobs were re-sent from the job table at once)",
+               [({}, float(broker.get("restarts", 0)))])
+    storage = rt.storage_status()
+    out.metric("otgeo_storage_writable", "gauge", "the data directory takes writes (1) or "
+               "not (0)", [({}, float(storage["writable"]))])
+    if storage.get("free_bytes") is not None:
+        out.metric("otgeo_storage_free_bytes", "gauge", "free bytes in the data directory",
+                   [({}, float(storage["free_bytes"]))])
 
 
 def _job_metrics(rt, out: _Exposition, tenant: str | None) -> None:

@@ -52,6 +52,11 @@ class BrokerWatch:
     def check(self) -> list[str]:
         """Compare the broker with the job table; re-send the lost messages. Returns the ids
         re-sent (raises when the broker or the table is unreachable)."""
+        if self.settings.queue != "redis":
+            # the embedded queue is the job table itself (JobRepository.claim_next): a
+            # queued job cannot be missing from it, and Huey's SQLite queue holds no message
+            # for it, which the count below took for a loss (re-sending waiting jobs)
+            return []
         run_id = self.broker_run_id()
         restarted = self.run_id is not None and run_id != self.run_id
         if restarted:

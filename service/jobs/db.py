@@ -163,8 +163,10 @@ def _claim_next_statement(queues: tuple[str, ...]):
     from sqlalchemy import case
 
     rank = case({q: i for i, q in enumerate(queues)}, value=_QUEUE)
+    # submission order (created_at), not enqueued_at: re-sends and requeues rewrite that,
+    # and jobs then ran out of order (first submitted, first started, per queue)
     oldest = (select(JOBS.c.id).where(JOBS.c.state == QUEUED, _QUEUE.in_(queues))
-              .order_by(rank, func.coalesce(JOBS.c.enqueued_at, JOBS.c.created_at), JOBS.c.id)
+              .order_by(rank, JOBS.c.created_at, JOBS.c.id)
               .limit(1).scalar_subquery())
     return (update(JOBS).where(JOBS.c.id == oldest, JOBS.c.state == QUEUED)
             .values(_CLAIMED).returning(*JOBS.c))
@@ -320,17 +322,16 @@ class JobRepository:
             return [JobRow(**row) for row in conn.execute(q).mappings()]
 
     def queue_position(self, job: JobRow) -> int | None:
-        """1 for the next queued job of its queue, 2 after that, ...; None unless queued."""
+        """1 for the next queued job of its queue, 2 after that, ...; None unless queued
+        (in submission order, as :meth:`claim_next` takes them)."""
         if job.state != QUEUED:
             return None
         mine = job.queue or "short"
         same = func.coalesce(JOBS.c.queue, "short") == mine
-        at = job.enqueued_at if job.enqueued_at is not None else job.created_at
         q = select(func.count()).select_from(JOBS).where(
             JOBS.c.state == QUEUED, same,
-            or_(func.coalesce(JOBS.c.enqueued_at, JOBS.c.created_at) < at,
-                and_(func.coalesce(JOBS.c.enqueued_at, JOBS.c.created_at) == at,
-                     JOBS.c.id < job.id)))
+            or_(JOBS.c.created_at < job.created_at,
+                and_(JOBS.c.created_at == job.created_at, JOBS.c.id < job.id)))
         with self.engine.connect() as conn:
             return int(conn.execute(q).scalar() or 0) + 1
 
@@ -351,8 +352,8 @@ class JobRepository:
 
     def claim_next(self, queues: tuple[str, ...], worker: str, *,
                    probe: bool = True) -> Claim | None:
-        """Claim the oldest queued job of ``queues`` (earlier queues first) for this worker;
-        None when there is none (or another worker took it first).  The embedded queue: the
+        """Claim the first submitted queued job of ``queues`` (earlier queues first) for this
+        worker; None when there is none (or another worker took it first).  The embedded queue: the
         job row written at submission is the message, so nothing is handed over twice and a
         requeued job (reaper) is simply queued again.
 

@@ -78,8 +78,8 @@ class JsonSerializer(Serializer):
 
 class WalNormalSqliteStorage(SqliteStorage):
     """Huey's SQLite storage with ``synchronous=NORMAL`` (WAL): no fsync per enqueue and still
-    never corrupted by a crash; a message lost to a power cut is re-sent by the reaper from
-    the job table (``requeue_queued_after``)."""
+    never corrupted by a crash. Jobs are not sent through it (the job table is the embedded
+    queue, ``JobRepository.claim_next``); it carries messages of older APIs only."""
 
     def _create_connection(self):
         conn = super()._create_connection()

@@ -22,9 +22,11 @@ DONE_MARKER_TTL = 3600.0  # seconds a completion marker is kept (waiting clients
 
 class Reaper:
     def __init__(self, settings: Settings, repo: JobRepository,
-                 enqueue: Callable[[str, str | None], None], store=None, watch=None):
+                 enqueue: Callable[[str, str | None], None], store=None, watch=None,
+                 sweep: Callable[[], list[str]] | None = None):
         self.settings, self.repo, self.enqueue, self.store = settings, repo, enqueue, store
         self.watch = watch  # a BrokerWatch (service.jobs.broker), checked more often
+        self.sweep = sweep  # removes released content nobody holds (service.domains)
         self._broker_down = False
         self._last_prune = 0.0
         self._stop = threading.Event()
@@ -51,7 +53,7 @@ class Reaper:
                      "message": f"job exceeded its time limit of {job.time_limit:g} s"}
             if self.repo.fail_overdue(job, error):
                 failed.append(job.id)
-        for job in self.repo.stale_queued(now - self.settings.requeue_queued_after):
+        for job in self._unsent(now):
             if self.repo.touch_queued(job):
                 resent.append(job.id)
                 self._send(job.id, job.queue)
@@ -61,6 +63,13 @@ class Reaper:
         if requeued or failed or resent:
             log.warning("reaper: requeued %s, failed %s, re-sent %s", requeued, failed, resent)
         return {"requeued": requeued, "failed": failed, "resent": resent}
+
+    def _unsent(self, now: float) -> list:
+        """Queued jobs to re-send as a last resort: none on the embedded queue, where the
+        job row is the message (nothing to lose, and a re-send only woke the workers)."""
+        if self.settings.queue != "redis":
+            return []
+        return self.repo.stale_queued(now - self.settings.requeue_queued_after)
 
     def _send(self, job_id: str, queue: str | None = None) -> None:
         try:
@@ -82,7 +91,19 @@ class Reaper:
         self._broker_down = False
         return resent
 
-    def start(self) -> None:
+    def sweep_once(self) -> list[str]:
+        """The stored domains removed by ``sweep`` (none without one)."""
+        if self.sweep is None:
+            return []
+        try:
+            return self.sweep()
+        except Exception:
+            log.exception("sweep of released domains failed")
+            return []
+
+    def start(self, sweep_only: bool = False) -> None:
+        """The loop in a thread; ``sweep_only`` (the immediate queue: jobs run in requests,
+        no broker) runs only the sweep."""
         interval = self.settings.reaper_interval
         tick = interval if self.watch is None else \
             min(interval, self.settings.broker_check_interval)
@@ -90,11 +111,14 @@ class Reaper:
         def loop():
             next_pass = time.monotonic() + interval
             while not self._stop.wait(tick):
-                if self.watch is not None:
+                if self.watch is not None and not sweep_only:
                     self.check_broker()
                 if time.monotonic() < next_pass:
                     continue
                 next_pass = time.monotonic() + interval
+                self.sweep_once()
+                if sweep_only:
+                    continue
                 try:
                     self.run_once()
                 except Exception:

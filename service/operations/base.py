@@ -14,6 +14,7 @@ by the server, which reports the normalization.
 
 from __future__ import annotations
 
+import math
 import threading
 import weakref
 from collections import OrderedDict
@@ -37,6 +38,8 @@ from solvers.validation import (
     check_indices,
     check_int,
     check_masses,
+    mass_totals,
+    normalized_columns,
 )
 
 Progress = Callable[[int, float], None]
@@ -431,10 +434,14 @@ def resolve_distribution(view: DomainView, spec, field: str, input_kind: str = "
     if input_kind == "density":
         values = values * view.areas
     values = check_masses(values, view.n, field=field)
-    total = float(values.sum())
-    report = {"field": field, "given_total": total, "scale": 1.0 / total,
+    peak, relative = mass_totals(values)
+    with np.errstate(over="ignore", divide="ignore"):
+        total, scale = float(peak * relative), float(1.0 / peak / relative)
+    # beyond the float range (a total over 1.7e308, the scale of a subnormal total): null
+    report = {"field": field, "given_total": total if math.isfinite(total) else None,
+              "scale": scale if math.isfinite(scale) else None,
               "normalized": bool(abs(total - 1.0) > 1e-12)}
-    return values / total, report
+    return normalized_columns(values), report
 
 
 def resolve_all(view: DomainView, specs: dict[str, object], input_kind: str

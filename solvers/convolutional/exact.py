@@ -103,6 +103,18 @@ class _MeshPlan:
     need: np.ndarray  # (r,) the bound of each row's first solve
 
 
+def _network_simplex(a: np.ndarray, b: np.ndarray, cost: np.ndarray, **options):
+    """``ot.emd`` on masses that are never empty nor without mass: POT's network simplex
+    reads out of bounds on an empty support and took the whole API process down (a
+    segfault: the client's connection closed) when an overflowing sum had zeroed masses."""
+    import ot
+
+    for name, m in (("row", a), ("column", b)):
+        if m.size == 0 or not np.isfinite(m).all() or not m.sum() > 0:
+            raise ValueError(f"transport LP with an empty or massless {name} support")
+    return ot.emd(a, b, cost, **options)
+
+
 def _finite_cost(cost: np.ndarray) -> np.ndarray:
     """Infinite entries (other components) priced above any finite plan: matching
     component masses leave them unused."""
@@ -115,10 +127,8 @@ def _finite_cost(cost: np.ndarray) -> np.ndarray:
 def _first_bounds(paths: np.ndarray, cols: np.ndarray, row_mass, col_mass):
     """``(upper, need)``: edge-path lengths from the rows (``paths``, rows x n) to ``cols``
     and, per row, the longest of them that the LP on their squares uses."""
-    import ot
-
     upper = paths[:, cols]
-    guess = ot.emd(row_mass, col_mass, _finite_cost(upper**2), numItermax=10_000_000)
+    guess = _network_simplex(row_mass, col_mass, _finite_cost(upper**2), numItermax=10_000_000)
     return upper, np.where(guess > 0, upper, 0.0).max(axis=1)
 
 
@@ -203,7 +213,6 @@ def _triangle_bounds(near: np.ndarray, dist: np.ndarray) -> np.ndarray:
 def _mesh_exact(mesh, plan: _MeshPlan, stop, max_iter: int):
     """The bounded-solve loop of the module docstring: ``(plan, squared cost, log, LP
     seconds)``."""
-    import ot
 
     from solvers.geodesics import geodesic_distances_within
 
@@ -231,8 +240,8 @@ def _mesh_exact(mesh, plan: _MeshPlan, stop, max_iter: int):
             lower = np.maximum(lower, _triangle_bounds(near, dist))
         lower = np.where(known, dist, lower)
         begin = time.perf_counter()
-        coupling, log = ot.emd(plan.row_mass, plan.col_mass, _finite_cost(lower**2),
-                               numItermax=int(max_iter), log=True)
+        coupling, log = _network_simplex(plan.row_mass, plan.col_mass, _finite_cost(lower**2),
+                                         numItermax=int(max_iter), log=True)
         lp_seconds += time.perf_counter() - begin
         guessed = (coupling > 0) & ~known
         if not guessed.any():
@@ -264,7 +273,6 @@ def exact_wasserstein_distance(
     -------
     ExactTransportResult(value, sources, targets, plan, iterations, residual, converged, ...)
     """
-    import ot
 
     from solvers.convolutional.common import check_components, distribution_pair
     from solvers.errors import CancelledError
@@ -300,7 +308,7 @@ def exact_wasserstein_distance(
         cost_seconds = time.perf_counter() - start
         monitor.check_cancel("before the transport LP")
         begin = time.perf_counter()
-        coupling, log = ot.emd(a, b, cost, numItermax=int(max_iter), log=True)
+        coupling, log = _network_simplex(a, b, cost, numItermax=int(max_iter), log=True)
         lp_seconds = time.perf_counter() - begin
     residual = float(np.abs(coupling.sum(axis=1) - a).sum()
                      + np.abs(coupling.sum(axis=0) - b).sum())

@@ -50,7 +50,7 @@ import scipy.sparse as sp
 from solvers.domains.mesh import TriangleMesh
 from solvers.errors import CancelledError, InputError, UnsupportedDomainError
 from solvers.monitor import Monitor, SolverResult
-from solvers.validation import check_masses, check_weights
+from solvers.validation import check_masses, check_weights, normalized_columns
 
 MAX_VERTICES = 5000
 # The eq. 2.7 interior point (algorithm "ipm"): certified relative gap and iteration cap.
@@ -137,8 +137,7 @@ def _check_mesh(mesh, max_vertices: int, blocks: int = 1) -> None:
 
 
 def _masses(mesh, values, field_name: str) -> np.ndarray:
-    x = check_masses(values, mesh.n, field_name)
-    return x / x.sum(axis=0)
+    return normalized_columns(check_masses(values, mesh.n, field_name))
 
 
 def _face_weights(mesh, face_weights) -> np.ndarray:
@@ -552,7 +551,7 @@ def _barycenter_inputs(mesh, mus, weights, max_vertices: int | None):
     x_in = check_masses(mus, mesh.n, "mus")
     if x_in.ndim != 2:
         raise InputError("mus must be a (V, k) array, one column per input", field="mus")
-    M = x_in / x_in.sum(axis=0)
+    M = normalized_columns(x_in)
     k = M.shape[1]
     if max_vertices is not None:
         _check_mesh(mesh, max_vertices, blocks=k + 1)

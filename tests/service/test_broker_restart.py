@@ -82,7 +82,8 @@ def test_jobs_queued_across_a_broker_restart_are_resent_at_once(make_client, tmp
         ids = [client.post(f"/v1/domains/{gid}/distances", json=body).json()["id"]
                for _ in range(JOBS)]
         health = client.get("/healthz").json()
-        assert health["broker"]["reachable"] and health["broker"]["messages"] == JOBS, health
+        assert health["broker"] == {"reachable": True, "reason": None}, health  # no counts
+        assert rt.pending_messages() == JOBS
 
         _wait(lambda: rt.broker_watch.run_id, 5, "a first check of the broker (its run id)")
         server.stop()  # every message is gone with it
@@ -98,7 +99,7 @@ def test_jobs_queued_across_a_broker_restart_are_resent_at_once(make_client, tmp
         # path has counted the restart: both run every check, so the count follows at once
         _wait(lambda: rt.broker_watch.restarts == 1, 5, "the restart counted")
         time.sleep(rt.BROKER_CHECK_EVERY + 0.1)  # the health probe's cached answer expires
-        assert client.get("/healthz").json()["broker"]["restarts"] == 1
+        assert "otgeo_broker_restarts_total 1\n" in client.get("/metrics").text
 
         # a flush (same run id): the queue holds fewer messages than the table has jobs
         rt.huey.storage.conn.flushall()

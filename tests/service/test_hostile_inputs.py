@@ -427,3 +427,29 @@ def test_weld_form_values():
     with pytest.raises(InvalidInput) as info:
         parse_weld("sometimes")
     assert info.value.field == "weld"
+
+
+@pytest.mark.parametrize("metric", ["w2", "w1"])
+@pytest.mark.parametrize("peak", [1.7e308, 5e-324])
+def test_masses_near_the_float_limits_normalize_like_ones(client, mesh_id, metric, peak):
+    """Masses whose sum overflows (1.7e308 each) gave a 500 (inf sum, zero masses, then the
+    LP's own assertion or a segfault); subnormal ones (5e-324) are as valid: both are the
+    same distribution as ones, with the total and scale beyond the float range as null."""
+    def distance(mu0):
+        body = {"mu0": mu0, "mu1": {"vertex": 5, "radius": 0.5}, "metric": metric}
+        r = client.post(f"/v1/domains/{mesh_id}/distances", json=body)
+        assert r.status_code in (200, 201), r.text
+        assert r.json()["state"] == "succeeded", r.text
+        return client.get(f"/v1/jobs/{r.json()['id']}/result").json()["values"]
+
+    ones = distance({"indices": [1, 2], "masses": [1.0, 1.0]})
+    for mu0 in ({"indices": [1, 2], "masses": [peak, peak]},
+                [peak if i in (1, 2) else 0.0 for i in range(162)]):
+        values = distance(mu0)
+        assert values["value"] == pytest.approx(ones["value"], rel=1e-9)
+        report = values["normalization"][0]
+        assert report["normalized"] is True
+        if peak > 1:
+            assert report["given_total"] is None and report["scale"] == pytest.approx(0.5 / peak)
+        else:
+            assert report["given_total"] == 2 * peak and report["scale"] is None

@@ -200,3 +200,59 @@ def test_a_job_database_without_update_returning_is_refused_at_start(tmp_path, m
         assert repo.claim("no-such-job", "w") is None
     finally:
         repo.dispose()
+
+
+@pytest.mark.parametrize("backend", ["sqlite", "redis"])
+def test_first_submitted_first_started_on_one_worker(make_client, tmp_path, backend):
+    """20 jobs on one worker start in submission order, and the recovery checks re-send
+    none of them while they merely wait. On SQLite the broker check took every waiting job
+    for lost (Huey's SQLite queue holds no message: the job table is the queue), re-sent it
+    and rewrote its ``enqueued_at``, which the worker ordered by: the jobs submitted before
+    a check then ran after those submitted since (0, 7, 8, 9, 5, 3, ...)."""
+    import threading
+
+    from service.jobs import broker
+
+    settings = {"queue": backend, "broker_check_interval": 3600.0, "reaper_interval": 3600.0,
+                "requeue_queued_after": 1.0}
+    if backend == "redis":  # the local Redis, on a queue of this test's own
+        settings.update(redis_url="redis://127.0.0.1:6379/0",
+                        queue_name=f"fifo-{os.getpid()}-{time.monotonic_ns()}")
+    client = make_client(**settings)
+    rt = client.app.state.runtime
+    gid = client.post("/v1/domains", json={"kind": "grid", "shape": [4, 4]}).json()["id"]
+
+    def submit(k: int) -> list[str]:
+        body = {"mu0": {"vertex": 0, "radius": 0.5}, "mu1": {"vertex": 15, "radius": 0.5}}
+        return [client.post(f"/v1/domains/{gid}/distances", json=body).json()["id"]
+                for _ in range(k)]
+
+    first = submit(10)
+    time.sleep(broker.SETTLE_SECONDS + 0.1)  # the first ten are old enough to be checked
+    ids = first + submit(10)
+    resent = rt.broker_watch.check()
+    assert resent == [], resent  # nothing was lost
+    if backend == "sqlite":  # the job row is the message: nothing to re-send, ever
+        assert rt.reaper.run_once()["resent"] == []
+    assert [client.get(f"/v1/jobs/{i}").json()["queue_position"] for i in ids] == \
+        list(range(1, 21))
+
+    worker_rt = Runtime(Settings(data_dir=tmp_path, **settings), role="worker")
+    consumer = Consumer(worker_rt)
+    thread = threading.Thread(target=consumer.run, daemon=True)
+    thread.start()
+    try:
+        deadline = time.monotonic() + 120
+        while not all(rt.repo.get(i).state == "succeeded" for i in ids):
+            assert time.monotonic() < deadline, "the jobs did not finish"
+            time.sleep(0.05)
+    finally:
+        consumer.stop()
+        thread.join(timeout=10)
+        worker_rt.close()
+    jobs = [rt.repo.get(i) for i in ids]
+    started = sorted(range(len(ids)), key=lambda i: jobs[i].started_at)
+    assert started == list(range(len(ids))), started
+    assert all(j.attempts == 1 for j in jobs)
+    if backend == "redis":
+        rt.hueys["short"].storage.flush_queue()
