@@ -46,11 +46,18 @@ def check_masses(values, n: int, field: str = "masses") -> np.ndarray:
 
 
 def mass_totals(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(peak, relative)`` per column of checked masses: the largest value and the sum
-    of the values divided by it, so that the total is ``peak * relative`` without the sum
-    overflowing (finite values near 1.7e308) or losing subnormals' digits (5e-324)."""
+    """``(peak, relative)`` per column of checked masses, their total being ``peak *
+    relative``: ``(1, x.sum())`` where that sum is a finite normal float (the plain sum's
+    bits), else the largest value and the sum of the values divided by it, so that the total
+    neither overflows (finite values near 1.7e308) nor loses subnormals' digits (5e-324)."""
+    plain = x.sum(axis=0)
+    exact = np.isfinite(plain) & (plain >= np.finfo(np.float64).tiny)
+    if np.all(exact):
+        return np.ones_like(plain), plain
     peak = x.max(axis=0)
-    return peak, (x / peak).sum(axis=0)
+    with np.errstate(over="ignore"):
+        scaled = (x / peak).sum(axis=0)
+    return np.where(exact, 1.0, peak), np.where(exact, plain, scaled)
 
 
 def normalized_columns(x: np.ndarray) -> np.ndarray:
