@@ -290,6 +290,12 @@ class GaussianGridHeatKernel:
         return self._along_axes(log_block, log_convolve)
 
 
+# Meshes up to this many vertices offer the geodesic Gaussian kernel (method "geodesic"):
+# its all-pairs distances and log-kernel blocks are two dense n x n float64 arrays (576 MB at
+# this size), and one application reads n^2 entries.
+GEODESIC_KERNEL_VERTICES = 6144
+
+
 def _log_contract_columns(y: np.ndarray, blocks: list[tuple]) -> np.ndarray:
     """:func:`_log_contract` of a dense kernel on ``(n, C)`` columns: ``out[i, c] = log sum_l
     exp(log_k[i, l] + y[l, c])``, one ``(rows, n) @ (n, C)`` BLAS product per row block (the

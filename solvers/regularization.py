@@ -33,7 +33,7 @@ import numpy as np
 
 from solvers.domains.sketch import DomainSketch
 from solvers.errors import InputError
-from solvers.kernels import heat_time
+from solvers.kernels import GEODESIC_KERNEL_VERTICES, heat_time
 
 PURPOSES = ("values", "shapes")
 # gamma = VALUE_FACTOR * h * d for values (bench/results/convolutional.md), with h at least
@@ -236,7 +236,7 @@ def shape_method(domain, method: str = "auto") -> str:
     available = sketch_of(domain).geodesic_kernel_available
     if method == "geodesic" and not available:
         raise InputError("method 'geodesic' is available on triangle meshes of at most "
-                         "GEODESIC_KERNEL_VERTICES vertices; use 'convolutional'",
+                         f"{GEODESIC_KERNEL_VERTICES} vertices; use 'convolutional'",
                          field="method")
     if method == "auto":
         return "geodesic" if available else "convolutional"

@@ -38,12 +38,13 @@ from solvers.convolutional import (
 from solvers.convolutional.decision import DistanceDecision as SolverDecision
 from solvers.convolutional.decision import decide_distance
 from solvers.convolutional.exact import EXACT_KINDS, MAX_SUPPORT_PRODUCT
-from solvers.domains.mesh import GEODESIC_KERNEL_VERTICES, TriangleMesh
+from solvers.domains.mesh import TriangleMesh
 from solvers.emd import earth_movers_distance, pointwise_distances
 from solvers.emd.beckmann import resolve_method
 from solvers.emd.green import GREEN_MAX_VERTICES
 from solvers.emd.pointwise import check_cost
 from solvers.errors import InputError
+from solvers.kernels import GEODESIC_KERNEL_VERTICES
 from solvers.regularization import shape_method, shape_regularization
 from solvers.validation import (
     GAMMA_MIN,

@@ -16,7 +16,12 @@ from scipy.sparse.csgraph import connected_components
 from solvers.domains.base import Domain
 from solvers.errors import DomainError, InputError, MeshFormatError
 from solvers.heat_geodesics import all_pairs_heat_distances
-from solvers.kernels import GeodesicGaussianKernel, ImplicitEulerHeatKernel, morton_order
+from solvers.kernels import (
+    GEODESIC_KERNEL_VERTICES,
+    GeodesicGaussianKernel,
+    ImplicitEulerHeatKernel,
+    morton_order,
+)
 from solvers.linalg import Backend
 
 log = logging.getLogger("otgeo.solvers")
@@ -40,10 +45,6 @@ STORED_GEODESICS_VERTICES = 4096
 # n-vectors of one exact geodesic solve's work (MMP frontier and distances, measured ~8 on
 # a 642-vertex sphere beside the n x n matrix: tests/service/test_distance_matrices.py)
 GEODESIC_WORK_VECTORS = 16
-# Meshes up to this many vertices offer the geodesic Gaussian kernel (method "geodesic"):
-# its all-pairs distances and log-kernel blocks are two dense n x n float64 arrays (576 MB at
-# this size), and one application reads n^2 entries.
-GEODESIC_KERNEL_VERTICES = 6144
 
 
 @dataclass

@@ -25,6 +25,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from solvers.kernels import GEODESIC_KERNEL_VERTICES
+
 _SKETCHES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
@@ -57,8 +59,6 @@ class DomainSketch:
     def geodesic_kernel_available(self) -> bool:
         """Whether the domain offers the geodesic Gaussian kernel (method ``"geodesic"``):
         triangle meshes up to ``GEODESIC_KERNEL_VERTICES`` vertices."""
-        from solvers.domains.mesh import GEODESIC_KERNEL_VERTICES
-
         return self.kind == "mesh" and self.n <= GEODESIC_KERNEL_VERTICES
 
     # -- construction ---------------------------------------------------------------

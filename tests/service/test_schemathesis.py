@@ -94,6 +94,8 @@ DOMAIN_BOUNDS = [
             r"\bk must be <= \d+|\b(descriptor_)?k must be below \d+"),
     Allowed("an entropy bound above a point mass's on the domain", ON_DOMAINS, 422,
             r"the entropy of a point mass on this domain"),
+    Allowed("a kernel the domain offers (method 'geodesic': triangle meshes up to a size)",
+            ON_DOMAINS, 422, r"method 'geodesic' is (not )?available"),
     Allowed("a row index below the result array's row count",
             r"GET /v1/jobs/\{job_id\}/arrays/\{name\}/rows/\{row\}", 422,
             r"row \d+ out of range \[0, \d+\]"),
