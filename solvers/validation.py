@@ -50,7 +50,8 @@ def mass_totals(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     relative``: ``(1, x.sum())`` where that sum is a finite normal float (the plain sum's
     bits), else the largest value and the sum of the values divided by it, so that the total
     neither overflows (finite values near 1.7e308) nor loses subnormals' digits (5e-324)."""
-    plain = x.sum(axis=0)
+    with np.errstate(over="ignore"):  # an overflowing sum takes the scaled path below
+        plain = x.sum(axis=0)
     exact = np.isfinite(plain) & (plain >= np.finfo(np.float64).tiny)
     if np.all(exact):
         return np.ones_like(plain), plain

@@ -23,7 +23,7 @@ def _sphere(tmp_path, name, scale=(1.0, 1.0, 1.0)):
 def test_the_issue_soft_map_is_long_and_above_its_measured_peak():
     """859 samples on nefertiti at full resolution peaked at ~4.4 GiB and ran 429 s: the
     estimate is at least that peak (so 413 under the 4 GiB default) and the job is long."""
-    req = SoftMapRequest(source_id="a", target_id="b", samples=859, target_points=None,
+    req = SoftMapRequest(source_id="a" * 16, target_id="b" * 16, samples=859, target_points=None,
                          landmarks=LANDMARKS)
     sizes = estimate_sizes(NEFERTITI, NEFERTITI, req)
     assert sizes["bytes"] >= 4.4 * 2**30
