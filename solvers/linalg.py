@@ -108,6 +108,9 @@ class SpluFactor:
         return self._lu.solve(np.asarray(rhs, dtype=np.float64))
 
 
+MKL_THREADING_SEQUENTIAL = 1  # mkl_service.h: MKL_THREADING_INTEL 0, SEQUENTIAL 1, GNU 3
+
+
 def _load_mkl_runtime():
     """MKL's single dynamic library (``libmkl_rt``) from the ``mkl`` wheel, or None."""
     names = sorted(glob.glob(os.path.join(sys.prefix, "lib", "libmkl_rt.so*")), key=len)
@@ -118,6 +121,11 @@ def _load_mkl_runtime():
             lib.pardiso  # noqa: B018 - the symbol must exist
         except (OSError, AttributeError):
             continue
+        # Sequential MKL, chosen before any other MKL call: with its default (Intel OpenMP)
+        # layer PARDISO's bits depended on the process's history (a worker that had started
+        # numba's OpenMP pool, e.g. for a colour transfer, gave W1 results differing beyond
+        # 1e-12 from a fresh worker's: tests/golden under pytest-xdist found it).
+        lib.MKL_Set_Threading_Layer(MKL_THREADING_SEQUENTIAL)
         return lib
     return None
 

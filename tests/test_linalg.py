@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import textwrap
@@ -253,3 +254,24 @@ def test_eigenpairs_are_the_same_bits_on_every_call():
     assert all(np.array_equal(a, b) for a, b in zip(first, second, strict=True))
     first, second = (EMDOperators(fresh()).stream_eigenbasis(8) for _ in range(2))
     assert all(np.array_equal(a, b) for a, b in zip(first, second, strict=True))
+
+
+def test_pardiso_runs_sequential_mkl_whatever_ran_before():
+    """PARDISO's bits must not depend on the process's history: in a process that started
+    numba's OpenMP pool first (as a colour transfer does), MKL still runs sequentially."""
+    if not have_pardiso():  # the mkl wheel is a dev dependency: present wherever tests run
+        raise AssertionError("MKL PARDISO did not load")
+    script = (
+        "import numba, numpy as np\n"
+        "@numba.njit(parallel=True)\n"
+        "def total(x):\n"
+        "    s = 0.0\n"
+        "    for i in numba.prange(x.size):\n"
+        "        s += x[i]\n"
+        "    return s\n"
+        "total(np.ones(4096))\n"
+        "from solvers.linalg import _pardiso_lib\n"
+        "print(_pardiso_lib().MKL_Get_Max_Threads())\n")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         check=True, env={**os.environ, "MKL_NUM_THREADS": "2"})
+    assert out.stdout.strip() == "1", out.stdout + out.stderr

@@ -342,6 +342,9 @@ def run_cases(cases=None, progress: Callable[[str, float], None] | None = None) 
     from threadpoolctl import threadpool_limits
 
     import service.app  # noqa: F401 (every library the jobs use, loaded)
+    from solvers.linalg import _pardiso_lib
+
+    _pardiso_lib()  # MKL (PARDISO) loads lazily: load it now, so that the limit covers it
 
     out = {}
     with threadpool_limits(limits=1), golden_client() as client:
