@@ -122,8 +122,10 @@ UNSTATABLE = [
             r"the smallest regularization this domain can resolve"),
     Allowed("a bounded product of sizes", ANY_POST, 422,
             r"use a coarser slice or fewer points"),
-    Allowed("a bounded product of sizes (BRDF hemisphere: n_theta * n_phi; 32 x 128 is "
-            "valid)", r"POST /v1/brdf-interpolations", 413, r"n_theta \* n_phi = \d+ exceeds"),
+    Allowed("a bounded product of sizes (BRDF hemisphere: n_theta * n_phi, 32 x 128 valid; "
+            "and its barycenter columns x hemisphere points)", r"POST /v1/brdf-interpolations",
+            413, r"n_theta \* n_phi = \d+ exceeds|barycenter columns on \d+ hemisphere points "
+            r"exceed"),
     Allowed("an uploaded file's contents (format: binary says nothing of them)",
             r"POST /v1/(domains|domains/upload|color-transfers)", 422,
             r"mesh format|[A-Z]+ file is binary data|not a valid|could not be read"
