@@ -20,10 +20,10 @@ length):
 * **the geodesic kernel with the entropy bound** (``sharpen=True``: no frame more diffuse
   than the inputs), as in the thesis' second row.
 
-What to look for: in the first row the middle frames are streaks; in the second and third,
-separate peaks that move.  Where this differs from the thesis: the surface is spot (public)
-rather than the thesis' models, and the thesis ran its heat kernel only, which its figure
-shows sharper than ours because it used more substeps on a coarser mesh.
+What to look for: in the first row the middle frames are one broad smear between the peaks;
+in the second and third, separate peaks that split and move.  Where this differs from the
+thesis: the surface is spot (public) rather than the thesis' models, and the peaks are tent
+bumps placed on the side the camera sees; the thesis ran only its heat kernel.
 """
 
 import matplotlib.pyplot as plt
@@ -45,9 +45,10 @@ def peaks(vertices):
     return masses / masses.sum()
 
 
-# Two peaks on the flank become three on the other side of the body.
-mu0 = peaks([1497, 2492])
-mu1 = peaks([772, 1716, 935])
+# Two peaks on the hind quarters become three towards the head, all on the side the
+# camera sees.
+mu0 = peaks([24, 2244])
+mu1 = peaks([2172, 1602, 1945])
 times = [0.0, 0.25, 0.5, 0.75, 1.0]
 rows = [("heat kernel (thesis, Alg. 2)", {"method": "convolutional"}),
         ("geodesic kernel (default)", {"method": "geodesic"}),
