@@ -226,7 +226,7 @@ SHAPE_METHODS = ("auto", "convolutional", "geodesic")
 
 def shape_method(domain, method: str = "auto") -> str:
     """The kernel of a shape solver: ``method`` when given, else ``"geodesic"`` where the
-    domain offers it (triangle meshes up to ``GEODESIC_KERNEL_VERTICES`` vertices: the
+    domain offers it (connected triangle meshes up to ``GEODESIC_KERNEL_VERTICES`` vertices: the
     implicit-Euler kernel's exponential tail smears results along the direction of travel,
     ``bench/results/sharp_transport.md``) and ``"convolutional"`` elsewhere (on grids the
     heat kernel already is the exact Gaussian).  A function of the domain's kind and size."""
@@ -235,8 +235,8 @@ def shape_method(domain, method: str = "auto") -> str:
                          f"got {method!r}", field="method")
     available = sketch_of(domain).geodesic_kernel_available
     if method == "geodesic" and not available:
-        raise InputError("method 'geodesic' is available on triangle meshes of at most "
-                         f"{GEODESIC_KERNEL_VERTICES} vertices; use 'convolutional'",
+        raise InputError("method 'geodesic' is available on connected triangle meshes of at "
+                         f"most {GEODESIC_KERNEL_VERTICES} vertices; use 'convolutional'",
                          field="method")
     if method == "auto":
         return "geodesic" if available else "convolutional"

@@ -136,6 +136,12 @@ def test_method_is_decided_from_the_domain_and_checked():
     mesh = flat_square(8)
     assert shape_method(mesh) == "geodesic"
     assert shape_method(Grid((8, 8))) == "convolutional"
+    # two separate squares: the heat method gives no distance between them, so the heat
+    # kernel (block diagonal) stays, from the mesh and from its sketch alike
+    two = TriangleMesh(np.r_[mesh.vertices, mesh.vertices + (2.0, 0.0, 0.0)],
+                       np.r_[mesh.faces, mesh.faces + mesh.n])
+    assert two.n_components == 2 and not two.geodesic_kernel_available
+    assert shape_method(two) == "convolutional"
     graph = Graph(4, [[0, 1], [1, 2], [2, 3]])
     assert shape_method(graph) == "convolutional"
     with pytest.raises(InputError) as err:

@@ -660,8 +660,10 @@ class TriangleMesh(Domain):
 
     @property
     def geodesic_kernel_available(self) -> bool:
-        """Whether :meth:`geodesic_kernel` fits (:data:`GEODESIC_KERNEL_VERTICES`)."""
-        return self.n <= GEODESIC_KERNEL_VERTICES
+        """Whether :meth:`geodesic_kernel` is offered: one connected surface (the heat
+        method gives no distance between components, and the kernel must not couple them) of
+        at most :data:`GEODESIC_KERNEL_VERTICES` vertices."""
+        return self.n <= GEODESIC_KERNEL_VERTICES and self.n_components == 1
 
     @classmethod
     def geodesic_kernel_bytes(cls, n: int) -> int:
@@ -673,8 +675,9 @@ class TriangleMesh(Domain):
         """The Gibbs kernel of squared heat-method geodesics at heat time ``t``
         (:class:`~solvers.kernels.GeodesicGaussianKernel`), kept in the operator store."""
         if not self.geodesic_kernel_available:
-            raise InputError(f"method 'geodesic' needs at most {GEODESIC_KERNEL_VERTICES} "
-                             f"vertices (this mesh has {self.n})", field="method")
+            raise InputError(f"method 'geodesic' needs one connected surface of at most "
+                             f"{GEODESIC_KERNEL_VERTICES} vertices (this mesh: {self.n} "
+                             f"vertices, {self.n_components} components)", field="method")
 
         def build():
             d = all_pairs_heat_distances(self)

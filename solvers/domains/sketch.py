@@ -58,8 +58,10 @@ class DomainSketch:
     @property
     def geodesic_kernel_available(self) -> bool:
         """Whether the domain offers the geodesic Gaussian kernel (method ``"geodesic"``):
-        triangle meshes up to ``GEODESIC_KERNEL_VERTICES`` vertices."""
-        return self.kind == "mesh" and self.n <= GEODESIC_KERNEL_VERTICES
+        connected triangle meshes up to ``GEODESIC_KERNEL_VERTICES`` vertices (as
+        ``TriangleMesh.geodesic_kernel_available``)."""
+        return (self.kind == "mesh" and self.n <= GEODESIC_KERNEL_VERTICES
+                and bool(np.all(self.component_labels == self.component_labels[0])))
 
     # -- construction ---------------------------------------------------------------
     @classmethod
