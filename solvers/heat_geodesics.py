@@ -56,7 +56,7 @@ def heat_method_distances(mesh, sources) -> np.ndarray:
     sources = np.asarray(sources, dtype=np.int64).reshape(-1)
     heat = mesh.heat_kernel(heat_time_for_distances(mesh), 1).factor
     poisson = _poisson_factor(mesh)
-    grad, face_areas = mesh.gradient, np.repeat(mesh.face_areas, 3)
+    grad, div = mesh.gradient, mesh.divergence  # div = -G^T diag(A)
     nf = mesh.n_faces
     out = np.empty((len(sources), mesh.n))
     for start in range(0, len(sources), SOURCE_BLOCK):
@@ -67,8 +67,8 @@ def heat_method_distances(mesh, sources) -> np.ndarray:
         g = (grad @ u).reshape(nf, 3, len(block))
         norm = np.sqrt(np.einsum("fcb,fcb->fb", g, g))
         g /= np.where(norm > 0, norm, 1.0)[:, None, :]
-        rhs = -(grad.T @ (face_areas[:, None] * g.reshape(3 * nf, len(block))))
-        phi = poisson.solve(rhs)
+        # L phi = G^T A X with X = -g (g the normalized gradient of u): div g
+        phi = poisson.solve(div @ g.reshape(3 * nf, len(block)))
         phi -= phi[block, np.arange(len(block))]
         out[start:start + len(block)] = np.maximum(phi, 0.0).T
     return out
