@@ -58,7 +58,7 @@ def test_comparison_catches_changes():
     result = compare({name: golden[name]}, {name: case})
     assert result.mismatches == [] and len(result.not_bitwise) == 1
     case["values"]["value"] *= 1 + 1e-10
-    case["decision"]["route"] = "convolutional"
+    case["decision"]["method"] = "convolutional"
     arrays = json.loads(json.dumps(golden["pointwise-distances-mesh"]))
     key = next(iter(arrays["arrays"]))
     arrays["arrays"][key]["sha256"] = "0" * 16
