@@ -21,6 +21,7 @@ example). ``OTGEO_GALLERY_CACHE=off`` recomputes everything (and rewrites nothin
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import json
 import os
 import sys
@@ -54,23 +55,35 @@ def input_digest(inputs: Iterable) -> str:
     return h.hexdigest()
 
 
+def _package_dir(package: str) -> Path | None:
+    spec = importlib.util.find_spec(package)
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    return Path(list(spec.submodule_search_locations)[0]).resolve().parent
+
+
 def loaded_modules(packages: Iterable[str] = PACKAGES) -> dict[str, str]:
-    """``{file: sha256}`` of every loaded module of ``packages`` (the dependencies of a
-    result computed in this process; a superset when other work ran before)."""
+    """``{"package/.../module.py": sha256}`` of every loaded module of ``packages`` (the
+    dependencies of a result computed in this process; a superset when other work ran
+    before), named relative to the directory the package is imported from."""
     out = {}
     for name, module in list(sys.modules.items()):
-        if name.split(".")[0] not in packages:
-            continue
+        package = name.split(".")[0]
         path = getattr(module, "__file__", None)
-        if path and os.path.exists(path):
-            out[os.path.relpath(path, ROOT)] = _sha(Path(path).read_bytes())
+        if package not in packages or not path or not os.path.exists(path):
+            continue
+        base = _package_dir(package)
+        if base is not None:
+            out[Path(path).resolve().relative_to(base).as_posix()] = _sha(Path(path).read_bytes())
     return out
 
 
 def _fresh(deps: dict[str, str]) -> bool:
+    """Every recorded module, found where its package is imported from now, unchanged."""
     for rel, digest in deps.items():
-        path = ROOT / rel
-        if not path.exists() or _sha(path.read_bytes()) != digest:
+        base = _package_dir(rel.split("/")[0])
+        path = None if base is None else base / rel
+        if path is None or not path.exists() or _sha(path.read_bytes()) != digest:
             return False
     return True
 
