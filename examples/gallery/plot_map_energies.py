@@ -83,9 +83,11 @@ for name, d, b in zip(names, dirichlet, bijectivity, strict=True):
 # %%
 # Top: a checkerboard of 30° × 30° cells drawn on the target, pulled back to the source
 # through each map (the identity shows the checkerboard itself: a rotation turns it, the
-# Möbius map swells the cells near the south pole and shrinks those near the north pole,
-# the stretch squeezes the cells towards the poles).  Middle: the Dirichlet energy density per
-# source vertex (one colour scale from 0).  Bottom: the two energies side by side.
+# Möbius map enlarges the cells near the north pole and shrinks those near the south pole
+# while keeping them square, the stretch squeezes the cells near the equator into thin
+# bands; drawn from the smooth maps on a finer sphere).  Middle: the Dirichlet energy
+# density per source vertex of the vertex maps (one colour scale from 0).  Bottom: the two
+# energies side by side.
 fig = plt.figure(figsize=(13, 9.5))
 layout = fig.add_gridspec(3, 4, height_ratios=[1, 1, 0.9])
 fine = trimesh.creation.icosphere(subdivisions=5)  # for drawing the smooth maps only
