@@ -48,6 +48,7 @@ grid = HemisphereGrid(16, 64)
 incoming = np.radians([0, 20, 40, 60, 80])
 weights = bilinear_weights(rows, cols)      # a 4 × 4 grid of blends of the four corners
 gamma = (2 * 0.399 * np.pi / 2 / 16) ** 2   # about two grid spacings, squared
+size = 96  # pixels per sphere
 corner_cells = [np.flatnonzero(np.isclose(weights[:, c], 1.0))[0] for c in range(4)]
 
 
@@ -58,17 +59,17 @@ def compute():
                                 entropy_bound=bound, max_iter=500)
         masses = res.masses.copy()
         masses[:, corner_cells] = res.inputs  # the corners are the inputs, not barycenters
-        out[name] = masses
+        out[name] = render_spheres(grid, masses, res.scale, incoming, rows, cols, size=size)
         out[f"{name}_iterations"] = res.iterations
         out[f"{name}_residual"] = res.residual
         out[f"{name}_entropy"] = res.entropy  # (n_in, B)
         if res.entropy_bound is not None:
             out["bound"] = res.entropy_bound
-    out["linear"], out["scale"] = res.linear, res.scale
-    return out
+    out["linear"] = render_spheres(grid, res.linear, res.scale, incoming, rows, cols, size=size)
+    return out  # the rendered spheres (uint8): far smaller to store than the slices
 
 
-r = cached(__file__, compute, inputs=[repr(corners), weights, incoming, gamma, grid.n])
+r = cached(__file__, compute, inputs=[repr(corners), weights, incoming, gamma, grid.n, size])
 for name in ("plain", "bounded"):
     print(f"{name}: {int(r[name + '_iterations'])} iterations, residual "
           f"{float(r[name + '_residual']):.1e}")
@@ -85,11 +86,9 @@ print(f"entropy bound active for {active.sum()} of {active.size} blended slices;
 # tinted by the same bilinear blend of four corner colours, to tell the corners apart (the
 # materials themselves are grey).
 tints = np.array([[1.0, 0.72, 0.45], [0.55, 0.8, 1.0], [0.6, 1.0, 0.6], [1.0, 0.6, 0.85]])
-size = 96
 cell_tint = (weights @ tints).reshape(rows, cols, 3)
 tint_image = np.repeat(np.repeat(cell_tint, size, axis=0), size, axis=1)
-images = [render_spheres(grid, r[key], r["scale"], incoming, rows, cols, size=size)
-          for key in ("linear", "plain", "bounded")]
+images = [r[key].astype(float) for key in ("linear", "plain", "bounded")]
 exposure = max(float(np.percentile(im, 99.5)) for im in images)
 fig, axes = plt.subplots(1, 3, figsize=(15, 5.6))
 for ax, image, title in zip(axes, images, ("linear blend", "Wasserstein barycenters (Alg. 2)",
