@@ -35,7 +35,7 @@ def setup(tmp_path, monkeypatch):
         return {"values": np.arange(4) * core.FACTOR, "count": len(calls)}
 
     def run(inputs=(data, 3)):
-        return _cache.cached(example, compute, inputs, packages=("fakelib",))
+        return _cache.cached(compute, inputs, example=example, packages=("fakelib",))
 
     yield run, calls, example, data, package
     for name in ("fakelib.core", "fakelib"):
@@ -79,6 +79,12 @@ def test_a_changed_library_module_recomputes(setup):
     (package / "core.py").write_text("FACTOR = 3.0\n")
     run()
     assert len(calls) == 2
+
+
+def test_the_example_defaults_to_the_calling_file(tmp_path, monkeypatch):
+    monkeypatch.setattr(_cache, "CACHE", tmp_path / "cache")
+    _cache.cached(lambda: {"x": np.zeros(2)})
+    assert (tmp_path / "cache" / f"{Path(__file__).stem}.npz").exists()
 
 
 def test_the_cache_can_be_switched_off(setup, monkeypatch):

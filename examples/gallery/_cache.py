@@ -1,7 +1,7 @@
 """A result cache for heavy gallery examples: an unchanged example does not recompute.
 
-``cached(__file__, compute, inputs)`` returns the dict of arrays that ``compute()`` returns,
-from ``docs/_gallery_cache/<example>.npz`` when that file was written
+``cached(compute, inputs)``, called from an example, returns the dict of arrays that
+``compute()`` returns, from ``docs/_gallery_cache/<example>.npz`` when that file was written
 
 * from the same example source (the whole file: any edit reruns it),
 * with the same ``inputs`` (files are hashed by content, arrays by bytes, the rest by
@@ -96,11 +96,16 @@ def key_of(example: str | Path, inputs: Iterable) -> str:
                            np.__version__.encode(), scipy.__version__.encode()]))
 
 
-def cached(example: str | Path, compute: Callable[[], dict], inputs: Iterable = (), *,
+def cached(compute: Callable[[], dict], inputs: Iterable = (), *,
+           example: str | Path | None = None,
            packages: Iterable[str] = PACKAGES) -> dict[str, np.ndarray]:
     """``compute()``'s dict of arrays (or numbers), from the cache when it is fresh (module
-    docstring); prints whether it was loaded or computed, and the computation's time."""
-    example = Path(example)
+    docstring); prints whether it was loaded or computed, and the computation's time.
+
+    ``example`` is the example's file, by default the caller's (sphinx-gallery defines no
+    ``__file__`` but compiles each example under its own file name).
+    """
+    example = Path(example if example is not None else sys._getframe(1).f_code.co_filename)
     path = CACHE / f"{example.stem}.npz"
     key = key_of(example, list(inputs))
     enabled = os.environ.get("OTGEO_GALLERY_CACHE", "on").lower() not in ("off", "0", "no")

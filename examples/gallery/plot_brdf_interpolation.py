@@ -69,7 +69,7 @@ def compute():
     return out  # the rendered spheres (uint8): far smaller to store than the slices
 
 
-r = cached(__file__, compute, inputs=[repr(corners), weights, incoming, gamma, grid.n, size])
+r = cached(compute, inputs=[repr(corners), weights, incoming, gamma, grid.n, size])
 for name in ("plain", "bounded"):
     print(f"{name}: {int(r[name + '_iterations'])} iterations, residual "
           f"{float(r[name + '_residual']):.1e}")

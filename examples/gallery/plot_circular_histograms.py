@@ -61,7 +61,7 @@ def compute():
             "pdf": pdf.histograms}
 
 
-r = cached(__file__, compute, inputs=[edges, border, labels, gamma])
+r = cached(compute, inputs=[edges, border, labels, gamma])
 print(f"LP: energy {float(r['lp_value']):.4f}, certified gap {float(r['lp_gap']):.1e}; "
       f"entropic Alg. 4: exact energy of its result {float(r['entropic_value']):.4f}")
 methods = [("lp", "Wasserstein (exact LP)"), ("entropic", "Wasserstein (entropic Alg. 4)"),

@@ -73,7 +73,7 @@ def compute():
     return out
 
 
-r = cached(__file__, compute, inputs=[points, mesh.faces, *maps.values()])
+r = cached(compute, inputs=[points, mesh.faces, *maps.values()])
 names = list(maps)
 dirichlet = [float(r[f"dirichlet{k}"]) for k in range(len(names))]
 bijectivity = [float(r[f"bijectivity{k}"]) for k in range(len(names))]

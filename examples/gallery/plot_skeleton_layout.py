@@ -63,8 +63,7 @@ def compute():
             "converged": result.converged}
 
 
-r = cached(__file__, compute,
-           inputs=[MESHES / "homer.obj", edges, np.array(list(fixed.values()))])
+r = cached(compute, inputs=[MESHES / "homer.obj", edges, np.array(list(fixed.values()))])
 inside, linear_inside = r["winding"] > 0.5, r["linear_winding"] > 0.5
 print(f"joints inside: {inside.sum()} / {len(joints)} (straight-line layout: "
       f"{linear_inside.sum()} / {len(joints)}); propagation converged {bool(r['converged'])}")

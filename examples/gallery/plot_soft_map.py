@@ -53,8 +53,7 @@ def compute():
     return out
 
 
-r = cached(__file__, compute,
-           inputs=[MESHES / "pairs" / "lion-00.off", MESHES / "pairs" / "cat-00.off",
+r = cached(compute, inputs=[MESHES / "pairs" / "lion-00.off", MESHES / "pairs" / "cat-00.off",
                    pairs_file, landmarks])
 scale = np.sqrt(cat.areas.sum())  # 1: the meshes are scaled to unit area
 misses = {}

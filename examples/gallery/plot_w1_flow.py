@@ -78,7 +78,7 @@ def compute():
             **{k: v.astype(np.float32) for k, v in fields.items()}}  # for drawing only
 
 
-r = cached(__file__, compute, inputs=[mesh.vertices, mesh.faces, mu0, mu1, sizes])
+r = cached(compute, inputs=[mesh.vertices, mesh.faces, mu0, mu1, sizes])
 poisson = float(mesh.face_areas @ np.linalg.norm(r["grad"], axis=1))  # k = 0: no curl part
 print(f"W1 over all flows = {float(r['value']):.5f} (certified >= {float(r['lower']):.5f}); "
       f"curl basis: {float(r['full']):.5f}; curl-free part alone: {poisson:.5f}")
