@@ -8,6 +8,7 @@ import scipy.sparse as sp
 
 from solvers.domains.base import (
     Domain,
+    ExportGeometry,
     domain_input,
     squared_straight_distance_bytes,
     squared_straight_distances,
@@ -32,6 +33,7 @@ class PointCloud(Domain):
     """
 
     kind = "pointcloud"
+    capabilities = frozenset({"exact_transport", "histogram_propagation"})
 
     def __init__(self, points, n_neighbors: int = 30):
         super().__init__()
@@ -94,6 +96,15 @@ class PointCloud(Domain):
     @property
     def laplacian(self) -> sp.csr_matrix:
         return self._laplacian
+
+    @property
+    def coordinates(self) -> np.ndarray:
+        """The points at unit area."""
+        return self.points
+
+    def export_geometry(self) -> ExportGeometry:
+        """The points in input units."""
+        return ExportGeometry(self.to_arrays()["points"])
 
     def _build_heat_kernel(self, t: float, substeps: int, backend: Backend):
         return ImplicitEulerHeatKernel(self.areas, self.laplacian, t, substeps, backend)
