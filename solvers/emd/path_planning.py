@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from solvers.domains.mesh import TriangleMesh
+from solvers.domains import supports
 from solvers.emd.exact import (
     MAX_VERTICES,
     _check_mesh,
@@ -147,7 +147,7 @@ def w1_path_planning(
     if algorithm not in ALGORITHMS:
         raise InputError(f"algorithm must be one of {ALGORITHMS}, got {algorithm!r}",
                          field="algorithm")
-    if not isinstance(mesh, TriangleMesh):
+    if not supports(mesh, "faces"):
         raise UnsupportedDomainError("path planning needs a TriangleMesh domain",
                                      field="domain")
     m0 = _masses(mesh, rho0, "rho0")
