@@ -159,14 +159,6 @@ class Domain:
                              field="laplacian")
         return sp.csr_matrix(self.laplacian)
 
-    def as_graph(self, laplacian: str = "auto"):
-        """A :class:`~solvers.domains.Graph` with the positive off-diagonal weights
-        ``-L_uv`` of :meth:`laplacian_variant` (negative cotangent weights dropped), at the
-        domain's :attr:`coordinates`; a graph returns itself."""
-        from solvers.domains.graph import graph_of_laplacian
-
-        return graph_of_laplacian(self.laplacian_variant(laplacian), self.coordinates)
-
     def export_geometry(self) -> ExportGeometry:
         """What a glTF export draws: the points at :attr:`coordinates`.
 

@@ -104,10 +104,6 @@ class Graph(Domain):
         """Ones: a graph's heat equation counts nodes."""
         return np.ones(self.n)
 
-    def as_graph(self, laplacian: str = "auto") -> Graph:
-        """This graph (``laplacian`` is not read)."""
-        return self
-
     def export_geometry(self) -> ExportGeometry:
         """The node positions and the edges; a graph without positions has none."""
         if self.positions is None:
@@ -147,6 +143,16 @@ class Graph(Domain):
             "components": self.n_components,
             "connected": self.is_connected,
         }
+
+
+def domain_graph(domain: Domain, laplacian: str = "auto") -> Graph:
+    """A :class:`Graph` with the positive off-diagonal weights ``-L_uv`` of the domain's
+    Laplacian ``laplacian`` (``Domain.laplacian_variant``; negative cotangent weights
+    dropped), at its :attr:`~Domain.coordinates`; a graph is returned as it is (its
+    ``laplacian`` is not read)."""
+    if isinstance(domain, Graph):
+        return domain
+    return graph_of_laplacian(domain.laplacian_variant(laplacian), domain.coordinates)
 
 
 def graph_of_laplacian(L: sp.spmatrix, positions=None) -> Graph:

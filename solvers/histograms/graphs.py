@@ -23,7 +23,7 @@ from scipy.sparse.csgraph import connected_components
 
 from solvers.domains import Graph
 from solvers.domains.base import Domain, check_laplacian_name
-from solvers.domains.graph import graph_of_laplacian
+from solvers.domains.graph import domain_graph, graph_of_laplacian
 from solvers.errors import InputError
 from solvers.validation import check_int
 
@@ -65,7 +65,7 @@ def as_graph(graph, laplacian: LaplacianKind = "auto") -> Graph:
     none.)
     """
     if isinstance(graph, Domain):
-        return graph.as_graph(laplacian)
+        return domain_graph(graph, laplacian)
     return graph_of_laplacian(graph_laplacian(graph, laplacian))
 
 
