@@ -10,7 +10,7 @@ Read with ``ast`` (nothing is imported or run), over ``solvers/`` and ``service/
   against the domain classes of ``solvers/domains/`` (but against the base ``Domain``
   alone: that asks whether an argument is a domain at all, listed apart), and
   ``hasattr``/``getattr`` probes of an attribute that some domain classes define and
-  others do not;
+  others do not (but probes of a request, ``req.n_nodes``: listed apart);
 - ``route`` sites (parameters and class fields named ``route`` or ``*_route``) other than
   the HTTP ones (in ``service/api/``, and an operation's flag saying it has one), grouped
   by what they name (``ROUTE_MEANINGS``: by module), each with the values written there;
@@ -46,6 +46,10 @@ METHOD_NAMES = re.compile(r"^(algorithm|solver|\w+_solver|\w+_algorithm)$")
 # (the histogram solvers also take a sparse weight matrix), which no domain method can
 # answer: listed, not counted as a kind branch
 NOT_KIND = "isinstance against the base Domain (not counted)"
+# hasattr/getattr on an operation's request (``req``, ``request``) probes one of its fields
+# that happens to share a name with a domain attribute (``n_nodes``): listed, not counted
+REQUEST_NAMES = {"req", "request"}
+REQUEST_PROBES = "hasattr/getattr probes of a request's fields (not counted)"
 SPEC_CLASSES = {"GridSpec", "GraphSpec", "PointCloudSpec", "MeshSpec"}  # service/schemas.py
 
 
@@ -176,7 +180,11 @@ def kind_branches(mods: dict[str, Module]) -> dict[str, list[str]]:
                 elif (fn in ("hasattr", "getattr") and len(args) >= 2
                       and isinstance(args[1], ast.Constant) and args[1].value in partial
                       and (fn == "hasattr" or len(args) == 3)):
-                    out["hasattr/getattr probes"].append(f"{site(mod, node)} ({args[1].value})")
+                    probe = f"{site(mod, node)} ({args[1].value})"
+                    if isinstance(args[0], ast.Name) and args[0].id in REQUEST_NAMES:
+                        out[REQUEST_PROBES].append(probe)  # a request's field, not a domain's
+                    else:
+                        out["hasattr/getattr probes"].append(probe)
     return out
 
 
@@ -440,7 +448,8 @@ def main(argv=None) -> None:
          f"({len(kinds['string comparisons'])} string comparisons, "
          f"{len(kinds['isinstance checks'])} isinstance), plus "
          f"{len(kinds['hasattr/getattr probes'])} hasattr/getattr probes "
-         f"({len(kinds[NOT_KIND])} isinstance against the base Domain not counted)"),
+         f"(not counted: {len(kinds[NOT_KIND])} isinstance against the base Domain, "
+         f"{len(kinds[REQUEST_PROBES])} probes of a request's fields)"),
         ("`route` sites not naming an HTTP route",
          f"{sum(map(len, other.values()))} with {len(other)} meanings "
          f"({sum(map(len, routes.values()))} sites, {len(routes)} meanings with HTTP)"),
