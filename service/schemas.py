@@ -79,8 +79,10 @@ class _DomainSpec(BaseModel):
     size_field: ClassVar[str]  # the field that gives the domain's size (a 413 names it)
 
     def n_points(self) -> int:
-        """Points the domain will carry (Python ints: a product cannot wrap)."""
-        raise NotImplementedError  # pragma: no cover
+        """Points the domain will carry (Python ints: a product cannot wrap): the value of
+        its ``size_field``, or that field's length (rows of points or vertices)."""
+        size = getattr(self, self.size_field)
+        return int(size) if isinstance(size, int) else len(size)
 
     def build_bytes(self, per: dict[str, int]) -> int:
         """Working memory of the build, from the sizes alone (``per``: bytes per unit,
@@ -88,7 +90,13 @@ class _DomainSpec(BaseModel):
         raise NotImplementedError  # pragma: no cover
 
     def build(self, max_vertices: int) -> Domain:
-        """The domain, its size checked against ``max_vertices`` first (413)."""
+        """The domain, its size (:meth:`n_points`, named by ``size_field``) checked against
+        ``max_vertices`` first (413)."""
+        check_point_limit(self.n_points(), max_vertices, self.size_field)
+        return self.construct()
+
+    def construct(self) -> Domain:
+        """The domain, unchecked."""
         raise NotImplementedError  # pragma: no cover
 
 
@@ -119,6 +127,10 @@ class GridSpec(_DomainSpec):
             check_size(self.shape, max_vertices, "shape")
         except InputError as exc:
             raise PayloadTooLarge(exc.message, field="shape") from exc
+        return self.construct()
+
+    def construct(self) -> Grid:
+        """The grid."""
         return Grid(self.shape, self.bounds, self.periodic)
 
 
@@ -133,17 +145,12 @@ class GraphSpec(_DomainSpec):
     positions: list[list[float]] | None = None
     size_field: ClassVar[str] = "n_nodes"
 
-    def n_points(self) -> int:
-        """The node count."""
-        return int(self.n_nodes)
-
     def build_bytes(self, per: dict[str, int]) -> int:
         """Per node and per edge."""
         return per["graph_node"] * int(self.n_nodes) + per["graph_edge"] * len(self.edges)
 
-    def build(self, max_vertices: int) -> Graph:
+    def construct(self) -> Graph:
         """The graph."""
-        check_point_limit(self.n_nodes, max_vertices, "n_nodes")
         return Graph(self.n_nodes, self.edges, self.weights, self.positions)
 
 
@@ -157,19 +164,14 @@ class PointCloudSpec(_DomainSpec):
                              "triangulation")
     size_field: ClassVar[str] = "points"
 
-    def n_points(self) -> int:
-        """The point count."""
-        return len(self.points)
-
     def build_bytes(self, per: dict[str, int]) -> int:
         """Per point and neighbor (more neighbors than other points is refused by the build
         itself, 422)."""
         neighbors = min(int(self.n_neighbors), max(len(self.points) - 1, 1))
         return per["pointcloud_neighbor"] * len(self.points) * neighbors
 
-    def build(self, max_vertices: int) -> PointCloud:
+    def construct(self) -> PointCloud:
         """The point cloud."""
-        check_point_limit(len(self.points), max_vertices, "points")
         return PointCloud(spec_array(self.points, "points"), n_neighbors=self.n_neighbors)
 
 
@@ -184,17 +186,12 @@ class MeshSpec(_DomainSpec):
     weld: bool = Field(False, description="merge vertices at equal positions (seams)")
     size_field: ClassVar[str] = "vertices"
 
-    def n_points(self) -> int:
-        """The vertex count."""
-        return len(self.vertices)
-
     def build_bytes(self, per: dict[str, int]) -> int:
         """Per vertex and per face."""
         return per["mesh_vertex"] * len(self.vertices) + per["mesh_face"] * len(self.faces)
 
-    def build(self, max_vertices: int) -> TriangleMesh:
+    def construct(self) -> TriangleMesh:
         """The mesh."""
-        check_point_limit(len(self.vertices), max_vertices, "vertices")
         return TriangleMesh(spec_array(self.vertices, "vertices"),
                             spec_array(self.faces, "faces", np.int64),
                             laplacian=self.laplacian, weld=self.weld)
