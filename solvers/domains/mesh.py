@@ -537,11 +537,6 @@ class TriangleMesh(Domain):
     def n_faces(self) -> int:
         return len(self.faces)
 
-    @property
-    def coordinates(self) -> np.ndarray:
-        """The vertices at unit area."""
-        return self.vertices
-
     def laplacian_variant(self, laplacian: str = "auto") -> sp.csr_matrix:
         """``"cotan"``: :attr:`cotan_laplacian`; ``"robust"``: :attr:`robust_laplacian`;
         ``"auto"``: :attr:`laplacian` (the one chosen at construction)."""
@@ -560,6 +555,11 @@ class TriangleMesh(Domain):
     def stored_geometry(cls, arrays: dict, summary: dict, points) -> dict:
         """The unit-area vertices and the faces."""
         return {"points": points, "faces": arrays["faces"]}
+
+    @property
+    def coordinates(self) -> np.ndarray:
+        """The vertices at unit area."""
+        return self.vertices
 
     @property
     def euler_characteristic(self) -> int:

@@ -97,15 +97,6 @@ class PointCloud(Domain):
     def laplacian(self) -> sp.csr_matrix:
         return self._laplacian
 
-    @property
-    def coordinates(self) -> np.ndarray:
-        """The points at unit area."""
-        return self.points
-
-    def export_geometry(self) -> ExportGeometry:
-        """The points in input units."""
-        return ExportGeometry(self.to_arrays()["points"])
-
     def _build_heat_kernel(self, t: float, substeps: int, backend: Backend):
         return ImplicitEulerHeatKernel(self.areas, self.laplacian, t, substeps, backend)
 
@@ -120,6 +111,15 @@ class PointCloud(Domain):
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         return {"points": self._input_points}
+
+    def export_geometry(self) -> ExportGeometry:
+        """The points in input units."""
+        return ExportGeometry(self.to_arrays()["points"])
+
+    @property
+    def coordinates(self) -> np.ndarray:
+        """The points at unit area."""
+        return self.points
 
     def parameters(self) -> dict:
         return {"n_neighbors": self.n_neighbors}
