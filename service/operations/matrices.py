@@ -145,10 +145,10 @@ def _inputs(view: DomainView, req: DistanceMatrixRequest):
 
 def _resolve(view: DomainView, req: DistanceMatrixRequest):
     check_options(view, req)
-    if req.metric == "w1" and view.kind != "mesh":
+    if req.metric == "w1" and not view.supports("faces"):
         raise UnsupportedOperation("metric 'w1' is available on triangle meshes only",
                                    field="metric")
-    if req.metric == "w2" and req.method == "exact" and view.kind not in EXACT_KINDS:
+    if req.metric == "w2" and req.method == "exact" and not view.supports("exact_transport"):
         raise UnsupportedOperation(f"method 'exact' is available on {', '.join(EXACT_KINDS)} "
                                    "domains; use method 'convolutional'", field="method")
     specs = {f"distributions[{i}]": d for i, d in enumerate(req.distributions)}
@@ -191,7 +191,7 @@ def estimate_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
     blocks = exact = 0
     if req.method != "exact":  # method "exact": every pair is exact, no block runs
         blocks = block_pairs(points) * (pair_state_bytes(points) + 8 * 8 * points)
-    if view.kind in EXACT_KINDS and (req.method == "exact" or (req.method == "auto"
+    if view.supports("exact_transport") and (req.method == "exact" or (req.method == "auto"
                                                               and req.gamma is None)):
         exact = ground_distance_bytes(view) + exact_working_bytes(view, req)
     # the exact pairs run first and release their working memory before the blocks run
@@ -236,7 +236,7 @@ def estimate_cost(points: int, req: DistanceMatrixRequest, context=None) -> floa
     pairs = float(max(_sizes(req)[2], 1))
     exact = req.metric == "w2" and (req.method == "exact" or (req.method == "auto"
                                                               and req.gamma is None))
-    if exact and (context is None or context.kind in EXACT_KINDS):
+    if exact and (context is None or context.supports("exact_transport")):
         return EXACT_PAIR_COST * float(max(points, 1)) ** 2 * pairs
     return float(max(points, 1)) * pairs * 60.0
 
