@@ -7,7 +7,7 @@ import pytest
 from shared_meshes import load_shared_mesh
 
 from solvers.emd import earth_movers_distance, pointwise_distances
-from solvers.emd.dwk_matrix import default_k, dwk_matrix, estimate_seconds
+from solvers.emd.dwk_matrix import decide_w1_method, default_k, dwk_matrix, estimate_seconds
 from solvers.errors import CancelledError, InputError
 
 
@@ -137,3 +137,19 @@ def test_default_k_is_a_budget_of_the_sizes():
     assert small >= large and small > 0
     assert estimate_seconds(50_000, 100_000, large, 1010, 10_000) <= 60 or large == 0
     assert estimate_seconds(3000, 6000, 50, 20, 190) > estimate_seconds(3000, 6000, 0, 20, 190)
+
+
+def test_w1_method_decision_from_the_sizes():
+    small = decide_w1_method(3000, 6000, 10, 45)
+    assert small.method == "interior_point" and small.k is None
+    large = decide_w1_method(50_000, 100_000, 1010, 10_000)
+    assert large.method == "spectral" and large.k == default_k(50_000, 100_000, 1010, 10_000)
+    assert "estimated" in large.reason
+    given = decide_w1_method(3000, 6000, 10, 45, k=20)
+    assert given.method == "spectral" and given.k == 20
+    with pytest.raises(InputError) as err:
+        decide_w1_method(3000, 6000, 10, 45, method="interior_point", k=5)
+    assert err.value.field == "k"
+    with pytest.raises(InputError) as err:
+        decide_w1_method(3000, 6000, 10, 45, method="exact")
+    assert err.value.field == "method"

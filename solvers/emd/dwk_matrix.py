@@ -69,6 +69,57 @@ _ADMM_ITERATIONS = 60
 _TILE = 1024  # faces per tile of the k = 0 pass
 
 
+#: Algorithms of a W1 matrix (:func:`decide_w1_method`).
+W1_METHODS = ("auto", "interior_point", "spectral")
+#: Seconds of one certified interior-point W1 per vertex (bench/results/w1_accuracy.md and
+#: emd.md: 0.2-0.4 s at 3k vertices, 0.5-1.2 s at 10k, 7 s at 50k).
+IPM_SECONDS_PER_VERTEX = 1.5e-4
+#: ``method="auto"`` keeps the interior point (one certified W1 per pair) while its
+#: estimate fits this many seconds, and takes ``"spectral"`` (d_W^k) above it.
+IPM_MATRIX_SECONDS = 60.0
+
+
+@dataclass
+class W1MatrixDecision:
+    """How a W1 matrix is computed: ``method`` (``"interior_point"``: one certified W1 per
+    pair; ``"spectral"``: :func:`dwk_matrix`), ``k`` (spectral), the estimated seconds of
+    the interior point and ``reason``; a function of the sizes and the request only."""
+
+    method: str
+    k: int | None
+    ipm_seconds: float
+    reason: str
+
+
+def decide_w1_method(n_vertices: int, n_faces: int, n_distributions: int, n_pairs: int,
+                     method: str = "auto", k: int | None = None) -> W1MatrixDecision:
+    """The W1 matrix decision from the sizes alone (:class:`W1MatrixDecision`).
+
+    ``"auto"``: ``"interior_point"`` when ``n_pairs x IPM_SECONDS_PER_VERTEX x n_vertices``
+    is at most :data:`IPM_MATRIX_SECONDS` and no ``k`` is given, else ``"spectral"`` with
+    ``k`` or :func:`default_k`.  ``k`` with ``"interior_point"`` is refused (field ``k``).
+    """
+    if method not in W1_METHODS:
+        raise InputError(f"method must be one of {W1_METHODS} for metric 'w1', got "
+                         f"{method!r}", field="method")
+    if k is not None and method == "interior_point":
+        raise InputError("k selects the spectral d_W^k; the interior point takes none",
+                         field="k")
+    ipm = n_pairs * IPM_SECONDS_PER_VERTEX * n_vertices
+    if method == "interior_point" or (method == "auto" and k is None
+                                      and ipm <= IPM_MATRIX_SECONDS):
+        why = "requested" if method == "interior_point" else (
+            f"{n_pairs} certified interior-point W1 estimated at {ipm:.0f} s <= "
+            f"{IPM_MATRIX_SECONDS:.0f} s")
+        return W1MatrixDecision("interior_point", None, ipm, why)
+    chosen = default_k(n_vertices, n_faces, n_distributions, n_pairs) if k is None else k
+    why = "requested" if method == "spectral" else (
+        "k given" if k is not None else f"{n_pairs} interior-point W1 estimated at "
+        f"{ipm:.0f} s > {IPM_MATRIX_SECONDS:.0f} s")
+    return W1MatrixDecision("spectral", int(chosen), ipm,
+                            f"{why}; k = {chosen}" + (" (default_k)" if k is None else ""))
+
+
 @dataclass(kw_only=True)
 class DwkMatrixResult(SolverResult):
     """``d_W^k`` between pairs of distributions, with certified bounds.
