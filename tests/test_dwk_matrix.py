@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import importlib
+
 import numpy as np
 import pytest
 from shared_meshes import load_shared_mesh
@@ -116,19 +118,19 @@ def test_bad_inputs_name_the_field(woody):
     assert err.value.field == "rows"
 
 
-def test_cancel_raises_with_the_partial_result(woody):
+def test_cancel_keeps_the_finished_row_blocks(woody, monkeypatch):
+    module = importlib.import_module("solvers.emd.dwk_matrix")  # the name is also a function
     mesh, bumps = woody
-    calls = []
-
-    def cancel():
-        calls.append(1)
-        return len(calls) >= 2  # after the embedding, before the first block of pairs
-
+    monkeypatch.setattr(module, "ROW_BLOCK", 2)
+    reports = []
     with pytest.raises(CancelledError) as err:
-        dwk_matrix(mesh, bumps, k=5, should_cancel=cancel)
+        dwk_matrix(mesh, bumps, bumps[:, :3], k=5, progress=lambda *a: reports.append(a),
+                   should_cancel=lambda: len(reports) >= 1)
     partial = err.value.partial
-    assert partial.values.shape == (5, 5) and not partial.computed[0, 1]
-    assert partial.computed[2, 2] and partial.values[2, 2] == 0
+    assert reports[0][0] == 6  # the first block: 2 rows x 3 columns
+    assert partial.computed[:2].all() and not partial.computed[2:].any()
+    full = dwk_matrix(mesh, bumps, bumps[:, :3], k=5)
+    assert _overlap(partial.lower[:2], partial.values[:2], full.lower[:2], full.values[:2])
 
 
 def test_default_k_is_a_budget_of_the_sizes():

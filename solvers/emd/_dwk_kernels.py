@@ -98,13 +98,13 @@ def dual_bound(data, dual_perp, weights, chunks, out_dot, out_ratio):  # pragma:
 
 
 @cached_njit(parallel=True, fastmath=True)
-def pair_l1(fields, weights, rows, cols, tile, out):  # pragma: no cover - compiled
-    """``out[p] = Σ_f w_f |fields[rows[p], f] - fields[cols[p], f]|`` (``d_W^0``).
+def pair_l1(left, right, weights, rows, cols, tile, out):  # pragma: no cover - compiled
+    """``out[p] = Σ_f w_f |left[rows[p], f] - right[cols[p], f]|`` (``d_W^0``).
 
-    ``fields (n, 2F)`` float32, one embedded field per row (face ``f`` at ``2f, 2f + 1``);
-    pairs are split into blocks of 32 run in parallel, faces into tiles of ``tile`` so the
-    fields of a block's pairs stay in cache; per pair the sum is float64 and in face order
-    (deterministic whatever the thread count)."""
+    ``left (n, 2F)``, ``right (m, 2F)`` float32, one embedded field per row (face ``f`` at
+    ``2f, 2f + 1``); pairs are split into blocks of 32 run in parallel, faces into tiles of
+    ``tile`` so the fields of a block's pairs stay in cache; per pair the sum is float64
+    over tiles in face order (deterministic whatever the thread count)."""
     n_faces = weights.shape[0]
     n_p = rows.shape[0]
     n_blocks = (n_p + 31) // 32
@@ -115,8 +115,8 @@ def pair_l1(fields, weights, rows, cols, tile, out):  # pragma: no cover - compi
         for f0 in range(0, n_faces, tile):
             f1 = min(n_faces, f0 + tile)
             for p in range(lo, hi):
-                a = fields[rows[p]]
-                b = fields[cols[p]]
+                a = left[rows[p]]
+                b = right[cols[p]]
                 s = np.float32(0.0)
                 for f in range(f0, f1):
                     d0 = a[2 * f] - b[2 * f]

@@ -33,7 +33,8 @@ certified interior point of :func:`solvers.emd.earth_movers_distance`).
 radius 0.05–0.2 at random centres, 20 pairs on spot against the interior-point W1; median /
 worst relative excess): ``k = 0``: 46 % / 101 %; 5: 39 % / 78 %; 20: 23 % / 55 %; 50: 14 % /
 30 %; 100: 11 % / 23 %; 200: 9 % / 17 % (the curl basis' own limit is ~3 % above W1 on
-spot).  Nefertiti: ``bench/results/dwk_matrix.md``.  The default ``k``
+spot).  On nefertiti (6 pairs; the curl basis is ~1 % above W1 there): 0: 38 %; 5: 29 %;
+20: 15 %; 50: 7.1 %; 100: 4.4 % (worst 12 %); ``bench/results/dwk_matrix.md``.  The default ``k``
 (:func:`default_k`) is therefore a time budget, not an accuracy promise: the largest ``k``
 of :data:`K_LADDER` whose estimated time fits :data:`DEFAULT_SECONDS`.
 """
@@ -51,11 +52,14 @@ from solvers.monitor import SolverResult
 #: Default certified relative duality gap per pair (k > 0).
 DWK_MATRIX_TOL = 1e-3
 #: Candidate ``k`` of the default policy, smallest first.
-K_LADDER = (0, 5, 10, 20, 50)
+K_LADDER = (0, 5, 10, 20, 50, 100)
 #: Time budget (estimated seconds, this machine) of the default ``k``.
 DEFAULT_SECONDS = 60.0
 #: Distributions embedded per multi-column Poisson solve.
 EMBED_BLOCK = 64
+#: Rows embedded and solved together (rows x columns: the columns are embedded once, the
+#: rows block by block, so memory is ``(columns + ROW_BLOCK) x 8F`` bytes of fields).
+ROW_BLOCK = 64
 #: Working memory of one ADMM block of pairs (about six ``(2F, B)`` float32 arrays).
 ADMM_WORK_BYTES = 128 * 2**20
 # Cost model (seconds on this machine's 2 cores; bench/results/dwk_matrix.md): a Poisson
@@ -182,29 +186,56 @@ def embed(ops, masses: np.ndarray, check=None) -> np.ndarray:
     return out
 
 
-def _pairs_dw0(fields, weights, rows, cols) -> np.ndarray:
-    from solvers.emd._dwk_kernels import pair_l1
-
-    out = np.zeros(len(rows))
-    pair_l1(fields, weights, rows.astype(np.int64), cols.astype(np.int64), _TILE, out)
-    return out
-
-
-def _pairs_dwk(problem, fields, rows, cols, tol, max_iter, stop):
-    """Batched ADMM over blocks of pairs: ``(upper, lower, iterations, done)``."""
+def _pairs(problem, weights, left, right, rows, cols, tol, max_iter, stop):
+    """``(upper, lower, iterations)`` of the pairs ``(left[rows[p]], right[cols[p]])``:
+    the compiled d_W^0 pass (``problem`` None), or the batched ADMM over blocks of pairs
+    within :data:`ADMM_WORK_BYTES`, ``stop()`` between blocks."""
     n = len(rows)
+    if problem is None:
+        from solvers.emd._dwk_kernels import pair_l1
+
+        out = np.zeros(n)
+        pair_l1(left, right, weights, rows.astype(np.int64), cols.astype(np.int64), _TILE,
+                out)
+        return out, out.copy(), np.zeros(n, dtype=np.int64)
     block = max(16, ADMM_WORK_BYTES // (24 * problem.basis.shape[0]))
-    upper, lower = np.full(n, np.nan), np.full(n, np.nan)
+    upper, lower = np.empty(n), np.empty(n)
     iterations = np.zeros(n, dtype=np.int64)
-    done = np.zeros(n, dtype=bool)
     for lo in range(0, n, block):
-        stop(lo, upper, lower, iterations, done)
+        stop()
         sl = slice(lo, min(n, lo + block))
-        data = np.ascontiguousarray((fields[rows[sl]] - fields[cols[sl]]).T)
+        data = np.ascontiguousarray((left[rows[sl]] - right[cols[sl]]).T)
         upper[sl], lower[sl], iterations[sl] = solve_block(problem, data, tol=tol,
                                                            max_iter=max_iter)
-        done[sl] = True
-    return upper, lower, iterations, done
+    return upper, lower, iterations
+
+
+class _Matrix:
+    """The result being filled, row block by row block (mirrored when symmetric)."""
+
+    def __init__(self, n: int, m: int, symmetric: bool, k: int, tol: float):
+        self.values, self.lower = np.full((n, m), np.nan), np.full((n, m), np.nan)
+        self.iterations = np.zeros((n, m), dtype=np.int64)
+        self.symmetric, self.k, self.tol = symmetric, k, tol
+        if symmetric:
+            np.fill_diagonal(self.values, 0.0)
+            np.fill_diagonal(self.lower, 0.0)
+
+    def put(self, rows, cols, upper, lower, iterations) -> None:
+        for r, c in ((rows, cols), (cols, rows)) if self.symmetric else ((rows, cols),):
+            self.values[r, c], self.lower[r, c], self.iterations[r, c] = upper, lower, \
+                iterations
+
+    def result(self) -> DwkMatrixResult:
+        computed = ~np.isnan(self.values)
+        g = np.full(self.values.shape, np.nan)
+        g[computed] = gaps(self.values[computed], self.lower[computed])
+        return DwkMatrixResult(
+            values=self.values, lower=self.lower, gaps=g, pair_iterations=self.iterations,
+            computed=computed, k=self.k, tol=self.tol,
+            iterations=int(self.iterations.max()) if self.iterations.size else 0,
+            residual=float(g[computed].max()) if computed.any() else float("nan"),
+            converged=bool(computed.all() and np.all(g <= self.tol)))
 
 
 def _index(values, n: int, name: str) -> np.ndarray:
@@ -272,64 +303,51 @@ def dwk_matrix(mesh, distributions, others=None, *, k: int | None = None, rows=N
     mesh.require_matching_component_masses(np.hstack([A[:, r_idx], B[:, c_idx]]), 1e-9,
                                            "distributions" if others is None else "others")
     n, m = len(r_idx), len(c_idx)
-    if symmetric:
-        pr, pc = np.triu_indices(n, 1)
-    else:
-        pr, pc = np.repeat(np.arange(n), m), np.tile(np.arange(m), n)
+    n_pairs = n * (n - 1) // 2 if symmetric else n * m
     k = _check_k(k, ops)
     if k is None:
-        k = default_k(mesh.n, ops.n_faces, n + (0 if symmetric else m), len(pr))
-    return _solve(ops, A[:, r_idx], None if symmetric else B[:, c_idx], pr, pc, k,
-                  harmonic, tol, max_iter, progress, should_cancel)
+        k = default_k(mesh.n, ops.n_faces, n + (0 if symmetric else m), n_pairs)
+    return _solve(ops, A[:, r_idx], None if symmetric else B[:, c_idx], k, harmonic, tol,
+                  max_iter, progress, should_cancel)
 
 
-def _solve(ops, A, B, pr, pc, k, harmonic, tol, max_iter, progress, should_cancel):
-    """Embed ``A`` (and ``B``), solve pairs ``(pr, pc)`` and fill the result."""
+def _solve(ops, A, B, k, harmonic, tol, max_iter, progress, should_cancel):
+    """Embed the columns (``B``, or ``A`` when symmetric) once, then :data:`ROW_BLOCK`
+    rows at a time: embed them (``B`` given) and solve their pairs; only ``i < j`` when
+    symmetric.  Cancellation keeps the finished row blocks."""
+    symmetric = B is None
     n = A.shape[1]
-    m = n if B is None else B.shape[1]
-    values, lower = np.full((n, m), np.nan), np.full((n, m), np.nan)
-    its = np.zeros((n, m), dtype=np.int64)
-    if B is None:
-        np.fill_diagonal(values, 0.0)
-        np.fill_diagonal(lower, 0.0)
+    out = _Matrix(n, n if symmetric else B.shape[1], symmetric, k, tol)
 
-    def fill(up, lo, it, done):
-        for r, c in ((pr, pc), (pc, pr)) if B is None else ((pr, pc),):
-            values[r[done], c[done]], lower[r[done], c[done]] = up[done], lo[done]
-            its[r[done], c[done]] = it[done]
-        computed = ~np.isnan(values)
-        g = np.where(computed, gaps(np.nan_to_num(values), np.nan_to_num(lower)), np.nan)
-        return DwkMatrixResult(values=values, lower=lower, gaps=g, pair_iterations=its,
-                               computed=computed, k=k, tol=tol,
-                               iterations=int(its.max()) if its.size else 0,
-                               residual=float(np.nanmax(g)) if computed.any() else np.nan,
-                               converged=bool(computed.all() and np.all(g <= tol)))
-
-    def stop(done_pairs, up=None, lo=None, it=None, done=None):
-        if progress is not None and done is not None and done.any():
-            progress(int(done_pairs), float(np.nanmax(gaps(up[done], lo[done]))))
+    def stop() -> None:
         if should_cancel is not None and should_cancel():
-            error = CancelledError(f"cancelled after {done_pairs} of {len(pr)} pairs")
-            none = np.zeros(len(pr), dtype=bool)
-            error.partial = fill(up if up is not None else np.zeros(len(pr)),
-                                 lo if lo is not None else np.zeros(len(pr)),
-                                 it if it is not None else np.zeros(len(pr), dtype=np.int64),
-                                 done if done is not None else none)
+            error = CancelledError("cancelled between blocks of pairs")
+            error.partial = out.result()
             raise error
 
-    fields = embed(ops, A if B is None else np.hstack([A, B]), check=lambda: stop(0))
-    cols = pc if B is None else pc + n
-    if k == 0:
-        up = _pairs_dw0(fields, frame_weights(ops), pr, cols)
-        result = fill(up, up, np.zeros(len(pr), dtype=np.int64), np.ones(len(pr), bool))
+    problem = reduced_spectral_problem(ops, k, harmonic) if k else None
+    weights = frame_weights(ops)
+    right = embed(ops, A if symmetric else B, check=stop)
+    done, worst = 0, 0.0
+    for lo in range(0, n, ROW_BLOCK):
+        stop()
+        hi = min(n, lo + ROW_BLOCK)
+        left = right[lo:hi] if symmetric else embed(ops, A[:, lo:hi], check=stop)
+        if symmetric:
+            rows, cols = np.triu_indices(hi - lo, 1, n - lo)
+            cols = cols + lo
+        else:
+            rows = np.repeat(np.arange(hi - lo), right.shape[0])
+            cols = np.tile(np.arange(right.shape[0]), hi - lo)
+        upper, lower, its = _pairs(problem, weights, left, right, rows, cols, tol, max_iter,
+                                   stop)
+        out.put(rows + lo, cols, upper, lower, its)
+        done += len(rows)
+        if len(rows):
+            worst = max(worst, float(gaps(upper, lower).max()))
         if progress is not None:
-            progress(len(pr), 0.0)
-        return result
-    problem = reduced_spectral_problem(ops, k, harmonic)
-    up, lo, it, done = _pairs_dwk(problem, fields, pr, cols, tol, max_iter, stop)
-    if progress is not None and len(pr):
-        progress(len(pr), float(np.max(gaps(up, lo))))
-    return fill(up, lo, it, done)
+            progress(done, worst)
+    return out.result()
 
 
 def frame_weights(ops) -> np.ndarray:
