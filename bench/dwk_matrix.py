@@ -123,8 +123,8 @@ def main():
     rows, cols = bumps(mesh, args.rows, 0), bumps(mesh, 10, 2)
     bump_s = time.perf_counter() - start
     rng = np.random.default_rng(7)
-    sample = list(zip(rng.choice(min(args.rows, args.rows_k), SAMPLES, replace=False).tolist(),
-                      rng.integers(0, 10, SAMPLES).tolist(), strict=True))
+    cells = rng.choice(min(args.rows, args.rows_k) * 10, SAMPLES, replace=False)
+    sample = [divmod(int(c), 10) for c in cells]  # distinct (row, column) of every run
     ks = [int(x) for x in args.ks.split(",")]
     results = []
     for k in ks:
