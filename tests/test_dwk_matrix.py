@@ -9,7 +9,13 @@ import pytest
 from shared_meshes import load_shared_mesh
 
 from solvers.emd import earth_movers_distance, pointwise_distances
-from solvers.emd.dwk_matrix import decide_w1_method, default_k, dwk_matrix, estimate_seconds
+from solvers.emd.dwk_matrix import (
+    decide_w1_method,
+    default_k,
+    dwk_matrix,
+    estimate_seconds,
+    working_bytes,
+)
 from solvers.errors import CancelledError, InputError
 
 
@@ -139,6 +145,14 @@ def test_default_k_is_a_budget_of_the_sizes():
     assert small >= large and small > 0
     assert estimate_seconds(50_000, 100_000, large, 1010, 10_000) <= 60 or large == 0
     assert estimate_seconds(3000, 6000, 50, 20, 190) > estimate_seconds(3000, 6000, 0, 20, 190)
+
+
+def test_working_bytes_bound_the_fields():
+    # rows x columns: the columns and one row block of fields, not the whole collection
+    few = working_bytes(50_000, 100_000, 0, 1000, 10, symmetric=False)
+    every = working_bytes(50_000, 100_000, 0, 1000, 1000, symmetric=True)
+    assert 8e5 * 74 <= few < 8e5 * 74 + 2e8 and every >= 8e5 * 1000
+    assert working_bytes(50_000, 100_000, 50, 1000, 10, False) > few
 
 
 def test_w1_method_decision_from_the_sizes():

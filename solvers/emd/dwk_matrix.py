@@ -157,6 +157,22 @@ def estimate_seconds(n_vertices: int, n_faces: int, k: int, n_distributions: int
     return embed + n_pairs * _ADMM_ITERATIONS * per_iteration
 
 
+def working_bytes(n_vertices: int, n_faces: int, k: int, n_rows: int, n_columns: int,
+                  symmetric: bool) -> int:
+    """Bytes :func:`dwk_matrix` holds at most beside the mesh's operators: the embedded
+    fields (float32, ``2F`` each: every distribution when ``symmetric``, else the columns
+    and one :data:`ROW_BLOCK` of rows), one embedding block's Poisson solve (float64), the
+    reduced basis and its transpose (float32, ``2F x (k + 4)``), the eigenvectors (float64,
+    ``V x k``, twice while built) and the ADMM blocks (:data:`ADMM_WORK_BYTES`)."""
+    field = 4 * 2 * int(n_faces)
+    fields = field * (n_rows if symmetric else n_columns + min(n_rows, ROW_BLOCK))
+    embed_block = 8 * int(n_vertices) * EMBED_BLOCK * 3 + field * EMBED_BLOCK
+    if k == 0:
+        return fields + embed_block
+    basis = 2 * field * (k + 4) + 2 * 8 * int(n_vertices) * k
+    return fields + embed_block + basis + ADMM_WORK_BYTES
+
+
 def default_k(n_vertices: int, n_faces: int, n_distributions: int, n_pairs: int,
               seconds: float = DEFAULT_SECONDS) -> int:
     """The default ``k``: the largest of :data:`K_LADDER` whose :func:`estimate_seconds`
