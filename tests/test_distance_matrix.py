@@ -4,18 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from shared_meshes import hat_bump as _bump
 from shared_meshes import load_shared_mesh
 
 from solvers import Grid
 from solvers.convolutional import distance_matrix, wasserstein_distance
 from solvers.emd import earth_movers_distance
 from solvers.errors import CancelledError, InputError
-
-
-def _bump(mesh, i: int, r: float) -> np.ndarray:
-    d = np.linalg.norm(mesh.vertices - mesh.vertices[i], axis=1)
-    m = mesh.areas * np.clip(1 - d / r, 0, None)
-    return m / m.sum()
 
 
 @pytest.fixture(scope="module")

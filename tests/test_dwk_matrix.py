@@ -6,6 +6,7 @@ import importlib
 
 import numpy as np
 import pytest
+from shared_meshes import hat_bump as _bump
 from shared_meshes import load_shared_mesh
 
 from solvers.emd import earth_movers_distance, pointwise_distances
@@ -17,12 +18,6 @@ from solvers.emd.dwk_matrix import (
     working_bytes,
 )
 from solvers.errors import CancelledError, InputError
-
-
-def _bump(mesh, i: int, r: float) -> np.ndarray:
-    d = np.linalg.norm(mesh.vertices - mesh.vertices[i], axis=1)
-    m = mesh.areas * np.clip(1 - d / r, 0, None)
-    return m / m.sum()
 
 
 @pytest.fixture(scope="module")
