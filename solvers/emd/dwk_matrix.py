@@ -106,6 +106,9 @@ def decide_w1_method(n_vertices: int, n_faces: int, n_distributions: int, n_pair
     if method not in W1_METHODS:
         raise InputError(f"method must be one of {W1_METHODS} for metric 'w1', got "
                          f"{method!r}", field="method")
+    if k is not None and not (isinstance(k, (int, np.integer)) and not isinstance(k, bool)
+                              and k >= 0):
+        raise InputError(f"k must be a non-negative integer, got {k!r}", field="k")
     if k is not None and method == "interior_point":
         raise InputError("k selects the spectral d_W^k; the interior point takes none",
                          field="k")
