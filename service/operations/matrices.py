@@ -47,10 +47,13 @@ from solvers.convolutional.matrix import (
 )
 from solvers.domains import DOMAIN_CLASSES
 from solvers.emd.beckmann import resolve_method
+from solvers.emd.dwk_matrix import W1MatrixDecision, decide_w1_method, working_bytes
 from solvers.errors import CancelledError, InputError
 
 MAX_DISTRIBUTIONS = 2000  # per side of a matrix (the request JSON stays a few MB)
-ROUTE_CODES = {"": -1, "identical": 0, "exact": 1, "convolutional": 2, "w1": 3}
+ROUTE_CODES = {"": -1, "identical": 0, "exact": 1, "convolutional": 2, "w1": 3,
+               "spectral": 4}
+MAX_K = 200  # eigenfunctions of a spectral W1 matrix (the eigenbasis is k solves deep)
 # Pairs decided one by one at submission: an exact-route decision costs ~20-30 us, an
 # automatic regularization ~0.9-2.4 ms per pair (100 bumps on spot, measured), so at most a
 # few seconds of the API's time; above it the decision records the requested arguments and
@@ -77,6 +80,17 @@ class DistanceMatrixRequest(SinkhornOptions):
                                   "(default: true; false when gamma is given)")
     algorithm: Literal["auto", "ipm", "admm", "weiszfeld"] = Field(
         "auto", description="W1 solver (as for /distances)")
+    method: Literal["auto", "interior_point", "spectral"] = Field(
+        "auto", description="W1 only: interior_point (one certified W1 per pair, with "
+        "`algorithm`), spectral (the thesis' d_W^k: every distribution embedded once, then "
+        "a k-dimensional problem per pair; each value an upper bound of W1 with its "
+        "certified gap, converging slowly in k) or auto (the interior point while its "
+        "estimate fits 60 s, else spectral; decided from the sizes at submission and "
+        "recorded in `decision`)")
+    k: int | None = Field(None, ge=0, le=MAX_K, description="W1 spectral: Laplacian "
+                          "eigenfunctions of the curl basis (default: the largest of 0, 5, "
+                          "10, 20, 50, 100 estimated within 60 s); given with method auto: "
+                          "spectral")
 
 
 class KernelGroup(BaseModel):
@@ -110,6 +124,9 @@ class MatrixDecision(BaseModel):
                                           "explicit arguments every pair runs with")
     algorithm: Literal["ipm", "admm", "weiszfeld"] | None = Field(None, description="w1: "
                                                                   "the solver")
+    w1_method: Literal["interior_point", "spectral"] | None = Field(
+        None, description="w1: the method decided (from the sizes alone)")
+    k: int | None = Field(None, description="w1 spectral: the eigenfunctions used")
 
 
 class DistanceMatrixValues(BaseModel):
@@ -123,7 +140,8 @@ class DistanceMatrixValues(BaseModel):
                            "unfinished entries are NaN (null inline)")
     finished_rows: list[int] = Field(description="rows whose every entry is computed")
     pairs_solved: int = Field(description="pairs computed (diagonal not counted)")
-    routes: dict[str, int] = Field(description="pairs per route (exact, convolutional, w1)")
+    routes: dict[str, int] = Field(description="pairs per route (exact, convolutional, w1, "
+                                   "spectral)")
     route_codes: dict[str, int] = Field(description="legend of the `route_codes` array")
     kernels: list[KernelGroup] = Field(description="the heat kernels of convolutional pairs")
     iterations: int = Field(description="sum over pairs")
@@ -148,6 +166,12 @@ def _resolve(view: DomainView, req: DistanceMatrixRequest):
     if req.metric == "w1" and view.kind != "mesh":
         raise UnsupportedOperation("metric 'w1' is available on triangle meshes only",
                                    field="metric")
+    if req.metric == "w2" and (req.method != "auto" or req.k is not None):
+        raise InvalidInput("method and k choose the W1 algorithm (metric 'w1')",
+                           field="k" if req.k is not None else "method")
+    if req.metric == "w1" and req.method == "interior_point" and req.k is not None:
+        raise InvalidInput("k selects the spectral d_W^k; the interior point takes none",
+                           field="k")
     if req.metric == "w2" and req.route == "exact" and view.kind not in EXACT_KINDS:
         raise UnsupportedOperation(f"route 'exact' is available on {', '.join(EXACT_KINDS)} "
                                    "domains; use route 'convolutional'", field="route")
@@ -187,7 +211,11 @@ def estimate_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
     total = 8 * points * (n + (m if req.others is not None else 0))
     total += 40 * n * m
     if req.metric == "w1":
-        return total + 8 * 120 * points  # Beckmann operators and interior-point state
+        total += 8 * 120 * points  # Beckmann operators and interior-point state
+        w1 = _w1_decision(view, req)
+        if w1.method == "spectral":
+            total += working_bytes(points, _faces(view), w1.k, n, m, req.others is None)
+        return total
     blocks = exact = 0
     if req.route != "exact":  # route "exact": every pair is exact, no block runs
         blocks = block_pairs(points) * (pair_state_bytes(points) + 8 * 8 * points)
@@ -196,6 +224,22 @@ def estimate_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
         exact = ground_distance_bytes(view) + exact_working_bytes(view, req)
     # the exact pairs run first and release their working memory before the blocks run
     return total + max(blocks, exact)
+
+
+def _faces(view: DomainView) -> int:
+    return int(view.n_faces or 2 * view.n)
+
+
+def _w1_decision(view: DomainView, req: DistanceMatrixRequest) -> W1MatrixDecision:
+    """:func:`~solvers.emd.dwk_matrix.decide_w1_method` for the request's sizes."""
+    n, m, _ = _sizes(req)
+    symmetric = req.others is None
+    pairs = n * (n - 1) // 2 if symmetric else n * m
+    try:
+        return decide_w1_method(int(view.n), _faces(view), n + (0 if symmetric else m), pairs,
+                                req.method, req.k)
+    except InputError as exc:
+        raise InvalidInput(str(exc), field=exc.field or "method") from exc
 
 
 def exact_working_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
@@ -264,6 +308,8 @@ def _output(res, reports, complete: bool, decision: dict) -> OperationOutput:
               "pair_residuals": np.asarray(res.pair_residuals, dtype=np.float64),
               "pair_converged": np.asarray(res.pair_converged, dtype=bool),
               "route_codes": codes}
+    if res.lower is not None:  # W1: certified lower bounds (spectral: of d_W^k)
+        arrays["lower_bounds"] = np.asarray(res.lower, dtype=np.float64)
     return OperationOutput(values.model_dump(), arrays)
 
 
@@ -291,16 +337,7 @@ def decide_matrix_job(view: DomainView, req: DistanceMatrixRequest) -> dict:
     cols = rows if symmetric else others
     common = {"metric": req.metric, "route": req.route}
     if req.metric == "w1":
-        try:
-            algorithm, _ = resolve_method(req.algorithm, "auto")
-        except InputError as exc:
-            raise InvalidInput(str(exc), field=exc.field or "algorithm") from exc
-        pairs = matrix_pairs(rows.shape[1], cols.shape[1], symmetric, False)
-        return MatrixDecision(**common, reason="W1 per pair (Beckmann problem)",
-                              pairs=len(pairs), per_pair=True, zero_diagonal=symmetric or None,
-                              routes={"w1": len(pairs)} if pairs else {}, algorithm=algorithm,
-                              solver_arguments={"algorithm": algorithm}
-                              ).model_dump(mode="json")
+        return _decide_w1(view, req, rows, cols, symmetric, common)
     sketch = view.sketch().remembering_paths()
     args = {"route": req.route, "gamma": "auto" if req.gamma is None else float(req.gamma),
             "substeps": req.substeps, "debiased": req.debiased}
@@ -339,6 +376,29 @@ def decide_matrix_job(view: DomainView, req: DistanceMatrixRequest) -> dict:
         f"e.g. {reasons[0]}").model_dump(mode="json")
 
 
+def _decide_w1(view, req, rows, cols, symmetric: bool, common: dict) -> dict:
+    """W1: the method from the sizes (:func:`_w1_decision`), then the interior point's
+    solver or the spectral ``k``, as explicit arguments."""
+    w1 = _w1_decision(view, req)
+    pairs = len(matrix_pairs(rows.shape[1], cols.shape[1], symmetric, False))
+    if w1.method == "spectral":
+        return MatrixDecision(**common, reason=f"W1 by the thesis' d_W^k: {w1.reason}",
+                              pairs=pairs, per_pair=True, zero_diagonal=symmetric or None,
+                              routes={"spectral": pairs} if pairs else {},
+                              w1_method="spectral", k=w1.k,
+                              solver_arguments={"method": "spectral", "k": w1.k}
+                              ).model_dump(mode="json")
+    try:
+        algorithm, _ = resolve_method(req.algorithm, "auto")
+    except InputError as exc:
+        raise InvalidInput(str(exc), field=exc.field or "algorithm") from exc
+    return MatrixDecision(**common, reason=f"W1 per pair (Beckmann problem): {w1.reason}",
+                          pairs=pairs, per_pair=True, zero_diagonal=symmetric or None,
+                          routes={"w1": pairs} if pairs else {}, algorithm=algorithm,
+                          w1_method="interior_point", solver_arguments={"algorithm": algorithm}
+                          ).model_dump(mode="json")
+
+
 def _check_ran_as_decided(values: dict, decision: dict) -> None:
     """A complete matrix ran what its stored decision says (routes and kernels per pair)."""
     if not decision.get("per_pair") or not values["complete"]:
@@ -360,8 +420,10 @@ def run(domain, req: DistanceMatrixRequest, progress, should_cancel,
         decision = decide_matrix_job(view, req)
     optional = {k: getattr(req, k) for k in ("tol", "max_iter") if getattr(req, k) is not None}
     explicit = decision.get("solver_arguments")
-    if req.metric == "w1":
-        kwargs = {"w1_options": {**explicit, **optional}}
+    if req.metric == "w1" and explicit.get("method") == "spectral":
+        kwargs = {"method": "spectral", "k": explicit["k"], "w1_options": optional}
+    elif req.metric == "w1":  # the interior point (also jobs recorded before w1_method)
+        kwargs = {"method": "interior_point", "w1_options": {**explicit, **optional}}
     elif explicit is not None:
         kwargs = {**explicit, **optional}
     else:
@@ -378,7 +440,7 @@ def run(domain, req: DistanceMatrixRequest, progress, should_cancel,
         raise
     except ValueError as exc:  # an input the library refused: name the request's field
         field = getattr(exc, "field", None)
-        if field in ("distributions", "others", "route", "metric"):
+        if field in ("distributions", "others", "route", "metric", "method", "k"):
             raise InvalidInput(str(exc), field=field) from exc
         raise
     output = _output(res, reports, True, decision)
