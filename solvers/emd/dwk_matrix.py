@@ -62,14 +62,15 @@ EMBED_BLOCK = 64
 ROW_BLOCK = 64
 #: Working memory of one ADMM block of pairs (about six ``(2F, B)`` float32 arrays).
 ADMM_WORK_BYTES = 128 * 2**20
-# Cost model (seconds on this machine's 2 cores; bench/results/dwk_matrix.md): a Poisson
-# solve per distribution and vertex; the k = 0 pass per pair and face; per ADMM iteration,
-# pair and frame component a fused pass plus two products with the (2F, m) basis.
-_SOLVE_SECONDS = 5e-7
-_PASS_SECONDS = 1e-9
+# Cost model (seconds on this machine's 2 cores, fit to bench/results/dwk_matrix.md,
+# nefertiti): a Poisson solve per distribution and vertex (blocked multi-column solves);
+# the k = 0 pass per pair and face; per ADMM iteration, pair and frame component a fused
+# pass plus two products with the (2F, m) basis (read once per block of pairs).
+_SOLVE_SECONDS = 1.5e-7
+_PASS_SECONDS = 2e-10
 _ADMM_FACE_SECONDS = 2e-9
-_ADMM_BASIS_SECONDS = 2e-11
-_ADMM_ITERATIONS = 60
+_ADMM_BASIS_SECONDS = 1e-10
+_ADMM_ITERATIONS = 80
 _TILE = 1024  # faces per tile of the k = 0 pass
 
 
