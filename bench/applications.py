@@ -73,7 +73,7 @@ def kernels() -> Figure:
             "kernel build |", "|---|---|---|---|---|---|---|"]
         for shape in ((12, 48), (16, 64), (24, 96)):
             for route in ("separable", "geodesic"):
-                grid = HemisphereGrid(*shape, route=route)
+                grid = HemisphereGrid(*shape, method=route)
                 for gamma in (2e-3, 5e-3, 2e-2):
                     t0 = time.perf_counter()
                     grid.heat_kernel(gamma / 4)
@@ -106,7 +106,7 @@ def brdf() -> Figure:
             "|---|" + "---|" * 11]
         steps = []
         for route in ("geodesic", "separable"):
-            grid = HemisphereGrid(20, 40, route=route)
+            grid = HemisphereGrid(20, 40, method=route)
             t0 = time.perf_counter()
             r = interpolate_brdfs(grid, [BROAD, SHARP], W, th, gamma=2e-3)
             dt = time.perf_counter() - t0

@@ -235,7 +235,7 @@ def part_spot() -> dict:
     pairs = _sample_pairs(100, None, SAMPLE)
     sketch = sketch_of(mesh).remembering_paths()
     begin = time.perf_counter()
-    routes = [decide_distance(sketch, M[:, i], M[:, j]).route for i, j in pairs]
+    routes = [decide_distance(sketch, M[:, i], M[:, j]).method for i, j in pairs]
     decision_seconds = (time.perf_counter() - begin) / len(pairs)
     load_before = load1()
     begin = time.perf_counter()
@@ -253,7 +253,7 @@ def part_spot() -> dict:
         singles.append(time.perf_counter() - begin)
         worst = max(worst, abs(single.value - res.values[i, j]) / abs(single.value))
     pot = _pot_ladder(mesh, M, pairs, [res.values[i, j] for i, j in pairs])
-    kinds, counts = np.unique(res.routes[np.triu_indices(100, 1)], return_counts=True)
+    kinds, counts = np.unique(res.methods[np.triu_indices(100, 1)], return_counts=True)
     return {"mesh": "spot.obj", "n": mesh.n, "distributions": 100, "pairs": 4950,
             "radius": 0.1, "routes": dict(zip(kinds.tolist(), counts.tolist(), strict=True)),
             "sample_routes": routes, "union_support": int(np.count_nonzero(M.sum(axis=1))),
@@ -273,7 +273,7 @@ def part_blocks() -> dict:
     _, M = _bumps(mesh, 20, 0.3)
     reg = choose_regularization(mesh, M[:, 0], M[:, 1], purpose="values")
     args = {"gamma": reg.gamma, "t": reg.t, "substeps": reg.substeps, "debiased": True,
-            "route": "convolutional"}
+            "method": "convolutional"}
     mesh.heat_kernel(reg.t, reg.substeps)  # factor once: both sides warm
     load_before = load1()
     begin = time.perf_counter()
@@ -305,11 +305,11 @@ def part_nefertiti() -> dict:
     begin = time.perf_counter()
     decisions = [decide_distance(sketch, rows[:, i], templates[:, j]) for i, j in pairs]
     decision_seconds = (time.perf_counter() - begin) / len(pairs)
-    sample = [{"route": d.route, "gamma": d.gamma, "substeps": d.substeps,
+    sample = [{"route": d.method, "gamma": d.gamma, "substeps": d.substeps,
                "estimated_seconds": d.estimated_seconds} for d in decisions]
     reg = choose_regularization(mesh, rows[:, 0], templates[:, 0], purpose="values")
     args = {"gamma": reg.gamma, "t": reg.t, "substeps": reg.substeps, "debiased": True,
-            "route": "convolutional"}
+            "method": "convolutional"}
     mesh.heat_kernel(reg.t, reg.substeps)
     load_before = load1()
     begin = time.perf_counter()

@@ -191,7 +191,7 @@ def coverage_rows(names, radii=(0.05, 0.1, 0.2)):
                 rows.append(dict(name=name, n=mesh.n, case=label,
                                  radius=None if label == "points" else radius,
                                  support=[int(np.count_nonzero(m0)), int(np.count_nonzero(m1))],
-                                 route=dec.route, exact_seconds=dec.exact_seconds,
+                                 route=dec.method, exact_seconds=dec.exact_seconds,
                                  estimated_seconds=dec.estimated_seconds,
                                  substeps=dec.substeps, decide_seconds=seconds))
                 print(rows[-1], flush=True)
@@ -212,7 +212,7 @@ def validate_rows(names, labels=ORDER):
             if label not in labels:
                 continue
             dec = decide_distance(mesh, m0, m1)
-            if dec.route != "exact":
+            if dec.method != "exact":
                 continue
             before = load1()
             res, seconds = _timed(exact_wasserstein_distance, mesh, m0, m1)
@@ -308,7 +308,7 @@ def accuracy_rows(names, oracles, labels=ORDER):
             dec = res.decision
             rows.append(dict(name=name, n=mesh.n, case=label, target=j, radius=RADIUS[0],
                              support=[int(np.count_nonzero(m0)), int(np.count_nonzero(m1))],
-                             value=res.value, route=res.route, seconds=seconds,
+                             value=res.value, route=res.method, seconds=seconds,
                              gamma=dec.gamma, substeps=dec.substeps,
                              exact_seconds=dec.exact_seconds, converged=bool(res.converged),
                              lp=oracles[key]["lp"], lp_kind=oracles[key]["lp_kind"],
@@ -337,7 +337,7 @@ def sweep_rows(names, oracles, labels=("near", "middle", "far")):
                 continue
             if key_of(name, label) not in oracles:
                 oracle_rows([name], oracles, [label])
-            policy = decide_distance(mesh, m0, m1, route="convolutional")
+            policy = decide_distance(mesh, m0, m1, method="convolutional")
             reg = policy.regularization
             d_eff = max(reg.distance, 4 * max(reg.h, VALUE_MIN_H))  # as the policy
             row = dict(name=name, case=label, lp=oracles[key_of(name, label)]["lp"],

@@ -11,7 +11,7 @@ Poisson and curl factorizations before it are reported apart), the one-to-all so
 ADMM iterations per target (median / max), the worst certified gap, converged targets,
 the service's cost estimate (``estimate_seconds``), the thesis figure and the ratio
 thesis / ours.  Peer in the same run: the library's one-pair ADMM over the same spectral
-basis (``earth_movers_distance(..., algorithm="admm", basis="spectral", k=k)``, its
+basis (``earth_movers_distance(..., method="admm", basis="spectral", k=k)``, its
 default tolerance) on ``--pairs`` targets, timed and extrapolated to all vertices, with
 the largest relative difference of its values from the batched ones.
 
@@ -66,7 +66,7 @@ def direct_peer(mesh, k: int, batched, n_pairs: int) -> tuple[float, float]:
     for t in targets:
         target = np.zeros(mesh.n)
         target[t] = 1.0
-        res = earth_movers_distance(mesh, source, target, algorithm="admm", basis="spectral",
+        res = earth_movers_distance(mesh, source, target, method="admm", basis="spectral",
                                     k=k)
         diffs.append(abs(res.value - batched[t]) / res.value)
     per_pair = (time.perf_counter() - start) / n_pairs

@@ -2,8 +2,8 @@
 
 Part A — d_W^0 from one source to every vertex (``pointwise_distances(mesh, s, k=0)``):
 the one-time build of the dense Green's matrix ``L⁺`` (cold: first call on a fresh mesh,
-numba already compiled), the warm one-to-all query from it (``route="green"``, min over
-5 sources × ``--repeats``), the blocked-Poisson-solve path (``route="solve"``, the only
+numba already compiled), the warm one-to-all query from it (``method="green"``, min over
+5 sources × ``--repeats``), the blocked-Poisson-solve path (``method="solve"``, the only
 path before) on one source in the same run, the relative error of both against a float64
 evaluation (float64 solves and face gradients), the heat-method geodesic distance from
 the same source (potpourri3d,
@@ -97,7 +97,7 @@ def part_a(names, repeats, lines):
               "| thesis MATLAB (s) | target | load |",
               "|---|---|---|---|---|---|---|---|---|---|---|"]
     warm = load_mesh(MESHES / "woody.obj")  # compile (or load) the numba kernels first
-    pointwise_distances(warm, 0, route="green")
+    pointwise_distances(warm, 0, method="green")
     for name in names:
         mesh = load_mesh(MESHES / name, weld=name.startswith("spot"))
         ops = mesh_operators(mesh)
@@ -105,10 +105,10 @@ def part_a(names, repeats, lines):
         green = ops.green_matrix()
         t_build = time.perf_counter() - start
         sources = np.random.default_rng(0).choice(mesh.n, 5, replace=False)
-        t_green = min(best_of(lambda m=mesh, s=int(s): pointwise_distances(m, s, route="green"),
+        t_green = min(best_of(lambda m=mesh, s=int(s): pointwise_distances(m, s, method="green"),
                               repeats)[0] for s in sources)
-        res = pointwise_distances(mesh, 0, route="green")
-        t_solve, old = best_of(lambda m=mesh: pointwise_distances(m, 0, route="solve"), repeats)
+        res = pointwise_distances(mesh, 0, method="green")
+        t_solve, old = best_of(lambda m=mesh: pointwise_distances(m, 0, method="solve"), repeats)
         other = np.arange(mesh.n) != 0
         ref = float64_dw0(ops, 0)[other]
         errs = [np.abs(d.distances[other] - ref) / ref for d in (res, old)]
@@ -164,7 +164,7 @@ def lp_row(name, mesh, m0, m1, centers, repeats) -> str:
     t_full, full = best_of(lambda: earth_movers_distance(mesh, p0, p1, basis="full", tol=1e-3),
                            repeats)
     start = time.perf_counter()
-    flow = earth_movers_distance(mesh, p0, p1, algorithm="admm", basis="flow", tol=1e-4)
+    flow = earth_movers_distance(mesh, p0, p1, method="admm", basis="flow", tol=1e-4)
     t_flow = time.perf_counter() - start
     t_ipm, ipm = best_of(lambda: earth_movers_distance(mesh, p0, p1), repeats)
     heat = pp3d.MeshHeatMethodDistanceSolver(mesh.vertices, mesh.faces)

@@ -140,7 +140,7 @@ def one_scale(kind: str, size: str, spsolve_levels: int | None,
 
     The Wasserstein and PDF routes are timed as a user gets them after upload: the domain,
     its Laplacian and its components are built first (reported, not timed), then
-    ``dirichlet_system`` + ``propagate_histograms`` with their defaults (``solver="auto"``:
+    ``dirichlet_system`` + ``propagate_histograms`` with their defaults (``linear_method="auto"``:
     the direct route, MKL PARDISO when the mkl wheel loads, else cholespy; the backend used
     is recorded), ``repeat`` times with a fresh factorization each (the row reports the
     median run and keeps all).  ``amg_columns``: solve only that many (centred) columns
@@ -190,12 +190,12 @@ def one_scale(kind: str, size: str, spsolve_levels: int | None,
     row["w_direct_runs"] = runs
     row["load_after_direct"] = load()
     row["backend"] = getattr(system.factor, "backend", "?")
-    row["solver"] = res.solver
+    row["solver"] = res.linear_method
     row["rss_w_gb"] = peak_rss_gb()
     row["w_rank"] = res.rank
     row["w_residual"] = res.residual
     t = time.perf_counter()
-    res_pdf = propagate_histograms(domain, labeled, h, bins=bins, route="pdf")
+    res_pdf = propagate_histograms(domain, labeled, h, bins=bins, method="pdf")
     row["pdf_solve_s"] = time.perf_counter() - t
     row["pdf_residual"] = res_pdf.residual
     row["rss_direct_gb"] = peak_rss_gb()
@@ -209,12 +209,12 @@ def one_scale(kind: str, size: str, spsolve_levels: int | None,
                    amg_iterations=None, amg_max_diff=None, amg_columns_run=0)
     else:
         t = time.perf_counter()
-        amg = dirichlet_system(domain, labeled, solver="amg")
+        amg = dirichlet_system(domain, labeled, linear_method="amg")
         row["amg_setup_s"] = time.perf_counter() - t
         if amg_columns is None:
             t = time.perf_counter()
             res_amg = propagate_histograms(domain, labeled, h, bins=bins, levels=LEVELS,
-                                           solver="amg", tol=1e-8)
+                                           linear_method="amg", tol=1e-8)
             row["amg_solve_s"] = time.perf_counter() - t
             row["amg_iterations"] = res_amg.iterations
             row["amg_max_diff"] = float(np.abs(res_amg.quantiles - res.quantiles).max())
@@ -390,7 +390,7 @@ def scale_table(rows: list[dict]) -> list[str]:
         f"Measured {min(r['utc'] for r in rows)} - {max(r['utc'] for r in rows)} UTC; "
         f"threads {', '.join(threads)}; direct backend: {', '.join(backends)}.",
         "",
-        "Direct = what `propagate_histograms` does by default (`solver=\"auto\"`): sparse "
+        "Direct = what `propagate_histograms` does by default (`linear_method=\"auto\"`): sparse "
         "Cholesky of the reduced Laplacian (MKL PARDISO when the mkl wheel loads, else "
         "cholespy; factorization once per labeled set, cached) + one block solve of the "
         "(compressed) 100 columns + inverse CDFs back to histograms; timed from the label "
@@ -498,7 +498,7 @@ def part_circle(quick: bool) -> list[str]:
     rows = []
     for gamma in (None, (2 * np.pi / 36) ** 2):
         t = time.perf_counter()
-        ent = propagate_circular(g, labeled, h, bins=bins, algorithm="entropic", gamma=gamma,
+        ent = propagate_circular(g, labeled, h, bins=bins, method="entropic", gamma=gamma,
                                  evaluate=False)
         ent_s = time.perf_counter() - t
         t = time.perf_counter()
@@ -558,7 +558,7 @@ def _trial_errors(mesh, truth, bins, lab, circular_graph=None):
     else:
         w = propagate_circular(circular_graph, lab, truth[lab], bins=bins)
     elapsed = time.perf_counter() - t
-    p = propagate_histograms(mesh, lab, truth[lab], bins=bins, route="pdf")
+    p = propagate_histograms(mesh, lab, truth[lab], bins=bins, method="pdf")
     ts = S.std(truth[free], bins)
     return (w1_distance(w.histograms[free], truth[free], bins).mean(),
             w1_distance(p.histograms[free], truth[free], bins).mean(),

@@ -3,7 +3,7 @@
 Part ``graph`` — k-NN graphs (k = 4, uniform weights) of ``n`` random points in the unit
 square, ``n`` in 100, 300, 1,000; 5 % of the nodes labeled with von Mises histograms
 (κ uniform in [5, 40], mean angle 2π(x + y/2)) on 36 periodic bins.  In the same process:
-the exact LP (``propagate_circular(algorithm="lp", solver=--solver)``: highspy,
+the exact LP (``propagate_circular(method="lp", lp_method=--solver)``: highspy,
 warm-started column generation started from a band of cheap entries (``simplex``) or from
 the support found by the structured interior-point method (``hybrid``), certified by a
 dual lower bound over all plan entries), then the entropic
@@ -119,14 +119,14 @@ def part_graph(sizes, lp_time_limit: float, solver: str = "auto") -> None:
         t = time.perf_counter()
         try:
             lp = propagate_circular(g, labeled, h, bins=bins, time_limit=lp_time_limit,
-                                    solver=solver)
+                                    lp_method=solver)
             lp_s = time.perf_counter() - t
         except ConvergenceError as exc:
             lp, lp_s = None, time.perf_counter() - t
             print(f"LP n={n}: {exc}", flush=True)
         l1 = load1()
         t = time.perf_counter()
-        ent = propagate_circular(g, labeled, h, bins=bins, algorithm="entropic",
+        ent = propagate_circular(g, labeled, h, bins=bins, method="entropic",
                                  evaluate=False)
         ent_s = time.perf_counter() - t
         t = time.perf_counter()
@@ -140,7 +140,7 @@ def part_graph(sizes, lp_time_limit: float, solver: str = "auto") -> None:
             r_lp = "–"
         else:
             lp_cells = (f"{lp.plan_entries:,} ({100 * lp.plan_entries / (m * 36 * 36):.0f} %) "
-                        f"| {lp.solver}"
+                        f"| {lp.lp_method}"
                         f"{'' if lp.ipm_iterations is None else f' ({lp.ipm_iterations})'}"
                         f" / {lp.iterations} / {lp.simplex_iterations} | **{lp_s:.1f}** | "
                         f"{lp.value:.6f} | {lp.certified} ({lp.value - lp.lower_bound:.1e}) ")
@@ -187,7 +187,7 @@ def part_bound(sizes, max_iter: int = 60) -> None:
         upper = dirichlet_value(H, g.edges, g.weights, cost)
         l1 = load1()
         t = time.perf_counter()
-        ent = propagate_circular(g, labeled, h, bins=bins, algorithm="entropic",
+        ent = propagate_circular(g, labeled, h, bins=bins, method="entropic",
                                  evaluate=False)
         ent_s = time.perf_counter() - t
         value = dirichlet_value(ent.histograms, g.edges, g.weights, cost)
@@ -228,10 +228,10 @@ def part_real(meshes, trials: int, fraction: float, lp_time_limit: float,
             free = np.setdiff1d(np.arange(mesh.n), lab)
             t = time.perf_counter()
             w = propagate_circular(graph, lab, truth[lab], bins=bins, time_limit=lp_time_limit,
-                                   solver=solver)
+                                   lp_method=solver)
             times.append(time.perf_counter() - t)
             certified &= bool(w.certified)
-            p = propagate_histograms(mesh, lab, truth[lab], bins=bins, route="pdf")
+            p = propagate_histograms(mesh, lab, truth[lab], bins=bins, method="pdf")
             errs.append((w1_distance(w.histograms[free], truth[free], bins).mean(),
                          w1_distance(p.histograms[free], truth[free], bins).mean()))
             print(f"{name} trial {trial}: LP {errs[-1][0]:.4f} PDF {errs[-1][1]:.4f} "
@@ -256,7 +256,7 @@ def main() -> None:
     ap.add_argument("--ipm-iterations", type=int, default=60,
                     help="part bound: the IPM's iteration cap")
     ap.add_argument("--solver", choices=["auto", "hybrid", "simplex"], default="auto",
-                    help="start of the LP's column generation (propagate_circular(solver=))")
+                    help="start of the LP's column generation (propagate_circular(lp_method=))")
     args = ap.parse_args()
     global OUT
     OUT = args.out

@@ -26,7 +26,7 @@ import httpx
 import trimesh
 
 BODY = {"mu0": {"vertex": 0, "radius": 0.3}, "mu1": {"vertex": 2000, "radius": 0.3},
-        "route": "convolutional"}
+        "method": "convolutional"}
 
 
 def submit_all(url: str, gid: str, clients: int, jobs: int) -> list[str]:

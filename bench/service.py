@@ -176,7 +176,7 @@ class Bench:
         a, b = 0, n // 2
         self.gamma = float((2.0 * mesh.mean_edge_length) ** 2)
         self.body = {"mu0": {"vertex": a, "radius": 0.1}, "mu1": {"vertex": b, "radius": 0.1},
-                     "route": "convolutional", "gamma": self.gamma,
+                     "method": "convolutional", "gamma": self.gamma,
                      "max_iter": self.args.iterations, "tol": 1e-12}
         view = view_of_domain(mesh)
         self.mu0, _ = resolve_distribution(view, BumpDistribution(vertex=a, radius=0.1), "mu0")

@@ -15,7 +15,7 @@ of the largest geodesic distance from vertex 0, and 25 + 25 scattered point mass
   bound (value − lower bound) / value.
 * ipm cholespy = the same solve with the core install's factorization (cholespy, factored
   anew every iteration: the Docker image).
-* ADMM = ``algorithm="admm"`` (the previous default over all flows, tol 1e-2).
+* ADMM = ``method="admm"`` (the previous default over all flows, tol 1e-2).
 * full = the thesis' curl basis ``basis="full"`` at tol 1e-4 (``--full``; off by default).
 
 All times warm (operators cached on the mesh), wall clock; load = 1-minute load average
@@ -75,7 +75,7 @@ def rows_for(name, full: bool, points_only: bool = False):
     p1[rng.choice(mesh.n, 25, replace=False)] = 1 / 25
     cases["points"] = (p0, p1)
     earth_movers_distance(mesh, p0, p1)  # warm: factorizations and structure cached
-    earth_movers_distance(mesh, p0, p1, algorithm="admm")
+    earth_movers_distance(mesh, p0, p1, method="admm")
     if full:
         earth_movers_distance(mesh, p0, p1, basis="full", tol=1e-2)
     for label, (m0, m1) in cases.items():
@@ -98,7 +98,7 @@ def rows_for(name, full: bool, points_only: bool = False):
         finally:
             interior_point.have_pardiso = have
         row["cholespy"] = (float(res.value), t, int(res.iterations))
-        res, t = timed(earth_movers_distance, mesh, m0, m1, algorithm="admm")
+        res, t = timed(earth_movers_distance, mesh, m0, m1, method="admm")
         row["admm"] = (float(res.value), t, int(res.iterations))
         if full:
             res, t = timed(earth_movers_distance, mesh, m0, m1, basis="full", tol=1e-4)
@@ -121,7 +121,7 @@ def main(names, full: bool, out: Path, points_only: bool = False):
              "its defaults (all flows, interior point, certified gap 1e-4), err = relative "
              "value error against the SOCP; gap = its certified (value − lower bound) / "
              "value; ipm cholespy = the "
-             "same solve on the core install's factorization; ADMM = algorithm='admm' (tol "
+             "same solve on the core install's factorization; ADMM = method='admm' (tol "
              "1e-2, the previous default).  PARDISO: " + str(interior_point.have_pardiso())
              + ".  Times warm, wall clock, seconds; load = 1-minute load average "
              "before/after the row (2 cores shared with other jobs).", "",

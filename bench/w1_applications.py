@@ -1,7 +1,7 @@
 """Benchmark the §2.7 applications at scale: path planning (eq. 2.6) and W1 barycenters
 (eq. 2.7) on ~10k- and ~50k-vertex meshes.
 
-Path planning: the vertex-sized interior point (``algorithm="ipm"``, certified relative gap
+Path planning: the vertex-sized interior point (``method="ipm"``, certified relative gap
 1e-6) beside Clarabel on the whole program (``"socp"``, 10k only) in the same run, with the
 ratio.  Barycenters (Dirac inputs): the vertex-sized interior point of
 :mod:`solvers.emd.interior_point_barycenter` (certified relative gap 1e-6) beside Clarabel on
@@ -59,12 +59,12 @@ def path_rows(mesh, name, with_socp):
     rows = []
     for eps in (0.0, 1e-3):
         ipm, t_ipm = _timed(lambda eps=eps: w1_path_planning(mesh, m0, exits, epsilon=eps,
-                                                              algorithm="ipm"))
+                                                              method="ipm"))
         row = [name, mesh.n, eps, f"{ipm.objective:.6f}", ipm.iterations, f"{t_ipm:.2f}",
                str(ipm.converged)]
         if with_socp:
             socp, t_socp = _timed(lambda eps=eps: w1_path_planning(
-                mesh, m0, exits, epsilon=eps, algorithm="socp", max_vertices=10**7))
+                mesh, m0, exits, epsilon=eps, method="socp", max_vertices=10**7))
             rel = abs(ipm.objective - socp.objective) / socp.objective
             row += [f"{socp.objective:.6f}", f"{t_socp:.2f} [{t_socp / t_ipm:.1f}x]",
                     f"{rel:.1e}"]
@@ -103,7 +103,7 @@ def barycenter_case(name: str, k: int, algorithm: str) -> dict:
     exact.MAX_BLOCK_UNKNOWNS = 10**9  # lift the conic program's caps for the measurement
     baseline = _rss()
     res, t = _timed(lambda: exact.w1_barycenter(
-        mesh, M, algorithm=algorithm, max_vertices=10**7,
+        mesh, M, method=algorithm, max_vertices=10**7,
         time_limit=BARYCENTER_TIME_LIMIT if algorithm == "socp" else None))
     model = estimated_cost(mesh.n, mesh.n_faces, k)
     return {"V": mesh.n, "F": mesh.n_faces, "value": res.value, "iterations": res.iterations,
@@ -155,7 +155,7 @@ def barycenter_section(barys, command: str = "", loads: tuple[float, float] | No
     return f"""{BARYCENTER_HEADING}
 
 {run}k Dirac inputs (vertices i V / k), uniform weights.  `ipm`: the vertex-sized interior point
-(`algorithm="ipm"`, the default), certified relative gap 1e-6 (`gap` is the measured one;
+(`method="ipm"`, the default), certified relative gap 1e-6 (`gap` is the measured one;
 `residual` the largest divergence-constraint violation, converged needs <= 1e-6);
 `socp`: Clarabel on the whole coupled program (tol 1e-8, caps lifted, time limit
 {BARYCENTER_TIME_LIMIT:.0f} s), same run, 10k only.  Each solve runs in a fresh process;

@@ -23,15 +23,15 @@ def bump(center: int, radius: float = 0.08) -> np.ndarray:
 
 mu0, mu1 = bump(0), bump(1500)
 
-# W2^2 with the defaults: the route (exact LP or convolutional Alg. 1) and its
+# W2^2 with the defaults: the method (exact LP or convolutional Alg. 1) and its
 # regularization are chosen from the inputs and reported (see "Choosing gamma and t").
 w2 = wasserstein_distance(mesh, mu0, mu1)
-print(f"W2^2 = {w2.value:.4f}  route={w2.route}  residual={w2.residual:.1e}")
+print(f"W2^2 = {w2.value:.4f}  method={w2.method}  residual={w2.residual:.1e}")
 
 # Earth mover's distance W1 (thesis ch. 2): the certified interior point over all per-face
-# flows (algorithm="auto" -> "ipm"), with the flow field J per face.
+# flows (method="auto" -> "ipm"), with the flow field J per face.
 w1 = earth_movers_distance(mesh, mu0, mu1)
-print(f"W1 = {w1.value:.4f}  flow {w1.flow.shape}  algorithm={w1.algorithm}  "
+print(f"W1 = {w1.value:.4f}  flow {w1.flow.shape}  method={w1.method}  "
       f"converged={w1.converged}")
 
 # Spectral pointwise distance d_W^0 from vertex 0 to two others.

@@ -8,6 +8,7 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
 
 from service.errors import ErrorBody
+from service.renames import current_decision
 
 
 def timestamp(value: float | None) -> datetime | None:
@@ -189,7 +190,7 @@ class JobOut(BaseModel):
     cancel_requested: bool
     time_limit: float
     decision: dict | None = Field(None, description="the operation's automatic choices (e.g. "
-                                  "a distance's route and regularization), taken at "
+                                  "a distance's method and regularization), taken at "
                                   "submission from the request and the stored data alone "
                                   "and executed by every attempt of the job")
     created_at: datetime
@@ -214,8 +215,8 @@ class JobOut(BaseModel):
             queue_position=getattr(row, "queue_position", None),
             attempts=row.attempts, error=ErrorBody(**row.error) if row.error else None,
             cancel_requested=bool(row.cancel_requested), time_limit=row.time_limit,
-            decision=getattr(row, "decision", None), created_at=timestamp(row.created_at),
-            started_at=timestamp(row.started_at),
+            decision=current_decision(getattr(row, "decision", None)),
+            created_at=timestamp(row.created_at), started_at=timestamp(row.started_at),
             finished_at=timestamp(row.finished_at), duration_seconds=row.duration,
             links=_job_links(base, row.domain_id,
                              operations.serves_glb(row.operation, row.domain_id)))

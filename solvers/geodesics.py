@@ -1,6 +1,6 @@
 """Exact geodesic distances on triangle meshes: the ground truth of transport costs.
 
-Used by the exact transport route (:mod:`solvers.convolutional.exact`), as ground truth for
+Used by the exact transport method (:mod:`solvers.convolutional.exact`), as ground truth for
 transport costs in tests and benchmarks (exact LPs with geodesic costs), and for comparison
 with transport-based distances.
 
@@ -36,7 +36,7 @@ from scipy.sparse.csgraph import connected_components, shortest_path
 from solvers.domains.mesh import TriangleMesh
 from solvers.errors import InputError
 
-ROUTES = ("mmp", "edge-flip")
+METHODS = ("mmp", "edge-flip")
 
 
 @dataclass
@@ -193,26 +193,26 @@ def geodesic_distances_within(mesh: TriangleMesh, source: int, bound: float) -> 
     return d
 
 
-def geodesic_distances(mesh: TriangleMesh, sources, targets=None, *, route: str = "mmp",
+def geodesic_distances(mesh: TriangleMesh, sources, targets=None, *, method: str = "mmp",
                        should_cancel=None) -> np.ndarray:
     """Exact polyhedral geodesic distances ``(len(sources), len(targets))`` at unit area.
 
-    ``targets=None``: every vertex.  ``route``: ``"mmp"`` (default: one exact solve from
+    ``targets=None``: every vertex.  ``method``: ``"mmp"`` (default: one exact solve from
     each source, or target when there are fewer, stopped at the largest edge-path distance
     to the other side), ``"edge-flip"`` (one locally shortest path per pair, only on meshes
     without junction vertices; a locally shortest path, so never shorter and sometimes
     longer than the MMP distance).  Vertices on other connected
     components are at distance ``inf``.  ``should_cancel()`` is checked between solves.
     """
-    if route not in ROUTES:
-        raise InputError(f"route must be one of {ROUTES}, got {route!r}", field="route")
+    if method not in METHODS:
+        raise InputError(f"method must be one of {METHODS}, got {method!r}", field="method")
     src = _check_indices(mesh, sources, "sources")
     dst = np.arange(mesh.n) if targets is None else _check_indices(mesh, targets, "targets")
     pieces = _pieces(mesh)
-    if route == "edge-flip" and len(pieces.junctions):
-        raise InputError("the edge-flip route needs a manifold mesh; use route='mmp'",
-                         field="route")
-    if route == "mmp":
+    if method == "edge-flip" and len(pieces.junctions):
+        raise InputError("the edge-flip method needs a manifold mesh; use method='mmp'",
+                         field="method")
+    if method == "mmp":
         flip = len(dst) < len(src)  # symmetric: solve from the smaller side
         rows, cols = (dst, src) if flip else (src, dst)
         out = np.zeros((len(rows), len(cols)))
@@ -254,5 +254,5 @@ def polyhedral_geodesic_distances(mesh: TriangleMesh, sources, targets) -> np.nd
     beetle), see the module docstring.
     """
     pieces = _pieces(mesh)
-    route = "mmp" if len(pieces.junctions) else "edge-flip"
-    return geodesic_distances(mesh, sources, targets, route=route)
+    method = "mmp" if len(pieces.junctions) else "edge-flip"
+    return geodesic_distances(mesh, sources, targets, method=method)

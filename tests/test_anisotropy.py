@@ -52,7 +52,7 @@ def test_constant_matrix_metric_gives_the_closed_form(square, start, end, angle)
     mu1, q = dirac(square, end)
     res = anisotropic_w1(square, mu0, mu1, np.tile(M, (square.n_faces, 1, 1)))
     exact = float(np.linalg.norm(M @ (p - q)))
-    assert res.converged and res.algorithm == "ipm"
+    assert res.converged and res.method == "ipm"
     assert res.value == pytest.approx(exact, rel=2e-3)
     assert res.lower_bound <= res.value and res.lower_bound == pytest.approx(exact, rel=2e-3)
     # the flow moves the mass: its divergence is the difference of the marginals
@@ -65,7 +65,7 @@ def test_curl_basis_overestimates_matrix_weights(square):
     mu0, p = dirac(square, (0.5, 0.2))
     mu1, q = dirac(square, (0.5, 0.8))
     exact = float(np.linalg.norm(p - q))
-    full = anisotropic_w1(square, mu0, mu1, M, algorithm="admm", basis="full")
+    full = anisotropic_w1(square, mu0, mu1, M, method="admm", basis="full")
     assert full.value > 1.2 * exact
     assert anisotropic_w1(square, mu0, mu1, M).value < 1.002 * exact
 

@@ -26,9 +26,9 @@ def grid():
     return HemisphereGrid(20, 40)
 
 
-@pytest.mark.parametrize("route", ["separable", "geodesic"])
-def test_grid_areas_and_kernel_symmetry(route):
-    grid = HemisphereGrid(20, 40, route=route)
+@pytest.mark.parametrize("method", ["separable", "geodesic"])
+def test_grid_areas_and_kernel_symmetry(method):
+    grid = HemisphereGrid(20, 40, method=method)
     assert np.isclose(grid.areas.sum(), 1.0)
     # sin(theta) weights: a cell at theta has area proportional to sin(theta)
     ratio = grid.areas / np.sin(grid.theta)
@@ -42,9 +42,9 @@ def test_grid_areas_and_kernel_symmetry(route):
     np.testing.assert_allclose(K.apply(np.ones(grid.n)), 1.0, atol=1e-10)  # conserves mass
 
 
-@pytest.mark.parametrize("route", ["separable", "geodesic"])
-def test_grid_kernel_close_to_mesh_kernel(route):
-    d = kernel_discrepancy(HemisphereGrid(20, 40, route=route), 5e-3)
+@pytest.mark.parametrize("method", ["separable", "geodesic"])
+def test_grid_kernel_close_to_mesh_kernel(method):
+    d = kernel_discrepancy(HemisphereGrid(20, 40, method=method), 5e-3)
     # the two diffusions of a Dirac spread alike (RMS geodesic radius within 20 %) ...
     ratio = d.spread[:, 0] / d.spread[:, 1]
     assert np.all(np.abs(ratio - 1.0) < 0.2), ratio

@@ -46,12 +46,12 @@ def test_stored_sketch_gives_the_library_decision(make):
     assert decision == decide_distance(domain, m0, m1)
     assert DistanceDecision.from_dict(decision.as_dict()) == decision
     res = wasserstein_distance(domain, m0, m1)
-    assert res.decision == decision and res.route == decision.route
+    assert res.decision == decision and res.method == decision.method
     if domain.kind == "graph":
-        assert decision.route == "convolutional" and "no exact route" in decision.reason
+        assert decision.method == "convolutional" and "no exact route" in decision.reason
         assert decision.debiased and decision.regularization.h == 1.0
     else:
-        assert decision.route == "exact" and decision.exact_seconds < 1.0
+        assert decision.method == "exact" and decision.exact_seconds < 1.0
 
 
 def test_periodic_grid_distances_wrap():
@@ -64,16 +64,16 @@ def test_explicit_arguments_are_the_decision():
     grid = Grid((8, 8))
     m0, m1 = _masses(grid.n, [0]), _masses(grid.n, [63])
     given = decide_distance(grid, m0, m1, gamma=0.02, substeps=3)
-    assert (given.route, given.gamma, given.substeps, given.debiased) == (
+    assert (given.method, given.gamma, given.substeps, given.debiased) == (
         "convolutional", 0.02, 3, False)
     assert given.regularization is None and given.reason == "gamma given"
-    assert decide_distance(grid, m0, m1, route="exact").route == "exact"
-    forced = decide_distance(grid, m0, m1, route="convolutional")
-    assert forced.route == "convolutional" and forced.exact_seconds is None
-    assert forced.solver_arguments() == {"route": "convolutional", "gamma": forced.gamma,
+    assert decide_distance(grid, m0, m1, method="exact").method == "exact"
+    forced = decide_distance(grid, m0, m1, method="convolutional")
+    assert forced.method == "convolutional" and forced.exact_seconds is None
+    assert forced.solver_arguments() == {"method": "convolutional", "gamma": forced.gamma,
                                          "t": forced.t, "substeps": forced.substeps,
                                          "debiased": True}
-    for bad, field in ((dict(route="fast"), "route"), (dict(gamma="small"), "gamma")):
+    for bad, field in ((dict(method="fast"), "method"), (dict(gamma="small"), "gamma")):
         with pytest.raises(InputError) as err:
             decide_distance(grid, m0, m1, **bad)
         assert err.value.field == field

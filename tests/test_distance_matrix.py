@@ -38,7 +38,7 @@ def test_block_matrix_equals_single_pairs_one_kernel(woody):
             assert res.pair_converged[i, j] == single.converged
     assert np.array_equal(res.values, res.values.T)
     assert np.all(np.diag(res.values) == 0.0)
-    assert set(np.diag(res.routes)) == {"identical"}
+    assert set(np.diag(res.methods)) == {"identical"}
     assert res.converged and res.residual <= 1e-5
 
 
@@ -47,16 +47,16 @@ def test_default_matrix_equals_default_single_pairs(woody):
     convolutional route; the exact LP for sparse supports from one shared cost matrix)."""
     mesh, wide = woody
     small = np.stack([_bump(mesh, i, 0.08) for i in (0, 300, 650)], axis=1)
-    for masses, route in ((wide[:, :3], "convolutional"), (small, "auto")):
-        res = distance_matrix(mesh, masses, route=route)
+    for masses, method in ((wide[:, :3], "convolutional"), (small, "auto")):
+        res = distance_matrix(mesh, masses, method=method)
         for i in range(3):
             for j in range(i + 1, 3):
-                single = wasserstein_distance(mesh, masses[:, i], masses[:, j], route=route)
-                assert res.routes[i, j] == single.route
+                single = wasserstein_distance(mesh, masses[:, i], masses[:, j], method=method)
+                assert res.methods[i, j] == single.method
                 assert _relative_gap(res.values[i, j], single.value) <= 1e-6
         assert np.array_equal(res.values, res.values.T)
         assert np.all(np.diag(res.values) == 0.0)
-    assert set(res.routes[np.triu_indices(3, 1)]) == {"exact"}
+    assert set(res.methods[np.triu_indices(3, 1)]) == {"exact"}
 
 
 def test_rectangular_matrix_against_templates(woody):
@@ -74,7 +74,7 @@ def test_not_debiased_diagonal_is_solved(woody):
     mesh, wide = woody
     res = distance_matrix(mesh, wide[:, :2], gamma=0.01, substeps=8, debiased=False)
     own = wasserstein_distance(mesh, wide[:, 0], wide[:, 0], gamma=0.01, substeps=8)
-    assert res.routes[0, 0] == "convolutional"
+    assert res.methods[0, 0] == "convolutional"
     assert _relative_gap(res.values[0, 0], own.value) <= 1e-6
 
 
@@ -88,7 +88,7 @@ def test_grid_exact_matrix_matches_lp():
     for i in range(4):
         for j in range(i + 1, 4):
             single = wasserstein_distance(grid, masses[:, i], masses[:, j])
-            assert single.route == "exact" and res.routes[i, j] == "exact"
+            assert single.method == "exact" and res.methods[i, j] == "exact"
             assert _relative_gap(res.values[i, j], single.value) <= 1e-9
 
 
@@ -109,7 +109,7 @@ def test_exact_lps_in_threads_equal_one_thread(monkeypatch):
     grid, masses = _grid_points(7, 5)
     one = distance_matrix(grid, masses, threads=1)
     three = distance_matrix(grid, masses, threads=3)
-    assert set(one.routes[np.triu_indices(7, 1)]) == {"exact"}
+    assert set(one.methods[np.triu_indices(7, 1)]) == {"exact"}
     assert np.array_equal(one.values, three.values) and three.converged
     with pytest.raises(InputError):
         distance_matrix(grid, masses, threads=0)
@@ -133,7 +133,7 @@ def test_w1_matrix_triangle_inequality_and_single_pairs():
     mesh = load_shared_mesh("woody.obj")
     masses = np.stack([_bump(mesh, i, 0.2) for i in (0, 200, 400, 650)], axis=1)
     res = distance_matrix(mesh, masses, metric="w1")
-    assert set(res.routes[np.triu_indices(4, 1)]) == {"w1"}
+    assert set(res.methods[np.triu_indices(4, 1)]) == {"w1"}
     single = earth_movers_distance(mesh, masses[:, 1], masses[:, 2])
     assert _relative_gap(res.values[1, 2], single.value) <= 1e-6
     D = res.values
@@ -195,16 +195,16 @@ def test_input_errors(woody):
 
 
 def test_quick_route_decision_agrees_with_the_default(woody):
-    from solvers.convolutional.decision import decide_distance, decide_route
+    from solvers.convolutional.decision import decide_distance, decide_method
     from solvers.regularization import sketch_of
 
     mesh, wide = woody
     small = [_bump(mesh, i, 0.08) for i in (0, 650)]
     sketch = sketch_of(mesh)
     for m0, m1 in ((small[0], small[1]), (wide[:, 0], wide[:, 4]), (small[0], wide[:, 2])):
-        quick, full = decide_route(sketch, m0, m1), decide_distance(sketch, m0, m1)
-        assert quick.route == full.route
-        if full.route == "exact":
+        quick, full = decide_method(sketch, m0, m1), decide_distance(sketch, m0, m1)
+        assert quick.method == full.method
+        if full.method == "exact":
             assert quick.estimated_seconds >= full.estimated_seconds
         else:
             assert quick == full
@@ -214,10 +214,10 @@ def test_exact_matrix_over_most_vertices_keeps_the_geodesic_matrix():
     mesh = load_shared_mesh("woody.obj")
     masses = np.stack([_bump(mesh, i, 0.15) for i in range(0, 694, 30)], axis=1)
     assert 2 * np.count_nonzero(masses.sum(axis=1)) >= mesh.n
-    res = distance_matrix(mesh, masses, route="exact")
+    res = distance_matrix(mesh, masses, method="exact")
     assert mesh.operators.peek(("exact_geodesics",)) is not None
     for i, j in ((0, 5), (3, 17)):
-        single = wasserstein_distance(mesh, masses[:, i], masses[:, j], route="exact")
+        single = wasserstein_distance(mesh, masses[:, i], masses[:, j], method="exact")
         assert _relative_gap(res.values[i, j], single.value) <= 1e-9
 
 
@@ -258,13 +258,13 @@ def test_exact_row_blocks_evicted_give_the_same_values(monkeypatch):
     grid, masses = _grid_points(6, 8)
     mesh = load_shared_mesh("woody.obj")
     bumps = np.stack([_bump(mesh, i, 0.08) for i in (0, 200, 400, 650)], axis=1)
-    kept = [distance_matrix(grid, masses), distance_matrix(mesh, bumps, route="exact")]
+    kept = [distance_matrix(grid, masses), distance_matrix(mesh, bumps, method="exact")]
     monkeypatch.setattr(matrix, "ROW_BLOCK_ENTRIES", 1)
     for before, now in zip(kept, [distance_matrix(grid, masses, threads=2),
-                                  distance_matrix(mesh, bumps, route="exact", threads=2)],
+                                  distance_matrix(mesh, bumps, method="exact", threads=2)],
                            strict=True):
         assert np.array_equal(before.values, now.values) and now.converged
-    single = wasserstein_distance(mesh, bumps[:, 1], bumps[:, 3], route="exact")
+    single = wasserstein_distance(mesh, bumps[:, 1], bumps[:, 3], method="exact")
     assert _relative_gap(kept[1].values[1, 3], single.value) <= 1e-9
 
 
@@ -277,15 +277,15 @@ def test_w1_spectral_matrix_is_dwk_with_its_decision(woody):
     mesh, wide = woody
     res = distance_matrix(mesh, wide, metric="w1", method="spectral", k=5)
     ref = dwk_matrix(mesh, wide, k=5)
-    assert res.method == "spectral" and res.k == 5 and "requested" in res.reason
+    assert res.w1_method == "spectral" and res.k == 5 and "requested" in res.reason
     off = ~np.eye(5, dtype=bool)
     np.testing.assert_array_equal(res.values[off], ref.values[off])
-    assert set(res.routes[off]) == {"spectral"} and set(np.diag(res.routes)) == {"identical"}
+    assert set(res.methods[off]) == {"spectral"} and set(np.diag(res.methods)) == {"identical"}
     assert np.all(res.lower[off] <= res.values[off]) and res.converged
     np.testing.assert_allclose(res.pair_residuals[off], ref.gaps[off])
     small = distance_matrix(mesh, wide[:, :3], metric="w1")
-    assert small.method == "interior_point" and small.k is None and "estimated" in small.reason
-    assert set(small.routes[np.triu_indices(3, 1)]) == {"w1"}
+    assert small.w1_method == "interior_point" and small.k is None and "estimated" in small.reason
+    assert set(small.methods[np.triu_indices(3, 1)]) == {"w1"}
     upper = np.triu_indices(3, 1)
     assert np.all(small.lower[upper] <= small.values[upper])
     # d_W^k is an upper bound of W1: above the interior point's certified lower bounds
@@ -296,10 +296,11 @@ def test_w1_method_and_k_refused_where_they_do_not_apply(woody):
     mesh, wide = woody
     for kwargs, name in (({"metric": "w2", "k": 5}, "k"),
                          ({"metric": "w1", "method": "exact"}, "method"),
+                         ({"metric": "w2", "method": "spectral"}, "method"),
                          ({"metric": "w1", "method": "interior_point", "k": 5}, "k"),
                          ({"metric": "w1", "method": "spectral", "k": -2}, "k"),
                          ({"metric": "w1", "method": "spectral",
-                           "w1_options": {"algorithm": "admm"}}, "w1_options")):
+                           "w1_options": {"method": "admm"}}, "w1_options")):
         with pytest.raises(InputError) as err:
             distance_matrix(mesh, wide[:, :3], **kwargs)
         assert err.value.field == name, kwargs

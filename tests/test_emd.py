@@ -85,7 +85,7 @@ def test_w1_default_against_exact_optimum_of_its_discretization(woody):
     m0, m1 = bump(woody, 10), bump(woody, 400)
     exact = beckmann_w1_exact(woody, m0, m1).value
     default = earth_movers_distance(woody, m0, m1)
-    assert default.algorithm == "ipm" and default.converged
+    assert default.method == "ipm" and default.converged
     assert default.lower_bound <= exact * (1 + 1e-7) and default.value >= exact * (1 - 1e-7)
     assert default.residual <= 1e-4
     assert abs(default.value / exact - 1) <= 1e-4
@@ -104,17 +104,17 @@ def test_w1_admm_over_all_flows_settles_near_the_optimum(woody):
 
     m0, m1 = bump(woody, 10), bump(woody, 400)
     exact = beckmann_w1_exact(woody, m0, m1).value
-    admm = earth_movers_distance(woody, m0, m1, algorithm="admm")
+    admm = earth_movers_distance(woody, m0, m1, method="admm")
     # every ADMM iterate is a feasible flow (a projection onto div J = m0 - m1): an upper bound
     assert admm.value >= exact * (1 - 1e-6)
     assert admm.value / exact - 1 < 1e-2
-    tighter = earth_movers_distance(woody, m0, m1, algorithm="admm", tol=1e-3)
+    tighter = earth_movers_distance(woody, m0, m1, method="admm", tol=1e-3)
     assert exact * (1 - 1e-6) <= tighter.value <= min(admm.value, exact * (1 + 1e-3))
 
 
 def test_w1_interior_point_with_face_weights_and_refusals(woody):
     """Scalar face weights reach the interior point (same optimum as the SOCP with the same
-    weights); a curl basis or matrix weights with algorithm='ipm' are refused."""
+    weights); a curl basis or matrix weights with method='ipm' are refused."""
     from solvers.emd.exact import beckmann_w1_exact
     from solvers.errors import InputError
 
@@ -123,12 +123,12 @@ def test_w1_interior_point_with_face_weights_and_refusals(woody):
     m0, m1 = bump(woody, 10), bump(woody, 400)
     exact = beckmann_w1_exact(woody, m0, m1, face_weights=w).value
     res = earth_movers_distance(woody, m0, m1, face_weights=w, tol=1e-6)
-    assert res.algorithm == "ipm" and abs(res.value / exact - 1) < 1e-6
+    assert res.method == "ipm" and abs(res.value / exact - 1) < 1e-6
     assert res.value > earth_movers_distance(woody, m0, m1).value * 0.5 * 1.01  # weights act
     with pytest.raises(InputError, match="ipm"):
-        earth_movers_distance(woody, m0, m1, algorithm="ipm", basis="full")
+        earth_movers_distance(woody, m0, m1, method="ipm", basis="full")
     with pytest.raises(InputError, match="ipm"):
-        earth_movers_distance(woody, m0, m1, algorithm="ipm",
+        earth_movers_distance(woody, m0, m1, method="ipm",
                               face_weights=np.tile(np.eye(3), (woody.n_faces, 1, 1)))
 
 
@@ -191,7 +191,7 @@ def test_dirac_w1_approaches_geodesic_distance(woody, geodesic_lengths):
     for p, q in pairs:
         geo = geodesic_lengths(woody, [p], [q])[0, 0]
         m0, m1 = np.eye(woody.n)[p], np.eye(woody.n)[q]
-        value = earth_movers_distance(woody, m0, m1, basis="flow", algorithm="weiszfeld",
+        value = earth_movers_distance(woody, m0, m1, basis="flow", method="weiszfeld",
                                       tol=1e-5).value
         # point masses are smeared over one ring by the hat functions: a gap of order h
         assert abs(value - geo) < 1.5 * woody.mean_edge_length
@@ -203,7 +203,7 @@ def test_flow_conserves_mass_for_every_method(woody):
     values = []
     for method, basis, k in [("admm", "full", None), ("weiszfeld", "full", None),
                              ("weiszfeld", "flow", None), ("admm", "spectral", 30)]:
-        res = earth_movers_distance(woody, m0, m1, algorithm=method, basis=basis, k=k, tol=1e-4)
+        res = earth_movers_distance(woody, m0, m1, method=method, basis=basis, k=k, tol=1e-4)
         div = woody.divergence @ res.flow.ravel()
         np.testing.assert_allclose(div, m0 - m1, atol=1e-12)
         assert res.flow.shape == (woody.n_faces, 3)
@@ -253,7 +253,7 @@ def test_anisotropic_face_weights(woody):
     assert heavy.value >= base * (1 - 1e-4)
     stretch = np.broadcast_to(np.diag([1.0, 3.0, 1.0]), (woody.n_faces, 3, 3))
     aniso = earth_movers_distance(woody, m0, m1, face_weights=stretch, tol=1e-4)
-    weis = earth_movers_distance(woody, m0, m1, face_weights=stretch, algorithm="weiszfeld",
+    weis = earth_movers_distance(woody, m0, m1, face_weights=stretch, method="weiszfeld",
                                  tol=1e-5)
     assert base * (1 - 1e-4) <= aniso.value <= 3 * base
     assert abs(aniso.value - weis.value) < 2e-3 * aniso.value
@@ -308,8 +308,8 @@ def test_input_errors_and_cancel(woody):
         earth_movers_distance(woody, good[:-1], good)
     assert err.value.field == "mu0"
     with pytest.raises(InputError) as err:
-        earth_movers_distance(woody, good, good, algorithm="simplex")
-    assert err.value.field == "algorithm"
+        earth_movers_distance(woody, good, good, method="simplex")
+    assert err.value.field == "method"
     with pytest.raises(InputError) as err:
         earth_movers_distance(woody, good, good, basis="spectral")
     assert err.value.field == "k"

@@ -33,7 +33,7 @@ def test_dw0_is_a_metric_and_matches_the_w1_particular_flow(woody):
     assert np.all(dy <= dy[x] + dx + 1e-12)
     # d_W^0 is the cost of the particular (gradient) flow of eq. 2.4 between two Diracs
     res = earth_movers_distance(woody, np.eye(woody.n)[x], np.eye(woody.n)[y], max_iter=1,
-                                algorithm="weiszfeld", basis="spectral", k=1)
+                                method="weiszfeld", basis="spectral", k=1)
     assert res.value <= dx[y] * (1 + 1e-12)
 
 
@@ -73,7 +73,7 @@ def test_dwk_batched_matches_direct_admm_per_pair(woody):
         res = pointwise_distances(woody, source, k=k, targets=targets, tol=1e-5)
         assert res.converged and res.residual <= 1e-5
         for j, t in enumerate(targets):
-            direct = earth_movers_distance(woody, eye[source], eye[t], algorithm="admm",
+            direct = earth_movers_distance(woody, eye[source], eye[t], method="admm",
                                            basis="spectral", k=k, tol=1e-7, max_iter=100_000)
             assert direct.converged
             assert abs(res.distances[j] - direct.value) <= 2e-6 * direct.value
@@ -141,8 +141,8 @@ def test_dw0_dense_green_matches_float64_reference_and_blocked_solves(woody):
     rng = np.random.default_rng(2)
     for source in rng.choice(woody.n, 3, replace=False):
         ref = dense_dw0_reference(woody, int(source))
-        green = pointwise_distances(woody, int(source), route="green").distances
-        solve = pointwise_distances(woody, int(source), route="solve").distances
+        green = pointwise_distances(woody, int(source), method="green").distances
+        solve = pointwise_distances(woody, int(source), method="solve").distances
         other = np.arange(woody.n) != source
         rel_green = np.abs(green - ref)[other] / ref[other]
         rel_solve = np.abs(solve - ref)[other] / ref[other]
@@ -167,7 +167,7 @@ def test_dw0_dense_green_on_several_components(shared_mesh):
         source = int(np.flatnonzero(labels == comp)[-1])
         targets = np.flatnonzero(labels == comp)
         ref = dense_dw0_reference(suz, source)[targets]
-        got = pointwise_distances(suz, source, targets=targets, route="green").distances
+        got = pointwise_distances(suz, source, targets=targets, method="green").distances
         other = targets != source
         assert np.all(np.abs(got - ref)[other] / ref[other] < 3e-5)  # measured max 6.2e-6
 
@@ -175,7 +175,7 @@ def test_dw0_dense_green_on_several_components(shared_mesh):
 def test_dw0_dense_path_is_symmetric_and_a_metric_on_random_triples(woody):
     rng = np.random.default_rng(3)
     sources = rng.choice(woody.n, 12, replace=False)
-    rows = np.stack([pointwise_distances(woody, int(s), route="green").distances
+    rows = np.stack([pointwise_distances(woody, int(s), method="green").distances
                      for s in sources])
     pair = rows[:, sources]  # pair[a, b] = d(s_a, s_b)
     assert np.allclose(pair, pair.T, rtol=1e-6, atol=0)
@@ -189,8 +189,8 @@ def test_dw0_dense_path_is_invariant_under_vertex_relabeling(woody):
     inverse = np.argsort(perm)
     relabeled = TriangleMesh(woody.vertices[perm], inverse[woody.faces])
     source = 11
-    old = pointwise_distances(woody, source, route="green").distances
-    new = pointwise_distances(relabeled, int(inverse[source]), route="green").distances
+    old = pointwise_distances(woody, source, method="green").distances
+    new = pointwise_distances(relabeled, int(inverse[source]), method="green").distances
     assert np.allclose(new, old[perm], rtol=1e-5, atol=0)
 
 
@@ -198,23 +198,23 @@ def test_dw0_method_selection_and_vertex_limit(meshes_dir):
     mesh = load_mesh(meshes_dir / "suzanne.obj")  # a fresh mesh: nothing cached yet
     comp = np.flatnonzero(mesh.component_labels == mesh.component_labels[0])
     with pytest.raises(InputError) as err:
-        pointwise_distances(mesh, 0, targets=comp, route="green", green_max_vertices=100)
-    assert err.value.field == "route"
+        pointwise_distances(mesh, 0, targets=comp, method="green", green_max_vertices=100)
+    assert err.value.field == "method"
     # auto above the limit: blocked solves, no dense matrix
     auto = pointwise_distances(mesh, 0, targets=comp, green_max_vertices=100).distances
     assert not mesh_operators(mesh).has_green_matrix
     # auto with few targets: solves too (building L⁺ costs V solves)
     pointwise_distances(mesh, 0, targets=comp[:5])
     assert not mesh_operators(mesh).has_green_matrix
-    dense = pointwise_distances(mesh, 0, targets=comp, route="green").distances
+    dense = pointwise_distances(mesh, 0, targets=comp, method="green").distances
     assert mesh_operators(mesh).has_green_matrix
     assert np.allclose(dense, auto, rtol=3e-5, atol=0)
     with pytest.raises(InputError) as err:
-        pointwise_distances(mesh, 0, route="dense")
-    assert err.value.field == "route"
+        pointwise_distances(mesh, 0, method="dense")
+    assert err.value.field == "method"
     with pytest.raises(InputError) as err:
-        pointwise_distances(mesh, 0, k=2, route="green")
-    assert err.value.field == "route"
+        pointwise_distances(mesh, 0, k=2, method="green")
+    assert err.value.field == "method"
 
 
 def test_numba_kernels_compile_without_a_cache_location(monkeypatch):
@@ -268,7 +268,7 @@ def test_dwk_with_harmonic_fields_matches_direct_admm_on_a_torus():
         res = pointwise_distances(mesh, 0, k=6, targets=targets, tol=1e-5, harmonic=harmonic)
         assert res.converged
         for j, y in enumerate(targets):
-            direct = earth_movers_distance(mesh, eye[0], eye[y], algorithm="admm",
+            direct = earth_movers_distance(mesh, eye[0], eye[y], method="admm",
                                            basis="spectral", k=6, harmonic=harmonic,
                                            tol=1e-7, max_iter=100_000)
             assert abs(res.distances[j] - direct.value) <= 2e-6 * direct.value

@@ -26,7 +26,7 @@ def test_grid_diracs_give_the_squared_distance():
     i, j = 2 * 20 + 3, 15 * 20 + 11
     d2 = float(np.sum((grid.points[i] - grid.points[j]) ** 2))
     res = wasserstein_distance(grid, _points(grid.n, [i]), _points(grid.n, [j]))
-    assert isinstance(res, ExactTransportResult) and res.route == "exact"
+    assert isinstance(res, ExactTransportResult) and res.method == "exact"
     assert res.value == pytest.approx(d2, rel=1e-12) and res.converged
     # Two points each, crossing assignment is worse: the LP picks the parallel one.
     a, b = _points(grid.n, [0, 19]), _points(grid.n, [5 * 20, 5 * 20 + 19])
@@ -46,29 +46,29 @@ def test_exact_route_matches_the_lp_and_routes_automatically(shared_mesh):
     s0, s1 = rng.choice(mesh.n, 12, replace=False), rng.choice(mesh.n, 9, replace=False)
     m0, m1 = _points(mesh.n, s0, rng), _points(mesh.n, s1, rng)
     res = wasserstein_distance(mesh, m0, m1)  # defaults: point masses take the exact route
-    assert res.route == "exact" and res.converged and res.residual < 1e-12
+    assert res.method == "exact" and res.converged and res.residual < 1e-12
     i0, i1 = np.flatnonzero(m0), np.flatnonzero(m1)
     # Independent oracle: potpourri3d's edge-flip paths (never shorter than the exact
     # MMP geodesic, so the LP on them bounds the exact value from above).
-    flip = geodesic_distances(mesh, i0, i1, route="edge-flip")
+    flip = geodesic_distances(mesh, i0, i1, method="edge-flip")
     lp_flip = ot.emd2(m0[i0], m1[i1], flip**2)
     assert res.value <= lp_flip * (1 + 1e-12) and res.value == pytest.approx(lp_flip, rel=0.01)
     assert res.plan.shape == (12, 9) and np.allclose(res.plan.sum(axis=1), m0[i0])
-    conv = wasserstein_distance(mesh, m0, m1, route="convolutional")
-    assert conv.route == "convolutional" and conv.regularization is not None
+    conv = wasserstein_distance(mesh, m0, m1, method="convolutional")
+    assert conv.method == "convolutional" and conv.regularization is not None
 
 
 def test_routes_refuse_what_they_cannot_do():
     graph = Graph(4, [(0, 1), (1, 2), (2, 3)])
     with pytest.raises(InputError) as err:
-        wasserstein_distance(graph, _points(4, [0]), _points(4, [3]), route="exact")
-    assert err.value.field == "route"
+        wasserstein_distance(graph, _points(4, [0]), _points(4, [3]), method="exact")
+    assert err.value.field == "method"
     with pytest.raises(InputError) as err:
-        wasserstein_distance(graph, _points(4, [0]), _points(4, [3]), route="fast")
-    assert err.value.field == "route"
+        wasserstein_distance(graph, _points(4, [0]), _points(4, [3]), method="fast")
+    assert err.value.field == "method"
     # auto on a graph: convolutional with the policy
     res = wasserstein_distance(graph, _points(4, [0]), _points(4, [3]))
-    assert res.route == "convolutional" and res.regularization.debiased
+    assert res.method == "convolutional" and res.regularization.debiased
 
 
 @pytest.mark.parametrize("name", ["cow.obj", "beetle.obj"])
@@ -135,18 +135,18 @@ def test_decision_is_a_pure_function_of_the_stored_domain(shared_mesh, monkeypat
     built = set(mesh.operators.keys())  # (the fixture's mesh is shared between tests)
     first = decide_distance(stored, m0, m1)
     assert set(mesh.operators.keys()) == built  # a sketch of stored arrays builds nothing
-    assert first.route == "exact" and first.exact_seconds <= EXACT_BUDGET_SECONDS
+    assert first.method == "exact" and first.exact_seconds <= EXACT_BUDGET_SECONDS
     floor = 25 * mmp_solve_seconds(mesh.n, 0.0) + lp_seconds(25, 25)
     assert floor < first.exact_seconds == exact_route_estimate(stored, m0, m1)
     res = wasserstein_distance(mesh, m0, m1)
-    assert res.route == "exact" and res.decision == first
+    assert res.method == "exact" and res.decision == first
     assert set(mesh.operators.keys()) - built <= {("geodesic-pieces",), ("edge-length-graph",)}
     assert decide_distance(mesh, m0, m1) == first  # after solves: the same decision
     with pytest.raises(CancelledError):
         exact_wasserstein_distance(mesh, m0, m1, should_cancel=lambda: True)
     monkeypatch.setattr(decision, "EXACT_BUDGET_SECONDS", 0.0)
     conv = decide_distance(mesh, m0, m1)
-    assert conv.route == "convolutional" and "above its 0 s budget" in conv.reason
+    assert conv.method == "convolutional" and "above its 0 s budget" in conv.reason
     # above the budget the size-only lower bound is enough (no planning)
     assert conv.exact_seconds == pytest.approx(floor + mesh.diagnostics.nonmanifold_vertices
                                                * mmp_solve_seconds(mesh.n, 1.0))

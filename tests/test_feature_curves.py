@@ -32,7 +32,7 @@ def test_distance_to_a_curve_matches_exact_geodesics(shared_mesh):
     exact = gdist.compute_gdist(mesh.vertices.astype(np.float64),
                                 mesh.faces.astype(np.int32),
                                 source_indices=feats.astype(np.int32))
-    res = distance_to_features(mesh, feats, algorithm="auto", basis="auto")
+    res = distance_to_features(mesh, feats, method="auto", basis="auto")
     err = np.abs(res.distances - exact)
     # measured: 2.7 % mean error, 4.3 % of the largest distance at most
     assert err.mean() < 0.04 * exact.mean()

@@ -92,7 +92,7 @@ def test_path_graph_peak_slides_linearly_pdf_is_bimodal():
     assert np.all(S.std(res.histograms, b) < 0.035)
     mid = res.histograms[n // 2]
     assert b.centers[np.argmax(mid)] == pytest.approx(0.5, abs=0.011)
-    pdf = propagate_histograms(path(n), [0, n - 1], labels, bins=b, route="pdf")
+    pdf = propagate_histograms(path(n), [0, n - 1], labels, bins=b, method="pdf")
     pm = pdf.histograms[n // 2]
     assert np.allclose(pm, 0.5 * labels[0] + 0.5 * labels[1], atol=1e-12)  # a mixture
     near = np.abs(b.centers - 0.5) < 0.05
@@ -143,9 +143,9 @@ def test_amg_solver_matches_direct():
     b = make_bins(lo=0, hi=1, count=20)
     lab = rng.choice(200, 10, replace=False)
     h = rng.random((10, 20))
-    d = propagate_histograms(g, lab, h, bins=b, solver="direct")
-    a = propagate_histograms(g, lab, h, bins=b, solver="amg", tol=1e-12)
-    assert a.solver == "amg" and a.iterations > 1
+    d = propagate_histograms(g, lab, h, bins=b, linear_method="direct")
+    a = propagate_histograms(g, lab, h, bins=b, linear_method="amg", tol=1e-12)
+    assert a.linear_method == "amg" and a.iterations > 1
     assert np.abs(a.quantiles - d.quantiles).max() < 1e-8
 
 
@@ -210,7 +210,7 @@ def test_disk_mesh_multimodal_boundary_wasserstein_keeps_spread():
     interior = np.setdiff1d(np.arange(mesh.n), boundary)
     for lap in ("robust", "cotan"):
         w = propagate_histograms(mesh, boundary, labels, bins=b, laplacian=lap)
-        pdf = propagate_histograms(mesh, boundary, labels, bins=b, route="pdf", laplacian=lap)
+        pdf = propagate_histograms(mesh, boundary, labels, bins=b, method="pdf", laplacian=lap)
         _, s = qmoments(w.quantiles)
         assert np.all(s[interior] <= s[boundary].max() + 1e-10)  # Prop. 14 on a mesh
         hw, hp = S.entropy(w.histograms, b), S.entropy(pdf.histograms, b)
@@ -233,7 +233,7 @@ def test_diffusion_on_circle_graph_keeps_spread_pdf_flattens():
     h0 = np.stack([gauss(b, m, 0.03) for m in mus])
     times = [0.0, 2.0, 20.0]
     w = diffuse_histograms(g, h0, times, bins=b)
-    pdf = diffuse_histograms(g, h0, times, bins=b, route="pdf")
+    pdf = diffuse_histograms(g, h0, times, bins=b, method="pdf")
     s0 = S.std(h0, b)
     sw = S.std(w.histograms[-1], b)
     sp_ = S.std(pdf.histograms[-1], b)
@@ -307,7 +307,7 @@ def test_factorization_is_cached_per_labeled_set():
     h = np.stack([gauss(b, 0.2, 0.1), gauss(b, 0.7, 0.1)])
     before = g.operators.builds
     propagate_histograms(g, [0, 49], h, bins=b)
-    propagate_histograms(g, [49, 0], h[::-1], bins=b, route="pdf")
+    propagate_histograms(g, [49, 0], h[::-1], bins=b, method="pdf")
     assert g.operators.builds == before + 1
 
 

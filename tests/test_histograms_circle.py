@@ -58,7 +58,7 @@ def test_lp_value_never_above_entropic_route(seed):
     labels = np.stack([von_mises(rng.uniform(0, 2 * np.pi), rng.uniform(5, 40))
                        for _ in labeled])
     lp = propagate_circular(g, labeled, labels, bins=BINS)
-    ent = propagate_circular(g, labeled, labels, bins=BINS, algorithm="entropic",
+    ent = propagate_circular(g, labeled, labels, bins=BINS, method="entropic",
                              lp_value=lp.value)
     assert ent.converged
     assert lp.value <= ent.value + 1e-9
@@ -126,9 +126,9 @@ def _unrestricted_lp(n, edges, weights, labeled, labels, cost):
     return res.fun
 
 
-@pytest.mark.parametrize("solver", ["simplex", "hybrid"])
+@pytest.mark.parametrize("lp_method", ["simplex", "hybrid"])
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_column_generation_reaches_the_unrestricted_lp_optimum(seed, solver):
+def test_column_generation_reaches_the_unrestricted_lp_optimum(seed, lp_method):
     # far-apart labels (opposite Diracs, bimodal) need plan entries outside the starting
     # band, so the pricing rounds matter; the result must be the full LP's optimum
     rng = np.random.default_rng(seed)
@@ -147,10 +147,10 @@ def test_column_generation_reaches_the_unrestricted_lp_optimum(seed, solver):
     labels /= labels.sum(axis=1, keepdims=True)
     cost = circle_cost(bins)
     res = propagate_circular(Graph(n, edges, weights), labeled, labels, bins=bins,
-                             solver=solver)
+                             lp_method=lp_method)
     reference = _unrestricted_lp(n, edges, weights, labeled, labels, cost)
-    assert res.certified and res.converged and res.solver == solver
-    assert (res.ipm_iterations is not None) == (solver == "hybrid")
+    assert res.certified and res.converged and res.lp_method == lp_method
+    assert (res.ipm_iterations is not None) == (lp_method == "hybrid")
     assert res.value == pytest.approx(reference, rel=1e-7, abs=1e-9)
     assert res.lower_bound <= reference + 1e-9 and res.min_reduced_cost >= -1e-9
     assert res.plan_entries < len(edges) * 12 * 12  # column generation left entries out
@@ -179,8 +179,8 @@ def test_hybrid_start_matches_the_simplex_start(seed):
     # the interior-point start changes the route, not the certified optimum
     n, edges, weights, labeled, labels, bins = _random_case(seed)
     g = Graph(n, edges, weights)
-    old = propagate_circular(g, labeled, labels, bins=bins, solver="simplex")
-    new = propagate_circular(g, labeled, labels, bins=bins, solver="hybrid")
+    old = propagate_circular(g, labeled, labels, bins=bins, lp_method="simplex")
+    new = propagate_circular(g, labeled, labels, bins=bins, lp_method="hybrid")
     assert old.certified and new.certified and new.ipm_iterations > 0
     assert new.value == pytest.approx(old.value, rel=1e-7, abs=1e-9)
     exact = dirichlet_value(new.histograms, edges, weights, circle_cost(bins))
@@ -225,5 +225,5 @@ def test_structured_ipm_operators_and_normal_equations():
 def test_solver_validation():
     with pytest.raises(InputError) as exc:
         propagate_circular(path(3), [0, 2], [von_mises(0.0), von_mises(1.0)], bins=BINS,
-                           solver="barrier")
-    assert exc.value.field == "solver"
+                           lp_method="barrier")
+    assert exc.value.field == "lp_method"

@@ -31,7 +31,7 @@ def test_wasserstein_beats_pdf_on_mean_curvature_histograms(shared_mesh):
             lab = rng.choice(mesh.n, int(fraction * mesh.n), replace=False)
             free = np.setdiff1d(np.arange(mesh.n), lab)
             w = propagate_histograms(mesh, lab, truth[lab], bins=bins)
-            p = propagate_histograms(mesh, lab, truth[lab], bins=bins, route="pdf")
+            p = propagate_histograms(mesh, lab, truth[lab], bins=bins, method="pdf")
             errors.append((w1_distance(w.histograms[free], truth[free], bins).mean(),
                            w1_distance(p.histograms[free], truth[free], bins).mean(),
                            np.abs(S.std(w.histograms[free], bins) - true_std[free]).mean(),

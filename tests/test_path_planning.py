@@ -40,8 +40,8 @@ def test_maze_mesh_is_a_simply_connected_planar_surface(maze):
         maze_mesh(["#.", "#"])
 
 
-@pytest.mark.parametrize("algorithm", ["ipm", "socp"])
-def test_fig_2_12_each_occupant_leaves_by_its_nearest_exit(maze, algorithm):
+@pytest.mark.parametrize("method", ["ipm", "socp"])
+def test_fig_2_12_each_occupant_leaves_by_its_nearest_exit(maze, method):
     """Two occupants, two exits: with epsilon = 0 each occupant's half of the mass arrives at
     the exit nearest to it through the maze (exact geodesics), although B is nearer to E as
     the crow flies; the value is the mean distance to the nearest exit up to the
@@ -55,8 +55,8 @@ def test_fig_2_12_each_occupant_leaves_by_its_nearest_exit(maze, algorithm):
     assert np.linalg.norm(centre["B"] - centre["E"]) < np.linalg.norm(centre["B"] - centre["F"])
 
     m0 = _occupants(maze)
-    res = w1_path_planning(mesh, m0, exits, algorithm=algorithm)
-    assert res.converged and res.residual < 1e-9 and res.algorithm == algorithm
+    res = w1_path_planning(mesh, m0, exits, method=method)
+    assert res.converged and res.residual < 1e-9 and res.method == method
     assert res.target_masses[R["E"]].sum() == pytest.approx(0.5, abs=1e-5)
     assert res.target_masses[R["F"]].sum() == pytest.approx(0.5, abs=1e-5)
     assert res.target_masses[np.setdiff1d(np.arange(mesh.n), exits)].max() == 0.0
@@ -106,8 +106,8 @@ def test_interior_point_matches_the_conic_solver_on_a_real_mesh(shared_mesh, eps
     m0 = np.zeros(mesh.n)
     m0[rng.choice(mesh.n, 12, replace=False)] = rng.random(12) + 0.1
     exits = rng.choice(mesh.n, 40, replace=False)
-    ipm = w1_path_planning(mesh, m0, exits, epsilon=epsilon, algorithm="ipm", tol=1e-8)
-    socp = w1_path_planning(mesh, m0, exits, epsilon=epsilon, algorithm="socp")
+    ipm = w1_path_planning(mesh, m0, exits, epsilon=epsilon, method="ipm", tol=1e-8)
+    socp = w1_path_planning(mesh, m0, exits, epsilon=epsilon, method="socp")
     assert ipm.converged and socp.converged
     assert ipm.objective == pytest.approx(socp.objective, rel=1e-6)
     assert ipm.residual < 1e-10
@@ -124,8 +124,8 @@ def test_interior_point_claims_convergence_only_when_feasible(epsilon):
     mesh = TriangleMesh(s.vertices, s.faces)
     d = np.linalg.norm(mesh.vertices - mesh.vertices[0], axis=1)
     m0 = mesh.areas * np.clip(1.0 - d / 0.6, 0.0, None)  # not normalized: rounding differs
-    ipm = w1_path_planning(mesh, m0, [100, 200], epsilon=epsilon, algorithm="ipm")
-    socp = w1_path_planning(mesh, m0, [100, 200], epsilon=epsilon, algorithm="socp")
+    ipm = w1_path_planning(mesh, m0, [100, 200], epsilon=epsilon, method="ipm")
+    socp = w1_path_planning(mesh, m0, [100, 200], epsilon=epsilon, method="socp")
     assert socp.converged
     if ipm.converged:
         assert ipm.residual <= 1e-6
@@ -145,8 +145,8 @@ def test_path_planning_refuses_bad_targets(maze):
         w1_path_planning(maze.mesh, m0, [0], epsilon=-1.0)
     assert err.value.field == "epsilon"
     with pytest.raises(InputError) as err:
-        w1_path_planning(maze.mesh, m0, [0], algorithm="lp")
-    assert err.value.field == "algorithm"
+        w1_path_planning(maze.mesh, m0, [0], method="lp")
+    assert err.value.field == "method"
 
 
 def _grid(n):
@@ -199,8 +199,8 @@ def test_path_planning_on_several_components_and_with_face_weights():
     exits = [40, 90, n + 100]
     weights = 1.0 + np.random.default_rng(1).random(two.n_faces)
     for fw in (None, weights):
-        ipm = w1_path_planning(two, m0, exits, algorithm="ipm", tol=1e-8, face_weights=fw)
-        socp = w1_path_planning(two, m0, exits, algorithm="socp", face_weights=fw)
+        ipm = w1_path_planning(two, m0, exits, method="ipm", tol=1e-8, face_weights=fw)
+        socp = w1_path_planning(two, m0, exits, method="socp", face_weights=fw)
         assert ipm.converged and ipm.objective == pytest.approx(socp.objective, rel=1e-6)
         assert ipm.target_masses[n + 100] == pytest.approx(0.4, abs=1e-6)
     one = np.zeros(two.n)

@@ -54,7 +54,7 @@ def subspace_cosines(A, B, areas):
 def test_identity_map_singular_values_are_the_heat_spectrum(sphere):
     gamma = 4 * sphere.mean_edge_length**2
     res = analyze_point_map(sphere, sphere, np.arange(sphere.n), samples=sphere.n, gamma=gamma,
-                            rank=10, dirichlet_route=None, descriptor_k=None)
+                            rank=10, dirichlet_method=None, descriptor_k=None)
     tau = heat_time(gamma)
     lam = laplace_eigenvalues(sphere)
     # all pairs of the remainder: the last one is the constant direction again (0)
@@ -90,7 +90,7 @@ def test_descriptor_energy_is_low_for_the_identity(shared_mesh):
     """eq. 4.6 with WKS: the identity of a real shape matches descriptors, a scramble not."""
     mesh = shared_mesh("woody.obj")
     opts = {"samples": 40, "rank": 3, "descriptor_k": 20, "n_energies": 30,
-            "dirichlet_route": None, "gamma": 4 * mesh.mean_edge_length**2}
+            "dirichlet_method": None, "gamma": 4 * mesh.mean_edge_length**2}
     ident = analyze_point_map(mesh, mesh, np.arange(mesh.n), **opts)
     scramble = analyze_point_map(mesh, mesh, np.random.default_rng(1).permutation(mesh.n),
                                  **opts)
@@ -102,7 +102,7 @@ def test_collection_basis_of_isometries_spans_the_low_harmonics(sphere):
     basis spans {1, x, y, z}; it also captures the stacked maps at least as well as either
     map's own rank-4 basis (Eckart-Young)."""
     gamma = 4 * sphere.mean_edge_length**2
-    opts = {"samples": sphere.n, "gamma": gamma, "rank": 4, "dirichlet_route": None,
+    opts = {"samples": sphere.n, "gamma": gamma, "rank": 4, "dirichlet_method": None,
             "descriptor_k": None}
     maps = [analyze_point_map(sphere, sphere, np.arange(sphere.n), **opts),
             analyze_point_map(sphere, sphere, rotation_map(sphere), **opts)]

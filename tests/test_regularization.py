@@ -83,7 +83,7 @@ def test_estimate_close_to_the_lp_on_woody(shared_mesh):
     lp = ot.emd2(m0[s0], m1[s1], geodesic_distances(mesh, s0, s1) ** 2)
     est = transport_distance_estimate(mesh, m0, m1)
     assert est == pytest.approx(np.sqrt(lp), rel=0.10)
-    res = wasserstein_distance(mesh, m0, m1, route="convolutional")
+    res = wasserstein_distance(mesh, m0, m1, method="convolutional")
     assert res.regularization is not None and res.regularization.distance == pytest.approx(est)
     assert res.debiased and res.substeps == res.regularization.substeps >= VALUE_SUBSTEPS
 

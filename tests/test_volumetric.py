@@ -153,21 +153,21 @@ def test_validation(sphere):
     with pytest.raises(InputError):
         mean_value_coordinates(sphere, [np.nan, 0, 0])
     with pytest.raises(InputError):
-        volumetric_distance(sphere, np.zeros(3), np.zeros(3), algorithm="nope")
+        volumetric_distance(sphere, np.zeros(3), np.zeros(3), method="nope")
     open_mesh = TriangleMesh(sphere.vertices, sphere.faces[1:])
     with pytest.raises(UnsupportedDomainError):
         mean_value_coordinates(open_mesh, np.zeros(3))
 
 
 def test_admm_option_runs_admm(torus, monkeypatch):
-    """``algorithm="admm"`` reaches the ADMM of solvers.emd (not the interior point)."""
+    """``method="admm"`` reaches the ADMM of solvers.emd (not the interior point)."""
     from solvers.emd import beckmann
     seen = []
     real = beckmann._admm
     monkeypatch.setattr(beckmann, "_admm", lambda *a, **k: seen.append(1) or real(*a, **k))
     monkeypatch.setattr(beckmann, "_ipm", lambda *a, **k: pytest.fail("ran the interior point"))
     volumetric_distance(torus, np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), units="input",
-                        algorithm="admm", tol=1e-3)
+                        method="admm", tol=1e-3)
     assert seen
 
 
@@ -176,7 +176,7 @@ def test_admm_agrees_with_exact_solver(torus):
     problem as the interior-point SOCP (measured relative gap 6e-6 at tol 1e-5)."""
     a, c = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
     exact = volumetric_distance(torus, a, c, units="input")
-    admm = volumetric_distance(torus, a, c, units="input", algorithm="admm", tol=1e-5)
-    assert (exact.algorithm, admm.algorithm) == ("exact", "admm")
+    admm = volumetric_distance(torus, a, c, units="input", method="admm", tol=1e-5)
+    assert (exact.method, admm.method) == ("exact", "admm")
     assert admm.converged
     assert admm.value == pytest.approx(exact.value, rel=1e-3)

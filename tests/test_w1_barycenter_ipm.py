@@ -1,4 +1,4 @@
-"""W1 barycenters (eq. 2.7) by the vertex-sized interior point (``algorithm="ipm"``, the
+"""W1 barycenters (eq. 2.7) by the vertex-sized interior point (``method="ipm"``, the
 default) against Clarabel on the whole cone program (``"socp"``) on small meshes.
 
 The interior point certifies its objective: ``lower_bound <= optimum <= value`` with
@@ -39,7 +39,7 @@ def _bump(mesh, center, width=0.3):
 
 
 def _check_bracket(ipm, ref, tol):
-    assert ipm.algorithm == "ipm" and ipm.converged and ipm.gap <= tol
+    assert ipm.method == "ipm" and ipm.converged and ipm.gap <= tol
     assert ipm.lower_bound <= ipm.value
     slack = 1e-8 * ref.value + 1e-12  # Clarabel's tolerance
     assert ipm.lower_bound - slack <= ref.value <= ipm.value + slack
@@ -61,11 +61,11 @@ def test_interior_point_matches_clarabel(sphere, case):
         alpha = [0.7, 0.3]
     tol = 1e-6  # the default; the loop stops near 1e-7 on these small meshes (rounding)
     ipm = w1_barycenter(sphere, mus, alpha, tol=tol)
-    ref = w1_barycenter(sphere, mus, alpha, algorithm="socp", tol=1e-10)
+    ref = w1_barycenter(sphere, mus, alpha, method="socp", tol=1e-10)
     _check_bracket(ipm, ref, tol)
     # the reported distances are the W1 distances of the returned barycenter
     for i in range(mus.shape[1]):
-        w1 = earth_movers_distance(sphere, ipm.masses, mus[:, i], algorithm="ipm", tol=1e-9)
+        w1 = earth_movers_distance(sphere, ipm.masses, mus[:, i], method="ipm", tol=1e-9)
         assert ipm.distances[i] == pytest.approx(w1.value, rel=1e-4, abs=1e-9)
     # the flows carry the barycenter to each input
     for i in range(mus.shape[1]):
@@ -87,7 +87,7 @@ def test_face_weights_and_two_components():
     fw = np.where(np.arange(two.n_faces) % 2 == 0, 1.0, 2.5)
     alpha = [0.5, 0.25, 0.25]
     ipm = w1_barycenter(two, mus, alpha, face_weights=fw, tol=1e-6)
-    ref = w1_barycenter(two, mus, alpha, face_weights=fw, algorithm="socp", tol=1e-10)
+    ref = w1_barycenter(two, mus, alpha, face_weights=fw, method="socp", tol=1e-10)
     _check_bracket(ipm, ref, 1e-6)
     assert ipm.masses[:n].sum() == pytest.approx(0.5, abs=1e-9)
 
@@ -97,7 +97,7 @@ def test_zero_weights(sphere):
     # all weight on one input: that input, exactly, and W1 to the others
     one = w1_barycenter(sphere, np.stack([a, b], axis=1), [1.0, 0.0])
     assert one.converged and one.value == 0.0 and np.allclose(one.masses, a, rtol=1e-12, atol=0)
-    w_ab = earth_movers_distance(sphere, a, b, algorithm="ipm", tol=1e-6).value
+    w_ab = earth_movers_distance(sphere, a, b, method="ipm", tol=1e-6).value
     assert one.distances[0] == 0.0
     assert one.distances[1] == pytest.approx(w_ab, rel=1e-5)
     # a zero weight leaves the optimum of the others unchanged
@@ -107,7 +107,7 @@ def test_zero_weights(sphere):
     assert with_zero.converged
     assert with_zero.value == pytest.approx(without.value, rel=1e-7)
     assert with_zero.distances[1] == pytest.approx(earth_movers_distance(
-        sphere, with_zero.masses, b, algorithm="ipm", tol=1e-6).value, rel=1e-6)
+        sphere, with_zero.masses, b, method="ipm", tol=1e-6).value, rel=1e-6)
 
 
 def test_walls_need_the_conic_route(sphere):
@@ -115,13 +115,13 @@ def test_walls_need_the_conic_route(sphere):
     fw = np.ones(sphere.n_faces)
     fw[:5] = np.inf
     res = w1_barycenter(sphere, np.stack([a, b], axis=1), face_weights=fw)  # auto: socp
-    assert res.algorithm == "socp" and res.converged
+    assert res.method == "socp" and res.converged
     with pytest.raises(InputError) as err:
-        w1_barycenter(sphere, np.stack([a, b], axis=1), face_weights=fw, algorithm="ipm")
-    assert err.value.field == "algorithm"
+        w1_barycenter(sphere, np.stack([a, b], axis=1), face_weights=fw, method="ipm")
+    assert err.value.field == "method"
     with pytest.raises(InputError) as err:
-        w1_barycenter(sphere, np.stack([a, b], axis=1), algorithm="lp")
-    assert err.value.field == "algorithm"
+        w1_barycenter(sphere, np.stack([a, b], axis=1), method="lp")
+    assert err.value.field == "method"
 
 
 def test_no_vertex_cap_on_the_interior_point():
@@ -130,7 +130,7 @@ def test_no_vertex_cap_on_the_interior_point():
     mus = np.zeros((mesh.n, 2))
     mus[[0, 5000], [0, 1]] = 1.0
     with pytest.raises(InputError):
-        w1_barycenter(mesh, mus, algorithm="socp")
+        w1_barycenter(mesh, mus, method="socp")
     res = w1_barycenter(mesh, mus)
     assert res.converged and res.gap <= 1e-6 and res.residual < 1e-6
 
@@ -172,7 +172,7 @@ def test_zero_pivot_hands_over_to_ldlt(sphere, monkeypatch, from_iteration):
     mus = np.stack([_bump(sphere, c) for c in (0, 50, 100)], axis=1)
     alpha = [0.2, 0.3, 0.5]
     ipm = w1_barycenter(sphere, mus, alpha, tol=1e-6)
-    ref = w1_barycenter(sphere, mus, alpha, algorithm="socp", tol=1e-10)
+    ref = w1_barycenter(sphere, mus, alpha, method="socp", tol=1e-10)
     _check_bracket(ipm, ref, 1e-6)
     assert ipm.iterations > from_iteration and used and set(used) == {"pardiso-ldlt"}
 
@@ -270,5 +270,5 @@ def test_correctors_keep_the_optimum(sphere, monkeypatch, correctors):
     mus = np.stack([_bump(sphere, c) for c in (0, 50, 100)], axis=1)
     alpha = [0.2, 0.3, 0.5]
     ipm = w1_barycenter(sphere, mus, alpha, tol=1e-6)
-    ref = w1_barycenter(sphere, mus, alpha, algorithm="socp", tol=1e-10)
+    ref = w1_barycenter(sphere, mus, alpha, method="socp", tol=1e-10)
     _check_bracket(ipm, ref, 1e-6)

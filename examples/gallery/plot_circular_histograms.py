@@ -7,7 +7,7 @@ trick of the line no longer applies: the Wasserstein Dirichlet problem
 :math:`\\min \\sum_{(u,v)} \\omega_{uv} W_2^2(\\rho_u, \\rho_v)` with geodesic cost on the
 circle is a linear program over one transport plan per edge (§5.4).
 :func:`solvers.histograms.propagate_circular` solves it exactly (HiGHS, certified by a dual
-bound) or approximately by the entropic Alg. 4 (``algorithm="entropic"``).
+bound) or approximately by the entropic Alg. 4 (``method="entropic"``).
 
 On a path whose ends are labeled 340° and 20°, the exact solution turns the short way
 through 0° and stays peaked; averaging densities would put mass near 180°.
@@ -31,7 +31,7 @@ n = 9
 path = Graph(n, np.c_[np.arange(n - 1), np.arange(1, n)])
 labels = np.stack([von_mises(340), von_mises(20)])
 exact = propagate_circular(path, [0, n - 1], labels, bins=bins)
-entropic = propagate_circular(path, [0, n - 1], labels, bins=bins, algorithm="entropic")
+entropic = propagate_circular(path, [0, n - 1], labels, bins=bins, method="entropic")
 print(f"LP: energy {exact.value:.4f}, gap {exact.gap:.1e}; entropic: energy "
       f"{entropic.value:.4f}")
 means = np.rad2deg(summaries.circular_mean(exact.histograms, bins))

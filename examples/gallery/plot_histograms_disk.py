@@ -8,9 +8,9 @@ Dirichlet energy :math:`\\sum_{(u,v)} \\omega_{uv} W_2^2(\\rho_u, \\rho_v)`. On 
 is the harmonic extension of the inverse CDFs, one sparse factorization and one block solve
 for all quantile levels (:func:`solvers.histograms.propagate_histograms`).
 
-The naive alternative, harmonic extension of the densities themselves (``route="pdf"``),
+The naive alternative, harmonic extension of the densities themselves (``method="pdf"``),
 averages histograms bin by bin: peaks at different places blur into a flat smear. The
-Wasserstein route moves the peaks instead, so interior histograms keep the labels' shape.
+Wasserstein method moves the peaks instead, so interior histograms keep the labels' shape.
 """
 
 import matplotlib.pyplot as plt
@@ -41,11 +41,11 @@ theta = np.arctan2(points[rim, 1], points[rim, 0])
 labels = np.stack([0.5 * gauss(0.3 + 0.12 * np.cos(t)) + 0.5 * gauss(0.7 + 0.12 * np.sin(t))
                    for t in theta])
 wasserstein = propagate_histograms(disk, rim, labels, bins=bins)
-pdf = propagate_histograms(disk, rim, labels, bins=bins, route="pdf")
+pdf = propagate_histograms(disk, rim, labels, bins=bins, method="pdf")
 
 # %%
 # Left: the entropy of each node's histogram (low = peaked). Right: the histograms at three
-# nodes on a ray from the rim to the center, by both routes.
+# nodes on a ray from the rim to the center, by both methods.
 fig, axes = plt.subplots(1, 3, figsize=(13, 4))
 entropies = [summarize(r.histograms, bins)["entropy"] for r in (wasserstein, pdf)]
 low, high = min(e.min() for e in entropies), max(e.max() for e in entropies)
@@ -53,7 +53,7 @@ for ax, entropy, title in ((axes[0], entropies[0], "Wasserstein"),
                            (axes[1], entropies[1], "PDF")):
     shown = ax.tripcolor(points[:, 0], points[:, 1], disk.faces, entropy, shading="gouraud",
                          cmap="magma", vmin=low, vmax=high)
-    ax.set_title(f"{title} route: entropy")
+    ax.set_title(f"{title} method: entropy")
     ax.set_aspect("equal")
     ax.axis("off")
 fig.colorbar(shown, ax=axes[:2], shrink=0.8)

@@ -53,7 +53,9 @@ JSON_BODY = {
 }
 
 
-async def _read_body(request: Request, limit: int) -> bytes:
+async def _read_chunks(request: Request, limit: int) -> list[bytes]:
+    """The body as the server received it, in its chunks (an 80 MB upload joined or parsed
+    in one piece would hold the GIL, and so the event loop, for tens of milliseconds)."""
     declared = request.headers.get("content-length")
     if declared and declared.isdigit() and int(declared) > limit:
         raise PayloadTooLarge(f"upload of {declared} bytes exceeds the limit of {limit}",
@@ -64,18 +66,32 @@ async def _read_body(request: Request, limit: int) -> bytes:
         if size > limit:
             raise PayloadTooLarge(f"upload exceeds the limit of {limit} bytes", field="file")
         chunks.append(chunk)
-    body = b"".join(chunks)
-    request._body = body  # let request.form() parse the bytes already read
-    return body
+    return chunks
 
 
-def _parse_multipart(body: bytes, headers, limit: int) -> tuple:
+async def _joined(chunks: list[bytes]) -> bytes:
+    """``b"".join(chunks)``, off the event loop when large."""
+    if sum(map(len, chunks)) < 2**20:
+        return b"".join(chunks)
+    return await run_in_threadpool(b"".join, chunks)
+
+
+def _pieces(chunks: list[bytes], size: int = 2**20):
+    """The chunks cut to at most ``size`` bytes each, so that no single parsing step of the
+    multipart parser (a copy, a search for the boundary) holds the GIL for long."""
+    for chunk in chunks:
+        for start in range(0, len(chunk), size):
+            yield chunk[start:start + size] if len(chunk) > size else chunk
+
+
+def _parse_multipart(chunks: list[bytes], headers, limit: int) -> tuple:
     """``(file bytes, file name, format, laplacian, weld)`` of a multipart upload, parsed in
     the calling thread (the thread pool) on its own event loop."""
     from starlette.formparsers import MultiPartParser
 
     async def stream():
-        yield body
+        for piece in _pieces(chunks):
+            yield piece
 
     async def parse():
         form = await MultiPartParser(headers, stream(), max_part_size=limit).parse()
@@ -112,18 +128,17 @@ async def _create(request: Request, response: Response, svc, allow_json: bool,
     limit = get_runtime(request).settings.max_upload_bytes
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if ctype == "multipart/form-data" and allow_multipart:
-        body = await _read_body(request, limit)
+        chunks = await _read_chunks(request, limit)
         data, filename, fmt, laplacian, weld = await run_in_threadpool(
-            _parse_multipart, body, request.headers, limit)
-        del body
-        request._body = b""  # the file's bytes are kept once, in data
+            _parse_multipart, chunks, request.headers, limit)
+        del chunks  # the file's bytes are kept once, in data
         content = {"file_sha256": await _sha256(data), "filename": filename,
                    "format": fmt, "laplacian": laplacian, "weld": weld}
 
         async def build():
             return await svc.create_from_file(data, filename, fmt, laplacian, weld)
     elif ctype in ("application/json", "") and allow_json:
-        body = await _read_body(request, limit)
+        body = await _joined(await _read_chunks(request, limit))
         content = {"json_sha256": await _sha256(body)}
 
         async def build():

@@ -16,6 +16,7 @@ from service.cache import OperatorCache
 from service.errors import ApiError, error_dict
 from service.jobs.db import CANCELLED, FAILED, SUCCEEDED, JobRepository, worker_identity
 from service.operations.base import RunContext
+from service.renames import current_decision, current_params
 from service.settings import Settings
 from service.storage_probe import STORAGE_ERRNOS, storage_reason
 from service.store import IN_ROW, Store
@@ -187,7 +188,8 @@ class JobRunner:
         try:
             op = self.operations.get_operation(job.operation)
             # checked strictly at the door; stored JSON gives lists for tuples
-            params = op.request_model.model_validate(job.params, strict=False)
+            params = op.request_model.model_validate(
+                current_params(job.operation, job.params), strict=False)
             max_iter = getattr(params, "max_iter", None)
             if isinstance(max_iter, int) and max_iter > 0 and not op.progress_counts_items:
                 hb.max_iter = max_iter
@@ -196,7 +198,8 @@ class JobRunner:
                 warm.ensure(op)
                 hb.on_stage(None)
             try:
-                output = ctx.run(op, params, hb.on_progress, should_cancel, job.decision)
+                output = ctx.run(op, params, hb.on_progress, should_cancel,
+                                 current_decision(job.decision))
             finally:
                 built = ctx.operator_builds()
                 self.cache.operator_builds += built
@@ -254,7 +257,7 @@ class JobRunner:
         document for the job row when it is small (``Store.row_result``; nothing is written
         yet: ``finish`` commits it with the final state), else None once in files."""
         payload = {"job_id": job_id, "operation": job.operation,
-                   "domain_id": job.domain_id, "decision": job.decision,
+                   "domain_id": job.domain_id, "decision": current_decision(job.decision),
                    "values": output.values,
                    "arrays": {k: {"shape": list(v.shape), "dtype": str(v.dtype)}
                               for k, v in output.arrays.items()},

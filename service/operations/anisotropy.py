@@ -54,7 +54,7 @@ class AnisotropicDistanceRequest(OperationRequest):
         {"mu0": {"vertex": 0, "radius": 0.1}, "mu1": {"vertex": 40, "radius": 0.1},
          "curvature": {"strength": 2.0}}], **given("face_weights", "curvature"),
         **rules(({"basis": {"const": "spectral"}}, needs("k")),
-                ({"algorithm": {"const": "ipm"}},
+                ({"method": {"const": "ipm"}},
                  {"properties": {"basis": {"enum": ["auto", "flow"]}}}))})
     mu0: Distribution
     mu1: Distribution
@@ -64,7 +64,7 @@ class AnisotropicDistanceRequest(OperationRequest):
         "one of face_weights and curvature")
     curvature: CurvatureWeights | None = Field(None, description="weights from the mean "
                                                "curvature (Fig. 2.15b)")
-    algorithm: Literal["auto", "ipm", "admm", "weiszfeld"] = Field(
+    method: Literal["auto", "ipm", "admm", "weiszfeld"] = Field(
         "auto", description="auto/ipm: interior point over all flows (certified gap tol); "
         "admm, weiszfeld: in the curl basis 'full' or a 'spectral' one (an overestimate)")
     basis: Literal["auto", "flow", "full", "spectral"] = Field(
@@ -84,7 +84,7 @@ class AnisotropicDistanceValues(BaseModel):
     weights: Literal["scalar", "matrix", "curvature"]
     weight_range: list[float] = Field(description="[min, max] of the per-face weight (a "
                                       "matrix's largest stretch)")
-    algorithm: str
+    method: str
     basis: str
     iterations: Int
     residual: float
@@ -121,10 +121,10 @@ def _weights(view: DomainView, req: AnisotropicDistanceRequest):
 def _inputs(view: DomainView, req: AnisotropicDistanceRequest):
     check_options(view, req)
     weights = _weights(view, req)
-    if req.algorithm == "ipm" and req.basis not in ("auto", "flow"):
-        raise InvalidInput("algorithm 'ipm' solves over all flows (basis 'auto' or 'flow')",
+    if req.method == "ipm" and req.basis not in ("auto", "flow"):
+        raise InvalidInput("method 'ipm' solves over all flows (basis 'auto' or 'flow')",
                            field="basis")
-    if req.basis == "flow" and req.algorithm in ("admm", "weiszfeld") and (
+    if req.basis == "flow" and req.method in ("admm", "weiszfeld") and (
             weights is not None and weights.ndim == 3):
         raise InvalidInput("matrix weights with admm/weiszfeld need basis 'full' or "
                            "'spectral'", field="basis")
@@ -139,7 +139,7 @@ def validate(view: DomainView, req: AnisotropicDistanceRequest) -> list[dict]:
 
 def estimate_cost(n: int, req, context=None) -> float:
     """One W1 solve: the interior point's cost, or the ADMM/Weiszfeld iteration cap."""
-    if req.algorithm in ("auto", "ipm") and req.basis in ("auto", "flow"):
+    if req.method in ("auto", "ipm") and req.basis in ("auto", "flow"):
         return float(IPM_SOLVE_COST) * float(max(n, 1))
     return float(max(n, 1)) * float(req.max_iter or 20_000)
 
@@ -160,13 +160,13 @@ def run(mesh, req: AnisotropicDistanceRequest, progress, should_cancel) -> Opera
     if weights is None:
         weights = mean_curvature_weights(mesh, req.curvature.strength)
     res = anisotropic_w1(mesh, masses["mu0"], masses["mu1"], weights,
-                         algorithm=req.algorithm, basis=req.basis, k=req.k, tol=req.tol,
+                         method=req.method, basis=req.basis, k=req.k, tol=req.tol,
                          max_iter=req.max_iter, progress=progress, should_cancel=should_cancel)
     per_face = np.linalg.norm(weights, ord=2, axis=(1, 2)) if weights.ndim == 3 else weights
-    lower = float(res.lower_bound) if res.algorithm == "ipm" else None
+    lower = float(res.lower_bound) if res.method == "ipm" else None
     values = AnisotropicDistanceValues(
         value=float(res.value), lower_bound=lower, weights=kind,
-        weight_range=[float(per_face.min()), float(per_face.max())], algorithm=res.algorithm,
+        weight_range=[float(per_face.min()), float(per_face.max())], method=res.method,
         basis=res.basis, iterations=int(res.iterations), residual=float(res.residual),
         converged=bool(res.converged), normalization=reports).model_dump()
     flow = np.asarray(res.flow, dtype=np.float64)

@@ -95,7 +95,7 @@ class BRDFInterpolationRequest(OperationRequest):
         description="polar angles of the incoming directions, degrees in [0, 90), increasing")
     n_theta: Int = Field(12, ge=4, le=64, description="hemisphere grid: polar cells")
     n_phi: Int = Field(48, ge=8, le=256, description="hemisphere grid: azimuth cells")
-    route: Literal["geodesic", "separable"] = Field(
+    method: Literal["geodesic", "separable"] = Field(
         "geodesic", description="hemisphere kernel: exact great-circle Gaussian, or the "
         "thesis' latitude-modulated separable product (spurious mass near the pole)")
     # the hemisphere's extent is fixed, so its domain bound on gamma is part of the spec
@@ -119,7 +119,7 @@ class BRDFInterpolationValues(BaseModel):
     residual: float
     converged: bool
     gamma: float
-    route: str
+    method: str
     grid: list[Int] = Field(description="[n_theta, n_phi]; point i * n_phi + j")
     incoming_theta: list[float] = Field(description="degrees")
     weights: list[list[float]]
@@ -181,7 +181,7 @@ def _brdf_setup(req: BRDFInterpolationRequest):
     gamma = req.gamma
     if gamma is None:
         gamma = (2.0 * RADIUS * 0.5 * np.pi / req.n_theta) ** 2
-    grid = HemisphereGrid(req.n_theta, req.n_phi, route=req.route)
+    grid = HemisphereGrid(req.n_theta, req.n_phi, method=req.method)
     from solvers.validation import check_gamma
 
     check_gamma(gamma, grid.extent, "gamma")
@@ -219,7 +219,7 @@ def run_brdf(ctx, req: BRDFInterpolationRequest, progress, should_cancel) -> Ope
              for i in range(n_in)]
     values = BRDFInterpolationValues(
         iterations=r.iterations, residual=r.residual, converged=r.converged, gamma=gamma,
-        route=grid.route, grid=list(grid.shape), incoming_theta=np.degrees(th).tolist(),
+        method=grid.method, grid=list(grid.shape), incoming_theta=np.degrees(th).tolist(),
         weights=W.tolist(),
         entropy=r.entropy.tolist(),
         entropy_bound=None if r.entropy_bound is None else r.entropy_bound.tolist(),

@@ -48,7 +48,7 @@ class FeatureDistanceRequest(OperationRequest):
                                 description="feature vertices")
     curves: list[FeatureCurve] = Field(default_factory=list, max_length=256,
                                        description="feature curves")
-    algorithm: Literal["auto", "ipm", "admm", "weiszfeld"] = Field(
+    method: Literal["auto", "ipm", "admm", "weiszfeld"] = Field(
         "auto", description="W1 solver (auto: interior point over all flows)")
     basis: Literal["auto", "flow", "full"] = Field(
         "auto", description="flow space (auto: all flows; full: the thesis' curl basis)")
@@ -82,8 +82,8 @@ def validate(view: DomainView, req: FeatureDistanceRequest) -> list[dict]:
         if len(np.unique(labels[points])) > 1:
             raise InvalidInput(f"{field}: the waypoints lie on different connected components",
                                field=field)
-    if req.algorithm == "ipm" and req.basis == "full":
-        raise InvalidInput("algorithm 'ipm' solves over all flows (basis 'auto' or 'flow')",
+    if req.method == "ipm" and req.basis == "full":
+        raise InvalidInput("method 'ipm' solves over all flows (basis 'auto' or 'flow')",
                            field="basis")
     return []
 
@@ -97,7 +97,7 @@ def run(mesh, req: FeatureDistanceRequest, progress, should_cancel) -> Operation
     feats = feature_set(mesh, req.vertices,
                         [(c.waypoints, c.closed) for c in req.curves])
     kwargs = {"tol": req.tol} if req.tol is not None else {}
-    res = distance_to_features(mesh, feats, algorithm=req.algorithm, basis=req.basis,
+    res = distance_to_features(mesh, feats, method=req.method, basis=req.basis,
                                max_iter=req.max_iter, progress=progress,
                                should_cancel=should_cancel, **kwargs)
     d = np.asarray(res.distances, dtype=np.float64)

@@ -74,22 +74,22 @@ class HistogramPropagationRequest(OperationRequest):
     bins: BinsSpec
     labeled: list[LabeledNode] = Field(min_length=1, max_length=200_000, description="at "
                                        "least one per connected component")
-    route: Literal["wasserstein", "pdf", "diffusion"] = Field(
+    method: Literal["wasserstein", "pdf", "diffusion"] = Field(
         "wasserstein", description="wasserstein: inverse-CDF propagation (Prop. 13; on "
         "periodic bins the §5.4 problem); pdf: bin-by-bin harmonic propagation (baseline); "
         "diffusion: Wasserstein diffusion (Prop. 16) of the propagated histograms for each "
         "of `times`")
     times: list[float] | None = Field(None, min_length=1, max_length=32, description="heat "
-                                      "times (route diffusion), >= 0")
+                                      "times (method diffusion), >= 0")
     substeps: Int = Field(1, ge=1, le=100, description="implicit Euler steps per time")
     levels: Int = Field(100, ge=2, le=2000, description="quantile levels m")
     laplacian: Literal["auto", "robust", "cotan"] = Field(
         "auto", description="mesh weights: robust (intrinsic Delaunay) or cotangent")
-    algorithm: Literal["lp", "entropic"] = Field(
+    periodic_method: Literal["lp", "entropic"] = Field(
         "lp", description="periodic bins: exact LP (HiGHS) or entropic (thesis Alg. 4 on a "
         "periodic 1-D grid, with its exact objective reported)")
     gamma: float | None = Field(None, gt=0, description="entropic regularization (periodic "
-                                "bins, algorithm entropic); default (2 w)^2, w the bin width")
+                                "bins, periodic_method entropic); default (2 w)^2, w the bin width")
     tol: float | None = Field(None, gt=0, lt=1, description="entropic stopping tolerance")
     color: Literal["mean", "std"] = Field("mean", description="field coloring result.glb")
     max_iter: Int | None = Field(None, ge=1, le=100_000)
@@ -98,14 +98,15 @@ class HistogramPropagationRequest(OperationRequest):
 class HistogramPropagationValues(BaseModel):
     """``values`` of a histogram-propagation result."""
 
-    route: str
-    algorithm: str | None = Field(None, description="lp | entropic (periodic bins)")
+    method: str
+    periodic_method: str | None = Field(None, description="lp | entropic (periodic bins)")
     bins: dict = Field(description="{edges, periodic}")
     n_nodes: Int
     n_labeled: Int
     levels: Int | None = None
     times: list[float] | None = None
-    solver: str | None = Field(None, description="linear solver of the Dirichlet problem")
+    linear_method: str | None = Field(None, description="linear solver of the Dirichlet "
+                                      "problem: direct | amg")
     rank: Int | None = Field(None, description="columns solved after compression")
     compression_error: float | None = None
     iterations: Int
@@ -151,27 +152,27 @@ def _inputs(view: DomainView, req: HistogramPropagationRequest):
             x = check_samples(item.samples, bins, f"{field}.samples")
             hists.append(histogram_of_samples(x, bins))
             samples.append(x)
-    if req.route == "diffusion":
+    if req.method == "diffusion":
         if not req.times:
-            raise InvalidInput("route 'diffusion' needs times", field="times")
+            raise InvalidInput("method 'diffusion' needs times", field="times")
         for i, t in enumerate(req.times):
             if not (np.isfinite(t) and t >= 0):
                 raise InvalidInput(f"times[{i}] must be finite and >= 0", field=f"times[{i}]")
         if bins.periodic:
-            raise InvalidInput("route 'diffusion' is defined on the line; periodic bins are "
+            raise InvalidInput("method 'diffusion' is defined on the line; periodic bins are "
                                "not supported", field="bins.periodic")
     elif req.times is not None:
-        raise InvalidInput("times apply to route 'diffusion' only", field="times")
-    if bins.periodic and req.route == "wasserstein":
-        if req.algorithm == "entropic" and not np.allclose(bins.widths, bins.widths[0]):
-            raise InvalidInput("algorithm 'entropic' needs equal-width bins",
+        raise InvalidInput("times apply to method 'diffusion' only", field="times")
+    if bins.periodic and req.method == "wasserstein":
+        if req.periodic_method == "entropic" and not np.allclose(bins.widths, bins.widths[0]):
+            raise InvalidInput("periodic_method 'entropic' needs equal-width bins",
                                field="bins.edges")
-        if req.algorithm == "lp":
+        if req.periodic_method == "lp":
             m = _edge_count(view)
             if m is not None and m * bins.count**2 > MAX_LP_VARIABLES:
                 raise InvalidInput(f"the LP would have {m} x {bins.count}^2 variables (at most "
-                                   f"{MAX_LP_VARIABLES}); use algorithm 'entropic' or fewer "
-                                   "bins", field="algorithm")
+                                   f"{MAX_LP_VARIABLES}); use periodic_method 'entropic' or "
+                                   "fewer bins", field="periodic_method")
     return bins, nodes, np.stack(hists), samples
 
 
@@ -198,32 +199,32 @@ def run(domain, req: HistogramPropagationRequest, progress, should_cancel) -> Op
 
     bins, nodes, hists, samples = _inputs(view_of_domain(domain), req)
     extra: dict = {}
-    if bins.periodic and req.route == "wasserstein":
+    if bins.periodic and req.method == "wasserstein":
         kwargs = {k: getattr(req, k) for k in ("gamma", "tol", "max_iter")
                   if getattr(req, k) is not None}
-        res = propagate_circular(domain, nodes, hists, bins=bins, algorithm=req.algorithm,
+        res = propagate_circular(domain, nodes, hists, bins=bins, method=req.periodic_method,
                                  time_limit=req.time_limit or LP_TIME_LIMIT, progress=progress,
                                  should_cancel=should_cancel, **kwargs)
         H = res.histograms
-        extra = {"algorithm": res.algorithm, "value": res.value, "lp_value": res.lp_value,
+        extra = {"periodic_method": res.method, "value": res.value, "lp_value": res.lp_value,
                  "gap": res.gap}
     else:
-        route = "pdf" if req.route == "pdf" else "wasserstein"
+        method = "pdf" if req.method == "pdf" else "wasserstein"
         # samples keep their exact empirical inverse CDF when every label is given as
-        # samples; otherwise (and for the PDF route) every label is its histogram
-        if route == "wasserstein" and all(s is not None for s in samples):
+        # samples; otherwise (and for the PDF method) every label is its histogram
+        if method == "wasserstein" and all(s is not None for s in samples):
             labels = {"samples": samples}
         else:
             labels = {"histograms": hists}
-        res = propagate_histograms(domain, nodes, bins=bins, route=route, levels=req.levels,
+        res = propagate_histograms(domain, nodes, bins=bins, method=method, levels=req.levels,
                                    laplacian=req.laplacian, progress=progress,
                                    should_cancel=should_cancel, **labels)
         H = res.histograms
-        extra = {"solver": res.solver, "rank": res.rank,
+        extra = {"linear_method": res.linear_method, "rank": res.rank,
                  "compression_error": res.compression_error,
-                 "levels": req.levels if route == "wasserstein" else None}
+                 "levels": req.levels if method == "wasserstein" else None}
     iterations, residual, converged = res.iterations, res.residual, res.converged
-    if req.route == "diffusion":
+    if req.method == "diffusion":
         diff = diffuse_histograms(domain, H, req.times, bins=bins, levels=req.levels,
                                   substeps=req.substeps, laplacian=req.laplacian,
                                   progress=progress, should_cancel=should_cancel)
@@ -241,7 +242,7 @@ def run(domain, req: HistogramPropagationRequest, progress, should_cancel) -> Op
         export = {"fields": ["mean", "std"], "color": req.color}
     arrays["labeled"] = nodes
     mean = arrays["mean"]
-    values = {"route": req.route, "bins": bins.to_dict(), "n_nodes": int(len(H)),
+    values = {"method": req.method, "bins": bins.to_dict(), "n_nodes": int(len(H)),
               "n_labeled": int(len(nodes)), "times": req.times, "iterations": int(iterations),
               "residual": float(residual), "converged": bool(converged),
               "mean_range": [float(np.min(mean)), float(np.max(mean))],

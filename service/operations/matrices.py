@@ -1,9 +1,9 @@
 """Distance matrices: every pair of a collection, or a collection against templates, as one
 job (thin adapter over :func:`solvers.convolutional.distance_matrix`).
 
-Each W2 pair takes the single-pair default's decision (route and regularization, from the
+Each W2 pair takes the single-pair default's decision (method and regularization, from the
 request and the stored domain alone).  The job's :class:`MatrixDecision` is taken at
-submission (``Operation.decide``: the library's per-pair ``decide_route`` on the stored
+submission (``Operation.decide``: the library's per-pair ``decide_method`` on the stored
 domain's sketch, summarized) and stored with the job: a uniform decision (every pair exact,
 or one heat kernel) runs as explicit solver arguments; a mixed one runs the same
 deterministic per-pair decision in the library and is checked against the record.  Pairs
@@ -32,10 +32,11 @@ from service.operations.base import (
 )
 from service.operations.examples import BUMP_A, BUMP_B, example
 from service.operations.transport import SinkhornOptions
-from solvers.convolutional.decision import decide_route
+from solvers.convolutional.decision import decide_method
 from solvers.convolutional.exact import EXACT_KINDS
 from solvers.convolutional.matrix import (
     SHARED_COST_ENTRIES,
+    W1_ONLY,
     block_pairs,
     distance_matrix,
     exact_route_bytes,
@@ -51,10 +52,10 @@ from solvers.emd.dwk_matrix import W1MatrixDecision, decide_w1_method, working_b
 from solvers.errors import CancelledError, InputError
 
 MAX_DISTRIBUTIONS = 2000  # per side of a matrix (the request JSON stays a few MB)
-ROUTE_CODES = {"": -1, "identical": 0, "exact": 1, "convolutional": 2, "w1": 3,
-               "spectral": 4}
+METHOD_CODES = {"": -1, "identical": 0, "exact": 1, "convolutional": 2, "w1": 3,
+                "spectral": 4}
 MAX_K = 200  # eigenfunctions of a spectral W1 matrix (the eigenbasis is k solves deep)
-# Pairs decided one by one at submission: an exact-route decision costs ~20-30 us, an
+# Pairs decided one by one at submission: an exact-method decision costs ~20-30 us, an
 # automatic regularization ~0.9-2.4 ms per pair (100 bumps on spot, measured), so at most a
 # few seconds of the API's time; above it the decision records the requested arguments and
 # the worker decides per pair, by the same function of the data, as the library does.
@@ -73,20 +74,19 @@ class DistanceMatrixRequest(SinkhornOptions):
     metric: Literal["w2", "w1"] = Field(
         "w2", description="w2: squared 2-Wasserstein distance per pair, as /distances computes "
         "it by default; w1: earth mover's distance (Beckmann problem), meshes only")
-    route: Literal["auto", "convolutional", "exact"] = Field(
-        "auto", description="W2 only, per pair as for /distances: auto (exact for sparse "
-        "supports when its modelled time fits, else convolutional), convolutional or exact")
+    method: Literal["auto", "convolutional", "exact", "interior_point", "spectral"] = Field(
+        "auto", description="W2, per pair as for /distances: auto (exact for sparse "
+        "supports when its modelled time fits, else convolutional), convolutional or exact; "
+        "W1: interior_point (one certified W1 per pair, with `w1_method`), spectral (the "
+        "thesis' d_W^k: every distribution embedded once, then a k-dimensional problem per "
+        "pair; each value an upper bound of W1 with its certified gap, converging slowly in "
+        "k) or auto (the interior point while its estimate fits 60 s, else spectral; decided "
+        "from the sizes at submission and recorded in `decision`)")
     debiased: bool | None = Field(None, description="W2 convolutional: Sinkhorn divergence "
                                   "(default: true; false when gamma is given)")
-    algorithm: Literal["auto", "ipm", "admm", "weiszfeld"] = Field(
-        "auto", description="W1 solver (as for /distances)")
-    method: Literal["auto", "interior_point", "spectral"] = Field(
-        "auto", description="W1 only: interior_point (one certified W1 per pair, with "
-        "`algorithm`), spectral (the thesis' d_W^k: every distribution embedded once, then "
-        "a k-dimensional problem per pair; each value an upper bound of W1 with its "
-        "certified gap, converging slowly in k) or auto (the interior point while its "
-        "estimate fits 60 s, else spectral; decided from the sizes at submission and "
-        "recorded in `decision`)")
+    w1_method: Literal["auto", "ipm", "admm", "weiszfeld"] = Field(
+        "auto", description="W1 only: the W1 method of each pair's single W1 (as for "
+        "/distances) when the matrix is computed by method interior_point")
     k: int | None = Field(None, ge=0, le=MAX_K, description="W1 spectral: Laplacian "
                           "eigenfunctions of the curl basis (default: the largest of 0, 5, "
                           "10, 20, 50, 100 estimated within 60 s); given with method auto: "
@@ -107,25 +107,27 @@ class MatrixDecision(BaseModel):
     stored domain alone and stored with the job (module docstring)."""
 
     metric: Literal["w2", "w1"]
-    route: Literal["auto", "convolutional", "exact"] = Field(description="as requested")
+    method: Literal["auto", "convolutional", "exact", "interior_point", "spectral"] = Field(
+        description="as requested")
     reason: str
     pairs: int = Field(description="pairs to solve (the diagonal of a symmetric matrix "
                        "included unless it is zero by definition)")
-    per_pair: bool = Field(description="every pair's route and kernel decided at submission "
+    per_pair: bool = Field(description="every pair's method and kernel decided at submission "
                            f"(at most {DECIDED_PAIRS} pairs)")
     zero_diagonal: bool | None = Field(None, description="symmetric: the diagonal is zero by "
                                        "definition (debiased or exact), not solved")
-    routes: dict[str, int] = Field(default_factory=dict, description="pairs per route")
+    methods: dict[str, int] = Field(default_factory=dict, description="pairs per method")
     kernel_count: int = Field(0, description="distinct heat kernels (t, substeps) of the "
                               "convolutional pairs")
     kernels: list[KernelGroup] = Field(default_factory=list, description="those kernels "
                                        f"(the first {LISTED_KERNELS})")
     solver_arguments: dict | None = Field(None, description="a uniform decision: the "
                                           "explicit arguments every pair runs with")
-    algorithm: Literal["ipm", "admm", "weiszfeld"] | None = Field(None, description="w1: "
-                                                                  "the solver")
-    w1_method: Literal["interior_point", "spectral"] | None = Field(
-        None, description="w1: the method decided (from the sizes alone)")
+    w1_method: Literal["ipm", "admm", "weiszfeld"] | None = Field(None, description="w1: "
+                                                                  "the W1 method")
+    w1_matrix_method: Literal["interior_point", "spectral"] | None = Field(
+        None, description="w1: how the matrix is computed, decided from the sizes alone: "
+        "interior_point (one W1 per pair with `w1_method`) or spectral (d_W^k)")
     k: int | None = Field(None, description="w1 spectral: the eigenfunctions used")
 
 
@@ -140,9 +142,9 @@ class DistanceMatrixValues(BaseModel):
                            "unfinished entries are NaN (null inline)")
     finished_rows: list[int] = Field(description="rows whose every entry is computed")
     pairs_solved: int = Field(description="pairs computed (diagonal not counted)")
-    routes: dict[str, int] = Field(description="pairs per route (exact, convolutional, w1, "
-                                   "spectral)")
-    route_codes: dict[str, int] = Field(description="legend of the `route_codes` array")
+    methods: dict[str, int] = Field(description="pairs per method (exact, convolutional, w1, "
+                                    "spectral)")
+    method_codes: dict[str, int] = Field(description="legend of the `method_codes` array")
     kernels: list[KernelGroup] = Field(description="the heat kernels of convolutional pairs")
     iterations: int = Field(description="sum over pairs")
     residual: float | None = Field(description="largest pair residual (each solver's "
@@ -166,15 +168,18 @@ def _resolve(view: DomainView, req: DistanceMatrixRequest):
     if req.metric == "w1" and view.kind != "mesh":
         raise UnsupportedOperation("metric 'w1' is available on triangle meshes only",
                                    field="metric")
-    if req.metric == "w2" and (req.method != "auto" or req.k is not None):
-        raise InvalidInput("method and k choose the W1 algorithm (metric 'w1')",
-                           field="k" if req.k is not None else "method")
+    if req.metric == "w2" and (req.method in W1_ONLY or req.k is not None):
+        raise InvalidInput(f"method {req.method!r} and k choose the W1 algorithm (metric "
+                           "'w1')", field="k" if req.k is not None else "method")
+    if req.metric == "w1" and req.method in ("convolutional", "exact"):
+        raise InvalidInput(f"method {req.method!r} is a W2 method; W1 takes auto, "
+                           "interior_point or spectral", field="method")
     if req.metric == "w1" and req.method == "interior_point" and req.k is not None:
         raise InvalidInput("k selects the spectral d_W^k; the interior point takes none",
                            field="k")
-    if req.metric == "w2" and req.route == "exact" and view.kind not in EXACT_KINDS:
-        raise UnsupportedOperation(f"route 'exact' is available on {', '.join(EXACT_KINDS)} "
-                                   "domains; use route 'convolutional'", field="route")
+    if req.metric == "w2" and req.method == "exact" and view.kind not in EXACT_KINDS:
+        raise UnsupportedOperation(f"method 'exact' is available on {', '.join(EXACT_KINDS)} "
+                                   "domains; use method 'convolutional'", field="method")
     specs = {f"distributions[{i}]": d for i, d in enumerate(req.distributions)}
     specs.update({f"others[{j}]": d for j, d in enumerate(req.others or [])})
     masses, reports = resolve_all(view, specs, req.input)
@@ -203,7 +208,7 @@ def _sizes(req: DistanceMatrixRequest) -> tuple[int, int, int]:
 def estimate_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
     """Inputs (one float per point and distribution), the matrix and its per-pair arrays,
     and the larger of the block's per-pair solver state (unless every pair is exact) and,
-    where pairs may take the exact route, their ground distances
+    where pairs may take the exact method, their ground distances
     (:func:`ground_distance_bytes`), the rows' cost blocks and the LPs
     (:func:`exact_working_bytes`)."""
     n, m, _ = _sizes(req)
@@ -217,9 +222,9 @@ def estimate_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
             total += working_bytes(points, _faces(view), w1.k, n, m, req.others is None)
         return total
     blocks = exact = 0
-    if req.route != "exact":  # route "exact": every pair is exact, no block runs
+    if req.method != "exact":  # method "exact": every pair is exact, no block runs
         blocks = block_pairs(points) * (pair_state_bytes(points) + 8 * 8 * points)
-    if view.kind in EXACT_KINDS and (req.route == "exact" or (req.route == "auto"
+    if view.kind in EXACT_KINDS and (req.method == "exact" or (req.method == "auto"
                                                               and req.gamma is None)):
         exact = ground_distance_bytes(view) + exact_working_bytes(view, req)
     # the exact pairs run first and release their working memory before the blocks run
@@ -243,7 +248,7 @@ def _w1_decision(view: DomainView, req: DistanceMatrixRequest) -> W1MatrixDecisi
 
 
 def exact_working_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
-    """The exact route's row cost blocks and LPs
+    """The exact method's row cost blocks and LPs
     (:func:`~solvers.convolutional.matrix.exact_route_bytes`) with every pair exact, from
     the distributions' support sizes: ``EXACT_THREADS`` LPs of the largest pair (a fixed
     cap, not this machine's CPUs, so every process estimates the same)."""
@@ -261,7 +266,7 @@ def exact_working_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
 
 def ground_distance_bytes(view: DomainView) -> int:
     """The exact pairs' ground distances at most (supports covering the domain), as the
-    route builds them (:func:`solvers.convolutional.matrix._support_distances`, at most
+    method builds them (:func:`solvers.convolutional.matrix._support_distances`, at most
     :data:`~solvers.convolutional.matrix.SHARED_COST_ENTRIES` entries): what the domain's
     kind needs for that many (``Domain.ground_distance_bytes``)."""
     points = int(view.n)
@@ -278,7 +283,7 @@ def estimate_cost(points: int, req: DistanceMatrixRequest, context=None) -> floa
     ``EXACT_PAIR_COST`` x points^2 per pair (the LP on supports of a fraction of the
     domain: bench/results/operation_memory.md)."""
     pairs = float(max(_sizes(req)[2], 1))
-    exact = req.metric == "w2" and (req.route == "exact" or (req.route == "auto"
+    exact = req.metric == "w2" and (req.method == "exact" or (req.method == "auto"
                                                               and req.gamma is None))
     if exact and (context is None or context.kind in EXACT_KINDS):
         return EXACT_PAIR_COST * float(max(points, 1)) ** 2 * pairs
@@ -286,18 +291,18 @@ def estimate_cost(points: int, req: DistanceMatrixRequest, context=None) -> floa
 
 
 def _output(res, reports, complete: bool, decision: dict) -> OperationOutput:
-    codes = np.vectorize(ROUTE_CODES.get, otypes=[np.int8])(res.routes)
-    solved = (res.routes != "") & (res.routes != "identical")
+    codes = np.vectorize(METHOD_CODES.get, otypes=[np.int8])(res.methods)
+    solved = (res.methods != "") & (res.methods != "identical")
     if res.symmetric:
         solved = np.triu(solved)
-    kinds, counts = np.unique(res.routes[solved], return_counts=True)
+    kinds, counts = np.unique(res.methods[solved], return_counts=True)
     residual = float(res.residual)
     values = DistanceMatrixValues(
         metric=res.metric, shape=list(res.values.shape), symmetric=res.symmetric,
         complete=complete, finished_rows=res.finished_rows.tolist(),
-        pairs_solved=int(solved.sum()), routes={str(k): int(c) for k, c in zip(kinds, counts,
+        pairs_solved=int(solved.sum()), methods={str(k): int(c) for k, c in zip(kinds, counts,
                                                                            strict=True)},
-        route_codes={k or "none": v for k, v in ROUTE_CODES.items()},
+        method_codes={k or "none": v for k, v in METHOD_CODES.items()},
         kernels=[KernelGroup(gamma=g, t=t, substeps=s, debiased=d) for g, t, s, d in
                  res.kernels],
         iterations=int(res.iterations), residual=residual if np.isfinite(residual) else None,
@@ -307,7 +312,7 @@ def _output(res, reports, complete: bool, decision: dict) -> OperationOutput:
               "pair_iterations": np.asarray(res.pair_iterations, dtype=np.int64),
               "pair_residuals": np.asarray(res.pair_residuals, dtype=np.float64),
               "pair_converged": np.asarray(res.pair_converged, dtype=bool),
-              "route_codes": codes}
+              "method_codes": codes}
     if res.lower is not None:  # W1: certified lower bounds (spectral: of d_W^k)
         arrays["lower_bounds"] = np.asarray(res.lower, dtype=np.float64)
     return OperationOutput(values.model_dump(), arrays)
@@ -320,7 +325,7 @@ def _kernels(decisions) -> tuple[dict[tuple, tuple], list]:
     groups: dict[tuple, tuple] = {}
     full = []
     for d in decisions:
-        if d.route != "exact":
+        if d.method != "exact":
             key = kernel_key(d)
             groups.setdefault(key, (d.gamma, *key, bool(d.debiased)))
             full.append((d.gamma, *key, bool(d.debiased)))
@@ -329,36 +334,36 @@ def _kernels(decisions) -> tuple[dict[tuple, tuple], list]:
 
 def decide_matrix_job(view: DomainView, req: DistanceMatrixRequest) -> dict:
     """The job's :class:`MatrixDecision` at submission (``Operation.decide``): W1's solver,
-    or every W2 pair's route and kernel by the library's ``decide_route`` on the stored
+    or every W2 pair's method and kernel by the library's ``decide_method`` on the stored
     domain's sketch (up to :data:`DECIDED_PAIRS` pairs), summarized; a uniform decision
     carries the explicit solver arguments that execute it."""
     rows, others, _ = _inputs(view, req)
     symmetric = others is None
     cols = rows if symmetric else others
-    common = {"metric": req.metric, "route": req.route}
+    common = {"metric": req.metric, "method": req.method}
     if req.metric == "w1":
         return _decide_w1(view, req, rows, cols, symmetric, common)
     sketch = view.sketch().remembering_paths()
-    args = {"route": req.route, "gamma": "auto" if req.gamma is None else float(req.gamma),
+    args = {"method": req.method, "gamma": "auto" if req.gamma is None else float(req.gamma),
             "substeps": req.substeps, "debiased": req.debiased}
     zero = None
     if symmetric:
-        zero = zero_diagonal(sketch, rows, args["gamma"], args["debiased"], args["route"])
+        zero = zero_diagonal(sketch, rows, args["gamma"], args["debiased"], args["method"])
     pairs = matrix_pairs(rows.shape[1], cols.shape[1], symmetric, zero is False)
     if len(pairs) > DECIDED_PAIRS:
         return MatrixDecision(**common, pairs=len(pairs), per_pair=False, zero_diagonal=zero,
                               reason=f"{len(pairs)} pairs, more than {DECIDED_PAIRS}: each "
                               "pair's route and kernel decided in the worker by the same "
                               "function of the data").model_dump(mode="json")
-    decisions = [decide_route(sketch, rows[:, i], cols[:, j], t=None, **args)
+    decisions = [decide_method(sketch, rows[:, i], cols[:, j], t=None, **args)
                  for i, j in pairs]
-    routes: dict[str, int] = {}
+    methods: dict[str, int] = {}
     for d in decisions:
-        routes[d.route] = routes.get(d.route, 0) + 1
+        methods[d.method] = methods.get(d.method, 0) + 1
     groups, full = _kernels(decisions)
     uniform = None
-    if routes == {"exact": len(pairs)}:
-        uniform = {"route": "exact"}
+    if methods == {"exact": len(pairs)}:
+        uniform = {"method": "exact"}
     elif len(full) == 1:
         uniform = decisions[0].solver_arguments()
         if symmetric and zero != zero_diagonal(sketch, rows, uniform["gamma"],
@@ -367,7 +372,7 @@ def decide_matrix_job(view: DomainView, req: DistanceMatrixRequest) -> dict:
     reasons = sorted({d.reason for d in decisions}) or [
         "no pair to solve: one distribution, whose diagonal entry is zero"]
     return MatrixDecision(
-        **common, pairs=len(pairs), per_pair=True, zero_diagonal=zero, routes=routes,
+        **common, pairs=len(pairs), per_pair=True, zero_diagonal=zero, methods=methods,
         kernel_count=len(groups),
         kernels=[KernelGroup(gamma=g, t=t, substeps=s, debiased=b)
                  for g, t, s, b in list(groups.values())[:LISTED_KERNELS]],
@@ -377,34 +382,35 @@ def decide_matrix_job(view: DomainView, req: DistanceMatrixRequest) -> dict:
 
 
 def _decide_w1(view, req, rows, cols, symmetric: bool, common: dict) -> dict:
-    """W1: the method from the sizes (:func:`_w1_decision`), then the interior point's
-    solver or the spectral ``k``, as explicit arguments."""
+    """W1: how the matrix is computed, from the sizes (:func:`_w1_decision`), then the
+    interior point's W1 method or the spectral ``k``, as explicit arguments."""
     w1 = _w1_decision(view, req)
     pairs = len(matrix_pairs(rows.shape[1], cols.shape[1], symmetric, False))
     if w1.method == "spectral":
         return MatrixDecision(**common, reason=f"W1 by the thesis' d_W^k: {w1.reason}",
                               pairs=pairs, per_pair=True, zero_diagonal=symmetric or None,
-                              routes={"spectral": pairs} if pairs else {},
-                              w1_method="spectral", k=w1.k,
+                              methods={"spectral": pairs} if pairs else {},
+                              w1_matrix_method="spectral", k=w1.k,
                               solver_arguments={"method": "spectral", "k": w1.k}
                               ).model_dump(mode="json")
     try:
-        algorithm, _ = resolve_method(req.algorithm, "auto")
+        w1_method, _ = resolve_method(req.w1_method, "auto")
     except InputError as exc:
-        raise InvalidInput(str(exc), field=exc.field or "algorithm") from exc
+        field = "w1_method" if exc.field in (None, "method") else exc.field
+        raise InvalidInput(str(exc), field=field) from exc
     return MatrixDecision(**common, reason=f"W1 per pair (Beckmann problem): {w1.reason}",
                           pairs=pairs, per_pair=True, zero_diagonal=symmetric or None,
-                          routes={"w1": pairs} if pairs else {}, algorithm=algorithm,
-                          w1_method="interior_point", solver_arguments={"algorithm": algorithm}
-                          ).model_dump(mode="json")
+                          methods={"w1": pairs} if pairs else {}, w1_method=w1_method,
+                          w1_matrix_method="interior_point",
+                          solver_arguments={"method": w1_method}).model_dump(mode="json")
 
 
 def _check_ran_as_decided(values: dict, decision: dict) -> None:
-    """A complete matrix ran what its stored decision says (routes and kernels per pair)."""
+    """A complete matrix ran what its stored decision says (methods and kernels per pair)."""
     if not decision.get("per_pair") or not values["complete"]:
         return
-    ran = (values["routes"], len(values["kernels"]))
-    decided = (decision["routes"], decision["kernel_count"] if decision["metric"] == "w2"
+    ran = (values["methods"], len(values["kernels"]))
+    decided = (decision["methods"], decision["kernel_count"] if decision["metric"] == "w2"
                else 0)
     if ran != decided:
         raise RuntimeError(f"the matrix ran {ran}, not its decision {decided}")
@@ -420,15 +426,15 @@ def run(domain, req: DistanceMatrixRequest, progress, should_cancel,
         decision = decide_matrix_job(view, req)
     optional = {k: getattr(req, k) for k in ("tol", "max_iter") if getattr(req, k) is not None}
     explicit = decision.get("solver_arguments")
-    if req.metric == "w1" and explicit.get("method") == "spectral":
+    if req.metric == "w1" and decision.get("w1_matrix_method") == "spectral":
         kwargs = {"method": "spectral", "k": explicit["k"], "w1_options": optional}
-    elif req.metric == "w1":  # the interior point (also jobs recorded before w1_method)
+    elif req.metric == "w1":  # one W1 per pair (also jobs recorded before w1_matrix_method)
         kwargs = {"method": "interior_point", "w1_options": {**explicit, **optional}}
     elif explicit is not None:
         kwargs = {**explicit, **optional}
     else:
         kwargs = {"gamma": "auto" if req.gamma is None else float(req.gamma),
-                  "substeps": req.substeps, "debiased": req.debiased, "route": req.route,
+                  "substeps": req.substeps, "debiased": req.debiased, "method": req.method,
                   **optional}
     try:
         res = distance_matrix(domain, rows, others, metric=req.metric, progress=progress,
@@ -440,7 +446,7 @@ def run(domain, req: DistanceMatrixRequest, progress, should_cancel,
         raise
     except ValueError as exc:  # an input the library refused: name the request's field
         field = getattr(exc, "field", None)
-        if field in ("distributions", "others", "route", "metric", "method", "k"):
+        if field in ("distributions", "others", "method", "metric", "k"):
             raise InvalidInput(str(exc), field=field) from exc
         raise
     output = _output(res, reports, True, decision)

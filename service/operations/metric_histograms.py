@@ -6,7 +6,7 @@ cost matrix, or ``B`` equally spaced points of a circle (cost: wrapped distance 
 ``power``).  Labeled nodes of the domain's graph (graph edges; mesh and point-cloud
 Laplacian weights) carry histograms; the others get those minimizing
 :math:`\\sum_e w_e\\, OT_C(\\mu_u, \\mu_v)`, solved exactly with its certificate
-(:func:`solvers.histograms.propagate_circular`, ``algorithm="lp"``).  Results: the
+(:func:`solvers.histograms.propagate_circular`, ``method="lp"``).  Results: the
 histograms (``nodes x B``), the optimum, its dual lower bound, and per node the mode, the
 entropy and the ``spread`` :math:`\\min_i \\sum_j \\mu_j C_{ij}` (circle: also the circular
 mean and standard deviation), drawn on the domain.
@@ -65,7 +65,7 @@ class MetricHistogramRequest(OperationRequest):
                                            "points: symmetric, zero diagonal, >= 0; exactly "
                                            "one of cost and circle")
     circle: CircleSpace | None = Field(None, description="points on S¹")
-    solver: Literal["auto", "hybrid", "simplex"] = Field(
+    lp_method: Literal["auto", "hybrid", "simplex"] = Field(
         "auto", description="start of the LP's column generation (same optimum and "
         "certificate): auto, hybrid (interior point), simplex")
 
@@ -81,7 +81,7 @@ class MetricHistogramValues(BaseModel):
     lower_bound: float = Field(description="dual bound over all plan entries")
     certified: bool = Field(description="value - lower_bound <= 1e-7 max(1, |value|)")
     plan_entries: Int
-    solver: str
+    lp_method: str
     iterations: Int = Field(description="column-generation rounds")
     residual: float = Field(description="largest constraint violation")
     converged: bool
@@ -164,8 +164,8 @@ def run(domain, req: MetricHistogramRequest, progress, should_cancel) -> Operati
     from solvers.histograms import propagate_circular
 
     bins, cost, nodes, hists = _inputs(view_of_domain(domain), req)
-    res = propagate_circular(domain, nodes, hists, bins=bins, cost=cost, algorithm="lp",
-                             solver=req.solver, time_limit=req.time_limit or LP_TIME_LIMIT,
+    res = propagate_circular(domain, nodes, hists, bins=bins, cost=cost, method="lp",
+                             lp_method=req.lp_method, time_limit=req.time_limit or LP_TIME_LIMIT,
                              progress=progress, should_cancel=should_cancel)
     H = np.asarray(res.histograms, dtype=np.float64)
     circle = req.circle is not None
@@ -175,7 +175,7 @@ def run(domain, req: MetricHistogramRequest, progress, should_cancel) -> Operati
         space="circle" if circle else "metric", points=int(bins.count), n_nodes=int(len(H)),
         n_labeled=int(len(nodes)), value=float(res.value), lower_bound=float(res.lower_bound),
         certified=bool(res.certified), plan_entries=int(res.plan_entries),
-        solver=str(res.solver), iterations=int(res.iterations), residual=float(res.residual),
+        lp_method=str(res.lp_method), iterations=int(res.iterations), residual=float(res.residual),
         converged=bool(res.converged), arrays=sorted(arrays)).model_dump()
     fields = ["circular_mean", "circular_std"] if circle else ["spread", "mode", "entropy"]
     return OperationOutput(values, arrays, {"fields": fields, "color": fields[0]})

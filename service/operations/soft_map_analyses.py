@@ -58,7 +58,7 @@ class SoftMapAnalysisRequest(OperationRequest):
     model_config = ConfigDict(json_schema_extra={"examples": [
         {"target_id": EXAMPLE_ID,
          "maps": [{"source_id": EXAMPLE_ID, "correspondence": [0, 2, 1, 3]}],
-         "samples": 64, "rank": 6, "dirichlet": "potential"}]})
+         "samples": 64, "rank": 6, "dirichlet_method": "potential"}]})
     target_id: DomainId = Field(description="target mesh domain id (the job's domain)")
     maps: list[PointMap] = Field(min_length=1, max_length=MAX_MAPS, description="point maps "
                                  "into the target; two or more give a collection basis")
@@ -70,7 +70,7 @@ class SoftMapAnalysisRequest(OperationRequest):
     substeps: Int = Field(1, ge=1, le=16, description="implicit Euler steps of the heat "
                           "kernel")
     rank: Int = Field(8, ge=1, le=64, description="basis functions kept (the constant first)")
-    dirichlet: Literal["w2", "potential", "none"] = Field(
+    dirichlet_method: Literal["w2", "potential", "none"] = Field(
         "w2", description="Dirichlet energy: w2 (eq. 4.2, convolutional W2^2 per source edge, "
         "debiased), potential (eq. 4.3, its linearization), none")
     descriptor_k: Int = Field(30, ge=0, le=300, description="eigenpairs of the WKS "
@@ -88,8 +88,8 @@ class PointMapAnalysisValues(BaseModel):
     samples: Int
     gamma: float
     dirichlet: float | None = Field(description="eq. 4.2 (or its linearization, see "
-                                    "dirichlet_route); null when not asked")
-    dirichlet_route: str
+                                    "dirichlet_method); null when not asked")
+    dirichlet_method: str
     bijectivity: float = Field(description="eq. 4.5, E_B = integral of b^2; 1 for a "
                                "bijective isometry")
     bijectivity_range: list[float] = Field(description="[min, max] of b per target vertex")
@@ -159,8 +159,8 @@ def validate(ctx, req: SoftMapAnalysisRequest) -> list[dict]:
 
 def estimate_cost(n: int, req: SoftMapAnalysisRequest, context=None) -> float:
     """Target vertices x samples x maps x (3 source edges per sample x the Dirichlet
-    route's cost per edge, plus the SVD)."""
-    per = 3 * DIRICHLET_COST[req.dirichlet] + req.samples
+    method's cost per edge, plus the SVD)."""
+    per = 3 * DIRICHLET_COST[req.dirichlet_method] + req.samples
     return float(max(n, 1)) * float(req.samples) * float(len(req.maps)) * float(per)
 
 
@@ -188,14 +188,14 @@ def run(ctx, req: SoftMapAnalysisRequest, progress, should_cancel) -> OperationO
 
     monitor = Monitor(progress, should_cancel)  # between maps: cancellation and progress
     target = ctx.domain(req.target_id, "target_id")
-    route = None if req.dirichlet == "none" else req.dirichlet
+    method = None if req.dirichlet_method == "none" else req.dirichlet_method
     analyses, values, arrays = [], [], {}
     for i, m in enumerate(req.maps):
         monitor.check_cancel(f"before maps[{i}]")
         source = ctx.domain(m.source_id, f"maps[{i}].source_id")
         a = analyze_point_map(source, target, m.correspondence, samples=req.samples,
                               gamma=req.gamma, substeps=req.substeps, rank=req.rank,
-                              dirichlet_route=route, descriptor_k=req.descriptor_k or None,
+                              dirichlet_method=method, descriptor_k=req.descriptor_k or None,
                               n_energies=req.n_energies, norm=req.norm)
         analyses.append(a)
         monitor(i + 1, a.low_rank_error)
@@ -203,7 +203,7 @@ def run(ctx, req: SoftMapAnalysisRequest, progress, should_cancel) -> OperationO
         values.append(PointMapAnalysisValues(
             source_id=m.source_id, samples=int(a.soft_map.samples.n), gamma=a.soft_map.gamma,
             dirichlet=None if a.dirichlet is None else float(a.dirichlet.total),
-            dirichlet_route=req.dirichlet, bijectivity=a.bijectivity,
+            dirichlet_method=req.dirichlet_method, bijectivity=a.bijectivity,
             bijectivity_range=[float(b.min()), float(b.max())], descriptor=a.descriptor,
             singular_values=a.singular_values[:MAX_SINGULAR_VALUES].tolist(),
             low_rank_error=a.low_rank_error,

@@ -70,7 +70,7 @@ class SoftMapRequest(OperationRequest):
     n_energies: Int = Field(100, ge=2, le=1000, description="WKS energies")
     wks_weight: float = Field(1.0, ge=0, description="weight of the WKS block of descriptors")
     landmark_weight: float = Field(1.0, ge=0, description="weight of the landmark block")
-    landmark_route: Literal["geodesic", "heat"] = "geodesic"
+    landmark_method: Literal["geodesic", "heat"] = "geodesic"
     norm: Literal["l1", "l2"] = Field("l1", description="descriptor difference (thesis: L1)")
     tol: float = Field(1e-4, gt=0, lt=1, description="largest L1 marginal violation")
     max_iter: Int = Field(1000, ge=1, le=10_000, description="propagation sweeps")
@@ -304,7 +304,7 @@ def run(ctx, req: SoftMapRequest, progress, should_cancel) -> OperationOutput:
     res = soft_map(source, target, pairs, samples=req.samples,
                    target_points=req.target_points, tau=req.tau, gamma=req.gamma,
                    k=req.k, n_energies=req.n_energies, wks_weight=req.wks_weight,
-                   landmark_weight=req.landmark_weight, landmark_route=req.landmark_route,
+                   landmark_weight=req.landmark_weight, landmark_method=req.landmark_method,
                    norm=req.norm, tol=req.tol, max_iter=req.max_iter, top_k=req.top_k,
                    extraction=req.extraction, refine=req.refine, progress=progress,
                    should_cancel=should_cancel)

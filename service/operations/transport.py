@@ -67,7 +67,7 @@ class SinkhornOptions(OperationRequest):
 
 
 class W1Options(OperationRequest):
-    algorithm: Literal["auto", "ipm", "admm", "weiszfeld"] = Field(
+    method: Literal["auto", "ipm", "admm", "weiszfeld"] = Field(
         "auto", description="W1 solver: auto (ipm over all flows, else admm), ipm "
         "(primal-dual interior point, all flows; stops at a certified relative gap tol), "
         "ADMM (thesis Fig. 2.5) or Weiszfeld (Fig. 2.4)")
@@ -88,7 +88,7 @@ class DistanceRequest(SinkhornOptions):
     metric: Literal["w2", "w1"] = Field(
         "w2", description="w2: squared 2-Wasserstein distance (geodesic cost d^2); w1: earth "
         "mover's distance (Beckmann problem, thesis ch. 2), meshes only")
-    route: Literal["auto", "convolutional", "exact"] = Field(
+    method: Literal["auto", "convolutional", "exact"] = Field(
         "auto", description="W2 only. exact: geodesic cost matrix between the supports and "
         "the transport LP (meshes, grids, point clouds; sparse supports); convolutional: "
         "entropic W2 with heat kernels (thesis Alg. 1); auto: exact when its modelled time "
@@ -98,8 +98,8 @@ class DistanceRequest(SinkhornOptions):
     debiased: bool | None = Field(None, description="W2 convolutional: Sinkhorn divergence "
                                   "(default: the policy's choice, true; false when gamma is "
                                   "given)")
-    algorithm: Literal["auto", "ipm", "admm", "weiszfeld"] = Field(
-        "auto", description="W1 solver (as for flows)")
+    w1_method: Literal["auto", "ipm", "admm", "weiszfeld"] = Field(
+        "auto", description="W1 only: the W1 method (as `method` for flows)")
     basis: Literal["auto", "flow", "full", "spectral"] = Field(
         "auto", description="W1 flow space (as for flows)")
     k: Int | None = Field(None, ge=1, description="W1 spectral basis size")
@@ -123,20 +123,20 @@ class DistanceDecision(BaseModel):
     domain alone (solvers.convolutional.decision) and executed by every attempt."""
 
     metric: Literal["w2", "w1"]
-    route: Literal["convolutional", "exact", "beckmann"]
+    method: Literal["convolutional", "exact", "beckmann"]
     reason: str
     gamma: float | None = Field(None, description="convolutional: entropic regularization")
     t: float | None = Field(None, description="convolutional: heat time")
     substeps: Int | None = Field(None, description="convolutional: implicit Euler substeps")
     debiased: bool | None = Field(None, description="convolutional: Sinkhorn divergence")
     estimated_seconds: float | None = Field(None, description="modelled run time of the "
-                                            "route (one core, unloaded machine)")
+                                            "method (one core, unloaded machine)")
     exact_seconds: float | None = Field(None, description="modelled run time of the exact "
-                                        "route (null where it is not available)")
+                                        "method (null where it is not available)")
     regularization: Regularization | None = Field(None, description="the policy's choice "
                                                   "(convolutional, gamma left out)")
-    algorithm: Literal["ipm", "admm", "weiszfeld"] | None = Field(None, description="w1: "
-                                                                  "the solver")
+    w1_method: Literal["ipm", "admm", "weiszfeld"] | None = Field(None, description="w1: "
+                                                                  "the W1 method")
     basis: Literal["flow", "full", "spectral"] | None = Field(None, description="w1: the "
                                                               "flow space")
 
@@ -146,18 +146,18 @@ class DistanceResult(BaseModel):
 
     value: float = Field(description="W2^2 (metric w2) or W1 (metric w1)")
     metric: Literal["w2", "w1"]
-    route: Literal["convolutional", "exact", "beckmann"] = Field(description="what ran")
+    method: Literal["convolutional", "exact", "beckmann"] = Field(description="what ran")
     gamma: float | None = None
     t: float | None = None
     substeps: Int | None = None
     debiased: bool | None = None
     regularization: Regularization | None = Field(None, description="the policy's choice "
                                                   "(when gamma was left out)")
-    support_sizes: list[Int] | None = Field(None, description="exact route: support sizes")
-    cost_seconds: float | None = Field(None, description="exact route: geodesic cost matrix")
-    lp_seconds: float | None = Field(None, description="exact route: transport LP")
-    algorithm: Literal["ipm", "admm", "weiszfeld"] | None = Field(
-        None, description="W1: the solver that ran")
+    support_sizes: list[Int] | None = Field(None, description="exact method: support sizes")
+    cost_seconds: float | None = Field(None, description="exact method: geodesic cost matrix")
+    lp_seconds: float | None = Field(None, description="exact method: transport LP")
+    w1_method: Literal["ipm", "admm", "weiszfeld"] | None = Field(
+        None, description="W1: the W1 method that ran")
     decision: DistanceDecision | None = Field(None, description="the job's decision (taken "
                                               "at submission)")
     iterations: Int
@@ -308,7 +308,7 @@ def shape_kwargs(domain, req, progress, should_cancel) -> tuple[dict, dict | Non
 
 
 def _w1(domain, masses, req, progress, should_cancel):
-    return earth_movers_distance(domain, masses["mu0"], masses["mu1"], algorithm=req.algorithm,
+    return earth_movers_distance(domain, masses["mu0"], masses["mu1"], method=req.method,
                                  basis=req.basis, k=req.k, progress=progress,
                                  should_cancel=should_cancel, **_optional(req))
 
@@ -339,21 +339,21 @@ def _validate_distance(view: DomainView, req: DistanceRequest) -> list[dict]:
     if req.metric == "w1" and view.kind != "mesh":
         raise UnsupportedOperation("metric 'w1' is available on triangle meshes only",
                                    field="metric")
-    if req.metric == "w2" and req.route == "exact" and view.kind not in EXACT_KINDS:
-        raise UnsupportedOperation(f"route 'exact' is available on {', '.join(EXACT_KINDS)} "
-                                   "domains; use route 'convolutional'", field="route")
+    if req.metric == "w2" and req.method == "exact" and view.kind not in EXACT_KINDS:
+        raise UnsupportedOperation(f"method 'exact' is available on {', '.join(EXACT_KINDS)} "
+                                   "domains; use method 'convolutional'", field="method")
     masses, reports = _distance_inputs(view, req)
-    if req.metric == "w2" and req.route == "exact":
+    if req.metric == "w2" and req.method == "exact":
         n0, n1 = (int(np.count_nonzero(masses[k])) for k in ("mu0", "mu1"))
         if n0 * n1 > MAX_SUPPORT_PRODUCT:
-            raise InvalidInput(f"route 'exact' needs a {n0} x {n1} cost matrix, above its "
-                               f"limit of {MAX_SUPPORT_PRODUCT} entries; use route "
-                               "'convolutional' or 'auto'", field="route")
+            raise InvalidInput(f"method 'exact' needs a {n0} x {n1} cost matrix, above its "
+                               f"limit of {MAX_SUPPORT_PRODUCT} entries; use method "
+                               "'convolutional' or 'auto'", field="method")
     return reports
 
 
 def decide_distance_job(view: DomainView, req: DistanceRequest) -> dict:
-    """The job's decision at submission (``Operation.decide``): the W2 route and
+    """The job's decision at submission (``Operation.decide``): the W2 method and
     regularization (:func:`solvers.convolutional.decision.decide_distance` on the stored
     domain's sketch), or the W1 solver and flow space; taken once per request on ``view``
     (the memory and cost estimates read the same decision)."""
@@ -363,34 +363,35 @@ def decide_distance_job(view: DomainView, req: DistanceRequest) -> dict:
 def _decide_distance(view: DomainView, req: DistanceRequest) -> dict:
     if req.metric == "w1":
         try:
-            algorithm, basis = resolve_method(req.algorithm, req.basis)
+            w1_method, basis = resolve_method(req.w1_method, req.basis)
         except InputError as exc:
-            raise InvalidInput(str(exc), field=exc.field or "algorithm") from exc
-        why = "requested" if req.algorithm != "auto" else (
-            "auto: the interior point over all flows" if algorithm == "ipm" else
+            field = "w1_method" if exc.field in (None, "method") else exc.field
+            raise InvalidInput(str(exc), field=field) from exc
+        why = "requested" if req.w1_method != "auto" else (
+            "auto: the interior point over all flows" if w1_method == "ipm" else
             f"auto: ADMM for the {basis} basis")
-        return DistanceDecision(metric="w1", route="beckmann", reason=why,
-                                algorithm=algorithm, basis=basis).model_dump(mode="json")
+        return DistanceDecision(metric="w1", method="beckmann", reason=why,
+                                w1_method=w1_method, basis=basis).model_dump(mode="json")
     masses, _ = _distance_inputs(view, req)
-    decision = decide_distance(view.sketch(), masses["mu0"], masses["mu1"], route=req.route,
+    decision = decide_distance(view.sketch(), masses["mu0"], masses["mu1"], method=req.method,
                                gamma="auto" if req.gamma is None else float(req.gamma),
                                substeps=req.substeps, debiased=req.debiased)
     return {"metric": "w2", **decision.as_dict()}
 
 
 def distance_submission_bounded(view: DomainView, req: DistanceRequest) -> bool:
-    """W2 with an explicit gamma off the exact route: the decision takes no automatic choice
-    (no exact-route estimate, no regularization policy), so validating and deciding is
+    """W2 with an explicit gamma off the exact method: the decision takes no automatic choice
+    (no exact-method estimate, no regularization policy), so validating and deciding is
     resolving two distributions (``Operation.bounded_submission``)."""
-    return req.metric == "w2" and req.gamma is not None and req.route != "exact"
+    return req.metric == "w2" and req.gamma is not None and req.method != "exact"
 
 
 def distance_bytes(view: DomainView, req: DistanceRequest) -> int:
-    """The default estimate, plus on the exact route the LP's cost matrix, plan and the
+    """The default estimate, plus on the exact method the LP's cost matrix, plan and the
     solver's copy (support x support, three float64 arrays; two missed a fifth of a
     measured peak: bench/results/operation_memory.md)."""
     total = estimate_job_bytes(view, req)
-    if req.metric == "w2" and decide_distance_job(view, req)["route"] == "exact":
+    if req.metric == "w2" and decide_distance_job(view, req)["method"] == "exact":
         masses, _ = _distance_inputs(view, req)
         n0, n1 = (int(np.count_nonzero(masses[k])) for k in ("mu0", "mu1"))
         total += 24 * n0 * n1
@@ -430,22 +431,22 @@ def run_distance(domain, req: DistanceRequest, progress, should_cancel,
     stored = DistanceDecision.model_validate(decision)
     if req.metric == "w1":
         res = earth_movers_distance(domain, masses["mu0"], masses["mu1"],
-                                    algorithm=stored.algorithm, basis=stored.basis, k=req.k,
+                                    method=stored.w1_method, basis=stored.basis, k=req.k,
                                     progress=progress, should_cancel=should_cancel,
                                     **_optional(req))
-        values = {"value": float(res.value), "metric": "w1", "route": "beckmann",
-                  "algorithm": res.algorithm, **_convergence(res)}
+        values = {"value": float(res.value), "metric": "w1", "method": "beckmann",
+                  "w1_method": res.method, **_convergence(res)}
         arrays = {"flow": np.asarray(res.flow), "potential": np.asarray(res.potential)}
         export = {"fields": ["potential"], "flow": "flow", "color": "potential"}
         return OperationOutput({**values, "decision": decision, "normalization": reports},
                                arrays, export)
     plan = SolverDecision.from_dict({k: v for k, v in decision.items()
-                                     if k not in ("metric", "algorithm", "basis")})
+                                     if k not in ("metric", "w1_method", "basis")})
     res = wasserstein_distance(domain, masses["mu0"], masses["mu1"], **plan.solver_arguments(),
                                **_optional(req), progress=progress,
                                should_cancel=should_cancel)
-    values = {"value": float(res.value), "metric": "w2", "route": res.route}
-    if res.route == "exact":
+    values = {"value": float(res.value), "metric": "w2", "method": res.method}
+    if res.method == "exact":
         values.update(support_sizes=[len(res.sources), len(res.targets)],
                       cost_seconds=float(res.cost_seconds), lp_seconds=float(res.lp_seconds))
     else:

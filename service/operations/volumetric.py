@@ -53,7 +53,7 @@ class VolumetricOptions(OperationRequest):
     units: Literal["mesh", "input"] = Field(
         "mesh", description="coordinates of the points: the stored unit-area frame, or the "
         "uploaded file's")
-    algorithm: Literal["exact", "admm"] = Field(
+    method: Literal["exact", "admm"] = Field(
         "exact", description="W1 solver of each distance: exact (conic program over all "
         f"flows, meshes up to {MAX_VERTICES} vertices) or admm (all flows, looser)")
     tol: float | None = Field(None, gt=0, lt=1, description="solver tolerance (default: the "
@@ -118,7 +118,7 @@ class VolumetricDistanceValues(BaseModel):
 
     source: list[float]
     units: Literal["mesh", "input"]
-    algorithm: Literal["exact", "admm"]
+    method: Literal["exact", "admm"]
     distances: list[float] | None = Field(None, description="to each of `points`")
     euclidean: list[float] | None = Field(None, description="|source - point| in unit-area "
                                           "units: a lower bound of each distance")
@@ -136,7 +136,7 @@ class VolumetricPathValues(BaseModel):
     """Values of a volumetric-path job."""
 
     units: Literal["mesh", "input"]
-    algorithm: Literal["exact", "admm"]
+    method: Literal["exact", "admm"]
     steps: Int = Field(description="points of the path, start and end included")
     length: float = Field(description="polyline length (request units)")
     straight: float = Field(description="|start - target| (request units)")
@@ -175,9 +175,9 @@ def _check_closed(view: DomainView, req: VolumetricOptions) -> None:
         raise UnsupportedOperation("volumetric distances need a closed (watertight) mesh: "
                                    "mean value coordinates live on a closed surface",
                                    field="domain_id")
-    if req.algorithm == "exact" and view.n > MAX_VERTICES:
-        raise InvalidInput(f"algorithm 'exact' handles meshes up to {MAX_VERTICES} vertices "
-                           f"(this one has {view.n}); use algorithm 'admm'", field="algorithm")
+    if req.method == "exact" and view.n > MAX_VERTICES:
+        raise InvalidInput(f"method 'exact' handles meshes up to {MAX_VERTICES} vertices "
+                           f"(this one has {view.n}); use method 'admm'", field="method")
 
 
 def _slice_shape(spec: SlicePlane, extent: np.ndarray) -> tuple[int, int, int, int]:
@@ -310,12 +310,12 @@ def run_distances(mesh, req: VolumetricDistanceRequest, progress, should_cancel
     if req.slice is not None:
         grid = _slice_points(view, req.slice, scale)
     pts = listed if grid is None else np.vstack([listed, grid[0]])
-    res = volumetric_distances(mesh, src, pts, algorithm=req.algorithm, tol=req.tol,
+    res = volumetric_distances(mesh, src, pts, method=req.method, tol=req.tol,
                                progress=progress, should_cancel=should_cancel)
     d = np.asarray(res.distances, dtype=np.float64)
     euclid = np.linalg.norm(pts - src, axis=1)
     away = euclid > 1e-9
-    values = {"source": list(req.source), "units": req.units, "algorithm": req.algorithm,
+    values = {"source": list(req.source), "units": req.units, "method": req.method,
               "min_ratio": float(np.min(d[away] / euclid[away])) if away.any() else None,
               "solves": int(len(pts)), "iterations": int(res.iterations),
               "residual": float(res.residual), "converged": bool(res.converged)}
@@ -389,13 +389,13 @@ def run_path(mesh, req: VolumetricPathRequest, progress, should_cancel) -> Opera
 
     validate_path(view_of_domain(mesh), req)
     res = volumetric_path(mesh, req.start, req.target, step=req.step, max_iter=req.max_iter,
-                          algorithm=req.algorithm, units=req.units, tol=req.tol,
+                          method=req.method, units=req.units, tol=req.tol,
                           progress=progress, should_cancel=should_cancel)
     scale = mesh.length_scale if req.units == "input" else 1.0
     P = np.asarray(res.points) * scale  # request units
     d = np.asarray(res.distances, dtype=np.float64)
     values = VolumetricPathValues(
-        units=req.units, algorithm=req.algorithm, steps=int(len(P)),
+        units=req.units, method=req.method, steps=int(len(P)),
         length=float(np.linalg.norm(np.diff(P, axis=0), axis=1).sum()),
         straight=float(np.linalg.norm(np.subtract(req.target, req.start))),
         start_distance=float(d[0]), final_distance=float(d[-1]),

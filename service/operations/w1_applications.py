@@ -5,7 +5,7 @@
   (:func:`solvers.emd.w1_barycenter`): by default the vertex-sized interior point, refused at
   submission (413 naming the field) when its modelled run time
   (:func:`solvers.emd.interior_point_barycenter.estimated_cost`) exceeds
-  ``MAX_ESTIMATED_SECONDS`` or its memory the job limit; ``algorithm="socp"`` (Clarabel on
+  ``MAX_ESTIMATED_SECONDS`` or its memory the job limit; ``method="socp"`` (Clarabel on
   the whole program) keeps that solver's caps, ``MAX_VERTICES`` vertices and
   ``MAX_BLOCK_UNKNOWNS`` vertices x (inputs + 1).
 * ``path-plans``: eq. 2.6, occupants ``rho0`` leave through the ``targets`` with congestion
@@ -52,7 +52,7 @@ class W1BarycenterRequest(OperationRequest):
     weights: list[float] | None = Field(None, description="barycentric weights alpha_i, one "
                                         "per distribution, non-negative with a positive sum "
                                         "(default uniform); normalized to sum 1")
-    algorithm: Literal["auto", "ipm", "socp"] = Field(
+    method: Literal["auto", "ipm", "socp"] = Field(
         "auto", description="auto/ipm: interior point with vertex-sized Newton systems, "
         f"certified duality gap (meshes up to a modelled {MAX_ESTIMATED_SECONDS:.0f} s); "
         f"socp: Clarabel on the whole program (at most {MAX_VERTICES} vertices)")
@@ -68,7 +68,7 @@ class W1BarycenterValues(BaseModel):
     value: float = Field(description="sum_i alpha_i W1(rho_i, rho)^2 at the returned rho")
     distances: list[float] = Field(description="W1 from the barycenter to each input")
     weights: list[float] = Field(description="the normalized barycentric weights")
-    algorithm: Literal["ipm", "socp"] = Field(description="the solver that ran")
+    method: Literal["ipm", "socp"] = Field(description="the solver that ran")
     lower_bound: float | None = Field(description="ipm: certified lower bound of the "
                                       "objective (null for socp)")
     gap: float | None = Field(description="ipm: certified relative gap (value - lower_bound) "
@@ -111,7 +111,7 @@ def _check_ipm_size(view: DomainView, req: W1BarycenterRequest) -> None:
 
 
 def _barycenter_inputs(view: DomainView, req: W1BarycenterRequest):
-    if req.algorithm == "socp":
+    if req.method == "socp":
         _check_conic_size(view, len(req.distributions) + 1, "distributions")
     else:
         _check_ipm_size(view, req)
@@ -131,7 +131,7 @@ COST_PER_SECOND = IPM_SOLVE_COST * 50_000 / 8.3
 def barycenter_cost(n: int, req: W1BarycenterRequest, context=None) -> float:
     """ipm: the modelled run time in queue-cost units; socp: one coupled conic solve over
     all inputs' flow blocks."""
-    if req.algorithm == "socp":
+    if req.method == "socp":
         return float(IPM_SOLVE_COST) * float(max(n, 1)) * float(len(req.distributions) + 1)
     k = len(req.distributions)
     return COST_PER_SECOND * estimated_cost(n, 2 * max(n, 1), k).seconds
@@ -142,7 +142,7 @@ def barycenter_bytes(view: DomainView, req: W1BarycenterRequest) -> int:
     per flow block, cones and scalings per face and the KKT factor's share per vertex, ~200
     and ~300 float64 (measured: bench/results/operation_memory.md; 40 and 60 missed three
     quarters)."""
-    if req.algorithm != "socp":
+    if req.method != "socp":
         return _ipm_estimate(view, req).bytes
     blocks = len(req.distributions) + 1
     return 8 * blocks * (200 * view.faces_or_typical + 300 * int(view.n))
@@ -152,12 +152,12 @@ def run_barycenter(mesh, req: W1BarycenterRequest, progress, should_cancel) -> O
     from solvers.emd import w1_barycenter
 
     mus, weights, reports = _barycenter_inputs(view_of_domain(mesh), req)
-    res = w1_barycenter(mesh, mus, weights, algorithm=req.algorithm, tol=req.tol,
+    res = w1_barycenter(mesh, mus, weights, method=req.method, tol=req.tol,
                         max_iter=req.max_iter, progress=progress, should_cancel=should_cancel)
     masses = np.asarray(res.masses, dtype=np.float64)
     values = W1BarycenterValues(
         value=float(res.value), distances=[float(d) for d in res.distances],
-        weights=weights.tolist(), algorithm=res.algorithm,
+        weights=weights.tolist(), method=res.method,
         lower_bound=_finite_or_none(res.lower_bound), gap=_finite_or_none(res.gap),
         iterations=int(res.iterations),
         residual=float(res.residual), converged=bool(res.converged), status=str(res.status),
@@ -181,7 +181,7 @@ class PathPlanRequest(OperationRequest):
     epsilon: float = Field(0.0, ge=0, le=1e6, description="congestion weight of the term "
                            "epsilon * integral of rho1^2 (0: every occupant takes its nearest "
                            "exit)")
-    algorithm: Literal["auto", "ipm", "socp"] = Field(
+    method: Literal["auto", "ipm", "socp"] = Field(
         "auto", description="auto/ipm: interior point with vertex-sized Newton systems (any "
         f"mesh size); socp: Clarabel on the whole program (at most {MAX_VERTICES} vertices)")
     tol: float | None = Field(None, gt=0, lt=1, description="ipm: certified relative gap "
@@ -197,7 +197,7 @@ class PathPlanValues(BaseModel):
     objective: float = Field(description="value + epsilon * integral of rho1^2 (eq. 2.6)")
     epsilon: float
     n_targets: int = Field(description="distinct exit vertices")
-    algorithm: Literal["ipm", "socp"] = Field(description="the solver that ran")
+    method: Literal["ipm", "socp"] = Field(description="the solver that ran")
     hodge_residual: float = Field(description="relative size of the harmonic part of the "
                                   "flow, J - grad f - R grad g (0 on simply connected "
                                   "surfaces)")
@@ -209,10 +209,10 @@ class PathPlanValues(BaseModel):
 
 
 def _path_inputs(view: DomainView, req: PathPlanRequest):
-    if req.algorithm == "socp":
+    if req.method == "socp":
         if view.n > MAX_VERTICES:  # named after the choice the client can change
-            raise PayloadTooLarge(f"algorithm 'socp' takes at most {MAX_VERTICES} vertices; "
-                                  f"the mesh has {view.n} (use 'ipm')", field="algorithm")
+            raise PayloadTooLarge(f"method 'socp' takes at most {MAX_VERTICES} vertices; "
+                                  f"the mesh has {view.n} (use 'ipm')", field="method")
     rho0, report = resolve_distribution(view, req.rho0, "rho0", req.input)
     targets = check_indices(req.targets, view.n, field="targets")
     mask = check_targets(targets, view.n, view.component_labels, rho0)
@@ -239,14 +239,14 @@ def run_path_plan(mesh, req: PathPlanRequest, progress, should_cancel) -> Operat
     from solvers.emd.path_planning import w1_path_planning
 
     rho0, mask, reports = _path_inputs(view_of_domain(mesh), req)
-    res = w1_path_planning(mesh, rho0, mask, epsilon=req.epsilon, algorithm=req.algorithm,
+    res = w1_path_planning(mesh, rho0, mask, epsilon=req.epsilon, method=req.method,
                            tol=req.tol, max_iter=req.max_iter, progress=progress,
                            should_cancel=should_cancel)
     hodge = res.hodge
     flow = np.asarray(res.flow, dtype=np.float64)
     values = PathPlanValues(
         value=float(res.value), objective=float(res.objective), epsilon=float(req.epsilon),
-        n_targets=int(mask.sum()), algorithm=res.algorithm,
+        n_targets=int(mask.sum()), method=res.method,
         hodge_residual=float(hodge.residual), iterations=int(res.iterations),
         residual=float(res.residual), converged=bool(res.converged), status=str(res.status),
         normalization=reports).model_dump()

@@ -1,7 +1,7 @@
 """Convolutional Wasserstein toolkit (thesis ch. 3) over the heat kernels of any domain.
 
 - :func:`wasserstein_distance` — Alg. 1 / eq. 3.10, optional debiased Sinkhorn divergence;
-  ``route="auto"`` solves sparse supports exactly (:func:`exact_wasserstein_distance`:
+  ``method="auto"`` solves sparse supports exactly (:func:`exact_wasserstein_distance`:
   geodesic costs between the support points and the transport LP);
 - :func:`distance_matrix` — every pair of a collection (or against templates), W2 pairs
   sharing a kernel advanced as one multi-column block, exact pairs on one cost matrix;
@@ -17,7 +17,7 @@
 Thesis section → module: §3.3–3.5 ``distance`` (Alg. 1), ``common`` (log-domain kernel
 application, over-relaxation); §3.6 ``barycenter`` (Alg. 2, 3), ``interpolation``;
 §3.6.3 ``propagation`` (Alg. 4); §3.7 ``shapes``, ``hemisphere`` + ``brdf``, ``skeleton``;
-``exact`` is the exact LP route for
+``exact`` is the exact LP method for
 sparse supports (ground truth and default for few support points); ``matrix`` the
 distance matrices.
 

@@ -1,16 +1,16 @@
-r"""The default decision of a W2 distance: route and regularization from the data alone.
+r"""The default decision of a W2 distance: method and regularization from the data alone.
 
 :func:`decide_distance` is what ``wasserstein_distance(domain, mu0, mu1)`` runs when
-``route`` and ``gamma`` are left to ``"auto"``, and what the service runs at submission (its
+``method`` and ``gamma`` are left to ``"auto"``, and what the service runs at submission (its
 decision is stored with the job and executed by the worker as explicit arguments):
 
-* **route** — ``"exact"`` (:func:`~solvers.convolutional.exact.exact_wasserstein_distance`:
+* **method** — ``"exact"`` (:func:`~solvers.convolutional.exact.exact_wasserstein_distance`:
   exact geodesic costs between the supports and the transport LP, no bias) when the exact
-  route is available on the domain (meshes, grids, point clouds), its LP is within
+  method is available on the domain (meshes, grids, point clouds), its LP is within
   :data:`~solvers.convolutional.exact.MAX_SUPPORT_PRODUCT` entries and its modelled time
   (:func:`~solvers.convolutional.exact.exact_route_estimate`) is at most
   :data:`EXACT_BUDGET_SECONDS`; else ``"convolutional"``;
-* **regularization** of the convolutional route — ``gamma``, ``t``, ``substeps``,
+* **regularization** of the convolutional method — ``gamma``, ``t``, ``substeps``,
   ``debiased`` from :func:`solvers.regularization.choose_regularization` (``purpose=
   "values"``).
 
@@ -20,7 +20,7 @@ cost model has constants calibrated once offline (``bench/distance_routes.py cal
 committed; nothing reads the clock, the load or timings measured in the process, and no
 operator is built.  The same request therefore gets the same decision in the library, in the
 API process and in any worker, now and after a re-run; a run that overruns its time limit
-fails as such and never switches route.  Coverage of the exact route (which meshes and bump
+fails as such and never switches method.  Coverage of the exact method (which meshes and bump
 sizes it takes) and the accuracy of the default: ``bench/results/distance_routes.md``.
 """
 
@@ -45,8 +45,8 @@ from solvers.regularization import (
     sketch_of,
 )
 
-ROUTES = ("auto", "convolutional", "exact")
-# The exact route is taken when its modelled time (one core of the 2-core machine, load ~1)
+METHODS = ("auto", "convolutional", "exact")
+# The exact method is taken when its modelled time (one core of the 2-core machine, load ~1)
 # is at most this: 25 + 25 point masses on every shared mesh and the bumps of the meshes
 # listed in bench/results/distance_routes.md fit; at twice the time (a loaded machine) a
 # run stays inside the service's default job limit of 600 s.
@@ -55,13 +55,13 @@ EXACT_BUDGET_SECONDS = 120.0
 
 @dataclass(frozen=True)
 class DistanceDecision:
-    """What a distance will run: ``route`` (``"exact"`` or ``"convolutional"``) and, for the
-    convolutional route, ``gamma``, ``t``, ``substeps``, ``debiased``; ``estimated_seconds``
-    (the cost model of the chosen route, None where there is none), ``exact_seconds`` (of the
-    exact route; None where unavailable); ``regularization``: the policy's choice and its
-    reason (None when gamma was given or on the exact route); ``reason``: why this route."""
+    """What a distance will run: ``method`` (``"exact"`` or ``"convolutional"``) and, for the
+    convolutional method, ``gamma``, ``t``, ``substeps``, ``debiased``; ``estimated_seconds``
+    (the cost model of the chosen method, None where there is none), ``exact_seconds`` (of the
+    exact method; None where unavailable); ``regularization``: the policy's choice and its
+    reason (None when gamma was given or on the exact method); ``reason``: why this method."""
 
-    route: str
+    method: str
     reason: str
     gamma: float | None = None
     t: float | None = None
@@ -82,9 +82,9 @@ class DistanceDecision:
 
     def solver_arguments(self) -> dict:
         """The explicit arguments of ``wasserstein_distance`` that execute this decision."""
-        if self.route == "exact":
-            return {"route": "exact"}
-        return {"route": "convolutional", "gamma": self.gamma, "t": self.t,
+        if self.method == "exact":
+            return {"method": "exact"}
+        return {"method": "convolutional", "gamma": self.gamma, "t": self.t,
                 "substeps": self.substeps, "debiased": self.debiased}
 
 
@@ -97,19 +97,19 @@ def convolutional_seconds(sketch, substeps: int) -> float | None:
     return APPLICATIONS * SOLVE_SECONDS_PER_VERTEX * float(sketch.n) * int(substeps)
 
 
-def decide_distance(domain, m0, m1, *, route: str = "auto", gamma="auto", t=None,
+def decide_distance(domain, m0, m1, *, method: str = "auto", gamma="auto", t=None,
                     substeps=None, debiased=None) -> DistanceDecision:
-    """The decision of ``wasserstein_distance(domain, m0, m1, route=..., gamma=..., t=...,
+    """The decision of ``wasserstein_distance(domain, m0, m1, method=..., gamma=..., t=...,
     substeps=..., debiased=...)`` (module docstring).
 
     ``domain``: a domain or its :class:`~solvers.domains.sketch.DomainSketch`; ``m0, m1``:
-    normalized ``(n,)`` masses.  Explicit arguments win: ``route="exact"`` always takes the
-    exact route, a numeric ``gamma`` always the convolutional one as specified (one substep,
+    normalized ``(n,)`` masses.  Explicit arguments win: ``method="exact"`` always takes the
+    exact method, a numeric ``gamma`` always the convolutional one as specified (one substep,
     not debiased unless given).
     """
-    if route not in ROUTES:
-        raise InputError(f"route must be one of {', '.join(map(repr, ROUTES))}, got "
-                         f"{route!r}", field="route")
+    if method not in METHODS:
+        raise InputError(f"method must be one of {', '.join(map(repr, METHODS))}, got "
+                         f"{method!r}", field="method")
     auto = gamma is None or (isinstance(gamma, str) and gamma == "auto")
     if not auto and not isinstance(gamma, (int, float, np.number)) or isinstance(gamma, bool):
         raise InputError(f"gamma must be a positive number or 'auto', got {gamma!r}",
@@ -118,22 +118,22 @@ def decide_distance(domain, m0, m1, *, route: str = "auto", gamma="auto", t=None
     m0, m1 = np.asarray(m0, dtype=np.float64), np.asarray(m1, dtype=np.float64)
     exact = None
     n0, n1 = int(np.count_nonzero(m0)), int(np.count_nonzero(m1))
-    wanted = route == "exact" or (route == "auto" and auto)
+    wanted = method == "exact" or (method == "auto" and auto)
     if wanted and supports_exact(sketch) and n0 * n1 <= MAX_SUPPORT_PRODUCT:
         exact = float(exact_route_estimate(sketch, m0, m1,
-                                           budget=None if route == "exact" else
+                                           budget=None if method == "exact" else
                                            EXACT_BUDGET_SECONDS))
-    if route == "exact":
+    if method == "exact":
         return DistanceDecision("exact", "route 'exact' requested", estimated_seconds=exact,
                                 exact_seconds=exact)
-    if route == "auto" and auto and exact is not None and exact <= EXACT_BUDGET_SECONDS:
+    if method == "auto" and auto and exact is not None and exact <= EXACT_BUDGET_SECONDS:
         return DistanceDecision("exact", f"exact route estimated at {exact:.3g} s, within "
                                 f"its {EXACT_BUDGET_SECONDS:.0f} s budget",
                                 estimated_seconds=exact, exact_seconds=exact)
     if auto:
         reg = choose_regularization(sketch, m0, m1, purpose="values", t=t,
                                     substeps=substeps, debiased=debiased)
-        why = _convolutional_reason(sketch, route, exact, n0 * n1)
+        why = _convolutional_reason(sketch, method, exact, n0 * n1)
         return DistanceDecision("convolutional", why, reg.gamma, reg.t, reg.substeps,
                                 reg.debiased, convolutional_seconds(sketch, reg.substeps),
                                 exact, reg)
@@ -145,15 +145,15 @@ def decide_distance(domain, m0, m1, *, route: str = "auto", gamma="auto", t=None
                             convolutional_seconds(sketch, steps), exact)
 
 
-def decide_route(sketch, m0, m1, *, route: str = "auto", gamma="auto", t=None, substeps=None,
+def decide_method(sketch, m0, m1, *, method: str = "auto", gamma="auto", t=None, substeps=None,
                  debiased=None) -> DistanceDecision:
-    """:func:`decide_distance`'s route and regularization, taken without planning the exact
-    route when its size-only upper bound (:func:`~solvers.convolutional.exact.
+    """:func:`decide_distance`'s method and regularization, taken without planning the exact
+    method when its size-only upper bound (:func:`~solvers.convolutional.exact.
     exact_route_upper_bound`) already fits :data:`EXACT_BUDGET_SECONDS` (then the estimate
-    fits too: the same route; ``estimated_seconds`` is that bound).  Many decisions on small
+    fits too: the same method; ``estimated_seconds`` is that bound).  Many decisions on small
     supports (a distance matrix) skip the planning LP this way."""
     auto = gamma is None or (isinstance(gamma, str) and gamma == "auto")
-    if route == "auto" and auto and supports_exact(sketch):
+    if method == "auto" and auto and supports_exact(sketch):
         n0, n1 = int(np.count_nonzero(m0)), int(np.count_nonzero(m1))
         if n0 * n1 <= MAX_SUPPORT_PRODUCT:
             bound = float(exact_route_upper_bound(sketch, m0, m1))
@@ -161,12 +161,12 @@ def decide_route(sketch, m0, m1, *, route: str = "auto", gamma="auto", t=None, s
                 return DistanceDecision("exact", f"exact route bounded by {bound:.3g} s, "
                                         f"within its {EXACT_BUDGET_SECONDS:.0f} s budget",
                                         estimated_seconds=bound)
-    return decide_distance(sketch, m0, m1, route=route, gamma=gamma, t=t, substeps=substeps,
+    return decide_distance(sketch, m0, m1, method=method, gamma=gamma, t=t, substeps=substeps,
                            debiased=debiased)
 
 
-def _convolutional_reason(sketch, route: str, exact: float | None, entries: int) -> str:
-    if route == "convolutional":
+def _convolutional_reason(sketch, method: str, exact: float | None, entries: int) -> str:
+    if method == "convolutional":
         return "route 'convolutional' requested"
     if exact is None and entries <= MAX_SUPPORT_PRODUCT and supports_exact(sketch):
         return "gamma given"

@@ -77,7 +77,7 @@ class SinkhornResult(SolverResult):
     self_values: tuple[float, float] | None = None
     substeps: int = 1
     debiased: bool = False
-    route: str = "convolutional"
+    method: str = "convolutional"
     regularization: Regularization | None = None
     decision: DistanceDecision | None = None
 
@@ -335,7 +335,7 @@ def wasserstein_distance(
     tol: float = 1e-5,
     max_iter: int | None = None,
     debiased: bool | None = None,
-    route: str = "auto",
+    method: str = "auto",
     acceleration: str = "anderson",
     init: tuple[np.ndarray, np.ndarray] | None = None,
     progress: Callable[[int, float], None] | None = None,
@@ -352,7 +352,7 @@ def wasserstein_distance(
     W(\mu_1,\mu_1)` is returned, which vanishes for ``mu0 == mu1`` and removes the
     first-order entropic bias.
 
-    Defaults (``gamma="auto"``, ``route="auto"``): values users can trust, decided by
+    Defaults (``gamma="auto"``, ``method="auto"``): values users can trust, decided by
     :func:`~solvers.convolutional.decision.decide_distance` from the inputs and the stored
     domain alone (never the clock or the process's history; the service takes the same
     decision at submission): the exact discrete W2² (:func:`~solvers.convolutional.exact.
@@ -365,7 +365,7 @@ def wasserstein_distance(
     that distance).  The decision is in ``result.decision`` (and the policy's choice in
     ``result.regularization``).  Measured accuracy against the exact LP with exact
     geodesics: ``bench/results/distance_routes.md``.  A numeric ``gamma`` runs Alg. 1
-    exactly as specified (``substeps=1``, ``debiased=False`` unless given; ``route="auto"``
+    exactly as specified (``substeps=1``, ``debiased=False`` unless given; ``method="auto"``
     then means convolutional).
 
     Parameters
@@ -381,7 +381,7 @@ def wasserstein_distance(
         violation.
     debiased : return the Sinkhorn divergence (default: the policy's choice, True, with
         ``gamma="auto"``; else False).
-    route : ``"auto"`` (default), ``"convolutional"`` (always Alg. 1) or ``"exact"`` (always
+    method : ``"auto"`` (default), ``"convolutional"`` (always Alg. 1) or ``"exact"`` (always
         the LP; meshes, grids and point clouds).
     acceleration : ``"anderson"`` (default: Anderson mixing of the Sinkhorn fixed-point
         map, about half the iterations of over-relaxation), ``"over-relaxation"``
@@ -393,14 +393,14 @@ def wasserstein_distance(
     Returns
     -------
     SinkhornResult(value, v, w, iterations, residual, converged, log_v, log_w, gamma, t,
-    substeps, debiased, route="convolutional", regularization, decision, ...), or an
-    ExactTransportResult(value, ..., route="exact", decision) when the exact route is taken.
+    substeps, debiased, method="convolutional", regularization, decision, ...), or an
+    ExactTransportResult(value, ..., method="exact", decision) when the exact method is taken.
     """
     m0, m1 = distribution_pair(domain, mu0, mu1)
     acceleration = check_acceleration(acceleration, ACCELERATIONS)
-    decision = decide_distance(domain, m0, m1, route=route, gamma=gamma, t=t,
+    decision = decide_distance(domain, m0, m1, method=method, gamma=gamma, t=t,
                                substeps=substeps, debiased=debiased)
-    if decision.route == "exact":
+    if decision.method == "exact":
         res = exact_wasserstein_distance(domain, m0, m1, progress=progress,
                                          should_cancel=should_cancel)
         res.decision = decision

@@ -22,10 +22,10 @@ beat (``L <= d`` entrywise): it is the exact W2².  Otherwise the bounds of the 
 an unknown entry grow to cover it and the loop repeats (at most until every entry is known).
 
 The cost is one (bounded) geodesic solve per point of the smaller support and an LP of size
-``n0 × n1``, so the route is for sparse inputs (point masses, few scattered points) and small
+``n0 × n1``, so the method is for sparse inputs (point masses, few scattered points) and small
 meshes; :func:`exact_route_estimate` models its time from the stored domain alone (sizes,
 edge paths, constants calibrated offline by ``bench/distance_routes.py``), and the default
-decision of a distance (:mod:`solvers.convolutional.decision`) takes the route when that
+decision of a distance (:mod:`solvers.convolutional.decision`) takes the method when that
 estimate fits its budget.  Measured accuracy and times: ``bench/results/distance_routes.md``.
 """
 
@@ -40,7 +40,7 @@ import numpy as np
 from solvers.errors import InputError
 from solvers.monitor import Monitor, SolverResult
 
-# The route refuses supports whose LP has more entries than this (its dense n0 x n1 cost
+# The method refuses supports whose LP has more entries than this (its dense n0 x n1 cost
 # matrix).
 MAX_SUPPORT_PRODUCT = 25_000_000
 # Meshes: each solve bound is the edge-path length it must cover times BOUND_MARGIN; the
@@ -76,12 +76,12 @@ class ExactTransportResult(SolverResult):
     plan: np.ndarray = field(repr=False)
     cost_seconds: float = 0.0
     lp_seconds: float = 0.0
-    route: str = "exact"
+    method: str = "exact"
     decision: object = None  # the DistanceDecision of a wasserstein_distance call
 
 
 def supports_exact(domain) -> bool:
-    """Whether the exact route is available on ``domain`` (meshes, grids, point clouds)."""
+    """Whether the exact method is available on ``domain`` (meshes, grids, point clouds)."""
     return getattr(domain, "kind", None) in EXACT_KINDS
 
 
@@ -278,15 +278,15 @@ def exact_wasserstein_distance(
     from solvers.errors import CancelledError
 
     if not supports_exact(domain):
-        raise InputError(f"the exact route needs a mesh, grid or point cloud, not a "
-                         f"{getattr(domain, 'kind', type(domain).__name__)}", field="route")
+        raise InputError(f"the exact method needs a mesh, grid or point cloud, not a "
+                         f"{getattr(domain, 'kind', type(domain).__name__)}", field="method")
     m0, m1 = distribution_pair(domain, mu0, mu1)
     check_components(domain, np.stack([m0, m1], axis=1), 1e-9, "mu1")
     src, dst = np.flatnonzero(m0 > 0), np.flatnonzero(m1 > 0)
     if len(src) * len(dst) > MAX_SUPPORT_PRODUCT:
-        raise InputError(f"the exact route's LP has {len(src)} x {len(dst)} entries, above "
-                         f"its limit of {MAX_SUPPORT_PRODUCT}; use route='convolutional'",
-                         field="route")
+        raise InputError(f"the exact method's LP has {len(src)} x {len(dst)} entries, above "
+                         f"its limit of {MAX_SUPPORT_PRODUCT}; use method='convolutional'",
+                         field="method")
     monitor = Monitor(progress, should_cancel)
     monitor(0, float("nan"))
     start = time.perf_counter()

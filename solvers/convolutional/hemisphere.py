@@ -25,7 +25,7 @@ equator) instead of losing it past the equator and near the pole.  ``t = gamma/4
 :mod:`solvers.kernels`).  The kernel is assembled once as a dense ``n × n`` matrix (cached
 in the domain's operator store) and applied with one BLAS product per block.
 
-``route="separable"`` is this kernel; ``route="geodesic"`` (default) replaces the
+``method="separable"`` is this kernel; ``method="geodesic"`` (default) replaces the
 product by the exact great-circle Gaussian :math:`\exp(-d(\omega,\omega')^2/4t)` -- the
 same dense cost here.  The separable metric overestimates distances across the pole (a
 coordinate singularity), and barycenters of lobes spanning the pole pile spurious mass on
@@ -52,13 +52,13 @@ from solvers.validation import check_int, check_positive
 
 RADIUS = 1.0 / np.sqrt(2.0 * np.pi)  # unit hemisphere area
 EXTENT = float(np.pi * RADIUS)  # pole-to-pole geodesic length of the full sphere / 2
-ROUTES = ("separable", "geodesic")  # kernel: the thesis' product, or exact great circles
+METHODS = ("separable", "geodesic")  # kernel: the thesis' product, or exact great circles
 MAX_POINTS = 8192  # the dense kernel holds n^2 floats (512 MB at this size)
 
 
 class HemisphereHeatKernel:
     """Dense Gaussian on a :class:`HemisphereGrid`: the latitude-modulated separable product
-    (``route="separable"``) or the great-circle one (``"geodesic"``), see the module."""
+    (``method="separable"``) or the great-circle one (``"geodesic"``), see the module."""
 
     supports_log = False
 
@@ -75,7 +75,7 @@ class HemisphereHeatKernel:
         log_t = -(RADIUS * dth) ** 2 / (4.0 * t)  # (nt, nt)
         s2 = (RADIUS * np.sin(mid)) ** 2  # (nt, nt)
         nt, nphi = grid.shape
-        if grid.route == "separable":
+        if grid.method == "separable":
             log_k = (log_t[:, None, :, None]
                      - s2[:, None, :, None] * (dph ** 2)[None, :, None, :] / (4.0 * t))
             log_k = log_k.reshape(self.n, self.n)
@@ -116,12 +116,12 @@ class HemisphereGrid(Domain):
 
     kind = "hemisphere"
 
-    def __init__(self, n_theta: int = 16, n_phi: int = 64, route: str = "geodesic"):
+    def __init__(self, n_theta: int = 16, n_phi: int = 64, method: str = "geodesic"):
         super().__init__()
-        if route not in ROUTES:
-            raise InputError(f"route must be one of {', '.join(ROUTES)}, got {route!r}",
-                             field="route")
-        self.route = route
+        if method not in METHODS:
+            raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}",
+                             field="method")
+        self.method = method
         nt = check_int(n_theta, "n_theta", low=2)
         nphi = check_int(n_phi, "n_phi", low=4)
         if nt * nphi > MAX_POINTS:
@@ -161,7 +161,7 @@ class HemisphereGrid(Domain):
         return {"shape": np.asarray(self.shape)}
 
     def parameters(self) -> dict:
-        return {"route": self.route}
+        return {"method": self.method}
 
 
 def spherical_to_vector(theta, phi) -> np.ndarray:

@@ -6,16 +6,16 @@ one collection (only the pairs ``i < j`` are solved; the diagonal is zero for th
 Sinkhorn divergence, the exact W2 and W1).
 
 * ``metric="w2"`` — each pair gets exactly the decision of the single-pair default
-  (:func:`~solvers.convolutional.decision.decide_distance`: route and regularization from
+  (:func:`~solvers.convolutional.decision.decide_distance`: method and regularization from
   the data alone), so every entry equals ``wasserstein_distance(domain, mu_i, nu_j, ...)``:
 
-  - **exact route** (sparse supports): the cost matrix between all row supports and all
+  - **exact method** (sparse supports): the cost matrix between all row supports and all
     column supports of the exact pairs is computed once (squared exact geodesics on meshes,
     one MMP solve per point of the smaller side; squared straight/periodic distances on
     grids and point clouds) and each pair is the transport LP (thesis eq. 1.1) on its
     sub-matrix (beyond :data:`SHARED_COST_ENTRIES` entries each pair computes its own, as
     a single-pair call does);
-  - **convolutional route** (Alg. 1 / eq. 3.10, debiased as the defaults are): pairs that
+  - **convolutional method** (Alg. 1 / eq. 3.10, debiased as the defaults are): pairs that
     share a heat kernel (same ``t`` and ``substeps``) run as one block.  Every solver step
     gathers the log-inputs of all active pairs into one ``n x k`` block and applies the
     kernel once (one multi-column sparse solve per substep,
@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from solvers.convolutional.common import masses_block, prepare
-from solvers.convolutional.decision import DistanceDecision, decide_distance, decide_route
+from solvers.convolutional.decision import DistanceDecision, decide_distance, decide_method
 from solvers.convolutional.distance import (
     ANDERSON_MEMORY,
     PairSolve,
@@ -84,7 +84,7 @@ LP_POINT_BYTES = 80
 
 
 def exact_threads(threads: int | None = None) -> int:
-    """Threads of the exact route: ``threads`` checked, or by default the CPUs this process
+    """Threads of the exact method: ``threads`` checked, or by default the CPUs this process
     may use, at most :data:`EXACT_THREADS`."""
     return thread_count(threads) if threads is not None else min(thread_count(),
                                                                  EXACT_THREADS)
@@ -92,7 +92,7 @@ def exact_threads(threads: int | None = None) -> int:
 
 def exact_route_bytes(row_supports, col_supports, width: int, pairs: int,
                       threads: int = EXACT_THREADS) -> int:
-    """Bytes of the exact route's row cost blocks and LPs at most, beside its ground distances
+    """Bytes of the exact method's row cost blocks and LPs at most, beside its ground distances
     (:func:`_exact_pairs`): ``row_supports``, ``col_supports``: the support sizes of the
     exact pairs' rows and columns; ``width``: columns of the ground distances (the columns'
     support points, or every point where the domain's stored all-pairs ones serve); ``pairs``:
@@ -114,7 +114,7 @@ def exact_route_bytes(row_supports, col_supports, width: int, pairs: int,
 
 
 def prefers_stored_distances(n: int, covered_rows: int, covered_cols: int) -> bool:
-    """Whether the exact route's ground distances are the domain's stored all-pairs ones
+    """Whether the exact method's ground distances are the domain's stored all-pairs ones
     (where it keeps them: ``Domain.stored_ground_distances``; ``n`` columns wide) rather
     than those between the supports (as wide as the columns' support): when the supports
     of its rows and those of its columns each cover at least half of the ``n`` points."""
@@ -138,12 +138,13 @@ class DistanceMatrixResult(SolverResult):
     ``values``: ``(n, m)`` distances (:math:`W_2^2` / Sinkhorn divergence in squared
     distance units, or :math:`W_1`), ``nan`` where not computed (cancelled);
     per pair, same shape: ``pair_iterations``, ``pair_residuals`` (each solver's measured
-    stopping quantity), ``pair_converged``, ``routes`` (``"exact"``, ``"convolutional"``,
-    ``"w1"`` or ``"identical"`` for the diagonal of a symmetric matrix, ``""`` when not
+    stopping quantity), ``pair_converged``, ``methods`` (``"exact"``, ``"convolutional"``,
+    ``"w1"``, ``"spectral"`` or ``"identical"`` for the diagonal of a symmetric matrix,
+    ``""`` when not
     computed) and ``computed``; ``symmetric``: one collection against itself;
     ``kernels``: the ``(gamma, t, substeps, debiased)`` groups solved as blocks.
     ``metric="w1"``: ``lower`` the certified lower bound of every entry (interior point:
-    of W1; spectral: of d_W^k, whose value is an upper bound of W1), ``method``
+    of W1; spectral: of d_W^k, whose value is an upper bound of W1), ``w1_method``
     (``"interior_point"`` or ``"spectral"``), ``k`` (spectral) and ``reason``: the decision
     (:func:`solvers.emd.dwk_matrix.decide_w1_method`).
     ``iterations`` (sum), ``residual`` (max) and ``converged`` (every pair computed and
@@ -154,13 +155,13 @@ class DistanceMatrixResult(SolverResult):
     pair_iterations: np.ndarray
     pair_residuals: np.ndarray
     pair_converged: np.ndarray
-    routes: np.ndarray
+    methods: np.ndarray
     computed: np.ndarray
     metric: str = "w2"
     symmetric: bool = False
     kernels: list = field(default_factory=list)
     lower: np.ndarray | None = None
-    method: str | None = None
+    w1_method: str | None = None
     k: int | None = None
     reason: str = ""
 
@@ -178,28 +179,28 @@ class _Table:
         self.iterations = np.zeros((n, m), dtype=np.int64)
         self.residuals = np.full((n, m), np.nan)
         self.converged = np.zeros((n, m), dtype=bool)
-        self.routes = np.full((n, m), "", dtype=object)
+        self.methods = np.full((n, m), "", dtype=object)
         self.symmetric, self.metric = symmetric, metric
         self.progress = progress
         self.with_fraction = progress is not None and _arity(progress) >= 3
         self.total, self.done, self.worst = max(total, 1), 0, 0.0
         self.kernels: list = []
         self.lower = np.full((n, m), np.nan) if metric == "w1" else None
-        self.method: str | None = None
+        self.w1_method: str | None = None
         self.k: int | None = None
         self.reason = ""
 
-    def put(self, i: int, j: int, value, iterations, residual, converged, route) -> None:
+    def put(self, i: int, j: int, value, iterations, residual, converged, method) -> None:
         cells = [(i, j), (j, i)] if self.symmetric and i != j else [(i, j)]
         for r, c in cells:
             self.values[r, c] = value
             self.iterations[r, c] = iterations
             self.residuals[r, c] = residual
             self.converged[r, c] = converged
-            self.routes[r, c] = route
-        if self.lower is not None and route == "identical":
+            self.methods[r, c] = method
+        if self.lower is not None and method == "identical":
             self.lower[i, j] = 0.0
-        if route == "identical":
+        if method == "identical":
             return
         self.done += 1
         if np.isfinite(residual):
@@ -211,12 +212,12 @@ class _Table:
                 self.progress(self.done, self.worst)
 
     def result(self) -> DistanceMatrixResult:
-        computed = self.routes != ""
+        computed = self.methods != ""
         return DistanceMatrixResult(
             values=self.values, pair_iterations=self.iterations,
-            pair_residuals=self.residuals, pair_converged=self.converged, routes=self.routes,
+            pair_residuals=self.residuals, pair_converged=self.converged, methods=self.methods,
             computed=computed, metric=self.metric, symmetric=self.symmetric,
-            kernels=list(self.kernels), lower=self.lower, method=self.method, k=self.k,
+            kernels=list(self.kernels), lower=self.lower, w1_method=self.w1_method, k=self.k,
             reason=self.reason, iterations=int(self.iterations.sum()),
             residual=float(np.nanmax(self.residuals)) if computed.any() else float("nan"),
             converged=bool(computed.all() and self.converged[computed].all()))
@@ -259,7 +260,6 @@ def distance_matrix(
     tol: float = 1e-5,
     max_iter: int | None = None,
     debiased: bool | None = None,
-    route: str = "auto",
     method: str = "auto",
     k: int | None = None,
     w1_options: dict | None = None,
@@ -282,9 +282,10 @@ def distance_matrix(
         ``n`` vectors; normalized here.
     others : optional second set ``(n_vertices, m)``; None: the symmetric matrix of
         ``distributions`` (pairs ``i < j`` solved and mirrored).
-    gamma, t, substeps, tol, max_iter, debiased, route : as in ``wasserstein_distance``
+    gamma, t, substeps, tol, max_iter, debiased : as in ``wasserstein_distance``
         (``"w2"`` only).
-    method : ``"w1"`` only: ``"interior_point"`` (one certified W1 per pair,
+    method : ``"w2"``: as in ``wasserstein_distance`` (``"auto"``, ``"convolutional"``,
+        ``"exact"``); ``"w1"``: ``"interior_point"`` (one certified W1 per pair,
         :func:`~solvers.emd.earth_movers_distance` with ``w1_options``), ``"spectral"``
         (the thesis' d_W^k, eq. 2.4 with the curl part in ``k`` Laplacian eigenfunctions:
         every distribution embedded once, then batched reduced problems with certified gaps,
@@ -292,7 +293,7 @@ def distance_matrix(
         slowly in ``k``: bench/results/dwk_matrix.md) or ``"auto"``: the interior point
         while its estimate fits 60 s, else spectral
         (:func:`~solvers.emd.dwk_matrix.decide_w1_method`, from the sizes alone; recorded
-        as ``method``, ``k`` and ``reason`` of the result).
+        as ``w1_method``, ``k`` and ``reason`` of the result).
     k : ``method="spectral"``: eigenfunctions of the reduced curl basis (default: the
         largest of ``(0, 5, 10, 20, 50, 100)`` estimated within 60 s,
         :func:`~solvers.emd.dwk_matrix.default_k`); given with ``"auto"``: spectral.
@@ -302,19 +303,19 @@ def distance_matrix(
     should_cancel : checked before every block step, LP and W1 solve; when it returns True
         :class:`~solvers.errors.CancelledError` is raised with ``partial``, the result so
         far (finished entries kept, the rest ``nan``).
-    threads : threads solving the exact route's LPs (default: the CPUs this process may
+    threads : threads solving the exact method's LPs (default: the CPUs this process may
         use, at most :data:`EXACT_THREADS`); the values do not depend on it.
 
     Returns
     -------
     DistanceMatrixResult(values (n, m), pair_iterations, pair_residuals, pair_converged,
-    routes, computed, iterations, residual, converged, ...).
+    methods, computed, iterations, residual, converged, ...).
     """
     if metric not in METRICS:
         raise InputError(f"metric must be one of {', '.join(map(repr, METRICS))}, got "
                          f"{metric!r}", field="metric")
-    if metric == "w2" and (method != "auto" or k is not None):
-        raise InputError("method and k choose the W1 algorithm (metric 'w1')",
+    if metric == "w2" and (method in W1_ONLY or k is not None):
+        raise InputError(f"method {method!r} and k choose the W1 algorithm (metric 'w1')",
                          field="k" if k is not None else "method")
     if should_cancel is not None and not callable(should_cancel):
         raise InputError("should_cancel must be callable", field="should_cancel")
@@ -335,7 +336,7 @@ def distance_matrix(
             error.partial = table.result()
             raise error
 
-    if symmetric and (metric == "w1" or zero_diagonal(domain, A, gamma, debiased, route)):
+    if symmetric and (metric == "w1" or zero_diagonal(domain, A, gamma, debiased, method)):
         for i in range(A.shape[1]):
             table.put(i, i, 0.0, 0, 0.0, True, "identical")
     elif symmetric:
@@ -346,14 +347,14 @@ def distance_matrix(
                    options=w1_options or {}, stop=stop)
         return table.result()
     sketch = sketch_of(domain).remembering_paths()
-    decisions = [decide_route(sketch, A[:, i], B[:, j], route=route, gamma=gamma, t=t,
+    decisions = [decide_method(sketch, A[:, i], B[:, j], method=method, gamma=gamma, t=t,
                               substeps=substeps, debiased=debiased) for i, j in pairs]
-    exact = [p for p, d in zip(pairs, decisions, strict=True) if d.route == "exact"]
+    exact = [p for p, d in zip(pairs, decisions, strict=True) if d.method == "exact"]
     if exact:
         _exact_pairs(domain, A, B, exact, table, stop, threads)
     groups: dict[tuple, list] = {}
     for p, d in zip(pairs, decisions, strict=True):
-        if d.route != "exact":
+        if d.method != "exact":
             groups.setdefault(kernel_key(d), []).append((p, d))
     for members in groups.values():
         _convolutional_pairs(domain, A, B, members, table, tol=tol, max_iter=max_iter,
@@ -361,13 +362,13 @@ def distance_matrix(
     return table.result()
 
 
-def zero_diagonal(domain, A, gamma, debiased, route) -> bool:
+def zero_diagonal(domain, A, gamma, debiased, method) -> bool:
     """Whether ``D(mu_i, mu_i) = 0`` by definition: the pair's own decision is the exact
-    route or a debiased divergence (decided on the first distribution; a numeric ``gamma``
+    method or a debiased divergence (decided on the first distribution; a numeric ``gamma``
     decides the same for every pair)."""
-    d = decide_distance(domain, A[:, 0], A[:, 0], route=route, gamma=gamma,
+    d = decide_distance(domain, A[:, 0], A[:, 0], method=method, gamma=gamma,
                         debiased=debiased)
-    return d.route == "exact" or bool(d.debiased)
+    return d.method == "exact" or bool(d.debiased)
 
 
 def kernel_key(d: DistanceDecision) -> tuple:
@@ -377,7 +378,7 @@ def kernel_key(d: DistanceDecision) -> tuple:
 
 
 def _exact_pairs(domain, A, B, pairs, table: _Table, stop, threads: int | None = None) -> None:
-    """The exact route: the ground distances between the supports of the exact pairs' rows
+    """The exact method: the ground distances between the supports of the exact pairs' rows
     and those of their columns, computed once, then one transport LP per pair on its squared
     sub-matrix, cut from its row's block (:class:`_RowBlocks`).  The LPs run in ``threads``
     threads (POT's network simplex releases the GIL; each pair's LP is the same whichever
@@ -393,9 +394,9 @@ def _exact_pairs(domain, A, B, pairs, table: _Table, stop, threads: int | None =
     for i, j in pairs:
         src, dst = row_support[i], col_support[j]
         if len(src) * len(dst) > MAX_SUPPORT_PRODUCT:
-            raise InputError(f"the exact route's LP of pair ({i}, {j}) has {len(src)} x "
+            raise InputError(f"the exact method's LP of pair ({i}, {j}) has {len(src)} x "
                              f"{len(dst)} entries, above its limit of {MAX_SUPPORT_PRODUCT}",
-                             field="route")
+                             field="method")
     stop("before the cost matrix")
     blocks = _RowBlocks(*_support_distances(domain, rows, cols, stop))
 
@@ -637,6 +638,8 @@ def _w1_pairs(domain, A, B, pairs, table: _Table, options: dict, stop) -> None:
 
 
 SPECTRAL_OPTIONS = ("tol", "max_iter", "harmonic")
+#: Values of ``method`` that apply to ``metric="w1"`` only.
+W1_ONLY = ("interior_point", "spectral")
 
 
 def _w1_matrix(domain, A, B, pairs, table: _Table, *, method: str, k, options: dict,
@@ -650,7 +653,7 @@ def _w1_matrix(domain, A, B, pairs, table: _Table, *, method: str, k, options: d
     n_faces = int(getattr(domain, "n_faces", 2 * domain.n))
     count = A.shape[1] + (0 if B is None else B.shape[1])
     decision = decide_w1_method(domain.n, n_faces, count, len(pairs), method, k)
-    table.method, table.k, table.reason = decision.method, decision.k, decision.reason
+    table.w1_method, table.k, table.reason = decision.method, decision.k, decision.reason
     if decision.method == "interior_point":
         _w1_pairs(domain, A, A if B is None else B, pairs, table, options, stop)
         return
@@ -662,7 +665,7 @@ def _w1_matrix(domain, A, B, pairs, table: _Table, *, method: str, k, options: d
 
 
 def _spectral_pairs(domain, A, B, table: _Table, k: int, options: dict, stop) -> None:
-    """d_W^k of every pair into ``table`` (route ``"spectral"``, residual = the certified
+    """d_W^k of every pair into ``table`` (method ``"spectral"``, residual = the certified
     gap), progress passed through, cancellation with the finished row blocks."""
     from solvers.emd.dwk_matrix import dwk_matrix
 
@@ -694,4 +697,4 @@ def _fill_spectral(table: _Table, res) -> None:
     table.iterations[done] = res.pair_iterations[done]
     table.residuals[done] = res.gaps[done]
     table.converged[done] = res.gaps[done] <= res.tol
-    table.routes[done] = "spectral"
+    table.methods[done] = "spectral"

@@ -30,9 +30,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from solvers.emd.beckmann import (
-    ALGORITHMS,
     IPM_MAX_ITER,
     IPM_PATIENCE,
+    METHODS,
     EMDResult,
     check_face_weights,
     check_mesh,
@@ -132,10 +132,10 @@ def _matrix_ipm(mesh, m0, m1, matrices, tol, max_iter, monitor) -> EMDResult:
     return EMDResult(value=value, flow=flow, potential=potential,
                      lower_bound=out.lower_bound, iterations=out.iterations,
                      primal_residual=out.feasibility / scale, dual_residual=0.0,
-                     residual=out.gap, converged=out.converged, algorithm="ipm", basis="flow")
+                     residual=out.gap, converged=out.converged, method="ipm", basis="flow")
 
 
-def anisotropic_w1(mesh, mu0, mu1, face_weights, *, algorithm: str = "auto",
+def anisotropic_w1(mesh, mu0, mu1, face_weights, *, method: str = "auto",
                    basis: str = "auto", k: int | None = None, tol: float | None = None,
                    max_iter: int | None = None, progress=None,
                    should_cancel=None) -> EMDResult:
@@ -147,7 +147,7 @@ def anisotropic_w1(mesh, mu0, mu1, face_weights, *, algorithm: str = "auto",
     mu0, mu1 : (V,) masses (normalized to sum 1).
     face_weights : (F,) positive scalars or (F, 3, 3) matrices (each injective on its face's
         tangent plane).
-    algorithm, basis : ``"auto"``: the interior point over all flows (matrix weights by
+    method, basis : ``"auto"``: the interior point over all flows (matrix weights by
         the change of variables of the module docstring); otherwise as
         :func:`~solvers.emd.earth_movers_distance` (``"admm"``/``"weiszfeld"`` in the curl
         basis ``"full"`` or a ``"spectral"`` one, an overestimate).
@@ -161,13 +161,13 @@ def anisotropic_w1(mesh, mu0, mu1, face_weights, *, algorithm: str = "auto",
     weights = check_face_weights(face_weights, mesh.n_faces)
     if weights is None:
         raise InputError("face_weights are required", field="face_weights")
-    if algorithm not in ALGORITHMS:
-        raise InputError(f"algorithm must be one of {ALGORITHMS}, got {algorithm!r}",
-                         field="algorithm")
+    if method not in METHODS:
+        raise InputError(f"method must be one of {METHODS}, got {method!r}",
+                         field="method")
     matrix = weights.ndim == 3
-    over_all_flows = algorithm in ("auto", "ipm") and basis in ("auto", "flow")
+    over_all_flows = method in ("auto", "ipm") and basis in ("auto", "flow")
     if not (matrix and over_all_flows):
-        return earth_movers_distance(mesh, mu0, mu1, algorithm=algorithm, basis=basis, k=k,
+        return earth_movers_distance(mesh, mu0, mu1, method=method, basis=basis, k=k,
                                      face_weights=weights, tol=tol, max_iter=max_iter,
                                      progress=progress, should_cancel=should_cancel)
     m0, m1 = check_pair(mesh, mu0, mu1)

@@ -23,7 +23,7 @@ field from a basis ``Ψ`` (:mod:`solvers.emd.bases`), and we minimize
 
 ``basis="flow"`` optimizes over all piecewise-constant flows (no basis; the ADMM
 J-update is a projection, i.e. one Poisson solve): the unrestricted discrete
-problem, a reference below the curl-basis value.  Over all flows the default algorithm is
+problem, a reference below the curl-basis value.  Over all flows the default method is
 
 * **a primal-dual interior-point method** (:mod:`solvers.emd.interior_point`): the same
   problem as a second-order cone program whose Newton systems are vertex-sized weighted
@@ -61,9 +61,9 @@ from solvers.linalg import factorize_spd
 from solvers.monitor import Monitor, SolverResult
 from solvers.validation import normalize_masses
 
-ALGORITHMS = ("auto", "ipm", "admm", "weiszfeld")
+METHODS = ("auto", "ipm", "admm", "weiszfeld")
 BASES = ("auto", "full", "spectral", "flow")
-# Default tolerances per (algorithm, basis); others 1e-4.  "ipm": certified relative gap.
+# Default tolerances per (method, basis); others 1e-4.  "ipm": certified relative gap.
 # The ADMM over all flows is within 1 % above its optimum at relative residuals of 1e-2, but
 # 1e-4 of the optimum takes it thousands of iterations (bench/results/w1_accuracy.md).
 DEFAULT_TOL = {("admm", "flow"): 1e-2, ("ipm", "flow"): 1e-4}
@@ -99,7 +99,7 @@ class EMDResult(SolverResult):
     lower_bound: float
     primal_residual: float
     dual_residual: float
-    algorithm: str
+    method: str
     basis: str
     beta: float = float("nan")
 
@@ -195,23 +195,23 @@ ADMM_PATIENCE = 2000
 WEISZFELD_PATIENCE = 50
 
 
-def resolve_method(algorithm: str, basis: str, matrix: bool = False) -> tuple[str, str]:
-    """``(algorithm, basis)`` that ``earth_movers_distance`` runs for these arguments
+def resolve_method(method: str, basis: str, matrix: bool = False) -> tuple[str, str]:
+    """``(method, basis)`` that ``earth_movers_distance`` runs for these arguments
     (``matrix``: matrix ``face_weights``): ``"auto"`` resolved, impossible pairs refused."""
-    if algorithm not in ALGORITHMS:
-        raise InputError(f"algorithm must be one of {ALGORITHMS}, got {algorithm!r}",
-                         field="algorithm")
+    if method not in METHODS:
+        raise InputError(f"method must be one of {METHODS}, got {method!r}",
+                         field="method")
     if basis == "auto":
         basis = "full" if matrix else "flow"
-    if algorithm == "auto":
-        algorithm = "ipm" if basis == "flow" and not matrix else "admm"
-    if algorithm == "ipm" and (basis != "flow" or matrix):
-        raise InputError("algorithm='ipm' solves over all flows (basis 'flow' or 'auto') with "
-                         "scalar face weights", field="algorithm")
-    return algorithm, basis
+    if method == "auto":
+        method = "ipm" if basis == "flow" and not matrix else "admm"
+    if method == "ipm" and (basis != "flow" or matrix):
+        raise InputError("method='ipm' solves over all flows (basis 'flow' or 'auto') with "
+                         "scalar face weights", field="method")
+    return method, basis
 
 
-def earth_movers_distance(mesh, mu0, mu1, *, algorithm: str = "auto", basis: str = "auto",
+def earth_movers_distance(mesh, mu0, mu1, *, method: str = "auto", basis: str = "auto",
                           k: int | None = None, harmonic: bool = True, face_weights=None,
                           tol: float | None = None, max_iter: int | None = None,
                           beta: float | None = None, progress=None,
@@ -225,7 +225,7 @@ def earth_movers_distance(mesh, mu0, mu1, *, algorithm: str = "auto", basis: str
     ----------
     mesh : TriangleMesh.
     mu0, mu1 : (V,) masses (non-negative, normalized to sum 1).
-    algorithm : ``"auto"`` (default: ``"ipm"`` over all flows with scalar or no face
+    method : ``"auto"`` (default: ``"ipm"`` over all flows with scalar or no face
         weights, else ``"admm"``), ``"ipm"`` (primal-dual interior point, all flows only:
         :mod:`solvers.emd.interior_point`), ``"admm"`` (Fig. 2.5) or ``"weiszfeld"``
         (Fig. 2.4).
@@ -259,29 +259,29 @@ def earth_movers_distance(mesh, mu0, mu1, *, algorithm: str = "auto", basis: str
     EMDResult (value, flow (F, 3), potential (V,), lower_bound, iterations,
     primal_residual, dual_residual, converged).
     """
-    if algorithm not in ALGORITHMS:
-        raise InputError(f"algorithm must be one of {ALGORITHMS}, got {algorithm!r}",
-                         field="algorithm")
+    if method not in METHODS:
+        raise InputError(f"method must be one of {METHODS}, got {method!r}",
+                         field="method")
     ops = check_mesh(mesh)
     m0, m1 = check_pair(mesh, mu0, mu1)
     weights = check_face_weights(face_weights, ops.n_faces)
     matrix = weights is not None and weights.ndim == 3
-    algorithm, basis = resolve_method(algorithm, basis, matrix)
+    method, basis = resolve_method(method, basis, matrix)
     if tol is None:
-        tol = DEFAULT_TOL.get((algorithm, basis), 1e-4)
+        tol = DEFAULT_TOL.get((method, basis), 1e-4)
     if not (np.isfinite(tol) and tol > 0):
         raise InputError(f"tol must be positive, got {tol}", field="tol")
     if basis == "flow" and weights is not None and weights.ndim == 3:
         raise InputError("matrix face_weights need basis='full' or 'spectral'",
                          field="face_weights")
     flow_basis = make_basis(ops, basis, k, harmonic)
-    patience = {"ipm": IPM_PATIENCE, "admm": ADMM_PATIENCE}.get(algorithm, WEISZFELD_PATIENCE)
+    patience = {"ipm": IPM_PATIENCE, "admm": ADMM_PATIENCE}.get(method, WEISZFELD_PATIENCE)
     monitor = Monitor(progress, should_cancel, tol=tol, patience=patience)
     _, v = ops.particular_flow(m1 - m0)
-    if algorithm == "ipm":
+    if method == "ipm":
         return _ipm(ops, v, m0, m1, weights, tol,
                     IPM_MAX_ITER if max_iter is None else int(max_iter), monitor)
-    if algorithm == "admm":
+    if method == "admm":
         max_iter = 20000 if max_iter is None else int(max_iter)
         out = _admm(ops, flow_basis, v, m0 - m1, weights, tol, max_iter, beta, monitor)
     else:
@@ -292,7 +292,7 @@ def earth_movers_distance(mesh, mu0, mu1, *, algorithm: str = "auto", basis: str
     return EMDResult(value=_cost(ops, flow, weights), flow=flow, potential=potential,
                      lower_bound=lower, iterations=iterations, primal_residual=r,
                      dual_residual=s, residual=max(r, s), converged=bool(r <= tol and s <= tol),
-                     algorithm=algorithm,
+                     method=method,
                      basis=basis, beta=beta_final)
 
 
@@ -312,7 +312,7 @@ def _ipm(ops, v, m0, m1, weights, tol, max_iter, monitor) -> EMDResult:
     return EMDResult(value=_cost(ops, flow, weights), flow=flow, potential=potential,
                      lower_bound=out.lower_bound, iterations=out.iterations,
                      primal_residual=out.feasibility / scale, dual_residual=0.0,
-                     residual=out.gap, converged=out.converged, algorithm="ipm",
+                     residual=out.gap, converged=out.converged, method="ipm",
                      basis="flow")
 
 

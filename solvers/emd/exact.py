@@ -25,7 +25,7 @@ iterative ADMM solver of :mod:`solvers.emd`, and lets the same machinery solve t
 convex W1 problems of §2.7:
 
 * :func:`w1_barycenter` – eq. (2.7), :math:`\min_\rho \sum_i \alpha_i W_1(\rho_i, \rho)^2`
-  (here as the reference route ``algorithm="socp"``; the default route is the vertex-sized
+  (here as the reference method ``method="socp"``; the default method is the vertex-sized
   interior point of :mod:`solvers.emd.interior_point_barycenter`, any mesh size),
   and :func:`w1_median`, the unsquared :math:`\sum_i \alpha_i W_1` (a geometric median);
 * :func:`w1_multistep_paths` – not in the thesis: a sequence of distributions from a start
@@ -53,10 +53,10 @@ from solvers.monitor import Monitor, SolverResult
 from solvers.validation import check_masses, check_weights, normalized_columns
 
 MAX_VERTICES = 5000
-# The eq. 2.7 interior point (algorithm "ipm"): certified relative gap and iteration cap.
+# The eq. 2.7 interior point (method "ipm"): certified relative gap and iteration cap.
 IPM_TOL = 1e-6
 IPM_MAX_ITER = 100
-BARYCENTER_ALGORITHMS = ("auto", "ipm", "socp")
+BARYCENTER_METHODS = ("auto", "ipm", "socp")
 # Coupled programs (barycenters, paths) factor much worse than k separate ones: cap
 # vertices x (flow blocks + distribution blocks). Single-W1 timings are in
 # bench/results/w1_exact.md; a coupled program costs far more than its blocks solved apart.
@@ -90,7 +90,7 @@ class W1BarycenterResult(SolverResult):
     or :math:`\sum_i \alpha_i W_1`) and the distances ``(k,)`` from the result to each
     input, with their flows ``(k, F, 3)`` (``J_i`` carries ``masses`` to input ``i``);
     ``residual`` is the largest violation of the flows' divergence constraints and
-    ``algorithm`` the solver that ran (``"ipm"`` adds a certified ``lower_bound`` and the
+    ``method`` the solver that ran (``"ipm"`` adds a certified ``lower_bound`` and the
     relative ``gap``)."""
 
     masses: np.ndarray
@@ -99,7 +99,7 @@ class W1BarycenterResult(SolverResult):
     flows: np.ndarray
     status: str
     solve_time: float
-    algorithm: str = "socp"
+    method: str = "socp"
     lower_bound: float = float("nan")  # "ipm": certified lower bound of the objective
     gap: float = float("nan")  # "ipm": (value - lower_bound) / value
 
@@ -453,7 +453,7 @@ def w1_barycenter(
     weights=None,
     *,
     face_weights=None,
-    algorithm: str = "auto",
+    method: str = "auto",
     tol: float | None = None,
     max_iter: int | None = None,
     max_vertices: int = MAX_VERTICES,
@@ -478,7 +478,7 @@ def w1_barycenter(
     mus : (V, k) masses, one column per input :math:`\rho_i` (normalized per column).
     weights : (k,) non-negative weights :math:`\alpha` (normalized to sum 1), default uniform.
     face_weights : as in :func:`beckmann_w1_exact`.
-    algorithm : ``"auto"`` (``"ipm"`` unless a face weight is infinite), ``"ipm"`` (the
+    method : ``"auto"`` (``"ipm"`` unless a face weight is infinite), ``"ipm"`` (the
         primal-dual interior point with vertex-sized Newton systems of
         :mod:`solvers.emd.interior_point_barycenter`, any mesh size; ``tol`` is the
         certified relative duality gap, default ``IPM_TOL``) or ``"socp"`` (Clarabel on the
@@ -495,16 +495,16 @@ def w1_barycenter(
     ``distances`` (k,) the W1 of each input's flow, ``flows`` (k, F, 3), and for ``"ipm"``
     the certified ``lower_bound`` and relative ``gap``.
     """
-    if algorithm not in BARYCENTER_ALGORITHMS:
-        raise InputError(f"algorithm must be one of {BARYCENTER_ALGORITHMS}, got "
-                         f"{algorithm!r}", field="algorithm")
+    if method not in BARYCENTER_METHODS:
+        raise InputError(f"method must be one of {BARYCENTER_METHODS}, got "
+                         f"{method!r}", field="method")
     fw = _face_weights(mesh, face_weights) if isinstance(mesh, TriangleMesh) else None
-    if algorithm == "auto":
-        algorithm = "socp" if fw is not None and not np.all(np.isfinite(fw)) else "ipm"
-    if algorithm == "ipm":
+    if method == "auto":
+        method = "socp" if fw is not None and not np.all(np.isfinite(fw)) else "ipm"
+    if method == "ipm":
         if fw is not None and not np.all(np.isfinite(fw)):
-            raise InputError("algorithm='ipm' needs finite face_weights; use 'socp' for walls",
-                             field="algorithm")
+            raise InputError("method='ipm' needs finite face_weights; use 'socp' for walls",
+                             field="method")
         return _barycenter_ipm(mesh, mus, weights, fw, IPM_TOL if tol is None else float(tol),
                                IPM_MAX_ITER if max_iter is None else int(max_iter), progress,
                                should_cancel)
@@ -575,7 +575,7 @@ def _barycenter_ipm(mesh, mus, weights, fw, tol, max_iter, progress,
         masses=out["masses"], value=out["value"], distances=out["distances"],
         flows=out["flows"], iterations=out["iterations"], residual=out["feasibility"],
         converged=out["converged"], status="Solved" if out["converged"] else "NotConverged",
-        solve_time=time.perf_counter() - start, algorithm="ipm",
+        solve_time=time.perf_counter() - start, method="ipm",
         lower_bound=out["lower_bound"], gap=out["gap"])
 
 

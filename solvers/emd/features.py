@@ -61,7 +61,7 @@ def _voronoi_cells(mesh, feats: np.ndarray) -> np.ndarray:
 
 
 def distance_to_features(mesh, feature_vertices, *, feature_weights=None, face_weights=None,
-                         basis: str = "full", algorithm: str = "admm", tol: float = 1e-4,
+                         basis: str = "full", method: str = "admm", tol: float = 1e-4,
                          max_iter: int | None = None, progress=None,
                          should_cancel=None) -> FeatureDistanceResult:
     r"""Distance from every vertex to a feature set via W1(uniform, feature) (§2.7).
@@ -74,7 +74,7 @@ def distance_to_features(mesh, feature_vertices, *, feature_weights=None, face_w
         the area of each feature vertex's Voronoi cell).
     face_weights : optional (F,) or (F, 3, 3) anisotropic cost, see
         :func:`~solvers.emd.earth_movers_distance`.
-    basis, algorithm, tol, max_iter, progress, should_cancel : as for the W1 solve.
+    basis, method, tol, max_iter, progress, should_cancel : as for the W1 solve.
 
     Returns
     -------
@@ -104,7 +104,7 @@ def distance_to_features(mesh, feature_vertices, *, feature_weights=None, face_w
         labels = mesh.component_labels
         comp_nu = mesh.component_masses(nu / nu.sum())
         uniform = uniform * (comp_nu / np.maximum(mesh.component_masses(uniform), 1e-300))[labels]
-    result = earth_movers_distance(mesh, uniform, nu, algorithm=algorithm, basis=basis,
+    result = earth_movers_distance(mesh, uniform, nu, method=method, basis=basis,
                                    face_weights=face_weights, tol=tol, max_iter=max_iter,
                                    progress=progress, should_cancel=should_cancel)
     u = result.potential

@@ -75,7 +75,7 @@ def fuzzy_geodesic(mesh, a: int, b: int, *, radius: float | None = None, tol: fl
     if not (np.isfinite(r) and r > 0):
         raise InputError("radius must be positive", field="radius")
     mu0, mu1 = geodesic_bump(mesh, a, r), geodesic_bump(mesh, b, r)
-    res = earth_movers_distance(mesh, mu0, mu1, algorithm="ipm", tol=tol, max_iter=max_iter,
+    res = earth_movers_distance(mesh, mu0, mu1, method="ipm", tol=tol, max_iter=max_iter,
                                 progress=progress, should_cancel=should_cancel)
     face_norms = np.linalg.norm(res.flow, axis=1)
     fa = np.repeat(mesh.face_areas, 3)

@@ -97,7 +97,7 @@ def build_green_matrix(ops, check=None, max_vertices: int | None = None) -> Gree
     if n > limit:
         raise InputError(
             f"the dense Green's matrix needs {4 * n * n / 1e9:.1f} GB for {n} vertices; the "
-            f"limit is {limit} vertices (use route='solve')", field="route")
+            f"limit is {limit} vertices (use method='solve')", field="method")
     from solvers.emd import _green_kernels as kernels
 
     start = time.perf_counter()

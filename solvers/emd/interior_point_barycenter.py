@@ -516,7 +516,7 @@ def _zero_weight_distance(mesh, rho, target, face_weights, tol, max_iter, report
     its convergence into ``report``."""
     from solvers.emd.beckmann import earth_movers_distance
 
-    res = earth_movers_distance(mesh, rho, target, algorithm="ipm", face_weights=face_weights,
+    res = earth_movers_distance(mesh, rho, target, method="ipm", face_weights=face_weights,
                                 tol=tol, max_iter=max_iter)
     report["converged"] = report["converged"] and bool(res.converged)
     report["feasibility"] = max(report["feasibility"], float(res.primal_residual))

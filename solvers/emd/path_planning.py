@@ -64,7 +64,7 @@ class PathPlanningResult(SolverResult):
     hodge: HodgeDecomposition
     status: str
     solve_time: float
-    algorithm: str
+    method: str
 
 
 def _target_mask(mesh, targets, m0) -> np.ndarray:
@@ -98,7 +98,7 @@ def check_targets(targets, n: int, labels, m0, field: str = "targets") -> np.nda
     return mask
 
 
-ALGORITHMS = ("auto", "ipm", "socp")
+METHODS = ("auto", "ipm", "socp")
 # Interior-point defaults: certified relative gap and iteration cap.
 IPM_TOL = 1e-6
 IPM_MAX_ITER = 100
@@ -111,7 +111,7 @@ def w1_path_planning(
     *,
     epsilon: float = 0.0,
     face_weights=None,
-    algorithm: str = "auto",
+    method: str = "auto",
     tol: float | None = None,
     max_iter: int | None = None,
     max_vertices: int = MAX_VERTICES,
@@ -130,7 +130,7 @@ def w1_path_planning(
     targets : vertex indices of the exits S, or a (V,) boolean mask.
     epsilon : weight ε >= 0 of the congestion term ∫ρ1² (ρ1 = m1 / A per vertex).
     face_weights : optional (F,) travel cost per unit length (``np.inf`` = wall).
-    algorithm : ``"auto"`` (``"ipm"`` unless a face weight is infinite), ``"ipm"`` (the
+    method : ``"auto"`` (``"ipm"`` unless a face weight is infinite), ``"ipm"`` (the
         primal-dual interior point with vertex-sized Newton systems of
         :mod:`solvers.emd.interior_point_exits`, any mesh size; ``tol`` is the certified
         relative duality gap, default ``IPM_TOL``) or ``"socp"`` (Clarabel on the whole
@@ -142,11 +142,11 @@ def w1_path_planning(
     Returns
     -------
     PathPlanningResult (value, objective, target_masses (V,), flow (F, 3), potential (V,),
-    hodge, algorithm).
+    hodge, method).
     """
-    if algorithm not in ALGORITHMS:
-        raise InputError(f"algorithm must be one of {ALGORITHMS}, got {algorithm!r}",
-                         field="algorithm")
+    if method not in METHODS:
+        raise InputError(f"method must be one of {METHODS}, got {method!r}",
+                         field="method")
     if not isinstance(mesh, TriangleMesh):
         raise UnsupportedDomainError("path planning needs a TriangleMesh domain",
                                      field="domain")
@@ -158,14 +158,14 @@ def w1_path_planning(
     if not (np.isfinite(eps) and eps >= 0):
         raise InputError("epsilon must be a finite number >= 0", field="epsilon")
     fw = _face_weights(mesh, face_weights)
-    if algorithm == "auto":
-        algorithm = "ipm" if np.all(np.isfinite(fw)) else "socp"
-    if algorithm == "ipm" and not np.all(np.isfinite(fw)):
-        raise InputError("algorithm='ipm' needs finite face_weights; use 'socp' for walls",
-                         field="algorithm")
+    if method == "auto":
+        method = "ipm" if np.all(np.isfinite(fw)) else "socp"
+    if method == "ipm" and not np.all(np.isfinite(fw)):
+        raise InputError("method='ipm' needs finite face_weights; use 'socp' for walls",
+                         field="method")
     Monitor(progress, should_cancel).check_cancel("before the solve")
-    solve = _solve_ipm if algorithm == "ipm" else _solve_socp
-    if algorithm == "socp":
+    solve = _solve_ipm if method == "ipm" else _solve_socp
+    if method == "socp":
         _check_mesh(mesh, max_vertices)
     out = solve(mesh, m0, mask, eps, fw, tol, max_iter, time_limit, progress, should_cancel)
     target = out["target"]
@@ -182,7 +182,7 @@ def w1_path_planning(
         converged=out["converged"],
         status=out["status"],
         solve_time=out["solve_time"],
-        algorithm=algorithm,
+        method=method,
     )
 
 

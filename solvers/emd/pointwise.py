@@ -13,10 +13,10 @@ with ``φ_i`` the first ``k`` Laplacian eigenfunctions (the truncated curl basis
 plus the ``2g`` harmonic fields for ``k > 0`` on surfaces with handles).
 
 * ``k = 0`` (the Green's-function form): no optimization, one pass over the faces per
-  target.  ``route="green"`` reads ``G_x - G_y`` from the dense Green's matrix ``L⁺``
+  target.  ``method="green"`` reads ``G_x - G_y`` from the dense Green's matrix ``L⁺``
   of the mesh (:mod:`solvers.emd.green`: built once per mesh with ``V`` unit Poisson
   solves, cached on the mesh operators, 4·V² bytes, float32) and runs a compiled
-  parallel face pass over all targets; ``route="solve"`` does one Poisson solve per
+  parallel face pass over all targets; ``method="solve"`` does one Poisson solve per
   target (``L z = e_x - e_y``, batched) and a sparse-gradient face pass (single
   precision).  Measured against a float64 evaluation: ≤ 1e-7 relative on average
   (solves: ~1e-6), up to 5e-5 (solves: 1.3e-4) at a nearest neighbour of the source
@@ -45,7 +45,7 @@ from solvers.emd.green import GREEN_MAX_VERTICES, dw0_from_green
 from solvers.errors import InputError
 from solvers.monitor import Monitor, SolverResult
 
-ROUTES = ("auto", "green", "solve")
+METHODS = ("auto", "green", "solve")
 
 # Cost model of the estimate (seconds on 2 cores; fit in bench/results/dwk.md): a Poisson
 # solve per target and vertex; per ADMM iteration and target a fused pass over the 2F
@@ -107,7 +107,7 @@ def _split_gradient(ops) -> list:
 
 def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic: bool = True,
                         tol: float = DWK_TOL, max_iter: int = 2000, block: int = 512,
-                        route: str = "auto", green_max_vertices: int = GREEN_MAX_VERTICES,
+                        method: str = "auto", green_max_vertices: int = GREEN_MAX_VERTICES,
                         max_seconds: float | None = MAX_ESTIMATED_SECONDS,
                         progress=None, should_cancel=None) -> PointwiseDistanceResult:
     r"""``d_W^k(source, y)`` for all vertices ``y`` (or ``targets``), thesis §2.5.
@@ -120,15 +120,15 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
     targets : optional vertex indices (default: all vertices).
     tol, max_iter : ``k > 0``: each target stops at a certified relative duality gap
         ``tol`` (:mod:`solvers.emd.dwk`), or after ``max_iter`` ADMM iterations.
-    block : targets per multi-RHS solve (``route="solve"`` and ``k > 0``).
-    route : ``k = 0`` only. ``"green"``: dense Green's matrix + compiled face pass (the
+    block : targets per multi-RHS solve (``method="solve"`` and ``k > 0``).
+    method : ``k = 0`` only. ``"green"``: dense Green's matrix + compiled face pass (the
         matrix, ``4 V²`` bytes, is built on first use and kept in the mesh's operator
         store; build and query times in bench/results/emd.md); ``"solve"``: blocked Poisson solves
         per call (no memory beyond a block); ``"auto"``: ``"green"`` when the matrix is
         already built, or when the mesh has at most ``green_max_vertices`` vertices and
         at least a quarter of them are targets; ``"solve"`` otherwise.
-    green_max_vertices : largest mesh for the dense matrix (``route="green"`` raises
-        InputError(field="route") above it); default :data:`GREEN_MAX_VERTICES` (20000,
+    green_max_vertices : largest mesh for the dense matrix (``method="green"`` raises
+        InputError(field="method") above it); default :data:`GREEN_MAX_VERTICES` (20000,
         1.6 GB).
     max_seconds : runs estimated above this (:func:`estimate_seconds`) are refused with an
         InputError naming the limit and the faster option (None: no limit).
@@ -141,10 +141,10 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
     PointwiseDistanceResult with ``distances`` (len(targets),) — (V,) by default.
     """
     ops = check_mesh(mesh)
-    source, k, targets = _check_inputs(ops, source, k, targets, route)
+    source, k, targets = _check_inputs(ops, source, k, targets, method)
     monitor = Monitor(progress, should_cancel, tol=tol, patience=ADMM_PATIENCE)
-    green = k == 0 and route != "solve" and (
-        route == "green" or ops.has_green_matrix
+    green = k == 0 and method != "solve" and (
+        method == "green" or ops.has_green_matrix
         or (mesh.n <= green_max_vertices and 4 * len(targets) >= mesh.n))
     check_cost(mesh.n, ops.n_faces, k, len(targets), green, max_seconds)
     if green:
@@ -156,7 +156,7 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
 
 def estimate_seconds(n_vertices: int, n_faces: int, k: int, n_targets: int,
                      green: bool) -> float:
-    """Estimated seconds of :func:`pointwise_distances` (``green``: the dense route; its
+    """Estimated seconds of :func:`pointwise_distances` (``green``: the dense method; its
     one-time build is ``n_vertices`` solves, then a face pass per target)."""
     solves = n_targets * _SOLVE_SECONDS * n_vertices
     if k == 0:
@@ -180,7 +180,7 @@ def check_cost(n_vertices: int, n_faces: int, k: int, n_targets: int, green: boo
             field = "k"
         else:
             hint = (f"pass fewer targets (about {max(int(n_targets * max_seconds / est), 1)} "
-                    f"fit), or allow the dense Green's route above {GREEN_MAX_VERTICES} "
+                    f"fit), or allow the dense Green's method above {GREEN_MAX_VERTICES} "
                     f"vertices (green_max_vertices; {4 * n_vertices ** 2 / 1e9:.1f} GB)")
             field = "targets"
         raise InputError(f"d_W^{k} to {n_targets} targets on {n_vertices} vertices is "
@@ -189,7 +189,7 @@ def check_cost(n_vertices: int, n_faces: int, k: int, n_targets: int, green: boo
     return est
 
 
-def _check_inputs(ops, source, k, targets, route) -> tuple[int, int, np.ndarray]:
+def _check_inputs(ops, source, k, targets, method) -> tuple[int, int, np.ndarray]:
     """Validated ``(source, k, targets)``; targets must share the source's component."""
     n = ops.n_vertices
     if not (isinstance(source, (int, np.integer)) and 0 <= int(source) < n):
@@ -205,10 +205,10 @@ def _check_inputs(ops, source, k, targets, route) -> tuple[int, int, np.ndarray]
         if targets.ndim != 1 or not np.issubdtype(targets.dtype, np.integer) or (
                 len(targets) and (targets.min() < 0 or targets.max() >= n)):
             raise InputError(f"targets must be vertex indices in [0, {n - 1}]", field="targets")
-    if route not in ROUTES:
-        raise InputError(f"route must be one of {ROUTES}, got {route!r}", field="route")
-    if route == "green" and k > 0:
-        raise InputError("route='green' evaluates d_W^0 only (k = 0)", field="route")
+    if method not in METHODS:
+        raise InputError(f"method must be one of {METHODS}, got {method!r}", field="method")
+    if method == "green" and k > 0:
+        raise InputError("method='green' evaluates d_W^0 only (k = 0)", field="method")
     labels = ops.labels
     other = targets[labels[targets] != labels[source]]
     if len(other):

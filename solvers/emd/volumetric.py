@@ -49,7 +49,7 @@ class VolumetricDistanceResult(SolverResult):
     weights_x: np.ndarray
     weights_y: np.ndarray
     potential: np.ndarray
-    algorithm: str = "exact"
+    method: str = "exact"
 
 
 @dataclass
@@ -207,20 +207,20 @@ def winding_number(mesh: TriangleMesh, points, *, units: str = "mesh") -> np.nda
 # ---------------------------------------------------------------------------
 # distances and paths
 # ---------------------------------------------------------------------------
-def _kr_distance(mesh, difference, algorithm, tol, max_iter, max_vertices, basis="flow"):
+def _kr_distance(mesh, difference, method, tol, max_iter, max_vertices, basis="flow"):
     """(value, potential, iterations, residual, converged) of ||difference||_KR."""
-    if algorithm == "exact":
+    if method == "exact":
         tol = 1e-8 if tol is None else tol
         res = kantorovich_rubinstein_norm(mesh, difference, tol=tol, max_iter=max_iter or 200,
                                           max_vertices=max_vertices)
         return res.value, res.potential, res.iterations, res.residual, res.converged
-    if algorithm == "admm":
+    if method == "admm":
         pos = np.clip(difference, 0.0, None)
         neg = np.clip(-difference, 0.0, None)
         mass = pos.sum()
         if mass <= 0:
             return 0.0, np.zeros(mesh.n), 0, 0.0, True
-        kwargs = {"algorithm": "admm", "basis": basis}
+        kwargs = {"method": "admm", "basis": basis}
         if tol is not None:
             kwargs["tol"] = tol
         if max_iter is not None:
@@ -228,7 +228,7 @@ def _kr_distance(mesh, difference, algorithm, tol, max_iter, max_vertices, basis
         res = earth_movers_distance(mesh, pos / mass, neg / mass, **kwargs)
         return (mass * float(res.value), np.asarray(res.potential), int(res.iterations),
                 float(res.residual), bool(res.converged))
-    raise InputError(f"algorithm must be 'exact' or 'admm', got {algorithm!r}", field="algorithm")
+    raise InputError(f"method must be 'exact' or 'admm', got {method!r}", field="method")
 
 
 def volumetric_distance(
@@ -236,7 +236,7 @@ def volumetric_distance(
     x,
     y,
     *,
-    algorithm: str = "exact",
+    method: str = "exact",
     basis: str = "flow",
     units: str = "mesh",
     tol: float | None = None,
@@ -246,7 +246,7 @@ def volumetric_distance(
     r"""Volumetric W1 distance between two points in space (thesis §2.6).
 
     :math:`d(x, y) = \lVert w(x) - w(y)\rVert_{KR}` with :math:`w` the mean value
-    coordinates on the closed boundary mesh.  ``algorithm="exact"`` solves the Beckmann
+    coordinates on the closed boundary mesh.  ``method="exact"`` solves the Beckmann
     SOCP (:mod:`solvers.emd.exact`, at most ``max_vertices``); ``"admm"`` uses
     :func:`solvers.emd.earth_movers_distance` on the positive and negative parts, with
     its flow ``basis`` (default ``"flow"``: all piecewise-constant flows, the same
@@ -260,11 +260,11 @@ def volumetric_distance(
         raise InputError("x and y must be single points (3,)", field="x")
     W = mean_value_coordinates(mesh, pts)
     value, potential, iterations, residual, converged = _kr_distance(
-        mesh, W[0] - W[1], algorithm, tol, max_iter, max_vertices, basis)
+        mesh, W[0] - W[1], method, tol, max_iter, max_vertices, basis)
     return VolumetricDistanceResult(value=value, weights_x=W[0], weights_y=W[1],
                                     potential=potential, iterations=iterations,
                                     residual=residual, converged=converged,
-                                    algorithm=algorithm)
+                                    method=method)
 
 
 def volumetric_distances(
@@ -272,7 +272,7 @@ def volumetric_distances(
     source,
     points,
     *,
-    algorithm: str = "exact",
+    method: str = "exact",
     basis: str = "flow",
     units: str = "mesh",
     tol: float | None = None,
@@ -299,7 +299,7 @@ def volumetric_distances(
     monitor = Monitor(progress, should_cancel)
     for j in range(len(pts)):
         monitor.check_cancel(f"before point {j}")
-        value, _, its, res, ok = _kr_distance(mesh, w_src - W[j], algorithm, tol, max_iter,
+        value, _, its, res, ok = _kr_distance(mesh, w_src - W[j], method, tol, max_iter,
                                               max_vertices, basis)
         out[j] = value
         iterations += its
@@ -320,7 +320,7 @@ def volumetric_path(
     *,
     step: float | None = None,
     max_iter: int = 100,
-    algorithm: str = "exact",
+    method: str = "exact",
     basis: str = "flow",
     units: str = "mesh",
     tol: float | None = None,
@@ -343,7 +343,7 @@ def volumetric_path(
     ----------
     start, target : (3,) points.
     step : step length (default: the mean edge length).
-    algorithm, basis : W1 solver, as in :func:`volumetric_distance`.
+    method, basis : W1 solver, as in :func:`volumetric_distance`.
     max_iter : maximum number of steps.
     progress : callable(iteration, distance) or None.  should_cancel : callable() -> bool.
     """
@@ -367,7 +367,7 @@ def volumetric_path(
     monitor = Monitor(progress, should_cancel, patience=PATH_PATIENCE)
     for iterations in range(1, max_iter + 1):
         W = mean_value_coordinates(mesh, np.vstack([x, x + offsets]))
-        value, potential, _, _, _ = _kr_distance(mesh, W[0] - w_target, algorithm, tol, None,
+        value, potential, _, _, _ = _kr_distance(mesh, W[0] - w_target, method, tol, None,
                                                  max_vertices, basis)
         distances.append(value)
         monitor(iterations, value)
@@ -387,7 +387,7 @@ def volumetric_path(
         points.append(x.copy())
     if len(distances) < len(points):
         W = mean_value_coordinates(mesh, points[-1])
-        distances.append(_kr_distance(mesh, W[0] - w_target, algorithm, tol, None,
+        distances.append(_kr_distance(mesh, W[0] - w_target, method, tol, None,
                                       max_vertices, basis)[0])
     return VolumetricPathResult(points=np.array(points), distances=np.array(distances),
                                 iterations=iterations, residual=float(distances[-1]),

@@ -9,19 +9,19 @@ one transport plan :math:`\pi_e \in \mathbb{R}_+^{B \times B}` per edge:
            \pi_e \mathbf 1 = \mu_u,\; \pi_e^\top \mathbf 1 = \mu_v,\;
            \mu_v \ge 0,\; \mathbf 1^\top \mu_v = 1 \text{ (unlabeled } v),
 
-with :math:`\mu_v` fixed on the labeled nodes.  ``algorithm="lp"`` solves it exactly with
+with :math:`\mu_v` fixed on the labeled nodes.  ``method="lp"`` solves it exactly with
 HiGHS (``highspy``, dual simplex), the constraint matrix assembled sparse (``2B - 1``
 independent rows per edge), by warm-started column generation: the plans start on a band
 of cheap entries around the diagonal plus a feasible plan per edge, all other entries are
 priced with the LP duals and the negative ones added to the same model (re-solved from the
 previous basis) until none is left; a dual lower bound over all :math:`m B^2` entries then
-certifies that the result is the unrestricted LP's optimum.  ``solver="hybrid"`` (the
+certifies that the result is the unrestricted LP's optimum.  ``lp_method="hybrid"`` (the
 default on large graphs) starts the same column generation from the support found by a
 structured primal-dual interior-point method on the full LP (:mod:`.circle_ipm`: each
 edge's plan block eliminated in closed form onto the node histograms, one sparse
 Cholesky per iteration), run to a moderate accuracy; the optimum and its certificate are
 the simplex's.
-``algorithm="entropic"`` solves the regularized version with the convolutional propagation of Alg. 4
+``method="entropic"`` solves the regularized version with the convolutional propagation of Alg. 4
 (:func:`solvers.convolutional.wasserstein_propagation`) on a periodic 1-D
 :class:`~solvers.domains.Grid` of the bin centers (heat kernel
 :math:`e^{-d^2/\gamma}`), which scales to larger graphs; its exact objective is evaluated
@@ -56,15 +56,15 @@ class CircularPropagationResult(SolverResult):
     :math:`\\sum_e w_e W_C(\\mu_u, \\mu_v)` of the returned histograms; ``lp_value`` the LP
     optimum when known and ``gap = value - lp_value`` (0 for the LP itself).
 
-    For ``algorithm="lp"`` (``iterations``: column-generation rounds): ``lower_bound`` a
+    For ``method="lp"`` (``iterations``: column-generation rounds): ``lower_bound`` a
     dual bound on the *unrestricted* LP (all ``m B^2`` plan entries priced),
     ``min_reduced_cost`` the most negative reduced cost over all its columns, and
     ``certified`` whether ``value - lower_bound <= 1e-7 max(1, |value|)``, i.e. the
     restricted optimum is the full LP's; ``plan_entries`` the entries the LP ended with;
-    ``solver`` the start of the column generation (``"simplex"`` or ``"hybrid"``) and
+    ``lp_method`` the start of the column generation (``"simplex"`` or ``"hybrid"``) and
     ``ipm_iterations`` the interior-point iterations of the hybrid start."""
 
-    algorithm: str
+    method: str
     histograms: np.ndarray
     value: float
     lp_value: float | None = None
@@ -76,7 +76,7 @@ class CircularPropagationResult(SolverResult):
     certified: bool | None = None
     plan_entries: int | None = None
     simplex_iterations: int | None = None
-    solver: str | None = None
+    lp_method: str | None = None
     ipm_iterations: int | None = None
 
 
@@ -339,11 +339,11 @@ def _ipm_support(n, edges, w, nodes, h, cost, monitor, time_limit, ipm_iteration
 
 
 def propagate_circular(graph: Graph, labeled, histograms, *, bins,
-                       algorithm: Literal["lp", "entropic"] = "lp", cost: np.ndarray | None = None,
+                       method: Literal["lp", "entropic"] = "lp", cost: np.ndarray | None = None,
                        gamma: float | None = None, tol: float = 1e-6,
                        max_iter: int | None = None, time_limit: float | None = None,
                        evaluate: bool = True, lp_value: float | None = None,
-                       solver: Literal["auto", "hybrid", "simplex"] = "auto",
+                       lp_method: Literal["auto", "hybrid", "simplex"] = "auto",
                        ipm_iterations: int = 45,
                        progress=None, should_cancel=None) -> CircularPropagationResult:
     r"""Propagate histograms over periodic bins (S¹) or a small metric space (§5.4).
@@ -354,17 +354,17 @@ def propagate_circular(graph: Graph, labeled, histograms, *, bins,
         :func:`~solvers.histograms.graphs.as_graph` accepts (mesh, point cloud, weights).
     labeled : ``(k,)`` nodes, at least one per connected component; histograms ``(k, B)``.
     bins : :class:`Bins` (``periodic=True`` for S¹) or edges.
-    algorithm : ``"lp"`` (exact, HiGHS) or ``"entropic"`` (Alg. 4 on a periodic 1-D grid).
+    method : ``"lp"`` (exact, HiGHS) or ``"entropic"`` (Alg. 4 on a periodic 1-D grid).
     cost : optional ``(B, B)`` ground cost (a small metric space); default
         :func:`circle_cost` (squared wrapped distance of bin centers).
     gamma : entropic regularization (default ``(2 w)^2``, ``w`` the mean bin width), in the
         bins' squared units; ``tol``, ``max_iter``: its Sinkhorn stopping rule.
     time_limit : seconds given to HiGHS (over all column-generation rounds; the LP raises
         :class:`~solvers.errors.ConvergenceError` when it runs out) and, separately, to the
-        interior-point start of ``solver="hybrid"``.
+        interior-point start of ``lp_method="hybrid"``.
     evaluate : compute the exact objective of the entropic result (per-edge exact OT);
         ``lp_value``: a known LP optimum to report the gap against.
-    solver : how ``algorithm="lp"`` starts its column generation (the optimum and its
+    lp_method : how ``method="lp"`` starts its column generation (the optimum and its
         certificate are the same): ``"simplex"`` from a band of cheap entries around the
         diagonal; ``"hybrid"`` from the support found by at most ``ipm_iterations``
         iterations of the structured interior-point method of :mod:`.circle_ipm` (all
@@ -378,22 +378,22 @@ def propagate_circular(graph: Graph, labeled, histograms, *, bins,
     if C.shape != (b.count, b.count) or not np.all(np.isfinite(C)) or np.any(C < 0):
         raise InputError(f"cost must be a finite non-negative ({b.count}, {b.count}) matrix",
                          field="cost")
-    if algorithm not in ("lp", "entropic"):
-        raise InputError(f"algorithm must be 'lp' or 'entropic', got {algorithm!r}",
-                         field="algorithm")
+    if method not in ("lp", "entropic"):
+        raise InputError(f"method must be 'lp' or 'entropic', got {method!r}",
+                         field="method")
     monitor = Monitor(progress, should_cancel)
-    if solver not in ("auto", "hybrid", "simplex"):
-        raise InputError(f"solver must be 'auto', 'hybrid' or 'simplex', got {solver!r}",
-                         field="solver")
-    if algorithm == "lp":
+    if lp_method not in ("auto", "hybrid", "simplex"):
+        raise InputError(f"lp_method must be 'auto', 'hybrid' or 'simplex', got {lp_method!r}",
+                         field="lp_method")
+    if method == "lp":
         n_free = n - len(np.unique(nodes))
-        if solver == "auto":
-            solver = "hybrid" if n_free > 0 and len(edges) * b.count**2 >= 200_000 else "simplex"
+        if lp_method == "auto":
+            lp_method = "hybrid" if n_free > 0 and len(edges) * b.count**2 >= 200_000 else "simplex"
         if n_free == 0:
-            solver = "simplex"
+            lp_method = "simplex"
         support = guess = None
         ipm_its = None
-        if solver == "hybrid":
+        if lp_method == "hybrid":
             hc = np.where(h > 1e-12, h, 0.0)
             hc = hc / hc.sum(axis=1, keepdims=True)
             support, guess, ipm = _ipm_support(n, edges, w, nodes, hc, C, monitor, time_limit,
@@ -404,21 +404,21 @@ def propagate_circular(graph: Graph, labeled, histograms, *, bins,
         value, lower = lp["value"], lp["lower_bound"]
         certified = value - lower <= 1e-7 * max(1.0, abs(value))
         return CircularPropagationResult(
-            algorithm="lp", histograms=lp["histograms"], value=value, lp_value=value,
+            method="lp", histograms=lp["histograms"], value=value, lp_value=value,
             gap=0.0, labeled=nodes, iterations=lp["rounds"], residual=lp["violation"],
             converged=certified and lp["violation"] <= 1e-7, lower_bound=lower,
             min_reduced_cost=lp["min_reduced_cost"], certified=certified,
             plan_entries=lp["plan_entries"], simplex_iterations=lp["simplex_iterations"],
-            solver=solver, ipm_iterations=ipm_its)
+            lp_method=lp_method, ipm_iterations=ipm_its)
     if cost is not None:
-        raise InputError("algorithm='entropic' uses the circle's heat kernel; a custom cost "
-                         "needs algorithm='lp'", field="cost")
+        raise InputError("method='entropic' uses the circle's heat kernel; a custom cost "
+                         "needs method='lp'", field="cost")
     from solvers.convolutional import wasserstein_propagation
     from solvers.domains import Grid
 
     width = float(b.widths.mean())
     if not np.allclose(b.widths, width, rtol=1e-9):
-        raise InputError("algorithm='entropic' needs equal-width bins", field="bins.edges")
+        raise InputError("method='entropic' needs equal-width bins", field="bins.edges")
     gamma = (2.0 * width) ** 2 if gamma is None else check_positive(gamma, "gamma")
     lo = b.lo + 0.5 * width
     axis = Grid((b.count,), bounds=[(lo, lo + b.period)], periodic=b.periodic)
@@ -430,7 +430,7 @@ def propagate_circular(graph: Graph, labeled, histograms, *, bins,
     H /= H.sum(axis=1, keepdims=True)
     value = dirichlet_value(H, edges, w, C) if evaluate else float("nan")
     gap = None if lp_value is None or not evaluate else value - float(lp_value)
-    return CircularPropagationResult(algorithm="entropic", histograms=H, value=value,
+    return CircularPropagationResult(method="entropic", histograms=H, value=value,
                                      lp_value=lp_value, gap=gap, gamma=gamma, labeled=nodes,
                                      iterations=res.iterations, residual=res.residual,
                                      converged=res.converged)

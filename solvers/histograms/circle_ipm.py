@@ -32,7 +32,7 @@ here (``K + \delta I``, ``D \leftarrow (D^{-1} + \rho)^{-1}``) it stalls at a re
 about :math:`10^{-3}` after 40-50 iterations (the 30- and 100-node k-NN cases of
 ``bench/histograms_circle.py``), so it is not a certified solver on its own.
 :func:`solve_ipm` stops there and returns its best iterate;
-:func:`solvers.histograms.circle.propagate_circular` (``solver="hybrid"``) uses its plans
+:func:`solvers.histograms.circle.propagate_circular` (``lp_method="hybrid"``) uses its plans
 and reduced costs as the starting support of the exact column generation.  Whatever ``y``
 it returns, :func:`dual_bound` gives a valid lower bound
 :math:`b^\top y + \sum_k \min(c - A^\top y, 0)_k` on the LP optimum (all variables lie in

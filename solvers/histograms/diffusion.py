@@ -36,9 +36,9 @@ from solvers.validation import check_int, check_positive
 @dataclass(kw_only=True)
 class HistogramDiffusionResult(SolverResult):
     """``histograms`` ``(T, n, B)`` at each of ``times``; ``quantiles`` ``(T, n, m)``
-    (Wasserstein route, else ``None``)."""
+    (Wasserstein method, else ``None``)."""
 
-    route: str
+    method: str
     times: np.ndarray
     histograms: np.ndarray
     quantiles: np.ndarray | None
@@ -58,18 +58,18 @@ def _kernel(graph, t: float, substeps: int, laplacian: str):
     return build()
 
 
-def diffuse_histograms(graph, histograms, times, *, bins, route: Literal["wasserstein", "pdf"]
+def diffuse_histograms(graph, histograms, times, *, bins, method: Literal["wasserstein", "pdf"]
                        = "wasserstein", levels: int = 100, substeps: int = 1,
                        laplacian: str = "auto", progress=None, should_cancel=None
                        ) -> HistogramDiffusionResult:
     r"""Diffuse one histogram per node ``(n, B)`` for each time in ``times``.
 
-    ``route="wasserstein"``: heat steps on the inverse CDFs (Prop. 16); ``"pdf"``: on the
+    ``method="wasserstein"``: heat steps on the inverse CDFs (Prop. 16); ``"pdf"``: on the
     histograms.  ``t = 0`` returns the input.  ``residual`` is the largest row-sum error of
     the returned histograms (mass conservation, measured).
     """
-    if route not in ("wasserstein", "pdf"):
-        raise InputError(f"route must be 'wasserstein' or 'pdf', got {route!r}", field="route")
+    if method not in ("wasserstein", "pdf"):
+        raise InputError(f"method must be 'wasserstein' or 'pdf', got {method!r}", field="method")
     b = make_bins(bins)
     if b.periodic:
         raise InputError("Wasserstein diffusion is defined here on Prob(R); periodic bins are "
@@ -89,8 +89,8 @@ def diffuse_histograms(graph, histograms, times, *, bins, route: Literal["wasser
                          field="times")
     substeps = check_int(substeps, "substeps", low=1, high=1000)
     monitor = Monitor(progress, should_cancel)
-    lev = quantile_levels(levels) if route == "wasserstein" else None
-    g0 = inverse_cdf_from_histograms(h, b, lev) if route == "wasserstein" else h
+    lev = quantile_levels(levels) if method == "wasserstein" else None
+    g0 = inverse_cdf_from_histograms(h, b, lev) if method == "wasserstein" else h
     out_h, out_q = [], []
     for i, t in enumerate(ts):
         monitor.check_cancel(f"at time {t:g}")
@@ -98,7 +98,7 @@ def diffuse_histograms(graph, histograms, times, *, bins, route: Literal["wasser
             g = g0.copy()
         else:
             g = _kernel(graph, check_positive(t, f"times[{i}]"), substeps, laplacian).apply(g0)
-        if route == "wasserstein":
+        if method == "wasserstein":
             g = np.sort(g, axis=1)
             out_q.append(g)
             out_h.append(histograms_from_inverse_cdf(g, lev, b))
@@ -108,7 +108,7 @@ def diffuse_histograms(graph, histograms, times, *, bins, route: Literal["wasser
     H = np.stack(out_h)
     residual = float(np.abs(H.sum(axis=2) - 1.0).max())
     H /= H.sum(axis=2, keepdims=True)
-    return HistogramDiffusionResult(route=route, times=ts, histograms=H,
+    return HistogramDiffusionResult(method=method, times=ts, histograms=H,
                                     quantiles=np.stack(out_q) if out_q else None, levels=lev,
                                     bins=b, iterations=len(ts), residual=residual,
                                     converged=residual <= 1e-8)

@@ -17,7 +17,7 @@ labels are smooth in the level, so ``r`` is far below ``c``; the largest truncat
 on the labels is measured and reported (with non-negative weights the maximum principle
 bounds the error everywhere by it).
 
-``solver``: ``"direct"`` (sparse Cholesky, :func:`solvers.linalg.factorize_spd`) or
+``linear_method``: ``"direct"`` (sparse Cholesky, :func:`solvers.linalg.factorize_spd`) or
 ``"amg"`` (conjugate gradients preconditioned by one smoothed-aggregation hierarchy from
 pyamg, shared by all columns); ``"auto"`` is ``"direct"``, faster at every size measured
 (``bench/results/histograms.md``).  The direct factorization is MKL PARDISO's supernodal
@@ -43,7 +43,7 @@ from solvers.linalg import Backend, factorize_spd, have_pardiso
 from solvers.monitor import Monitor
 from solvers.validation import check_anchored_components, check_node_indices
 
-SOLVERS = ("auto", "direct", "amg")
+LINEAR_METHODS = ("auto", "direct", "amg")
 
 
 @dataclass
@@ -55,7 +55,7 @@ class DirichletSystem:
     free: np.ndarray
     A: sp.csr_matrix  # L_UU
     coupling: sp.csr_matrix  # L_UL
-    solver: str
+    linear_method: str
     factor: object = None
     hierarchy: object = None
 
@@ -77,7 +77,7 @@ def check_labeled(graph, labeled, L: sp.spmatrix | None = None,
 
 
 def direct_backend(factorization: Backend = "auto") -> Backend:
-    """The factorization behind ``solver="direct"``: PARDISO when it loads, else cholespy's
+    """The factorization behind ``linear_method="direct"``: PARDISO when it loads, else cholespy's
     (``"auto"``); an explicit name is passed through."""
     if factorization != "auto":
         return factorization
@@ -91,46 +91,48 @@ def _reduced(L: sp.csr_matrix, free: np.ndarray, labeled: np.ndarray
     return Lr[:, free].tocsr(), Lr[:, labeled].tocsr()
 
 
-def _build(L: sp.csr_matrix, labeled: np.ndarray, solver: str,
+def _build(L: sp.csr_matrix, labeled: np.ndarray, linear_method: str,
            factorization: Backend = "auto") -> DirichletSystem:
     n = L.shape[0]
     mask = np.zeros(n, dtype=bool)
     mask[labeled] = True
     free = np.flatnonzero(~mask)
     A, coupling = _reduced(L, free, labeled)
-    system = DirichletSystem(n, labeled, free, A, coupling, solver)
+    system = DirichletSystem(n, labeled, free, A, coupling, linear_method)
     if len(free) == 0:
         return system
-    if solver == "direct":
+    if linear_method == "direct":
         system.factor = factorize_spd(A, backend=direct_backend(factorization))
     else:
         try:
             import pyamg
         except ImportError as exc:  # pragma: no cover
-            raise InputError("solver='amg' needs pyamg installed", field="solver") from exc
+            raise InputError("linear_method='amg' needs pyamg installed",
+                             field="linear_method") from exc
         system.hierarchy = pyamg.smoothed_aggregation_solver(A, symmetry="symmetric")
     return system
 
 
-def dirichlet_system(graph, labeled, *, laplacian: str = "auto", solver: str = "auto",
+def dirichlet_system(graph, labeled, *, laplacian: str = "auto", linear_method: str = "auto",
                      field: str = "labeled", factorization: Backend = "auto"
                      ) -> DirichletSystem:
     """The reduced system for ``labeled`` nodes, cached in the domain's operator store.
 
-    ``factorization`` (``solver="direct"``): ``"auto"`` (:func:`direct_backend`),
+    ``factorization`` (``linear_method="direct"``): ``"auto"`` (:func:`direct_backend`),
     ``"pardiso"``, ``"cholespy"`` or ``"splu"``.
     """
-    if solver not in SOLVERS:
-        raise InputError(f"solver must be one of {SOLVERS}, got {solver!r}", field="solver")
-    solver = "direct" if solver == "auto" else solver
+    if linear_method not in LINEAR_METHODS:
+        raise InputError(f"linear_method must be one of {LINEAR_METHODS}, got "
+                         f"{linear_method!r}", field="linear_method")
+    linear_method = "direct" if linear_method == "auto" else linear_method
     L = graph_laplacian(graph, laplacian)
     nodes = check_labeled(graph, labeled, L, field)
     if not isinstance(graph, Domain):
-        return _build(L, np.sort(nodes), solver, factorization)
+        return _build(L, np.sort(nodes), linear_method, factorization)
     digest = hashlib.sha1(np.sort(nodes).tobytes()).hexdigest()
-    backend = direct_backend(factorization) if solver == "direct" else ""
-    key = ("histograms.dirichlet", laplacian, solver, backend, len(nodes), digest)
-    system = graph.operators.get(key, lambda: _build(L, np.sort(nodes), solver,
+    backend = direct_backend(factorization) if linear_method == "direct" else ""
+    key = ("histograms.dirichlet", laplacian, linear_method, backend, len(nodes), digest)
+    system = graph.operators.get(key, lambda: _build(L, np.sort(nodes), linear_method,
                                                      factorization))
     return system
 
@@ -210,7 +212,7 @@ def harmonic_extension(system: DirichletSystem, values: np.ndarray, *, rank_tol:
     if system.factor is not None:
         from solvers.histograms._kernels import block_residual_parts
 
-        # blocks of columns (the solver's copies stay ~128 MB); each block's residual is
+        # blocks of columns (the linear solver's copies stay ~128 MB); each block's residual is
         # measured right away (a compiled pass, no n x w product), then its solution
         # overwrites the block of B
         width = _block_columns(r, len(system.free))
@@ -241,7 +243,7 @@ def harmonic_extension(system: DirichletSystem, values: np.ndarray, *, rank_tol:
 
 
 def _block_columns(r: int, n: int) -> int:
-    """Columns per block solve: the solver's copies of a block stay ~128 MB."""
+    """Columns per block solve: the linear solver's copies of a block stay ~128 MB."""
     return max(1, min(r, 2**24 // max(n, 1)))
 
 

@@ -13,7 +13,7 @@ and turned back into histograms on the input bins.  Prop. 14: means are harmonic
 standard deviations are at most the largest labeled one; Prop. 15: Dirac labels give the
 classical harmonic interpolation of their positions.
 
-Baselines (§5.2.2): ``route="pdf"`` extends the histograms bin by bin (the same Dirichlet
+Baselines (§5.2.2): ``method="pdf"`` extends the histograms bin by bin (the same Dirichlet
 problem on densities; mixtures, hence multimodal); :func:`harmonic_means` is the
 classical harmonic interpolation of the labeled means [ZGL03].
 """
@@ -38,7 +38,7 @@ from solvers.histograms.quantiles import (
 )
 from solvers.monitor import SolverResult
 
-Route = Literal["wasserstein", "pdf"]
+Method = Literal["wasserstein", "pdf"]
 
 
 @dataclass(kw_only=True)
@@ -46,14 +46,14 @@ class HistogramPropagationResult(SolverResult):
     """Per-node distributions after propagation.
 
     ``histograms`` ``(n, B)`` on ``bins`` (rows sum to 1; ``None`` without bins);
-    ``quantiles`` ``(n, m)`` inverse CDFs at ``levels`` (Wasserstein route);
+    ``quantiles`` ``(n, m)`` inverse CDFs at ``levels`` (Wasserstein method);
     ``labeled`` the labeled nodes; ``rank`` the columns actually solved after compression
     and ``compression_error`` the largest truncation error on the labels; ``residual``
     the measured relative residual of the linear solve; ``iterations`` 1 for a direct
     solve, CG iterations otherwise.
     """
 
-    route: str
+    method: str
     histograms: np.ndarray | None
     quantiles: np.ndarray | None
     levels: np.ndarray | None
@@ -61,7 +61,7 @@ class HistogramPropagationResult(SolverResult):
     labeled: np.ndarray
     rank: int = 0
     compression_error: float = 0.0
-    solver: str = "direct"
+    linear_method: str = "direct"
 
 
 def label_quantiles(levels: np.ndarray, *, bins: Bins | None = None, histograms=None,
@@ -94,7 +94,7 @@ def label_quantiles(levels: np.ndarray, *, bins: Bins | None = None, histograms=
 
 def label_histograms(bins: Bins, *, histograms=None, samples=None, densities=None
                      ) -> np.ndarray:
-    """``(k, B)`` normalized histograms of the labels on ``bins`` (the PDF route's input)."""
+    """``(k, B)`` normalized histograms of the labels on ``bins`` (the PDF method's input)."""
     if histograms is not None:
         return check_histograms(histograms, bins.count, "histograms")
     if samples is not None:
@@ -130,8 +130,8 @@ def check_label_count(labeled, histograms=None, samples=None, densities=None) ->
 
 
 def propagate_histograms(graph, labeled, histograms=None, *, bins=None, samples=None,
-                         densities=None, route: Route = "wasserstein", levels: int = 100,
-                         laplacian: str = "auto", solver: str = "auto",
+                         densities=None, method: Method = "wasserstein", levels: int = 100,
+                         laplacian: str = "auto", linear_method: str = "auto",
                          rank_tol: float = 1e-9, tol: float = 1e-10, max_iter: int = 500,
                          progress=None, should_cancel=None) -> HistogramPropagationResult:
     r"""Propagate labeled distributions to every node (Prop. 13; PDF baseline).
@@ -144,10 +144,10 @@ def propagate_histograms(graph, labeled, histograms=None, *, bins=None, samples=
     histograms : ``(k, B)`` label histograms over ``bins`` (or ``samples``: ``k`` arrays of
         raw values; or ``densities``: ``(knots (P,), values (k, P))``).
     bins : :class:`Bins` or edges ``(B + 1,)``; needed for histogram inputs and outputs.
-    route : ``"wasserstein"`` (inverse CDFs, Prop. 13) or ``"pdf"`` (bin by bin, §5.2.2).
+    method : ``"wasserstein"`` (inverse CDFs, Prop. 13) or ``"pdf"`` (bin by bin, §5.2.2).
     levels : number ``m`` of quantile levels ``(k + 1/2)/m``.
     laplacian : ``"auto"``, ``"robust"`` or ``"cotan"`` (meshes).
-    solver : ``"auto"``/``"direct"`` (Cholesky) or ``"amg"`` (AMG-preconditioned CG);
+    linear_method : ``"auto"``/``"direct"`` (Cholesky) or ``"amg"`` (AMG-preconditioned CG);
         ``tol``/``max_iter`` apply to it.
     rank_tol : relative singular-value cut of the column compression.
 
@@ -155,17 +155,17 @@ def propagate_histograms(graph, labeled, histograms=None, *, bins=None, samples=
     -------
     HistogramPropagationResult (histograms ``(n, B)``, quantiles ``(n, m)``, ...).
     """
-    if route not in ("wasserstein", "pdf"):
-        raise InputError(f"route must be 'wasserstein' or 'pdf', got {route!r}", field="route")
+    if method not in ("wasserstein", "pdf"):
+        raise InputError(f"method must be 'wasserstein' or 'pdf', got {method!r}", field="method")
     b = None if bins is None else make_bins(bins)
-    if b is not None and b.periodic and route == "wasserstein":
+    if b is not None and b.periodic and method == "wasserstein":
         raise InputError("periodic bins live on the circle: use "
                          "solvers.histograms.circle.propagate_circular", field="bins.periodic")
-    system = dirichlet_system(graph, labeled, laplacian=laplacian, solver=solver)
+    system = dirichlet_system(graph, labeled, laplacian=laplacian, linear_method=linear_method)
     nodes = np.asarray(labeled, dtype=np.int64)
     check_label_count(nodes, histograms, samples, densities)
     order = np.searchsorted(system.labeled, nodes)  # system rows are sorted node ids
-    if route == "wasserstein":
+    if method == "wasserstein":
         lev = quantile_levels(levels)
         q = label_quantiles(lev, bins=b, histograms=histograms, samples=samples,
                             densities=densities)
@@ -177,7 +177,7 @@ def propagate_histograms(graph, labeled, histograms=None, *, bins=None, samples=
         H = None if b is None else histograms_from_inverse_cdf(Q, lev, b, sorted_rows=True)
     else:
         if b is None:
-            raise InputError("route='pdf' needs bins", field="bins")
+            raise InputError("method='pdf' needs bins", field="bins")
         h = label_histograms(b, histograms=histograms, samples=samples, densities=densities)
         V = np.empty_like(h)
         V[order] = h
@@ -187,16 +187,16 @@ def propagate_histograms(graph, labeled, histograms=None, *, bins=None, samples=
         H /= H.sum(axis=1, keepdims=True)
         Q, lev = None, None
     return HistogramPropagationResult(
-        route=route, histograms=H, quantiles=Q, levels=lev, bins=b, labeled=nodes,
-        rank=ext.rank, compression_error=ext.compression_error, solver=system.solver,
+        method=method, histograms=H, quantiles=Q, levels=lev, bins=b, labeled=nodes,
+        rank=ext.rank, compression_error=ext.compression_error, linear_method=system.linear_method,
         iterations=ext.iterations, residual=ext.residual,
         converged=bool(ext.residual <= max(tol, 1e-8)))
 
 
 def harmonic_means(graph, labeled, means, *, laplacian: str = "auto",
-                   solver: str = "auto") -> np.ndarray:
+                   linear_method: str = "auto") -> np.ndarray:
     """Classical harmonic interpolation [ZGL03] of scalar labels ``(k,)`` -> ``(n,)``."""
-    system = dirichlet_system(graph, labeled, laplacian=laplacian, solver=solver)
+    system = dirichlet_system(graph, labeled, laplacian=laplacian, linear_method=linear_method)
     nodes = np.asarray(labeled, dtype=np.int64)
     v = np.asarray(means, dtype=np.float64).reshape(-1)
     if v.shape != (len(nodes),) or not np.all(np.isfinite(v)):

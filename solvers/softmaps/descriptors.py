@@ -24,7 +24,7 @@ from solvers.errors import InputError
 from solvers.linalg import eigsh
 from solvers.validation import check_int, check_positive
 
-LANDMARK_ROUTES = ("geodesic", "heat")
+LANDMARK_METHODS = ("geodesic", "heat")
 # Eigenpairs solved for at least (the soft map's descriptor default), whatever k is asked.
 EIGENPAIRS_SOLVED = 100
 
@@ -136,18 +136,19 @@ def geodesic_distances_from(mesh, sources) -> np.ndarray:
     return np.stack([solver.compute_distance(int(s)) for s in sources], axis=1)
 
 
-def landmark_descriptors(mesh, landmarks, *, route: str = "geodesic",
+def landmark_descriptors(mesh, landmarks, *, method: str = "geodesic",
                          t: float | None = None) -> np.ndarray:
     r"""``(n, L)`` descriptors from landmarks: geodesic distance or diffused heat.
 
-    ``route="geodesic"``: :math:`d(x, x_l)` (heat method); ``route="heat"``: the density
+    ``method="geodesic"``: :math:`d(x, x_l)` (heat method); ``method="heat"``: the density
     :math:`H_t \delta_{x_l}` at time ``t`` (default ``0.01``, unit-area units), normalized by
     its maximum so each landmark weighs the same.
     """
     landmarks = check_landmarks(landmarks, mesh.n)
-    if route not in LANDMARK_ROUTES:
-        raise InputError(f"route must be one of {LANDMARK_ROUTES}, got {route!r}", field="route")
-    if route == "geodesic":
+    if method not in LANDMARK_METHODS:
+        raise InputError(f"method must be one of {LANDMARK_METHODS}, got {method!r}",
+                         field="method")
+    if method == "geodesic":
         def build():
             d = geodesic_distances_from(mesh, landmarks)
             d.setflags(write=False)  # cached: shared by later calls

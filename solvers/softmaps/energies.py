@@ -8,7 +8,7 @@ A soft map :math:`\mu: M_0 \to \mathrm{Prob}(M)` is given on the nodes of a sour
 * Dirichlet energy, eq. 4.2 discretized over the source edges:
   :math:`E_D[\mu] = \sum_{e=(u,u')} \omega_e\, W_2^2(\mu_u, \mu_{u'})`, with the
   convolutional :math:`W_2` (ch. 3; debiased by default so that a constant map has
-  energy 0) or ``route="potential"``: the linearized :math:`W_2^2 = \int \rho |\nabla Q|^2`
+  energy 0) or ``method="potential"``: the linearized :math:`W_2^2 = \int \rho |\nabla Q|^2`
   of eq. 4.3-4.4.
 * Transportation potential: the derivative of :math:`\rho` along a source direction is
   carried by a flow, :math:`\partial_v \rho = -\nabla\cdot(\rho\nabla Q)` (eq. 4.3); along an
@@ -35,7 +35,7 @@ from solvers.errors import InputError
 from solvers.linalg import factorize_spd
 from solvers.validation import check_positive
 
-DIRICHLET_ROUTES = ("w2", "potential")
+DIRICHLET_METHODS = ("w2", "potential")
 
 
 @dataclass
@@ -102,31 +102,31 @@ def momentum(target, masses, q, *, eps: float = 1e-3) -> np.ndarray:
 
 
 def dirichlet_energy(target, rows, edges, edge_weights, *, cell_areas=None,
-                     route: str = "w2", gamma: float | None = None, substeps: int = 1,
+                     method: str = "w2", gamma: float | None = None, substeps: int = 1,
                      debiased: bool = True, eps: float = 1e-3, tol: float = 1e-6
                      ) -> DirichletEnergy:
     r"""eq. 4.2: :math:`\sum_e \omega_e W_2^2(\mu_u, \mu_{u'})` over the source edges.
 
     ``rows`` ``(N, n)`` masses per source node; ``edges`` ``(m, 2)``; ``edge_weights`` ``(m,)``;
     ``cell_areas`` ``(N,)`` source area per node (default: equal) for the density.
-    ``route="w2"``: convolutional :math:`W_2^2` at ``gamma`` (default ``4 * h^2``, ``h`` the
+    ``method="w2"``: convolutional :math:`W_2^2` at ``gamma`` (default ``4 * h^2``, ``h`` the
     target's mean edge length; ``substeps`` implicit Euler steps of the heat kernel),
     debiased (Sinkhorn divergence) unless ``debiased=False``;
-    ``route="potential"``: :math:`\int(\rho_u+\epsilon)|\nabla Q_e|^2` (eq. 4.3).
+    ``method="potential"``: :math:`\int(\rho_u+\epsilon)|\nabla Q_e|^2` (eq. 4.3).
     """
     from solvers.convolutional import wasserstein_distance
 
     e = np.asarray(edges, np.int64)
     w = np.asarray(edge_weights, np.float64)
     r = _check_rows(rows, None, target.n)
-    if route not in DIRICHLET_ROUTES:
-        raise InputError(f"route must be one of {DIRICHLET_ROUTES}, got {route!r}",
-                         field="route")
+    if method not in DIRICHLET_METHODS:
+        raise InputError(f"method must be one of {DIRICHLET_METHODS}, got {method!r}",
+                         field="method")
     gamma = 4.0 * target.mean_edge_length**2 if gamma is None else check_positive(gamma,
                                                                                   "gamma")
     per = np.zeros(len(e))
     for k, (u, v) in enumerate(e):
-        if route == "w2":
+        if method == "w2":
             per[k] = max(wasserstein_distance(target, r[u], r[v], gamma=gamma, tol=tol,
                                               substeps=substeps, debiased=debiased).value, 0.0)
         else:

@@ -30,7 +30,7 @@ from solvers.kernels import heat_time
 from solvers.softmaps.analysis import SoftMapBasis, collection_basis, soft_map_svd
 from solvers.softmaps.compatibility import compatibility_cost
 from solvers.softmaps.energies import (
-    DIRICHLET_ROUTES,
+    DIRICHLET_METHODS,
     DirichletEnergy,
     bijectivity_density,
     descriptor_energy,
@@ -127,18 +127,18 @@ def _descriptor_energy(source, target, sm: PointSoftMap, k: int, n_energies: int
 
 def analyze_point_map(source, target, correspondence, *, samples: int = 256,
                       gamma: float | None = None, substeps: int = 1, rank: int = 10,
-                      dirichlet_route: str = "w2", descriptor_k: int | None = 50,
+                      dirichlet_method: str = "w2", descriptor_k: int | None = 50,
                       n_energies: int = 100, norm: str = "l1") -> PointMapAnalysis:
     """Soft map of a point map (:func:`point_map_soft_map`), its energies and SVD bases.
 
-    ``dirichlet_route``: ``"w2"`` (convolutional :math:`W_2^2` per source edge at
+    ``dirichlet_method``: ``"w2"`` (convolutional :math:`W_2^2` per source edge at
     ``gamma``, debiased), ``"potential"`` (eq. 4.3) or ``None`` (not computed);
     ``descriptor_k``: eigenpairs of the WKS descriptors (``None``: no descriptor energy);
     ``rank``: basis functions kept (the constant first).
     """
-    if dirichlet_route is not None and dirichlet_route not in DIRICHLET_ROUTES:
-        raise InputError(f"dirichlet_route must be one of {DIRICHLET_ROUTES}",
-                         field="dirichlet_route")
+    if dirichlet_method is not None and dirichlet_method not in DIRICHLET_METHODS:
+        raise InputError(f"dirichlet_method must be one of {DIRICHLET_METHODS}",
+                         field="dirichlet_method")
     sm = point_map_soft_map(source, target, correspondence, samples=samples, gamma=gamma,
                             substeps=substeps)
     full = soft_map_svd(sm.rows, sm.cell_areas, target.areas)
@@ -148,8 +148,8 @@ def analyze_point_map(source, target, correspondence, *, samples: int = 256,
     basis = SoftMapBasis(full.source_basis[:, :rank], s[:rank], full.target_basis[:, :rank],
                          full.source_areas, full.target_areas)
     g = sm.samples
-    dirichlet = None if dirichlet_route is None else dirichlet_energy(
-        target, sm.rows, g.edges, g.weights, cell_areas=sm.cell_areas, route=dirichlet_route,
+    dirichlet = None if dirichlet_method is None else dirichlet_energy(
+        target, sm.rows, g.edges, g.weights, cell_areas=sm.cell_areas, method=dirichlet_method,
         gamma=sm.gamma, substeps=sm.substeps)
     b = bijectivity_density(target, sm.rows, sm.cell_areas)
     descriptor = None if descriptor_k is None else _descriptor_energy(

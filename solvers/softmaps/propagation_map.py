@@ -33,7 +33,7 @@ from solvers.monitor import SolverResult
 from solvers.softmaps.coarse_target import Prolongation, coarse_target
 from solvers.softmaps.compatibility import NORMS, compatibility_cost
 from solvers.softmaps.descriptors import (
-    LANDMARK_ROUTES,
+    LANDMARK_METHODS,
     check_landmarks,
     eigenpairs,
     landmark_descriptors,
@@ -243,7 +243,7 @@ class SoftMapResult(SolverResult):
 
 def descriptors_for_pair(source, target, landmarks, *, k: int = 100, n_energies: int = 100,
                          wks_weight: float = 1.0, landmark_weight: float = 1.0,
-                         landmark_route: str = "geodesic"):
+                         landmark_method: str = "geodesic"):
     """Stacked descriptors ``(f0 (n0, d), f (n1, d))``: WKS on shared energies + landmarks.
 
     Each block is divided by its width so ``wks_weight``/``landmark_weight`` weigh blocks.
@@ -258,14 +258,14 @@ def descriptors_for_pair(source, target, landmarks, *, k: int = 100, n_energies:
         blocks1.append(wks_weight * wave_kernel_signature(target, k, energies, sigma)
                        / n_energies)
     if len(landmarks) and landmark_weight > 0:
-        if landmark_route not in LANDMARK_ROUTES:
-            raise InputError(f"landmark_route must be one of {LANDMARK_ROUTES}",
-                             field="landmark_route")
+        if landmark_method not in LANDMARK_METHODS:
+            raise InputError(f"landmark_method must be one of {LANDMARK_METHODS}",
+                             field="landmark_method")
         scale = landmark_weight / len(landmarks)
         blocks0.append(scale * landmark_descriptors(source, landmarks[:, 0],
-                                                    route=landmark_route))
+                                                    method=landmark_method))
         blocks1.append(scale * landmark_descriptors(target, landmarks[:, 1],
-                                                    route=landmark_route))
+                                                    method=landmark_method))
     if not blocks0:
         raise InputError("no descriptor: give wks_weight > 0 or landmarks", field="descriptors")
     return np.concatenate(blocks0, axis=1), np.concatenate(blocks1, axis=1)
@@ -301,7 +301,7 @@ def soft_map(
     n_energies: int = 100,
     wks_weight: float = 1.0,
     landmark_weight: float = 1.0,
-    landmark_route: str = "geodesic",
+    landmark_method: str = "geodesic",
     norm: str = "l1",
     descriptors: tuple | None = None,
     tol: float = 1e-4,
@@ -335,7 +335,7 @@ def soft_map(
     tau : compatibility weight :math:`\tau` (cost of mean 1); gamma : entropic
         regularization of the heat kernel on the target solved over (``t = gamma/4``;
         default :func:`default_gamma`).
-    k, n_energies, wks_weight, landmark_weight, landmark_route, norm : descriptors
+    k, n_energies, wks_weight, landmark_weight, landmark_method, norm : descriptors
         (:func:`descriptors_for_pair`) and cost (:func:`compatibility_cost`); or pass
         ``descriptors=(f0, f)`` directly (per source and target vertex).
     tol, max_iter : stopping of the propagation (largest L1 marginal violation).
@@ -404,7 +404,7 @@ def soft_map(
     if descriptors is None:
         f0, f1 = descriptors_for_pair(source, target, pairs, k=k, n_energies=n_energies,
                                       wks_weight=wks_weight, landmark_weight=landmark_weight,
-                                      landmark_route=landmark_route)
+                                      landmark_method=landmark_method)
     else:
         f0, f1 = descriptors
     cost = compatibility_cost(f0, f1, areas0=source.areas, areas1=target.areas,

@@ -264,7 +264,7 @@ def test_live_progress_and_cancel(spot_page):
     pick_two(page)
     page.select_option("#operation", "createFlowJob")
     page.click("#op-form details > summary")
-    page.select_option("#op-form select[name=algorithm]", "admm")
+    page.select_option("#op-form select[name=method]", "admm")
     page.fill("#op-form input[name=tol]", "1e-12")
     page.fill("#op-form input[name=max_iter]", "100000")
     page.click("#run")

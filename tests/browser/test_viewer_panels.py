@@ -79,11 +79,11 @@ def show_running_job(page, job_id: str, operation: str, progress: dict,
 
 
 def test_an_exact_job_shows_its_estimated_run_time(page, live_api):
-    """A running exact-route job reports no iterations; its decision's estimate gives the
+    """A running exact-method job reports no iterations; its decision's estimate gives the
     text and a bar that fills with time."""
     open_viewer(page, live_api)
     show_running_job(page, "7" * 32, "distances", {"iteration": 0},
-                     {"route": "exact", "reason": "small domain", "estimated_seconds": 20.0})
+                     {"method": "exact", "reason": "small domain", "estimated_seconds": 20.0})
     page.wait_for_function("document.getElementById('progress-text').textContent"
                            ".includes('about 20 s')", timeout=TIMEOUT)
     assert "iteration 0" not in page.inner_text("#progress-text")

@@ -32,7 +32,7 @@ def test_distance_is_the_api_default_for_the_same_picks(spot_page, live_api):
     page.click("#run")
     page.wait_for_selector("#progress[data-state=succeeded]", timeout=2 * TIMEOUT)
     page.wait_for_function("otgeo.result !== null && otgeo.result.values.value !== undefined")
-    # only the picks: no "debiased": false, no route, metric or algorithm left at a default
+    # only the picks: no "debiased": false, no method, metric or w1_method left at a default
     assert len(bodies) == 1 and set(bodies[0]) == {"mu0", "mu1"}, bodies
     shown = page.evaluate("otgeo.result.values")
     r = httpx.post(f"{live_api.url}/v1/domains/{page.evaluate('otgeo.domain.id')}/distances",
@@ -41,8 +41,8 @@ def test_distance_is_the_api_default_for_the_same_picks(spot_page, live_api):
     assert r.status_code == 200, r.text
     api = httpx.get(f"{live_api.url}/v1/jobs/{r.json()['id']}/result",
                     headers={"X-API-Key": live_api.key}, timeout=30).json()["values"]
-    assert shown["value"] == api["value"] and shown["route"] == api["route"], (shown, api)
-    if shown["route"] == "convolutional":
+    assert shown["value"] == api["value"] and shown["method"] == api["method"], (shown, api)
+    if shown["method"] == "convolutional":
         assert shown["debiased"] is True  # the policy's default, as in the API
     # a finished job has nothing to cancel
     assert page.locator("#cancel").is_hidden()

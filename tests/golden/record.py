@@ -5,21 +5,32 @@
     PYTHONPATH=$PWD python tests/golden/record.py --check --only distances soft-maps
 
 Runs every case of ``golden_cases.CASES`` through the in-process app (see that module) and
-prints each case's time. Record on a tree whose outputs are the reference (main before a
-redesign); tests/golden/test_golden.py runs the same check in the suite.
+prints each case's time, in a process whose libraries' code paths are pinned
+(``golden_cases.pinned_environment``: it re-executes itself with them). Record on a tree
+whose outputs are the reference (main before a redesign); tests/golden/test_golden.py runs
+the same check in the suite.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import sys
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from golden_cases import CASES, GOLDEN_FILE, compare, run_cases  # noqa: E402
+from golden_cases import (  # noqa: E402
+    CASES,
+    GOLDEN_FILE,
+    compare,
+    pinned_environment,
+    run_cases,
+)
+
+PINNED = "OTGEO_GOLDEN_PINNED"  # set in the re-executed process
 
 
 def environment() -> dict:
@@ -32,6 +43,9 @@ def environment() -> dict:
 
 
 def main(argv=None) -> int:
+    if os.environ.get(PINNED) != "1":  # the pins are read when the libraries load
+        env = pinned_environment(os.environ) | {PINNED: "1"}
+        os.execve(sys.executable, [sys.executable, __file__, *(argv or sys.argv[1:])], env)
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--check", action="store_true", help="compare with the recorded "
                         "file instead of writing it")

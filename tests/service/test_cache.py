@@ -44,7 +44,7 @@ def test_refresh_grows_entry_size_with_operators(shared_mesh):
     with_factor = cache.bytes
     from solvers.emd import pointwise_distances
 
-    pointwise_distances(fresh, 0, route="green")
+    pointwise_distances(fresh, 0, method="green")
     cache.refresh("m")
     assert cache.bytes >= with_factor + 4 * fresh.n**2
 

@@ -7,7 +7,7 @@ import pytest
 from service_testing import assert_error
 
 BODY = {"mu0": {"vertex": 0, "radius": 0.3}, "mu1": {"vertex": 63, "radius": 0.3},
-        "route": "convolutional"}
+        "method": "convolutional"}
 
 
 def _grid(client, shape=(8, 8)) -> str:

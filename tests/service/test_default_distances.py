@@ -56,7 +56,7 @@ def test_default_distance_is_the_exact_lp_on_woody(client, meshes_dir, shared_me
                                          "mu1": {"vertex": j, "radius": 0.1}})
         lp = _lp(mesh, _bump(mesh, 0), _bump(mesh, j))
         decision = job["decision"]
-        assert decision["metric"] == "w2" and decision["route"] == values["route"] == "exact"
+        assert decision["metric"] == "w2" and decision["method"] == values["method"] == "exact"
         assert decision["exact_seconds"] == decision["estimated_seconds"] < 1.0
         assert values["value"] == pytest.approx(lp, rel=1e-9) and values["converged"]
         assert values["support_sizes"] == [int(np.count_nonzero(_bump(mesh, k)))
@@ -69,9 +69,9 @@ def test_convolutional_route_reports_the_policy_it_ran(client, meshes_dir, share
     (j,) = _targets(mesh, (0.5,))
     job, values = _run(client, mid, {"mu0": {"vertex": 0, "radius": 0.1},
                                      "mu1": {"vertex": j, "radius": 0.1},
-                                     "route": "convolutional"})
+                                     "method": "convolutional"})
     decision, reg = job["decision"], values["regularization"]
-    assert values["route"] == decision["route"] == "convolutional" and values["converged"]
+    assert values["method"] == decision["method"] == "convolutional" and values["converged"]
     assert reg == decision["regularization"] and reg["purpose"] == "values" and reg["debiased"]
     for key in ("gamma", "t", "substeps", "debiased"):
         assert values[key] == decision[key] == reg[key]
@@ -84,7 +84,7 @@ def test_explicit_gamma_reports_no_policy(client, meshes_dir):
     body = {"mu0": {"vertex": 0, "radius": 0.1}, "mu1": {"vertex": 500, "radius": 0.1},
             "gamma": 0.01}
     job, values = _run(client, mid, body)
-    assert values["route"] == "convolutional" and values["regularization"] is None
+    assert values["method"] == "convolutional" and values["regularization"] is None
     assert values["gamma"] == 0.01 and values["substeps"] == 1 and values["debiased"] is False
     assert job["decision"]["reason"] == "gamma given"
 
@@ -100,18 +100,18 @@ def test_w1_reports_the_algorithm_that_ran_and_its_residual(client, meshes_dir, 
     mesh = shared_mesh("woody.obj")
     mid = upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
     body = {"mu0": {"vertex": 0, "radius": 0.15}, "mu1": {"vertex": 500, "radius": 0.15},
-            "metric": "w1", "algorithm": algorithm}
+            "metric": "w1", "w1_method": algorithm}
     job, values = _run(client, mid, body)
-    assert values["algorithm"] == job["decision"]["algorithm"] == ran
-    assert values["route"] == "beckmann" and job["decision"]["basis"] == "flow"
+    assert values["w1_method"] == job["decision"]["w1_method"] == ran
+    assert values["method"] == "beckmann" and job["decision"]["basis"] == "flow"
     direct = earth_movers_distance(mesh, _bump(mesh, 0, 0.15), _bump(mesh, 500, 0.15),
-                                   algorithm=ran)
+                                   method=ran)
     assert values["residual"] == pytest.approx(direct.residual, rel=1e-6)
     assert values["value"] == pytest.approx(direct.value, rel=1e-9)
     if ran == "ipm":  # the certified gap, below the interior point's tolerance
         assert values["converged"] and values["residual"] <= 1e-4
         flows = client.post(f"/v1/domains/{mid}/flows", json={
-            k: body[k] for k in ("mu0", "mu1", "algorithm")}).json()
+            "mu0": body["mu0"], "mu1": body["mu1"], "method": body["w1_method"]}).json()
         flow_values = client.get(f"/v1/jobs/{flows['id']}/result?arrays=false").json()
         assert flow_values["values"]["residual"] == pytest.approx(values["residual"])
 
@@ -119,8 +119,8 @@ def test_w1_reports_the_algorithm_that_ran_and_its_residual(client, meshes_dir, 
 def test_w1_refuses_an_impossible_algorithm_at_submission(client, meshes_dir):
     mid = upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
     body = {"mu0": {"vertex": 0, "radius": 0.15}, "mu1": {"vertex": 500, "radius": 0.15},
-            "metric": "w1", "algorithm": "ipm", "basis": "full"}
-    assert_error(client.post(f"/v1/domains/{mid}/distances", json=body), 422, "algorithm")
+            "metric": "w1", "w1_method": "ipm", "basis": "full"}
+    assert_error(client.post(f"/v1/domains/{mid}/distances", json=body), 422, "w1_method")
 
 
 def test_decision_is_taken_at_submission_and_kept_by_a_rerun(make_client, meshes_dir,
@@ -143,7 +143,7 @@ def test_decision_is_taken_at_submission_and_kept_by_a_rerun(make_client, meshes
     assert response.status_code == 202
     job = response.json()
     decision = job["decision"]
-    assert decision["route"] == "exact" and decision["exact_seconds"] <= \
+    assert decision["method"] == "exact" and decision["exact_seconds"] <= \
         decision_module.EXACT_BUDGET_SECONDS
     assert client.get(f"/v1/jobs/{job['id']}").json()["decision"] == decision
     library = decide_distance(mesh, _bump(mesh, 935, 0.15), _bump(mesh, 615, 0.15))
@@ -154,13 +154,13 @@ def test_decision_is_taken_at_submission_and_kept_by_a_rerun(make_client, meshes
     rt.repo._update((JobRow.id == job["id"],), heartbeat_at=time.time() - 10)
     assert rt.reaper.run_once()["requeued"] == [job["id"]]
     monkeypatch.setattr(decision_module, "EXACT_BUDGET_SECONDS", 0.0)  # would now differ
-    assert decide_distance(mesh, _bump(mesh, 935, 0.15), _bump(mesh, 615, 0.15)).route == \
+    assert decide_distance(mesh, _bump(mesh, 935, 0.15), _bump(mesh, 615, 0.15)).method == \
         "convolutional"
     rt.runner.run(job["id"])
     done = client.get(f"/v1/jobs/{job['id']}").json()
     assert done["state"] == "succeeded" and done["attempts"] == 2
     result = client.get(f"/v1/jobs/{job['id']}/result?arrays=false").json()
-    assert result["decision"] == decision and result["values"]["route"] == "exact"
+    assert result["decision"] == decision and result["values"]["method"] == "exact"
     assert result["values"]["value"] == pytest.approx(0.020168, abs=5e-7)
 
 
@@ -176,18 +176,18 @@ def test_submission_resolves_and_decides_once(make_client, meshes_dir, monkeypat
     monkeypatch.setattr(transport, "resolve_all",
                         lambda *args: resolved.append(sorted(args[1])) or resolve_all(*args))
     monkeypatch.setattr(transport, "decide_distance",
-                        lambda *args, **kw: decided.append(kw["route"]) or decide(*args, **kw))
+                        lambda *args, **kw: decided.append(kw["method"]) or decide(*args, **kw))
     client = make_client(queue="sqlite")  # recorded, not run
     mid = upload_mesh(client, meshes_dir / "spot.obj").json()["id"]
     url = f"/v1/domains/{mid}/distances"
     first = client.post(url, json=SPOT_REQUEST)
-    assert first.status_code == 202 and first.json()["decision"]["route"] == "exact", first.text
+    assert first.status_code == 202 and first.json()["decision"]["method"] == "exact", first.text
     assert resolved == [["mu0", "mu1"]] and decided == ["auto"]
     again = client.post(url, json=SPOT_REQUEST)
     assert again.status_code == 202 and again.json()["decision"] == first.json()["decision"]
     assert len(resolved) == 2 and decided == ["auto", "auto"]
     w1 = client.post(url, json={**SPOT_REQUEST, "metric": "w1"})
-    assert w1.status_code == 202 and w1.json()["decision"]["route"] == "beckmann", w1.text
+    assert w1.status_code == 202 and w1.json()["decision"]["method"] == "beckmann", w1.text
     assert len(resolved) == 3 and len(decided) == 2
 
 

@@ -32,7 +32,7 @@ def test_symmetric_matrix_equals_single_pairs(client, woody):
     values = result["values"]
     assert values["shape"] == [4, 4] and values["symmetric"] and values["complete"]
     assert values["finished_rows"] == [0, 1, 2, 3] and values["pairs_solved"] == 6
-    assert values["routes"] == {"convolutional": 6} and values["converged"]
+    assert values["methods"] == {"convolutional": 6} and values["converged"]
     assert values["kernels"] == [{"gamma": 0.01, "t": 0.0025, "substeps": 8, "debiased": True}]
     inline = np.array(result["arrays"]["matrix"])
     D = _matrix(client, job["id"])
@@ -56,12 +56,12 @@ def test_templates_default_route_and_large_result_as_file(make_client, meshes_di
     assert job["state"] == "succeeded", job
     result = client.get(f"/v1/jobs/{job['id']}/result").json()
     assert "matrix" not in result["arrays"] and result["array_files"]["matrix"]["shape"] == [3, 2]
-    assert result["values"]["routes"] == {"exact": 6} and not result["values"]["symmetric"]
+    assert result["values"]["methods"] == {"exact": 6} and not result["values"]["symmetric"]
     D = _matrix(client, job["id"])
     m0 = bump_masses(mesh, 200, 0.08)
     m1 = bump_masses(mesh, 50, 0.08)
     single = wasserstein_distance(mesh, m0, m1)
-    assert single.route == "exact"
+    assert single.method == "exact"
     assert abs(D[1, 1] - single.value) <= 1e-6 * single.value
 
 
@@ -126,7 +126,7 @@ def test_one_distribution_is_its_zero_diagonal(client, woody):
                  {"distributions": [BUMPS[0]], "metric": "w1"}):
         job = client.post(f"/v1/domains/{mid}/distance-matrices", json=body).json()
         assert job["state"] == "succeeded", job
-        assert job["decision"]["pairs"] == 0 and not job["decision"]["routes"]
+        assert job["decision"]["pairs"] == 0 and not job["decision"]["methods"]
         values = client.get(f"/v1/jobs/{job['id']}/result").json()["values"]
         assert values["shape"] == [1, 1] and values["pairs_solved"] == 0
         assert _matrix(client, job["id"]).tolist() == [[0.0]]
@@ -146,25 +146,25 @@ def test_bad_inputs_name_the_field(client, woody):
 
 def test_decision_recorded_at_submission_and_reported(make_client, meshes_dir, shared_mesh):
     """The 202 carries the matrix's decision (per-pair routes and kernels by the library's
-    decide_route on the stored domain), the job stores it and the result reports it; what
+    decide_method on the stored domain), the job stores it and the result reports it; what
     ran (routes, kernels) equals it."""
-    from solvers.convolutional.decision import decide_route
+    from solvers.convolutional.decision import decide_method
     from solvers.regularization import sketch_of
 
     client = make_client(queue="sqlite")
     rt = client.app.state.runtime
     mesh = shared_mesh("woody.obj")
     mid = upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
-    body = {"distributions": BUMPS[:3], "route": "convolutional"}
+    body = {"distributions": BUMPS[:3], "method": "convolutional"}
     r = client.post(f"/v1/domains/{mid}/distance-matrices", json=body)
     assert r.status_code == 202, r.text
     job = r.json()
     decision = job["decision"]
     masses = [bump_masses(mesh, b["vertex"], b["radius"]) for b in BUMPS[:3]]
-    expected = [decide_route(sketch_of(mesh), masses[i], masses[j], route="convolutional")
+    expected = [decide_method(sketch_of(mesh), masses[i], masses[j], method="convolutional")
                 for i, j in ((0, 1), (0, 2), (1, 2))]
     assert decision["per_pair"] and decision["zero_diagonal"] and decision["pairs"] == 3
-    assert decision["routes"] == {"convolutional": 3}
+    assert decision["methods"] == {"convolutional": 3}
     kernels = {(d.t, d.substeps) for d in expected}
     assert decision["kernel_count"] == len(kernels)
     listed = sorted((k["t"], k["substeps"]) for k in decision["kernels"])
@@ -174,7 +174,7 @@ def test_decision_recorded_at_submission_and_reported(make_client, meshes_dir, s
     rt.runner.run(job["id"])
     result = client.get(f"/v1/jobs/{job['id']}/result").json()["values"]
     assert result["decision"] == decision
-    assert result["routes"] == decision["routes"]
+    assert result["methods"] == decision["methods"]
     assert len(result["kernels"]) == decision["kernel_count"]
 
 
@@ -205,18 +205,18 @@ def test_uniform_decision_runs_as_explicit_arguments(client, woody):
                       json={"distributions": BUMPS[:3], **SHARED}).json()
     assert job["state"] == "succeeded", job
     d = job["decision"]
-    assert d["solver_arguments"] == {"route": "convolutional", "gamma": 0.01, "t": None,
+    assert d["solver_arguments"] == {"method": "convolutional", "gamma": 0.01, "t": None,
                                      "substeps": 8, "debiased": True}
-    assert d["kernel_count"] == 1 and d["routes"] == {"convolutional": 3}
+    assert d["kernel_count"] == 1 and d["methods"] == {"convolutional": 3}
     exact = client.post(f"/v1/domains/{mid}/distance-matrices",
                         json={"distributions": [{"vertex": v, "radius": 0.08}
                                                 for v in (0, 200, 400)]}).json()
     assert exact["state"] == "succeeded", exact
-    assert exact["decision"]["solver_arguments"] == {"route": "exact"}
-    assert exact["decision"]["routes"] == {"exact": 3}
+    assert exact["decision"]["solver_arguments"] == {"method": "exact"}
+    assert exact["decision"]["methods"] == {"exact": 3}
     w1 = client.post(f"/v1/domains/{mid}/distance-matrices",
                      json={"distributions": BUMPS[:2], "metric": "w1"}).json()
-    assert w1["decision"]["algorithm"] == "ipm" and w1["decision"]["routes"] == {"w1": 1}
+    assert w1["decision"]["w1_method"] == "ipm" and w1["decision"]["methods"] == {"w1": 1}
 
 
 def _traced_peak(fn) -> int:
@@ -288,11 +288,11 @@ def test_exact_matrix_memory_estimate_counts_what_the_route_builds():
 
     for per, keeps in ((80, True), (10, False)):  # supports over / under half the mesh
         M = _sparse_masses(n, 8, per, seed=per)
-        distance_matrix(mesh, M, route="exact")  # warm (imports, compiled kernels)
+        distance_matrix(mesh, M, method="exact")  # warm (imports, compiled kernels)
         mesh.operators.discard(("exact_geodesics",))
-        peak = _traced_peak(lambda M=M: distance_matrix(mesh, M, route="exact"))
+        peak = _traced_peak(lambda M=M: distance_matrix(mesh, M, method="exact"))
         assert (mesh.operators.peek(("exact_geodesics",)) is not None) == keeps
-        req = DistanceMatrixRequest(distributions=_listed(M), route="exact")
+        req = DistanceMatrixRequest(distributions=_listed(M), method="exact")
         assert estimate_bytes(view_of_domain(mesh), req) >= peak
 
 
@@ -323,11 +323,11 @@ def test_exact_matrix_memory_estimate_counts_row_blocks_and_lps():
     mesh = TriangleMesh(ico.vertices, ico.faces)
     n = mesh.n
     M = _sparse_masses(n, 6, n // 2, seed=3)  # 6 rows of 321 points: rows overlap
-    distance_matrix(mesh, M, route="exact", threads=2)  # warm: stored geodesics, imports
-    peak = _traced_peak(lambda: distance_matrix(mesh, M, route="exact", threads=2))
+    distance_matrix(mesh, M, method="exact", threads=2)  # warm: stored geodesics, imports
+    peak = _traced_peak(lambda: distance_matrix(mesh, M, method="exact", threads=2))
     view = view_of_domain(mesh)
     estimate = estimate_bytes(view, DistanceMatrixRequest(distributions=_listed(M),
-                                                          route="exact"))
+                                                          method="exact"))
     assert ground_distance_bytes(view) + 8 * n * n < peak <= estimate <= 3 * peak, (
         peak, estimate)
 
@@ -343,8 +343,8 @@ def test_w1_spectral_matrix_records_its_decision(client, woody):
                                  "method": "spectral", "k": 5}).json()
     assert job["state"] == "succeeded", job
     decision = job["decision"]
-    assert decision["w1_method"] == "spectral" and decision["k"] == 5
-    assert decision["routes"] == {"spectral": 3}
+    assert decision["w1_matrix_method"] == "spectral" and decision["k"] == 5
+    assert decision["methods"] == {"spectral": 3}
     D = _matrix(client, job["id"])
     masses = np.stack([bump_masses(mesh, b["vertex"], b["radius"]) for b in BUMPS[:3]], axis=1)
     ref = dwk_matrix(mesh, masses, k=5)
@@ -353,9 +353,10 @@ def test_w1_spectral_matrix_records_its_decision(client, woody):
         f"/v1/jobs/{job['id']}/arrays/lower_bounds.npy").content))
     assert np.all(lower <= D + 1e-15) and np.all(np.diag(lower) == 0)
     values = client.get(f"/v1/jobs/{job['id']}/result").json()["values"]
-    assert values["routes"] == {"spectral": 3} and values["converged"]
+    assert values["methods"] == {"spectral": 3} and values["converged"]
     auto = client.post(url, json={"distributions": BUMPS[:3], "metric": "w1"}).json()
-    assert auto["decision"]["w1_method"] == "interior_point" and auto["decision"]["k"] is None
+    assert auto["decision"]["w1_matrix_method"] == "interior_point"
+    assert auto["decision"]["k"] is None
 
 
 def test_w1_method_and_k_refused_naming_the_field(client, woody):

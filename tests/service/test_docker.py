@@ -535,7 +535,7 @@ def test_killed_worker_container_job_finishes_on_the_other(stack, meshes_dir):
     assert len(workers) == 2
     r = stack.post(f"/v1/domains/{cow}/flows", json={
         "mu0": {"vertex": 0, "radius": 0.15}, "mu1": {"vertex": 1500, "radius": 0.15},
-        "algorithm": "admm", "max_iter": LONG_ITER, "tol": 1e-12})  # ADMM: a long job
+        "method": "admm", "max_iter": LONG_ITER, "tol": 1e-12})  # ADMM: a long job
     assert r.status_code == 202, r.text
     job_id = r.json()["id"]
     wait_job(stack, job_id, lambda j: j["state"] == "running"

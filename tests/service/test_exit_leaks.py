@@ -53,7 +53,7 @@ def run():
                             "edges": [[i, i + 1] for i in range(n - 1)]}).json()
         job = client.post(f"/v1/domains/{graph['id']}/distances?wait=30", json={
             "mu0": {"indices": [0], "masses": [1]}, "mu1": {"indices": [5], "masses": [1]},
-            "route": "convolutional"}).json()
+            "method": "convolutional"}).json()
         assert job["state"] == "succeeded", job
         assert len(app.state.runtime.cache) == 1  # the graph, with its factored heat kernel
     return weakref.ref(app)

@@ -64,7 +64,7 @@ def test_feature_distances_match_exact_geodesics(client, ball):
     ({"vertices": [10**6]}, "vertices"),
     ({"curves": [{"waypoints": [1]}]}, "curves[0].waypoints"),
     ({"curves": [{"waypoints": [1, 10**6]}]}, "curves[0].waypoints"),
-    ({"vertices": [1], "algorithm": "ipm", "basis": "full"}, "basis"),
+    ({"vertices": [1], "method": "ipm", "basis": "full"}, "basis"),
 ])
 def test_feature_distances_refuse_bad_input(client, ball, body, field):
     assert_error(client.post(f"/v1/domains/{ball[0]}/feature-distances", json=body), 422,
@@ -88,7 +88,7 @@ def test_matrix_weights_give_the_closed_form(client, square):
     v = res["values"]
     AnisotropicDistanceValues.model_validate(v)
     exact = float(np.linalg.norm(np.asarray(M) @ (mesh.vertices[p] - mesh.vertices[q])))
-    assert v["weights"] == "matrix" and v["algorithm"] == "ipm" and v["converged"]
+    assert v["weights"] == "matrix" and v["method"] == "ipm" and v["converged"]
     assert v["value"] == pytest.approx(exact, rel=2e-3)
     assert v["lower_bound"] <= v["value"] and v["weight_range"] == pytest.approx([3.0, 3.0])
     assert np.shape(res["arrays"]["flow"]) == (mesh.n_faces, 3)
@@ -129,7 +129,7 @@ def test_curvature_weights_on_a_sphere_scale_the_distance(client, ball):
     ({"face_weights": "matrices-collapsing"}, "face_weights"),
     ({"curvature": {"strength": -1}}, "curvature.strength"),
     ({"curvature": {"strength": 1}, "basis": "spectral"}, "k"),
-    ({"curvature": {"strength": 1}, "algorithm": "ipm", "basis": "full"}, "basis"),
+    ({"curvature": {"strength": 1}, "method": "ipm", "basis": "full"}, "basis"),
 ])
 def test_anisotropic_distances_refuse_bad_input(client, square, change, field):
     sid, mesh = square

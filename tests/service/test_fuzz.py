@@ -238,13 +238,11 @@ def _body_excerpt(case) -> str:
 
 @pytest.mark.parametrize("seed", SUITE_SEEDS)
 def test_fuzz_no_server_errors(tmp_path, seed):
-    start = time.monotonic()
     stats = fuzz(tmp_path, SUITE_EXAMPLES, seed)
     assert stats["cases"] > 100
     assert stats["server_errors"] == [], stats["server_errors"][:5]
     assert stats["internal_job_errors"] == [], stats["internal_job_errors"][:5]
     assert stats["operations"] - set(stats["reached"]) == set(), stats["reached"]
-    assert time.monotonic() - start < 120
 
 
 def test_mesh_ids_replace_only_well_formed_ids():

@@ -49,7 +49,7 @@ def test_path_graph_matches_library_and_exports(client):
     H = np.asarray(a["histograms"])
     assert H.shape == (11, 40) and np.allclose(H, lib.histograms, atol=1e-12)
     assert np.allclose(a["mean"], np.linspace(0.2, 0.8, 11), atol=3e-3)
-    assert v["route"] == "wasserstein" and v["converged"] and v["n_labeled"] == 2
+    assert v["method"] == "wasserstein" and v["converged"] and v["n_labeled"] == 2
     HistogramPropagationValues.model_validate(v)  # the documented result model
     assert v["mean_range"][0] == pytest.approx(min(a["mean"]))
     row = client.get(f"/v1/jobs/{job}/arrays/histograms/rows/5")
@@ -58,10 +58,10 @@ def test_path_graph_matches_library_and_exports(client):
     assert glb.status_code == 200 and glb.content[:4] == b"glTF"
     assert b"_MEAN" in glb.content and b"_STD" in glb.content
     # the PDF baseline is bimodal in the middle; diffusion returns one frame per time
-    pdf = _submit(client, gid, {"bins": BINS, "labeled": labeled, "route": "pdf"}).json()
+    pdf = _submit(client, gid, {"bins": BINS, "labeled": labeled, "method": "pdf"}).json()
     a_pdf = client.get(f"/v1/jobs/{pdf['id']}/result").json()["arrays"]
     assert a_pdf["std"][5] > 3 * a["std"][5]
-    dif = _submit(client, gid, {"bins": BINS, "labeled": labeled, "route": "diffusion",
+    dif = _submit(client, gid, {"bins": BINS, "labeled": labeled, "method": "diffusion",
                                 "times": [0.0, 5.0]}).json()
     assert dif["state"] == "succeeded", dif
     a_dif = client.get(f"/v1/jobs/{dif['id']}/result").json()["arrays"]
@@ -89,13 +89,13 @@ def test_samples_and_periodic_bins(client):
                {"node": 8, "histogram": vm(np.deg2rad(30))}]
     for algorithm in ("lp", "entropic"):
         body = {"bins": {"lo": 0.0, "hi": two_pi, "count": 24, "periodic": True},
-                "labeled": labeled, "algorithm": algorithm}
+                "labeled": labeled, "periodic_method": algorithm}
         r = _submit(client, gid, body).json()
         assert r["state"] == "succeeded", r
         res = client.get(f"/v1/jobs/{r['id']}/result").json()
         ang = np.rad2deg(np.asarray(res["arrays"]["mean"]))
         assert np.all(np.minimum(ang, 360 - ang) <= 31)  # across 0, the short way
-        assert res["values"]["algorithm"] == algorithm and res["values"]["value"] > 0
+        assert res["values"]["periodic_method"] == algorithm and res["values"]["value"] > 0
         HistogramPropagationValues.model_validate(res["values"])
 
 
@@ -136,10 +136,10 @@ def test_mesh_domain(client, meshes_dir):
      "labeled"),
     ({"labeled": [{"node": 9, "histogram": [1] * 4}, {"node": 3, "histogram": [1] * 4}]},
      "labeled"),
-    ({"route": "diffusion"}, "times"),
+    ({"method": "diffusion"}, "times"),
     ({"times": [1.0]}, "times"),
-    ({"route": "diffusion", "times": [-1.0]}, "times[0]"),
-    ({"route": "sideways"}, "route"),
+    ({"method": "diffusion", "times": [-1.0]}, "times[0]"),
+    ({"method": "sideways"}, "method"),
 ])
 def test_bad_input_is_4xx_naming_the_field(client, patch, field):
     r = client.post("/v1/domains", json={"kind": "graph", "n_nodes": 6,
@@ -160,7 +160,7 @@ def test_unsupported_domain_kind_and_periodic_diffusion(client):
     assert_error(client.post(f"/v1/domains/{grid}/histogram-propagations", json=body), 422,
                  "domain_id")
     gid = _path_graph(client, 4, positions=False)
-    body = {"bins": {"lo": 0, "hi": 6.28, "count": 8, "periodic": True}, "route": "diffusion",
+    body = {"bins": {"lo": 0, "hi": 6.28, "count": 8, "periodic": True}, "method": "diffusion",
             "times": [1.0], "labeled": [{"node": 0, "histogram": [1.0] * 8}]}
     assert_error(client.post(f"/v1/domains/{gid}/histogram-propagations", json=body), 422,
                  "bins.periodic")

@@ -48,7 +48,7 @@ def test_large_operation_body_is_parsed_in_a_child_process(client, grid, monkeyp
     same numbers (ints and floats) as when parsed in place."""
     monkeypatch.setattr(bodies, "IN_PROCESS_BYTES", 64)
     bodies._discard_pool()
-    body = {"mu0": [1.0] * 81, "mu1": [0] * 80 + [3], "route": "exact"}
+    body = {"mu0": [1.0] * 81, "mu1": [0] * 80 + [3], "method": "exact"}
     r = client.post(f"/v1/domains/{grid}/distances", json=body)
     assert r.status_code == 200, r.text
     assert bodies.PARSER.active  # the parser process was used

@@ -26,8 +26,8 @@ MAX_ATTEMPTS = 2
 # W1 flow by ADMM on cow.obj (2,903 vertices): ~1.2 ms per iteration (measured), progress
 # every 10; LONG runs ~3.5 s so cancels and kills land mid-job.
 # ADMM flows: a job of a chosen length (the interior point stops at its certified optimum)
-LONG = {"algorithm": "admm", "max_iter": 3000, "tol": 1e-12}  # never converges early
-SHORT = {"algorithm": "admm", "max_iter": 20, "tol": 1e-12}
+LONG = {"method": "admm", "max_iter": 3000, "tol": 1e-12}  # never converges early
+SHORT = {"method": "admm", "max_iter": 20, "tol": 1e-12}
 
 
 def ran_to_its_cap(job: dict) -> bool:

@@ -277,12 +277,10 @@ def unexplained(found: list[dict]) -> list[dict]:
 @pytest.mark.parametrize("key, examples", [(None, EXAMPLES), (KEY, KEYED_EXAMPLES)],
                          ids=["open", "with-api-key"])
 def test_schemathesis_finds_no_unexplained_failure(tmp_path, key, examples):
-    start = time.monotonic()
     found, output = run_schemathesis(tmp_path, examples, SEEDS[key], key=key)
     assert "test cases" in output.lower() or "Test cases" in output, output
     left = unexplained(found)
     assert left == [], json.dumps(left[:8], indent=1)
-    assert time.monotonic() - start < 300
 
 
 def test_allow_list_entries_match_only_their_failures():

@@ -44,7 +44,7 @@ def test_identity_spectrum_and_collection_basis(client, sphere):
     sid, mesh = sphere
     gamma = 4 * mesh.mean_edge_length**2
     body = {"target_id": sid, "samples": mesh.n, "gamma": gamma, "rank": 4,
-            "dirichlet": "potential", "descriptor_k": 0, "show": 3,
+            "dirichlet_method": "potential", "descriptor_k": 0, "show": 3,
             "maps": [{"source_id": sid, "correspondence": list(range(mesh.n))},
                      {"source_id": sid, "correspondence": _rotation(mesh)}]}
     job, res = _run(client, body)
@@ -86,7 +86,7 @@ def test_energies_rank_a_scramble_below_the_identity(client, sphere):
                      {"source_id": sid, "correspondence": scramble}]}
     _, res = _run(client, body)
     ident, scr = res["values"]["maps"]
-    assert ident["samples"] == 24 and ident["dirichlet_route"] == "w2"
+    assert ident["samples"] == 24 and ident["dirichlet_method"] == "w2"
     assert scr["dirichlet"] > 1.8 * ident["dirichlet"]  # measured 2.5x at this blur
     assert ident["descriptor"] < scr["descriptor"]
     assert scr["bijectivity"] > ident["bijectivity"]

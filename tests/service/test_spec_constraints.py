@@ -29,9 +29,9 @@ def valid(op_name: str, body: dict) -> bool:
 RULES = [
     ("brdf-interpolations", {"materials": [MATERIAL] * 3, "rows": 1, "cols": 2}, "weights",
      {"weights": [[0.5, 0.5, 0.0], [0.0, 0.5, 0.5]]}),
-    ("anisotropic-distances", {**MU, "curvature": {}, "algorithm": "admm",
+    ("anisotropic-distances", {**MU, "curvature": {}, "method": "admm",
                                "basis": "spectral"}, "k", {"k": 4}),
-    ("anisotropic-distances", {**MU, "curvature": {}, "algorithm": "ipm", "basis": "full"},
+    ("anisotropic-distances", {**MU, "curvature": {}, "method": "ipm", "basis": "full"},
      "basis", {"basis": "flow"}),
 ]
 

@@ -52,7 +52,7 @@ def test_two_workers_give_identical_answers(tmp_path, meshes_dir):
         with httpx.Client(base_url=api.url, timeout=60) as http:
             with open(meshes_dir / "spot.obj", "rb") as fh:
                 mid = http.post("/v1/domains", files={"file": ("spot.obj", fh)}).json()["id"]
-            bodies = [SPOT_REQUEST, {**SPOT_REQUEST, "route": "convolutional"}]
+            bodies = [SPOT_REQUEST, {**SPOT_REQUEST, "method": "convolutional"}]
             ids = {i: _submit_all(http, mid, body) for i, body in enumerate(bodies)}
             started = time.monotonic()
             results = {i: _results(http, job_ids) for i, job_ids in ids.items()}
@@ -62,11 +62,11 @@ def test_two_workers_give_identical_answers(tmp_path, meshes_dir):
         assert len(workers) == 2, (workers, time.monotonic() - started)  # both answered
         for i, route in ((0, "exact"), (1, "convolutional")):
             first = results[i][0]
-            assert first["values"]["route"] == first["decision"]["route"] == route
+            assert first["values"]["method"] == first["decision"]["method"] == route
             for other in results[i][1:]:
                 assert other["decision"] == first["decision"]
                 assert other["values"]["value"] == first["values"]["value"]
-                assert other["values"]["route"] == route
+                assert other["values"]["method"] == route
         assert abs(results[0][0]["values"]["value"] - 0.020168) < 5e-7  # the exact LP
     finally:
         api.stop()

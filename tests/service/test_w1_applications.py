@@ -90,7 +90,7 @@ def test_path_plan_matches_the_library_and_both_solvers_agree(client, small):
     v, a = res["values"], res["arrays"]
     PathPlanValues.model_validate(v)
     lib = w1_path_planning(mesh, rho0, targets)
-    assert v["algorithm"] == "ipm" == lib.algorithm and v["converged"]
+    assert v["method"] == "ipm" == lib.method and v["converged"]
     assert v["value"] == pytest.approx(lib.value, rel=1e-6)
     assert v["objective"] == pytest.approx(v["value"])  # epsilon = 0
     arrivals = np.asarray(a["arrivals"])
@@ -101,8 +101,8 @@ def test_path_plan_matches_the_library_and_both_solvers_agree(client, small):
     assert np.shape(a["hodge_f"]) == (mesh.n,) and np.shape(a["hodge_g"]) == (len(mesh.edges),)
     assert v["hodge_residual"] < 1e-6  # a sphere: no harmonic part
     socp = job_result(client, client.post(f"/v1/domains/{sid}/path-plans?wait=60",
-                                          json={**body, "algorithm": "socp"}))[1]["values"]
-    assert socp["algorithm"] == "socp" and socp["converged"]
+                                          json={**body, "method": "socp"}))[1]["values"]
+    assert socp["method"] == "socp" and socp["converged"]
     assert socp["value"] == pytest.approx(v["value"], rel=1e-4)
 
 
@@ -140,7 +140,7 @@ def test_w1_barycenters_refuse_bad_input(client, small, body, field):
     ({"rho0": _dirac(0), "targets": [1], "epsilon": -1.0}, "epsilon"),
     ({"rho0": [1.0, 2.0], "targets": [1]}, "rho0"),
     ({"rho0": {"vertex": 10**6, "radius": 0.1}, "targets": [1]}, "rho0.vertex"),
-    ({"rho0": _dirac(0), "targets": [1], "algorithm": "admm"}, "algorithm"),
+    ({"rho0": _dirac(0), "targets": [1], "method": "admm"}, "method"),
 ])
 def test_path_plans_refuse_bad_input(client, small, body, field):
     assert_error(client.post(f"/v1/domains/{small[0]}/path-plans", json=body), 422, field)
@@ -165,16 +165,16 @@ def test_path_plans_need_an_exit_on_every_loaded_component(client, tmp_path):
 
 def test_size_caps_of_the_exact_solver_are_413s(client, tmp_path, ball):
     bid, _ = ball  # 642 vertices: 18 inputs make 642 x 19 > 12000 coupled unknowns
-    many = {"distributions": [_dirac(i) for i in range(18)], "algorithm": "socp"}
+    many = {"distributions": [_dirac(i) for i in range(18)], "method": "socp"}
     assert_error(client.post(f"/v1/domains/{bid}/w1-barycenters", json=many), 413,
                  "distributions")
     big, mesh = _sphere(client, tmp_path, 5)  # 10242 vertices
     assert_error(client.post(f"/v1/domains/{big}/w1-barycenters",
                              json={"distributions": [_dirac(0), _dirac(1)],
-                                   "algorithm": "socp"}), 413, "domain_id")
+                                   "method": "socp"}), 413, "domain_id")
     assert_error(client.post(f"/v1/domains/{big}/path-plans",
-                             json={"rho0": _dirac(0), "targets": [1], "algorithm": "socp"}),
-                 413, "algorithm")
+                             json={"rho0": _dirac(0), "targets": [1], "method": "socp"}),
+                 413, "method")
     # the interior point: no vertex cap; refused when its modelled run time is too long
     k = next(k for k in range(2, 65)
              if estimated_cost(mesh.n, mesh.n_faces, k).seconds > MAX_ESTIMATED_SECONDS)
@@ -191,7 +191,7 @@ def test_w1_barycenter_above_the_conic_cap(client, tmp_path):
         f"/v1/domains/{big}/w1-barycenters?wait=60",
         json={"distributions": [_dirac(0), _dirac(5000)], "weights": [0.5, 0.5]}))
     v = res["values"]
-    assert v["algorithm"] == "ipm" and v["converged"] and v["gap"] <= 1e-6
+    assert v["method"] == "ipm" and v["converged"] and v["gap"] <= 1e-6
     assert v["lower_bound"] <= v["value"] and v["residual"] < 1e-6
 
 

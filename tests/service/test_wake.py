@@ -153,7 +153,7 @@ def test_only_bounded_small_submissions_run_on_the_loop(tmp_path, monkeypatch):
         assert svc.submits_on_loop("distances", domain_id, _distance(gamma=0.01))
         assert not svc.submits_on_loop("distances", domain_id, _distance())
         assert not svc.submits_on_loop("distances", domain_id,
-                                       _distance(gamma=0.01, route="exact"))
+                                       _distance(gamma=0.01, method="exact"))
         assert not svc.submits_on_loop("distances", domain_id,
                                        _distance(gamma=0.01, metric="w1"))
         monkeypatch.setattr(jobs_service, "LOOP_SUBMISSION_POINTS", 35)
@@ -180,7 +180,7 @@ def test_loop_submission_skips_the_thread_pool_and_records_the_same_job(make_cli
     on_loop = client.post(f"/v1/domains/{domain_id}/distances", json={**body, "gamma": 0.01})
     assert on_loop.status_code == 202 and hops == []
     job = on_loop.json()
-    assert job["state"] == "queued" and job["decision"]["route"] == "convolutional"
+    assert job["state"] == "queued" and job["decision"]["method"] == "convolutional"
     assert client.get(f"/v1/jobs/{job['id']}").json() == job
     pooled = client.post(f"/v1/domains/{domain_id}/distances", json=body)
     assert pooled.status_code == 202 and hops == [routes.submit_job]
