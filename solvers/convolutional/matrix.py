@@ -144,7 +144,7 @@ class DistanceMatrixResult(SolverResult):
     computed) and ``computed``; ``symmetric``: one collection against itself;
     ``kernels``: the ``(gamma, t, substeps, debiased)`` groups solved as blocks.
     ``metric="w1"``: ``lower`` the certified lower bound of every entry (interior point:
-    of W1; spectral: of d_W^k, whose value is an upper bound of W1), ``w1_method``
+    of W1; spectral: of d_W^k, whose value is an upper bound of W1), ``w1_matrix_method``
     (``"interior_point"`` or ``"spectral"``), ``k`` (spectral) and ``reason``: the decision
     (:func:`solvers.emd.dwk_matrix.decide_w1_method`).
     ``iterations`` (sum), ``residual`` (max) and ``converged`` (every pair computed and
@@ -161,7 +161,7 @@ class DistanceMatrixResult(SolverResult):
     symmetric: bool = False
     kernels: list = field(default_factory=list)
     lower: np.ndarray | None = None
-    w1_method: str | None = None
+    w1_matrix_method: str | None = None
     k: int | None = None
     reason: str = ""
 
@@ -186,7 +186,7 @@ class _Table:
         self.total, self.done, self.worst = max(total, 1), 0, 0.0
         self.kernels: list = []
         self.lower = np.full((n, m), np.nan) if metric == "w1" else None
-        self.w1_method: str | None = None
+        self.w1_matrix_method: str | None = None
         self.k: int | None = None
         self.reason = ""
 
@@ -217,8 +217,9 @@ class _Table:
             values=self.values, pair_iterations=self.iterations,
             pair_residuals=self.residuals, pair_converged=self.converged, methods=self.methods,
             computed=computed, metric=self.metric, symmetric=self.symmetric,
-            kernels=list(self.kernels), lower=self.lower, w1_method=self.w1_method, k=self.k,
-            reason=self.reason, iterations=int(self.iterations.sum()),
+            kernels=list(self.kernels), lower=self.lower,
+            w1_matrix_method=self.w1_matrix_method, k=self.k, reason=self.reason,
+            iterations=int(self.iterations.sum()),
             residual=float(np.nanmax(self.residuals)) if computed.any() else float("nan"),
             converged=bool(computed.all() and self.converged[computed].all()))
 
@@ -293,7 +294,7 @@ def distance_matrix(
         slowly in ``k``: bench/results/dwk_matrix.md) or ``"auto"``: the interior point
         while its estimate fits 60 s, else spectral
         (:func:`~solvers.emd.dwk_matrix.decide_w1_method`, from the sizes alone; recorded
-        as ``w1_method``, ``k`` and ``reason`` of the result).
+        as ``w1_matrix_method``, ``k`` and ``reason`` of the result).
     k : ``method="spectral"``: eigenfunctions of the reduced curl basis (default: the
         largest of ``(0, 5, 10, 20, 50, 100)`` estimated within 60 s,
         :func:`~solvers.emd.dwk_matrix.default_k`); given with ``"auto"``: spectral.
@@ -653,7 +654,8 @@ def _w1_matrix(domain, A, B, pairs, table: _Table, *, method: str, k, options: d
     n_faces = int(getattr(domain, "n_faces", 2 * domain.n))
     count = A.shape[1] + (0 if B is None else B.shape[1])
     decision = decide_w1_method(domain.n, n_faces, count, len(pairs), method, k)
-    table.w1_method, table.k, table.reason = decision.method, decision.k, decision.reason
+    table.w1_matrix_method, table.k = decision.method, decision.k
+    table.reason = decision.reason
     if decision.method == "interior_point":
         _w1_pairs(domain, A, A if B is None else B, pairs, table, options, stop)
         return
