@@ -73,7 +73,7 @@ def test_entries_match_single_pair_spectral_w1(woody):
     mesh, bumps = woody
     res = dwk_matrix(mesh, bumps, k=10, tol=1e-4, max_iter=20000)
     for i, j in ((0, 1), (2, 4)):
-        single = earth_movers_distance(mesh, bumps[:, i], bumps[:, j], algorithm="admm",
+        single = earth_movers_distance(mesh, bumps[:, i], bumps[:, j], method="admm",
                                        basis="spectral", k=10, tol=1e-6, max_iter=20000)
         assert abs(single.value - res.values[i, j]) <= 2e-3 * res.values[i, j]
 
