@@ -221,9 +221,11 @@ def named_sites(mods: dict[str, Module], pattern: re.Pattern) -> list[tuple[str,
 # What a ``route`` site names, by where it stands (first match; read from the tree of
 # issue 41: after the redesign every site left should be an HTTP one)
 ROUTE_MEANINGS = (
-    ("HTTP route", lambda where, name, text: where.startswith("service/api/")
+    # the idempotency fingerprint's ``route`` is the request's HTTP route too ("POST
+    # <operation> on <domain>", "POST /v1/domains"), hashed with its body
+    ("HTTP route", lambda where, name, text: where.startswith(("service/api/",
+                                                               "service/idempotency.py"))
      or (where.startswith("service/operations/base.py") and "bool" in text)),
-    ("idempotency fingerprint", lambda where, *_: where.startswith("service/idempotency.py")),
     ("landmark descriptor", lambda where, name, _: name == "landmark_route"
      or where.startswith("solvers/softmaps/descriptors.py")),
     ("Dirichlet energy", lambda where, name, _: name == "dirichlet_route"
@@ -454,7 +456,7 @@ def main(argv=None) -> None:
          f"{sum(map(len, other.values()))} with {len(other)} meanings "
          f"({sum(map(len, routes.values()))} sites, {len(routes)} meanings with HTTP)"),
         ("`algorithm`/`solver` parameters and fields",
-         ", ".join(f"{n} {c}" for n, c in sorted(method_counts.items()))),
+         ", ".join(f"{n} {c}" for n, c in sorted(method_counts.items())) or "0"),
         (f"functions over {MAX_LINES} lines", str(len(long))),
         (f"public functions over {MAX_PARAMS} parameters", f"{len(wide)} (all functions: "
          f"{wide_all})"),
