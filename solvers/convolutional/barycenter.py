@@ -59,7 +59,7 @@ class BarycenterResult(SolverResult):
     gamma: float = 0.0
     t: float = 0.0
     log_scalings: tuple[np.ndarray, np.ndarray] | None = None
-    substeps: int = 1
+    substeps: int | None = 1  # None when the geodesic kernel ran
     regularization: Regularization | None = None
     method: str = "convolutional"
 
@@ -280,7 +280,8 @@ def barycenter(
                             converged=conv, entropy=float(entropy(masses, setup.areas)),
                             entropy_bound=bound, gamma=setup.gamma, t=setup.t,
                             log_scalings=(scalings["log_v"], scalings["log_w"]),
-                            substeps=setup.substeps, regularization=reg,
+                            substeps=setup.substeps,
+                            regularization=reg and reg.for_kernel(setup.method),
                             method=setup.method)
 
 
@@ -327,7 +328,7 @@ class BarycentersResult(SolverResult):
     entropy_bound: float | None = None
     gamma: float = 0.0
     t: float = 0.0
-    substeps: int = 1
+    substeps: int | None = 1  # None when the geodesic kernel ran
     regularization: Regularization | None = None
     method: str = "convolutional"
 
@@ -444,5 +445,6 @@ def barycenters(
         masses=masses, weights=W, problem_iterations=out["it"], problem_residuals=out["res"],
         problem_converged=out["conv"], entropies=entropy(masses, setup.areas),
         entropy_bound=bound, gamma=setup.gamma, t=setup.t, substeps=setup.substeps,
-        regularization=reg, iterations=int(out["it"].sum()), residual=float(out["res"].max()),
+        regularization=reg and reg.for_kernel(setup.method), iterations=int(out["it"].sum()),
+        residual=float(out["res"].max()),
         converged=bool(out["conv"].all()), method=setup.method)
