@@ -174,19 +174,14 @@ def barycenter_steps(areas: np.ndarray, inputs: np.ndarray, weights: np.ndarray,
         lku = yield lw
         ld = lv + lku
         if debiased:
-            # Janati et al. (2020) / POT: geometric mean of H(w_i) times c.
-            lbar = lku @ weights + lc
-            for _ in range(10):
-                lc = 0.5 * (lc + lbar - (yield lc))
+            lbar, lc = yield from _debiased_mean_steps(lku, weights, lc)
         else:
             lbar = ld @ weights  # Alg. 2: mu = prod_i d_i^alpha_i
         if entropy_bounds is not None:
             for b in range(B):
                 lbar[:, b] = sharpen_log(lbar[:, b], areas, entropy_bounds[b])
         if it % check == 0 or it >= max_iter:
-            gaps = np.abs(a * (np.exp(ld) - np.exp(spread(lbar)))).sum(axis=0)
-            if omega != 1.0:  # the relaxed w update leaves the input marginal inexact
-                gaps = gaps + np.abs(a * np.exp(lw + lkv) - inputs).sum(axis=0)
+            gaps = _marginal_gaps(a, ld, spread(lbar), omega, lw, lkv, inputs)
             residual = float(np.max(gaps if measure_all else np.where(alpha > 0, gaps, 0.0)))
             if not np.isfinite(residual):
                 residual = float("inf")
@@ -201,6 +196,25 @@ def barycenter_steps(areas: np.ndarray, inputs: np.ndarray, weights: np.ndarray,
     if scalings is not None:
         scalings["log_v"], scalings["log_w"] = lv, lw
     return lbar, it, residual, bool(residual <= tol)
+
+
+def _debiased_mean_steps(lku, weights, lc):
+    """The debiased barycenter's log-density and its log-factor ``c`` as a step generator
+    (Janati et al. (2020) / POT: geometric mean of H(w_i) times c, 10 fixed-point steps
+    of ``c``); returns ``(lbar, lc)``."""
+    lbar = lku @ weights + lc
+    for _ in range(10):
+        lc = 0.5 * (lc + lbar - (yield lc))
+    return lbar, lc
+
+
+def _marginal_gaps(a, ld, spread_lbar, omega, lw, lkv, inputs):
+    """Per column the L1 violation of its plan's marginal at the barycenter, plus, when
+    over-relaxed (``omega != 1``), at the input: the relaxed w update leaves it inexact."""
+    gaps = np.abs(a * (np.exp(ld) - np.exp(spread_lbar))).sum(axis=0)
+    if omega != 1.0:
+        gaps = gaps + np.abs(a * np.exp(lw + lkv) - inputs).sum(axis=0)
+    return gaps
 
 
 def barycenter(
