@@ -353,6 +353,28 @@ class BarycentersResult(SolverResult):
 BLOCK_CACHE_BYTES = 256 * 2**10
 
 
+def _weight_vectors(weights, k: int) -> np.ndarray:
+    """``(B, k)`` weight vectors, each checked and normalized."""
+    from solvers.errors import InputError
+
+    try:
+        W = np.atleast_2d(np.asarray(weights, dtype=np.float64))
+    except (TypeError, ValueError) as exc:
+        raise InputError("weights must be a list of weight vectors", field="weights") from exc
+    if W.ndim != 2 or W.shape[0] == 0:
+        raise InputError(f"weights must have shape (B, {k})", field="weights")
+    return np.stack([check_weights(w, k) for w in W])
+
+
+def _check_block(block) -> None:
+    """Raise unless ``block`` is ``None`` or a positive integer."""
+    from solvers.errors import InputError
+
+    if block is not None and (isinstance(block, bool) or not isinstance(block, (int, np.integer))
+                              or block < 1):
+        raise InputError(f"block must be a positive integer, got {block!r}", field="block")
+
+
 def cached_problems(n: int, inputs: int) -> int:
     """Barycenter problems of ``inputs`` columns on ``n`` vertices per block (at least 1; a
     function of the sizes only)."""
@@ -360,21 +382,10 @@ def cached_problems(n: int, inputs: int) -> int:
 
 
 def barycenters(
-    domain,
-    mus,
-    weights,
-    *,
-    gamma: float | str = "auto",
-    t: float | None = None,
-    substeps: int | None = None,
-    entropy_bound: float | None = None,
-    sharpen: bool = False,
-    debiased: bool = False,
-    tol: float = 1e-5,
-    max_iter: int | None = None,
-    acceleration: str = "over-relaxation",
-    method: str = "auto",
-    block: int | None = None,
+    domain, mus, weights, *, gamma: float | str = "auto", t: float | None = None,
+    substeps: int | None = None, entropy_bound: float | None = None, sharpen: bool = False,
+    debiased: bool = False, tol: float = 1e-5, max_iter: int | None = None,
+    acceleration: str = "over-relaxation", method: str = "auto", block: int | None = None,
     progress: Callable[..., None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
 ) -> BarycentersResult:
@@ -391,8 +402,7 @@ def barycenters(
 
     Parameters
     ----------
-    domain : any domain.
-    mus : ``(n, k)`` input masses (columns normalized here).
+    domain : any domain; mus : ``(n, k)`` input masses (columns normalized here).
     weights : ``(B, k)`` non-negative weight vectors (each normalized), e.g. a grid of
         ``alphas`` (thesis Fig. 3.4).
     gamma, t, substeps, entropy_bound, sharpen, debiased, tol, max_iter, acceleration, method :
@@ -409,20 +419,11 @@ def barycenters(
     problem_converged, entropies, iterations, residual, converged, ...)
     """
     from solvers.convolutional.matrix import run_block
-    from solvers.errors import InputError
 
     M = _inputs(domain, mus)
     k = M.shape[1]
-    try:
-        W = np.atleast_2d(np.asarray(weights, dtype=np.float64))
-    except (TypeError, ValueError) as exc:
-        raise InputError("weights must be a list of weight vectors", field="weights") from exc
-    if W.ndim != 2 or W.shape[0] == 0:
-        raise InputError(f"weights must have shape (B, {k})", field="weights")
-    W = np.stack([check_weights(w, k) for w in W])
-    if block is not None and (isinstance(block, bool) or not isinstance(block, (int, np.integer))
-                              or block < 1):
-        raise InputError(f"block must be a positive integer, got {block!r}", field="block")
+    W = _weight_vectors(weights, k)
+    _check_block(block)
     reg, setup, options = _prepared(domain, M, gamma=gamma, t=t, substeps=substeps,
                                     entropy_bound=entropy_bound, sharpen=sharpen,
                                     debiased=debiased, tol=tol, max_iter=max_iter,
