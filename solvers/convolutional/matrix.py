@@ -233,22 +233,11 @@ def matrix_pairs(n: int, m: int, symmetric: bool,
 
 
 def distance_matrix(
-    domain,
-    distributions,
-    others=None,
-    *,
-    metric: str = "w2",
-    gamma: float | str = "auto",
-    t: float | None = None,
-    substeps: int | None = None,
-    tol: float = 1e-5,
-    max_iter: int | None = None,
-    debiased: bool | None = None,
-    method: str = "auto",
-    w1_options: dict | None = None,
-    progress: Callable[..., None] | None = None,
-    should_cancel: Callable[[], bool] | None = None,
-    threads: int | None = None,
+    domain, distributions, others=None, *, metric: str = "w2", gamma: float | str = "auto",
+    t: float | None = None, substeps: int | None = None, tol: float = 1e-5,
+    max_iter: int | None = None, debiased: bool | None = None, method: str = "auto",
+    w1_options: dict | None = None, progress: Callable[..., None] | None = None,
+    should_cancel: Callable[[], bool] | None = None, threads: int | None = None,
 ) -> DistanceMatrixResult:
     r"""Pairwise distances of a collection (``n x n``) or against ``others`` (``n x m``).
 
@@ -280,13 +269,7 @@ def distance_matrix(
     DistanceMatrixResult(values (n, m), pair_iterations, pair_residuals, pair_converged,
     methods, computed, iterations, residual, converged, ...).
     """
-    if metric not in METRICS:
-        raise InputError(f"metric must be one of {', '.join(map(repr, METRICS))}, got "
-                         f"{metric!r}", field="metric")
-    if should_cancel is not None and not callable(should_cancel):
-        raise InputError("should_cancel must be callable", field="should_cancel")
-    if progress is not None and not callable(progress):
-        raise InputError("progress must be callable", field="progress")
+    _check_metric_and_callbacks(metric, progress, should_cancel)
     A = _collection(domain, distributions, "distributions")
     symmetric = others is None
     B = A if symmetric else _collection(domain, others, "others")
@@ -325,6 +308,18 @@ def distance_matrix(
         _convolutional_pairs(domain, A, B, members, table, tol=tol, max_iter=max_iter,
                              stop=stop)
     return table.result()
+
+
+def _check_metric_and_callbacks(metric, progress, should_cancel) -> None:
+    """Raise unless ``metric`` is one of :data:`METRICS` and the callbacks are callable
+    (or ``None``)."""
+    if metric not in METRICS:
+        raise InputError(f"metric must be one of {', '.join(map(repr, METRICS))}, got "
+                         f"{metric!r}", field="metric")
+    if should_cancel is not None and not callable(should_cancel):
+        raise InputError("should_cancel must be callable", field="should_cancel")
+    if progress is not None and not callable(progress):
+        raise InputError("progress must be callable", field="progress")
 
 
 def zero_diagonal(domain, A, gamma, debiased, method) -> bool:
