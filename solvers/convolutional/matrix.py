@@ -139,9 +139,14 @@ class DistanceMatrixResult(SolverResult):
     distance units, or :math:`W_1`), ``nan`` where not computed (cancelled);
     per pair, same shape: ``pair_iterations``, ``pair_residuals`` (each solver's measured
     stopping quantity), ``pair_converged``, ``methods`` (``"exact"``, ``"convolutional"``,
-    ``"w1"`` or ``"identical"`` for the diagonal of a symmetric matrix, ``""`` when not
+    ``"w1"``, ``"spectral"`` or ``"identical"`` for the diagonal of a symmetric matrix,
+    ``""`` when not
     computed) and ``computed``; ``symmetric``: one collection against itself;
     ``kernels``: the ``(gamma, t, substeps, debiased)`` groups solved as blocks.
+    ``metric="w1"``: ``lower`` the certified lower bound of every entry (interior point:
+    of W1; spectral: of d_W^k, whose value is an upper bound of W1), ``w1_matrix_method``
+    (``"interior_point"`` or ``"spectral"``), ``k`` (spectral) and ``reason``: the decision
+    (:func:`solvers.emd.dwk_matrix.decide_w1_method`).
     ``iterations`` (sum), ``residual`` (max) and ``converged`` (every pair computed and
     converged) summarize the pairs.
     """
@@ -155,6 +160,10 @@ class DistanceMatrixResult(SolverResult):
     metric: str = "w2"
     symmetric: bool = False
     kernels: list = field(default_factory=list)
+    lower: np.ndarray | None = None
+    w1_matrix_method: str | None = None
+    k: int | None = None
+    reason: str = ""
 
     @property
     def finished_rows(self) -> np.ndarray:
@@ -176,6 +185,10 @@ class _Table:
         self.with_fraction = progress is not None and _arity(progress) >= 3
         self.total, self.done, self.worst = max(total, 1), 0, 0.0
         self.kernels: list = []
+        self.lower = np.full((n, m), np.nan) if metric == "w1" else None
+        self.w1_matrix_method: str | None = None
+        self.k: int | None = None
+        self.reason = ""
 
     def put(self, i: int, j: int, value, iterations, residual, converged, method) -> None:
         cells = [(i, j), (j, i)] if self.symmetric and i != j else [(i, j)]
@@ -185,6 +198,8 @@ class _Table:
             self.residuals[r, c] = residual
             self.converged[r, c] = converged
             self.methods[r, c] = method
+        if self.lower is not None and method == "identical":
+            self.lower[i, j] = 0.0
         if method == "identical":
             return
         self.done += 1
@@ -202,7 +217,9 @@ class _Table:
             values=self.values, pair_iterations=self.iterations,
             pair_residuals=self.residuals, pair_converged=self.converged, methods=self.methods,
             computed=computed, metric=self.metric, symmetric=self.symmetric,
-            kernels=list(self.kernels), iterations=int(self.iterations.sum()),
+            kernels=list(self.kernels), lower=self.lower,
+            w1_matrix_method=self.w1_matrix_method, k=self.k, reason=self.reason,
+            iterations=int(self.iterations.sum()),
             residual=float(np.nanmax(self.residuals)) if computed.any() else float("nan"),
             converged=bool(computed.all() and self.converged[computed].all()))
 
@@ -236,7 +253,8 @@ def distance_matrix(
     domain, distributions, others=None, *, metric: str = "w2", gamma: float | str = "auto",
     t: float | None = None, substeps: int | None = None, tol: float = 1e-5,
     max_iter: int | None = None, debiased: bool | None = None, method: str = "auto",
-    w1_options: dict | None = None, progress: Callable[..., None] | None = None,
+    k: int | None = None, w1_options: dict | None = None,
+    progress: Callable[..., None] | None = None,
     should_cancel: Callable[[], bool] | None = None, threads: int | None = None,
 ) -> DistanceMatrixResult:
     r"""Pairwise distances of a collection (``n x n``) or against ``others`` (``n x m``).
@@ -254,9 +272,23 @@ def distance_matrix(
         ``n`` vectors; normalized here.
     others : optional second set ``(n_vertices, m)``; None: the symmetric matrix of
         ``distributions`` (pairs ``i < j`` solved and mirrored).
-    gamma, t, substeps, tol, max_iter, debiased, method : as in ``wasserstein_distance``
+    gamma, t, substeps, tol, max_iter, debiased : as in ``wasserstein_distance``
         (``"w2"`` only).
-    w1_options : keyword arguments of ``earth_movers_distance`` (``"w1"`` only).
+    method : ``"w2"``: as in ``wasserstein_distance`` (``"auto"``, ``"convolutional"``,
+        ``"exact"``); ``"w1"``: ``"interior_point"`` (one certified W1 per pair,
+        :func:`~solvers.emd.earth_movers_distance` with ``w1_options``), ``"spectral"``
+        (the thesis' d_W^k, eq. 2.4 with the curl part in ``k`` Laplacian eigenfunctions:
+        every distribution embedded once, then batched reduced problems with certified gaps,
+        :func:`~solvers.emd.dwk_matrix.dwk_matrix`; an upper bound of W1 that converges
+        slowly in ``k``: bench/results/dwk_matrix.md) or ``"auto"``: the interior point
+        while its estimate fits 60 s, else spectral
+        (:func:`~solvers.emd.dwk_matrix.decide_w1_method`, from the sizes alone; recorded
+        as ``w1_matrix_method``, ``k`` and ``reason`` of the result).
+    k : ``method="spectral"``: eigenfunctions of the reduced curl basis (default: the
+        largest of ``(0, 5, 10, 20, 50, 100)`` estimated within 60 s,
+        :func:`~solvers.emd.dwk_matrix.default_k`); given with ``"auto"``: spectral.
+    w1_options : keyword arguments of ``earth_movers_distance`` (``"w1"``, interior point),
+        or ``tol``, ``max_iter``, ``harmonic`` of ``dwk_matrix`` (spectral).
     progress : ``progress(pairs_done, worst_residual[, fraction])`` after each pair.
     should_cancel : checked before every block step, LP and W1 solve; when it returns True
         :class:`~solvers.errors.CancelledError` is raised with ``partial``, the result so
@@ -269,7 +301,7 @@ def distance_matrix(
     DistanceMatrixResult(values (n, m), pair_iterations, pair_residuals, pair_converged,
     methods, computed, iterations, residual, converged, ...).
     """
-    _check_metric_and_callbacks(metric, progress, should_cancel)
+    _check_metric_and_callbacks(metric, method, k, progress, should_cancel)
     A = _collection(domain, distributions, "distributions")
     symmetric = others is None
     B = A if symmetric else _collection(domain, others, "others")
@@ -278,13 +310,7 @@ def distance_matrix(
     exact_threads(threads)  # checked before any work
     pairs = matrix_pairs(A.shape[1], B.shape[1], symmetric)
     table = _Table(A.shape[1], B.shape[1], symmetric, metric, progress, len(pairs))
-
-    def stop(where: str) -> None:
-        if should_cancel is not None and should_cancel():
-            error = CancelledError(f"cancelled {where}")
-            error.partial = table.result()
-            raise error
-
+    stop = _stopper(should_cancel, table)
     if symmetric and (metric == "w1" or zero_diagonal(domain, A, gamma, debiased, method)):
         for i in range(A.shape[1]):
             table.put(i, i, 0.0, 0, 0.0, True, "identical")
@@ -292,11 +318,32 @@ def distance_matrix(
         pairs = matrix_pairs(A.shape[1], B.shape[1], symmetric, diagonal=True)
         table.total = len(pairs)
     if metric == "w1":
-        _w1_pairs(domain, A, B, pairs, table, w1_options or {}, stop)
+        _w1_matrix(domain, A, None if symmetric else B, pairs, table, method=method, k=k,
+                   options=w1_options or {}, stop=stop)
         return table.result()
+    _w2_pairs(domain, A, B, pairs, table, stop, threads, tol=tol, max_iter=max_iter,
+              method=method, gamma=gamma, t=t, substeps=substeps, debiased=debiased)
+    return table.result()
+
+
+def _stopper(should_cancel, table):
+    """``stop(where)``: raises :class:`CancelledError` carrying the result so far
+    (``partial``) when ``should_cancel`` says so."""
+    def stop(where: str) -> None:
+        if should_cancel is not None and should_cancel():
+            error = CancelledError(f"cancelled {where}")
+            error.partial = table.result()
+            raise error
+
+    return stop
+
+
+def _w2_pairs(domain, A, B, pairs, table, stop, threads, *, tol, max_iter, **decision) -> None:
+    """Solve the W2 ``pairs`` into ``table``, each by its own decision
+    (:func:`decide_method` with the ``decision`` arguments): the exact LPs in threads, the
+    convolutional ones grouped by kernel, one block per group."""
     sketch = sketch_of(domain).remembering_paths()
-    decisions = [decide_method(sketch, A[:, i], B[:, j], method=method, gamma=gamma, t=t,
-                              substeps=substeps, debiased=debiased) for i, j in pairs]
+    decisions = [decide_method(sketch, A[:, i], B[:, j], **decision) for i, j in pairs]
     exact = [p for p, d in zip(pairs, decisions, strict=True) if d.method == "exact"]
     if exact:
         _exact_pairs(domain, A, B, exact, table, stop, threads)
@@ -307,15 +354,17 @@ def distance_matrix(
     for members in groups.values():
         _convolutional_pairs(domain, A, B, members, table, tol=tol, max_iter=max_iter,
                              stop=stop)
-    return table.result()
 
 
-def _check_metric_and_callbacks(metric, progress, should_cancel) -> None:
-    """Raise unless ``metric`` is one of :data:`METRICS` and the callbacks are callable
-    (or ``None``)."""
+def _check_metric_and_callbacks(metric, method, k, progress, should_cancel) -> None:
+    """Raise unless ``metric`` is one of :data:`METRICS`, ``method`` and ``k`` fit it, and
+    the callbacks are callable (or ``None``)."""
     if metric not in METRICS:
         raise InputError(f"metric must be one of {', '.join(map(repr, METRICS))}, got "
                          f"{metric!r}", field="metric")
+    if metric == "w2" and (method in W1_ONLY or k is not None):
+        raise InputError(f"method {method!r} and k choose the W1 algorithm (metric 'w1')",
+                         field="k" if k is not None else "method")
     if should_cancel is not None and not callable(should_cancel):
         raise InputError("should_cancel must be callable", field="should_cancel")
     if progress is not None and not callable(progress):
@@ -592,3 +641,70 @@ def _w1_pairs(domain, A, B, pairs, table: _Table, options: dict, stop) -> None:
             stop(f"in pair ({i}, {j})")
             raise
         table.put(i, j, res.value, res.iterations, res.residual, res.converged, "w1")
+        table.lower[i, j] = res.lower_bound
+        if table.symmetric:
+            table.lower[j, i] = res.lower_bound
+
+
+SPECTRAL_OPTIONS = ("tol", "max_iter", "harmonic")
+#: Values of ``method`` that apply to ``metric="w1"`` only.
+W1_ONLY = ("interior_point", "spectral")
+
+
+def _w1_matrix(domain, A, B, pairs, table: _Table, *, method: str, k, options: dict,
+               stop) -> None:
+    """``metric="w1"``: decide (:func:`solvers.emd.dwk_matrix.decide_w1_method`, from the
+    sizes alone; recorded on the result), then one certified interior-point W1 per pair, or
+    d_W^k for all pairs (:func:`solvers.emd.dwk_matrix.dwk_matrix`; ``B`` None: symmetric).
+    """
+    from solvers.emd.dwk_matrix import decide_w1_method
+
+    n_faces = int(getattr(domain, "n_faces", 2 * domain.n))
+    count = A.shape[1] + (0 if B is None else B.shape[1])
+    decision = decide_w1_method(domain.n, n_faces, count, len(pairs), method, k)
+    table.w1_matrix_method, table.k = decision.method, decision.k
+    table.reason = decision.reason
+    if decision.method == "interior_point":
+        _w1_pairs(domain, A, A if B is None else B, pairs, table, options, stop)
+        return
+    unknown = sorted(set(options) - set(SPECTRAL_OPTIONS))
+    if unknown:
+        raise InputError(f"w1_options {unknown} do not apply to method 'spectral' (it takes "
+                         f"{', '.join(SPECTRAL_OPTIONS)})", field="w1_options")
+    _spectral_pairs(domain, A, B, table, decision.k, options, stop)
+
+
+def _spectral_pairs(domain, A, B, table: _Table, k: int, options: dict, stop) -> None:
+    """d_W^k of every pair into ``table`` (method ``"spectral"``, residual = the certified
+    gap), progress passed through, cancellation with the finished row blocks."""
+    from solvers.emd.dwk_matrix import dwk_matrix
+
+    def report(done: int, worst: float) -> None:
+        table.done, table.worst = done, max(table.worst, worst)
+        if table.progress is not None:
+            if table.with_fraction:
+                table.progress(done, table.worst, done / table.total)
+            else:
+                table.progress(done, table.worst)
+
+    try:
+        res = dwk_matrix(domain, A, B, k=k, progress=report,
+                         should_cancel=_should_cancel(stop, "between blocks of pairs"),
+                         **options)
+    except CancelledError as exc:
+        _fill_spectral(table, exc.partial)
+        error = CancelledError(str(exc))
+        error.partial = table.result()
+        raise error from exc
+    _fill_spectral(table, res)
+
+
+def _fill_spectral(table: _Table, res) -> None:
+    done = res.computed.copy()
+    if table.symmetric:
+        np.fill_diagonal(done, False)  # the table's "identical" entries
+    table.values[done], table.lower[done] = res.values[done], res.lower[done]
+    table.iterations[done] = res.pair_iterations[done]
+    table.residuals[done] = res.gaps[done]
+    table.converged[done] = res.gaps[done] <= res.tol
+    table.methods[done] = "spectral"
