@@ -461,5 +461,4 @@ def barycenters(
         problem_converged=out["conv"], entropies=entropy(masses, setup.areas),
         entropy_bound=bound, gamma=setup.gamma, t=setup.t, substeps=setup.substeps,
         regularization=reg and reg.for_kernel(setup.method), iterations=int(out["it"].sum()),
-        residual=float(out["res"].max()),
-        converged=bool(out["conv"].all()), method=setup.method)
+        residual=float(out["res"].max()), converged=bool(out["conv"].all()), method=setup.method)
