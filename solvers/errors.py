@@ -8,8 +8,19 @@ any ``ValueError``.
 class OTGeoError(Exception):
     """Base class of every error the library raises on purpose.
 
-    ``field`` names the offending input (e.g. ``"faces"``, ``"mu"``) so a
-    caller can point at it.
+    Parameters
+    ----------
+    message : str
+        What went wrong, for a person to read.
+    field : str, optional
+        The offending input (e.g. ``"faces"``, ``"mu"``), so a caller can point at it.
+
+    Attributes
+    ----------
+    message : str
+        The message given.
+    field : str or None
+        The offending input, if known.
     """
 
     def __init__(self, message: str, *, field: str | None = None):
@@ -19,15 +30,39 @@ class OTGeoError(Exception):
 
 
 class InputError(OTGeoError, ValueError):
-    """An argument is malformed: wrong shape, NaN, negative mass, out of range."""
+    """An argument is malformed: wrong shape, NaN, negative mass, out of range.
+
+    Parameters
+    ----------
+    message : str
+        What went wrong, for a person to read.
+    field : str, optional
+        The offending input (e.g. ``"faces"``, ``"mu"``), so a caller can point at it.
+    """
 
 
 class DomainError(InputError):
-    """A domain cannot be built from the given geometry or connectivity."""
+    """A domain cannot be built from the given geometry or connectivity.
+
+    Parameters
+    ----------
+    message : str
+        What went wrong, for a person to read.
+    field : str, optional
+        The offending input (e.g. ``"faces"``, ``"mu"``), so a caller can point at it.
+    """
 
 
 class MeshFormatError(DomainError):
-    """A mesh file is empty, unreadable or of an unsupported format."""
+    """A mesh file is empty, unreadable or of an unsupported format.
+
+    Parameters
+    ----------
+    message : str
+        What went wrong, for a person to read.
+    field : str, optional
+        The offending input (e.g. ``"faces"``, ``"mu"``), so a caller can point at it.
+    """
 
 
 class UnsupportedDomainError(InputError):
@@ -35,7 +70,15 @@ class UnsupportedDomainError(InputError):
 
 
 class ConvergenceError(OTGeoError):
-    """An iterative solver could not produce a meaningful result."""
+    """An iterative solver could not produce a meaningful result.
+
+    Parameters
+    ----------
+    message : str
+        What went wrong, for a person to read.
+    field : str, optional
+        The offending input (e.g. ``"faces"``, ``"mu"``), so a caller can point at it.
+    """
 
 
 class CancelledError(OTGeoError):
