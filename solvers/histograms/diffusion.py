@@ -82,8 +82,10 @@ def diffuse_histograms(graph, histograms, times, *, bins, method: Literal["wasse
                        ) -> HistogramDiffusionResult:
     r"""Diffuse one histogram per node for each time in ``times`` (Prop. 16, §5.3.3).
 
-    ``method="wasserstein"``: implicit heat steps :math:`(I + \tau L)\, g^{t+\tau} = g^t` on
-    the inverse CDFs :math:`g` (Prop. 16); ``"pdf"``: the same steps on the histograms.
+    ``method="wasserstein"``: the gradient flow of the Dirichlet energy in :math:`W_2` is
+    the heat equation on the inverse CDFs :math:`g` (Prop. 16), integrated by implicit
+    steps :math:`g_t = (M + \tfrac{t}{k} \mathcal{L})^{-k} M g_0` (``k = substeps``);
+    ``"pdf"``: the same steps on the histograms.
     ``t = 0`` returns the input.
 
     Parameters
