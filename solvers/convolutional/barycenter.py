@@ -44,13 +44,30 @@ from solvers.validation import check_entropy_bound, check_weights
 
 @dataclass
 class BarycenterResult(SolverResult):
-    r"""Result of :func:`barycenter`: ``masses`` ``(n,)`` (sum 1), convergence data, entropy.
+    r"""Result of :func:`barycenter`.
 
-    ``residual``: largest L1 violation :math:`\|a \otimes (v_i \otimes H(a\otimes w_i) -
-    \mu)\|_1` over the inputs (mass units); ``entropy``: :math:`-\sum m \log(m/a)`;
-    ``entropy_bound``: the bound used by sharpening (None without sharpening);
-    ``log_scalings``: ``(log v, log w)``, each ``(n, k)``: the plan of input ``i`` is
-    :math:`\pi_i = D_{v_i} K D_{w_i}` (barycenter side ``v``, input side ``w``).
+    Attributes
+    ----------
+    masses : (n,) array
+        The barycenter (sum 1).
+    entropy : float
+        :math:`-\sum m \log(m/a)`.
+    entropy_bound : float or None
+        The bound used by sharpening (None without sharpening).
+    log_scalings : tuple of (n, k) array or None
+        ``(log v, log w)``: the plan of input ``i`` is :math:`\pi_i = D_{v_i} K D_{w_i}`
+        (barycenter side ``v``, input side ``w``).
+    gamma, t, substeps : float, float, int
+        The regularization used: :math:`\gamma`, the heat time :math:`t` and its implicit
+        Euler steps.
+    regularization : Regularization or None
+        The policy's choice, when ``gamma="auto"`` (:mod:`solvers.regularization`).
+    method : str
+        The kernel used (``"convolutional"``: heat kernel; ``"geodesic"``, ...).
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`).
+        ``residual``: largest L1 violation :math:`\|a \otimes (v_i \otimes H(a\otimes w_i) -
+        \mu)\|_1` over the inputs (mass units).
     """
 
     masses: np.ndarray
@@ -313,10 +330,32 @@ def _prepared(domain, M, *, gamma, t, substeps, entropy_bound, sharpen, debiased
 
 @dataclass
 class BarycentersResult(SolverResult):
-    r"""Result of :func:`barycenters`: ``masses`` ``(n, B)`` (columns sum to 1), one per
-    weight vector; per problem ``(B,)``: ``problem_iterations``, ``problem_residuals``,
-    ``problem_converged``, ``entropies``; ``iterations`` (sum), ``residual`` (max) and
-    ``converged`` (all) summarize them."""
+    r"""Result of :func:`barycenters`: one barycenter per weight vector.
+
+    Attributes
+    ----------
+    masses : (n, B) array
+        Barycenters (columns sum to 1).
+    weights : (B, k) array
+        The weight vectors.
+    problem_iterations, problem_residuals, problem_converged : (B,) array
+        Convergence data per weight vector.
+    entropies : (B,) array
+        Entropy of each barycenter.
+    entropy_bound : float or None
+        The bound used by sharpening.
+    gamma, t, substeps : float, float, int
+        The regularization used: :math:`\gamma`, the heat time :math:`t` and its implicit
+        Euler steps.
+    regularization : Regularization or None
+        The policy's choice, when ``gamma="auto"`` (:mod:`solvers.regularization`).
+    method : str
+        The kernel used (``"convolutional"``: heat kernel; ``"geodesic"``, ...).
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`).
+        ``iterations`` (sum), ``residual`` (max) and ``converged`` (all) summarize the
+        problems.
+    """
 
     masses: np.ndarray
     weights: np.ndarray

@@ -133,17 +133,30 @@ def block_pairs(n: int) -> int:
 
 @dataclass(kw_only=True)
 class DistanceMatrixResult(SolverResult):
-    r"""Result of :func:`distance_matrix`.
+    """Result of :func:`distance_matrix`.
 
-    ``values``: ``(n, m)`` distances (:math:`W_2^2` / Sinkhorn divergence in squared
-    distance units, or :math:`W_1`), ``nan`` where not computed (cancelled);
-    per pair, same shape: ``pair_iterations``, ``pair_residuals`` (each solver's measured
-    stopping quantity), ``pair_converged``, ``methods`` (``"exact"``, ``"convolutional"``,
-    ``"w1"`` or ``"identical"`` for the diagonal of a symmetric matrix, ``""`` when not
-    computed) and ``computed``; ``symmetric``: one collection against itself;
-    ``kernels``: the ``(gamma, t, substeps, debiased)`` groups solved as blocks.
-    ``iterations`` (sum), ``residual`` (max) and ``converged`` (every pair computed and
-    converged) summarize the pairs.
+    Attributes
+    ----------
+    values : (n, m) array
+        Distances (:math:`W_2^2` / Sinkhorn divergence in squared distance units, or
+        :math:`W_1`), ``nan`` where not computed (cancelled).
+    pair_iterations, pair_residuals, pair_converged : (n, m) array
+        Per pair: each solver's iterations, measured stopping quantity and convergence.
+    methods : (n, m) array of str
+        ``"exact"``, ``"convolutional"``, ``"w1"`` or ``"identical"`` (the diagonal of a
+        symmetric matrix), ``""`` when not computed.
+    computed : (n, m) bool array
+        The pairs computed.
+    metric : {"w2", "w1"}
+        The metric.
+    symmetric : bool
+        One collection against itself.
+    kernels : list of tuple
+        The ``(gamma, t, substeps, debiased)`` groups solved as blocks.
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`).
+        ``iterations`` (sum), ``residual`` (max) and ``converged`` (every pair computed and
+        converged) summarize the pairs.
     """
 
     values: np.ndarray
@@ -261,6 +274,8 @@ def distance_matrix(
     Parameters
     ----------
     domain : any domain (``"w1"``: a triangle mesh).
+    metric : {"w2", "w1"}
+        Convolutional (or exact) :math:`W_2^2`, or the Beckmann :math:`W_1`.
     distributions : ``(n_vertices, n)`` masses (one distribution per column) or a list of
         ``n`` vectors; normalized here.
     others : optional second set ``(n_vertices, m)``; None: the symmetric matrix of
@@ -277,8 +292,9 @@ def distance_matrix(
 
     Returns
     -------
-    DistanceMatrixResult(values (n, m), pair_iterations, pair_residuals, pair_converged,
-    methods, computed, iterations, residual, converged, ...).
+    DistanceMatrixResult
+        ``values`` ``(n, m)``, ``pair_iterations``, ``pair_residuals``, ``pair_converged``,
+        ``methods``, ``computed``, ``iterations``, ``residual``, ``converged``, ...
     """
     if metric not in METRICS:
         raise InputError(f"metric must be one of {', '.join(map(repr, METRICS))}, got "
