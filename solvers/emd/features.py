@@ -27,7 +27,19 @@ from solvers.errors import InputError
 
 @dataclass
 class FeatureDistanceResult:
-    """``distances`` (V,) to the feature set; ``emd`` is the underlying W1 solve."""
+    """``distances`` (V,) to the feature set; ``emd`` is the underlying W1 solve.
+
+    Attributes
+    ----------
+    distances : (V,) array
+        Distance of every vertex to the feature set.
+    potential : (V,) array
+        The W1 solve's Kantorovich potential.
+    feature_vertices : array of int
+        The vertices of the feature set.
+    emd : EMDResult
+        The underlying W1 solve.
+    """
 
     distances: np.ndarray
     potential: np.ndarray
