@@ -26,13 +26,43 @@ DOMAIN_KINDS = tuple(DOMAIN_CLASSES)
 
 
 def load_mesh(source, file_type: str | None = None, **kwargs) -> TriangleMesh:
-    """Load a triangle mesh file (OBJ, PLY, STL, OFF, GLB/glTF); see ``TriangleMesh.from_file``."""
+    """Load a triangle mesh file (OBJ, PLY, STL, OFF, GLB/glTF).
+
+    See :meth:`TriangleMesh.from_file`.
+
+    Parameters
+    ----------
+    source : str, path, bytes or binary file
+        The mesh file.
+    file_type : str, optional
+        One of ``MESH_FORMATS`` (default: the path's extension; needed for bytes).
+    **kwargs
+        Keywords of :meth:`TriangleMesh.from_file`.
+
+    Returns
+    -------
+    TriangleMesh
+    """
     return TriangleMesh.from_file(source, file_type=file_type, **kwargs)
 
 
 def domain_from_arrays(kind: str, arrays: dict[str, np.ndarray], parameters: dict | None = None
                        ) -> Domain:
-    """Rebuild a domain from ``Domain.to_arrays()`` and ``Domain.parameters()``."""
+    """Rebuild a domain from ``Domain.to_arrays()`` and ``Domain.parameters()``.
+
+    Parameters
+    ----------
+    kind : {"mesh", "grid", "graph", "pointcloud"}
+        The domain's kind.
+    arrays : dict of str to array
+        ``Domain.to_arrays()``.
+    parameters : dict, optional
+        ``Domain.parameters()``.
+
+    Returns
+    -------
+    Domain
+    """
     parameters = parameters or {}
     if kind == "mesh":
         return TriangleMesh(arrays["vertices"], arrays["faces"], **parameters)

@@ -49,7 +49,19 @@ GEODESIC_WORK_VECTORS = 16
 
 @dataclass
 class MeshDiagnostics:
-    """What was found (and repaired) when the mesh was loaded."""
+    """What was found (and repaired) when the mesh was loaded.
+
+    Attributes
+    ----------
+    welded_vertices : int
+        Vertices merged into others by position.
+    removed_unreferenced_vertices, removed_degenerate_faces, removed_duplicate_faces : int
+        What was removed.
+    nonmanifold_edges, nonmanifold_vertices, boundary_edges : int
+        What was found.
+    warnings : list of str
+        Messages for the user.
+    """
 
     welded_vertices: int = 0
     removed_unreferenced_vertices: int = 0
@@ -307,6 +319,17 @@ class TriangleMesh(Domain):
     units.  Mass lives on vertices with lumped (barycentric) areas ``areas``
     summing to 1.
 
+    Parameters
+    ----------
+    vertices : (V, 3) array
+        Vertex positions, in input units.
+    faces : (F, 3) int array
+        Triangles (vertex indices).
+    weld : bool
+        Merge vertices at the same position.
+    laplacian : {"robust", "cotan"}
+        The Laplacian of heat kernels (see ``laplacian`` below).
+
     Attributes
     ----------
     ``cotan_laplacian``
@@ -385,6 +408,15 @@ class TriangleMesh(Domain):
         keep their position indices (``v`` lines), and PLY/OFF/STL/glTF vertices are
         merged by position; ``weld=True`` merges by position for OBJ too, ``weld=False``
         never (``weld=None``: the format's default, ``POSITION_WELD_FORMATS``).
+
+        Parameters
+        ----------
+        source : str, path, bytes or binary file
+            The mesh file.
+        file_type : str, optional
+            One of ``MESH_FORMATS`` (default: the path's extension; needed for bytes).
+        **kwargs
+            ``weld`` and the keywords of :class:`TriangleMesh` (``laplacian``).
         """
         import trimesh
 
@@ -668,12 +700,24 @@ class TriangleMesh(Domain):
     @classmethod
     def geodesic_kernel_bytes(cls, n: int) -> int:
         """Memory of :meth:`geodesic_kernel` on ``n`` vertices: the all-pairs distances and
-        the kernel's scaled blocks (``n x n`` float64 each), plus one transient copy."""
+        the kernel's scaled blocks (``n x n`` float64 each), plus one transient copy.
+
+        Parameters
+        ----------
+        n : int
+            Vertices.
+        """
         return 3 * 8 * n * n
 
     def geodesic_kernel(self, t: float) -> GeodesicGaussianKernel:
         """The Gibbs kernel of squared heat-method geodesics at heat time ``t``
-        (:class:`~solvers.kernels.GeodesicGaussianKernel`), kept in the operator store."""
+        (:class:`~solvers.kernels.GeodesicGaussianKernel`), kept in the operator store.
+
+        Parameters
+        ----------
+        t : float
+            Heat time.
+        """
         if not self.geodesic_kernel_available:
             raise InputError(f"method 'geodesic' needs one connected surface of at most "
                              f"{GEODESIC_KERNEL_VERTICES} vertices (this mesh: {self.n} "
@@ -687,13 +731,27 @@ class TriangleMesh(Domain):
 
     def ground_distances(self, src, dst, *, should_cancel=None) -> tuple[np.ndarray, bool]:
         """Exact polyhedral geodesics (not squared): one MMP solve per point of the smaller
-        side (:func:`solvers.geodesics.geodesic_distances`)."""
+        side (:func:`solvers.geodesics.geodesic_distances`).
+
+        Parameters
+        ----------
+        src, dst : array of int
+            Point indices.
+        should_cancel : callable, optional
+            ``should_cancel() -> bool``, checked between solves.
+        """
         from solvers.geodesics import geodesic_distances
 
         return geodesic_distances(self, src, dst, should_cancel=should_cancel), False
 
     def stored_ground_distances(self, should_cancel=None) -> tuple[np.ndarray, bool] | None:
-        """All-pairs exact geodesics, kept up to :data:`STORED_GEODESICS_VERTICES`."""
+        """All-pairs exact geodesics, kept up to :data:`STORED_GEODESICS_VERTICES`.
+
+        Parameters
+        ----------
+        should_cancel : callable, optional
+            ``should_cancel() -> bool``, checked between solves.
+        """
         if self.n > STORED_GEODESICS_VERTICES:
             return None
         from solvers.geodesics import geodesic_distances
@@ -706,7 +764,17 @@ class TriangleMesh(Domain):
     def ground_distance_bytes(cls, n: int, entries: int, dim: int) -> int:
         """The geodesics between the supports or, on a mesh small enough to keep them, the
         stored all-pairs ones instead (``entries`` of either, never both), plus a geodesic
-        solve's work vectors."""
+        solve's work vectors.
+
+        Parameters
+        ----------
+        n : int
+            Points of the domain.
+        entries : int
+            Distances asked for.
+        dim : int
+            Coordinates per point.
+        """
         return 8 * entries + GEODESIC_WORK_VECTORS * 8 * n
 
     # -- storage / reporting -----------------------------------------------

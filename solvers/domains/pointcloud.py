@@ -99,12 +99,30 @@ class PointCloud(Domain):
         return ImplicitEulerHeatKernel(self.areas, self.laplacian, t, substeps, backend)
 
     def ground_distances(self, src, dst, *, should_cancel=None) -> tuple[np.ndarray, bool]:
-        """Squared straight distances between the points (unit-area scale)."""
+        """Squared straight distances between the points (unit-area scale).
+
+        Parameters
+        ----------
+        src, dst : array of int
+            Point indices.
+        should_cancel : callable, optional
+            ``should_cancel() -> bool``, checked between solves.
+        """
         return squared_straight_distances(self.points, src, dst), True
 
     @classmethod
     def ground_distance_bytes(cls, n: int, entries: int, dim: int) -> int:
-        """:func:`~solvers.domains.base.squared_straight_distance_bytes`."""
+        """:func:`~solvers.domains.base.squared_straight_distance_bytes`.
+
+        Parameters
+        ----------
+        n : int
+            Points of the domain.
+        entries : int
+            Distances asked for.
+        dim : int
+            Coordinates per point.
+        """
         return squared_straight_distance_bytes(n, entries, dim)
 
     def to_arrays(self) -> dict[str, np.ndarray]:
