@@ -8,7 +8,7 @@ lists). numpydoc's own parser reads each docstring; a name fails when
   parameter of its signature out of it (``a, b : type`` documents both);
 * a function that returns (or yields) a value has no ``Returns`` (``Yields``) section;
 * a class has neither a ``Parameters`` nor an ``Attributes`` section, or leaves a
-  parameter of its constructor out of both;
+  parameter of its constructor out of both (protocols have no constructor);
 * numpydoc warns while parsing it (an unknown or malformed section).
 
 Methods are the public ones of a public class (inherited ones from the library too), each
@@ -124,6 +124,8 @@ def class_problems(cls) -> list[str]:
             params = [p for p in inspect.signature(cls).parameters if not p.startswith("_")]
         except (TypeError, ValueError):
             params = []
+        if getattr(cls, "_is_protocol", False):
+            params = []  # a typing.Protocol is never constructed
         missing = [p for p in params if p not in _documented(doc, "Parameters", "Attributes")]
         if missing:
             problems.append(f"constructor parameters not documented: {missing}")
