@@ -201,3 +201,20 @@ def test_every_public_name_has_numpydoc_sections():
     print(f"{len(failures)} undocumented public names")
     report = "\n".join(f"{name}: {'; '.join(p)}" for name, p in sorted(failures.items()))
     assert not failures, f"{len(failures)} undocumented public names:\n{report}"
+
+
+def test_the_docstring_examples_run():
+    """Every ``Examples`` section of a public name runs and prints what it shows."""
+    import doctest
+
+    finder, runner = doctest.DocTestFinder(recurse=False), doctest.DocTestRunner()
+    ran = []
+    for qualname, obj in public_objects():
+        if not (obj.__doc__ and "Examples\n" in obj.__doc__):
+            continue
+        for test in finder.find(obj, qualname, globs={}):
+            if test.examples:
+                runner.run(test)
+                ran.append(qualname)
+    assert len(ran) >= 3, ran
+    assert runner.summarize(verbose=False).failed == 0

@@ -277,6 +277,19 @@ def barycenter(
     Returns
     -------
     BarycenterResult(masses (n,), iterations, residual, converged, entropy, entropy_bound)
+
+    Examples
+    --------
+    The midpoint of two bumps on a 1-D grid sits half way between them.
+
+    >>> import numpy as np
+    >>> from solvers.domains import Grid
+    >>> from solvers.convolutional import barycenter
+    >>> x = np.linspace(0.0, 1.0, 50)
+    >>> mus = np.stack([np.exp(-((x - c) / 0.05) ** 2) for c in (0.25, 0.75)], axis=1)
+    >>> result = barycenter(Grid([50]), mus / mus.sum(axis=0), gamma=1e-3)
+    >>> result.masses.shape, f"{x @ result.masses:.2f}"
+    ((50,), '0.50')
     """
     M = _inputs(domain, mus)
     alpha = check_weights(weights, M.shape[1])
