@@ -7,8 +7,10 @@ Read with ``ast`` (nothing is imported or run), over ``solvers/`` and ``service/
 
 - kind branches outside ``solvers/domains/``: comparisons of a kind (a name or attribute
   ``kind``, ``x["kind"]``, ``x.get("kind")``) with domain kind names, ``isinstance`` checks
-  against the domain classes of ``solvers/domains/``, and ``hasattr``/``getattr`` probes
-  of an attribute that some domain classes define and others do not;
+  against the domain classes of ``solvers/domains/`` (but against the base ``Domain``
+  alone: that asks whether an argument is a domain at all, listed apart), and
+  ``hasattr``/``getattr`` probes of an attribute that some domain classes define and
+  others do not (but probes of a request, ``req.n_nodes``: listed apart);
 - ``route`` sites (parameters and class fields named ``route`` or ``*_route``) other than
   the HTTP ones (in ``service/api/``, and an operation's flag saying it has one), grouped
   by what they name (``ROUTE_MEANINGS``: by module), each with the values written there;
@@ -40,6 +42,14 @@ KINDS = {"mesh", "grid", "graph", "pointcloud"}
 MAX_LINES, MAX_PARAMS = 80, 10
 ROUTE_NAME = re.compile(r"^(route|\w+_route)$")
 METHOD_NAMES = re.compile(r"^(algorithm|solver|\w+_solver|\w+_algorithm)$")
+# isinstance against the base ``Domain`` alone asks whether an argument is a domain at all
+# (the histogram solvers also take a sparse weight matrix), which no domain method can
+# answer: listed, not counted as a kind branch
+NOT_KIND = "isinstance against the base Domain (not counted)"
+# hasattr/getattr on an operation's request (``req``, ``request``) probes one of its fields
+# that happens to share a name with a domain attribute (``n_nodes``): listed, not counted
+REQUEST_NAMES = {"req", "request"}
+REQUEST_PROBES = "hasattr/getattr probes of a request's fields (not counted)"
 SPEC_CLASSES = {"GridSpec", "GraphSpec", "PointCloudSpec", "MeshSpec"}  # service/schemas.py
 
 
@@ -162,12 +172,19 @@ def kind_branches(mods: dict[str, Module]) -> dict[str, list[str]]:
                     named = {n.id if isinstance(n, ast.Name) else n.attr
                              for n in ast.walk(args[1])
                              if isinstance(n, (ast.Name, ast.Attribute))}
-                    if named & (set(classes) | specs):
+                    hit = named & (set(classes) | specs)
+                    if hit == {"Domain"}:  # a domain or not (a raw matrix): not a kind
+                        out[NOT_KIND].append(site(mod, node))
+                    elif hit:
                         out["isinstance checks"].append(site(mod, node))
                 elif (fn in ("hasattr", "getattr") and len(args) >= 2
                       and isinstance(args[1], ast.Constant) and args[1].value in partial
                       and (fn == "hasattr" or len(args) == 3)):
-                    out["hasattr/getattr probes"].append(f"{site(mod, node)} ({args[1].value})")
+                    probe = f"{site(mod, node)} ({args[1].value})"
+                    if isinstance(args[0], ast.Name) and args[0].id in REQUEST_NAMES:
+                        out[REQUEST_PROBES].append(probe)  # a request's field, not a domain's
+                    else:
+                        out["hasattr/getattr probes"].append(probe)
     return out
 
 
@@ -204,9 +221,11 @@ def named_sites(mods: dict[str, Module], pattern: re.Pattern) -> list[tuple[str,
 # What a ``route`` site names, by where it stands (first match; read from the tree of
 # issue 41: after the redesign every site left should be an HTTP one)
 ROUTE_MEANINGS = (
-    ("HTTP route", lambda where, name, text: where.startswith("service/api/")
+    # the idempotency fingerprint's ``route`` is the request's HTTP route too ("POST
+    # <operation> on <domain>", "POST /v1/domains"), hashed with its body
+    ("HTTP route", lambda where, name, text: where.startswith(("service/api/",
+                                                               "service/idempotency.py"))
      or (where.startswith("service/operations/base.py") and "bool" in text)),
-    ("idempotency fingerprint", lambda where, *_: where.startswith("service/idempotency.py")),
     ("landmark descriptor", lambda where, name, _: name == "landmark_route"
      or where.startswith("solvers/softmaps/descriptors.py")),
     ("Dirichlet energy", lambda where, name, _: name == "dirichlet_route"
@@ -427,15 +446,17 @@ def main(argv=None) -> None:
         method_counts[name] += 1
     figures = [
         ("kind branches outside solvers/domains/",
-         f"{sum(len(v) for k, v in kinds.items() if k != 'hasattr/getattr probes')} "
+         f"{len(kinds['string comparisons']) + len(kinds['isinstance checks'])} "
          f"({len(kinds['string comparisons'])} string comparisons, "
          f"{len(kinds['isinstance checks'])} isinstance), plus "
-         f"{len(kinds['hasattr/getattr probes'])} hasattr/getattr probes"),
+         f"{len(kinds['hasattr/getattr probes'])} hasattr/getattr probes "
+         f"(not counted: {len(kinds[NOT_KIND])} isinstance against the base Domain, "
+         f"{len(kinds[REQUEST_PROBES])} probes of a request's fields)"),
         ("`route` sites not naming an HTTP route",
          f"{sum(map(len, other.values()))} with {len(other)} meanings "
          f"({sum(map(len, routes.values()))} sites, {len(routes)} meanings with HTTP)"),
         ("`algorithm`/`solver` parameters and fields",
-         ", ".join(f"{n} {c}" for n, c in sorted(method_counts.items()))),
+         ", ".join(f"{n} {c}" for n, c in sorted(method_counts.items())) or "0"),
         (f"functions over {MAX_LINES} lines", str(len(long))),
         (f"public functions over {MAX_PARAMS} parameters", f"{len(wide)} (all functions: "
          f"{wide_all})"),

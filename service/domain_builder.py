@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import math
 from concurrent.futures.process import BrokenProcessPool
 
 from service.child_pool import ChildPool, die_with_parent
@@ -48,18 +47,7 @@ BUILD_BYTES = {"pointcloud_neighbor": 400, "graph_node": 32, "graph_edge": 32,
 
 def estimate_build_bytes(spec) -> int:
     """Working memory of building a validated JSON domain spec, from its sizes alone."""
-    from service.schemas import GraphSpec, GridSpec, PointCloudSpec
-
-    b = BUILD_BYTES
-    if isinstance(spec, GridSpec):
-        return b["grid_cell"] * math.prod(int(s) for s in spec.shape)
-    if isinstance(spec, GraphSpec):
-        return b["graph_node"] * int(spec.n_nodes) + b["graph_edge"] * len(spec.edges)
-    if isinstance(spec, PointCloudSpec):
-        # more neighbors than other points is refused by the build itself (422)
-        neighbors = min(int(spec.n_neighbors), max(len(spec.points) - 1, 1))
-        return b["pointcloud_neighbor"] * len(spec.points) * neighbors
-    return b["mesh_vertex"] * len(spec.vertices) + b["mesh_face"] * len(spec.faces)
+    return spec.build_bytes(BUILD_BYTES)
 
 
 def estimate_file_build_bytes(vertices: int, faces: int) -> int:

@@ -8,10 +8,7 @@ upload gets a 4xx naming its field, never a server error.
 
 from __future__ import annotations
 
-import math
 import os
-
-import numpy as np
 
 from service.domain_builder import (
     IN_PROCESS_BUILD_BYTES,
@@ -25,11 +22,9 @@ from service.domain_builder import (
 from service.errors import InvalidInput, NotFound, PayloadTooLarge
 from service.mesh_sizes import mesh_file_counts
 from service.runtime import Runtime
-from service.schemas import GraphSpec, GridSpec, MeshSpec, PointCloudSpec
+from service.schemas import check_point_limit
 from service.tenants import ANONYMOUS, QuotaExceeded, Tenant, check_bytes_quota
-from solvers.domains import MESH_FORMATS, Graph, Grid, PointCloud, TriangleMesh, load_mesh
-from solvers.errors import InputError
-from solvers.validation import check_size
+from solvers.domains import MESH_FORMATS, load_mesh
 
 WELD_VALUES = {"true": True, "1": True, "yes": True, "false": False, "0": False, "no": False,
                "auto": None, "": None}
@@ -247,42 +242,17 @@ def _as_held(meta: dict, held) -> dict:
 
 
 def _check_points(settings, n: int, field: str) -> None:
-    if n > settings.max_vertices:
-        raise PayloadTooLarge(f"{n} points exceed the limit of {settings.max_vertices}",
-                              field=field)
+    check_point_limit(n, settings.max_vertices, field)
 
 
 def spec_size(spec) -> tuple[str, int]:
     """``(field, points)`` of a JSON domain before it is built (Python ints)."""
-    if isinstance(spec, GridSpec):
-        return "shape", math.prod(int(s) for s in spec.shape)
-    if isinstance(spec, GraphSpec):
-        return "n_nodes", int(spec.n_nodes)
-    if isinstance(spec, PointCloudSpec):
-        return "points", len(spec.points)
-    return "vertices", len(spec.vertices)
+    return spec.size_field, spec.n_points()
 
 
 def build_domain(settings, spec, source: dict):
     """The domain of a validated JSON spec (sizes checked against ``max_vertices`` first)."""
-    if isinstance(spec, GridSpec):
-        try:
-            check_size(spec.shape, settings.max_vertices, "shape")
-        except InputError as exc:
-            raise PayloadTooLarge(exc.message, field="shape") from exc
-        return Grid(spec.shape, spec.bounds, spec.periodic)
-    if isinstance(spec, GraphSpec):
-        _check_points(settings, spec.n_nodes, "n_nodes")
-        return Graph(spec.n_nodes, spec.edges, spec.weights, spec.positions)
-    if isinstance(spec, PointCloudSpec):
-        _check_points(settings, len(spec.points), "points")
-        return PointCloud(_array(spec.points, "points"), n_neighbors=spec.n_neighbors)
-    if isinstance(spec, MeshSpec):
-        _check_points(settings, len(spec.vertices), "vertices")
-        return TriangleMesh(_array(spec.vertices, "vertices"),
-                            _array(spec.faces, "faces", np.int64),
-                            laplacian=spec.laplacian, weld=spec.weld)
-    raise InvalidInput("unknown domain kind", field="kind")  # pragma: no cover - closed union
+    return spec.build(settings.max_vertices)
 
 
 def file_arguments(data: bytes, filename: str | None, file_type: str | None, laplacian: str,
@@ -311,15 +281,3 @@ def build_mesh_file(settings, data: bytes, ext: str, laplacian: str, weld, sourc
     mesh = load_mesh(data, file_type=ext, laplacian=laplacian, weld=weld)
     _check_points(settings, mesh.n, "file")
     return mesh
-
-
-def _array(values, field: str, dtype=np.float64) -> np.ndarray:
-    try:
-        arr = np.asarray(values, dtype=dtype)
-    except (TypeError, ValueError, OverflowError) as exc:
-        kind = "integers" if dtype is np.int64 else "numbers"
-        raise InvalidInput(f"{field} must be a list of equal-length rows of {kind} (within "
-                           "int64 for indices)", field=field) from exc
-    if arr.ndim != 2:
-        raise InvalidInput(f"{field} must be a list of equal-length rows", field=field)
-    return arr

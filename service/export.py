@@ -566,14 +566,6 @@ def points_glb(points, *, vertex_fields: Mapping | None = None, edges=None,
     return w.to_bytes()
 
 
-def _grid_faces(shape: tuple[int, int]) -> np.ndarray:
-    nx, ny = shape
-    idx = np.arange(nx * ny).reshape(nx, ny)
-    a, b = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel()
-    c, d = idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
-    return np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
-
-
 def domain_glb(domain, *, fields: Mapping | None = None, flow=None, color: str | None = None,
                frames: Sequence | None = None, metadata: Mapping | None = None,
                per_face: Sequence[str] = ()) -> bytes:
@@ -585,37 +577,34 @@ def domain_glb(domain, *, fields: Mapping | None = None, flow=None, color: str |
     ``F == V``). Meshes keep their input units. Graphs need ``positions``;
     otherwise :class:`UnsupportedDomainError`.
     """
-    kind = getattr(domain, "kind", None)
     fields = dict(fields or {})
     common = {"color": color, "frames": frames, "metadata": metadata}
-    if kind == "mesh":
-        n_v, n_f = domain.n, domain.n_faces
-        vertex_fields = {k: a for k, a in fields.items()
-                         if k not in per_face and len(np.asarray(a)) == n_v}
-        face_fields = {k: a for k, a in fields.items()
-                       if k not in vertex_fields and len(np.asarray(a)) == n_f}
-        bad = set(fields) - set(vertex_fields) - set(face_fields)
-        if bad:
-            name = sorted(bad)[0]
-            raise InputError(f"field {name!r} has length {len(np.asarray(fields[name]))}, "
-                             f"expected {n_v} (vertices) or {n_f} (faces)", field=name)
-        return mesh_glb(domain.to_arrays()["vertices"], domain.faces,
-                        vertex_fields=vertex_fields, face_fields=face_fields, flow=flow,
-                        **common)
-    if flow is not None:
+    has_faces = domain.supports("faces")  # per-face fields and flows
+    if flow is not None and not has_faces:
         raise UnsupportedDomainError("flows can only be exported on triangle meshes",
                                      field="flow")
-    if kind == "grid" and domain.ndim == 2:
-        pts = np.pad(domain.points, ((0, 0), (0, 1)))
-        return mesh_glb(pts, _grid_faces(domain.shape), vertex_fields=fields, **common)
-    if kind == "grid":
-        return points_glb(domain.points, vertex_fields=fields, **common)
-    if kind == "pointcloud":
-        return points_glb(domain.to_arrays()["points"], vertex_fields=fields, **common)
-    if kind == "graph":
-        if domain.positions is None:
-            raise UnsupportedDomainError(
-                "this graph has no node positions, so it has no geometry to export as glTF; "
-                "use the JSON result", field="format")
-        return points_glb(domain.positions, vertex_fields=fields, edges=domain.edges, **common)
-    raise UnsupportedDomainError(f"cannot export domain kind {kind!r} as glTF", field="format")
+    geometry = domain.export_geometry()
+    if has_faces:
+        vertex_fields, face_fields = _vertex_and_face_fields(fields, domain.n, domain.n_faces,
+                                                             per_face)
+        return mesh_glb(geometry.positions, geometry.faces, vertex_fields=vertex_fields,
+                        face_fields=face_fields, flow=flow, **common)
+    if geometry.faces is not None:
+        return mesh_glb(geometry.positions, geometry.faces, vertex_fields=fields, **common)
+    return points_glb(geometry.positions, vertex_fields=fields, edges=geometry.edges, **common)
+
+
+def _vertex_and_face_fields(fields: dict, n_v: int, n_f: int, per_face: Sequence[str]
+                            ) -> tuple[dict, dict]:
+    """Split a mesh's result fields by length into per-vertex and per-face ones (names in
+    ``per_face`` are per-face fields); an array of neither length is refused."""
+    vertex_fields = {k: a for k, a in fields.items()
+                     if k not in per_face and len(np.asarray(a)) == n_v}
+    face_fields = {k: a for k, a in fields.items()
+                   if k not in vertex_fields and len(np.asarray(a)) == n_f}
+    bad = set(fields) - set(vertex_fields) - set(face_fields)
+    if bad:
+        name = sorted(bad)[0]
+        raise InputError(f"field {name!r} has length {len(np.asarray(fields[name]))}, "
+                         f"expected {n_v} (vertices) or {n_f} (faces)", field=name)
+    return vertex_fields, face_fields

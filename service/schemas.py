@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import math
 from datetime import UTC, datetime
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
+import numpy as np
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
 
-from service.errors import ErrorBody
+from service.errors import ErrorBody, InvalidInput, PayloadTooLarge
 from service.renames import current_decision
+from solvers.domains import Domain, Graph, Grid, PointCloud, TriangleMesh, kind_supports
+from solvers.errors import InputError
+from solvers.validation import check_size
 
 
 def timestamp(value: float | None) -> datetime | None:
@@ -49,7 +54,54 @@ Triangle = Annotated[list[Index],
                      Field(min_length=3, max_length=3, json_schema_extra={"uniqueItems": True})]
 
 
-class GridSpec(BaseModel):
+def check_point_limit(n: int, limit: int, field: str) -> None:
+    """413 naming ``field`` when ``n`` points exceed ``limit`` (``max_vertices``)."""
+    if n > limit:
+        raise PayloadTooLarge(f"{n} points exceed the limit of {limit}", field=field)
+
+
+def spec_array(values, field: str, dtype=np.float64) -> np.ndarray:
+    """A JSON spec's rows as a 2-D array; 422 naming ``field`` when they are not."""
+    try:
+        arr = np.asarray(values, dtype=dtype)
+    except (TypeError, ValueError, OverflowError) as exc:
+        kind = "integers" if dtype is np.int64 else "numbers"
+        raise InvalidInput(f"{field} must be a list of equal-length rows of {kind} (within "
+                           "int64 for indices)", field=field) from exc
+    if arr.ndim != 2:
+        raise InvalidInput(f"{field} must be a list of equal-length rows", field=field)
+    return arr
+
+
+class _DomainSpec(BaseModel):
+    """What every JSON domain spec answers before and while it is built (one subclass per
+    kind, so the service never asks which kind it holds)."""
+
+    size_field: ClassVar[str]  # the field that gives the domain's size (a 413 names it)
+
+    def n_points(self) -> int:
+        """Points the domain will carry (Python ints: a product cannot wrap): the value of
+        its ``size_field``, or that field's length (rows of points or vertices)."""
+        size = getattr(self, self.size_field)
+        return int(size) if isinstance(size, int) else len(size)
+
+    def build_bytes(self, per: dict[str, int]) -> int:
+        """Working memory of the build, from the sizes alone (``per``: bytes per unit,
+        ``service.domain_builder.BUILD_BYTES``)."""
+        raise NotImplementedError  # pragma: no cover
+
+    def build(self, max_vertices: int) -> Domain:
+        """The domain, its size (:meth:`n_points`, named by ``size_field``) checked against
+        ``max_vertices`` first (413)."""
+        check_point_limit(self.n_points(), max_vertices, self.size_field)
+        return self.construct()
+
+    def construct(self) -> Domain:
+        """The domain, unchecked."""
+        raise NotImplementedError  # pragma: no cover
+
+
+class GridSpec(_DomainSpec):
     model_config = ConfigDict(**SPEC_CONFIG, json_schema_extra={"examples": [
         {"kind": "grid", "shape": [32, 32]}]})
     kind: Literal["grid"]
@@ -60,9 +112,30 @@ class GridSpec(BaseModel):
         None, min_length=1, max_length=3, description="(lo, hi) per axis, one per axis of "
         "shape; default [0, 1]")
     periodic: bool | list[bool] = False
+    size_field: ClassVar[str] = "shape"
+
+    def n_points(self) -> int:
+        """The product of the shape."""
+        return math.prod(int(s) for s in self.shape)
+
+    def build_bytes(self, per: dict[str, int]) -> int:
+        """Per cell."""
+        return per["grid_cell"] * self.n_points()
+
+    def build(self, max_vertices: int) -> Grid:
+        """The grid (its shape checked as Python integers)."""
+        try:
+            check_size(self.shape, max_vertices, "shape")
+        except InputError as exc:
+            raise PayloadTooLarge(exc.message, field="shape") from exc
+        return self.construct()
+
+    def construct(self) -> Grid:
+        """The grid."""
+        return Grid(self.shape, self.bounds, self.periodic)
 
 
-class GraphSpec(BaseModel):
+class GraphSpec(_DomainSpec):
     model_config = ConfigDict(**SPEC_CONFIG, json_schema_extra={"examples": [
         {"kind": "graph", "n_nodes": 4, "edges": [[0, 1], [1, 2], [2, 3]],
          "weights": [1.0, 1.0, 2.0]}]})
@@ -71,9 +144,18 @@ class GraphSpec(BaseModel):
     edges: list[NodePair] = Field(description="(m, 2) node index pairs (no self-loops)")
     weights: list[float] | None = None
     positions: list[list[float]] | None = None
+    size_field: ClassVar[str] = "n_nodes"
+
+    def build_bytes(self, per: dict[str, int]) -> int:
+        """Per node and per edge."""
+        return per["graph_node"] * int(self.n_nodes) + per["graph_edge"] * len(self.edges)
+
+    def construct(self) -> Graph:
+        """The graph."""
+        return Graph(self.n_nodes, self.edges, self.weights, self.positions)
 
 
-class PointCloudSpec(BaseModel):
+class PointCloudSpec(_DomainSpec):
     model_config = ConfigDict(**SPEC_CONFIG, json_schema_extra={"examples": [
         {"kind": "pointcloud", "n_neighbors": 5,
          "points": [[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.0, 1.0)]}]})
@@ -81,9 +163,20 @@ class PointCloudSpec(BaseModel):
     points: list[Point] = Field(min_length=4, description="(n, 3) coordinates, n >= 4")
     n_neighbors: Int = Field(30, ge=3, description="neighbors of each point in its local "
                              "triangulation")
+    size_field: ClassVar[str] = "points"
+
+    def build_bytes(self, per: dict[str, int]) -> int:
+        """Per point and neighbor (more neighbors than other points is refused by the build
+        itself, 422)."""
+        neighbors = min(int(self.n_neighbors), max(len(self.points) - 1, 1))
+        return per["pointcloud_neighbor"] * len(self.points) * neighbors
+
+    def construct(self) -> PointCloud:
+        """The point cloud."""
+        return PointCloud(spec_array(self.points, "points"), n_neighbors=self.n_neighbors)
 
 
-class MeshSpec(BaseModel):
+class MeshSpec(_DomainSpec):
     model_config = ConfigDict(**SPEC_CONFIG, json_schema_extra={"examples": [
         {"kind": "mesh", "vertices": [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]],
          "faces": [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]}]})
@@ -92,6 +185,17 @@ class MeshSpec(BaseModel):
     faces: list[Triangle] = Field(min_length=1, description="(m, 3) vertex indices")
     laplacian: Literal["robust", "cotan"] = "robust"
     weld: bool = Field(False, description="merge vertices at equal positions (seams)")
+    size_field: ClassVar[str] = "vertices"
+
+    def build_bytes(self, per: dict[str, int]) -> int:
+        """Per vertex and per face."""
+        return per["mesh_vertex"] * len(self.vertices) + per["mesh_face"] * len(self.faces)
+
+    def construct(self) -> TriangleMesh:
+        """The mesh."""
+        return TriangleMesh(spec_array(self.vertices, "vertices"),
+                            spec_array(self.faces, "faces", np.int64),
+                            laplacian=self.laplacian, weld=self.weld)
 
 
 DomainSpec = Annotated[GridSpec | GraphSpec | PointCloudSpec | MeshSpec,
@@ -131,7 +235,7 @@ class DomainOut(BaseModel):
         if "shape" in s:
             sizes.update({f"axis{i}": int(v) for i, v in enumerate(s["shape"])})
         boundary = None
-        if meta["kind"] == "mesh":
+        if kind_supports(meta["kind"], "faces"):  # meshes: boundary loops
             boundary = Boundary(loops=int(s.get("boundary_loops", 0)),
                                 closed=bool(s.get("closed", False)))
         diagnostics = dict(s.get("diagnostics") or {})

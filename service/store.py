@@ -36,7 +36,7 @@ import numpy as np
 from service.errors import NotFound
 from service.export import to_jsonable as jsonable
 from service.schemas import DOMAIN_ID_PATTERN
-from solvers.domains import Domain, domain_from_arrays
+from solvers.domains import Domain, domain_from_arrays, kind_supports
 
 _ID = re.compile(DOMAIN_ID_PATTERN)
 _FILE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
@@ -129,12 +129,9 @@ def _npz_index(path: Path) -> dict[str, StoredArray]:
 
 
 def domain_points(domain: Domain) -> np.ndarray | None:
-    """Coordinates of the mass-carrying points (unit-area scale), if the domain has any."""
-    for name in ("vertices", "points", "positions"):
-        pts = getattr(domain, name, None)
-        if isinstance(pts, np.ndarray):
-            return pts
-    return None
+    """Coordinates of the mass-carrying points (unit-area scale), if the domain has any
+    (``Domain.coordinates``)."""
+    return domain.coordinates
 
 
 @dataclass
@@ -152,6 +149,10 @@ class DomainInfo:
     @property
     def n(self) -> int:
         return int(self.meta["summary"]["n"])
+
+    def supports(self, capability: str) -> bool:
+        """Whether the stored domain has ``capability`` (as ``Domain.supports``)."""
+        return kind_supports(self.kind, capability)
 
     @property
     def n_components(self) -> int:

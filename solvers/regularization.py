@@ -31,6 +31,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from solvers.domains import supports
 from solvers.domains.sketch import DomainSketch
 from solvers.errors import InputError
 from solvers.kernels import GEODESIC_KERNEL_VERTICES, heat_time
@@ -230,7 +231,7 @@ def value_substeps(domain, distance: float, t: float) -> tuple[int, str]:
     substeps : int
     why : str
     """
-    if domain.kind == "grid":  # exact Gaussian: substeps are unused
+    if supports(domain, "exact_heat_kernel"):  # exact Gaussian: substeps are unused
         return 1, "exact grid kernel"
     want = SUBSTEP_FACTOR * distance * distance / t
     steps = VALUE_SUBSTEPS
@@ -291,7 +292,7 @@ def choose_regularization(domain, m0=None, m1=None, *, purpose: str = "values",
                 raise InputError("gamma='auto' for values needs both distributions",
                                  field="gamma")
             distance = transport_distance_estimate(domain, np.asarray(m0), np.asarray(m1))
-            h_value = max(h, VALUE_MIN_H) if domain.kind == "mesh" else h
+            h_value = max(h, VALUE_MIN_H) if domain.supports("edge_lengths") else h
             # Identical or nearly identical inputs: resolve at least a few edges.
             d_eff = max(distance, 4.0 * h_value)
             value = VALUE_FACTOR * h_value * d_eff

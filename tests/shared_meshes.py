@@ -27,3 +27,13 @@ def load_shared_mesh(name: str, **kwargs):
     if key not in _MESH_CACHE:
         _MESH_CACHE[key] = load_mesh(MESHES_DIR / name, **kwargs)
     return _MESH_CACHE[key]
+
+
+def hat_bump(mesh, i: int, r: float):
+    """The service's bump ``{"vertex": i, "radius": r}``: masses ``a_j max(0, 1 - |x_j -
+    x_i| / r)`` (unit-area coordinates), normalized."""
+    import numpy as np
+
+    d = np.linalg.norm(mesh.vertices - mesh.vertices[i], axis=1)
+    m = mesh.areas * np.clip(1 - d / r, 0, None)
+    return m / m.sum()

@@ -4,18 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from shared_meshes import hat_bump as _bump
 from shared_meshes import load_shared_mesh
 
 from solvers import Grid
 from solvers.convolutional import distance_matrix, wasserstein_distance
 from solvers.emd import earth_movers_distance
 from solvers.errors import CancelledError, InputError
-
-
-def _bump(mesh, i: int, r: float) -> np.ndarray:
-    d = np.linalg.norm(mesh.vertices - mesh.vertices[i], axis=1)
-    m = mesh.areas * np.clip(1 - d / r, 0, None)
-    return m / m.sum()
 
 
 @pytest.fixture(scope="module")
@@ -271,3 +266,42 @@ def test_exact_row_blocks_evicted_give_the_same_values(monkeypatch):
         assert np.array_equal(before.values, now.values) and now.converged
     single = wasserstein_distance(mesh, bumps[:, 1], bumps[:, 3], method="exact")
     assert _relative_gap(kept[1].values[1, 3], single.value) <= 1e-9
+
+
+def test_w1_spectral_matrix_is_dwk_with_its_decision(woody):
+    """metric="w1", method="spectral": the d_W^k matrix (values, certified gaps as the
+    residuals, lower bounds), the decision recorded; "auto" keeps the interior point for a
+    small collection and records why."""
+    from solvers.emd.dwk_matrix import dwk_matrix
+
+    mesh, wide = woody
+    res = distance_matrix(mesh, wide, metric="w1", method="spectral", k=5)
+    ref = dwk_matrix(mesh, wide, k=5)
+    assert res.w1_matrix_method == "spectral" and res.k == 5 and "requested" in res.reason
+    off = ~np.eye(5, dtype=bool)
+    np.testing.assert_array_equal(res.values[off], ref.values[off])
+    assert set(res.methods[off]) == {"spectral"} and set(np.diag(res.methods)) == {"identical"}
+    assert np.all(res.lower[off] <= res.values[off]) and res.converged
+    np.testing.assert_allclose(res.pair_residuals[off], ref.gaps[off])
+    small = distance_matrix(mesh, wide[:, :3], metric="w1")
+    assert small.w1_matrix_method == "interior_point" and small.k is None
+    assert "estimated" in small.reason
+    assert set(small.methods[np.triu_indices(3, 1)]) == {"w1"}
+    upper = np.triu_indices(3, 1)
+    assert np.all(small.lower[upper] <= small.values[upper])
+    # d_W^k is an upper bound of W1: above the interior point's certified lower bounds
+    assert np.all(res.values[:3, :3][upper] >= small.lower[upper])
+
+
+def test_w1_method_and_k_refused_where_they_do_not_apply(woody):
+    mesh, wide = woody
+    for kwargs, name in (({"metric": "w2", "k": 5}, "k"),
+                         ({"metric": "w1", "method": "exact"}, "method"),
+                         ({"metric": "w2", "method": "spectral"}, "method"),
+                         ({"metric": "w1", "method": "interior_point", "k": 5}, "k"),
+                         ({"metric": "w1", "method": "spectral", "k": -2}, "k"),
+                         ({"metric": "w1", "method": "spectral",
+                           "w1_options": {"method": "admm"}}, "w1_options")):
+        with pytest.raises(InputError) as err:
+            distance_matrix(mesh, wide[:, :3], **kwargs)
+        assert err.value.field == name, kwargs

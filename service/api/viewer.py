@@ -17,6 +17,7 @@ from pydantic import BaseModel, Field
 
 from service.api.deps import DomainSvc
 from service.errors import responses
+from solvers.domains import domain_class
 
 STATIC_DIR = Path(__file__).resolve().parents[1] / "static"
 
@@ -54,18 +55,19 @@ def get_domain_geometry(domain_id: str, svc: DomainSvc):
     info = svc.info(domain_id)
     arrays, summary = info.arrays, info.meta["summary"]
     out = DomainGeometry(id=domain_id, kind=info.kind, n=info.n)
-    points = None if info.kind == "grid" else info.points
+    parts = domain_class(info.kind).stored_geometry(arrays, summary, info.points)
+    points = parts.get("points")
     if points is not None:
         points = np.asarray(points)
         out.dim = int(points.shape[1]) if points.ndim == 2 else 1
         out.positions = _flat(points, np.float32)
-    if info.kind == "mesh":
-        out.faces = _flat(arrays["faces"], np.int64)
-    elif info.kind == "graph":
-        out.edges = _flat(arrays["edges"], np.int64)
-    elif info.kind == "grid":
-        out.shape = [int(s) for s in summary["shape"]]
-        out.bounds = [[float(v) for v in row] for row in summary["bounds"]]
+    if parts.get("faces") is not None:
+        out.faces = _flat(parts["faces"], np.int64)
+    if parts.get("edges") is not None:
+        out.edges = _flat(parts["edges"], np.int64)
+    if parts.get("shape") is not None:
+        out.shape = [int(s) for s in parts["shape"]]
+        out.bounds = [[float(v) for v in row] for row in parts["bounds"]]
         out.dim = len(out.shape)
     return out
 

@@ -180,7 +180,7 @@ OPERATIONS = [
     Operation("anisotropic-distances", "createAnisotropicDistanceJob",
               "Anisotropic W1 with per-face scalar or 3x3 weights, or weights from the mean "
               "curvature (thesis §2.7, Fig. 2.15): value, flow, potential",
-              AnisotropicDistanceRequest, run, validate, ("mesh",),
+              AnisotropicDistanceRequest, run, validate, "faces",
               result_model=AnisotropicDistanceValues, estimate_bytes=estimate_bytes,
               estimate_cost=estimate_cost),
 ]

@@ -397,7 +397,7 @@ OPERATIONS = [
         request_model=SkeletonLayoutRequest,
         run=run_skeleton,
         validate=validate_skeleton,
-        kinds=("mesh",),
+        requires="faces",
         result_model=SkeletonLayoutValues,
         estimate_bytes=skeleton_bytes,
     ),

@@ -28,6 +28,7 @@ from scipy.sparse.csgraph import shortest_path
 
 from service.errors import InvalidInput, NotFound, UnsupportedOperation
 from service.schemas import Int, NodePair  # noqa: F401 (NodePair: for the families)
+from solvers.domains import CAPABILITIES, DOMAIN_KINDS, kind_supports, kinds_supporting
 from solvers.emd.green import GREEN_MAX_VERTICES
 from solvers.validation import (
     COMPONENT_MASS_TOL,
@@ -130,6 +131,11 @@ class DomainView:
     sketch_builder: Callable[[], object] | None = None
     # what one request derives (per_request): on this view object, not its source
     request_memo: dict = field(default_factory=dict)
+
+    def supports(self, capability: str) -> bool:
+        """Whether the domain has ``capability`` (as ``Domain.supports``: what its kind
+        offers)."""
+        return kind_supports(self.kind, capability)
 
     def sketch(self):
         """The domain's :class:`~solvers.domains.sketch.DomainSketch` (what default decisions
@@ -263,7 +269,7 @@ class RunContext(SubmitContext):
         return op.run(self, request, progress, should_cancel, **extra)
 
 
-ALL_KINDS = ("mesh", "grid", "graph", "pointcloud")
+ALL_KINDS = DOMAIN_KINDS
 
 
 @dataclass
@@ -302,7 +308,9 @@ class Operation:
     request_model: type[OperationRequest]
     run: Callable[..., OperationOutput]
     validate: Callable[..., list[dict]]
-    kinds: tuple[str, ...] = ALL_KINDS
+    # the capability (``Domain.supports``) a domain needs for this operation; None: every
+    # domain (``kinds`` lists the kinds that have it)
+    requires: str | None = None
     scope: Literal["domain", "global"] = "domain"
     domain_field: str | None = None
     route: bool = True
@@ -343,8 +351,23 @@ class Operation:
     # from numba's cache); service.warm runs it at worker start and before a first job
     warm: Callable[[], None] | None = None
 
+    def __post_init__(self):
+        if self.requires is not None and self.requires not in CAPABILITIES:
+            raise ValueError(f"operation {self.name!r} requires {self.requires!r}, not a "
+                             f"domain capability ({', '.join(CAPABILITIES)})")
+
+    @property
+    def kinds(self) -> tuple[str, ...]:
+        """The domain kinds this operation runs on: every kind (in ``DOMAIN_KINDS`` order),
+        or, when it ``requires`` a capability, those that have it (alphabetically)."""
+        if self.requires is None:
+            return ALL_KINDS
+        return tuple(sorted(kinds_supporting(self.requires)))
+
     def check_kind(self, view: DomainView, field: str = "domain_id") -> None:
-        if view.kind not in self.kinds:
+        """422 (``UnsupportedOperation``) when the domain lacks what the operation
+        ``requires``."""
+        if self.requires is not None and not view.supports(self.requires):
             raise UnsupportedOperation(
                 f"{self.name} is not available on {view.kind} domains (only on "
                 f"{', '.join(self.kinds)})", field=field)
@@ -362,7 +385,7 @@ def _bump(view: DomainView, spec: BumpDistribution, field: str) -> np.ndarray:
     if spec.vertex >= view.n:
         raise InvalidInput(f"{field}.vertex {spec.vertex} out of range [0, {view.n - 1}]",
                            field=f"{field}.vertex")
-    if view.kind == "graph":
+    if view.supports("hop_metric"):
         import scipy.sparse as sp
 
         e = view.edges if view.edges is not None else np.zeros((0, 2), dtype=np.int64)
@@ -497,16 +520,16 @@ def view_of_domain(domain) -> DomainView:
     memo = _DOMAIN_MEMOS.setdefault(domain, {})
     return DomainView(kind=domain.kind, n=int(domain.n), areas=np.asarray(domain.areas),
                       component_labels=np.asarray(domain.component_labels),
-                      points=domain_points(domain), edges=getattr(domain, "edges", None),
-                      n_faces=getattr(domain, "n_faces", None), memo=memo,
+                      points=domain_points(domain), edges=domain.edges,
+                      n_faces=domain.n_faces, memo=memo,
                       sketch_builder=lambda: DomainSketch.of(domain),
-                      load_faces=(lambda: domain.faces) if domain.kind == "mesh" else None)
+                      load_faces=(lambda: domain.faces) if domain.supports("faces") else None)
 
 
 def view_of_info(info) -> DomainView:
     from solvers.domains.sketch import DomainSketch
 
-    edges = info.arrays.get("edges") if info.kind == "graph" else None
+    edges = info.arrays.get("edges") if info.supports("hop_metric") else None
     summary = info.meta["summary"]
     junctions = (summary.get("diagnostics") or {}).get("nonmanifold_vertices", 0)
 
@@ -518,14 +541,15 @@ def view_of_info(info) -> DomainView:
                       component_labels=info.component_labels, points=info.points,
                       edges=edges, n_faces=summary.get("faces"), memo=info.memo,
                       sketch_builder=sketch, summary=summary,
-                      load_faces=(lambda: info.arrays["faces"]) if info.kind == "mesh" else None)
+                      load_faces=(lambda: info.arrays["faces"]) if info.supports("faces")
+                      else None)
 
 
 # -- sizes and scalar options, checked at submission and again in the worker -------------
 def view_extent(view: DomainView) -> float:
     """The domain's size in its own units, as ``Domain.extent`` computes it (bounding-box
     diagonal of the stored points; hops on graphs), memoized on the view's source."""
-    if view.kind == "graph":
+    if view.supports("hop_metric"):  # graphs: the largest hop distance
         return float(max(view.n - 1, 1))
     if "extent" not in view.memo:
         from solvers.domains.base import points_extent

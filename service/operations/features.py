@@ -119,6 +119,6 @@ OPERATIONS = [
     Operation("feature-distances", "createFeatureDistanceJob",
               "Distance of every vertex to feature vertices and curves from the W1 potential "
               "(thesis §2.7, Fig. 2.14)",
-              FeatureDistanceRequest, run, validate, ("mesh",),
+              FeatureDistanceRequest, run, validate, "faces",
               result_model=FeatureDistanceValues, estimate_cost=estimate_cost),
 ]

@@ -262,6 +262,7 @@ OPERATIONS = [
     Operation("histogram-propagations", "createHistogramPropagationJob",
               "Propagate histograms from labeled nodes to every node (Wasserstein "
               "propagation of thesis ch. 5, PDF baseline, Wasserstein diffusion; S¹ bins)",
-              HistogramPropagationRequest, run, _validate, kinds=("graph", "mesh", "pointcloud"),
+              HistogramPropagationRequest, run, _validate,
+              requires="histogram_propagation",
               result_model=HistogramPropagationValues, estimate_bytes=estimate_bytes),
 ]

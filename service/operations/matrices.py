@@ -36,6 +36,7 @@ from solvers.convolutional.decision import decide_method
 from solvers.convolutional.exact import EXACT_KINDS
 from solvers.convolutional.matrix import (
     SHARED_COST_ENTRIES,
+    W1_ONLY,
     block_pairs,
     distance_matrix,
     exact_route_bytes,
@@ -47,10 +48,13 @@ from solvers.convolutional.matrix import (
 )
 from solvers.domains import DOMAIN_CLASSES
 from solvers.emd.beckmann import resolve_method
+from solvers.emd.dwk_matrix import W1MatrixDecision, decide_w1_method, working_bytes
 from solvers.errors import CancelledError, InputError
 
 MAX_DISTRIBUTIONS = 2000  # per side of a matrix (the request JSON stays a few MB)
-METHOD_CODES = {"": -1, "identical": 0, "exact": 1, "convolutional": 2, "w1": 3}
+METHOD_CODES = {"": -1, "identical": 0, "exact": 1, "convolutional": 2, "w1": 3,
+                "spectral": 4}
+MAX_K = 200  # eigenfunctions of a spectral W1 matrix (the eigenbasis is k solves deep)
 # Pairs decided one by one at submission: an exact-method decision costs ~20-30 us, an
 # automatic regularization ~0.9-2.4 ms per pair (100 bumps on spot, measured), so at most a
 # few seconds of the API's time; above it the decision records the requested arguments and
@@ -70,13 +74,23 @@ class DistanceMatrixRequest(SinkhornOptions):
     metric: Literal["w2", "w1"] = Field(
         "w2", description="w2: squared 2-Wasserstein distance per pair, as /distances computes "
         "it by default; w1: earth mover's distance (Beckmann problem), meshes only")
-    method: Literal["auto", "convolutional", "exact"] = Field(
-        "auto", description="W2 only, per pair as for /distances: auto (exact for sparse "
-        "supports when its modelled time fits, else convolutional), convolutional or exact")
+    method: Literal["auto", "convolutional", "exact", "interior_point", "spectral"] = Field(
+        "auto", description="W2, per pair as for /distances: auto (exact for sparse "
+        "supports when its modelled time fits, else convolutional), convolutional or exact; "
+        "W1: interior_point (one certified W1 per pair, with `w1_method`), spectral (the "
+        "thesis' d_W^k: every distribution embedded once, then a k-dimensional problem per "
+        "pair; each value an upper bound of W1 with its certified gap, converging slowly in "
+        "k) or auto (the interior point while its estimate fits 60 s, else spectral; decided "
+        "from the sizes at submission and recorded in `decision`)")
     debiased: bool | None = Field(None, description="W2 convolutional: Sinkhorn divergence "
                                   "(default: true; false when gamma is given)")
     w1_method: Literal["auto", "ipm", "admm", "weiszfeld"] = Field(
-        "auto", description="W1 only: the W1 method (as for /distances)")
+        "auto", description="W1 only: the W1 method of each pair's single W1 (as for "
+        "/distances) when the matrix is computed by method interior_point")
+    k: int | None = Field(None, ge=0, le=MAX_K, description="W1 spectral: Laplacian "
+                          "eigenfunctions of the curl basis (default: the largest of 0, 5, "
+                          "10, 20, 50, 100 estimated within 60 s); given with method auto: "
+                          "spectral")
 
 
 class KernelGroup(BaseModel):
@@ -93,7 +107,8 @@ class MatrixDecision(BaseModel):
     stored domain alone and stored with the job (module docstring)."""
 
     metric: Literal["w2", "w1"]
-    method: Literal["auto", "convolutional", "exact"] = Field(description="as requested")
+    method: Literal["auto", "convolutional", "exact", "interior_point", "spectral"] = Field(
+        description="as requested")
     reason: str
     pairs: int = Field(description="pairs to solve (the diagonal of a symmetric matrix "
                        "included unless it is zero by definition)")
@@ -110,6 +125,10 @@ class MatrixDecision(BaseModel):
                                           "explicit arguments every pair runs with")
     w1_method: Literal["ipm", "admm", "weiszfeld"] | None = Field(None, description="w1: "
                                                                   "the W1 method")
+    w1_matrix_method: Literal["interior_point", "spectral"] | None = Field(
+        None, description="w1: how the matrix is computed, decided from the sizes alone: "
+        "interior_point (one W1 per pair with `w1_method`) or spectral (d_W^k)")
+    k: int | None = Field(None, description="w1 spectral: the eigenfunctions used")
 
 
 class DistanceMatrixValues(BaseModel):
@@ -123,7 +142,8 @@ class DistanceMatrixValues(BaseModel):
                            "unfinished entries are NaN (null inline)")
     finished_rows: list[int] = Field(description="rows whose every entry is computed")
     pairs_solved: int = Field(description="pairs computed (diagonal not counted)")
-    methods: dict[str, int] = Field(description="pairs per method (exact, convolutional, w1)")
+    methods: dict[str, int] = Field(description="pairs per method (exact, convolutional, w1, "
+                                    "spectral)")
     method_codes: dict[str, int] = Field(description="legend of the `method_codes` array")
     kernels: list[KernelGroup] = Field(description="the heat kernels of convolutional pairs")
     iterations: int = Field(description="sum over pairs")
@@ -145,10 +165,19 @@ def _inputs(view: DomainView, req: DistanceMatrixRequest):
 
 def _resolve(view: DomainView, req: DistanceMatrixRequest):
     check_options(view, req)
-    if req.metric == "w1" and view.kind != "mesh":
+    if req.metric == "w1" and not view.supports("faces"):
         raise UnsupportedOperation("metric 'w1' is available on triangle meshes only",
                                    field="metric")
-    if req.metric == "w2" and req.method == "exact" and view.kind not in EXACT_KINDS:
+    if req.metric == "w2" and (req.method in W1_ONLY or req.k is not None):
+        raise InvalidInput(f"method {req.method!r} and k choose the W1 algorithm (metric "
+                           "'w1')", field="k" if req.k is not None else "method")
+    if req.metric == "w1" and req.method in ("convolutional", "exact"):
+        raise InvalidInput(f"method {req.method!r} is a W2 method; W1 takes auto, "
+                           "interior_point or spectral", field="method")
+    if req.metric == "w1" and req.method == "interior_point" and req.k is not None:
+        raise InvalidInput("k selects the spectral d_W^k; the interior point takes none",
+                           field="k")
+    if req.metric == "w2" and req.method == "exact" and not view.supports("exact_transport"):
         raise UnsupportedOperation(f"method 'exact' is available on {', '.join(EXACT_KINDS)} "
                                    "domains; use method 'convolutional'", field="method")
     specs = {f"distributions[{i}]": d for i, d in enumerate(req.distributions)}
@@ -187,15 +216,35 @@ def estimate_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
     total = 8 * points * (n + (m if req.others is not None else 0))
     total += 40 * n * m
     if req.metric == "w1":
-        return total + 8 * 120 * points  # Beckmann operators and interior-point state
+        total += 8 * 120 * points  # Beckmann operators and interior-point state
+        w1 = _w1_decision(view, req)
+        if w1.method == "spectral":
+            total += working_bytes(points, _faces(view), w1.k, n, m, req.others is None)
+        return total
     blocks = exact = 0
     if req.method != "exact":  # method "exact": every pair is exact, no block runs
         blocks = block_pairs(points) * (pair_state_bytes(points) + 8 * 8 * points)
-    if view.kind in EXACT_KINDS and (req.method == "exact" or (req.method == "auto"
+    if view.supports("exact_transport") and (req.method == "exact" or (req.method == "auto"
                                                               and req.gamma is None)):
         exact = ground_distance_bytes(view) + exact_working_bytes(view, req)
     # the exact pairs run first and release their working memory before the blocks run
     return total + max(blocks, exact)
+
+
+def _faces(view: DomainView) -> int:
+    return int(view.n_faces or 2 * view.n)
+
+
+def _w1_decision(view: DomainView, req: DistanceMatrixRequest) -> W1MatrixDecision:
+    """:func:`~solvers.emd.dwk_matrix.decide_w1_method` for the request's sizes."""
+    n, m, _ = _sizes(req)
+    symmetric = req.others is None
+    pairs = n * (n - 1) // 2 if symmetric else n * m
+    try:
+        return decide_w1_method(int(view.n), _faces(view), n + (0 if symmetric else m), pairs,
+                                req.method, req.k)
+    except InputError as exc:
+        raise InvalidInput(str(exc), field=exc.field or "method") from exc
 
 
 def exact_working_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
@@ -236,7 +285,7 @@ def estimate_cost(points: int, req: DistanceMatrixRequest, context=None) -> floa
     pairs = float(max(_sizes(req)[2], 1))
     exact = req.metric == "w2" and (req.method == "exact" or (req.method == "auto"
                                                               and req.gamma is None))
-    if exact and (context is None or context.kind in EXACT_KINDS):
+    if exact and (context is None or context.supports("exact_transport")):
         return EXACT_PAIR_COST * float(max(points, 1)) ** 2 * pairs
     return float(max(points, 1)) * pairs * 60.0
 
@@ -264,6 +313,8 @@ def _output(res, reports, complete: bool, decision: dict) -> OperationOutput:
               "pair_residuals": np.asarray(res.pair_residuals, dtype=np.float64),
               "pair_converged": np.asarray(res.pair_converged, dtype=bool),
               "method_codes": codes}
+    if res.lower is not None:  # W1: certified lower bounds (spectral: of d_W^k)
+        arrays["lower_bounds"] = np.asarray(res.lower, dtype=np.float64)
     return OperationOutput(values.model_dump(), arrays)
 
 
@@ -291,17 +342,7 @@ def decide_matrix_job(view: DomainView, req: DistanceMatrixRequest) -> dict:
     cols = rows if symmetric else others
     common = {"metric": req.metric, "method": req.method}
     if req.metric == "w1":
-        try:
-            w1_method, _ = resolve_method(req.w1_method, "auto")
-        except InputError as exc:
-            field = "w1_method" if exc.field in (None, "method") else exc.field
-            raise InvalidInput(str(exc), field=field) from exc
-        pairs = matrix_pairs(rows.shape[1], cols.shape[1], symmetric, False)
-        return MatrixDecision(**common, reason="W1 per pair (Beckmann problem)",
-                              pairs=len(pairs), per_pair=True, zero_diagonal=symmetric or None,
-                              methods={"w1": len(pairs)} if pairs else {}, w1_method=w1_method,
-                              solver_arguments={"method": w1_method}
-                              ).model_dump(mode="json")
+        return _decide_w1(view, req, rows, cols, symmetric, common)
     sketch = view.sketch().remembering_paths()
     args = {"method": req.method, "gamma": "auto" if req.gamma is None else float(req.gamma),
             "substeps": req.substeps, "debiased": req.debiased}
@@ -340,6 +381,30 @@ def decide_matrix_job(view: DomainView, req: DistanceMatrixRequest) -> dict:
         f"e.g. {reasons[0]}").model_dump(mode="json")
 
 
+def _decide_w1(view, req, rows, cols, symmetric: bool, common: dict) -> dict:
+    """W1: how the matrix is computed, from the sizes (:func:`_w1_decision`), then the
+    interior point's W1 method or the spectral ``k``, as explicit arguments."""
+    w1 = _w1_decision(view, req)
+    pairs = len(matrix_pairs(rows.shape[1], cols.shape[1], symmetric, False))
+    if w1.method == "spectral":
+        return MatrixDecision(**common, reason=f"W1 by the thesis' d_W^k: {w1.reason}",
+                              pairs=pairs, per_pair=True, zero_diagonal=symmetric or None,
+                              methods={"spectral": pairs} if pairs else {},
+                              w1_matrix_method="spectral", k=w1.k,
+                              solver_arguments={"method": "spectral", "k": w1.k}
+                              ).model_dump(mode="json")
+    try:
+        w1_method, _ = resolve_method(req.w1_method, "auto")
+    except InputError as exc:
+        field = "w1_method" if exc.field in (None, "method") else exc.field
+        raise InvalidInput(str(exc), field=field) from exc
+    return MatrixDecision(**common, reason=f"W1 per pair (Beckmann problem): {w1.reason}",
+                          pairs=pairs, per_pair=True, zero_diagonal=symmetric or None,
+                          methods={"w1": pairs} if pairs else {}, w1_method=w1_method,
+                          w1_matrix_method="interior_point",
+                          solver_arguments={"method": w1_method}).model_dump(mode="json")
+
+
 def _check_ran_as_decided(values: dict, decision: dict) -> None:
     """A complete matrix ran what its stored decision says (methods and kernels per pair)."""
     if not decision.get("per_pair") or not values["complete"]:
@@ -361,8 +426,10 @@ def run(domain, req: DistanceMatrixRequest, progress, should_cancel,
         decision = decide_matrix_job(view, req)
     optional = {k: getattr(req, k) for k in ("tol", "max_iter") if getattr(req, k) is not None}
     explicit = decision.get("solver_arguments")
-    if req.metric == "w1":
-        kwargs = {"w1_options": {**explicit, **optional}}
+    if req.metric == "w1" and decision.get("w1_matrix_method") == "spectral":
+        kwargs = {"method": "spectral", "k": explicit["k"], "w1_options": optional}
+    elif req.metric == "w1":  # one W1 per pair (also jobs recorded before w1_matrix_method)
+        kwargs = {"method": "interior_point", "w1_options": {**explicit, **optional}}
     elif explicit is not None:
         kwargs = {**explicit, **optional}
     else:
@@ -379,7 +446,7 @@ def run(domain, req: DistanceMatrixRequest, progress, should_cancel,
         raise
     except ValueError as exc:  # an input the library refused: name the request's field
         field = getattr(exc, "field", None)
-        if field in ("distributions", "others", "method", "metric"):
+        if field in ("distributions", "others", "method", "metric", "k"):
             raise InvalidInput(str(exc), field=field) from exc
         raise
     output = _output(res, reports, True, decision)

@@ -185,7 +185,8 @@ OPERATIONS = [
     Operation("metric-histogram-propagations", "createMetricHistogramPropagationJob",
               "Propagate histograms over S¹ or a small metric space (user cost matrix) from "
               "labeled nodes by the exact LP of thesis §5.4, certified",
-              MetricHistogramRequest, run, validate, ("graph", "mesh", "pointcloud"),
+              MetricHistogramRequest, run, validate,
+              "histogram_propagation",
               result_model=MetricHistogramValues, estimate_bytes=estimate_bytes,
               estimate_cost=estimate_cost),
 ]

@@ -119,7 +119,7 @@ def _frame_weights(req: ShapeInterpolationRequest) -> tuple[np.ndarray, list | N
 def validate(ctx, req: ShapeInterpolationRequest) -> list[dict]:
     for i, shape_id in enumerate(req.shapes):
         view = ctx.view(shape_id, f"shapes[{i}]")
-        if view.kind != "mesh":
+        if not view.supports("faces"):
             raise UnsupportedOperation(f"shapes[{i}] is a {view.kind} domain; shape "
                                        "interpolation needs meshes", field=f"shapes[{i}]")
         if not view.summary.get("closed", False):
@@ -219,7 +219,7 @@ OPERATIONS = [
     Operation("shape-interpolations", "createShapeInterpolationJob",
               "Interpolate two or more closed meshes as Wasserstein barycenters of their "
               "volumes (thesis §3.7): one mesh per frame in a GLB, and a PNG",
-              ShapeInterpolationRequest, run, validate, ("mesh",), scope="global",
+              ShapeInterpolationRequest, run, validate, "faces", scope="global",
               result_model=ShapeInterpolationValues, estimate_cost=estimate_cost,
               estimate_bytes=job_bytes, writes_glb=True),
 ]

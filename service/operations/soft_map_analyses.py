@@ -232,7 +232,7 @@ OPERATIONS = [
     Operation("soft-map-analyses", "createSoftMapAnalysisJob",
               "Energies and bases of point maps given as soft maps (thesis ch. 4: Dirichlet, "
               "bijectivity, descriptor energies; §4.6 SVD and collection bases)",
-              SoftMapAnalysisRequest, run, validate, ("mesh",), scope="global",
+              SoftMapAnalysisRequest, run, validate, "faces", scope="global",
               domain_field="target_id", result_model=SoftMapAnalysisValues,
               estimate_cost=estimate_cost, estimate_bytes=job_bytes),
 ]

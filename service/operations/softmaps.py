@@ -153,7 +153,7 @@ class SoftMapValues(BaseModel):
 
 def _mesh_view(ctx, domain_id: str, field: str):
     view = ctx.view(domain_id, field)
-    if view.kind != "mesh":
+    if not view.supports("faces"):
         raise UnsupportedOperation(f"soft maps need triangle meshes; {field} is a {view.kind} "
                                    "domain", field=field)
     if view.n_components > 1:
@@ -386,7 +386,7 @@ OPERATIONS = [
         request_model=SoftMapRequest,
         run=run,
         validate=validate,
-        kinds=("mesh",),
+        requires="faces",
         scope="global",
         domain_field="source_id",
         result_model=SoftMapValues,

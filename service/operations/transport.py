@@ -336,10 +336,10 @@ def _read_only(pair: tuple[dict[str, np.ndarray], list[dict]]):
 def _validate_distance(view: DomainView, req: DistanceRequest) -> list[dict]:
     from service.errors import UnsupportedOperation
 
-    if req.metric == "w1" and view.kind != "mesh":
+    if req.metric == "w1" and not view.supports("faces"):
         raise UnsupportedOperation("metric 'w1' is available on triangle meshes only",
                                    field="metric")
-    if req.metric == "w2" and req.method == "exact" and view.kind not in EXACT_KINDS:
+    if req.metric == "w2" and req.method == "exact" and not view.supports("exact_transport"):
         raise UnsupportedOperation(f"method 'exact' is available on {', '.join(EXACT_KINDS)} "
                                    "domains; use method 'convolutional'", field="method")
     masses, reports = _distance_inputs(view, req)
@@ -645,7 +645,7 @@ def run_flow(domain, req: FlowRequest, progress, should_cancel) -> OperationOutp
                                             "flow": "flow", "color": "potential"})
 
 
-MESH = ("mesh",)
+FACES = "faces"  # what these operations require of a domain (Domain.supports)
 OPERATIONS = [
     Operation("distances", "createDistanceJob",
               "Transport distance between two distributions (W2^2: exact LP for sparse "
@@ -672,8 +672,8 @@ OPERATIONS = [
               size_field=shape_size_field),
     Operation("pointwise-distances", "createPointwiseDistanceJob",
               "Distances from a source vertex to every vertex (W1 between Diracs)",
-              PointwiseDistanceRequest, run_pointwise, _validate_pointwise, MESH,
+              PointwiseDistanceRequest, run_pointwise, _validate_pointwise, FACES,
               result_model=PointwiseDistanceValues),
     Operation("flows", "createFlowJob", "W1 optimal flow field J between two distributions",
-              FlowRequest, run_flow, _validate_pair, MESH, result_model=FlowValues),
+              FlowRequest, run_flow, _validate_pair, FACES, result_model=FlowValues),
 ]

@@ -410,18 +410,18 @@ def run_path(mesh, req: VolumetricPathRequest, progress, should_cancel) -> Opera
     return OperationOutput(values=values, arrays={"points": P, "distances": d}, files=files)
 
 
-MESH = ("mesh",)
+FACES = "faces"  # what these operations require of a domain (Domain.supports)
 OPERATIONS = [
     Operation("volumetric-distances", "createVolumetricDistanceJob",
               "Volumetric W1 distances inside a closed mesh from a source point to points or "
               "a planar slice (thesis §2.6): values, slice.png, GLB",
-              VolumetricDistanceRequest, run_distances, validate_distances, MESH,
+              VolumetricDistanceRequest, run_distances, validate_distances, FACES,
               result_model=VolumetricDistanceValues, estimate_bytes=estimate_bytes,
               estimate_cost=estimate_cost),
     Operation("volumetric-paths", "createVolumetricPathJob",
               "Descent path of the volumetric W1 distance towards a target point (thesis "
               "§2.6): points and a GLB",
-              VolumetricPathRequest, run_path, validate_path, MESH,
+              VolumetricPathRequest, run_path, validate_path, FACES,
               result_model=VolumetricPathValues, estimate_bytes=estimate_bytes,
               estimate_cost=estimate_cost),
 ]

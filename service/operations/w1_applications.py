@@ -262,18 +262,18 @@ def run_path_plan(mesh, req: PathPlanRequest, progress, should_cancel) -> Operat
         "color": "potential"})
 
 
-MESH = ("mesh",)
+FACES = "faces"  # what these operations require of a domain (Domain.supports)
 OPERATIONS = [
     Operation("w1-barycenters", "createW1BarycenterJob",
               "W1 barycenter, the minimizer of the weighted sum of squared W1 distances to "
               "the inputs (thesis eq. 2.7; interior point with a certified duality gap)",
-              W1BarycenterRequest, run_barycenter, validate_barycenter, MESH,
+              W1BarycenterRequest, run_barycenter, validate_barycenter, FACES,
               result_model=W1BarycenterValues, estimate_bytes=barycenter_bytes,
               estimate_cost=barycenter_cost),
     Operation("path-plans", "createPathPlanJob",
               "Path planning by W1: occupants leave through exit vertices, with optional "
               "congestion (thesis eq. 2.6, Fig. 2.12): arrivals, flow, potential, Hodge parts",
-              PathPlanRequest, run_path_plan, validate_path_plan, MESH,
+              PathPlanRequest, run_path_plan, validate_path_plan, FACES,
               result_model=PathPlanValues, estimate_bytes=path_plan_bytes,
               estimate_cost=path_plan_cost),
 ]

@@ -92,7 +92,7 @@ def convolutional_seconds(sketch, substeps: int) -> float | None:
     """Modelled seconds of a debiased convolutional distance (``APPLICATIONS`` kernel
     applications of ``substeps`` solves, regularization module); None on grids (separable
     Gaussian kernels, not modelled)."""
-    if sketch.kind == "grid":
+    if sketch.supports("exact_heat_kernel"):
         return None
     return APPLICATIONS * SOLVE_SECONDS_PER_VERTEX * float(sketch.n) * int(substeps)
 

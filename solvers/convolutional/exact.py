@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from solvers.domains import kinds_supporting, supports
 from solvers.errors import InputError
 from solvers.monitor import Monitor, SolverResult
 
@@ -57,7 +58,7 @@ TRIANGLE_ENTRIES = 200_000_000
 ROUNDS_FACTOR = 1.8
 LP_COEF = 4.7e-9
 PLAN_POINTS = 32
-EXACT_KINDS = ("mesh", "grid", "pointcloud")
+EXACT_KINDS = kinds_supporting("exact_transport")  # mesh, grid, pointcloud
 
 
 @dataclass(kw_only=True)
@@ -94,8 +95,9 @@ class ExactTransportResult(SolverResult):
 
 
 def supports_exact(domain) -> bool:
-    """Whether the exact method is available on ``domain`` (meshes, grids, point clouds)."""
-    return getattr(domain, "kind", None) in EXACT_KINDS
+    """Whether the exact method is available on ``domain`` (meshes, grids, point clouds): a
+    domain or its sketch with the capability ``"exact_transport"``."""
+    return supports(domain, "exact_transport")
 
 
 def lp_seconds(n0: int, n1: int) -> float:
@@ -170,7 +172,7 @@ def exact_route_estimate(sketch, m0, m1, budget: float | None = None) -> float:
     m0, m1 = np.asarray(m0), np.asarray(m1)
     src, dst = np.flatnonzero(m0 > 0), np.flatnonzero(m1 > 0)
     lp = lp_seconds(len(src), len(dst))
-    if sketch.kind != "mesh":
+    if not sketch.supports("geodesic_solves"):
         return lp + 1e-8 * float(len(src)) * float(len(dst))
     rows, cols, rmass, cmass = (dst, src, m1, m0) if len(dst) < len(src) else (src, dst, m0, m1)
     closure = sketch.junctions * mmp_solve_seconds(sketch.n, 1.0)
@@ -197,7 +199,7 @@ def exact_route_upper_bound(sketch, m0, m1) -> float:
 
     n0, n1 = int(np.count_nonzero(m0)), int(np.count_nonzero(m1))
     lp = lp_seconds(n0, n1)
-    if sketch.kind != "mesh":
+    if not sketch.supports("geodesic_solves"):
         return lp + 1e-8 * float(n0) * float(n1)
     closure = sketch.junctions * mmp_solve_seconds(sketch.n, 1.0)
     return ROUNDS_FACTOR * min(n0, n1) * mmp_solve_seconds(sketch.n, 1.0) + lp + closure
@@ -309,7 +311,7 @@ def exact_wasserstein_distance(
         if should_cancel is not None and should_cancel():
             raise CancelledError("cancelled between geodesic solves")
 
-    if domain.kind == "mesh":
+    if domain.supports("geodesic_solves"):
         plan = _mesh_plan(domain, src, dst, a, b)
         coupling, cost, log, lp_seconds = _mesh_exact(domain, plan, stop, max_iter)
         cost_seconds = time.perf_counter() - start - lp_seconds

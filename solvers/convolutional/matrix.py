@@ -133,7 +133,7 @@ def block_pairs(n: int) -> int:
 
 @dataclass(kw_only=True)
 class DistanceMatrixResult(SolverResult):
-    """Result of :func:`distance_matrix`.
+    r"""Result of :func:`distance_matrix`.
 
     Attributes
     ----------
@@ -143,8 +143,8 @@ class DistanceMatrixResult(SolverResult):
     pair_iterations, pair_residuals, pair_converged : (n, m) array
         Per pair: each solver's iterations, measured stopping quantity and convergence.
     methods : (n, m) array of str
-        ``"exact"``, ``"convolutional"``, ``"w1"`` or ``"identical"`` (the diagonal of a
-        symmetric matrix), ``""`` when not computed.
+        ``"exact"``, ``"convolutional"``, ``"w1"``, ``"spectral"`` or ``"identical"`` (the
+        diagonal of a symmetric matrix), ``""`` when not computed.
     computed : (n, m) bool array
         The pairs computed.
     metric : {"w2", "w1"}
@@ -153,6 +153,15 @@ class DistanceMatrixResult(SolverResult):
         One collection against itself.
     kernels : list of tuple
         The ``(gamma, t, substeps, debiased)`` groups solved as blocks.
+    lower : (n, m) array or None
+        ``metric="w1"``: the certified lower bound of every entry (interior point: of W1;
+        spectral: of d_W^k, whose value is an upper bound of W1).
+    w1_matrix_method : {"interior_point", "spectral"} or None
+        ``metric="w1"``: the decided matrix method.
+    k : int or None
+        Eigenfunctions of the spectral method.
+    reason : str
+        The decision (:func:`solvers.emd.dwk_matrix.decide_w1_method`).
     iterations, residual, converged : int, float, bool
         Convergence data (:class:`~solvers.monitor.SolverResult`).
         ``iterations`` (sum), ``residual`` (max) and ``converged`` (every pair computed and
@@ -168,6 +177,10 @@ class DistanceMatrixResult(SolverResult):
     metric: str = "w2"
     symmetric: bool = False
     kernels: list = field(default_factory=list)
+    lower: np.ndarray | None = None
+    w1_matrix_method: str | None = None
+    k: int | None = None
+    reason: str = ""
 
     @property
     def finished_rows(self) -> np.ndarray:
@@ -189,6 +202,10 @@ class _Table:
         self.with_fraction = progress is not None and _arity(progress) >= 3
         self.total, self.done, self.worst = max(total, 1), 0, 0.0
         self.kernels: list = []
+        self.lower = np.full((n, m), np.nan) if metric == "w1" else None
+        self.w1_matrix_method: str | None = None
+        self.k: int | None = None
+        self.reason = ""
 
     def put(self, i: int, j: int, value, iterations, residual, converged, method) -> None:
         cells = [(i, j), (j, i)] if self.symmetric and i != j else [(i, j)]
@@ -198,6 +215,8 @@ class _Table:
             self.residuals[r, c] = residual
             self.converged[r, c] = converged
             self.methods[r, c] = method
+        if self.lower is not None and method == "identical":
+            self.lower[i, j] = 0.0
         if method == "identical":
             return
         self.done += 1
@@ -215,7 +234,9 @@ class _Table:
             values=self.values, pair_iterations=self.iterations,
             pair_residuals=self.residuals, pair_converged=self.converged, methods=self.methods,
             computed=computed, metric=self.metric, symmetric=self.symmetric,
-            kernels=list(self.kernels), iterations=int(self.iterations.sum()),
+            kernels=list(self.kernels), lower=self.lower,
+            w1_matrix_method=self.w1_matrix_method, k=self.k, reason=self.reason,
+            iterations=int(self.iterations.sum()),
             residual=float(np.nanmax(self.residuals)) if computed.any() else float("nan"),
             converged=bool(computed.all() and self.converged[computed].all()))
 
@@ -258,6 +279,7 @@ def distance_matrix(
     max_iter: int | None = None,
     debiased: bool | None = None,
     method: str = "auto",
+    k: int | None = None,
     w1_options: dict | None = None,
     progress: Callable[..., None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
@@ -280,9 +302,23 @@ def distance_matrix(
         ``n`` vectors; normalized here.
     others : optional second set ``(n_vertices, m)``; None: the symmetric matrix of
         ``distributions`` (pairs ``i < j`` solved and mirrored).
-    gamma, t, substeps, tol, max_iter, debiased, method : as in ``wasserstein_distance``
+    gamma, t, substeps, tol, max_iter, debiased : as in ``wasserstein_distance``
         (``"w2"`` only).
-    w1_options : keyword arguments of ``earth_movers_distance`` (``"w1"`` only).
+    method : ``"w2"``: as in ``wasserstein_distance`` (``"auto"``, ``"convolutional"``,
+        ``"exact"``); ``"w1"``: ``"interior_point"`` (one certified W1 per pair,
+        :func:`~solvers.emd.earth_movers_distance` with ``w1_options``), ``"spectral"``
+        (the thesis' d_W^k, eq. 2.4 with the curl part in ``k`` Laplacian eigenfunctions:
+        every distribution embedded once, then batched reduced problems with certified gaps,
+        :func:`~solvers.emd.dwk_matrix.dwk_matrix`; an upper bound of W1 that converges
+        slowly in ``k``: bench/results/dwk_matrix.md) or ``"auto"``: the interior point
+        while its estimate fits 60 s, else spectral
+        (:func:`~solvers.emd.dwk_matrix.decide_w1_method`, from the sizes alone; recorded
+        as ``w1_matrix_method``, ``k`` and ``reason`` of the result).
+    k : ``method="spectral"``: eigenfunctions of the reduced curl basis (default: the
+        largest of ``(0, 5, 10, 20, 50, 100)`` estimated within 60 s,
+        :func:`~solvers.emd.dwk_matrix.default_k`); given with ``"auto"``: spectral.
+    w1_options : keyword arguments of ``earth_movers_distance`` (``"w1"``, interior point),
+        or ``tol``, ``max_iter``, ``harmonic`` of ``dwk_matrix`` (spectral).
     progress : ``progress(pairs_done, worst_residual[, fraction])`` after each pair.
     should_cancel : checked before every block step, LP and W1 solve; when it returns True
         :class:`~solvers.errors.CancelledError` is raised with ``partial``, the result so
@@ -299,6 +335,9 @@ def distance_matrix(
     if metric not in METRICS:
         raise InputError(f"metric must be one of {', '.join(map(repr, METRICS))}, got "
                          f"{metric!r}", field="metric")
+    if metric == "w2" and (method in W1_ONLY or k is not None):
+        raise InputError(f"method {method!r} and k choose the W1 algorithm (metric 'w1')",
+                         field="k" if k is not None else "method")
     if should_cancel is not None and not callable(should_cancel):
         raise InputError("should_cancel must be callable", field="should_cancel")
     if progress is not None and not callable(progress):
@@ -325,7 +364,8 @@ def distance_matrix(
         pairs = matrix_pairs(A.shape[1], B.shape[1], symmetric, diagonal=True)
         table.total = len(pairs)
     if metric == "w1":
-        _w1_pairs(domain, A, B, pairs, table, w1_options or {}, stop)
+        _w1_matrix(domain, A, None if symmetric else B, pairs, table, method=method, k=k,
+                   options=w1_options or {}, stop=stop)
         return table.result()
     sketch = sketch_of(domain).remembering_paths()
     decisions = [decide_method(sketch, A[:, i], B[:, j], method=method, gamma=gamma, t=t,
@@ -613,3 +653,70 @@ def _w1_pairs(domain, A, B, pairs, table: _Table, options: dict, stop) -> None:
             stop(f"in pair ({i}, {j})")
             raise
         table.put(i, j, res.value, res.iterations, res.residual, res.converged, "w1")
+        table.lower[i, j] = res.lower_bound
+        if table.symmetric:
+            table.lower[j, i] = res.lower_bound
+
+
+SPECTRAL_OPTIONS = ("tol", "max_iter", "harmonic")
+#: Values of ``method`` that apply to ``metric="w1"`` only.
+W1_ONLY = ("interior_point", "spectral")
+
+
+def _w1_matrix(domain, A, B, pairs, table: _Table, *, method: str, k, options: dict,
+               stop) -> None:
+    """``metric="w1"``: decide (:func:`solvers.emd.dwk_matrix.decide_w1_method`, from the
+    sizes alone; recorded on the result), then one certified interior-point W1 per pair, or
+    d_W^k for all pairs (:func:`solvers.emd.dwk_matrix.dwk_matrix`; ``B`` None: symmetric).
+    """
+    from solvers.emd.dwk_matrix import decide_w1_method
+
+    n_faces = int(getattr(domain, "n_faces", 2 * domain.n))
+    count = A.shape[1] + (0 if B is None else B.shape[1])
+    decision = decide_w1_method(domain.n, n_faces, count, len(pairs), method, k)
+    table.w1_matrix_method, table.k = decision.method, decision.k
+    table.reason = decision.reason
+    if decision.method == "interior_point":
+        _w1_pairs(domain, A, A if B is None else B, pairs, table, options, stop)
+        return
+    unknown = sorted(set(options) - set(SPECTRAL_OPTIONS))
+    if unknown:
+        raise InputError(f"w1_options {unknown} do not apply to method 'spectral' (it takes "
+                         f"{', '.join(SPECTRAL_OPTIONS)})", field="w1_options")
+    _spectral_pairs(domain, A, B, table, decision.k, options, stop)
+
+
+def _spectral_pairs(domain, A, B, table: _Table, k: int, options: dict, stop) -> None:
+    """d_W^k of every pair into ``table`` (method ``"spectral"``, residual = the certified
+    gap), progress passed through, cancellation with the finished row blocks."""
+    from solvers.emd.dwk_matrix import dwk_matrix
+
+    def report(done: int, worst: float) -> None:
+        table.done, table.worst = done, max(table.worst, worst)
+        if table.progress is not None:
+            if table.with_fraction:
+                table.progress(done, table.worst, done / table.total)
+            else:
+                table.progress(done, table.worst)
+
+    try:
+        res = dwk_matrix(domain, A, B, k=k, progress=report,
+                         should_cancel=_should_cancel(stop, "between blocks of pairs"),
+                         **options)
+    except CancelledError as exc:
+        _fill_spectral(table, exc.partial)
+        error = CancelledError(str(exc))
+        error.partial = table.result()
+        raise error from exc
+    _fill_spectral(table, res)
+
+
+def _fill_spectral(table: _Table, res) -> None:
+    done = res.computed.copy()
+    if table.symmetric:
+        np.fill_diagonal(done, False)  # the table's "identical" entries
+    table.values[done], table.lower[done] = res.values[done], res.lower[done]
+    table.iterations[done] = res.pair_iterations[done]
+    table.residuals[done] = res.gaps[done]
+    table.converged[done] = res.gaps[done] <= res.tol
+    table.methods[done] = "spectral"

@@ -106,13 +106,14 @@ def _as_trimesh(shape, field: str):
     """A trimesh.Trimesh in input coordinates from a Trimesh, TriangleMesh, path or (V, F)."""
     import trimesh
 
+    from solvers.domains import supports
     from solvers.domains.mesh import TriangleMesh
 
     if isinstance(shape, trimesh.Trimesh):
         return shape
     if isinstance(shape, (str, os.PathLike)):
         shape = TriangleMesh.from_file(shape)
-    if isinstance(shape, TriangleMesh):
+    if supports(shape, "faces"):
         return trimesh.Trimesh(shape.vertices * shape.length_scale, shape.faces, process=False)
     if isinstance(shape, tuple) and len(shape) == 2:
         vertices = np.asarray(shape[0], dtype=np.float64)

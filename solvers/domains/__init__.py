@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from solvers.domains.base import Domain
+from solvers.domains.base import CAPABILITIES, Domain, ExportGeometry
 from solvers.domains.graph import Graph
 from solvers.domains.grid import Grid
 from solvers.domains.maze import Maze, maze_mesh
@@ -23,6 +23,53 @@ from solvers.errors import DomainError
 DOMAIN_CLASSES: dict[str, type[Domain]] = {"mesh": TriangleMesh, "grid": Grid, "graph": Graph,
                                            "pointcloud": PointCloud}
 DOMAIN_KINDS = tuple(DOMAIN_CLASSES)
+
+
+def domain_class(kind: str) -> type[Domain]:
+    """The domain class of ``kind`` (one of :data:`DOMAIN_KINDS`).
+
+    Raises
+    ------
+    DomainError
+        An unknown kind.
+    """
+    try:
+        return DOMAIN_CLASSES[kind]
+    except KeyError:
+        raise DomainError(f"unknown domain kind {kind!r}; expected one of {DOMAIN_KINDS}",
+                          field="kind") from None
+
+
+def supports(domain, capability: str) -> bool:
+    """Whether ``domain`` has ``capability`` (a key of :data:`CAPABILITIES`): a domain, a
+    light representation of one with a ``supports`` method (a sketch, a service's view), or
+    any other object (False: not a domain).
+
+    Parameters
+    ----------
+    domain : Domain or object
+        What to ask.
+    capability : str
+        What an operation needs, e.g. ``"faces"``.
+
+    Returns
+    -------
+    bool
+    """
+    ask = getattr(domain, "supports", None)
+    return bool(ask(capability)) if callable(ask) else False
+
+
+def kind_supports(kind: str, capability: str) -> bool:
+    """Whether domains of ``kind`` have ``capability`` (False for an unknown kind): what a
+    light representation that holds only the kind answers."""
+    cls = DOMAIN_CLASSES.get(kind)
+    return cls is not None and cls.supports(capability)
+
+
+def kinds_supporting(capability: str) -> tuple[str, ...]:
+    """The kinds (in :data:`DOMAIN_KINDS` order) whose domains have ``capability``."""
+    return tuple(kind for kind, cls in DOMAIN_CLASSES.items() if cls.supports(capability))
 
 
 def load_mesh(source, file_type: str | None = None, **kwargs) -> TriangleMesh:
@@ -78,17 +125,23 @@ def domain_from_arrays(kind: str, arrays: dict[str, np.ndarray], parameters: dic
 
 
 __all__ = [
+    "CAPABILITIES",
     "DOMAIN_CLASSES",
     "DOMAIN_KINDS",
     "MESH_FORMATS",
     "Domain",
+    "ExportGeometry",
     "Graph",
     "Grid",
     "Maze",
     "MeshDiagnostics",
     "PointCloud",
     "TriangleMesh",
+    "domain_class",
     "domain_from_arrays",
+    "kind_supports",
+    "kinds_supporting",
     "load_mesh",
     "maze_mesh",
+    "supports",
 ]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
@@ -16,6 +17,13 @@ from solvers.errors import DomainError, InputError
 from solvers.kernels import HeatKernel
 from solvers.linalg import Backend
 from solvers.validation import check_component_masses
+
+
+def check_laplacian_name(laplacian: str) -> None:
+    """Refuse a ``laplacian`` that is not one of :data:`LAPLACIAN_NAMES`."""
+    if laplacian not in LAPLACIAN_NAMES:
+        raise InputError(f"laplacian must be 'auto', 'robust' or 'cotan', got {laplacian!r}",
+                         field="laplacian")
 
 
 @contextlib.contextmanager
@@ -58,6 +66,33 @@ def squared_straight_distance_bytes(n: int, entries: int, dim: int) -> int:
     return 8 * (dim + 1) * entries + 8 * (2 * dim + 2) * n
 
 
+# What an operation may need of a domain (``Domain.supports``); each domain class lists the
+# ones it has in ``capabilities``.
+CAPABILITIES = {
+    "faces": "triangle faces: per-face fields and flows, Beckmann W1, soft maps, shape "
+             "interpolation, boundaries",
+    "exact_transport": "the exact W2 route: ground distances between any two points",
+    "geodesic_solves": "the exact route's ground distances are geodesics solved per source "
+                       "(MMP), planned and estimated per solve",
+    "edge_lengths": "the length scale h is a mean edge length (raised to a floor for values)",
+    "exact_heat_kernel": "the heat kernel is an exact (separable) Gaussian: substeps unused, "
+                         "no solve time modelled",
+    "hop_metric": "distances count edge hops (bumps, extent): no coordinates needed",
+    "histogram_propagation": "histogram propagation along the domain's Laplacian (service)",
+}
+LAPLACIAN_NAMES = ("auto", "robust", "cotan")
+
+
+@dataclass(frozen=True)
+class ExportGeometry:
+    """What a glTF export draws of a domain: ``positions`` ``(n, 3)`` (or ``(n, d)``), and
+    either triangle ``faces`` or ``edges`` (index pairs), or neither (points)."""
+
+    positions: np.ndarray
+    faces: np.ndarray | None = None
+    edges: np.ndarray | None = None
+
+
 class Domain:
     """A discretized space carrying distributions.
 
@@ -85,9 +120,74 @@ class Domain:
     kind: str = "domain"
     n: int
     areas: np.ndarray
+    # what the domain offers (keys of CAPABILITIES); see :meth:`supports`
+    capabilities: frozenset[str] = frozenset()
+    # graph edges (meshes, graphs) and face count (meshes); None on the others
+    edges: np.ndarray | None = None
+    n_faces: int | None = None
 
     def __init__(self):
         self.operators = OperatorStore()
+
+    @classmethod
+    def supports(cls, capability: str) -> bool:
+        """Whether this kind of domain has ``capability`` (a key of :data:`CAPABILITIES`).
+
+        Parameters
+        ----------
+        capability : str
+            What an operation needs, e.g. ``"faces"``.
+
+        Returns
+        -------
+        bool
+        """
+        return capability in cls.capabilities
+
+    @property
+    def coordinates(self) -> np.ndarray | None:
+        """``(n, d)`` coordinates of the mass-carrying points (mesh vertices and point
+        clouds at unit area, grid nodes, graph positions), or None (a graph without
+        positions)."""
+        return None
+
+    @property
+    def heat_mass(self) -> np.ndarray:
+        """Diagonal of the mass matrix ``M`` of the heat equation ``M du/dt = -L u``: the
+        area weights (ones on graphs, whose mass counts nodes)."""
+        return np.asarray(self.areas, dtype=np.float64)
+
+    def laplacian_variant(self, laplacian: str = "auto") -> sp.csr_matrix:
+        """The Laplacian named ``laplacian`` (``"auto"``: :attr:`laplacian`; ``"robust"`` and
+        ``"cotan"`` choose between a triangle mesh's two Laplacians).
+
+        Raises
+        ------
+        InputError
+            An unknown name, or a mesh Laplacian asked of another domain.
+        """
+        check_laplacian_name(laplacian)
+        if laplacian != "auto":
+            raise InputError(f"laplacian={laplacian!r} applies to triangle meshes only",
+                             field="laplacian")
+        return sp.csr_matrix(self.laplacian)
+
+    def export_geometry(self) -> ExportGeometry:
+        """What a glTF export draws: the points at :attr:`coordinates`.
+
+        Raises
+        ------
+        UnsupportedDomainError
+            The domain has no geometry to draw.
+        """
+        return ExportGeometry(np.asarray(self.coordinates))
+
+    @classmethod
+    def stored_geometry(cls, arrays: dict, summary: dict, points) -> dict:
+        """What a viewer draws of a stored domain of this kind, from its stored ``arrays``
+        (``to_arrays()``), ``summary`` and unit-area ``points`` (None without): a dict with
+        ``points`` and, by kind, ``faces``, ``edges`` or ``shape`` and ``bounds``."""
+        return {"points": points}
 
     @property
     def laplacian(self) -> sp.csr_matrix:  # pragma: no cover - abstract
@@ -209,10 +309,7 @@ class Domain:
 
         Computed once per domain: a domain's points are set when it is built and never
         change (a solver's gamma check reads it on every call)."""
-        pts = getattr(self, "points", None)
-        if pts is None:
-            pts = getattr(self, "vertices", None)
-        return points_extent(pts)
+        return points_extent(self.coordinates)
 
     def component_masses(self, masses: np.ndarray) -> np.ndarray:
         """Total mass per connected component of an (n,) mass vector.

@@ -7,8 +7,8 @@ from functools import cached_property
 import numpy as np
 import scipy.sparse as sp
 
-from solvers.domains.base import Domain, domain_input
-from solvers.errors import DomainError
+from solvers.domains.base import Domain, ExportGeometry, domain_input
+from solvers.errors import DomainError, UnsupportedDomainError
 from solvers.kernels import ImplicitEulerHeatKernel
 from solvers.linalg import Backend
 from solvers.validation import check_edge_weights, check_edges
@@ -29,6 +29,7 @@ class Graph(Domain):
     """
 
     kind = "graph"
+    capabilities = frozenset({"hop_metric", "histogram_propagation"})
 
     def __init__(self, n_nodes: int, edges, weights=None, positions=None):
         super().__init__()
@@ -94,6 +95,29 @@ class Graph(Domain):
         return (sp.diags(np.asarray(adj.sum(axis=1)).ravel()) - adj).tocsr()
 
     @property
+    def coordinates(self) -> np.ndarray | None:
+        """The node ``positions`` as given (None without)."""
+        return self.positions
+
+    @property
+    def heat_mass(self) -> np.ndarray:
+        """Ones: a graph's heat equation counts nodes."""
+        return np.ones(self.n)
+
+    def export_geometry(self) -> ExportGeometry:
+        """The node positions and the edges; a graph without positions has none."""
+        if self.positions is None:
+            raise UnsupportedDomainError(
+                "this graph has no node positions, so it has no geometry to export as glTF; "
+                "use the JSON result", field="format")
+        return ExportGeometry(self.positions, edges=self.edges)
+
+    @classmethod
+    def stored_geometry(cls, arrays: dict, summary: dict, points) -> dict:
+        """The positions (if any) and the edges."""
+        return {"points": points, "edges": arrays["edges"]}
+
+    @property
     def is_connected(self) -> bool:
         return self.n_components == 1
 
@@ -119,3 +143,22 @@ class Graph(Domain):
             "components": self.n_components,
             "connected": self.is_connected,
         }
+
+
+def domain_graph(domain: Domain, laplacian: str = "auto") -> Graph:
+    """A :class:`Graph` with the positive off-diagonal weights ``-L_uv`` of the domain's
+    Laplacian ``laplacian`` (``Domain.laplacian_variant``; negative cotangent weights
+    dropped), at its :attr:`~Domain.coordinates`; a graph is returned as it is (its
+    ``laplacian`` is not read)."""
+    if isinstance(domain, Graph):
+        return domain
+    return graph_of_laplacian(domain.laplacian_variant(laplacian), domain.coordinates)
+
+
+def graph_of_laplacian(L: sp.spmatrix, positions=None) -> Graph:
+    """The :class:`Graph` with the positive off-diagonal weights ``-L_uv`` of a Laplacian
+    (non-negative off-diagonals dropped), at ``positions`` (None: none)."""
+    upper = sp.triu(L, k=1).tocoo()
+    keep = upper.data < 0
+    return Graph(upper.shape[0], np.c_[upper.row[keep], upper.col[keep]], -upper.data[keep],
+                 positions=positions)

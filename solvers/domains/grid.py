@@ -11,6 +11,7 @@ import scipy.sparse as sp
 
 from solvers.domains.base import (
     Domain,
+    ExportGeometry,
     squared_straight_distance_bytes,
     squared_straight_distances,
 )
@@ -48,6 +49,7 @@ class Grid(Domain):
     """
 
     kind = "grid"
+    capabilities = frozenset({"exact_transport", "exact_heat_kernel"})
 
     def __init__(
         self,
@@ -132,9 +134,26 @@ class Grid(Domain):
         mesh = np.meshgrid(*self.axis_coordinates, indexing="ij")
         return np.stack([m.ravel() for m in mesh], axis=1)
 
+    @property
+    def coordinates(self) -> np.ndarray:
+        """The node coordinates (:attr:`points`)."""
+        return self.points
+
     @cached_property
     def areas(self) -> np.ndarray:
         return np.full(self.n, 1.0 / self.n)
+
+    def export_geometry(self) -> ExportGeometry:
+        """A 2-D grid: its nodes at z = 0 and two triangles per cell; otherwise its nodes."""
+        if self.ndim == 2:
+            return ExportGeometry(np.pad(self.points, ((0, 0), (0, 1))),
+                                  faces=grid_faces(self.shape))
+        return ExportGeometry(self.points)
+
+    @classmethod
+    def stored_geometry(cls, arrays: dict, summary: dict, points) -> dict:
+        """The shape and bounds (no positions: a viewer lays the nodes out itself)."""
+        return {"shape": summary["shape"], "bounds": summary["bounds"]}
 
     @cached_property
     def laplacian(self) -> sp.csr_matrix:
@@ -233,3 +252,12 @@ class Grid(Domain):
             "spacing": list(self.spacing),
             "components": 1,
         }
+
+
+def grid_faces(shape) -> np.ndarray:
+    """``(2 (nx - 1) (ny - 1), 3)`` triangles of a 2-D grid's cells (nodes in C order)."""
+    nx, ny = shape
+    idx = np.arange(nx * ny).reshape(nx, ny)
+    a, b = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel()
+    c, d = idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    return np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])

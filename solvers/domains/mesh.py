@@ -13,7 +13,7 @@ import robust_laplacian
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from solvers.domains.base import Domain
+from solvers.domains.base import Domain, ExportGeometry, check_laplacian_name
 from solvers.errors import DomainError, InputError, MeshFormatError
 from solvers.heat_geodesics import all_pairs_heat_distances
 from solvers.kernels import (
@@ -349,6 +349,8 @@ class TriangleMesh(Domain):
     """
 
     kind = "mesh"
+    capabilities = frozenset({"faces", "exact_transport", "geodesic_solves", "edge_lengths",
+                              "histogram_propagation"})
 
     def __init__(
         self,
@@ -566,6 +568,30 @@ class TriangleMesh(Domain):
     @property
     def n_faces(self) -> int:
         return len(self.faces)
+
+    def laplacian_variant(self, laplacian: str = "auto") -> sp.csr_matrix:
+        """``"cotan"``: :attr:`cotan_laplacian`; ``"robust"``: :attr:`robust_laplacian`;
+        ``"auto"``: :attr:`laplacian` (the one chosen at construction)."""
+        check_laplacian_name(laplacian)
+        if laplacian == "cotan":
+            return self.cotan_laplacian
+        if laplacian == "robust":
+            return self.robust_laplacian
+        return self.laplacian
+
+    def export_geometry(self) -> ExportGeometry:
+        """The vertices in input units and the faces."""
+        return ExportGeometry(self.to_arrays()["vertices"], faces=self.faces)
+
+    @classmethod
+    def stored_geometry(cls, arrays: dict, summary: dict, points) -> dict:
+        """The unit-area vertices and the faces."""
+        return {"points": points, "faces": arrays["faces"]}
+
+    @property
+    def coordinates(self) -> np.ndarray:
+        """The vertices at unit area."""
+        return self.vertices
 
     @property
     def euler_characteristic(self) -> int:

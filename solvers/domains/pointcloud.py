@@ -8,6 +8,7 @@ import scipy.sparse as sp
 
 from solvers.domains.base import (
     Domain,
+    ExportGeometry,
     domain_input,
     squared_straight_distance_bytes,
     squared_straight_distances,
@@ -32,6 +33,7 @@ class PointCloud(Domain):
     """
 
     kind = "pointcloud"
+    capabilities = frozenset({"exact_transport", "histogram_propagation"})
 
     def __init__(self, points, n_neighbors: int = 30):
         super().__init__()
@@ -127,6 +129,15 @@ class PointCloud(Domain):
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         return {"points": self._input_points}
+
+    def export_geometry(self) -> ExportGeometry:
+        """The points in input units."""
+        return ExportGeometry(self.to_arrays()["points"])
+
+    @property
+    def coordinates(self) -> np.ndarray:
+        """The points at unit area."""
+        return self.points
 
     def parameters(self) -> dict:
         return {"n_neighbors": self.n_neighbors}

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from solvers.domains import kind_supports
 from solvers.kernels import GEODESIC_KERNEL_VERTICES
 
 _SKETCHES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -54,6 +55,10 @@ class DomainSketch:
     periodic_widths: np.ndarray | None = None
     junctions: int = 0
     _memo: dict = field(default_factory=dict, repr=False)
+
+    def supports(self, capability: str) -> bool:
+        """Whether the sketched domain has ``capability`` (as ``Domain.supports``)."""
+        return kind_supports(self.kind, capability)
 
     @property
     def geodesic_kernel_available(self) -> bool:

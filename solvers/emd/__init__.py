@@ -3,7 +3,9 @@
 * :func:`earth_movers_distance` — W1 between distributions (Beckmann problem, ADMM /
   Weiszfeld over the curl, spectral or unrestricted flow space), with flows, dual
   potentials and anisotropic costs.
-* :func:`pointwise_distances` — ``d_W^k`` from one source to every vertex (§2.5).
+* :func:`pointwise_distances` — ``d_W^k`` from one source to every vertex (§2.5);
+  :func:`dwk_matrix` — ``d_W^k`` between every pair of a collection of distributions, each
+  embedded once (§2.5, eq. 2.4), with certified gaps.
 * :func:`distance_to_features` — geodesic-like distance to points/curves (§2.7).
 * :func:`beckmann_w1_exact` — the Beckmann problem (eq. 2.1) solved exactly as an SOCP;
   on the same program :func:`w1_barycenter` (eq. 2.7, squared W1), :func:`w1_median`
@@ -15,11 +17,13 @@
   paths (§2.6).
 
 Thesis section → module: §2.2–2.4 ``operators``, ``bases``, ``harmonic``, ``beckmann``;
-§2.5 ``pointwise``, ``green``; §2.6 ``volumetric``; §2.7 ``features``, ``anisotropy``,
-``exact`` (barycenters, eq. 2.7), ``path_planning`` (eq. 2.6), ``hodge``, ``fuzzy``.
+§2.5 ``pointwise``, ``green``, ``dwk``, ``dwk_matrix``; §2.6 ``volumetric``; §2.7
+``features``, ``anisotropy``, ``exact`` (barycenters, eq. 2.7), ``path_planning`` (eq. 2.6),
+``hodge``, ``fuzzy``.
 """
 
 from solvers.emd.beckmann import EMDResult, earth_movers_distance
+from solvers.emd.dwk_matrix import DwkMatrixResult, dwk_matrix
 from solvers.emd.exact import (
     BeckmannResult,
     W1BarycenterResult,
@@ -49,6 +53,7 @@ from solvers.emd.volumetric import (
 
 __all__ = [
     "BeckmannResult",
+    "DwkMatrixResult",
     "EMDOperators",
     "EMDResult",
     "FeatureDistanceResult",
@@ -63,6 +68,7 @@ __all__ = [
     "W1MultistepResult",
     "beckmann_w1_exact",
     "distance_to_features",
+    "dwk_matrix",
     "earth_movers_distance",
     "fuzzy_geodesic",
     "hodge_decomposition",

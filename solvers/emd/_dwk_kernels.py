@@ -95,3 +95,33 @@ def dual_bound(data, dual_perp, weights, chunks, out_dot, out_ratio):  # pragma:
             out_dot[b] += dots[ch, b]
             if ratios[ch, b] > out_ratio[b]:
                 out_ratio[b] = ratios[ch, b]
+
+
+@cached_njit(parallel=True, fastmath=True)
+def pair_l1(left, right, weights, rows, cols, tile, out):  # pragma: no cover - compiled
+    """``out[p] = Σ_f w_f |left[rows[p], f] - right[cols[p], f]|`` (``d_W^0``).
+
+    ``left (n, 2F)``, ``right (m, 2F)`` float32, one embedded field per row (face ``f`` at
+    ``2f, 2f + 1``); pairs are split into blocks of 32 run in parallel, faces into tiles of
+    ``tile`` so the fields of a block's pairs stay in cache; per pair the sum is float64
+    over tiles in face order (deterministic whatever the thread count)."""
+    n_faces = weights.shape[0]
+    n_p = rows.shape[0]
+    n_blocks = (n_p + 31) // 32
+    for blk in numba.prange(n_blocks):
+        lo = blk * 32
+        hi = min(n_p, lo + 32)
+        acc = np.zeros(hi - lo, np.float64)
+        for f0 in range(0, n_faces, tile):
+            f1 = min(n_faces, f0 + tile)
+            for p in range(lo, hi):
+                a = left[rows[p]]
+                b = right[cols[p]]
+                s = np.float32(0.0)
+                for f in range(f0, f1):
+                    d0 = a[2 * f] - b[2 * f]
+                    d1 = a[2 * f + 1] - b[2 * f + 1]
+                    s += weights[f] * np.sqrt(d0 * d0 + d1 * d1)
+                acc[p - lo] += s
+        for p in range(lo, hi):
+            out[p] = acc[p - lo]

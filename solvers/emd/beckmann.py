@@ -53,6 +53,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from solvers.domains import supports
 from solvers.emd.bases import CurlBasis, SpectralBasis, _apply_metric, _Basis
 from solvers.emd.interior_point import beckmann_interior_point
 from solvers.emd.operators import EMDOperators, mesh_operators
@@ -113,7 +114,7 @@ class EMDResult(SolverResult):
 
 
 def check_mesh(mesh) -> EMDOperators:
-    if not hasattr(mesh, "faces") or not hasattr(mesh, "gradient"):
+    if not supports(mesh, "faces"):
         raise UnsupportedDomainError(
             f"earth mover's distances need a triangle mesh, got a {getattr(mesh, 'kind', mesh)}",
             field="mesh")

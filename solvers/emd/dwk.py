@@ -90,17 +90,29 @@ def reduced_spectral_problem(ops, k: int, harmonic: bool = True) -> ReducedSpect
         local = np.stack([np.einsum("fc,fck->fk", e1, fields),
                           np.einsum("fc,fck->fk", e2, fields)], axis=1) * w[:, None, None]
         q, _ = np.linalg.qr(local.reshape(2 * ops.n_faces, -1))
+        q32 = np.ascontiguousarray(q, dtype=np.float32)
+        return ReducedSpectralProblem(basis=q32, basis_t=np.ascontiguousarray(q32.T),
+                                      gradient=frame_gradient(ops),
+                                      weights=w.astype(np.float32))
+
+    return ops._store.get(("emd", "dwk_reduced", int(k), bool(harmonic)), build)
+
+
+def frame_gradient(ops) -> sp.csr_matrix:
+    """``(2F, V)`` sparse: ``sqrt(a_f)`` x the per-face frame components of the face
+    gradient (:func:`_face_frames`), so that ``Σ_f sqrt(a_f) |(G f)_f|`` is ``∫ |∇f| dA``;
+    built once per mesh and kept in its operator store."""
+    def build():
+        e1, e2 = _face_frames(ops)
+        w = np.sqrt(ops.face_areas)
         n_f = ops.n_faces
         rows = np.repeat(np.arange(2 * n_f), 3)
         cols = np.tile(np.arange(3), 2 * n_f) + 3 * np.repeat(np.arange(n_f), 6)
         frame = np.stack([e1, e2], axis=1) * w[:, None, None]  # (F, 2, 3)
         project = sp.csr_matrix((frame.ravel(), (rows, cols)), shape=(2 * n_f, 3 * n_f))
-        q32 = np.ascontiguousarray(q, dtype=np.float32)
-        return ReducedSpectralProblem(basis=q32, basis_t=np.ascontiguousarray(q32.T),
-                                      gradient=(project @ ops.gradient_matrix).tocsr(),
-                                      weights=w.astype(np.float32))
+        return (project @ ops.gradient_matrix).tocsr()
 
-    return ops._store.get(("emd", "dwk_reduced", int(k), bool(harmonic)), build)
+    return ops._store.get(("emd", "dwk_frame_gradient"), build)
 
 
 @dataclass

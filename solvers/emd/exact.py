@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from solvers.domains import supports
 from solvers.domains.mesh import TriangleMesh
 from solvers.errors import CancelledError, InputError, UnsupportedDomainError
 from solvers.monitor import Monitor, SolverResult
@@ -180,7 +181,7 @@ class W1MultistepResult(SolverResult):
 # validation helpers
 # ---------------------------------------------------------------------------
 def _check_mesh(mesh, max_vertices: int, blocks: int = 1) -> None:
-    if not isinstance(mesh, TriangleMesh):
+    if not supports(mesh, "faces"):
         raise UnsupportedDomainError("exact W1 needs a TriangleMesh domain", field="domain")
     if mesh.n > max_vertices:
         raise InputError(
@@ -572,7 +573,7 @@ def w1_barycenter(
     if method not in BARYCENTER_METHODS:
         raise InputError(f"method must be one of {BARYCENTER_METHODS}, got "
                          f"{method!r}", field="method")
-    fw = _face_weights(mesh, face_weights) if isinstance(mesh, TriangleMesh) else None
+    fw = _face_weights(mesh, face_weights) if supports(mesh, "faces") else None
     if method == "auto":
         method = "socp" if fw is not None and not np.all(np.isfinite(fw)) else "ipm"
     if method == "ipm":
@@ -638,7 +639,7 @@ def w1_median(
 def _barycenter_inputs(mesh, mus, weights, max_vertices: int | None):
     """Validated ``(M (V, k) normalized columns, alpha (k,) summing to 1)``; the conic
     solver's size caps unless ``max_vertices`` is None."""
-    if not isinstance(mesh, TriangleMesh):
+    if not supports(mesh, "faces"):
         raise UnsupportedDomainError("W1 barycenters need a TriangleMesh domain",
                                      field="domain")
     x_in = check_masses(mus, mesh.n, "mus")

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from solvers.domains.mesh import TriangleMesh
+from solvers.domains import supports
 from solvers.emd.exact import (
     MAX_VERTICES,
     _check_mesh,
@@ -174,7 +174,7 @@ def w1_path_planning(
     if method not in METHODS:
         raise InputError(f"method must be one of {METHODS}, got {method!r}",
                          field="method")
-    if not isinstance(mesh, TriangleMesh):
+    if not supports(mesh, "faces"):
         raise UnsupportedDomainError("path planning needs a TriangleMesh domain",
                                      field="domain")
     m0 = _masses(mesh, rho0, "rho0")

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from solvers.domains import supports
 from solvers.domains.mesh import TriangleMesh
 from solvers.emd.beckmann import earth_movers_distance
 from solvers.emd.exact import MAX_VERTICES, kantorovich_rubinstein_norm
@@ -106,7 +107,7 @@ class VolumetricPathResult(SolverResult):
 # mean value coordinates
 # ---------------------------------------------------------------------------
 def _check_closed_mesh(mesh) -> None:
-    if not isinstance(mesh, TriangleMesh):
+    if not supports(mesh, "faces"):
         raise UnsupportedDomainError("volumetric distances need a TriangleMesh", field="domain")
     if not mesh.is_closed:
         raise UnsupportedDomainError(

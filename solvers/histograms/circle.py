@@ -129,8 +129,7 @@ def circle_cost(bins: Bins, power: float = 2.0) -> np.ndarray:
 
 
 def _graph_arrays(graph):
-    if not isinstance(graph, Graph):
-        graph = as_graph(graph)
+    graph = as_graph(graph)
     return graph.n, graph.edges, graph.weights, np.asarray(graph.component_labels)
 
 

@@ -18,7 +18,6 @@ from typing import Literal
 
 import numpy as np
 
-from solvers.domains import Graph
 from solvers.domains.base import Domain
 from solvers.errors import InputError
 from solvers.histograms.bins import check_histograms, make_bins
@@ -66,10 +65,7 @@ class HistogramDiffusionResult(SolverResult):
 
 def _kernel(graph, t: float, substeps: int, laplacian: str):
     L = graph_laplacian(graph, laplacian)
-    if isinstance(graph, Domain) and not isinstance(graph, Graph):
-        mass = np.asarray(graph.areas, dtype=np.float64)
-    else:
-        mass = np.ones(L.shape[0])
+    mass = graph.heat_mass if isinstance(graph, Domain) else np.ones(L.shape[0])
     build = lambda: ImplicitEulerHeatKernel(mass, L, t, substeps)  # noqa: E731
     if isinstance(graph, Domain):
         return graph.operators.get(("histograms.diffusion", laplacian, t, substeps), build)

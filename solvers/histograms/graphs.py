@@ -21,8 +21,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from solvers.domains import Graph, PointCloud, TriangleMesh
-from solvers.domains.base import Domain
+from solvers.domains import Graph
+from solvers.domains.base import Domain, check_laplacian_name
+from solvers.domains.graph import domain_graph, graph_of_laplacian
 from solvers.errors import InputError
 from solvers.validation import check_int
 
@@ -72,20 +73,12 @@ def graph_laplacian(graph, laplacian: LaplacianKind = "auto") -> sp.csr_matrix:
     """
     if sp.issparse(graph):
         return laplacian_from_weights(graph)
-    if laplacian not in ("auto", "robust", "cotan"):
-        raise InputError(f"laplacian must be 'auto', 'robust' or 'cotan', got {laplacian!r}",
-                         field="laplacian")
-    if isinstance(graph, TriangleMesh):
-        if laplacian == "cotan":
-            return graph.cotan_laplacian
-        if laplacian == "robust":
-            return graph.robust_laplacian
-        return graph.laplacian
-    if laplacian != "auto" and not isinstance(graph, TriangleMesh):
+    if isinstance(graph, Domain):
+        return graph.laplacian_variant(laplacian)
+    check_laplacian_name(laplacian)
+    if laplacian != "auto":
         raise InputError(f"laplacian={laplacian!r} applies to triangle meshes only",
                          field="laplacian")
-    if isinstance(graph, Domain):
-        return sp.csr_matrix(graph.laplacian)
     raise InputError("graph must be a Graph, TriangleMesh, PointCloud or Grid domain, or a "
                      "sparse weight matrix", field="graph")
 
@@ -106,12 +99,9 @@ def as_graph(graph, laplacian: LaplacianKind = "auto") -> Graph:
     -------
     Graph
     """
-    if isinstance(graph, Graph):
-        return graph
-    L = sp.triu(graph_laplacian(graph, laplacian), k=1).tocoo()
-    keep = L.data < 0
-    return Graph(L.shape[0], np.c_[L.row[keep], L.col[keep]], -L.data[keep],
-                 positions=domain_positions(graph))
+    if isinstance(graph, Domain):
+        return domain_graph(graph, laplacian)
+    return graph_of_laplacian(graph_laplacian(graph, laplacian))
 
 
 def component_labels(graph, L: sp.spmatrix | None = None) -> tuple[int, np.ndarray]:
@@ -166,13 +156,3 @@ def knn_graph(points, k: int = 8, *, weights: Literal["uniform", "gaussian"] = "
         w = np.ones(len(pairs))
     return Graph(len(p), pairs, w, positions=p)
 
-
-def domain_positions(graph) -> np.ndarray | None:
-    """Coordinates of the nodes if the domain has them (for k-NN graphs, export)."""
-    if isinstance(graph, TriangleMesh):
-        return graph.vertices
-    if isinstance(graph, PointCloud):
-        return graph.points
-    if isinstance(graph, Graph):
-        return graph.positions
-    return getattr(graph, "points", None)

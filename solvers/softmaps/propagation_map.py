@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from solvers.convolutional import wasserstein_propagation
+from solvers.domains import supports
 from solvers.errors import InputError, UnsupportedDomainError
 from solvers.memory import map_large_blocks, release_free_heap
 from solvers.monitor import SolverResult
@@ -67,7 +68,7 @@ COARSE_GAMMA_MIN = 0.01
 
 def check_mesh_for_soft_map(mesh, field: str) -> None:
     """A soft map needs a triangle mesh with one connected component."""
-    if getattr(mesh, "kind", None) != "mesh":
+    if not supports(mesh, "faces"):
         raise UnsupportedDomainError(f"{field} must be a triangle mesh, got a "
                                      f"{getattr(mesh, 'kind', type(mesh).__name__)}", field=field)
     if mesh.n_components > 1:

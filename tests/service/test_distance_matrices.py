@@ -330,3 +330,42 @@ def test_exact_matrix_memory_estimate_counts_row_blocks_and_lps():
                                                           method="exact"))
     assert ground_distance_bytes(view) + 8 * n * n < peak <= estimate <= 3 * peak, (
         peak, estimate)
+
+
+def test_w1_spectral_matrix_records_its_decision(client, woody):
+    """metric w1, method spectral: the library's d_W^k matrix with its certified lower
+    bounds; the decision (method, k) taken at submission, from the sizes alone."""
+    from solvers.emd.dwk_matrix import dwk_matrix
+
+    mesh, mid = woody
+    url = f"/v1/domains/{mid}/distance-matrices"
+    job = client.post(url, json={"distributions": BUMPS[:3], "metric": "w1",
+                                 "method": "spectral", "k": 5}).json()
+    assert job["state"] == "succeeded", job
+    decision = job["decision"]
+    assert decision["w1_matrix_method"] == "spectral" and decision["k"] == 5
+    assert decision["methods"] == {"spectral": 3}
+    D = _matrix(client, job["id"])
+    masses = np.stack([bump_masses(mesh, b["vertex"], b["radius"]) for b in BUMPS[:3]], axis=1)
+    ref = dwk_matrix(mesh, masses, k=5)
+    np.testing.assert_allclose(D, ref.values, rtol=1e-12)
+    lower = np.load(io.BytesIO(client.get(
+        f"/v1/jobs/{job['id']}/arrays/lower_bounds.npy").content))
+    assert np.all(lower <= D + 1e-15) and np.all(np.diag(lower) == 0)
+    values = client.get(f"/v1/jobs/{job['id']}/result").json()["values"]
+    assert values["methods"] == {"spectral": 3} and values["converged"]
+    auto = client.post(url, json={"distributions": BUMPS[:3], "metric": "w1"}).json()
+    assert auto["decision"]["w1_matrix_method"] == "interior_point"
+    assert auto["decision"]["k"] is None
+
+
+def test_w1_method_and_k_refused_naming_the_field(client, woody):
+    _, mid = woody
+    url = f"/v1/domains/{mid}/distance-matrices"
+    base = {"distributions": BUMPS[:2]}
+    for extra, name in (({"k": 5}, "k"), ({"method": "spectral"}, "method"),
+                        ({"metric": "w1", "method": "interior_point", "k": 5}, "k"),
+                        ({"metric": "w1", "k": -1}, "k"),
+                        ({"metric": "w1", "k": 10_000}, "k"),
+                        ({"metric": "w1", "method": "convolutional"}, "method")):
+        assert_error(client.post(url, json={**base, **extra}), 422, name)
