@@ -28,6 +28,16 @@ DOMAIN_KINDS = tuple(DOMAIN_CLASSES)
 def domain_class(kind: str) -> type[Domain]:
     """The domain class of ``kind`` (one of :data:`DOMAIN_KINDS`).
 
+    Parameters
+    ----------
+    kind : str
+        ``"mesh"``, ``"grid"``, ``"graph"`` or ``"pointcloud"``.
+
+    Returns
+    -------
+    type
+        A subclass of :class:`Domain`.
+
     Raises
     ------
     DomainError
@@ -62,13 +72,35 @@ def supports(domain, capability: str) -> bool:
 
 def kind_supports(kind: str, capability: str) -> bool:
     """Whether domains of ``kind`` have ``capability`` (False for an unknown kind): what a
-    light representation that holds only the kind answers."""
+    light representation that holds only the kind answers.
+
+    Parameters
+    ----------
+    kind : str
+        A domain kind.
+    capability : str
+        A key of :data:`~solvers.domains.base.CAPABILITIES`.
+
+    Returns
+    -------
+    bool
+    """
     cls = DOMAIN_CLASSES.get(kind)
     return cls is not None and cls.supports(capability)
 
 
 def kinds_supporting(capability: str) -> tuple[str, ...]:
-    """The kinds (in :data:`DOMAIN_KINDS` order) whose domains have ``capability``."""
+    """The kinds (in :data:`DOMAIN_KINDS` order) whose domains have ``capability``.
+
+    Parameters
+    ----------
+    capability : str
+        A key of :data:`~solvers.domains.base.CAPABILITIES`.
+
+    Returns
+    -------
+    tuple of str
+    """
     return tuple(kind for kind, cls in DOMAIN_CLASSES.items() if cls.supports(capability))
 
 

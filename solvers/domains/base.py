@@ -86,7 +86,17 @@ LAPLACIAN_NAMES = ("auto", "robust", "cotan")
 @dataclass(frozen=True)
 class ExportGeometry:
     """What a glTF export draws of a domain: ``positions`` ``(n, 3)`` (or ``(n, d)``), and
-    either triangle ``faces`` or ``edges`` (index pairs), or neither (points)."""
+    either triangle ``faces`` or ``edges`` (index pairs), or neither (points).
+
+    Attributes
+    ----------
+    positions : (n, 3) or (n, d) array
+        Point positions.
+    faces : (F, 3) int array or None
+        Triangles.
+    edges : (m, 2) int array or None
+        Index pairs.
+    """
 
     positions: np.ndarray
     faces: np.ndarray | None = None
@@ -161,6 +171,15 @@ class Domain:
         """The Laplacian named ``laplacian`` (``"auto"``: :attr:`laplacian`; ``"robust"`` and
         ``"cotan"`` choose between a triangle mesh's two Laplacians).
 
+        Parameters
+        ----------
+        laplacian : {"auto", "robust", "cotan"}
+            The Laplacian's name.
+
+        Returns
+        -------
+        (n, n) scipy.sparse.csr_matrix
+
         Raises
         ------
         InputError
@@ -186,7 +205,21 @@ class Domain:
     def stored_geometry(cls, arrays: dict, summary: dict, points) -> dict:
         """What a viewer draws of a stored domain of this kind, from its stored ``arrays``
         (``to_arrays()``), ``summary`` and unit-area ``points`` (None without): a dict with
-        ``points`` and, by kind, ``faces``, ``edges`` or ``shape`` and ``bounds``."""
+        ``points`` and, by kind, ``faces``, ``edges`` or ``shape`` and ``bounds``.
+
+        Parameters
+        ----------
+        arrays : dict of str to array
+            The stored ``to_arrays()``.
+        summary : dict
+            The stored summary.
+        points : (n, d) array or None
+            Unit-area positions.
+
+        Returns
+        -------
+        dict
+        """
         return {"points": points}
 
     @property

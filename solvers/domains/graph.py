@@ -114,7 +114,21 @@ class Graph(Domain):
 
     @classmethod
     def stored_geometry(cls, arrays: dict, summary: dict, points) -> dict:
-        """The positions (if any) and the edges."""
+        """The positions (if any) and the edges.
+
+        Parameters
+        ----------
+        arrays : dict of str to array
+            The stored ``to_arrays()``.
+        summary : dict
+            The stored summary.
+        points : (n, d) array or None
+            Unit-area positions.
+
+        Returns
+        -------
+        dict
+        """
         return {"points": points, "edges": arrays["edges"]}
 
     @property

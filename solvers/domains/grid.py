@@ -152,7 +152,21 @@ class Grid(Domain):
 
     @classmethod
     def stored_geometry(cls, arrays: dict, summary: dict, points) -> dict:
-        """The shape and bounds (no positions: a viewer lays the nodes out itself)."""
+        """The shape and bounds (no positions: a viewer lays the nodes out itself).
+
+        Parameters
+        ----------
+        arrays : dict of str to array
+            The stored ``to_arrays()``.
+        summary : dict
+            The stored summary.
+        points : (n, d) array or None
+            Unit-area positions.
+
+        Returns
+        -------
+        dict
+        """
         return {"shape": summary["shape"], "bounds": summary["bounds"]}
 
     @cached_property

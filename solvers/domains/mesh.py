@@ -571,7 +571,17 @@ class TriangleMesh(Domain):
 
     def laplacian_variant(self, laplacian: str = "auto") -> sp.csr_matrix:
         """``"cotan"``: :attr:`cotan_laplacian`; ``"robust"``: :attr:`robust_laplacian`;
-        ``"auto"``: :attr:`laplacian` (the one chosen at construction)."""
+        ``"auto"``: :attr:`laplacian` (the one chosen at construction).
+
+        Parameters
+        ----------
+        laplacian : {"auto", "robust", "cotan"}
+            The Laplacian's name.
+
+        Returns
+        -------
+        (n, n) scipy.sparse.csr_matrix
+        """
         check_laplacian_name(laplacian)
         if laplacian == "cotan":
             return self.cotan_laplacian
@@ -585,7 +595,21 @@ class TriangleMesh(Domain):
 
     @classmethod
     def stored_geometry(cls, arrays: dict, summary: dict, points) -> dict:
-        """The unit-area vertices and the faces."""
+        """The unit-area vertices and the faces.
+
+        Parameters
+        ----------
+        arrays : dict of str to array
+            The stored ``to_arrays()``.
+        summary : dict
+            The stored summary.
+        points : (n, d) array or None
+            Unit-area positions.
+
+        Returns
+        -------
+        dict
+        """
         return {"points": points, "faces": arrays["faces"]}
 
     @property
