@@ -9,7 +9,8 @@ lists). numpydoc's own parser reads each docstring; a name fails when
 * a function that returns (or yields) a value has no ``Returns`` (``Yields``) section;
 * a class has neither a ``Parameters`` nor an ``Attributes`` section, or leaves a
   parameter of its constructor out of both (protocols have no constructor);
-* numpydoc warns while parsing it (an unknown or malformed section).
+* numpydoc warns while parsing it (an unknown or malformed section), or a type line
+  leaves an inline literal open.
 
 Methods are the public ones of a public class (inherited ones from the library too), each
 checked once; properties take no parameters and are not checked.
@@ -93,11 +94,17 @@ def _returns_value(func) -> bool:
 
 
 def _parse(kind, obj, **kw):
-    """Parse with numpydoc; its warnings are problems of the docstring."""
+    """Parse with numpydoc; its warnings are problems of the docstring, and so is a type
+    line whose inline literal is left open (numpydoc cuts a wrapped type line: Sphinx
+    then warns "Inline literal start-string without end-string")."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         doc = kind(obj, **kw)
-    return doc, [str(w.message).splitlines()[0] for w in caught]
+    problems = [str(w.message).splitlines()[0] for w in caught]
+    for section in ("Parameters", "Returns", "Yields", "Attributes"):
+        problems += [f"open inline literal in the {section} type line {p.type!r}"
+                     for p in doc[section] if p.type.count("``") % 2]
+    return doc, problems
 
 
 def function_problems(func, bound: bool = False, check_returns: bool = True) -> list[str]:
@@ -191,9 +198,26 @@ def test_the_checker_sees_a_missing_section():
         """
         return a + b
 
+    def wrapped(a):
+        """One line.
+
+        Parameters
+        ----------
+        a : float
+            A number.
+
+        Returns
+        -------
+        Result with ``values`` of shape ``(len(rows),
+        len(columns))``.
+        """
+        return a
+
     assert function_problems(documented) == []
     assert function_problems(lacking) == ["parameters not documented: ['b']",
                                           "no Returns section"]
+    assert {p.split(" type line")[0] for p in function_problems(wrapped)} == {
+        "open inline literal in the Returns"}  # each half of the cut line is one entry
 
 
 def test_every_public_name_has_numpydoc_sections():

@@ -332,8 +332,8 @@ def dwk_matrix(mesh, distributions, others=None, *, k: int | None = None, rows=N
 
     Returns
     -------
-    DwkMatrixResult with ``values``, ``lower``, ``gaps`` of shape ``(len(rows),
-    len(columns))``, and ``k``.
+    DwkMatrixResult
+        ``values``, ``lower``, ``gaps`` of shape ``(len(rows), len(columns))``, and ``k``.
     """
     from solvers.emd.beckmann import check_mesh
     from solvers.validation import normalize_masses
