@@ -138,16 +138,12 @@ class ImplicitEulerHeatKernel:
         self.factor = factorize_spd(system.tocsc(), backend=backend)
 
     def apply(self, block: np.ndarray) -> np.ndarray:
-        r"""Apply the kernel to a block: :math:`H_t x` per column.
+        r"""``substeps`` sparse solves :math:`(D_m + \tau L)\, y = m \odot x`, one block.
 
         Parameters
         ----------
         block : (n,) or (n, k) array
-            Densities (functions) on the domain, one per column.
-
-        Returns
-        -------
-        (n,) or (n, k) array
+            As in :meth:`HeatKernel.apply`.
         """
         x = np.asarray(block, dtype=np.float64)
         weights = self.mass if x.ndim == 1 else self.mass[:, None]
@@ -156,16 +152,12 @@ class ImplicitEulerHeatKernel:
         return x
 
     def log_apply(self, log_block: np.ndarray) -> np.ndarray:
-        r"""Apply the kernel in the log domain: :math:`\log H_t \exp(x)` per column.
+        """Not offered: raises ``NotImplementedError`` (no exact log-domain form).
 
         Parameters
         ----------
         log_block : (n,) or (n, k) array
-            Logarithms (``-inf`` for zeros).
-
-        Returns
-        -------
-        (n,) or (n, k) array
+            As in :meth:`HeatKernel.log_apply`.
         """
         raise NotImplementedError("implicit Euler kernels have no exact log-domain form")
 
@@ -336,16 +328,12 @@ class GaussianGridHeatKernel:
         return flat[0] if vector else flat.T
 
     def apply(self, block: np.ndarray) -> np.ndarray:
-        r"""Apply the kernel to a block: :math:`H_t x` per column.
+        """One dense 1-D Gaussian product per axis.
 
         Parameters
         ----------
         block : (n,) or (n, k) array
-            Densities (functions) on the domain, one per column.
-
-        Returns
-        -------
-        (n,) or (n, k) array
+            As in :meth:`HeatKernel.apply`.
         """
         def convolve(axis, y, last, owned):
             factor = self.factors[axis]
@@ -354,16 +342,12 @@ class GaussianGridHeatKernel:
         return self._along_axes(block, convolve)
 
     def log_apply(self, log_block: np.ndarray) -> np.ndarray:
-        r"""Apply the kernel in the log domain: :math:`\log H_t \exp(x)` per column.
+        """Max-shifted BLAS products per axis, in row blocks of bounded log-spread.
 
         Parameters
         ----------
         log_block : (n,) or (n, k) array
-            Logarithms (``-inf`` for zeros).
-
-        Returns
-        -------
-        (n,) or (n, k) array
+            As in :meth:`HeatKernel.log_apply`.
         """
         def log_convolve(axis, y, last, owned):
             return _log_contract(y, self.log_blocks[axis], last, owned)
@@ -377,10 +361,6 @@ class GaussianGridHeatKernel:
         ----------
         log_block : (n,) or (n, k) array
             Logarithms.
-
-        Returns
-        -------
-        (n,) or (n, k) array
         """
 
         def log_convolve(axis, y, last, owned):
@@ -500,16 +480,12 @@ class GeodesicGaussianKernel:
         return out[:, 0] if x.ndim == 1 else out
 
     def apply(self, block: np.ndarray) -> np.ndarray:
-        r"""Apply the kernel to a block: :math:`H_t x` per column.
+        """``exp(log_apply(log x))``: the exact log-domain product, exponentiated.
 
         Parameters
         ----------
         block : (n,) or (n, k) array
-            Densities (functions) on the domain, one per column.
-
-        Returns
-        -------
-        (n,) or (n, k) array
+            As in :meth:`HeatKernel.apply`.
         """
         x = np.asarray(block, dtype=np.float64)
         with np.errstate(divide="ignore"):
@@ -517,15 +493,11 @@ class GeodesicGaussianKernel:
         return np.exp(logs)
 
     def log_apply(self, log_block: np.ndarray) -> np.ndarray:
-        r"""Apply the kernel in the log domain: :math:`\log H_t \exp(x)` per column.
+        """Shifted BLAS products over row blocks in the spatially coherent order.
 
         Parameters
         ----------
         log_block : (n,) or (n, k) array
-            Logarithms (``-inf`` for zeros).
-
-        Returns
-        -------
-        (n,) or (n, k) array
+            As in :meth:`HeatKernel.log_apply`.
         """
         return self._permuted(log_block, lambda y: _log_contract_columns(y, self.blocks))

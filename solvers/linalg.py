@@ -126,16 +126,12 @@ class CholespyFactor:
         _LIVE_FACTORS.add(self)
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
-        """Solve :math:`A x = b` for each column of ``rhs``.
+        """Two triangular solves by cholespy (holding the GIL).
 
         Parameters
         ----------
         rhs : (n,) or (n, k) array
-            Right-hand side(s).
-
-        Returns
-        -------
-        (n,) or (n, k) array
+            As in :meth:`Factorization.solve`.
         """
         b = np.ascontiguousarray(rhs, dtype=np.float64)
         x = np.empty_like(b)
@@ -160,16 +156,12 @@ class SpluFactor:
         self._lu = spla.splu(sp.csc_matrix(matrix, copy=True))  # splu sums duplicates in place
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
-        """Solve :math:`A x = b` for each column of ``rhs``.
+        """SuperLU's solve, column block at once.
 
         Parameters
         ----------
         rhs : (n,) or (n, k) array
-            Right-hand side(s).
-
-        Returns
-        -------
-        (n,) or (n, k) array
+            As in :meth:`Factorization.solve`.
         """
         return self._lu.solve(np.asarray(rhs, dtype=np.float64))
 
@@ -418,11 +410,7 @@ class PardisoFactor:
         Parameters
         ----------
         rhs : (n,) or (n, k) array
-            Right-hand side(s).
-
-        Returns
-        -------
-        (n,) or (n, k) array
+            As in :meth:`Factorization.solve`; iteratively refined with ``pivoting``.
         """
         b = np.asarray(rhs, dtype=np.float64)
         if b.shape[0] != self.n or b.ndim not in (1, 2):
@@ -478,16 +466,12 @@ class TriangularFactor:
         self.nbytes = int(sum(x.nbytes for x in self._arrays))
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
-        """Solve :math:`A x = b` for each column of ``rhs``.
+        """Compiled triangular solves that release the GIL.
 
         Parameters
         ----------
         rhs : (n,) or (n, k) array
-            Right-hand side(s).
-
-        Returns
-        -------
-        (n,) or (n, k) array
+            As in :meth:`Factorization.solve`.
         """
         b = np.asarray(rhs, dtype=np.float64)
         if b.shape[:1] != (self.n,) or b.ndim not in (1, 2):
