@@ -34,10 +34,8 @@ class InputError(OTGeoError, ValueError):
 
     Parameters
     ----------
-    message : str
-        What went wrong, for a person to read.
-    field : str, optional
-        The offending input (e.g. ``"faces"``, ``"mu"``), so a caller can point at it.
+    message, field : str
+        As in :class:`OTGeoError`.
     """
 
 
@@ -46,10 +44,8 @@ class DomainError(InputError):
 
     Parameters
     ----------
-    message : str
-        What went wrong, for a person to read.
-    field : str, optional
-        The offending input (e.g. ``"faces"``, ``"mu"``), so a caller can point at it.
+    message, field : str
+        As in :class:`OTGeoError`.
     """
 
 
@@ -58,10 +54,8 @@ class MeshFormatError(DomainError):
 
     Parameters
     ----------
-    message : str
-        What went wrong, for a person to read.
-    field : str, optional
-        The offending input (e.g. ``"faces"``, ``"mu"``), so a caller can point at it.
+    message, field : str
+        As in :class:`OTGeoError`.
     """
 
 
@@ -74,10 +68,8 @@ class ConvergenceError(OTGeoError):
 
     Parameters
     ----------
-    message : str
-        What went wrong, for a person to read.
-    field : str, optional
-        The offending input (e.g. ``"faces"``, ``"mu"``), so a caller can point at it.
+    message, field : str
+        As in :class:`OTGeoError`.
     """
 
 

@@ -99,12 +99,8 @@ def read_image(data: bytes, field: str = "image", max_pixels: int | None = None)
 
     Parameters
     ----------
-    data : bytes
-        The image file.
-    field : str
-        Input name given to the :class:`~solvers.errors.InputError` raised if unreadable.
-    max_pixels : int, optional
-        Refuse images with more pixels than this.
+    data, field, max_pixels : bytes, str, int or None
+        As in :func:`probe_image`.
 
     Returns
     -------

@@ -57,13 +57,8 @@ class BarycenterResult(SolverResult):
     log_scalings : tuple of (n, k) array or None
         ``(log v, log w)``: the plan of input ``i`` is :math:`\pi_i = D_{v_i} K D_{w_i}`
         (barycenter side ``v``, input side ``w``).
-    gamma, t, substeps : float, float, int
-        The regularization used: :math:`\gamma`, the heat time :math:`t` and its implicit
-        Euler steps.
-    regularization : Regularization or None
-        The policy's choice, when ``gamma="auto"`` (:mod:`solvers.regularization`).
-    method : str
-        The kernel used (``"convolutional"``: heat kernel; ``"geodesic"``, ...).
+    gamma, t, substeps, regularization, method
+        As in :class:`~solvers.convolutional.SinkhornResult`.
     iterations, residual, converged : int, float, bool
         Convergence data (:class:`~solvers.monitor.SolverResult`).
         ``residual``: largest L1 violation :math:`\|a \otimes (v_i \otimes H(a\otimes w_i) -
@@ -357,13 +352,8 @@ class BarycentersResult(SolverResult):
         Entropy of each barycenter.
     entropy_bound : float or None
         The bound used by sharpening.
-    gamma, t, substeps : float, float, int
-        The regularization used: :math:`\gamma`, the heat time :math:`t` and its implicit
-        Euler steps.
-    regularization : Regularization or None
-        The policy's choice, when ``gamma="auto"`` (:mod:`solvers.regularization`).
-    method : str
-        The kernel used (``"convolutional"``: heat kernel; ``"geodesic"``, ...).
+    gamma, t, substeps, regularization, method
+        As in :class:`~solvers.convolutional.SinkhornResult`.
     iterations, residual, converged : int, float, bool
         Convergence data (:class:`~solvers.monitor.SolverResult`).
         ``iterations`` (sum), ``residual`` (max) and ``converged`` (all) summarize the

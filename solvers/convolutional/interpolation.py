@@ -39,13 +39,8 @@ class InterpolationResult(SolverResult):
         One frame per time (columns sum to 1).
     times : (T,) array
         The times.
-    gamma, t, substeps : float, float, int
-        The regularization used: :math:`\gamma`, the heat time :math:`t` and its implicit
-        Euler steps.
-    regularization : Regularization or None
-        The policy's choice, when ``gamma="auto"`` (:mod:`solvers.regularization`).
-    method : str
-        The kernel used (``"convolutional"``: heat kernel; ``"geodesic"``, ...).
+    gamma, t, substeps, regularization, method
+        As in :class:`~solvers.convolutional.SinkhornResult`.
     iterations, residual, converged : int, float, bool
         Convergence data (:class:`~solvers.monitor.SolverResult`).
     """

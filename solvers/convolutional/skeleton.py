@@ -142,12 +142,8 @@ def linear_layout(n_nodes: int, edges, fixed: dict) -> np.ndarray:
 
     Parameters
     ----------
-    n_nodes : int
-        Skeleton nodes ``N``.
-    edges : (m, 2) int array
-        Node pairs.
-    fixed : dict
-        ``{node: (3,) position}``.
+    n_nodes, edges, fixed : int, (m, 2) int array, dict
+        As in :func:`check_skeleton`.
 
     Returns
     -------

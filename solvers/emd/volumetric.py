@@ -364,16 +364,8 @@ def volumetric_distances(
         The source point.
     points : (P, 3) array
         The points.
-    method : {"exact", "admm"}
-        The W1 solver.
-    basis : str
-        Flow basis of ``"admm"`` (:func:`~solvers.emd.earth_movers_distance`).
-    units : {"mesh", "input"}
-        Frame of the points: ``mesh.vertices``, or the file's.
-    tol, max_iter : float, int, optional
-        The W1 solver's stopping rule.
-    max_vertices : int
-        Largest mesh of ``"exact"``.
+    method, basis, units, tol, max_iter, max_vertices
+        As in :func:`volumetric_distance`.
     progress : callable, optional
         ``progress(j, d_j)``, after each point.
     should_cancel : callable, optional

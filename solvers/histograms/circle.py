@@ -453,10 +453,9 @@ def propagate_circular(graph: Graph, labeled, histograms, *, bins,
         unlabeled.
     ipm_iterations : int
         Iteration budget of the hybrid start.
-    progress : callable, optional
-        ``progress(iteration, residual)``, called as the solver advances.
-    should_cancel : callable, optional
-        ``should_cancel() -> bool``; True stops with :class:`~solvers.errors.CancelledError`.
+    progress, should_cancel : callable, optional
+        ``progress(iteration, residual)`` as the solver advances; ``should_cancel()``
+        returning True stops it (:class:`~solvers.errors.CancelledError`).
 
     Returns
     -------

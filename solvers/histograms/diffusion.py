@@ -102,10 +102,9 @@ def diffuse_histograms(graph, histograms, times, *, bins, method: Literal["wasse
         Implicit steps per time interval.
     laplacian : {"auto", "robust", "cotan"}
         The Laplacian of a mesh (cotangent or robust); other domains have one.
-    progress : callable, optional
-        ``progress(iteration, residual)``, called as the solver advances.
-    should_cancel : callable, optional
-        ``should_cancel() -> bool``; True stops with :class:`~solvers.errors.CancelledError`.
+    progress, should_cancel : callable, optional
+        ``progress(iteration, residual)`` as the solver advances; ``should_cancel()``
+        returning True stops it (:class:`~solvers.errors.CancelledError`).
 
     Returns
     -------

@@ -216,10 +216,9 @@ def harmonic_extension(system: DirichletSystem, values: np.ndarray, *, rank_tol:
         Relative residual tolerance of CG (``linear_method="amg"``).
     max_iter : int
         CG iteration budget.
-    progress : callable, optional
-        ``progress(iteration, residual)``, called as the solver advances.
-    should_cancel : callable, optional
-        ``should_cancel() -> bool``; True stops with :class:`~solvers.errors.CancelledError`.
+    progress, should_cancel : callable, optional
+        ``progress(iteration, residual)`` as the solver advances; ``should_cancel()``
+        returning True stops it (:class:`~solvers.errors.CancelledError`).
 
     Returns
     -------

@@ -90,10 +90,8 @@ def as_graph(graph, laplacian: LaplacianKind = "auto") -> Graph:
 
     Parameters
     ----------
-    graph : Graph, TriangleMesh, PointCloud, Grid or (n, n) sparse matrix
-        The domain, or a symmetric non-negative weight matrix (see :mod:`.graphs`).
-    laplacian : {"auto", "robust", "cotan"}
-        The Laplacian of a mesh (cotangent or robust); other domains have one.
+    graph, laplacian
+        As in :func:`graph_laplacian`.
 
     Returns
     -------

@@ -134,12 +134,8 @@ def label_histograms(bins: Bins, *, histograms=None, samples=None, densities=Non
     ----------
     bins : Bins
         The bins.
-    histograms : (k, B) array, optional
-        Label histograms over ``bins``.
-    samples : list of k arrays, optional
-        Raw values of each label.
-    densities : tuple, optional
-        ``(knots (P,), values (k, P))``: piecewise-linear densities.
+    histograms, samples, densities
+        The labels, as in :func:`label_quantiles`.
 
     Returns
     -------
@@ -221,10 +217,9 @@ def propagate_histograms(graph, labeled, histograms=None, *, bins=None, samples=
         Relative residual tolerance of CG.
     max_iter : int
         CG iteration budget.
-    progress : callable, optional
-        ``progress(iteration, residual)``, called as the solver advances.
-    should_cancel : callable, optional
-        ``should_cancel() -> bool``; True stops with :class:`~solvers.errors.CancelledError`.
+    progress, should_cancel : callable, optional
+        ``progress(iteration, residual)`` as the solver advances; ``should_cancel()``
+        returning True stops it (:class:`~solvers.errors.CancelledError`).
 
     Returns
     -------

@@ -258,12 +258,8 @@ def bijectivity_energy(target, rows, cell_areas) -> float:
 
     Parameters
     ----------
-    target : TriangleMesh
-        The target surface (``n`` vertices, areas :math:`a`).
-    rows : (N, n) array
-        Target masses per source node (each row sums to 1).
-    cell_areas : (N,) array
-        Source area of each node's cell.
+    target, rows, cell_areas
+        As in :func:`bijectivity_density`.
 
     Returns
     -------
