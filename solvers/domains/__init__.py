@@ -111,10 +111,8 @@ def load_mesh(source, file_type: str | None = None, **kwargs) -> TriangleMesh:
 
     Parameters
     ----------
-    source : str, path, bytes or binary file
-        The mesh file.
-    file_type : str, optional
-        One of ``MESH_FORMATS`` (default: the path's extension; needed for bytes).
+    source, file_type
+        The file and its format, as in :meth:`TriangleMesh.from_file`.
     **kwargs
         Keywords of :meth:`TriangleMesh.from_file`.
 

@@ -118,16 +118,8 @@ class Graph(Domain):
 
         Parameters
         ----------
-        arrays : dict of str to array
-            The stored ``to_arrays()``.
-        summary : dict
-            The stored summary.
-        points : (n, d) array or None
-            Unit-area positions.
-
-        Returns
-        -------
-        dict
+        arrays, summary, points
+            As in :meth:`Domain.stored_geometry`.
         """
         return {"points": points, "edges": arrays["edges"]}
 

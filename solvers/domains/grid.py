@@ -156,16 +156,8 @@ class Grid(Domain):
 
         Parameters
         ----------
-        arrays : dict of str to array
-            The stored ``to_arrays()``.
-        summary : dict
-            The stored summary.
-        points : (n, d) array or None
-            Unit-area positions.
-
-        Returns
-        -------
-        dict
+        arrays, summary, points
+            As in :meth:`Domain.stored_geometry`.
         """
         return {"shape": summary["shape"], "bounds": summary["bounds"]}
 
@@ -195,12 +187,8 @@ class Grid(Domain):
 
         Parameters
         ----------
-        t : float
-            Heat time.
-        substeps : int
-            Implicit Euler steps.
-        backend : {"auto", "pardiso", "cholespy", "splu"}
-            Sparse factorization backend.
+        t, substeps, backend
+            As in :meth:`Domain.heat_kernel` (``"implicit"`` only: the Gaussian is exact).
         kernel : {"gaussian", "implicit"}
             Exact separable Gaussian, or implicit Euler on the finite-difference Laplacian.
         """
@@ -225,10 +213,8 @@ class Grid(Domain):
 
         Parameters
         ----------
-        src, dst : array of int
-            Point indices.
-        should_cancel : callable, optional
-            ``should_cancel() -> bool``, checked between solves.
+        src, dst, should_cancel
+            As in :meth:`Domain.ground_distances`.
         """
         width = self.bounds[:, 1] - self.bounds[:, 0]
         periods = np.where(self.periodic, width, 0.0)
@@ -240,12 +226,8 @@ class Grid(Domain):
 
         Parameters
         ----------
-        n : int
-            Points of the domain.
-        entries : int
-            Distances asked for.
-        dim : int
-            Coordinates per point.
+        n, entries, dim : int
+            As in :meth:`Domain.ground_distance_bytes`.
         """
         return squared_straight_distance_bytes(n, entries, dim)
 

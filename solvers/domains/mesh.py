@@ -576,11 +576,7 @@ class TriangleMesh(Domain):
         Parameters
         ----------
         laplacian : {"auto", "robust", "cotan"}
-            The Laplacian's name.
-
-        Returns
-        -------
-        (n, n) scipy.sparse.csr_matrix
+            As in :meth:`Domain.laplacian_variant`.
         """
         check_laplacian_name(laplacian)
         if laplacian == "cotan":
@@ -599,16 +595,8 @@ class TriangleMesh(Domain):
 
         Parameters
         ----------
-        arrays : dict of str to array
-            The stored ``to_arrays()``.
-        summary : dict
-            The stored summary.
-        points : (n, d) array or None
-            Unit-area positions.
-
-        Returns
-        -------
-        dict
+        arrays, summary, points
+            As in :meth:`Domain.stored_geometry`.
         """
         return {"points": points, "faces": arrays["faces"]}
 
@@ -785,10 +773,8 @@ class TriangleMesh(Domain):
 
         Parameters
         ----------
-        src, dst : array of int
-            Point indices.
-        should_cancel : callable, optional
-            ``should_cancel() -> bool``, checked between solves.
+        src, dst, should_cancel
+            As in :meth:`Domain.ground_distances`.
         """
         from solvers.geodesics import geodesic_distances
 
@@ -800,7 +786,7 @@ class TriangleMesh(Domain):
         Parameters
         ----------
         should_cancel : callable, optional
-            ``should_cancel() -> bool``, checked between solves.
+            As in :meth:`Domain.ground_distances`.
         """
         if self.n > STORED_GEODESICS_VERTICES:
             return None
@@ -818,12 +804,8 @@ class TriangleMesh(Domain):
 
         Parameters
         ----------
-        n : int
-            Points of the domain.
-        entries : int
-            Distances asked for.
-        dim : int
-            Coordinates per point.
+        n, entries, dim : int
+            As in :meth:`Domain.ground_distance_bytes`.
         """
         return 8 * entries + GEODESIC_WORK_VECTORS * 8 * n
 

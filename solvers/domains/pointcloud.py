@@ -105,10 +105,8 @@ class PointCloud(Domain):
 
         Parameters
         ----------
-        src, dst : array of int
-            Point indices.
-        should_cancel : callable, optional
-            ``should_cancel() -> bool``, checked between solves.
+        src, dst, should_cancel
+            As in :meth:`Domain.ground_distances`.
         """
         return squared_straight_distances(self.points, src, dst), True
 
@@ -118,12 +116,8 @@ class PointCloud(Domain):
 
         Parameters
         ----------
-        n : int
-            Points of the domain.
-        entries : int
-            Distances asked for.
-        dim : int
-            Coordinates per point.
+        n, entries, dim : int
+            As in :meth:`Domain.ground_distance_bytes`.
         """
         return squared_straight_distance_bytes(n, entries, dim)
 
