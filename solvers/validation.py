@@ -27,12 +27,8 @@ def check_masses(values, n: int, field: str = "masses") -> np.ndarray:
 
     Parameters
     ----------
-    values : (n,) or (n, k) array
-        Masses.
-    n : int
-        Points of the domain.
-    field : str
-        Input name given to the :class:`~solvers.errors.InputError` raised.
+    values, n, field : array, int, str
+        ``(n,)`` or ``(n, k)`` masses, the number of points, and the input an error names.
 
     Returns
     -------
@@ -67,7 +63,7 @@ def mass_totals(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     Parameters
     ----------
     x : (n,) or (n, k) array
-        Checked masses.
+        Masses checked by :func:`check_masses`.
 
     Returns
     -------
@@ -96,7 +92,7 @@ def normalized_columns(x: np.ndarray) -> np.ndarray:
 
     Returns
     -------
-    (n,) or (n, k) array
+    (n,) or (n, k) array summing to 1 per column
     """
     peak, relative = mass_totals(x)
     return (x / peak) / relative
@@ -107,16 +103,13 @@ def normalize_masses(values, n: int, field: str = "masses") -> np.ndarray:
 
     Parameters
     ----------
-    values : (n,) or (n, k) array
-        Masses.
-    n : int
-        Points of the domain.
-    field : str
-        Input name given to the :class:`~solvers.errors.InputError` raised.
+    values, n, field : array, int, str
+        As in :func:`check_masses`.
 
     Returns
     -------
     (n,) or (n, k) array
+        Columns summing to 1.
     """
     return normalized_columns(check_masses(values, n, field))
 
@@ -126,10 +119,8 @@ def density_from_masses(masses: np.ndarray, areas: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    masses : (n,) or (n, k) array
-        Masses.
-    areas : (n,) array
-        Area weights :math:`a`.
+    masses, areas : array
+        Masses ``(n,)`` or ``(n, k)``; area weights ``(n,)``.
 
     Returns
     -------
@@ -140,14 +131,12 @@ def density_from_masses(masses: np.ndarray, areas: np.ndarray) -> np.ndarray:
 
 
 def masses_from_density(density: np.ndarray, areas: np.ndarray) -> np.ndarray:
-    r"""Masses ``m = a * mu`` of a density (per column), the inverse of :func:`density_from_masses`.
+    """Masses ``m = a * mu`` of a density (per column), the inverse of :func:`density_from_masses`.
 
     Parameters
     ----------
-    density : (n,) or (n, k) array
-        Density :math:`\mu`.
-    areas : (n,) array
-        Area weights :math:`a`.
+    density, areas : array
+        Density ``(n,)`` or ``(n, k)``; its area weights ``(n,)``.
 
     Returns
     -------
@@ -166,16 +155,12 @@ def check_weights(weights, k: int, field: str = "weights") -> np.ndarray:
 
     Parameters
     ----------
-    weights : (k,) array or None
-        Weights.
-    k : int
-        Number of inputs.
-    field : str
-        Input name given to the :class:`~solvers.errors.InputError` raised.
+    weights, k, field : array or None, int, str
+        ``(k,)`` weights (None: uniform), their count, and the input an error names.
 
     Returns
     -------
-    (k,) array
+    (k,) array summing to 1
     """
     if weights is None:
         return np.full(k, 1.0 / k)
@@ -201,10 +186,8 @@ def check_positive(value, field: str) -> float:
 
     Parameters
     ----------
-    value : float
-        The number.
-    field : str
-        Input name given to the :class:`~solvers.errors.InputError` raised.
+    value, field : float, str
+        The number and the input an error names.
 
     Returns
     -------
@@ -224,14 +207,13 @@ def check_finite(value, field: str) -> float:
 
     Parameters
     ----------
-    value : float
-        The number.
-    field : str
-        Input name given to the :class:`~solvers.errors.InputError` raised.
+    value, field : float, str
+        As in :func:`check_positive`.
 
     Returns
     -------
     float
+        The value.
     """
     try:
         x = float(value)
@@ -247,12 +229,8 @@ def check_int(value, field: str, *, low: int | None = None, high: int | None = N
 
     Parameters
     ----------
-    value : int
-        The number.
-    field : str
-        Input name given to the :class:`~solvers.errors.InputError` raised.
-    low, high : int, optional
-        Bounds (inclusive).
+    value, field, low, high : int, str, int or None, int or None
+        The number, the input an error names, and the inclusive bounds.
 
     Returns
     -------
@@ -280,12 +258,8 @@ def check_edges(edges, n: int, field: str = "edges") -> np.ndarray:
 
     Parameters
     ----------
-    edges : (m, 2) array
-        Node pairs.
-    n : int
-        Number of nodes.
-    field : str
-        Input name given to the :class:`~solvers.errors.InputError` raised.
+    edges, n, field : array, int, str
+        ``(m, 2)`` node pairs, the node count, the input an error names.
 
     Returns
     -------
@@ -346,16 +320,12 @@ def check_edge_weights(weights, m: int, field: str = "edge_weights") -> np.ndarr
 
     Parameters
     ----------
-    weights : (m,) array or None
-        Edge weights.
-    m : int
-        Number of edges.
-    field : str
-        Input name given to the :class:`~solvers.errors.InputError` raised.
+    weights, m, field : array or None, int, str
+        One weight per edge (None: ones), the edge count, the input an error names.
 
     Returns
     -------
-    (m,) array
+    (m,) float array
     """
     if weights is None:
         return np.ones(m)
@@ -378,16 +348,12 @@ def check_node_indices(nodes, n: int, field: str = "nodes") -> np.ndarray:
 
     Parameters
     ----------
-    nodes : (k,) array
-        Node indices.
-    n : int
-        Number of nodes.
-    field : str
-        Input name given to the :class:`~solvers.errors.InputError` raised.
+    nodes, n, field : array, int, str
+        Node indices, how many nodes the graph has, and the input an error names.
 
     Returns
     -------
-    (k,) int64 array
+    (k,) int64 array of distinct indices
     """
     try:
         raw = np.asarray(nodes, dtype=object).ravel()
@@ -415,12 +381,9 @@ def check_anchored_components(component_labels, nodes, field: str = "nodes") -> 
 
     Parameters
     ----------
-    component_labels : (n,) int array
-        Connected component of every point.
-    nodes : (k,) int array
-        The given nodes.
-    field : str
-        Input name given to the :class:`~solvers.errors.InputError` raised.
+    component_labels, nodes, field : array, array, str
+        Component of every point ``(n,)``, the given nodes ``(k,)``, the input an error
+        names.
     """
     labels = np.asarray(component_labels)
     count = int(labels.max()) + 1 if len(labels) else 0
@@ -440,12 +403,8 @@ def check_indices(indices, n: int, field: str = "indices") -> np.ndarray:
 
     Parameters
     ----------
-    indices : (k,) array
-        Point indices.
-    n : int
-        Points of the domain.
-    field : str
-        Input name given to the :class:`~solvers.errors.InputError` raised.
+    indices, n, field : array, int, str
+        Point indices ``(k,)``; points of the domain; the input an error names.
 
     Returns
     -------
@@ -477,14 +436,9 @@ def check_component_masses(labels: np.ndarray, masses: np.ndarray, field: str,
 
     Parameters
     ----------
-    labels : (n,) int array
-        Connected component of every point.
-    masses : (n, k) array
-        One distribution per column.
-    field : str
-        Input name given to the :class:`~solvers.errors.InputError` raised.
-    tol : float
-        Largest L1 gap over components (mass units).
+    labels, masses, field, tol : array, array, str, float
+        Component of every point ``(n,)``, distributions ``(n, k)``, the input an error
+        names, and the largest L1 gap over components (mass units).
     """
     from solvers.errors import UnsupportedDomainError
 
@@ -518,7 +472,7 @@ def gamma_max(extent: float) -> float:
     Parameters
     ----------
     extent : float
-        The domain's extent.
+        The domain's extent (``Domain.extent``).
 
     Returns
     -------
@@ -535,16 +489,13 @@ def check_gamma(gamma, extent: float, field: str = "gamma") -> float:
 
     Parameters
     ----------
-    gamma : float
-        Regularization.
-    extent : float
-        The domain's extent.
-    field : str
-        Input name given to the :class:`~solvers.errors.InputError` raised.
+    gamma, extent, field : float, float, str
+        The regularization, the domain's extent, the input an error names.
 
     Returns
     -------
     float
+        ``gamma``.
     """
     g = check_positive(gamma, field)
     if g < GAMMA_MIN:
@@ -574,16 +525,13 @@ def check_gamma_resolved(gamma, h: float, field: str = "gamma") -> float:
 
     Parameters
     ----------
-    gamma : float
-        Regularization.
-    h : float
-        The domain's length scale.
-    field : str
-        Input name given to the :class:`~solvers.errors.InputError` raised.
+    gamma, h, field : float, float, str
+        Regularization; the domain's length scale; the input an error names.
 
     Returns
     -------
     float
+        ``gamma``, once resolved.
     """
     g = check_positive(gamma, field)
     low = GAMMA_RESOLUTION * float(h) ** 2
@@ -602,12 +550,8 @@ def check_entropy_bound(bound, areas: np.ndarray, field: str = "entropy_bound") 
 
     Parameters
     ----------
-    bound : float
-        The entropy bound :math:`H_0`.
-    areas : (n,) array
-        Area weights.
-    field : str
-        Input name given to the :class:`~solvers.errors.InputError` raised.
+    bound, areas, field : float, (n,) array, str
+        The bound :math:`H_0`, the area weights, the input an error names.
 
     Returns
     -------
@@ -627,14 +571,8 @@ def check_anchored(n_nodes: int, edges: np.ndarray, anchors, field: str = "edges
 
     Parameters
     ----------
-    n_nodes : int
-        Number of nodes.
-    edges : (m, 2) int array
-        Graph edges.
-    anchors : array of int
-        Anchor nodes.
-    field : str
-        Input name given to the :class:`~solvers.errors.InputError` raised.
+    n_nodes, edges, anchors, field : int, (m, 2) array, array, str
+        The graph, its anchor nodes, and the input an error names.
     """
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
@@ -656,16 +594,13 @@ def check_size(shape, limit: int, field: str = "shape") -> int:
 
     Parameters
     ----------
-    shape : sequence of int
-        Points per axis.
-    limit : int
-        Largest number of points.
-    field : str
-        Input name given to the :class:`~solvers.errors.InputError` raised.
+    shape, limit, field : sequence of int, int, str
+        Points per axis, the largest number of points, the input an error names.
 
     Returns
     -------
     int
+        ``prod(shape)``.
     """
     try:
         dims = [int(s) for s in shape]
@@ -687,12 +622,8 @@ def check_cost_matrix(cost, field: str = "cost", *, max_size: int | None = None)
 
     Parameters
     ----------
-    cost : (B, B) array
-        Ground cost.
-    field : str
-        Input name given to the :class:`~solvers.errors.InputError` raised.
-    max_size : int, optional
-        Largest ``B``.
+    cost, field, max_size : (B, B) array, str, int or None
+        The ground cost, the input an error names, and the largest ``B``.
 
     Returns
     -------
