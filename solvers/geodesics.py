@@ -213,7 +213,7 @@ def geodesic_distances_within(mesh: TriangleMesh, source: int, bound: float) -> 
     Parameters
     ----------
     mesh : TriangleMesh
-        The surface (``n`` vertices).
+        The surface.
     source : int
         The source vertex.
     bound : float
@@ -244,10 +244,8 @@ def geodesic_distances(mesh: TriangleMesh, sources, targets=None, *, method: str
 
     Parameters
     ----------
-    mesh : TriangleMesh
-        The surface (``n`` vertices).
-    sources : array of int
-        Source vertices.
+    mesh, sources : TriangleMesh, array of int
+        The surface and the source vertices.
     targets : array of int, optional
         Target vertices (default: every vertex).
     method : {"mmp", "edge-flip"}

@@ -128,7 +128,7 @@ def length_scale(domain) -> float:
     Parameters
     ----------
     domain : Domain or DomainSketch
-        The domain, or its sketch (the same choice either way).
+        Either.
 
     Returns
     -------

@@ -387,10 +387,8 @@ def local_maxima(grid: HemisphereGrid, masses: np.ndarray, rel: float = 0.05) ->
 
     Parameters
     ----------
-    grid : HemisphereGrid
-        The hemisphere of outgoing directions (``n`` points).
-    masses : (n,) array
-        Masses.
+    grid, masses
+        As in :func:`peak_direction`.
     rel : float
         Smallest density kept, relative to the largest.
 

@@ -454,8 +454,7 @@ def propagate_circular(graph: Graph, labeled, histograms, *, bins,
     ipm_iterations : int
         Iteration budget of the hybrid start.
     progress, should_cancel : callable, optional
-        ``progress(iteration, residual)`` as the solver advances; ``should_cancel()``
-        returning True stops it (:class:`~solvers.errors.CancelledError`).
+        As in :func:`~solvers.histograms.propagate_histograms`.
 
     Returns
     -------

@@ -103,8 +103,7 @@ def diffuse_histograms(graph, histograms, times, *, bins, method: Literal["wasse
     laplacian : {"auto", "robust", "cotan"}
         The Laplacian of a mesh (cotangent or robust); other domains have one.
     progress, should_cancel : callable, optional
-        ``progress(iteration, residual)`` as the solver advances; ``should_cancel()``
-        returning True stops it (:class:`~solvers.errors.CancelledError`).
+        As in :func:`~solvers.histograms.propagate_histograms`.
 
     Returns
     -------

@@ -217,8 +217,7 @@ def harmonic_extension(system: DirichletSystem, values: np.ndarray, *, rank_tol:
     max_iter : int
         CG iteration budget.
     progress, should_cancel : callable, optional
-        ``progress(iteration, residual)`` as the solver advances; ``should_cancel()``
-        returning True stops it (:class:`~solvers.errors.CancelledError`).
+        As in :func:`~solvers.histograms.propagate_histograms`.
 
     Returns
     -------

@@ -195,12 +195,8 @@ def propagate_histograms(graph, labeled, histograms=None, *, bins=None, samples=
         The domain, or a symmetric non-negative weight matrix (see :mod:`.graphs`).
     labeled : (k,) int array
         Distinct node indices, at least one per connected component.
-    histograms : (k, B) array, optional
-        Label histograms over ``bins``.
-    samples : list of k arrays, optional
-        Raw values of each label.
-    densities : tuple, optional
-        ``(knots (P,), values (k, P))``: piecewise-linear densities.
+    histograms, samples, densities : optional
+        The labels in one of three forms, as in :func:`label_quantiles`.
     bins : Bins or (B + 1,) array, optional
         Bins or their edges; needed for histogram inputs and outputs.
     method : {"wasserstein", "pdf"}
@@ -213,10 +209,8 @@ def propagate_histograms(graph, labeled, histograms=None, *, bins=None, samples=
         Sparse Cholesky, or AMG-preconditioned CG.
     rank_tol : float
         Relative singular-value cut of the column compression.
-    tol : float
-        Relative residual tolerance of CG.
-    max_iter : int
-        CG iteration budget.
+    tol, max_iter : float, int
+        Relative residual tolerance and iteration budget of CG (``linear_method="amg"``).
     progress, should_cancel : callable, optional
         ``progress(iteration, residual)`` as the solver advances; ``should_cancel()``
         returning True stops it (:class:`~solvers.errors.CancelledError`).

@@ -127,10 +127,8 @@ def inverse_cdf_from_density(knots, density, levels: np.ndarray,
         Increasing abscissae.
     density : (P,) array
         Non-negative density values at ``knots``.
-    levels : (m,) array
-        Quantile levels in (0, 1).
-    field : str
-        Input name given to the :class:`~solvers.errors.InputError` raised.
+    levels, field : (m,) array, str
+        Quantile levels in (0, 1); the input an error names.
 
     Returns
     -------

@@ -97,12 +97,8 @@ def low_rank_approximation(P, source_areas, target_areas, rank: int):
 
     Parameters
     ----------
-    P : (N, n) array
-        Soft map: target masses per source row.
-    source_areas : (N,) array
-        Source areas (cell areas of the rows).
-    target_areas : (n,) array
-        Target vertex areas.
+    P, source_areas, target_areas
+        As in :func:`soft_map_svd`.
     rank : int
         Rank kept.
 

@@ -22,14 +22,9 @@ def descriptor_soft_map(f0, f1, *, areas0, areas1, sigma: float = 0.1, rows=None
 
     Parameters
     ----------
-    f0 : (n0, d) array
-        Source descriptors.
-    f1 : (n1, d) array
-        Target descriptors.
-    areas0 : (n0,) array
-        Source vertex areas.
-    areas1 : (n1,) array
-        Target vertex areas.
+    f0, f1, areas0, areas1 : array
+        Descriptors ``(n0, d)``, ``(n1, d)`` and vertex areas, as in
+        :func:`compatibility_cost`.
     sigma : float
         Width in units of the normalized cost (mean 1): :math:`\sigma^2 = ` ``sigma``.
     rows : (r,) int array, optional

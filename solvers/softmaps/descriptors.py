@@ -41,7 +41,7 @@ def eigenpairs(mesh, k: int) -> tuple[np.ndarray, np.ndarray]:
     Parameters
     ----------
     mesh : TriangleMesh
-        The surface (``n`` vertices).
+        A surface with ``n`` vertices.
     k : int
         Number of pairs.
 
@@ -116,10 +116,8 @@ def wave_kernel_signature(mesh, k: int = 100, energies=None, sigma: float | None
 
     Parameters
     ----------
-    mesh : TriangleMesh
-        The surface (``n`` vertices).
-    k : int
-        Eigenpairs used.
+    mesh, k : TriangleMesh, int
+        The surface (``n`` vertices) and the eigenpairs used.
     energies : (E,) array, optional
         Log-eigenvalue energies (default :func:`wks_energies` of this mesh alone); pass the
         energies of :func:`wks_energies` of both meshes to compare two meshes.

@@ -217,12 +217,9 @@ def bijectivity_density(target, rows, cell_areas) -> np.ndarray:
 
     Parameters
     ----------
-    target : TriangleMesh
-        The target surface (``n`` vertices, areas :math:`a`).
-    rows : (N, n) array
-        Target masses per source node (each row sums to 1).
-    cell_areas : (N,) array
-        Source area of each node's cell.
+    target, rows, cell_areas : TriangleMesh, (N, n) array, (N,) array
+        The target (``n`` vertices), the masses per source node (rows sum to 1) and the
+        nodes' cell areas.
 
     Returns
     -------
