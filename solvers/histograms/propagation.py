@@ -281,10 +281,8 @@ def harmonic_means(graph, labeled, means, *, laplacian: str = "auto",
 
     Parameters
     ----------
-    graph : Graph, TriangleMesh, PointCloud, Grid or (n, n) sparse matrix
-        The domain, or a symmetric non-negative weight matrix (see :mod:`.graphs`).
-    labeled : (k,) int array
-        Labeled nodes.
+    graph, labeled
+        As in :func:`propagate_histograms`.
     means : (k,) array
         Their values.
     laplacian : {"auto", "robust", "cotan"}
