@@ -13,7 +13,9 @@ lists). numpydoc's own parser reads each docstring; a name fails when
   leaves an inline literal open.
 
 Methods are the public ones of a public class (inherited ones from the library too), each
-checked once; properties take no parameters and are not checked.
+checked once; an override with its base's parameters is held to its base's docstring (the
+contract is documented once, where it is declared); properties take no parameters and are
+not checked.
 """
 
 from __future__ import annotations
@@ -46,7 +48,7 @@ def public_objects():
 
 
 def public_methods(cls):
-    """``(name, function)`` of the public methods of ``cls`` defined in the library."""
+    """``(name, function, static)`` of the public methods of ``cls`` defined in the library."""
     for name in dir(cls):
         if name.startswith("_"):
             continue
@@ -54,6 +56,20 @@ def public_methods(cls):
         func = raw.__func__ if isinstance(raw, (classmethod, staticmethod)) else raw
         if inspect.isfunction(func) and func.__module__.startswith("solvers"):
             yield name, func, isinstance(raw, staticmethod)
+
+
+def overridden(cls, name: str, func):
+    """The method of a base class of ``cls`` that ``func`` overrides with the same
+    parameters, or None: an override keeps the contract its base documents."""
+    owner = next(c for c in cls.__mro__ if name in vars(c))
+    for base in owner.__mro__[1:]:
+        raw = vars(base).get(name)
+        base_func = raw.__func__ if isinstance(raw, (classmethod, staticmethod)) else raw
+        if inspect.isfunction(base_func):
+            same = list(inspect.signature(base_func).parameters) == list(
+                inspect.signature(func).parameters)
+            return base_func if same else None
+    return None
 
 
 def _parameters(func, bound: bool) -> list[str]:
@@ -152,7 +168,8 @@ def undocumented() -> dict[str, list[str]]:
                 if id(func) in methods_seen:
                     continue
                 methods_seen.add(id(func))
-                method_problems = function_problems(func, bound=not static,
+                base = overridden(obj, name, func)
+                method_problems = function_problems(base or func, bound=not static,
                                                     check_returns=False)
                 if method_problems:
                     failures[f"{qualname}.{name}"] = method_problems
@@ -166,8 +183,13 @@ def test_the_walk_finds_the_public_names():
     assert "solvers.convolutional.wasserstein_distance" in names
     assert "solvers.domains.TriangleMesh" in names
     assert len(names) > 150
-    methods = {name for name, _, _ in public_methods(names["solvers.domains.TriangleMesh"])}
-    assert {"heat_kernel", "from_file"} <= methods
+    mesh = names["solvers.domains.TriangleMesh"]
+    methods = {name: func for name, func, _ in public_methods(mesh)}
+    assert {"heat_kernel", "from_file"} <= set(methods)
+    base = names["solvers.domains.Domain"]
+    assert overridden(mesh, "ground_distances", methods["ground_distances"]) is (
+        base.ground_distances)
+    assert overridden(mesh, "from_file", methods["from_file"]) is None
 
 
 def test_the_checker_sees_a_missing_section():

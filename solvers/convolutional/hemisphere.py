@@ -187,17 +187,7 @@ class HemisphereGrid(Domain):
         return sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(self.n, self.n)).tocsr()
 
     def heat_kernel(self, t: float, substeps: int = 1, backend="auto") -> HemisphereHeatKernel:
-        """The latitude-modulated Gaussian at heat time ``t`` (``substeps`` ignored: exact).
-
-        Parameters
-        ----------
-        t : float
-            Heat time.
-        substeps : int
-            Ignored.
-        backend : str
-            Ignored.
-        """
+        """The latitude-modulated Gaussian at heat time ``t`` (``substeps`` ignored: exact)."""
         return self.operators.get(("hemisphere_kernel", float(t)),
                                   lambda: HemisphereHeatKernel(self, float(t)))
 

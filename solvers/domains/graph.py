@@ -114,13 +114,7 @@ class Graph(Domain):
 
     @classmethod
     def stored_geometry(cls, arrays: dict, summary: dict, points) -> dict:
-        """The positions (if any) and the edges.
-
-        Parameters
-        ----------
-        arrays, summary, points
-            As in :meth:`Domain.stored_geometry`.
-        """
+        """The positions (if any) and the edges."""
         return {"points": points, "edges": arrays["edges"]}
 
     @property

@@ -152,13 +152,7 @@ class Grid(Domain):
 
     @classmethod
     def stored_geometry(cls, arrays: dict, summary: dict, points) -> dict:
-        """The shape and bounds (no positions: a viewer lays the nodes out itself).
-
-        Parameters
-        ----------
-        arrays, summary, points
-            As in :meth:`Domain.stored_geometry`.
-        """
+        """The shape and bounds (no positions: a viewer lays the nodes out itself)."""
         return {"shape": summary["shape"], "bounds": summary["bounds"]}
 
     @cached_property
@@ -210,11 +204,6 @@ class Grid(Domain):
     def ground_distances(self, src, dst, *, should_cancel=None) -> tuple[np.ndarray, bool]:
         """Squared straight distances between the nodes, periodic axes wrapped: the metric
         whose Gaussian the grid heat kernel is.
-
-        Parameters
-        ----------
-        src, dst, should_cancel
-            As in :meth:`Domain.ground_distances`.
         """
         width = self.bounds[:, 1] - self.bounds[:, 0]
         periods = np.where(self.periodic, width, 0.0)
@@ -222,13 +211,7 @@ class Grid(Domain):
 
     @classmethod
     def ground_distance_bytes(cls, n: int, entries: int, dim: int) -> int:
-        """:func:`~solvers.domains.base.squared_straight_distance_bytes`.
-
-        Parameters
-        ----------
-        n, entries, dim : int
-            As in :meth:`Domain.ground_distance_bytes`.
-        """
+        """:func:`~solvers.domains.base.squared_straight_distance_bytes`."""
         return squared_straight_distance_bytes(n, entries, dim)
 
     def to_arrays(self) -> dict[str, np.ndarray]:

@@ -572,11 +572,6 @@ class TriangleMesh(Domain):
     def laplacian_variant(self, laplacian: str = "auto") -> sp.csr_matrix:
         """``"cotan"``: :attr:`cotan_laplacian`; ``"robust"``: :attr:`robust_laplacian`;
         ``"auto"``: :attr:`laplacian` (the one chosen at construction).
-
-        Parameters
-        ----------
-        laplacian : {"auto", "robust", "cotan"}
-            As in :meth:`Domain.laplacian_variant`.
         """
         check_laplacian_name(laplacian)
         if laplacian == "cotan":
@@ -591,13 +586,7 @@ class TriangleMesh(Domain):
 
     @classmethod
     def stored_geometry(cls, arrays: dict, summary: dict, points) -> dict:
-        """The unit-area vertices and the faces.
-
-        Parameters
-        ----------
-        arrays, summary, points
-            As in :meth:`Domain.stored_geometry`.
-        """
+        """The unit-area vertices and the faces."""
         return {"points": points, "faces": arrays["faces"]}
 
     @property
@@ -739,22 +728,12 @@ class TriangleMesh(Domain):
     def geodesic_kernel_bytes(cls, n: int) -> int:
         """Memory of :meth:`geodesic_kernel` on ``n`` vertices: the all-pairs distances and
         the kernel's scaled blocks (``n x n`` float64 each), plus one transient copy.
-
-        Parameters
-        ----------
-        n : int
-            Vertices.
         """
         return 3 * 8 * n * n
 
     def geodesic_kernel(self, t: float) -> GeodesicGaussianKernel:
         """The Gibbs kernel of squared heat-method geodesics at heat time ``t``
         (:class:`~solvers.kernels.GeodesicGaussianKernel`), kept in the operator store.
-
-        Parameters
-        ----------
-        t : float
-            Heat time.
         """
         if not self.geodesic_kernel_available:
             raise InputError(f"method 'geodesic' needs one connected surface of at most "
@@ -770,24 +749,13 @@ class TriangleMesh(Domain):
     def ground_distances(self, src, dst, *, should_cancel=None) -> tuple[np.ndarray, bool]:
         """Exact polyhedral geodesics (not squared): one MMP solve per point of the smaller
         side (:func:`solvers.geodesics.geodesic_distances`).
-
-        Parameters
-        ----------
-        src, dst, should_cancel
-            As in :meth:`Domain.ground_distances`.
         """
         from solvers.geodesics import geodesic_distances
 
         return geodesic_distances(self, src, dst, should_cancel=should_cancel), False
 
     def stored_ground_distances(self, should_cancel=None) -> tuple[np.ndarray, bool] | None:
-        """All-pairs exact geodesics, kept up to :data:`STORED_GEODESICS_VERTICES`.
-
-        Parameters
-        ----------
-        should_cancel : callable, optional
-            As in :meth:`Domain.ground_distances`.
-        """
+        """All-pairs exact geodesics, kept up to :data:`STORED_GEODESICS_VERTICES`."""
         if self.n > STORED_GEODESICS_VERTICES:
             return None
         from solvers.geodesics import geodesic_distances
@@ -801,11 +769,6 @@ class TriangleMesh(Domain):
         """The geodesics between the supports or, on a mesh small enough to keep them, the
         stored all-pairs ones instead (``entries`` of either, never both), plus a geodesic
         solve's work vectors.
-
-        Parameters
-        ----------
-        n, entries, dim : int
-            As in :meth:`Domain.ground_distance_bytes`.
         """
         return 8 * entries + GEODESIC_WORK_VECTORS * 8 * n
 

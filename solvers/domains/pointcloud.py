@@ -101,24 +101,12 @@ class PointCloud(Domain):
         return ImplicitEulerHeatKernel(self.areas, self.laplacian, t, substeps, backend)
 
     def ground_distances(self, src, dst, *, should_cancel=None) -> tuple[np.ndarray, bool]:
-        """Squared straight distances between the points (unit-area scale).
-
-        Parameters
-        ----------
-        src, dst, should_cancel
-            As in :meth:`Domain.ground_distances`.
-        """
+        """Squared straight distances between the points (unit-area scale)."""
         return squared_straight_distances(self.points, src, dst), True
 
     @classmethod
     def ground_distance_bytes(cls, n: int, entries: int, dim: int) -> int:
-        """:func:`~solvers.domains.base.squared_straight_distance_bytes`.
-
-        Parameters
-        ----------
-        n, entries, dim : int
-            As in :meth:`Domain.ground_distance_bytes`.
-        """
+        """:func:`~solvers.domains.base.squared_straight_distance_bytes`."""
         return squared_straight_distance_bytes(n, entries, dim)
 
     def to_arrays(self) -> dict[str, np.ndarray]:
