@@ -30,33 +30,15 @@ class OTGeoError(Exception):
 
 
 class InputError(OTGeoError, ValueError):
-    """An argument is malformed: wrong shape, NaN, negative mass, out of range.
-
-    Parameters
-    ----------
-    message, field : str
-        As in :class:`OTGeoError`.
-    """
+    """An argument is malformed: wrong shape, NaN, negative mass, out of range."""
 
 
 class DomainError(InputError):
-    """A domain cannot be built from the given geometry or connectivity.
-
-    Parameters
-    ----------
-    message, field : str
-        As in :class:`OTGeoError`.
-    """
+    """A domain cannot be built from the given geometry or connectivity."""
 
 
 class MeshFormatError(DomainError):
-    """A mesh file is empty, unreadable or of an unsupported format.
-
-    Parameters
-    ----------
-    message, field : str
-        As in :class:`OTGeoError`.
-    """
+    """A mesh file is empty, unreadable or of an unsupported format."""
 
 
 class UnsupportedDomainError(InputError):
@@ -64,13 +46,7 @@ class UnsupportedDomainError(InputError):
 
 
 class ConvergenceError(OTGeoError):
-    """An iterative solver could not produce a meaningful result.
-
-    Parameters
-    ----------
-    message, field : str
-        As in :class:`OTGeoError`.
-    """
+    """An iterative solver could not produce a meaningful result."""
 
 
 class CancelledError(OTGeoError):

@@ -142,8 +142,7 @@ class ImplicitEulerHeatKernel:
 
         Parameters
         ----------
-        block : (n,) or (n, k) array
-            As in :meth:`HeatKernel.apply`.
+        block : (n,) or (n, k) array, as in :meth:`HeatKernel.apply`
         """
         x = np.asarray(block, dtype=np.float64)
         weights = self.mass if x.ndim == 1 else self.mass[:, None]
@@ -156,8 +155,7 @@ class ImplicitEulerHeatKernel:
 
         Parameters
         ----------
-        log_block : (n,) or (n, k) array
-            As in :meth:`HeatKernel.log_apply`.
+        log_block : (n,) or (n, k) array, as in :meth:`HeatKernel.log_apply`
         """
         raise NotImplementedError("implicit Euler kernels have no exact log-domain form")
 
@@ -332,8 +330,7 @@ class GaussianGridHeatKernel:
 
         Parameters
         ----------
-        block : (n,) or (n, k) array
-            As in :meth:`HeatKernel.apply`.
+        block : (n,) or (n, k) array, as in :meth:`HeatKernel.apply`
         """
         def convolve(axis, y, last, owned):
             factor = self.factors[axis]
@@ -346,8 +343,7 @@ class GaussianGridHeatKernel:
 
         Parameters
         ----------
-        log_block : (n,) or (n, k) array
-            As in :meth:`HeatKernel.log_apply`.
+        log_block : (n,) or (n, k) array, as in :meth:`HeatKernel.log_apply`
         """
         def log_convolve(axis, y, last, owned):
             return _log_contract(y, self.log_blocks[axis], last, owned)
@@ -484,8 +480,7 @@ class GeodesicGaussianKernel:
 
         Parameters
         ----------
-        block : (n,) or (n, k) array
-            As in :meth:`HeatKernel.apply`.
+        block : (n,) or (n, k) array, as in :meth:`HeatKernel.apply`
         """
         x = np.asarray(block, dtype=np.float64)
         with np.errstate(divide="ignore"):
@@ -497,7 +492,6 @@ class GeodesicGaussianKernel:
 
         Parameters
         ----------
-        log_block : (n,) or (n, k) array
-            As in :meth:`HeatKernel.log_apply`.
+        log_block : (n,) or (n, k) array, as in :meth:`HeatKernel.log_apply`
         """
         return self._permuted(log_block, lambda y: _log_contract_columns(y, self.blocks))

@@ -130,8 +130,7 @@ class CholespyFactor:
 
         Parameters
         ----------
-        rhs : (n,) or (n, k) array
-            As in :meth:`Factorization.solve`.
+        rhs : (n,) or (n, k) array, as in :meth:`Factorization.solve`
         """
         b = np.ascontiguousarray(rhs, dtype=np.float64)
         x = np.empty_like(b)
@@ -145,7 +144,7 @@ class SpluFactor:
     Parameters
     ----------
     matrix : (n, n) sparse matrix
-        Symmetric positive definite.
+        The matrix (LU with pivoting: SPD is not required).
     """
 
     backend = "splu"
@@ -160,8 +159,7 @@ class SpluFactor:
 
         Parameters
         ----------
-        rhs : (n,) or (n, k) array
-            As in :meth:`Factorization.solve`.
+        rhs : (n,) or (n, k) array, as in :meth:`Factorization.solve`
         """
         return self._lu.solve(np.asarray(rhs, dtype=np.float64))
 
@@ -441,7 +439,7 @@ class TriangularFactor:
     Parameters
     ----------
     matrix : (n, n) sparse matrix
-        Symmetric positive definite.
+        SPD (factored without pivoting).
     """
 
     backend = "triangular"
@@ -470,8 +468,7 @@ class TriangularFactor:
 
         Parameters
         ----------
-        rhs : (n,) or (n, k) array
-            As in :meth:`Factorization.solve`.
+        rhs : (n,) or (n, k) array, as in :meth:`Factorization.solve`
         """
         b = np.asarray(rhs, dtype=np.float64)
         if b.shape[:1] != (self.n,) or b.ndim not in (1, 2):

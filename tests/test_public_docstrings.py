@@ -8,7 +8,8 @@ lists). numpydoc's own parser reads each docstring; a name fails when
   parameter of its signature out of it (``a, b : type`` documents both);
 * a function that returns (or yields) a value has no ``Returns`` (``Yields``) section;
 * a class has neither a ``Parameters`` nor an ``Attributes`` section, or leaves a
-  parameter of its constructor out of both (protocols have no constructor);
+  parameter of its constructor out of both (protocols have no constructor; a class that
+  inherits a library base's constructor unchanged is held to the base's docstring);
 * numpydoc warns while parsing it (an unknown or malformed section), or a type line
   leaves an inline literal open.
 
@@ -21,6 +22,7 @@ not checked.
 from __future__ import annotations
 
 import ast
+import dataclasses
 import importlib
 import inspect
 import sys
@@ -138,7 +140,22 @@ def function_problems(func, bound: bool = False, check_returns: bool = True) -> 
     return problems
 
 
+def inherited_constructor(cls):
+    """The library base class whose constructor ``cls`` inherits unchanged (an exception
+    subclass, say), or None: such a class is held to its base's Parameters."""
+    init = cls.__dict__.get("__init__")
+    if init is not None or dataclasses.is_dataclass(cls):
+        return None
+    for base in cls.__mro__[1:]:
+        if "__init__" in base.__dict__:
+            return base if base.__module__.startswith("solvers") else None
+    return None
+
+
 def class_problems(cls) -> list[str]:
+    base = inherited_constructor(cls)
+    if base is not None:
+        return class_problems(base)
     doc, problems = _parse(ClassDoc, cls, config={"show_class_members": False})
     if not (doc["Parameters"] or doc["Attributes"]):
         problems.append("no Parameters or Attributes section")
@@ -190,6 +207,8 @@ def test_the_walk_finds_the_public_names():
     assert overridden(mesh, "ground_distances", methods["ground_distances"]) is (
         base.ground_distances)
     assert overridden(mesh, "from_file", methods["from_file"]) is None
+    assert inherited_constructor(names["solvers.DomainError"]) is names["solvers.OTGeoError"]
+    assert inherited_constructor(mesh) is None
 
 
 def test_the_checker_sees_a_missing_section():

@@ -62,10 +62,8 @@ class HemisphereHeatKernel:
 
     Parameters
     ----------
-    grid : HemisphereGrid
-        The grid.
-    t : float
-        Heat time.
+    grid, t : HemisphereGrid, float
+        The grid and the heat time.
     """
 
     supports_log = False

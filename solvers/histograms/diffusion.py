@@ -38,9 +38,6 @@ class HistogramDiffusionResult(SolverResult):
 
     Attributes
     ----------
-    iterations, residual, converged : int, float, bool
-        Convergence data (:class:`~solvers.monitor.SolverResult`).
-        ``residual`` is the largest row-sum error of the histograms.
     method : {"wasserstein", "pdf"}
         The method used.
     times : (T,) array
@@ -53,6 +50,9 @@ class HistogramDiffusionResult(SolverResult):
         Their quantile levels.
     bins : Bins
         The bins.
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`); ``residual`` is the
+        largest row-sum error of the histograms.
     """
 
     method: str

@@ -89,6 +89,7 @@ def heat_kernel_signature(mesh, k: int = 100, times=None, n_times: int = 16) -> 
     Returns
     -------
     (n, T) array
+        One column per time.
     """
     vals, vecs = eigenpairs(mesh, k)
     if times is None:
