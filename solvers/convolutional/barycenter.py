@@ -408,6 +408,8 @@ def barycenters(
 ) -> BarycentersResult:
     r"""Many barycenters of the same inputs, one per weight vector, solved as one block.
 
+    For every weight vector :math:`\alpha^{(b)}`,
+    :math:`\mu_b = \arg\min_\mu \sum_i \alpha^{(b)}_i W^2_{2,H_t}(\mu, \mu_i)`.
     Problem ``b`` is :func:`barycenter` ``(domain, mus, weights[b], ...)`` with the same
     arguments (eq. 3.13 / Alg. 2; Alg. 3 with sharpening): every problem keeps its own
     scalings, over-relaxation, stopping rule and stagnation record, so each column of

@@ -74,8 +74,12 @@ def displacement_interpolation(
 ) -> InterpolationResult:
     r"""Displacement interpolation between ``mu0`` and ``mu1`` (eq. 3.16).
 
-    Each frame is the barycenter of ``(mu0, mu1)`` with weights ``(1 - s, s)``
-    (Alg. 2); ``sharpen=True`` bounds every frame's entropy by the larger input
+    Each frame is the barycenter of ``(mu0, mu1)`` with weights ``(1 - s, s)``,
+
+    .. math:: \mu_s = \arg\min_\mu\, (1 - s)\, W^2_{2,H_t}(\mu, \mu_0)
+              + s\, W^2_{2,H_t}(\mu, \mu_1),
+
+    solved by Alg. 2.  ``sharpen=True`` bounds every frame's entropy by the larger input
     entropy (Alg. 3), ``debiased=True`` uses debiased barycenters.
 
     Parameters

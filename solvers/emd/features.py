@@ -78,6 +78,10 @@ def distance_to_features(mesh, feature_vertices, *, feature_weights=None, face_w
                          should_cancel=None) -> FeatureDistanceResult:
     r"""Distance from every vertex to a feature set via W1(uniform, feature) (§2.7).
 
+    With :math:`u` the Kantorovich potential of :math:`W_1(\text{uniform}, \nu_S)`,
+    :math:`d(x) = u(p(x)) - u(x)`, :math:`p(x)` the feature of ``x``'s Voronoi cell
+    (with explicit ``feature_weights``: :math:`d = \max_S u - u`; module docstring).
+
     Parameters
     ----------
     mesh : TriangleMesh.

@@ -71,6 +71,10 @@ def fuzzy_geodesic(mesh, a: int, b: int, *, radius: float | None = None, tol: fl
                    should_cancel=None) -> FuzzyGeodesicResult:
     r"""‖J‖ of the W1 flow between geodesic bumps at vertices ``a`` and ``b`` (Fig. 2.13).
 
+    :math:`J` is the Beckmann flow (eq. 2.3)
+    :math:`\arg\min_J \int \lVert J \rVert` subject to
+    :math:`\nabla\cdot J = \rho_0 - \rho_1`, for bumps :math:`\rho_0, \rho_1` at ``a``, ``b``.
+
     Parameters
     ----------
     mesh : TriangleMesh.

@@ -132,6 +132,14 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
                         progress=None, should_cancel=None) -> PointwiseDistanceResult:
     r"""``d_W^k(source, y)`` for all vertices ``y`` (or ``targets``), thesis §2.5.
 
+    .. math::
+
+        d_W^k(x, y) = \min_{c \in \mathbb{R}^k} \int_M
+            \Big\|\nabla G_x - \nabla G_y + \sum_{i\le k} c_i\, R\nabla\phi_i\Big\|\,dA
+
+    with :math:`G_p` the Green's function of the cotangent Laplacian and :math:`\phi_i`
+    the first ``k`` Laplacian eigenfunctions (module docstring).
+
     Parameters
     ----------
     mesh : TriangleMesh.
