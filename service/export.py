@@ -380,15 +380,9 @@ def _as_frames(vertex_fields, frames: Sequence | None):
 
 # --------------------------------------------------------------------------- meshes
 def mesh_glb(
-    vertices,
-    faces,
-    *,
-    vertex_fields: Mapping | None = None,
-    face_fields: Mapping | None = None,
-    flow=None,
-    color: str | None = None,
-    value_range: tuple[float, float] | None = None,
-    frames: Sequence | None = None,
+    vertices, faces, *, vertex_fields: Mapping | None = None,
+    face_fields: Mapping | None = None, flow=None, color: str | None = None,
+    value_range: tuple[float, float] | None = None, frames: Sequence | None = None,
     metadata: Mapping | None = None,
 ) -> bytes:
     """A triangle mesh with result fields as GLB bytes.
@@ -415,24 +409,14 @@ def mesh_glb(
     per_frame = [_fields(d, len(v), "vertex") for d in frame_fields]
     ffields = _fields(face_fields, len(f), "face")
     if value_range is None:
-        sources = [_color_source(color, pf, ffields) for pf in per_frame]
-        finite = [s[np.isfinite(s)] for s in sources if s is not None]
-        finite = [s for s in finite if s.size]
-        if finite:
-            value_range = (min(float(s.min()) for s in finite),
-                           max(float(s.max()) for s in finite))
+        value_range = _frames_value_range(color, per_frame, ffields)
 
     w = _GLTFWriter(metadata)
     deindexed = bool(ffields)
     if deindexed:
         corners = f.ravel()
-        pos = v[corners]
-        fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-        norm = np.linalg.norm(fn, axis=1)
-        fn[norm == 0] = (0.0, 0.0, 1.0)
-        norm[norm == 0] = 1.0
-        normals = np.repeat(fn / norm[:, None], 3, axis=0)
-        geometry = {"POSITION": w.accessor(pos), "NORMAL": w.accessor(normals)}
+        geometry = {"POSITION": w.accessor(v[corners]),
+                    "NORMAL": w.accessor(_corner_face_normals(v, f))}
         indices = None
         face_acc = {k: w.accessor(np.repeat(a, 3, axis=0)) for k, a in ffields.items()}
     else:
@@ -463,6 +447,26 @@ def mesh_glb(
     if flow is not None:
         _add_flow(w, v, f, flow)
     return w.to_bytes()
+
+
+def _frames_value_range(color, per_frame, ffields) -> tuple[float, float] | None:
+    """``(lo, hi)`` of the colored values over all frames (None when none is finite)."""
+    sources = [_color_source(color, pf, ffields) for pf in per_frame]
+    finite = [s[np.isfinite(s)] for s in sources if s is not None]
+    finite = [s for s in finite if s.size]
+    if finite:
+        return (min(float(s.min()) for s in finite), max(float(s.max()) for s in finite))
+    return None
+
+
+def _corner_face_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """``(3F, 3)`` unit face normals repeated at each face's corners (a degenerate face
+    gets +z)."""
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    norm = np.linalg.norm(fn, axis=1)
+    fn[norm == 0] = (0.0, 0.0, 1.0)
+    norm[norm == 0] = 1.0
+    return np.repeat(fn / norm[:, None], 3, axis=0)
 
 
 def _add_flow(w: _GLTFWriter, v: np.ndarray, f: np.ndarray, flow) -> None:

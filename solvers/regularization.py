@@ -27,7 +27,7 @@ choice in any process.  Measured accuracy against the exact LP (squared exact ge
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -96,7 +96,7 @@ class Regularization:
 
     gamma: float
     t: float
-    substeps: int
+    substeps: int | None  # None: the kernel that ran has none (the geodesic kernel)
     debiased: bool
     purpose: str
     h: float
@@ -105,6 +105,11 @@ class Regularization:
 
     def as_dict(self) -> dict:
         return asdict(self)
+
+    def for_kernel(self, method: str) -> Regularization:
+        """This choice as it ran with the shape kernel ``method``: the geodesic kernel
+        (exact Gibbs kernel of squared geodesics) has no implicit-Euler substeps."""
+        return replace(self, substeps=None) if method == "geodesic" else self
 
 
 def sketch_of(domain) -> DomainSketch:
@@ -314,7 +319,7 @@ def choose_regularization(domain, m0=None, m1=None, *, purpose: str = "values",
         deb = False if debiased is None else bool(debiased)
         if auto:
             value = (2.0 * h) ** 2
-            why = f"shapes: gamma = (2h)^2 with h = {h:.4g} (t = h^2), {steps} substeps"
+            why = f"shapes: gamma = (2h)^2 with h = {h:.4g} (t = h^2)"
         else:
             value = float(gamma)
             why = "shapes: gamma given"

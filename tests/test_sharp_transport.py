@@ -150,3 +150,18 @@ def test_method_is_decided_from_the_domain_and_checked():
     with pytest.raises(InputError) as err:
         barycenter(mesh, np.ones((mesh.n, 2)), method="sharp")
     assert err.value.field == "method"
+
+
+def test_results_report_the_substeps_that_ran(square):
+    """The geodesic kernel has no implicit-Euler substeps: its results say None (and so does
+    the policy's record); the heat kernel reports the policy's substeps."""
+    n = square.n
+    mus = np.zeros((n, 2))
+    mus[0, 0] = mus[n - 1, 1] = 1.0
+    sharp = barycenter(square, mus, method="geodesic", max_iter=5)
+    heat = barycenter(square, mus, method="convolutional", max_iter=5)
+    assert sharp.substeps is None and sharp.regularization.substeps is None
+    assert heat.substeps == heat.regularization.substeps >= 1
+    frames = displacement_interpolation(square, mus[:, 0], mus[:, 1], [0.5],
+                                        method="geodesic", max_iter=5)
+    assert frames.substeps is None and frames.regularization.substeps is None

@@ -27,6 +27,26 @@ log = logging.getLogger("otgeo.worker")
 PROGRESS_WRITE_INTERVAL = 0.25  # seconds between progress writes to the job table
 
 
+def _stopped_state(timed_out: bool, limit: float) -> tuple[str, dict]:
+    """``(state, error)`` of a job stopped by its time limit (failed) or by a cancel."""
+    if timed_out:
+        return FAILED, {"code": "time_limit_exceeded", "field": "time_limit",
+                        "message": f"job exceeded its time limit of {limit:g} s"}
+    return CANCELLED, {"code": "cancelled", "message": "cancelled on request", "field": None}
+
+
+def _failure_error(job_id: str, exc: Exception) -> dict:
+    """The error recorded on a job that raised ``exc`` (unexpected ones logged with their
+    traceback; storage errors without server paths)."""
+    if not isinstance(exc, (OTGeoError, ApiError)):
+        log.exception("job %s failed", job_id)
+    if isinstance(exc, OSError) and exc.errno in STORAGE_ERRNOS:  # no server paths
+        return {"code": "storage_unavailable", "field": None,
+                "message": "the result could not be stored "
+                           f"({storage_reason(exc)}); retry later"}
+    return error_dict(exc)
+
+
 class _Beater:
     """One background thread per worker refreshing the running job's heartbeat (also during
     long single steps); no thread is started or joined per job."""
@@ -213,20 +233,9 @@ class JobRunner:
             partial = getattr(exc, "partial_output", None)
             if partial is not None:  # e.g. a distance matrix's finished rows
                 location, kept = self._store_output(job_id, job, partial)
-            if timed_out.is_set():
-                error = {"code": "time_limit_exceeded", "field": "time_limit",
-                         "message": f"job exceeded its time limit of {limit:g} s"}
-            else:
-                state = CANCELLED
-                error = {"code": "cancelled", "message": "cancelled on request", "field": None}
+            state, error = _stopped_state(timed_out.is_set(), limit)
         except Exception as exc:  # every failure is recorded on the job, never lost
-            if not isinstance(exc, (OTGeoError, ApiError)):
-                log.exception("job %s failed", job_id)
-            error = error_dict(exc)
-            if isinstance(exc, OSError) and exc.errno in STORAGE_ERRNOS:  # no server paths
-                error = {"code": "storage_unavailable", "field": None,
-                         "message": "the result could not be stored "
-                                    f"({storage_reason(exc)}); retry later"}
+            error = _failure_error(job_id, exc)
         finally:
             hb.stop()
         progress = dict(hb.progress)
@@ -239,8 +248,14 @@ class JobRunner:
             if self.notify_done is not None:
                 self.notify_done(job_id)
             self.store.mark_done(job_id)
+        self._after_job(job_id, state, ctx.domains, built)
+
+    def _after_job(self, job_id: str, state: str, domain_ids, built) -> None:
+        """The worker's bookkeeping once a job's final state is recorded: the cached
+        domains' sizes re-estimated when operators were built (``built`` None: unknown),
+        the counters, and the after-job hook."""
         if built is None or built:  # operators were added: re-estimate the entries' sizes
-            for domain_id in ctx.domains:
+            for domain_id in domain_ids:
                 self.cache.refresh(("domain", domain_id))
         self.current = None
         self.jobs_done += 1

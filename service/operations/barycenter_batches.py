@@ -32,6 +32,7 @@ from service.operations.examples import BUMP_A, BUMP_B, example
 from service.operations.transport import (
     ShapeMethodOption,
     ShapeMethodValues,
+    as_ran,
     check_shape_method,
     kernel_bytes,
     shape_kwargs,
@@ -148,8 +149,8 @@ def run(domain, req: BarycenterBatchRequest, progress, should_cancel) -> Operati
                       method=req.method, **kwargs)
     masses = np.asarray(res.masses, dtype=np.float64)
     values = BarycenterBatchValues(
-        gamma=kwargs["gamma"], substeps=kwargs["substeps"], regularization=reg,
-        normalization=reports, iterations=int(res.iterations), residual=float(res.residual),
+        **as_ran(kwargs, reg, res.method), normalization=reports,
+        iterations=int(res.iterations), residual=float(res.residual),
         converged=bool(res.converged), problems=problems, weights=res.weights.tolist(),
         entropy_bound=res.entropy_bound, method=res.method)
     arrays = {"masses": masses, "density": masses / np.asarray(domain.areas)[:, None],

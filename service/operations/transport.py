@@ -110,7 +110,8 @@ class Regularization(BaseModel):
 
     gamma: float
     t: float
-    substeps: Int
+    substeps: Int | None = Field(description="implicit-Euler substeps; null when the kernel "
+                                 "that ran has none (method 'geodesic')")
     debiased: bool
     purpose: Literal["values", "shapes"]
     h: float = Field(description="length scale (mean edge length / grid spacing)")
@@ -179,7 +180,8 @@ class ShapeValues(ConvergenceValues):
     """Values shared by barycenter, interpolation and propagation jobs."""
 
     gamma: float
-    substeps: Int
+    substeps: Int | None = Field(description="implicit-Euler substeps that ran; null with "
+                                 "method 'geodesic' (its kernel has none)")
     regularization: Regularization | None = Field(None, description="the policy's choice "
                                                   "(when gamma was left out)")
     normalization: list[dict]
@@ -311,6 +313,15 @@ def _w1(domain, masses, req, progress, should_cancel):
     return earth_movers_distance(domain, masses["mu0"], masses["mu1"], method=req.method,
                                  basis=req.basis, k=req.k, progress=progress,
                                  should_cancel=should_cancel, **_optional(req))
+
+
+def as_ran(kwargs: dict, reg: dict | None, method: str) -> dict:
+    """``gamma``, ``substeps`` and ``regularization`` values of a shape job as its kernel ran
+    them: the geodesic kernel has no substeps (null)."""
+    substeps = None if method == "geodesic" else kwargs["substeps"]
+    if reg is not None:
+        reg = {**reg, "substeps": substeps}
+    return {"gamma": kwargs["gamma"], "substeps": substeps, "regularization": reg}
 
 
 def _convergence(result) -> dict:
@@ -504,8 +515,7 @@ def run_barycenter(domain, req: BarycenterRequest, progress, should_cancel) -> O
     res = barycenter(domain, mus, weights, sharpen=req.sharpen, entropy_bound=req.entropy_bound,
                      debiased=req.debiased, method=req.method, **kwargs)
     masses = np.asarray(res.masses, dtype=np.float64)
-    values = {"gamma": kwargs["gamma"], "substeps": kwargs["substeps"], "regularization": reg,
-              "method": res.method,
+    values = {**as_ran(kwargs, reg, res.method), "method": res.method,
               "weights": weights.tolist(), **_convergence(res),
               "entropy": getattr(res, "entropy", None), "normalization": reports}
     arrays = {"masses": masses, "density": masses / np.asarray(domain.areas)}
@@ -535,8 +545,7 @@ def run_interpolation(domain, req: InterpolationRequest, progress, should_cancel
                                      sharpen=req.sharpen, debiased=req.debiased,
                                      method=req.method, **kwargs)
     m = np.asarray(res.masses, dtype=np.float64).reshape(domain.n, -1)
-    values = {"gamma": kwargs["gamma"], "substeps": kwargs["substeps"], "regularization": reg,
-              "method": res.method,
+    values = {**as_ran(kwargs, reg, res.method), "method": res.method,
               "times": list(req.times), **_convergence(res),
               "normalization": reports}
     arrays = {"masses": m, "density": m / np.asarray(domain.areas)[:, None]}
@@ -581,8 +590,7 @@ def run_propagation(domain, req: PropagationRequest, progress, should_cancel
     res = wasserstein_propagation(domain, req.n_nodes, edges, fixed,
                                   edge_weights=req.edge_weights, method=req.method, **kwargs)
     m = np.asarray(res.masses, dtype=np.float64).reshape(domain.n, req.n_nodes)
-    values = {"gamma": kwargs["gamma"], "substeps": kwargs["substeps"], "regularization": reg,
-              "method": res.method,
+    values = {**as_ran(kwargs, reg, res.method), "method": res.method,
               **_convergence(res),
               "free_nodes": np.asarray(res.free_nodes).tolist(), "normalization": reports}
     arrays = {"masses": m, "density": m / np.asarray(domain.areas)[:, None]}

@@ -123,6 +123,20 @@ def support_window(hists: np.ndarray, margin: int) -> tuple[slice, slice]:
             slice(max(0, cols[0] - margin), min(n, cols[-1] + margin + 1)))
 
 
+def _kernel_window(hists: np.ndarray, gamma: float) -> tuple[slice, slice]:
+    """The window of the ab grid on which the barycenters are solved: the histograms'
+    support plus four kernel standard deviations (and 2 nodes), at least two nodes wide
+    on each axis (a valid :class:`Grid`)."""
+    bins = hists.shape[-1]
+    sigma = np.sqrt(float(gamma) / 2.0)
+    margin = int(np.ceil(4.0 * sigma / AbGrid(bins).spacing)) + 2
+    rows, cols = support_window(hists, margin)
+    if rows.stop - rows.start < 2 or cols.stop - cols.start < 2:  # a single node wide
+        rows = slice(max(0, rows.start - 1), min(bins, rows.stop + 1))
+        cols = slice(max(0, cols.start - 1), min(bins, cols.stop + 1))
+    return rows, cols
+
+
 @dataclass
 class ChrominanceBarycenters:
     """Barycenters ``(B, bins, bins)`` (masses, sum 1), maps ``(B, k, 2, bins, bins)``
@@ -197,17 +211,9 @@ def chrominance_barycenters(
     k, bins, _ = hists.shape
     alphas = np.asarray(alphas, dtype=np.float64)
     B = alphas.shape[0]
-    grid = AbGrid(bins)
-    h = grid.spacing
-    sigma = np.sqrt(float(gamma) / 2.0)
-    margin = int(np.ceil(4.0 * sigma / h)) + 2
-    rows, cols = support_window(hists, margin)
-    nodes = grid.nodes
+    rows, cols = _kernel_window(hists, gamma)
+    nodes = AbGrid(bins).nodes
     ra, rb = nodes[rows], nodes[cols]
-    if len(ra) < 2 or len(rb) < 2:  # a single node wide: widen so the Grid is valid
-        rows = slice(max(0, rows.start - 1), min(bins, rows.stop + 1))
-        cols = slice(max(0, cols.start - 1), min(bins, cols.stop + 1))
-        ra, rb = nodes[rows], nodes[cols]
     domain = Grid((len(ra), len(rb)), bounds=[(ra[0], ra[-1]), (rb[0], rb[-1])])
     setup = prepare(domain, gamma=gamma, t=None, substeps=1, tol=tol, max_iter=max_iter,
                     progress=progress, should_cancel=should_cancel)

@@ -42,6 +42,26 @@ The corrected image :math:`f_i^\alpha = T_i \circ f_i` keeps the size, orientati
 dtype and alpha channel of the input.  Cost: two fused passes over the pixels (Lab and
 histograms; map lookup and back to sRGB, :mod:`solvers.color._kernels`) plus a
 barycenter on the histogram grid whose cost does not depend on the number of pixels.
+
+The two maps.  ``mode="split"``: for the exact plan :math:`\pi` between the ab histograms
+:math:`\mu_i` and the target :math:`\nu` (an input, McCann's interpolant or the barycenter)
+
+.. math::  \min_{\pi \ge 0} \sum_{xy} \pi(x, y) |x - y|^2, \quad
+           \pi 1 = \mu_i, \; \pi^T 1 = \nu,
+
+the :math:`n_i(x)` pixels at node :math:`x` are split into runs of
+:math:`n_i(x) \pi(x, y) / \mu_i(x)` pixels (integer, largest remainders) moved by
+:math:`y - x`, in a spatially coherent order; the displacement field is then guided-
+filtered by the input's luminance (``regularization`` = its :math:`\varepsilon`;
+0 turns the filter off).  This is not the thesis' map; ``mode="barycentric"`` is:
+
+.. math::  f_i^\alpha = (T^L_{i}, T^{ab}_{i}) \circ f_i, \qquad
+           T^{ab}_i(y) = \frac{1}{\mu_i(y)} \int \pi_i(x, y)\, x\, dx,
+
+:math:`\pi_i = D_{v_i} K D_{w_i}` the plan between the ab histogram :math:`\mu_i` and
+the barycenter :math:`\arg\min_\mu \sum_j \alpha_j W^2_{2,\gamma}(\mu, \mu_j)`
+(eq. 3.13, Alg. 2).  In both modes :math:`T^L_i = (\sum_j \alpha_j Q_j) \circ F_i`
+is the 1-D optimal map of the L* channel.
 """
 
 from __future__ import annotations
@@ -203,46 +223,22 @@ def check_alphas(alphas, k: int) -> np.ndarray:
 
 
 def color_transfer(
-    images: Sequence[np.ndarray],
-    alphas=None,
-    *,
-    mode: str = "split",
-    bins: int | None = None,
-    gamma: float | None = None,
-    luminance: bool = True,
+    images: Sequence[np.ndarray], alphas=None, *, mode: str = "split",
+    bins: int | None = None, gamma: float | None = None, luminance: bool = True,
     regularization: float = DEFAULT_REGULARIZATION,
-    luminance_slope: float = DEFAULT_LUMINANCE_SLOPE,
-    resplit: float = DEFAULT_RESPLIT,
-    sharpen: bool = False,
-    debiased: bool = False,
-    recolor: Sequence[int] | None = None,
-    tol: float = 1e-4,
-    max_iter: int = 3000,
+    luminance_slope: float = DEFAULT_LUMINANCE_SLOPE, resplit: float = DEFAULT_RESPLIT,
+    sharpen: bool = False, debiased: bool = False, recolor: Sequence[int] | None = None,
+    tol: float = 1e-4, max_iter: int = 3000,
     progress: Callable[[int, float], None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
 ) -> ColorTransferResult:
     r"""Recolor ``images`` towards Wasserstein barycenters of their colors (thesis §3.7).
 
-    ``mode="split"`` (default): for the exact plan :math:`\pi` between the ab histograms
-    :math:`\mu_i` and the target :math:`\nu` (an input, McCann's interpolant or the
-    barycenter; module doc)
-
-    .. math::  \min_{\pi \ge 0} \sum_{xy} \pi(x, y) |x - y|^2, \quad
-               \pi 1 = \mu_i, \; \pi^T 1 = \nu,
-
-    the :math:`n_i(x)` pixels at node :math:`x` are split into runs of
-    :math:`n_i(x) \pi(x, y) / \mu_i(x)` pixels (integer, largest remainders) moved by
-    :math:`y - x`, in a spatially coherent order; the displacement field is then guided-
-    filtered by the input's luminance (``regularization`` = its :math:`\varepsilon`;
-    0 turns the filter off).  This is not the thesis' map; ``mode="barycentric"`` is:
-
-    .. math::  f_i^\alpha = (T^L_{i}, T^{ab}_{i}) \circ f_i, \qquad
-               T^{ab}_i(y) = \frac{1}{\mu_i(y)} \int \pi_i(x, y)\, x\, dx,
-
-    :math:`\pi_i = D_{v_i} K D_{w_i}` the plan between the ab histogram :math:`\mu_i` and
-    the barycenter :math:`\arg\min_\mu \sum_j \alpha_j W^2_{2,\gamma}(\mu, \mu_j)`
-    (eq. 3.13, Alg. 2).  In both modes :math:`T^L_i = (\sum_j \alpha_j Q_j) \circ F_i`
-    is the 1-D optimal map of the L* channel.
+    ``mode="split"`` (default) splits each node's pixels by the exact plan between the ab
+    histogram and the target, then guided-filters the displacements; ``mode="barycentric"``
+    is the thesis' map :math:`f_i^\alpha = (T^L_{i}, T^{ab}_{i}) \circ f_i`.  Both are
+    written out in the module doc ("The two maps").  In both modes
+    :math:`T^L_i = (\sum_j \alpha_j Q_j) \circ F_i` is the 1-D optimal map of the L* channel.
 
     Parameters
     ----------
@@ -283,14 +279,8 @@ def color_transfer(
     ColorTransferResult
     """
     t0 = time.perf_counter()
-    if isinstance(images, np.ndarray) and images.ndim == 3:
-        images = [images]
-    images = list(images)
+    images = _check_images(images)
     k = len(images)
-    if not 2 <= k <= MAX_IMAGES:
-        raise InputError(f"color transfer needs 2 to {MAX_IMAGES} images, got {k}",
-                         field="images")
-    images = [check_image(img, f"images[{i}]") for i, img in enumerate(images)]
     mode = check_mode(mode)
     A = check_alphas(alphas, k)
     bins = resolve_bins(bins, mode)
@@ -298,15 +288,33 @@ def color_transfer(
     regularization = check_regularization(regularization)
     luminance_slope = check_luminance_slope(luminance_slope)
     resplit = check_fraction(resplit, "resplit")
-    todo = list(range(k)) if recolor is None else sorted({int(i) for i in recolor})
-    if any(not 0 <= i < k for i in todo):
-        raise InputError(f"recolor indices must lie in [0, {k})", field="recolor")
+    todo = _recolored(recolor, k)
     opts = dict(gamma=gamma, sharpen=sharpen, debiased=debiased, tol=tol,
                 max_iter=max_iter, progress=progress, should_cancel=should_cancel)
     if mode == "barycentric":
         return _barycentric(images, A, bins, luminance, todo, t0, opts)
     return _split(images, A, bins, luminance, (regularization, luminance_slope, resplit), todo,
                   t0, opts)
+
+
+def _check_images(images) -> list[np.ndarray]:
+    """``2..MAX_IMAGES`` images, each checked (:func:`~solvers.color.lab.check_image`)."""
+    if isinstance(images, np.ndarray) and images.ndim == 3:
+        images = [images]
+    images = list(images)
+    k = len(images)
+    if not 2 <= k <= MAX_IMAGES:
+        raise InputError(f"color transfer needs 2 to {MAX_IMAGES} images, got {k}",
+                         field="images")
+    return [check_image(img, f"images[{i}]") for i, img in enumerate(images)]
+
+
+def _recolored(recolor, k: int) -> list[int]:
+    """The sorted indices of the images to recolor (default all ``k``)."""
+    todo = list(range(k)) if recolor is None else sorted({int(i) for i in recolor})
+    if any(not 0 <= i < k for i in todo):
+        raise InputError(f"recolor indices must lie in [0, {k})", field="recolor")
+    return todo
 
 
 def resolve_bins(bins, mode: str) -> int:

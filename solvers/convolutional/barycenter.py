@@ -71,7 +71,7 @@ class BarycenterResult(SolverResult):
     gamma: float = 0.0
     t: float = 0.0
     log_scalings: tuple[np.ndarray, np.ndarray] | None = None
-    substeps: int = 1
+    substeps: int | None = 1  # None when the geodesic kernel ran
     regularization: Regularization | None = None
     method: str = "convolutional"
 
@@ -186,19 +186,14 @@ def barycenter_steps(areas: np.ndarray, inputs: np.ndarray, weights: np.ndarray,
         lku = yield lw
         ld = lv + lku
         if debiased:
-            # Janati et al. (2020) / POT: geometric mean of H(w_i) times c.
-            lbar = lku @ weights + lc
-            for _ in range(10):
-                lc = 0.5 * (lc + lbar - (yield lc))
+            lbar, lc = yield from _debiased_mean_steps(lku, weights, lc)
         else:
             lbar = ld @ weights  # Alg. 2: mu = prod_i d_i^alpha_i
         if entropy_bounds is not None:
             for b in range(B):
                 lbar[:, b] = sharpen_log(lbar[:, b], areas, entropy_bounds[b])
         if it % check == 0 or it >= max_iter:
-            gaps = np.abs(a * (np.exp(ld) - np.exp(spread(lbar)))).sum(axis=0)
-            if omega != 1.0:  # the relaxed w update leaves the input marginal inexact
-                gaps = gaps + np.abs(a * np.exp(lw + lkv) - inputs).sum(axis=0)
+            gaps = _marginal_gaps(a, ld, spread(lbar), omega, lw, lkv, inputs)
             residual = float(np.max(gaps if measure_all else np.where(alpha > 0, gaps, 0.0)))
             if not np.isfinite(residual):
                 residual = float("inf")
@@ -213,6 +208,25 @@ def barycenter_steps(areas: np.ndarray, inputs: np.ndarray, weights: np.ndarray,
     if scalings is not None:
         scalings["log_v"], scalings["log_w"] = lv, lw
     return lbar, it, residual, bool(residual <= tol)
+
+
+def _debiased_mean_steps(lku, weights, lc):
+    """The debiased barycenter's log-density and its log-factor ``c`` as a step generator
+    (Janati et al. (2020) / POT: geometric mean of H(w_i) times c, 10 fixed-point steps
+    of ``c``); returns ``(lbar, lc)``."""
+    lbar = lku @ weights + lc
+    for _ in range(10):
+        lc = 0.5 * (lc + lbar - (yield lc))
+    return lbar, lc
+
+
+def _marginal_gaps(a, ld, spread_lbar, omega, lw, lkv, inputs):
+    """Per column the L1 violation of its plan's marginal at the barycenter, plus, when
+    over-relaxed (``omega != 1``), at the input: the relaxed w update leaves it inexact."""
+    gaps = np.abs(a * (np.exp(ld) - np.exp(spread_lbar))).sum(axis=0)
+    if omega != 1.0:
+        gaps = gaps + np.abs(a * np.exp(lw + lkv) - inputs).sum(axis=0)
+    return gaps
 
 
 def barycenter(
@@ -305,7 +319,8 @@ def barycenter(
                             converged=conv, entropy=float(entropy(masses, setup.areas)),
                             entropy_bound=bound, gamma=setup.gamma, t=setup.t,
                             log_scalings=(scalings["log_v"], scalings["log_w"]),
-                            substeps=setup.substeps, regularization=reg,
+                            substeps=setup.substeps,
+                            regularization=reg and reg.for_kernel(setup.method),
                             method=setup.method)
 
 
@@ -369,7 +384,7 @@ class BarycentersResult(SolverResult):
     entropy_bound: float | None = None
     gamma: float = 0.0
     t: float = 0.0
-    substeps: int = 1
+    substeps: int | None = 1  # None when the geodesic kernel ran
     regularization: Regularization | None = None
     method: str = "convolutional"
 
@@ -381,6 +396,28 @@ class BarycentersResult(SolverResult):
 BLOCK_CACHE_BYTES = 256 * 2**10
 
 
+def _weight_vectors(weights, k: int) -> np.ndarray:
+    """``(B, k)`` weight vectors, each checked and normalized."""
+    from solvers.errors import InputError
+
+    try:
+        W = np.atleast_2d(np.asarray(weights, dtype=np.float64))
+    except (TypeError, ValueError) as exc:
+        raise InputError("weights must be a list of weight vectors", field="weights") from exc
+    if W.ndim != 2 or W.shape[0] == 0:
+        raise InputError(f"weights must have shape (B, {k})", field="weights")
+    return np.stack([check_weights(w, k) for w in W])
+
+
+def _check_block(block) -> None:
+    """Raise unless ``block`` is ``None`` or a positive integer."""
+    from solvers.errors import InputError
+
+    if block is not None and (isinstance(block, bool) or not isinstance(block, (int, np.integer))
+                              or block < 1):
+        raise InputError(f"block must be a positive integer, got {block!r}", field="block")
+
+
 def cached_problems(n: int, inputs: int) -> int:
     """Barycenter problems of ``inputs`` columns on ``n`` vertices per block (at least 1; a
     function of the sizes only)."""
@@ -388,21 +425,10 @@ def cached_problems(n: int, inputs: int) -> int:
 
 
 def barycenters(
-    domain,
-    mus,
-    weights,
-    *,
-    gamma: float | str = "auto",
-    t: float | None = None,
-    substeps: int | None = None,
-    entropy_bound: float | None = None,
-    sharpen: bool = False,
-    debiased: bool = False,
-    tol: float = 1e-5,
-    max_iter: int | None = None,
-    acceleration: str = "over-relaxation",
-    method: str = "auto",
-    block: int | None = None,
+    domain, mus, weights, *, gamma: float | str = "auto", t: float | None = None,
+    substeps: int | None = None, entropy_bound: float | None = None, sharpen: bool = False,
+    debiased: bool = False, tol: float = 1e-5, max_iter: int | None = None,
+    acceleration: str = "over-relaxation", method: str = "auto", block: int | None = None,
     progress: Callable[..., None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
 ) -> BarycentersResult:
@@ -421,8 +447,7 @@ def barycenters(
 
     Parameters
     ----------
-    domain : any domain.
-    mus : ``(n, k)`` input masses (columns normalized here).
+    domain : any domain; mus : ``(n, k)`` input masses (columns normalized here).
     weights : ``(B, k)`` non-negative weight vectors (each normalized), e.g. a grid of
         ``alphas`` (thesis Fig. 3.4).
     gamma, t, substeps, entropy_bound, sharpen, debiased, tol, max_iter, acceleration, method :
@@ -439,20 +464,11 @@ def barycenters(
     problem_converged, entropies, iterations, residual, converged, ...)
     """
     from solvers.convolutional.matrix import run_block
-    from solvers.errors import InputError
 
     M = _inputs(domain, mus)
     k = M.shape[1]
-    try:
-        W = np.atleast_2d(np.asarray(weights, dtype=np.float64))
-    except (TypeError, ValueError) as exc:
-        raise InputError("weights must be a list of weight vectors", field="weights") from exc
-    if W.ndim != 2 or W.shape[0] == 0:
-        raise InputError(f"weights must have shape (B, {k})", field="weights")
-    W = np.stack([check_weights(w, k) for w in W])
-    if block is not None and (isinstance(block, bool) or not isinstance(block, (int, np.integer))
-                              or block < 1):
-        raise InputError(f"block must be a positive integer, got {block!r}", field="block")
+    W = _weight_vectors(weights, k)
+    _check_block(block)
     reg, setup, options = _prepared(domain, M, gamma=gamma, t=t, substeps=substeps,
                                     entropy_bound=entropy_bound, sharpen=sharpen,
                                     debiased=debiased, tol=tol, max_iter=max_iter,
@@ -488,5 +504,6 @@ def barycenters(
         masses=masses, weights=W, problem_iterations=out["it"], problem_residuals=out["res"],
         problem_converged=out["conv"], entropies=entropy(masses, setup.areas),
         entropy_bound=bound, gamma=setup.gamma, t=setup.t, substeps=setup.substeps,
-        regularization=reg, iterations=int(out["it"].sum()), residual=float(out["res"].max()),
+        regularization=reg and reg.for_kernel(setup.method), iterations=int(out["it"].sum()),
+        residual=float(out["res"].max()),
         converged=bool(out["conv"].all()), method=setup.method)

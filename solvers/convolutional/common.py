@@ -214,7 +214,7 @@ class Setup:
 
     gamma: float
     t: float
-    substeps: int
+    substeps: int | None  # None with the geodesic kernel (it has no substeps)
     tol: float
     max_iter: int
     kernel: object
@@ -263,7 +263,7 @@ def prepare(domain, *, gamma, t, substeps, tol, max_iter, progress, should_cance
     if should_cancel is not None and not callable(should_cancel):
         raise InputError("should_cancel must be callable", field="should_cancel")
     if method == "geodesic":
-        kernel = domain.geodesic_kernel(t)
+        kernel, substeps = domain.geodesic_kernel(t), None
     else:
         kernel = domain.heat_kernel(t, substeps, backend)
     return Setup(gamma, t, substeps, tol, max_iter, kernel, LogKernel(kernel),

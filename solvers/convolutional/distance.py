@@ -347,18 +347,9 @@ def _value(gamma, m0, f, m1, g) -> float:
 
 
 def wasserstein_distance(
-    domain,
-    mu0,
-    mu1,
-    *,
-    gamma: float | str = "auto",
-    t: float | None = None,
-    substeps: int | None = None,
-    tol: float = 1e-5,
-    max_iter: int | None = None,
-    debiased: bool | None = None,
-    method: str = "auto",
-    acceleration: str = "anderson",
+    domain, mu0, mu1, *, gamma: float | str = "auto", t: float | None = None,
+    substeps: int | None = None, tol: float = 1e-5, max_iter: int | None = None,
+    debiased: bool | None = None, method: str = "auto", acceleration: str = "anderson",
     init: tuple[np.ndarray, np.ndarray] | None = None,
     progress: Callable[[int, float], None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
@@ -401,8 +392,7 @@ def wasserstein_distance(
     max_iter : iteration cap (default 10000); when hit, or when the residual stops
         falling (stagnation), ``converged`` is False and ``residual`` is the measured
         violation.
-    debiased : return the Sinkhorn divergence (default: the policy's choice, True, with
-        ``gamma="auto"``; else False).
+    debiased : return the Sinkhorn divergence (default: True with ``gamma="auto"``, else False).
     method : ``"auto"`` (default), ``"convolutional"`` (always Alg. 1) or ``"exact"`` (always
         the LP; meshes, grids and point clouds).
     acceleration : ``"anderson"`` (default: Anderson mixing of the Sinkhorn fixed-point
@@ -441,15 +431,20 @@ def wasserstein_distance(
                                          should_cancel=should_cancel)
         res.decision = decision
         return res
-    gamma, t, substeps, debiased = (decision.gamma, decision.t, decision.substeps,
-                                    decision.debiased)
-    setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
-                    progress=progress, should_cancel=should_cancel)
+    setup = prepare(domain, gamma=decision.gamma, t=decision.t, substeps=decision.substeps,
+                    tol=tol, max_iter=max_iter, progress=progress, should_cancel=should_cancel)
     check_components(domain, np.stack([m0, m1], axis=1), setup.tol, "mu1")
     mon = watch_stagnation(setup, project=max_iter is None)
-    solve = run_steps(pair_steps(setup.areas, m0, m1, gamma=setup.gamma, debiased=debiased,
-                                 tol=setup.tol, max_iter=setup.max_iter, monitor=mon,
+    solve = run_steps(pair_steps(setup.areas, m0, m1, gamma=setup.gamma,
+                                 debiased=decision.debiased, tol=setup.tol,
+                                 max_iter=setup.max_iter, monitor=mon,
                                  acceleration=acceleration, init=init), setup.logk)
+    return _balanced_result(solve, setup, decision)
+
+
+def _balanced_result(solve: PairSolve, setup, decision) -> SinkhornResult:
+    """The :class:`SinkhornResult` of a pair solve, its log-scalings shifted by opposite
+    constants so that their finite maxima match."""
     f, g, it, res, conv = solve.f, solve.g, solve.iterations, solve.residual, solve.converged
     omega, self_values, value = solve.omega, solve.self_values, solve.value
     # Balance the scaling ambiguity (v, w) -> (c v, w / c) for readable v, w.
@@ -460,7 +455,7 @@ def wasserstein_distance(
     return SinkhornResult(value=value, v=v, w=w, iterations=int(it), residual=float(res),
                           converged=bool(conv), log_v=f, log_w=g, gamma=setup.gamma,
                           t=setup.t, omega=float(omega), self_values=self_values,
-                          substeps=setup.substeps, debiased=bool(debiased),
+                          substeps=setup.substeps, debiased=bool(decision.debiased),
                           regularization=decision.regularization, decision=decision)
 
 

@@ -49,7 +49,7 @@ class InterpolationResult(SolverResult):
     times: np.ndarray
     gamma: float = 0.0
     t: float = 0.0
-    substeps: int = 1
+    substeps: int | None = 1  # None when the geodesic kernel ran
     regularization: Regularization | None = None
     method: str = "convolutional"
 
@@ -137,5 +137,6 @@ def displacement_interpolation(
     masses = masses_from_log(lbar, setup.areas)
     return InterpolationResult(masses=masses, times=s, iterations=int(it), residual=float(res),
                                converged=conv, gamma=setup.gamma, t=setup.t,
-                               substeps=setup.substeps, regularization=reg,
+                               substeps=setup.substeps,
+                               regularization=reg and reg.for_kernel(setup.method),
                                method=setup.method)

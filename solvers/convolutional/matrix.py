@@ -267,23 +267,12 @@ def matrix_pairs(n: int, m: int, symmetric: bool,
 
 
 def distance_matrix(
-    domain,
-    distributions,
-    others=None,
-    *,
-    metric: str = "w2",
-    gamma: float | str = "auto",
-    t: float | None = None,
-    substeps: int | None = None,
-    tol: float = 1e-5,
-    max_iter: int | None = None,
-    debiased: bool | None = None,
-    method: str = "auto",
-    k: int | None = None,
-    w1_options: dict | None = None,
+    domain, distributions, others=None, *, metric: str = "w2", gamma: float | str = "auto",
+    t: float | None = None, substeps: int | None = None, tol: float = 1e-5,
+    max_iter: int | None = None, debiased: bool | None = None, method: str = "auto",
+    k: int | None = None, w1_options: dict | None = None,
     progress: Callable[..., None] | None = None,
-    should_cancel: Callable[[], bool] | None = None,
-    threads: int | None = None,
+    should_cancel: Callable[[], bool] | None = None, threads: int | None = None,
 ) -> DistanceMatrixResult:
     r"""Pairwise distances of a collection (``n x n``) or against ``others`` (``n x m``).
 
@@ -332,16 +321,7 @@ def distance_matrix(
         ``values`` ``(n, m)``, ``pair_iterations``, ``pair_residuals``, ``pair_converged``,
         ``methods``, ``computed``, ``iterations``, ``residual``, ``converged``, ...
     """
-    if metric not in METRICS:
-        raise InputError(f"metric must be one of {', '.join(map(repr, METRICS))}, got "
-                         f"{metric!r}", field="metric")
-    if metric == "w2" and (method in W1_ONLY or k is not None):
-        raise InputError(f"method {method!r} and k choose the W1 algorithm (metric 'w1')",
-                         field="k" if k is not None else "method")
-    if should_cancel is not None and not callable(should_cancel):
-        raise InputError("should_cancel must be callable", field="should_cancel")
-    if progress is not None and not callable(progress):
-        raise InputError("progress must be callable", field="progress")
+    _check_metric_and_callbacks(metric, method, k, progress, should_cancel)
     A = _collection(domain, distributions, "distributions")
     symmetric = others is None
     B = A if symmetric else _collection(domain, others, "others")
@@ -350,13 +330,7 @@ def distance_matrix(
     exact_threads(threads)  # checked before any work
     pairs = matrix_pairs(A.shape[1], B.shape[1], symmetric)
     table = _Table(A.shape[1], B.shape[1], symmetric, metric, progress, len(pairs))
-
-    def stop(where: str) -> None:
-        if should_cancel is not None and should_cancel():
-            error = CancelledError(f"cancelled {where}")
-            error.partial = table.result()
-            raise error
-
+    stop = _stopper(should_cancel, table)
     if symmetric and (metric == "w1" or zero_diagonal(domain, A, gamma, debiased, method)):
         for i in range(A.shape[1]):
             table.put(i, i, 0.0, 0, 0.0, True, "identical")
@@ -367,9 +341,29 @@ def distance_matrix(
         _w1_matrix(domain, A, None if symmetric else B, pairs, table, method=method, k=k,
                    options=w1_options or {}, stop=stop)
         return table.result()
+    _w2_pairs(domain, A, B, pairs, table, stop, threads, tol=tol, max_iter=max_iter,
+              method=method, gamma=gamma, t=t, substeps=substeps, debiased=debiased)
+    return table.result()
+
+
+def _stopper(should_cancel, table):
+    """``stop(where)``: raises :class:`CancelledError` carrying the result so far
+    (``partial``) when ``should_cancel`` says so."""
+    def stop(where: str) -> None:
+        if should_cancel is not None and should_cancel():
+            error = CancelledError(f"cancelled {where}")
+            error.partial = table.result()
+            raise error
+
+    return stop
+
+
+def _w2_pairs(domain, A, B, pairs, table, stop, threads, *, tol, max_iter, **decision) -> None:
+    """Solve the W2 ``pairs`` into ``table``, each by its own decision
+    (:func:`decide_method` with the ``decision`` arguments): the exact LPs in threads, the
+    convolutional ones grouped by kernel, one block per group."""
     sketch = sketch_of(domain).remembering_paths()
-    decisions = [decide_method(sketch, A[:, i], B[:, j], method=method, gamma=gamma, t=t,
-                              substeps=substeps, debiased=debiased) for i, j in pairs]
+    decisions = [decide_method(sketch, A[:, i], B[:, j], **decision) for i, j in pairs]
     exact = [p for p, d in zip(pairs, decisions, strict=True) if d.method == "exact"]
     if exact:
         _exact_pairs(domain, A, B, exact, table, stop, threads)
@@ -380,7 +374,21 @@ def distance_matrix(
     for members in groups.values():
         _convolutional_pairs(domain, A, B, members, table, tol=tol, max_iter=max_iter,
                              stop=stop)
-    return table.result()
+
+
+def _check_metric_and_callbacks(metric, method, k, progress, should_cancel) -> None:
+    """Raise unless ``metric`` is one of :data:`METRICS`, ``method`` and ``k`` fit it, and
+    the callbacks are callable (or ``None``)."""
+    if metric not in METRICS:
+        raise InputError(f"metric must be one of {', '.join(map(repr, METRICS))}, got "
+                         f"{metric!r}", field="metric")
+    if metric == "w2" and (method in W1_ONLY or k is not None):
+        raise InputError(f"method {method!r} and k choose the W1 algorithm (metric 'w1')",
+                         field="k" if k is not None else "method")
+    if should_cancel is not None and not callable(should_cancel):
+        raise InputError("should_cancel must be callable", field="should_cancel")
+    if progress is not None and not callable(progress):
+        raise InputError("progress must be callable", field="progress")
 
 
 def zero_diagonal(domain, A, gamma, debiased, method) -> bool:

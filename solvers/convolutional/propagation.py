@@ -239,27 +239,13 @@ MASS_COLUMNS = 64
 
 
 def wasserstein_propagation(
-    domain,
-    n_nodes: int,
-    edges,
-    fixed: dict,
-    *,
-    edge_weights=None,
-    edge_kernels: dict | None = None,
-    node_scalings=None,
-    gamma: float,
-    t: float | None = None,
-    substeps: int = 1,
-    tol: float = 1e-5,
-    max_iter: int | None = None,
+    domain, n_nodes: int, edges, fixed: dict, *, edge_weights=None,
+    edge_kernels: dict | None = None, node_scalings=None, gamma: float,
+    t: float | None = None, substeps: int = 1, tol: float = 1e-5, max_iter: int | None = None,
     progress: Callable[[int, float], None] | None = None,
-    should_cancel: Callable[[], bool] | None = None,
-    acceleration: str = "none",
-    threads: int | None = None,
-    initial: PropagationResult | None = None,
-    keep_scalings: bool = False,
-    start_masses=None,
-    scalings_dtype=np.float64,
+    should_cancel: Callable[[], bool] | None = None, acceleration: str = "none",
+    threads: int | None = None, initial: PropagationResult | None = None,
+    keep_scalings: bool = False, start_masses=None, scalings_dtype=np.float64,
     method: str = "auto",
 ) -> PropagationResult:
     r"""Propagate distributions from fixed graph nodes to the others (Alg. 4, eq. 3.17).
@@ -272,43 +258,31 @@ def wasserstein_propagation(
     fixed : ``{node: (n,) masses}`` for the nodes of :math:`V_0` (at least one per
         connected piece of the graph).
     edge_weights : ``(m,)`` positive :math:`\omega_e` (default 1).
-    edge_kernels : optional ``{edge: (p, q)}`` non-negative ``(n,)`` diagonal
-        rescalings, :math:`K_e = D_p H_t D_q` (eq. 3.18), ``p`` on the side of
-        ``u = edges[e, 0]``, ``q`` on the side of ``u' = edges[e, 1]``.
+    edge_kernels : optional ``{edge: (p, q)}`` non-negative ``(n,)`` diagonal rescalings,
+        :math:`K_e = D_p H_t D_q` (eq. 3.18), ``p`` on the side of ``u = edges[e, 0]``.
     node_scalings : optional ``(n_nodes, n)`` logs :math:`\log d_u`; every edge's kernel
-        gets :math:`D_{d_u} \cdot D_{d_{u'}}` on its two sides (combined with
-        ``edge_kernels``).  With :math:`\log d_u = -c_u / (\gamma \sum_{e \ni u}\omega_e)` this
-        adds :math:`\sum_u \langle c_u, m_u\rangle` to the objective (soft maps, §3.7).
+        gets :math:`D_{d_u} \cdot D_{d_{u'}}` (combined with ``edge_kernels``).  With
+        :math:`\log d_u = -c_u / (\gamma \sum_{e \ni u}\omega_e)` this adds
+        :math:`\sum_u \langle c_u, m_u\rangle` to the objective (soft maps, §3.7).
     gamma, t, substeps, tol, max_iter, progress, should_cancel : as in :func:`barycenter`;
         ``residual`` is the largest L1 violation of an edge marginal at its node.
-    acceleration : ``"none"`` (default: the plain Bregman projections of Alg. 4) or
-        ``"over-relaxation"``: every sweep's update of the log-scalings is over-relaxed,
-        :math:`\log s \leftarrow \log s + \omega(\log s_{\text{Alg. 4}} - \log s)`,
-        with :math:`\omega` adapted from the measured rate (:class:`OverRelaxation`,
-        from plain sweeps once the residual is below 0.5; backs off if it grows).  The
-        weighted mean of the log-scalings at a free node is kept as Alg. 4 keeps it, so the
-        fixed point is the same; only the path to it changes (fixed nodes take the plain
-        Sinkhorn update).
-    threads : worker threads for the chunks of a color class (default: the CPUs this
-        process may use).
-    initial : warm start: the result of an earlier call on the same graph and domain made
-        with ``keep_scalings=True``.  The sweeps start from its edge log-scalings times
-        ``initial.gamma / gamma`` (the dual potentials :math:`\gamma \log v_e` carry over
-        when gamma changes: :math:`\varepsilon`-scaling) instead of zeros.  Same fixed point,
-        another start.
+    acceleration : ``"none"`` (default: plain Alg. 4) or ``"over-relaxation"``: every
+        sweep's update of the log-scalings is over-relaxed by :math:`\omega` adapted from
+        the measured rate (:class:`OverRelaxation`, once the residual is below 0.5; backs
+        off if it grows).  Same fixed point; fixed nodes take the plain Sinkhorn update.
+    threads : worker threads for the chunks of a color class (default: the usable CPUs).
+    initial : warm start: the result of an earlier call on the same graph and domain with
+        ``keep_scalings=True``; its edge log-scalings times ``initial.gamma / gamma``
+        (:math:`\varepsilon`-scaling) replace the zero start.  Same fixed point.
     keep_scalings : return the final edge log-scalings in ``scalings`` (``2m x n`` floats,
         the solver's largest array, handed over without a copy).
     start_masses : optional ``(n, n_nodes)`` guesses of the distributions (e.g. a coarser
-        solve prolonged): before the first sweep every edge takes one Sinkhorn step
-        towards the guesses at its two ends (first ends, then second ends; one kernel
-        application per edge end).  Same fixed point, another start.
+        solve prolonged): first every edge takes one Sinkhorn step towards the guesses at
+        its two ends (first ends, then second ends).  Same fixed point, another start.
     scalings_dtype : ``np.float64`` (default) or ``np.float32``: the storage of the edge
-        ends' log-scalings (``2m x n``, the solver's largest array), of the barycenters'
-        log-densities and of the returned ``masses``.  float32 halves them; the kernel
-        applications, barycenters and gaps are computed in float64 either way, so only the
-        stored values are rounded (relative 6e-8).
-    method : the kernel, as in :func:`barycenter` (``"auto"``: the geodesic kernel on
-        triangle meshes where offered, else the heat kernel; ``result.method`` says which).
+        log-scalings, of the barycenters' log-densities and of ``masses``; the arithmetic
+        is float64 either way, so only stored values are rounded (relative 6e-8).
+    method : the kernel, as in :func:`barycenter` (``result.method`` says which).
 
     Returns
     -------
@@ -318,63 +292,124 @@ def wasserstein_propagation(
     """
     n_nodes, e, w, keys = _check_graph(n_nodes, edges, edge_weights, fixed)
     accelerate = check_acceleration(acceleration, BARYCENTER_ACCELERATIONS) == "over-relaxation"
-    relax = OverRelaxation(enabled=accelerate, window=_RELAX_WINDOW)
-    best = np.inf
     # The sweeps solve in threads: the triangular backend's solves release the GIL.
     setup = prepare(domain, gamma=gamma, t=t, substeps=substeps, tol=tol, max_iter=max_iter,
                     progress=progress, should_cancel=should_cancel, backend="triangular",
                     method=shape_method(domain, method))
     setup.monitor = watch_stagnation(setup, project=max_iter is None)  # stalled -> stop
-    a = setup.areas
+    fixed_m = _fixed_masses(domain, fixed, keys, setup.tol)
+    ends = _EdgeEnds.of_graph(n_nodes, e, w, domain.n, edge_kernels, node_scalings)
+    if np.dtype(scalings_dtype) not in (np.float32, np.float64):
+        raise InputError("scalings_dtype must be float32 or float64", field="scalings_dtype")
+    T = ends.own_side_logs(slice(None), scalings_dtype)
+    if initial is not None:
+        _warm_start(T, initial, ends.order, setup.gamma)
+    sweeper = _Sweeper(setup, T, ends.node, ends.opposite, ends.weight, fixed_m, threads)
+    is_fixed = np.isin(np.arange(n_nodes), list(fixed_m))
+    if start_masses is not None:
+        if initial is not None:
+            raise InputError("give initial or start_masses, not both", field="start_masses")
+        _start_from_masses(sweeper, start_masses, ends, is_fixed, setup.areas)
+    it, residual, every_node = _sweep_to_convergence(sweeper, ends, is_fixed, setup, accelerate)
+    free = np.flatnonzero(~is_fixed)
+    masses = _final_masses(sweeper, free, fixed_m, setup.areas)
+    values = _edge_values(T, masses, ends, keep_scalings)
+    return PropagationResult(
+        masses=masses, iterations=int(it), residual=float(residual),
+        converged=bool(residual <= setup.tol and every_node), free_nodes=free,
+        gamma=setup.gamma, t=setup.t, edge_values=setup.gamma * values,
+        colors=len(ends.by_color), kernel_columns=sweeper.columns,
+        scalings=T if keep_scalings else None, end_order=ends.order, method=setup.method)
+
+
+def _fixed_masses(domain, fixed, keys, tol) -> dict:
+    """``{node: (n,) masses}`` of the fixed nodes, checked (one distribution each, every
+    component of the domain carrying mass)."""
     n = domain.n
     fixed_m = {u: masses_block(domain, fixed[key], f"fixed[{u}]")
                for u, key in zip(keys, fixed, strict=True)}
     for u, m in fixed_m.items():
         if m.ndim != 1:
             raise InputError(f"fixed[{u}] must have shape ({n},)", field=f"fixed[{u}]")
-    check_components(domain, np.stack(list(fixed_m.values()), axis=1), setup.tol, "fixed")
-    log_p, log_q = check_edge_kernels(edge_kernels, len(e), n)
-    log_d = check_node_scalings(node_scalings, n_nodes, n)
+    check_components(domain, np.stack(list(fixed_m.values()), axis=1), tol, "fixed")
+    return fixed_m
 
-    # Edge ends: end (k, s) sits at node e[k, s].  T holds, per end, its log-scaling plus
-    # its own-side log-rescaling (log p/q of eq. 3.18 and log d of the node): the kernel
-    # input seen from the opposite end is exp(T), and the plan's marginal at the end is
-    # T + log H_t exp(T_opposite), so a sweep never forms the rescalings again.
-    is_fixed = np.zeros(n_nodes, dtype=bool)
-    is_fixed[list(fixed_m)] = True
-    color = greedy_coloring(n_nodes, e)
-    degree = np.bincount(e.ravel(), minlength=n_nodes)
-    end_edge = np.concatenate([np.arange(len(e)), np.arange(len(e))])
-    end_side = np.repeat(np.array([0, 1]), len(e))
-    end_node = e[end_edge, end_side]
-    # Rows of T ordered by (color, node): the ends of a node are contiguous.
-    order = np.lexsort((end_node, color[end_node]))
-    end_edge, end_side, end_node = end_edge[order], end_side[order], end_node[order]
-    row_of = np.empty((len(e), 2), dtype=np.int64)
-    row_of[end_edge, end_side] = np.arange(2 * len(e))
-    opposite = row_of[end_edge, 1 - end_side]
-    if np.dtype(scalings_dtype) not in (np.float32, np.float64):
-        raise InputError("scalings_dtype must be float32 or float64", field="scalings_dtype")
-    T = _own_side_logs(log_p, log_q, log_d, end_edge, end_side, end_node, n, scalings_dtype)
-    end_order = end_side * len(e) + end_edge
-    if initial is not None:
-        _warm_start(T, initial, end_order, setup.gamma)
-    sweeper = _Sweeper(setup, T, end_node, opposite,
-                       w[end_edge] / np.bincount(e.ravel(), weights=np.repeat(w, 2),
-                                                 minlength=n_nodes)[end_node],
-                       fixed_m, threads)
-    by_color = [np.flatnonzero(color == c) for c in range(int(color.max()) + 1)]
-    free = np.flatnonzero(~is_fixed)
-    if start_masses is not None:
-        if initial is not None:
-            raise InputError("give initial or start_masses, not both", field="start_masses")
-        _sinkhorn_start(sweeper, start_masses, end_side, end_node, opposite, n_nodes, a)
-        # Alg. 4's fixed point needs the weighted mean of the log-scalings at a free node to
-        # be 0 (its dual constraint, kept by every barycenter update): centre them.
-        own = _own_side_logs(log_p, log_q, log_d, end_edge, end_side, end_node, n)
-        _centre_free_nodes(T, own, sweeper.end_weight, end_node, is_fixed)
-        del own
 
+@dataclass
+class _EdgeEnds:
+    """The edge ends of the graph, the rows of the sweeps' array ``T``, with their own-side
+    rescalings.
+
+    End ``(k, s)`` sits at node ``edges[k, s]``.  ``T`` holds, per end, its log-scaling plus
+    its own-side log-rescaling (log p/q of eq. 3.18 and log d of the node): the kernel input
+    seen from the opposite end is exp(T), and the plan's marginal at the end is
+    T + log H_t exp(T_opposite), so a sweep never forms the rescalings again.  Rows are
+    ordered by (color, node): the ends of a node are contiguous.  ``edge``, ``side``,
+    ``node``: per row; ``opposite``: the row of the other end of its edge; ``order``: the
+    row's index ``side * m + edge``; ``weight``: its edge weight over the node's total;
+    ``by_color``: the nodes of each color class; ``degree``: per node.
+    """
+
+    edge: np.ndarray
+    side: np.ndarray
+    node: np.ndarray
+    opposite: np.ndarray
+    order: np.ndarray
+    weight: np.ndarray
+    by_color: list
+    degree: np.ndarray
+    n: int
+    log_p: np.ndarray | None
+    log_q: np.ndarray | None
+    log_d: np.ndarray | None
+
+    @classmethod
+    def of_graph(cls, n_nodes, e, w, n, edge_kernels, node_scalings):
+        """The ends of the edges ``e`` (weights ``w``) of a graph of ``n_nodes`` nodes, with
+        the rescalings ``edge_kernels`` and ``node_scalings`` checked."""
+        log_p, log_q = check_edge_kernels(edge_kernels, len(e), n)
+        log_d = check_node_scalings(node_scalings, n_nodes, n)
+        color = greedy_coloring(n_nodes, e)
+        degree = np.bincount(e.ravel(), minlength=n_nodes)
+        end_edge = np.concatenate([np.arange(len(e)), np.arange(len(e))])
+        end_side = np.repeat(np.array([0, 1]), len(e))
+        end_node = e[end_edge, end_side]
+        order = np.lexsort((end_node, color[end_node]))
+        end_edge, end_side, end_node = end_edge[order], end_side[order], end_node[order]
+        row_of = np.empty((len(e), 2), dtype=np.int64)
+        row_of[end_edge, end_side] = np.arange(2 * len(e))
+        weight = w[end_edge] / np.bincount(e.ravel(), weights=np.repeat(w, 2),
+                                           minlength=n_nodes)[end_node]
+        return cls(end_edge, end_side, end_node, row_of[end_edge, 1 - end_side],
+                   end_side * len(e) + end_edge, weight,
+                   [np.flatnonzero(color == c) for c in range(int(color.max()) + 1)], degree,
+                   n, log_p, log_q, log_d)
+
+    def own_side_logs(self, rows, dtype=np.float64):
+        """``(ends, n)`` own-side log-rescalings of the ends ``rows``."""
+        return _own_side_logs(self.log_p, self.log_q, self.log_d, self.edge[rows],
+                              self.side[rows], self.node[rows], self.n, dtype)
+
+
+def _start_from_masses(sweeper, start_masses, ends, is_fixed, a) -> None:
+    """Start the sweeps from guesses of the distributions: one Sinkhorn step per edge
+    towards ``start_masses``, then the free nodes' log-scalings centred."""
+    _sinkhorn_start(sweeper, start_masses, ends.side, ends.node, ends.opposite,
+                    len(is_fixed), a)
+    # Alg. 4's fixed point needs the weighted mean of the log-scalings at a free node to
+    # be 0 (its dual constraint, kept by every barycenter update): centre them.
+    own = ends.own_side_logs(slice(None))
+    _centre_free_nodes(sweeper.T, own, sweeper.end_weight, ends.node, is_fixed)
+    del own
+
+
+def _sweep_to_convergence(sweeper, ends, is_fixed, setup, accelerate):
+    """Run sweeps of the color classes until the residual is below ``setup.tol`` after a
+    sweep over every node (or the solve stops); return ``(iterations, residual,
+    every_node)``."""
+    n_nodes = len(is_fixed)
+    relax = OverRelaxation(enabled=accelerate, window=_RELAX_WINDOW)
+    best = np.inf
     it = 0
     residual = np.inf
     omega = 1.0
@@ -389,13 +424,13 @@ def wasserstein_propagation(
         while True:
             sweep = 0.0
             visited = 0
-            for nodes in by_color:
+            for nodes in ends.by_color:
                 if not visit_all:
                     # An end's marginal moves by at most the L1 change of its plan, and the
                     # node's barycenter by at most the largest such move: gap <= 2 pending.
                     nodes = nodes[2.0 * pending[nodes] + settled[nodes] >= _ACTIVE * setup.tol]
                 visited += len(nodes)
-                for chunk, (worst, gaps) in sweeper.run(nodes, degree, omega):
+                for chunk, (worst, gaps) in sweeper.run(nodes, ends.degree, omega):
                     sweep = max(sweep, worst)
                     pending[chunk.nodes] = 0.0
                     node_gap = np.maximum.reduceat(gaps, chunk.starts[:-1])
@@ -403,7 +438,7 @@ def wasserstein_propagation(
                                                     (omega - 1.0) * node_gap)
                     # The plan of an end's edge changed by the end's marginal change:
                     # its gap, over-relaxed by omega.
-                    np.add.at(pending, end_node[opposite[chunk.rows]], omega * gaps)
+                    np.add.at(pending, ends.node[ends.opposite[chunk.rows]], omega * gaps)
             every_node = visited == n_nodes
             residual = sweep if np.isfinite(sweep) else float("inf")
             if accelerate and residual < _RELAX_BELOW:
@@ -421,38 +456,44 @@ def wasserstein_propagation(
                 break
             visit_all = residual <= setup.tol  # certify with a sweep over every node
             it += 1
-    # The masses overwrite the barycenters' log-densities, a block of nodes at a time (no
-    # second (n_nodes, n) array; the blocks' temporaries stay small); ``masses`` is its
-    # transpose, a view.
+    return it, residual, every_node
+
+
+def _final_masses(sweeper, free, fixed_m, a) -> np.ndarray:
+    """``(n, n_nodes)`` masses: the free nodes' barycenters and the fixed inputs.
+
+    The masses overwrite the barycenters' log-densities, a block of nodes at a time (no
+    second (n_nodes, n) array; the blocks' temporaries stay small); the result is its
+    transpose, a view.
+    """
     log_bar, sweeper.log_bar = sweeper.log_bar, None
     for c0 in range(0, len(free), MASS_COLUMNS):
         cols = free[c0:c0 + MASS_COLUMNS]
         log_bar[cols] = masses_from_log(log_bar[cols].T, a).T
     for u, m in fixed_m.items():
         log_bar[u] = m
-    masses = log_bar.T
-    # Edge values from the scalings S = T - (own-side rescalings), one chunk at a time; with
-    # keep_scalings, S replaces T in place (no second (2m, n) array).
-    values = np.zeros(len(e))
+    return log_bar.T
+
+
+def _edge_values(T, masses, ends, keep_scalings) -> np.ndarray:
+    r"""``(m,)`` per edge :math:`\langle m_u, \log v_e\rangle + \langle m_{u'}, \log w_e\rangle`.
+
+    From the scalings S = T - (own-side rescalings), one chunk at a time; with
+    ``keep_scalings``, S replaces T in place (no second (2m, n) array).
+    """
+    values = np.zeros(len(T) // 2)
     node_mass = masses.T
     for r0 in range(0, len(T), _SOLVE_COLUMNS):
         rows = slice(r0, r0 + _SOLVE_COLUMNS)
-        own = _own_side_logs(log_p, log_q, log_d, end_edge[rows], end_side[rows],
-                             end_node[rows], n)
-        ms = node_mass[end_node[rows]]
+        own = ends.own_side_logs(rows)
+        ms = node_mass[ends.node[rows]]
         # Where an end's own side is zero (log -inf) its scaling is undefined: 0.
         s_log = np.where(own > -np.inf, T[rows] - own, 0.0)
-        np.add.at(values, end_edge[rows],
+        np.add.at(values, ends.edge[rows],
                   np.einsum("ij,ij->i", ms, np.where(ms > 0, s_log, 0.0)))
         if keep_scalings:
             T[rows] = s_log
-    return PropagationResult(masses=masses, iterations=int(it), residual=float(residual),
-                             converged=bool(residual <= setup.tol and every_node),
-                             free_nodes=free, gamma=setup.gamma, t=setup.t,
-                             edge_values=setup.gamma * values, colors=len(by_color),
-                             kernel_columns=sweeper.columns,
-                             scalings=T if keep_scalings else None,
-                             end_order=end_order, method=setup.method)
+    return values
 
 
 def _sinkhorn_start(sweeper, start_masses, end_side, end_node, opposite, n_nodes, a) -> None:

@@ -311,6 +311,34 @@ def _gltf_problem(data: bytes, file_type: str) -> str | None:
     return None
 
 
+def _nonmanifold_vertex_count(f, nv, edges, counts, face_adj) -> int:
+    """Vertices whose faces do not form one fan: the corners of a vertex joined across its
+    interior (two-face) edges, counted in connected pieces per vertex."""
+    nf = len(f)
+    corner = np.arange(3 * nf).reshape(3, nf).T  # corner id of (face, local vertex)
+    pairs = []
+    interior = np.flatnonzero(counts == 2)
+    edge_faces = face_adj.T.tocsr()
+    fa = edge_faces.indices.reshape(-1)
+    starts = edge_faces.indptr
+    f1 = fa[starts[interior]]
+    f2 = fa[starts[interior] + 1]
+    for endpoint in (0, 1):
+        vert = edges[interior, endpoint]
+        c1 = corner[f1, np.argmax(f[f1] == vert[:, None], axis=1)]
+        c2 = corner[f2, np.argmax(f[f2] == vert[:, None], axis=1)]
+        pairs.append(np.stack([c1, c2], axis=1))
+    pairs = np.concatenate(pairs) if pairs else np.zeros((0, 2), dtype=np.int64)
+    corner_graph = sp.coo_matrix(
+        (np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(3 * nf, 3 * nf)
+    )
+    _, fan = connected_components(corner_graph, directed=False)
+    corner_vertex = f.T.reshape(-1)  # corner id k = local*nf + face
+    fans = np.unique(np.stack([corner_vertex, fan[np.arange(3 * nf)]], axis=1), axis=0)
+    fans_per_vertex = np.bincount(fans[:, 0], minlength=nv)
+    return int((fans_per_vertex > 1).sum())
+
+
 class TriangleMesh(Domain):
     r"""A triangle mesh rescaled to unit total area, with its operators.
 
@@ -499,29 +527,8 @@ class TriangleMesh(Domain):
         n_comp, labels = connected_components(vertex_graph, directed=False)
         self._components = (int(n_comp), labels)
 
-        # Non-manifold vertices: the faces around a vertex do not form one fan.
-        corner = np.arange(3 * nf).reshape(3, nf).T  # corner id of (face, local vertex)
-        pairs = []
-        interior = np.flatnonzero(counts == 2)
-        edge_faces = face_adj.T.tocsr()
-        fa = edge_faces.indices.reshape(-1)
-        starts = edge_faces.indptr
-        f1 = fa[starts[interior]]
-        f2 = fa[starts[interior] + 1]
-        for endpoint in (0, 1):
-            vert = edges[interior, endpoint]
-            c1 = corner[f1, np.argmax(f[f1] == vert[:, None], axis=1)]
-            c2 = corner[f2, np.argmax(f[f2] == vert[:, None], axis=1)]
-            pairs.append(np.stack([c1, c2], axis=1))
-        pairs = np.concatenate(pairs) if pairs else np.zeros((0, 2), dtype=np.int64)
-        corner_graph = sp.coo_matrix(
-            (np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(3 * nf, 3 * nf)
-        )
-        _, fan = connected_components(corner_graph, directed=False)
-        corner_vertex = f.T.reshape(-1)  # corner id k = local*nf + face
-        fans = np.unique(np.stack([corner_vertex, fan[np.arange(3 * nf)]], axis=1), axis=0)
-        fans_per_vertex = np.bincount(fans[:, 0], minlength=nv)
-        self.diagnostics.nonmanifold_vertices = int((fans_per_vertex > 1).sum())
+        self.diagnostics.nonmanifold_vertices = _nonmanifold_vertex_count(
+            f, nv, edges, counts, face_adj)
 
         # Boundary loops: connected pieces of the boundary edge graph.
         if len(self._boundary_edges):
@@ -546,7 +553,10 @@ class TriangleMesh(Domain):
         self.component_euler = comp_v - comp_e + comp_f
         self.component_genus = (2 - self.component_euler - comp_b) // 2
         self.component_boundary_loops = comp_b
+        self._warn_about_topology(n_comp)
 
+    def _warn_about_topology(self, n_comp: int) -> None:
+        """Add a warning to the diagnostics for each topological defect found."""
         d = self.diagnostics
         if n_comp > 1:
             d.warnings.append(

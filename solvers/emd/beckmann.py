@@ -276,10 +276,7 @@ def earth_movers_distance(mesh, mu0, mu1, *, method: str = "auto", basis: str = 
     weights = check_face_weights(face_weights, ops.n_faces)
     matrix = weights is not None and weights.ndim == 3
     method, basis = resolve_method(method, basis, matrix)
-    if tol is None:
-        tol = DEFAULT_TOL.get((method, basis), 1e-4)
-    if not (np.isfinite(tol) and tol > 0):
-        raise InputError(f"tol must be positive, got {tol}", field="tol")
+    tol = _tolerance(tol, method, basis)
     if basis == "flow" and weights is not None and weights.ndim == 3:
         raise InputError("matrix face_weights need basis='full' or 'spectral'",
                          field="face_weights")
@@ -301,8 +298,16 @@ def earth_movers_distance(mesh, mu0, mu1, *, method: str = "auto", basis: str = 
     return EMDResult(value=_cost(ops, flow, weights), flow=flow, potential=potential,
                      lower_bound=lower, iterations=iterations, primal_residual=r,
                      dual_residual=s, residual=max(r, s), converged=bool(r <= tol and s <= tol),
-                     method=method,
-                     basis=basis, beta=beta_final)
+                     method=method, basis=basis, beta=beta_final)
+
+
+def _tolerance(tol, method: str, basis: str) -> float:
+    """``tol`` checked, or the default of ``(method, basis)`` (:data:`DEFAULT_TOL`)."""
+    if tol is None:
+        tol = DEFAULT_TOL.get((method, basis), 1e-4)
+    if not (np.isfinite(tol) and tol > 0):
+        raise InputError(f"tol must be positive, got {tol}", field="tol")
+    return tol
 
 
 def _ipm(ops, v, m0, m1, weights, tol, max_iter, monitor) -> EMDResult:

@@ -724,19 +724,9 @@ def _barycenter(mesh, mus, weights, *, squared, face_weights, tol, max_iter, max
 
 
 def w1_multistep_paths(
-    mesh: TriangleMesh,
-    mu_start,
-    mu_goal,
-    n_steps: int,
-    *,
-    capacity=None,
-    obstacle_vertices=None,
-    face_weights=None,
-    tol: float = 1e-8,
-    max_iter: int = 200,
-    max_vertices: int = MAX_VERTICES,
-    time_limit: float | None = None,
-    progress=None,
+    mesh: TriangleMesh, mu_start, mu_goal, n_steps: int, *, capacity=None,
+    obstacle_vertices=None, face_weights=None, tol: float = 1e-8, max_iter: int = 200,
+    max_vertices: int = MAX_VERTICES, time_limit: float | None = None, progress=None,
     should_cancel=None,
 ) -> W1MultistepResult:
     r"""A capacitated multi-step W1 chain from a start to a goal, as one convex program.

@@ -394,6 +394,36 @@ def _ipm_support(n, edges, w, nodes, h, cost, monitor, time_limit, ipm_iteration
     return support, H, res
 
 
+def _propagate_lp(n, edges, w, nodes, h, C, monitor, *, time_limit, lp_method,
+                  ipm_iterations) -> CircularPropagationResult:
+    """:func:`propagate_circular` by the exact LP (column generation, started as
+    ``lp_method`` says: ``"auto"`` resolved here)."""
+    n_free = n - len(np.unique(nodes))
+    if lp_method == "auto":
+        lp_method = "hybrid" if n_free > 0 and len(edges) * len(C)**2 >= 200_000 else "simplex"
+    if n_free == 0:
+        lp_method = "simplex"
+    support = guess = None
+    ipm_its = None
+    if lp_method == "hybrid":
+        hc = np.where(h > 1e-12, h, 0.0)
+        hc = hc / hc.sum(axis=1, keepdims=True)
+        support, guess, ipm = _ipm_support(n, edges, w, nodes, hc, C, monitor, time_limit,
+                                           int(ipm_iterations))
+        ipm_its = ipm["iterations"]
+    lp = _solve_lp(n, edges, w, nodes, h, C, monitor, time_limit, support=support,
+                   guess=guess)
+    value, lower = lp["value"], lp["lower_bound"]
+    certified = value - lower <= 1e-7 * max(1.0, abs(value))
+    return CircularPropagationResult(
+        method="lp", histograms=lp["histograms"], value=value, lp_value=value,
+        gap=0.0, labeled=nodes, iterations=lp["rounds"], residual=lp["violation"],
+        converged=certified and lp["violation"] <= 1e-7, lower_bound=lower,
+        min_reduced_cost=lp["min_reduced_cost"], certified=certified,
+        plan_entries=lp["plan_entries"], simplex_iterations=lp["simplex_iterations"],
+        lp_method=lp_method, ipm_iterations=ipm_its)
+
+
 def propagate_circular(graph: Graph, labeled, histograms, *, bins,
                        method: Literal["lp", "entropic"] = "lp", cost: np.ndarray | None = None,
                        gamma: float | None = None, tol: float = 1e-6,
@@ -475,30 +505,8 @@ def propagate_circular(graph: Graph, labeled, histograms, *, bins,
         raise InputError(f"lp_method must be 'auto', 'hybrid' or 'simplex', got {lp_method!r}",
                          field="lp_method")
     if method == "lp":
-        n_free = n - len(np.unique(nodes))
-        if lp_method == "auto":
-            lp_method = "hybrid" if n_free > 0 and len(edges) * b.count**2 >= 200_000 else "simplex"
-        if n_free == 0:
-            lp_method = "simplex"
-        support = guess = None
-        ipm_its = None
-        if lp_method == "hybrid":
-            hc = np.where(h > 1e-12, h, 0.0)
-            hc = hc / hc.sum(axis=1, keepdims=True)
-            support, guess, ipm = _ipm_support(n, edges, w, nodes, hc, C, monitor, time_limit,
-                                               int(ipm_iterations))
-            ipm_its = ipm["iterations"]
-        lp = _solve_lp(n, edges, w, nodes, h, C, monitor, time_limit, support=support,
-                       guess=guess)
-        value, lower = lp["value"], lp["lower_bound"]
-        certified = value - lower <= 1e-7 * max(1.0, abs(value))
-        return CircularPropagationResult(
-            method="lp", histograms=lp["histograms"], value=value, lp_value=value,
-            gap=0.0, labeled=nodes, iterations=lp["rounds"], residual=lp["violation"],
-            converged=certified and lp["violation"] <= 1e-7, lower_bound=lower,
-            min_reduced_cost=lp["min_reduced_cost"], certified=certified,
-            plan_entries=lp["plan_entries"], simplex_iterations=lp["simplex_iterations"],
-            lp_method=lp_method, ipm_iterations=ipm_its)
+        return _propagate_lp(n, edges, w, nodes, h, C, monitor, time_limit=time_limit,
+                             lp_method=lp_method, ipm_iterations=ipm_iterations)
     if cost is not None:
         raise InputError("method='entropic' uses the circle's heat kernel; a custom cost "
                          "needs method='lp'", field="cost")

@@ -328,6 +328,74 @@ def _direction(lp: StructuredLP, state, rcp, rcm, refine):
     return dXp, dXm, dyr, dyc, dz, dSp, dSm, its
 
 
+def _mehrotra_start(lp: StructuredLP):
+    """Mehrotra's starting point ``(X, mu, S, Smu, yr, yc, z)``: x = A^T (A A^T)^{-1} b,
+    y = (A A^T)^{-1} A c, s = c - A^T y, shifted to the interior."""
+    B, m, nf = lp.B, lp.m, lp.nf
+    ones, ones_mu = np.ones((m, B, B)), np.ones((nf, B))
+    lp.prepare(ones, ones_mu)
+    bc0 = lp.bc.copy()
+    yr0, yc0, z0, _ = lp.normal_solve(lp.br, bc0, np.ones(nf))
+    X, mu = lp.At_y(yr0, yc0, z0)
+    ar, ac, az = lp.A_x(lp.c, np.zeros((nf, B)))
+    yr, yc, z, _ = lp.normal_solve(ar, ac, az)
+    yc[:, -1] = 0.0
+    tp, tm = lp.At_y(yr, yc, z)
+    S, Smu = lp.c - tp, -tm
+    dx = max(-1.5 * min(float(X.min()), float(mu.min(initial=np.inf))), 0.0)
+    ds = max(-1.5 * min(float(S.min()), float(Smu.min(initial=np.inf))), 0.0)
+    X, mu, S, Smu = X + dx, mu + dx, S + ds, Smu + ds
+    xs = float(np.sum(X * S) + np.sum(mu * Smu))
+    dx2 = 0.5 * xs / (float(S.sum()) + float(Smu.sum()))
+    ds2 = 0.5 * xs / (float(X.sum()) + float(mu.sum()))
+    X, mu, S, Smu = X + dx2, mu + dx2, S + ds2, Smu + ds2
+    return X, mu, S, Smu, yr, yc, z
+
+
+def _residuals(lp: StructuredLP, X, mu, S, Smu, yr, yc, z):
+    """Primal ``(rpr, rpc, rpz)`` and dual ``(rdp, rdm)`` residuals of an iterate."""
+    ar, ac, am = lp.A_x(X, mu)
+    rpr, rpc, rpz = lp.br - ar, lp.bc - ac, 1.0 - am
+    rpc[:, -1] = 0.0
+    tp, tm = lp.At_y(yr, yc, z)
+    rdp, rdm = lp.c - tp - S, -tm - Smu
+    return (rpr, rpc, rpz), (rdp, rdm)
+
+
+def _predictor_corrector_step(lp: StructuredLP, iterate, residuals, mu_c, eta, refine):
+    """One Mehrotra step on the iterate ``(X, mu, S, Smu, yr, yc, z)``, in place, with the
+    normal equations already prepared; returns the CG iterations of its two solves."""
+    X, mu, S, Smu, yr, yc, z = iterate
+    total = X.size + mu.size
+    st = (X, mu, S, Smu, X / S, mu / Smu, *residuals)
+
+    def direction(rcp, rcm):
+        return _direction(lp, st, rcp, rcm, refine)
+
+    # predictor
+    aff = direction(-X * S, -mu * Smu)
+    ap = min(1.0, _max_step(X, aff[0]), _max_step(mu, aff[1]))
+    ad = min(1.0, _max_step(S, aff[5]), _max_step(Smu, aff[6]))
+    mu_aff = (float(np.sum((X + ap * aff[0]) * (S + ad * aff[5])))
+              + float(np.sum((mu + ap * aff[1]) * (Smu + ad * aff[6])))) / total
+    sigma = (mu_aff / mu_c) ** 3
+    # corrector
+    cor = direction(-X * S - aff[0] * aff[5] + sigma * mu_c,
+                    -mu * Smu - aff[1] * aff[6] + sigma * mu_c)
+    dXp, dXm, dyr, dyc, dz, dSp, dSm, _ = cor
+    ap = min(1.0, eta * _max_step(X, dXp), eta * _max_step(mu, dXm))
+    ad = min(1.0, eta * _max_step(S, dSp), eta * _max_step(Smu, dSm))
+    X += ap * dXp
+    mu += ap * dXm
+    S += ad * dSp
+    Smu += ad * dSm
+    yr += ad * dyr
+    yc += ad * dyc
+    z += ad * dz
+    yc[:, -1] = 0.0
+    return aff[-1] + cor[-1]
+
+
 def solve_ipm(n, edges, w, nodes, h, cost, monitor, *, tol=1e-9, max_iter=200,
               backend="auto", time_limit=None, reg=1e-10, reg_p=1e-10, refine=3):
     """Mehrotra predictor-corrector on :class:`StructuredLP`.
@@ -345,27 +413,8 @@ def solve_ipm(n, edges, w, nodes, h, cost, monitor, *, tol=1e-9, max_iter=200,
 
     t_start = time.perf_counter()
     lp = StructuredLP(n, edges, w, nodes, h, cost, backend=backend)
-    B, m, nf = lp.B, lp.m, lp.nf
-    # Mehrotra's starting point: x = A^T (A A^T)^{-1} b, y = (A A^T)^{-1} A c, s = c - A^T y,
-    # shifted to the interior
-    ones, ones_mu = np.ones((m, B, B)), np.ones((nf, B))
-    lp.prepare(ones, ones_mu)
-    bc0 = lp.bc.copy()
-    yr0, yc0, z0, _ = lp.normal_solve(lp.br, bc0, np.ones(nf))
-    X, mu = lp.At_y(yr0, yc0, z0)
-    ar, ac, az = lp.A_x(lp.c, np.zeros((nf, B)))
-    yr, yc, z, _ = lp.normal_solve(ar, ac, az)
-    yc[:, -1] = 0.0
-    tp, tm = lp.At_y(yr, yc, z)
-    S, Smu = lp.c - tp, -tm
+    X, mu, S, Smu, yr, yc, z = _mehrotra_start(lp)
     total = X.size + mu.size
-    dx = max(-1.5 * min(float(X.min()), float(mu.min(initial=np.inf))), 0.0)
-    ds = max(-1.5 * min(float(S.min()), float(Smu.min(initial=np.inf))), 0.0)
-    X, mu, S, Smu = X + dx, mu + dx, S + ds, Smu + ds
-    xs = float(np.sum(X * S) + np.sum(mu * Smu))
-    dx2 = 0.5 * xs / (float(S.sum()) + float(Smu.sum()))
-    ds2 = 0.5 * xs / (float(X.sum()) + float(mu.sum()))
-    X, mu, S, Smu = X + dx2, mu + dx2, S + ds2, Smu + ds2
     b_norm = 1.0 + max(float(np.abs(lp.br).max(initial=0)), float(np.abs(lp.bc).max(initial=0)),
                        1.0)
     c_norm = 1.0 + float(np.abs(lp.c).max())
@@ -375,11 +424,8 @@ def solve_ipm(n, edges, w, nodes, h, cost, monitor, *, tol=1e-9, max_iter=200,
     it = 0
     status = "max_iter"
     while it < max_iter:
-        ar, ac, am = lp.A_x(X, mu)
-        rpr, rpc, rpz = lp.br - ar, lp.bc - ac, 1.0 - am
-        rpc[:, -1] = 0.0
-        tp, tm = lp.At_y(yr, yc, z)
-        rdp, rdm = lp.c - tp - S, -tm - Smu
+        residuals = _residuals(lp, X, mu, S, Smu, yr, yc, z)
+        (rpr, rpc, rpz), (rdp, rdm) = residuals
         pobj = float(np.sum(lp.c * X))
         dobj = lp.b_dot(yr, yc, z)
         gap = abs(pobj - dobj) / (1.0 + abs(pobj))
@@ -403,45 +449,14 @@ def solve_ipm(n, edges, w, nodes, h, cost, monitor, *, tol=1e-9, max_iter=200,
             break
         monitor.check_cancel("in the IPM")
         it += 1
-        D = 1.0 / (S / X + reg_p)
-        Dmu = 1.0 / (Smu / mu + reg_p)
         lp.delta = reg
         try:
-            lp.prepare(D, Dmu)
+            lp.prepare(1.0 / (S / X + reg_p), 1.0 / (Smu / mu + reg_p))
         except (ConvergenceError, np.linalg.LinAlgError):
             status = "breakdown"
             break
-        D0, Dmu0 = X / S, mu / Smu
-
-        st = (X, mu, S, Smu, D0, Dmu0, (rpr, rpc, rpz), (rdp, rdm))
-
-        def direction(rcp, rcm, st=st):
-            return _direction(lp, st, rcp, rcm, refine)
-
-        # predictor
-        aff = direction(-X * S, -mu * Smu)
-        cg_total += aff[-1]
-        ap = min(1.0, _max_step(X, aff[0]), _max_step(mu, aff[1]))
-        ad = min(1.0, _max_step(S, aff[5]), _max_step(Smu, aff[6]))
-        mu_aff = (float(np.sum((X + ap * aff[0]) * (S + ad * aff[5])))
-                  + float(np.sum((mu + ap * aff[1]) * (Smu + ad * aff[6])))) / total
-        sigma = (mu_aff / mu_c) ** 3
-        # corrector
-        cor = direction(-X * S - aff[0] * aff[5] + sigma * mu_c,
-                        -mu * Smu - aff[1] * aff[6] + sigma * mu_c)
-        cg_total += cor[-1]
-        dXp, dXm, dyr, dyc, dz, dSp, dSm, _ = cor
-        eta = 0.99 if it > 1 else 0.9
-        ap = min(1.0, eta * _max_step(X, dXp), eta * _max_step(mu, dXm))
-        ad = min(1.0, eta * _max_step(S, dSp), eta * _max_step(Smu, dSm))
-        X += ap * dXp
-        mu += ap * dXm
-        S += ad * dSp
-        Smu += ad * dSm
-        yr += ad * dyr
-        yc += ad * dyc
-        z += ad * dz
-        yc[:, -1] = 0.0
+        cg_total += _predictor_corrector_step(lp, (X, mu, S, Smu, yr, yc, z), residuals, mu_c,
+                                              0.99 if it > 1 else 0.9, refine)
     merit, best_it, X, mu, yr, yc, z = best
     return {"lp": lp, "X": X, "mu": mu, "yr": yr, "yc": yc, "z": z, "iterations": it,
             "best_iteration": best_it, "merit": merit, "status": status, "history": history,

@@ -20,7 +20,9 @@ Wasserstein propagation (Alg. 4) on the target's heat kernel with batched sweeps
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -353,32 +355,15 @@ def _one_blas_thread(fn):
 
 @_one_blas_thread
 def soft_map(
-    source,
-    target,
-    landmarks=None,
-    *,
-    samples: int = 1024,
-    target_points: int | str | None = "auto",
-    tau: float = 0.05,
-    gamma: float | None = None,
-    substeps: int = 1,
-    k: int = 100,
-    n_energies: int = 100,
-    wks_weight: float = 1.0,
-    landmark_weight: float = 1.0,
-    landmark_method: str = "geodesic",
-    norm: str = "l1",
-    descriptors: tuple | None = None,
-    tol: float = 1e-4,
-    max_iter: int = 1000,
-    acceleration: str = "over-relaxation",
-    top_k: int | None = None,
-    extraction: str = "mode",
-    refine: str = "symmetric-zoomout",
-    zoomout_range: tuple[int, int, int] = (20, 80, 2),
-    max_bytes: int | None = None,
-    multiscale: bool = False,
-    progress: Callable[[int, float], None] | None = None,
+    source, target, landmarks=None, *, samples: int = 1024,
+    target_points: int | str | None = "auto", tau: float = 0.05, gamma: float | None = None,
+    substeps: int = 1, k: int = 100, n_energies: int = 100, wks_weight: float = 1.0,
+    landmark_weight: float = 1.0, landmark_method: str = "geodesic", norm: str = "l1",
+    descriptors: tuple | None = None, tol: float = 1e-4, max_iter: int = 1000,
+    acceleration: str = "over-relaxation", top_k: int | None = None,
+    extraction: str = "mode", refine: str = "symmetric-zoomout",
+    zoomout_range: tuple[int, int, int] = (20, 80, 2), max_bytes: int | None = None,
+    multiscale: bool = False, progress: Callable[[int, float], None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
 ) -> SoftMapResult:
     r"""Soft map ``source -> target`` by Wasserstein propagation with compatibility (§3.7).
@@ -458,8 +443,60 @@ def soft_map(
         ``iterations``, ``residual``, ``converged`` from the propagation; the soft map, the
         point map and the energies.
     """
-    import time
+    pairs, n_samples, points, tau, top_k = _checked_request(
+        source, target, landmarks, samples=samples, target_points=target_points, k=k,
+        n_energies=n_energies, extraction=extraction, refine=refine, max_bytes=max_bytes,
+        tau=tau, norm=norm, top_k=top_k)
+    timings = {}
+    map_large_blocks()  # the (samples x target) temporaries go back to the OS when freed
+    with _timed(timings, "sampling"):
+        graph, cells, coarse = _sampled(source, target, pairs, n_samples, points)
+    solved = target if coarse is None else coarse.mesh
+    gamma = check_positive(default_gamma(n_samples, solved, coarse=coarse is not None)
+                           if gamma is None else gamma, "gamma")
+    cost, start = _cost_and_start(
+        source, target, pairs, graph, coarse, descriptors, timings, n_samples, multiscale,
+        norm=norm, tau=tau, tol=tol, max_iter=max_iter, k=k, n_energies=n_energies,
+        wks_weight=wks_weight, landmark_weight=landmark_weight, landmark_method=landmark_method)
+    del descriptors  # not needed any more: out before the largest arrays come
+    with _timed(timings, "propagation"):  # float32 node logs replace the float64 cost
+        log_d = _node_logs(cost, graph, tau=tau, gamma=gamma, coarse=coarse is not None)
+        del cost
+        prop, rows, descriptor = _propagate(
+            solved, coarse, graph, cells, pairs, log_d, tau=tau, gamma=gamma,
+            substeps=substeps, tol=tol, start_masses=start, max_iter=max_iter,
+            acceleration=acceleration, progress=progress, should_cancel=should_cancel)
+    with _timed(timings, "extraction"):
+        extracted = _extracted(source, target, rows, graph, cells, pairs, coarse,
+                               extraction=extraction, refine=refine,
+                               zoomout_range=zoomout_range)
+    return _soft_map_result(prop, graph, cells, rows, extracted, coarse, top_k,
+                            descriptor=descriptor, gamma=gamma, tau=tau, timings=timings,
+                            n_target=target.n)
 
+
+@contextlib.contextmanager
+def _timed(timings: dict, stage: str):
+    """Record the wall time of the ``with`` block as ``timings[stage]``."""
+    t0 = time.perf_counter()
+    yield
+    timings[stage] = time.perf_counter() - t0
+
+
+def _sampled(source, target, pairs, n_samples, points):
+    """The farthest-point sample graph on ``source`` (seeded with the landmarks), the areas
+    of its cells, and the coarse target of ``points`` points (None: the target itself)."""
+    graph = farthest_point_samples(source, n_samples, pairs[:, 0])
+    cells = np.bincount(graph.labels, weights=source.areas, minlength=graph.n)
+    coarse = None if points is None else coarse_target(target, points)
+    return graph, cells, coarse
+
+
+def _checked_request(source, target, landmarks, *, samples, target_points, k, n_energies,
+                     extraction, refine, max_bytes, tau, norm, top_k):
+    """:func:`soft_map`'s inputs checked, before any work: ``(landmark pairs, samples,
+    solved target points (None: all), tau, top_k)``; a problem whose estimated memory
+    exceeds ``max_bytes`` is refused."""
     check_mesh_for_soft_map(source, "source")
     check_mesh_for_soft_map(target, "target")
     pairs = check_landmark_pairs(landmarks, source.n, target.n)
@@ -485,52 +522,37 @@ def soft_map(
         raise InputError(f"refine must be one of {REFINEMENTS}", field="refine")
     if top_k is not None:
         top_k = check_int(top_k, "top_k", low=1, high=target.n)
-    timings = {}
-    map_large_blocks()  # the (samples x target) temporaries go back to the OS when freed
-    t0 = time.perf_counter()
-    graph = farthest_point_samples(source, n_samples, pairs[:, 0])
-    cells = np.bincount(graph.labels, weights=source.areas, minlength=graph.n)
-    coarse = None if points is None else coarse_target(target, points)
-    solved = target if coarse is None else coarse.mesh
-    timings["sampling"] = time.perf_counter() - t0
-    if gamma is None:
-        gamma = default_gamma(n_samples, solved, coarse=coarse is not None)
-    gamma = check_positive(gamma, "gamma")
+    return pairs, n_samples, points, tau, top_k
 
-    t0 = time.perf_counter()
-    if descriptors is None:
-        f0, f1 = descriptors_for_pair(source, target, pairs, k=k, n_energies=n_energies,
-                                      wks_weight=wks_weight, landmark_weight=landmark_weight,
-                                      landmark_method=landmark_method)
-    else:
-        f0, f1 = descriptors
-    cost = compatibility_cost(f0, f1, areas0=source.areas, areas1=target.areas,
-                              rows=graph.indices, norm=norm,
-                              columns=None if coarse is None else coarse.restrict(f1))
-    timings["descriptors"] = time.perf_counter() - t0
 
-    t0 = time.perf_counter()
-    start = None
-    if multiscale and coarse is not None and n_samples > MULTISCALE_SAMPLES:
-        start = _multiscale_start(source, target, pairs, graph, coarse, f0, f1, norm=norm,
-                                  tau=tau, tol=tol, max_iter=max_iter)
-    timings["multiscale"] = time.perf_counter() - t0
+def _cost_and_start(source, target, pairs, graph, coarse, descriptors, timings, n_samples,
+                    multiscale, *, norm, tau, tol, max_iter, **descriptor_options):
+    """The compatibility cost ``(N, solved points)`` of the samples of ``graph`` (from
+    ``descriptors``, or :func:`descriptors_for_pair` with ``descriptor_options``) and the
+    propagation's start (:func:`_multiscale_start` with ``multiscale``, else None); the
+    descriptors are freed before returning."""
+    with _timed(timings, "descriptors"):
+        if descriptors is None:
+            f0, f1 = descriptors_for_pair(source, target, pairs, **descriptor_options)
+        else:
+            f0, f1 = descriptors
+        cost = compatibility_cost(f0, f1, areas0=source.areas, areas1=target.areas,
+                                  rows=graph.indices, norm=norm,
+                                  columns=None if coarse is None else coarse.restrict(f1))
+    with _timed(timings, "multiscale"):
+        start = None
+        if multiscale and coarse is not None and n_samples > MULTISCALE_SAMPLES:
+            start = _multiscale_start(source, target, pairs, graph, coarse, f0, f1, norm=norm,
+                                      tau=tau, tol=tol, max_iter=max_iter)
     del f0, f1, descriptors  # not needed any more: out before the largest arrays come
     release_free_heap()  # the descriptors' temporaries too
-    t0 = time.perf_counter()
-    # The node log-rescalings replace the cost (float32: the float64 cost is gone before
-    # the propagation's arrays come).
-    log_d = _node_logs(cost, graph, tau=tau, gamma=gamma, coarse=coarse is not None)
-    del cost
-    prop, rows, descriptor = _propagate(solved, coarse, graph, cells, pairs, log_d, tau=tau,
-                                        gamma=gamma, substeps=substeps, tol=tol,
-                                        start_masses=start,
-                                        max_iter=max_iter, acceleration=acceleration,
-                                        progress=progress, should_cancel=should_cancel)
-    timings["propagation"] = time.perf_counter() - t0
+    return cost, start
 
-    t0 = time.perf_counter()
-    prolongation = None if coarse is None else coarse.prolongation
+
+def _extracted(source, target, rows, graph, cells, pairs, coarse, *, extraction, refine,
+               zoomout_range):
+    """The correspondence extracted from the soft map's ``rows`` (prolonged from the coarse
+    target, if any), its projected Sinkhorn rows not kept."""
     extracted = extract_correspondence(source, target, rows, labels=graph.labels,
                                        samples=graph.indices, cell_areas=cells,
                                        edges=graph.edges, fixed=np.arange(len(pairs)),
@@ -538,14 +560,19 @@ def soft_map(
                                        extraction=extraction, refine=refine,
                                        zoomout_range=zoomout_range,
                                        zoomout_queries=_zoomout_queries(source, target, pairs),
-                                       prolongation=prolongation)
-    sample_corr, corr = extracted.sample_correspondence, extracted.correspondence
+                                       prolongation=None if coarse is None else
+                                       coarse.prolongation)
     if extracted.sinkhorn is not None:
         extracted.sinkhorn.rows = None  # the projected copy is not kept
-    timings["extraction"] = time.perf_counter() - t0
+    return extracted
+
+
+def _soft_map_result(prop, graph, cells, rows, extracted, coarse, top_k, *, descriptor, gamma,
+                     tau, timings, n_target) -> SoftMapResult:
+    """The :class:`SoftMapResult`: the rows kept whole, or their ``top_k`` largest masses."""
+    prolongation = None if coarse is None else coarse.prolongation
     dirichlet = dirichlet_from_edge_values(prop.edge_values, graph.edges, graph.weights,
                                            graph.n, cells)
-
     top_idx = top_m = dropped = None
     if top_k is not None:
         top_idx, top_m, dropped = _top_k(rows, prolongation, top_k)
@@ -555,9 +582,10 @@ def soft_map(
         iterations=prop.iterations, residual=prop.residual, converged=prop.converged,
         samples=graph.indices, labels=graph.labels, cell_areas=cells, edges=graph.edges,
         edge_weights=graph.weights, soft_map=rows, top_indices=top_idx, top_masses=top_m,
-        dropped_mass=dropped, correspondence=corr, sample_correspondence=sample_corr,
+        dropped_mass=dropped, correspondence=extracted.correspondence,
+        sample_correspondence=extracted.sample_correspondence,
         dirichlet=dirichlet, descriptor_energy=descriptor, gamma=gamma, tau=tau,
-        timings=timings, n_target=target.n, sinkhorn=extracted.sinkhorn,
+        timings=timings, n_target=n_target, sinkhorn=extracted.sinkhorn,
         target_points=None if coarse is None else coarse.n, prolongation=prolongation)
 
 

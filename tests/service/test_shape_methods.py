@@ -23,6 +23,8 @@ def test_mesh_barycenter_defaults_to_the_geodesic_kernel(client, woody):
     job = client.post(f"/v1/domains/{mid}/barycenters", json={"distributions": BUMPS}).json()
     values = _values(client, job)
     assert values["method"] == "geodesic"
+    # what ran: the geodesic kernel has no substeps (the heat kernel's policy took 8)
+    assert values["substeps"] is None and values["regularization"]["substeps"] is None
     masses = np.load(io.BytesIO(client.get(f"/v1/jobs/{job['id']}/arrays/masses.npy").content))
     mus = np.stack([bump_masses(mesh, b["vertex"], b["radius"]) for b in BUMPS], axis=1)
     ref = barycenter(mesh, mus)
