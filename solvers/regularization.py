@@ -108,7 +108,13 @@ class Regularization:
 
     def for_kernel(self, method: str) -> Regularization:
         """This choice as it ran with the shape kernel ``method``: the geodesic kernel
-        (exact Gibbs kernel of squared geodesics) has no implicit-Euler substeps."""
+        (exact Gibbs kernel of squared geodesics) has no implicit-Euler substeps.
+
+        Parameters
+        ----------
+        method : str
+            The kernel that ran (``"geodesic"`` drops ``substeps``).
+        """
         return replace(self, substeps=None) if method == "geodesic" else self
 
 

@@ -447,7 +447,8 @@ def barycenters(
 
     Parameters
     ----------
-    domain : any domain; mus : ``(n, k)`` input masses (columns normalized here).
+    domain : any domain.
+    mus : ``(n, k)`` input masses (columns normalized here).
     weights : ``(B, k)`` non-negative weight vectors (each normalized), e.g. a grid of
         ``alphas`` (thesis Fig. 3.4).
     gamma, t, substeps, entropy_bound, sharpen, debiased, tol, max_iter, acceleration, method :
