@@ -8,8 +8,19 @@ any ``ValueError``.
 class OTGeoError(Exception):
     """Base class of every error the library raises on purpose.
 
-    ``field`` names the offending input (e.g. ``"faces"``, ``"mu"``) so a
-    caller can point at it.
+    Parameters
+    ----------
+    message : str
+        What went wrong, for a person to read.
+    field : str, optional
+        The offending input (e.g. ``"faces"``, ``"mu"``), so a caller can point at it.
+
+    Attributes
+    ----------
+    message : str
+        The message given.
+    field : str or None
+        The offending input, if known.
     """
 
     def __init__(self, message: str, *, field: str | None = None):

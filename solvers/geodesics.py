@@ -167,14 +167,38 @@ MMP_REACH_POWER = 1.204
 
 def mmp_solve_seconds(n: int, reach: float = 1.0) -> float:
     """Modelled seconds of one MMP solve on an ``n``-vertex mesh reaching the fraction
-    ``reach`` of the vertices (constants above)."""
+    ``reach`` of the vertices (constants above).
+
+    Parameters
+    ----------
+    n : int
+        Vertices of the mesh.
+    reach : float
+        Fraction of the vertices the solve reaches.
+
+    Returns
+    -------
+    float
+    """
     return (MMP_SETUP_PER_VERTEX * n
             + MMP_FULL_COEF * n ** MMP_FULL_POWER * min(max(reach, 0.0), 1.0) ** MMP_REACH_POWER)
 
 
 def edge_path_distances(mesh: TriangleMesh, sources) -> np.ndarray:
     """``(len(sources), n)`` shortest edge-path lengths (Dijkstra on the edge graph, unit
-    area): upper bounds of the geodesic distances, ``inf`` across components."""
+    area): upper bounds of the geodesic distances, ``inf`` across components.
+
+    Parameters
+    ----------
+    mesh : TriangleMesh
+        The surface (``n`` vertices).
+    sources : array of int
+        Source vertices.
+
+    Returns
+    -------
+    (len(sources), n) array
+    """
     from scipy.sparse.csgraph import dijkstra
 
     src = _check_indices(mesh, sources, "sources")
@@ -184,7 +208,21 @@ def edge_path_distances(mesh: TriangleMesh, sources) -> np.ndarray:
 def geodesic_distances_within(mesh: TriangleMesh, source: int, bound: float) -> np.ndarray:
     """``(n,)`` exact geodesic distances from ``source`` where they are at most ``bound``,
     ``inf`` where they are larger (MMP stops propagating past ``bound``; ``bound=inf``: a
-    one-to-all solve)."""
+    one-to-all solve).
+
+    Parameters
+    ----------
+    mesh : TriangleMesh
+        The surface.
+    source : int
+        The source vertex.
+    bound : float
+        Largest distance computed.
+
+    Returns
+    -------
+    (n,) array
+    """
     pieces = _pieces(mesh)
     finite = bool(np.isfinite(bound))
     d = _one_to_all(pieces, int(source), float(bound) if finite else None)
@@ -203,6 +241,21 @@ def geodesic_distances(mesh: TriangleMesh, sources, targets=None, *, method: str
     without junction vertices; a locally shortest path, so never shorter and sometimes
     longer than the MMP distance).  Vertices on other connected
     components are at distance ``inf``.  ``should_cancel()`` is checked between solves.
+
+    Parameters
+    ----------
+    mesh, sources : TriangleMesh, array of int
+        The surface and the source vertices.
+    targets : array of int, optional
+        Target vertices (default: every vertex).
+    method : {"mmp", "edge-flip"}
+        Exact MMP, or locally shortest edge-flip paths.
+    should_cancel : callable, optional
+        ``should_cancel() -> bool``, checked between solves.
+
+    Returns
+    -------
+    (len(sources), len(targets)) array
     """
     if method not in METHODS:
         raise InputError(f"method must be one of {METHODS}, got {method!r}", field="method")
@@ -252,6 +305,17 @@ def polyhedral_geodesic_distances(mesh: TriangleMesh, sources, targets) -> np.nd
     The oracle of tests and benchmarks: potpourri3d's edge-flip paths on manifold meshes
     (as before), exact MMP distances with the junction closure on non-manifold ones (cow,
     beetle), see the module docstring.
+
+    Parameters
+    ----------
+    mesh : TriangleMesh
+        The surface (``n`` vertices).
+    sources, targets : array of int
+        Vertices.
+
+    Returns
+    -------
+    (len(sources), len(targets)) array
     """
     pieces = _pieces(mesh)
     method = "mmp" if len(pieces.junctions) else "edge-flip"

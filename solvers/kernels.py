@@ -36,18 +36,64 @@ from solvers.linalg import Backend, factorize_spd
 
 
 def heat_time(gamma: float) -> float:
-    r"""Heat time :math:`t` whose kernel approximates :math:`\exp(-d^2/\gamma)` (Varadhan)."""
+    r"""Heat time :math:`t` whose kernel approximates :math:`\exp(-d^2/\gamma)` (Varadhan).
+
+    Parameters
+    ----------
+    gamma : float
+        Entropic regularization.
+
+    Returns
+    -------
+    float
+        :math:`t = \gamma / 4`.
+    """
     return gamma / 4.0
 
 
 class HeatKernel(Protocol):
+    """What every heat kernel offers the solvers (a protocol).
+
+    Attributes
+    ----------
+    n : int
+        Points of the domain.
+    t : float
+        Heat time.
+    supports_log : bool
+        Whether :meth:`log_apply` is exact at any ``t``.
+    """
     n: int
     t: float
     supports_log: bool
 
-    def apply(self, block: np.ndarray) -> np.ndarray: ...
+    def apply(self, block: np.ndarray) -> np.ndarray:
+        r"""Apply the kernel to a block: :math:`H_t x` per column.
 
-    def log_apply(self, log_block: np.ndarray) -> np.ndarray: ...
+        Parameters
+        ----------
+        block : (n,) or (n, k) array
+            Densities (functions) on the domain, one per column.
+
+        Returns
+        -------
+        (n,) or (n, k) array
+        """
+        ...
+
+    def log_apply(self, log_block: np.ndarray) -> np.ndarray:
+        r"""Apply the kernel in the log domain: :math:`\log H_t \exp(x)` per column.
+
+        Parameters
+        ----------
+        log_block : (n,) or (n, k) array
+            Logarithms (``-inf`` for zeros).
+
+        Returns
+        -------
+        (n,) or (n, k) array
+        """
+        ...
 
 
 class ImplicitEulerHeatKernel:
@@ -66,6 +112,7 @@ class ImplicitEulerHeatKernel:
     laplacian : (n, n) sparse PSD weak Laplacian ``L`` with ``L·1 = 0``.
     t : heat time, > 0.
     substeps : number of implicit Euler steps, >= 1.
+    backend : sparse factorization backend (:func:`~solvers.linalg.factorize_spd`).
     """
 
     supports_log = False
@@ -91,6 +138,12 @@ class ImplicitEulerHeatKernel:
         self.factor = factorize_spd(system.tocsc(), backend=backend)
 
     def apply(self, block: np.ndarray) -> np.ndarray:
+        r"""``substeps`` sparse solves :math:`(D_m + \tau L)\, y = m \odot x`, one block.
+
+        Parameters
+        ----------
+        block : (n,) or (n, k) array, as in :meth:`HeatKernel.apply`
+        """
         x = np.asarray(block, dtype=np.float64)
         weights = self.mass if x.ndim == 1 else self.mass[:, None]
         for _ in range(self.substeps):
@@ -98,6 +151,12 @@ class ImplicitEulerHeatKernel:
         return x
 
     def log_apply(self, log_block: np.ndarray) -> np.ndarray:
+        """Not offered: raises ``NotImplementedError`` (no exact log-domain form).
+
+        Parameters
+        ----------
+        log_block : (n,) or (n, k) array, as in :meth:`HeatKernel.log_apply`
+        """
         raise NotImplementedError("implicit Euler kernels have no exact log-domain form")
 
 
@@ -216,6 +275,13 @@ class GaussianGridHeatKernel:
     :math:`\gamma = 4t \ge 1/650`), and each block is one max-shifted BLAS product
     (:func:`_log_contract`).  :meth:`log_apply_exact` is the straightforward
     nested log-sum-exp, kept as the reference.
+
+    Parameters
+    ----------
+    grid : Grid
+        The grid.
+    t : float
+        Heat time.
     """
 
     supports_log = True
@@ -260,6 +326,12 @@ class GaussianGridHeatKernel:
         return flat[0] if vector else flat.T
 
     def apply(self, block: np.ndarray) -> np.ndarray:
+        """One dense 1-D Gaussian product per axis.
+
+        Parameters
+        ----------
+        block : (n,) or (n, k) array, as in :meth:`HeatKernel.apply`
+        """
         def convolve(axis, y, last, owned):
             factor = self.factors[axis]
             return y @ factor.T if last else np.matmul(factor, y)
@@ -267,13 +339,25 @@ class GaussianGridHeatKernel:
         return self._along_axes(block, convolve)
 
     def log_apply(self, log_block: np.ndarray) -> np.ndarray:
+        """Max-shifted BLAS products per axis, in row blocks of bounded log-spread.
+
+        Parameters
+        ----------
+        log_block : (n,) or (n, k) array, as in :meth:`HeatKernel.log_apply`
+        """
         def log_convolve(axis, y, last, owned):
             return _log_contract(y, self.log_blocks[axis], last, owned)
 
         return self._along_axes(log_block, log_convolve)
 
     def log_apply_exact(self, log_block: np.ndarray) -> np.ndarray:
-        """Reference ``log_apply``: nested log-sum-exp along each axis (slow, O(n·n_axis) exps)."""
+        """Reference ``log_apply``: nested log-sum-exp along each axis (slow, O(n·n_axis) exps).
+
+        Parameters
+        ----------
+        log_block : (n,) or (n, k) array
+            Logarithms.
+        """
 
         def log_convolve(axis, y, last, owned):
             log_k = self.log_factors[axis]
@@ -320,7 +404,20 @@ def _log_contract_columns(y: np.ndarray, blocks: list[tuple]) -> np.ndarray:
 
 def morton_order(points: np.ndarray, bits: int = 10) -> np.ndarray:
     """A permutation visiting ``(n, d)`` points along a Z-order (Morton) curve, so that
-    consecutive points are near each other (row blocks of a dense kernel stay compact)."""
+    consecutive points are near each other (row blocks of a dense kernel stay compact).
+
+    Parameters
+    ----------
+    points : (n, d) array
+        Positions.
+    bits : int
+        Bits per coordinate of the curve.
+
+    Returns
+    -------
+    (n,) int array
+        The permutation.
+    """
     p = np.asarray(points, dtype=np.float64)
     lo, span = p.min(axis=0), np.ptp(p, axis=0)
     cells = ((p - lo) / np.where(span > 0, span, 1.0) * (2**bits - 1)).astype(np.int64)
@@ -379,10 +476,22 @@ class GeodesicGaussianKernel:
         return out[:, 0] if x.ndim == 1 else out
 
     def apply(self, block: np.ndarray) -> np.ndarray:
+        """``exp(log_apply(log x))``: the exact log-domain product, exponentiated.
+
+        Parameters
+        ----------
+        block : (n,) or (n, k) array, as in :meth:`HeatKernel.apply`
+        """
         x = np.asarray(block, dtype=np.float64)
         with np.errstate(divide="ignore"):
             logs = self.log_apply(np.log(np.maximum(x, 0.0)))
         return np.exp(logs)
 
     def log_apply(self, log_block: np.ndarray) -> np.ndarray:
+        """Shifted BLAS products over row blocks in the spatially coherent order.
+
+        Parameters
+        ----------
+        log_block : (n,) or (n, k) array, as in :meth:`HeatKernel.log_apply`
+        """
         return self._permuted(log_block, lambda y: _log_contract_columns(y, self.blocks))

@@ -36,12 +36,32 @@ Backend = Literal["auto", "cholespy", "splu", "pardiso", "triangular"]
 
 
 class Factorization(Protocol):
-    """A factored matrix ``A`` (n×n); ``solve`` returns ``A⁻¹ B``."""
+    """A factored matrix ``A`` (n×n); ``solve`` returns ``A⁻¹ B``.
+
+    Attributes
+    ----------
+    n : int
+        Size of ``A``.
+    backend : str
+        The factorization's backend.
+    """
 
     n: int
     backend: str
 
-    def solve(self, rhs: np.ndarray) -> np.ndarray: ...
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        """Solve :math:`A x = b` for each column of ``rhs``.
+
+        Parameters
+        ----------
+        rhs : (n,) or (n, k) array
+            Right-hand side(s).
+
+        Returns
+        -------
+        (n,) or (n, k) array
+        """
+        ...
 
 
 # The factor of a mesh Laplacian-like matrix has a few times the matrix's nonzeros
@@ -51,6 +71,18 @@ FACTOR_FILL = 8.0
 
 
 def estimated_factor_bytes(matrix: sp.spmatrix) -> int:
+    """Estimated memory of a sparse Cholesky factor of ``matrix`` (fill ``FACTOR_FILL``).
+
+    Parameters
+    ----------
+    matrix : (n, n) sparse matrix
+        The matrix to factor.
+
+    Returns
+    -------
+    int
+        Bytes.
+    """
     return int(FACTOR_FILL * matrix.nnz * 12)
 
 
@@ -66,7 +98,13 @@ def _release_factors_at_exit() -> None:
 
 
 class CholespyFactor:
-    """Supernodal sparse Cholesky via cholespy (``nbytes``: estimated factor size)."""
+    """Supernodal sparse Cholesky via cholespy (``nbytes``: estimated factor size).
+
+    Parameters
+    ----------
+    matrix : (n, n) sparse matrix
+        Symmetric positive definite.
+    """
 
     backend = "cholespy"
 
@@ -88,6 +126,12 @@ class CholespyFactor:
         _LIVE_FACTORS.add(self)
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
+        """Two triangular solves by cholespy (holding the GIL).
+
+        Parameters
+        ----------
+        rhs : (n,) or (n, k) array, as in :meth:`Factorization.solve`
+        """
         b = np.ascontiguousarray(rhs, dtype=np.float64)
         x = np.empty_like(b)
         self._solver.solve(b, x)
@@ -95,7 +139,13 @@ class CholespyFactor:
 
 
 class SpluFactor:
-    """scipy SuperLU; slower than Cholesky but always available."""
+    """scipy SuperLU; slower than Cholesky but always available.
+
+    Parameters
+    ----------
+    matrix : (n, n) sparse matrix
+        The matrix (LU with pivoting: SPD is not required).
+    """
 
     backend = "splu"
 
@@ -105,6 +155,12 @@ class SpluFactor:
         self._lu = spla.splu(sp.csc_matrix(matrix, copy=True))  # splu sums duplicates in place
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
+        """SuperLU's solve, column block at once.
+
+        Parameters
+        ----------
+        rhs : (n,) or (n, k) array, as in :meth:`Factorization.solve`
+        """
         return self._lu.solve(np.asarray(rhs, dtype=np.float64))
 
 
@@ -151,7 +207,12 @@ def _pardiso_lib():
 
 
 def have_pardiso() -> bool:
-    """Whether MKL PARDISO can be loaded (the ``mkl`` wheel is installed)."""
+    """Whether MKL PARDISO can be loaded (the ``mkl`` wheel is installed).
+
+    Returns
+    -------
+    bool
+    """
     return _pardiso_lib() is not None
 
 
@@ -198,7 +259,7 @@ _ANALYSIS_EFFORT_MKL = 2026
 
 
 class PardisoFactor:
-    """Supernodal sparse Cholesky by MKL PARDISO (``mtype=2``, METIS nested dissection), or
+    r"""Supernodal sparse Cholesky by MKL PARDISO (``mtype=2``, METIS nested dissection), or
     with ``pivoting`` its symmetric-indefinite ``L D Lᵀ`` (``mtype=-2``: Bunch–Kaufman
     pivoting inside supernodes, pivots below ``1e-8 ‖A‖`` perturbed, and iterative
     refinement of every solve against the unperturbed matrix).  The latter takes over where
@@ -214,6 +275,17 @@ class PardisoFactor:
     memory it keeps (symbolic + numeric factor); ``factor_nnz``: nonzeros of ``L``.  Calls
     on one factor are serialized by a lock (a PARDISO handle is not re-entrant); the
     handle's memory is released when the factor is garbage-collected.
+
+    Parameters
+    ----------
+    matrix : (n, n) sparse matrix
+        Symmetric positive (semi)definite.
+    ordering : {"metis", "parallel-metis", "amd"} or (n,) int array
+        Fill-reducing ordering, or a given permutation.
+    pivoting : bool
+        Symmetric-indefinite :math:`L D L^\top` with pivoting instead of Cholesky.
+    effort : int
+        Analysis effort (0-10).
     """
 
     backend = "pardiso"
@@ -294,7 +366,13 @@ class PardisoFactor:
     def refactor(self, matrix: sp.spmatrix) -> None:
         """Numeric factorization of a matrix with the same pattern (PARDISO phase 22 only:
         the ordering and symbolic analysis are kept), e.g. the changing weights of an
-        interior-point method's normal equations."""
+        interior-point method's normal equations.
+
+        Parameters
+        ----------
+        matrix : (n, n) sparse matrix
+            Same pattern as the analysed matrix.
+        """
         upper = sp.triu(sp.csr_matrix(matrix, dtype=np.float64), format="csr")
         upper.sum_duplicates()
         if (upper.nnz != len(self._indices) or not np.array_equal(upper.indptr, self._indptr)
@@ -304,7 +382,13 @@ class PardisoFactor:
 
     def refactor_data(self, data: np.ndarray) -> None:
         """:meth:`refactor` from the values ``data`` of the analysed upper-triangular CSR
-        pattern (``indptr``/``indices`` as handed over), without rebuilding the matrix."""
+        pattern (``indptr``/``indices`` as handed over), without rebuilding the matrix.
+
+        Parameters
+        ----------
+        data : (nnz,) array
+            Values of the upper-triangular CSR pattern.
+        """
         if len(data) != len(self._data):
             raise ValueError("refactor needs the pattern the factor was analysed with")
         self._check_alive()
@@ -319,7 +403,13 @@ class PardisoFactor:
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         """``A⁻¹ rhs`` for ``(n,)`` or ``(n, k)`` ``rhs``; a block comes back in Fortran
-        order (PARDISO works column by column; no copy when ``rhs`` is F-ordered)."""
+        order (PARDISO works column by column; no copy when ``rhs`` is F-ordered).
+
+        Parameters
+        ----------
+        rhs : (n,) or (n, k) array
+            As in :meth:`Factorization.solve`; iteratively refined with ``pivoting``.
+        """
         b = np.asarray(rhs, dtype=np.float64)
         if b.shape[0] != self.n or b.ndim not in (1, 2):
             raise ValueError(f"rhs must be ({self.n},) or ({self.n}, k), got {b.shape}")
@@ -340,11 +430,17 @@ class PardisoFactor:
 
 
 class TriangularFactor:
-    """SuperLU's factorization in symmetric mode (``Pr A Pc = L U``, no pivoting: ``A`` is
+    r"""SuperLU's factorization in symmetric mode (``Pr A Pc = L U``, no pivoting: ``A`` is
     SPD; minimum-degree ordering on :math:`A + A^\top`) with compiled triangular solves
     that release the GIL, so threads solve blocks in parallel (cholespy's solve holds the
     GIL).  ``solve`` takes ``(n,)`` or ``(n, k)``; a C-ordered block is read without a
-    copy.  ``factor_nnz``: nonzeros of ``L`` and ``U`` (diagonals counted once)."""
+    copy.  ``factor_nnz``: nonzeros of ``L`` and ``U`` (diagonals counted once).
+
+    Parameters
+    ----------
+    matrix : (n, n) sparse matrix
+        SPD (factored without pivoting).
+    """
 
     backend = "triangular"
 
@@ -368,6 +464,12 @@ class TriangularFactor:
         self.nbytes = int(sum(x.nbytes for x in self._arrays))
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
+        """Compiled triangular solves that release the GIL.
+
+        Parameters
+        ----------
+        rhs : (n,) or (n, k) array, as in :meth:`Factorization.solve`
+        """
         b = np.asarray(rhs, dtype=np.float64)
         if b.shape[:1] != (self.n,) or b.ndim not in (1, 2):
             raise ValueError(f"rhs must be ({self.n},) or ({self.n}, k), got {b.shape}")
@@ -383,7 +485,22 @@ def eigsh(matrix, k: int, **kwargs):
     Without ``v0``, scipy (1.15 and later) starts ARPACK from a fresh, unseeded random vector:
     the same matrix then gives eigenvectors differing in their last bits from call to call,
     and any basis of a repeated eigenvalue, so a result built on them (spectral W1 bases,
-    WKS descriptors, ZoomOut) would differ between two runs of one request."""
+    WKS descriptors, ZoomOut) would differ between two runs of one request.
+
+    Parameters
+    ----------
+    matrix : (n, n) sparse matrix or operator
+        Symmetric.
+    k : int
+        Number of eigenpairs.
+    **kwargs
+        Keywords of :func:`scipy.sparse.linalg.eigsh`.
+
+    Returns
+    -------
+    eigenvalues : (k,) array
+    eigenvectors : (n, k) array
+    """
     if kwargs.get("v0") is None:
         kwargs["v0"] = np.random.default_rng(0).uniform(-1.0, 1.0, matrix.shape[0])
     return spla.eigsh(matrix, k=k, **kwargs)
@@ -400,6 +517,11 @@ def factorize_spd(matrix: sp.spmatrix, backend: Backend = "auto", *,
         ``"pardiso"`` (MKL PARDISO; never chosen by ``"auto"``).
     pardiso_effort : PARDISO's analysis effort (:class:`PardisoFactor`'s ``effort``), for a
         pattern refactored many times; ignored by the other backends.
+
+    Returns
+    -------
+    Factorization
+        ``solve(rhs)`` returns :math:`A^{-1}` ``rhs``.
     """
     if matrix.shape[0] != matrix.shape[1]:
         raise ValueError(f"matrix must be square, got shape {matrix.shape}")

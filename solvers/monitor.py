@@ -38,6 +38,15 @@ class SolverResult:
     ``iterations``: iterations run; ``residual``: the measured stopping quantity at the end
     (a marginal violation, a relative primal/dual residual, ... as each solver documents);
     ``converged``: ``residual <= tol`` was reached.
+
+    Attributes
+    ----------
+    iterations : int
+        Iterations run.
+    residual : float
+        The measured stopping quantity at the end.
+    converged : bool
+        ``residual <= tol`` was reached.
     """
 
     iterations: int = 0
@@ -81,6 +90,23 @@ class Monitor:
     ``project=True`` (and ``tol``, ``max_iter``, ``patience``) the monitor also stalls when
     the residual still falls but, at the rate measured over the last ``patience``
     iterations, would not reach ``tol`` within ``max_iter`` (e.g. a sublinear tail).
+
+    Parameters
+    ----------
+    progress : callable, optional
+        ``progress(iteration, residual[, fraction])``, called once per iteration.
+    should_cancel : callable, optional
+        ``should_cancel() -> bool``; True raises :class:`~solvers.errors.CancelledError`.
+    tol : float, optional
+        The solver's tolerance, for the fraction done.
+    patience : int, optional
+        Iterations without improvement before :attr:`stalled` (None: never).
+    min_improvement : float
+        Relative improvement of the best residual that counts.
+    max_iter : int, optional
+        The solver's iteration budget (``project=True``).
+    project : bool
+        Also stall when the measured rate would not reach ``tol`` within ``max_iter``.
     """
 
     def __init__(self, progress: Progress | None = None, should_cancel: ShouldCancel | None = None,
@@ -118,11 +144,24 @@ class Monitor:
         return fresh
 
     def check_cancel(self, where: str = "") -> None:
+        """Raise :class:`~solvers.errors.CancelledError` if ``should_cancel()`` says so.
+
+        Parameters
+        ----------
+        where : str
+            Where the check is, for the error message.
+        """
         if self.should_cancel is not None and self.should_cancel():
             raise CancelledError(f"cancelled{(' ' + where) if where else ''}")
 
     def fraction(self, residual: float) -> float | None:
-        """Estimated fraction done from the residual's decrease towards ``tol``."""
+        """Estimated fraction done from the residual's decrease towards ``tol``.
+
+        Parameters
+        ----------
+        residual : float
+            The current residual.
+        """
         if self.tol is None or self.first is None or not math.isfinite(residual):
             return None
         if residual <= self.tol:

@@ -73,6 +73,25 @@ class Regularization:
     ``h``: the domain's length scale (mean edge length / grid spacing at unit area);
     ``distance``: the estimated typical transport distance (None for shapes);
     ``reason``: a one-line account of the choice.
+
+    Attributes
+    ----------
+    gamma : float
+        Entropic regularization.
+    t : float
+        Heat time.
+    substeps : int
+        Implicit Euler steps.
+    debiased : bool
+        Whether values are debiased.
+    purpose : str
+        ``"values"`` or ``"shapes"``.
+    h : float
+        The domain's length scale.
+    distance : float or None
+        Estimated typical transport distance.
+    reason : str
+        A one-line account of the choice.
     """
 
     gamma: float
@@ -89,23 +108,66 @@ class Regularization:
 
     def for_kernel(self, method: str) -> Regularization:
         """This choice as it ran with the shape kernel ``method``: the geodesic kernel
-        (exact Gibbs kernel of squared geodesics) has no implicit-Euler substeps."""
+        (exact Gibbs kernel of squared geodesics) has no implicit-Euler substeps.
+
+        Parameters
+        ----------
+        method : str
+            The kernel that ran (``"geodesic"`` drops ``substeps``).
+        """
         return replace(self, substeps=None) if method == "geodesic" else self
 
 
 def sketch_of(domain) -> DomainSketch:
-    """``domain`` itself when it is a :class:`DomainSketch`, else its sketch."""
+    """``domain`` itself when it is a :class:`DomainSketch`, else its sketch.
+
+    Parameters
+    ----------
+    domain : Domain or DomainSketch
+        The domain, or its sketch (the same choice either way).
+
+    Returns
+    -------
+    DomainSketch
+    """
     return domain if isinstance(domain, DomainSketch) else DomainSketch.of(domain)
 
 
 def length_scale(domain) -> float:
-    """``h`` of a domain or sketch (:attr:`DomainSketch.length_scale`)."""
+    """``h`` of a domain or sketch (:attr:`DomainSketch.length_scale`).
+
+    Parameters
+    ----------
+    domain : Domain or DomainSketch
+        Either.
+
+    Returns
+    -------
+    float
+    """
     return sketch_of(domain).length_scale
 
 
 def quantize(points: np.ndarray, masses: np.ndarray, k: int):
     """``k`` representatives of a weighted point set (mass-weighted farthest points, each
-    point's mass moved to its nearest representative): ``(indices, masses)``."""
+    point's mass moved to its nearest representative): ``(indices, masses)``.
+
+    Parameters
+    ----------
+    points : (n, d) array
+        Positions.
+    masses : (n,) array
+        Their masses.
+    k : int
+        Number of representatives.
+
+    Returns
+    -------
+    indices : (k,) int array
+        The representatives.
+    masses : (k,) array
+        Their masses.
+    """
     support = np.flatnonzero(masses > 0)
     if len(support) <= k:
         return support, masses[support]
@@ -128,7 +190,21 @@ def transport_distance_estimate(domain, m0: np.ndarray, m1: np.ndarray,
     r"""Cheap estimate of :math:`W_2(\mu_0, \mu_1)`: the exact LP between ``points``-point
     quantizations of the two inputs, with the sketch's ground distances
     (:meth:`DomainSketch.distances`: shortest edge paths on meshes, hops on graphs,
-    straight lines otherwise).  ``domain``: a domain or its sketch."""
+    straight lines otherwise).  ``domain``: a domain or its sketch.
+
+    Parameters
+    ----------
+    domain : Domain or DomainSketch
+        The domain, or its sketch (the same choice either way).
+    m0, m1 : (n,) array
+        The two distributions.
+    points : int
+        Points of each quantization.
+
+    Returns
+    -------
+    float
+    """
     import ot
 
     sketch = sketch_of(domain)
@@ -150,7 +226,22 @@ def transport_distance_estimate(domain, m0: np.ndarray, m1: np.ndarray,
 def value_substeps(domain, distance: float, t: float) -> tuple[int, str]:
     """Substeps for values: ``SUBSTEP_FACTOR * d^2 / t`` rounded up to a power of two in
     ``[VALUE_SUBSTEPS, MAX_SUBSTEPS]``, lowered (not below VALUE_SUBSTEPS) until the
-    estimated solve time fits ``VALUE_SECONDS``; returns ``(substeps, why)``."""
+    estimated solve time fits ``VALUE_SECONDS``; returns ``(substeps, why)``.
+
+    Parameters
+    ----------
+    domain : Domain or DomainSketch
+        The domain, or its sketch (the same choice either way).
+    distance : float
+        Estimated transport distance :math:`d`.
+    t : float
+        Heat time.
+
+    Returns
+    -------
+    substeps : int
+    why : str
+    """
     if supports(domain, "exact_heat_kernel"):  # exact Gaussian: substeps are unused
         return 1, "exact grid kernel"
     want = SUBSTEP_FACTOR * distance * distance / t
@@ -174,6 +265,27 @@ def choose_regularization(domain, m0=None, m1=None, *, purpose: str = "values",
     is given).  ``gamma``: a number, or None/``"auto"`` for the policy's choice; ``t``,
     ``substeps``, ``debiased``: None for the policy's choice.  ``domain``: a domain or its
     :class:`DomainSketch` (the same choice either way).
+
+    Parameters
+    ----------
+    domain : Domain or DomainSketch
+        The domain, or its sketch (the same choice either way).
+    m0, m1 : (n,) array, optional
+        Normalized masses.
+    purpose : {"values", "shapes"}
+        What the regularization is for.
+    gamma : float or "auto", optional
+        Entropic regularization.
+    t : float, optional
+        Heat time.
+    substeps : int, optional
+        Implicit Euler steps.
+    debiased : bool, optional
+        Debias values.
+
+    Returns
+    -------
+    Regularization
     """
     if purpose not in PURPOSES:
         raise InputError(f"purpose must be one of {PURPOSES}, got {purpose!r}", field="purpose")
@@ -235,7 +347,19 @@ def shape_method(domain, method: str = "auto") -> str:
     domain offers it (connected triangle meshes up to ``GEODESIC_KERNEL_VERTICES`` vertices: the
     implicit-Euler kernel's exponential tail smears results along the direction of travel,
     ``bench/results/sharp_transport.md``) and ``"convolutional"`` elsewhere (on grids the
-    heat kernel already is the exact Gaussian).  A function of the domain's kind and size."""
+    heat kernel already is the exact Gaussian).  A function of the domain's kind and size.
+
+    Parameters
+    ----------
+    domain : Domain or DomainSketch
+        The domain, or its sketch (the same choice either way).
+    method : str
+        ``"auto"``, ``"geodesic"`` or ``"convolutional"``.
+
+    Returns
+    -------
+    str
+    """
     if method not in SHAPE_METHODS:
         raise InputError(f"method must be one of {', '.join(map(repr, SHAPE_METHODS))}, "
                          f"got {method!r}", field="method")
@@ -252,7 +376,25 @@ def shape_method(domain, method: str = "auto") -> str:
 def shape_regularization(domain, gamma, t, substeps) -> tuple[Regularization | None, float, int]:
     """``(policy or None, gamma, substeps)`` of the shape solvers (barycenters,
     interpolations, propagation): ``gamma="auto"`` takes the ``"shapes"`` policy; an
-    explicit number runs as specified (one substep unless given)."""
+    explicit number runs as specified (one substep unless given).
+
+    Parameters
+    ----------
+    domain : Domain or DomainSketch
+        The domain, or its sketch (the same choice either way).
+    gamma : float or "auto"
+        Entropic regularization.
+    t : float, optional
+        Heat time.
+    substeps : int, optional
+        Implicit Euler steps.
+
+    Returns
+    -------
+    policy : Regularization or None
+    gamma : float
+    substeps : int
+    """
     if gamma is None or (isinstance(gamma, str) and gamma == "auto"):
         reg = choose_regularization(domain, purpose="shapes", t=t, substeps=substeps)
         return reg, reg.gamma, reg.substeps

@@ -24,6 +24,15 @@ def check_masses(values, n: int, field: str = "masses") -> np.ndarray:
     Finite values whose sum overflows (e.g. ``[1.7e308, 1.7e308]``) are valid: normalize
     them with :func:`normalized_columns`, never by dividing by ``x.sum()`` (which is inf).
     Raises ``InputError`` naming ``field`` otherwise.
+
+    Parameters
+    ----------
+    values, n, field : array, int, str
+        ``(n,)`` or ``(n, k)`` masses, the number of points, and the input an error names.
+
+    Returns
+    -------
+    (n,) or (n, k) float array
     """
     try:
         x = np.asarray(values, dtype=np.float64)
@@ -49,7 +58,18 @@ def mass_totals(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(peak, relative)`` per column of checked masses, their total being ``peak *
     relative``: ``(1, x.sum())`` where that sum is a finite normal float (the plain sum's
     bits), else the largest value and the sum of the values divided by it, so that the total
-    neither overflows (finite values near 1.7e308) nor loses subnormals' digits (5e-324)."""
+    neither overflows (finite values near 1.7e308) nor loses subnormals' digits (5e-324).
+
+    Parameters
+    ----------
+    x : (n,) or (n, k) array
+        Masses checked by :func:`check_masses`.
+
+    Returns
+    -------
+    peak, relative : array
+        Per column; the total is ``peak * relative``.
+    """
     with np.errstate(over="ignore"):  # an overflowing sum takes the scaled path below
         plain = x.sum(axis=0)
     exact = np.isfinite(plain) & (plain >= np.finfo(np.float64).tiny)
@@ -63,23 +83,65 @@ def mass_totals(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def normalized_columns(x: np.ndarray) -> np.ndarray:
     """Checked masses (:func:`check_masses`) rescaled to sum to 1 per column; the scaling
-    by the largest value first keeps every finite input finite and non-zero."""
+    by the largest value first keeps every finite input finite and non-zero.
+
+    Parameters
+    ----------
+    x : (n,) or (n, k) array
+        Checked masses.
+
+    Returns
+    -------
+    (n,) or (n, k) array summing to 1 per column
+    """
     peak, relative = mass_totals(x)
     return (x / peak) / relative
 
 
 def normalize_masses(values, n: int, field: str = "masses") -> np.ndarray:
-    """Validated masses rescaled to sum to 1 (per column)."""
+    """Validated masses rescaled to sum to 1 (per column).
+
+    Parameters
+    ----------
+    values, n, field : array, int, str
+        As in :func:`check_masses`.
+
+    Returns
+    -------
+    (n,) or (n, k) array
+        Columns summing to 1.
+    """
     return normalized_columns(check_masses(values, n, field))
 
 
 def density_from_masses(masses: np.ndarray, areas: np.ndarray) -> np.ndarray:
-    """Density ``mu = m / a`` (per column), so that ``a @ mu == m.sum()``."""
+    """Density ``mu = m / a`` (per column), so that ``a @ mu == m.sum()``.
+
+    Parameters
+    ----------
+    masses, areas : array
+        Masses ``(n,)`` or ``(n, k)``; area weights ``(n,)``.
+
+    Returns
+    -------
+    (n,) or (n, k) array
+    """
     a = areas if masses.ndim == 1 else areas[:, None]
     return masses / a
 
 
 def masses_from_density(density: np.ndarray, areas: np.ndarray) -> np.ndarray:
+    """Masses ``m = a * mu`` of a density (per column), the inverse of :func:`density_from_masses`.
+
+    Parameters
+    ----------
+    density, areas : array
+        Density ``(n,)`` or ``(n, k)``; its area weights ``(n,)``.
+
+    Returns
+    -------
+    (n,) or (n, k) array
+    """
     a = areas if density.ndim == 1 else areas[:, None]
     return density * a
 
@@ -90,6 +152,15 @@ def check_weights(weights, k: int, field: str = "weights") -> np.ndarray:
 
     ``None`` gives uniform weights. Finite values near the float limit can sum to inf
     (which would normalize to zeros): refused, naming ``field``.
+
+    Parameters
+    ----------
+    weights, k, field : array or None, int, str
+        ``(k,)`` weights (None: uniform), their count, and the input an error names.
+
+    Returns
+    -------
+    (k,) array summing to 1
     """
     if weights is None:
         return np.full(k, 1.0 / k)
@@ -111,7 +182,17 @@ def check_weights(weights, k: int, field: str = "weights") -> np.ndarray:
 
 
 def check_positive(value, field: str) -> float:
-    """A finite number > 0."""
+    """A finite number > 0.
+
+    Parameters
+    ----------
+    value, field : float, str
+        The number and the input an error names.
+
+    Returns
+    -------
+    float
+    """
     try:
         x = float(value)
     except (TypeError, ValueError, OverflowError) as exc:
@@ -122,7 +203,18 @@ def check_positive(value, field: str) -> float:
 
 
 def check_finite(value, field: str) -> float:
-    """A finite number (any sign)."""
+    """A finite number (any sign).
+
+    Parameters
+    ----------
+    value, field : float, str
+        As in :func:`check_positive`.
+
+    Returns
+    -------
+    float
+        The value.
+    """
     try:
         x = float(value)
     except (TypeError, ValueError, OverflowError) as exc:
@@ -133,7 +225,17 @@ def check_finite(value, field: str) -> float:
 
 
 def check_int(value, field: str, *, low: int | None = None, high: int | None = None) -> int:
-    """An integer in ``[low, high]`` (bounds optional)."""
+    """An integer in ``[low, high]`` (bounds optional).
+
+    Parameters
+    ----------
+    value, field, low, high : int, str, int or None, int or None
+        The number, the input an error names, and the inclusive bounds.
+
+    Returns
+    -------
+    int
+    """
     if isinstance(value, bool):
         raise InputError(f"{field} must be an integer", field=field)
     try:
@@ -153,6 +255,15 @@ def check_edges(edges, n: int, field: str = "edges") -> np.ndarray:
     """``(m, 2)`` int64 node pairs with endpoints in ``[0, n)`` and no self-loops.
 
     Values beyond int64 or non-integers are refused before any conversion can overflow.
+
+    Parameters
+    ----------
+    edges, n, field : array, int, str
+        ``(m, 2)`` node pairs, the node count, the input an error names.
+
+    Returns
+    -------
+    (m, 2) int64 array
     """
     e = _integer_array(edges, field, "a list of node pairs")
     if e.size == 0:
@@ -205,7 +316,17 @@ def _integer_array(values, field: str, what: str) -> np.ndarray:
 
 
 def check_edge_weights(weights, m: int, field: str = "edge_weights") -> np.ndarray:
-    """``(m,)`` positive finite weights, one per edge (``None``: all ones)."""
+    """``(m,)`` positive finite weights, one per edge (``None``: all ones).
+
+    Parameters
+    ----------
+    weights, m, field : array or None, int, str
+        One weight per edge (None: ones), the edge count, the input an error names.
+
+    Returns
+    -------
+    (m,) float array
+    """
     if weights is None:
         return np.ones(m)
     try:
@@ -223,7 +344,17 @@ def check_edge_weights(weights, m: int, field: str = "edge_weights") -> np.ndarr
 
 
 def check_node_indices(nodes, n: int, field: str = "nodes") -> np.ndarray:
-    """``(k,)`` distinct int64 node indices in ``[0, n)``, ``k >= 1``."""
+    """``(k,)`` distinct int64 node indices in ``[0, n)``, ``k >= 1``.
+
+    Parameters
+    ----------
+    nodes, n, field : array, int, str
+        Node indices, how many nodes the graph has, and the input an error names.
+
+    Returns
+    -------
+    (k,) int64 array of distinct indices
+    """
     try:
         raw = np.asarray(nodes, dtype=object).ravel()
     except (TypeError, ValueError) as exc:
@@ -247,6 +378,12 @@ def check_anchored_components(component_labels, nodes, field: str = "nodes") -> 
 
     The Dirichlet problems of propagation (harmonic extension from given nodes) are
     singular on a component without a given node; the error names that component.
+
+    Parameters
+    ----------
+    component_labels, nodes, field : array, array, str
+        Component of every point ``(n,)``, the given nodes ``(k,)``, the input an error
+        names.
     """
     labels = np.asarray(component_labels)
     count = int(labels.max()) + 1 if len(labels) else 0
@@ -262,7 +399,17 @@ def check_anchored_components(component_labels, nodes, field: str = "nodes") -> 
 
 
 def check_indices(indices, n: int, field: str = "indices") -> np.ndarray:
-    """``(k,)`` int64 point indices in ``[0, n)`` (values beyond int64 refused, not wrapped)."""
+    """``(k,)`` int64 point indices in ``[0, n)`` (values beyond int64 refused, not wrapped).
+
+    Parameters
+    ----------
+    indices, n, field : array, int, str
+        Point indices ``(k,)``; points of the domain; the input an error names.
+
+    Returns
+    -------
+    (k,) int64 array
+    """
     idx = _integer_array(indices, field, "a list of point indices")
     if idx.ndim != 1:
         raise InputError(f"{field} must be a flat list of point indices, got shape {idx.shape}",
@@ -286,6 +433,12 @@ def check_component_masses(labels: np.ndarray, masses: np.ndarray, field: str,
     ``labels`` ``(n,)``: connected component of every point. Transport never moves mass
     between components, so every column must give each component the same total (L1 gap
     over components at most ``tol``, mass units). Raises ``UnsupportedDomainError``.
+
+    Parameters
+    ----------
+    labels, masses, field, tol : array, array, str, float
+        Component of every point ``(n,)``, distributions ``(n, k)``, the input an error
+        names, and the largest L1 gap over components (mass units).
     """
     from solvers.errors import UnsupportedDomainError
 
@@ -314,7 +467,17 @@ GAMMA_MIN = 1e-300  # below it the heat time gamma/4 underflows (subnormals) to 
 
 
 def gamma_max(extent: float) -> float:
-    """The largest regularization :func:`check_gamma` admits on a domain of this extent."""
+    """The largest regularization :func:`check_gamma` admits on a domain of this extent.
+
+    Parameters
+    ----------
+    extent : float
+        The domain's extent (``Domain.extent``).
+
+    Returns
+    -------
+    float
+    """
     return GAMMA_MAX_FACTOR * float(extent) ** 2
 
 
@@ -323,6 +486,16 @@ def check_gamma(gamma, extent: float, field: str = "gamma") -> float:
 
     ``extent``: the domain's size in its own units (``Domain.extent``: bounding-box
     diagonal at unit area, grid diagonal, graph node count in hops).
+
+    Parameters
+    ----------
+    gamma, extent, field : float, float, str
+        The regularization, the domain's extent, the input an error names.
+
+    Returns
+    -------
+    float
+        ``gamma``.
     """
     g = check_positive(gamma, field)
     if g < GAMMA_MIN:
@@ -348,7 +521,18 @@ def check_gamma_resolved(gamma, h: float, field: str = "gamma") -> float:
     """A regularization the domain resolves: ``gamma >= GAMMA_RESOLUTION * h**2``.
 
     ``h``: the domain's length scale (``DomainSketch.length_scale``: mean edge length on
-    meshes, grid spacing, one hop on graphs, ``sqrt(1/n)`` on point clouds at unit area)."""
+    meshes, grid spacing, one hop on graphs, ``sqrt(1/n)`` on point clouds at unit area).
+
+    Parameters
+    ----------
+    gamma, h, field : float, float, str
+        Regularization; the domain's length scale; the input an error names.
+
+    Returns
+    -------
+    float
+        ``gamma``, once resolved.
+    """
     g = check_positive(gamma, field)
     low = GAMMA_RESOLUTION * float(h) ** 2
     if g < low:
@@ -362,7 +546,17 @@ def check_gamma_resolved(gamma, h: float, field: str = "gamma") -> float:
 def check_entropy_bound(bound, areas: np.ndarray, field: str = "entropy_bound") -> float:
     r"""An entropy bound :math:`H_0` reachable by sharpening: finite and at least
     :math:`\log \min_i a_i`, the entropy of the most concentrated distribution (a point
-    mass on the smallest cell); entropies are at most 0 (uniform density on unit area)."""
+    mass on the smallest cell); entropies are at most 0 (uniform density on unit area).
+
+    Parameters
+    ----------
+    bound, areas, field : float, (n,) array, str
+        The bound :math:`H_0`, the area weights, the input an error names.
+
+    Returns
+    -------
+    float
+    """
     h = check_finite(bound, field)
     low = float(np.log(np.min(areas)))
     if h < low:
@@ -373,7 +567,13 @@ def check_entropy_bound(bound, areas: np.ndarray, field: str = "entropy_bound") 
 
 
 def check_anchored(n_nodes: int, edges: np.ndarray, anchors, field: str = "edges") -> None:
-    """Every node of the graph ``(n_nodes, edges)`` is connected to some anchor node."""
+    """Every node of the graph ``(n_nodes, edges)`` is connected to some anchor node.
+
+    Parameters
+    ----------
+    n_nodes, edges, anchors, field : int, (m, 2) array, array, str
+        The graph, its anchor nodes, and the input an error names.
+    """
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
 
@@ -390,7 +590,18 @@ def check_anchored(n_nodes: int, edges: np.ndarray, anchors, field: str = "edges
 
 def check_size(shape, limit: int, field: str = "shape") -> int:
     """The number of points ``prod(shape)`` as a Python int (no int64 wrap-around),
-    refused when above ``limit``."""
+    refused when above ``limit``.
+
+    Parameters
+    ----------
+    shape, limit, field : sequence of int, int, str
+        Points per axis, the largest number of points, the input an error names.
+
+    Returns
+    -------
+    int
+        ``prod(shape)``.
+    """
     try:
         dims = [int(s) for s in shape]
     except (TypeError, ValueError, OverflowError) as exc:
@@ -407,7 +618,17 @@ def check_cost_matrix(cost, field: str = "cost", *, max_size: int | None = None)
     1e-12 of its largest entry; the exact mean is returned) with a zero diagonal, ``B >= 2``.
 
     Symmetry and a zero diagonal make a transport cost between histograms on the space
-    independent of direction and zero between equal histograms."""
+    independent of direction and zero between equal histograms.
+
+    Parameters
+    ----------
+    cost, field, max_size : (B, B) array, str, int or None
+        The ground cost, the input an error names, and the largest ``B``.
+
+    Returns
+    -------
+    (B, B) array
+    """
     try:
         c = np.asarray(cost, dtype=np.float64)
     except (TypeError, ValueError) as exc:

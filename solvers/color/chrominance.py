@@ -86,8 +86,23 @@ def check_bins(bins) -> int:
 
 
 def ab_histogram(ab, bins: int) -> np.ndarray:
-    """Normalized ``(bins, bins)`` histogram of ``(..., 2)`` ab values: each value's unit
-    mass split bilinearly over the 4 nodes around it (``np.bincount`` with weights)."""
+    """Normalized histogram of ab values on the ``bins × bins`` chrominance grid.
+
+    Each value's unit mass is split bilinearly over the 4 nodes around it
+    (``np.bincount`` with weights).
+
+    Parameters
+    ----------
+    ab : (..., 2) array
+        CIE a*, b* values, in [-128, 128].
+    bins : int
+        Nodes per axis of the grid (spacing :math:`h = 256/(bins-1)`).
+
+    Returns
+    -------
+    (bins, bins) array
+        Masses summing to 1 (axis 0: a*, axis 1: b*).
+    """
     grid = AbGrid(check_bins(bins))
     index, weight = grid.splat(ab)
     counts = sum(np.bincount(i, weights=w, minlength=grid.bins**2)
@@ -153,12 +168,44 @@ def chrominance_barycenters(
 ) -> ChrominanceBarycenters:
     r"""Barycenters of ``k`` ab histograms for ``B`` weight vectors, and the maps :math:`T_i`.
 
-    ``hists`` ``(k, bins, bins)`` masses (each summing to 1); ``alphas`` ``(B, k)``
-    (rows non-negative, summing to 1).  Every input's plan to every barycenter is
-    converged (``measure_all``), also for inputs of weight 0, whose maps are what
-    "transfer image i to the colors of image j" uses.  ``sharpen``: entropic sharpening
-    (Alg. 3) of each barycenter to the largest entropy among its weighted inputs;
-    ``debiased``: the debiased barycenter (see :func:`solvers.convolutional.barycenter`).
+    For each weight vector :math:`\alpha` (Alg. 2, eq. 3.13)
+
+    .. math:: \mu_\alpha = \arg\min_\mu \sum_i \alpha_i W^2_{2,\gamma}(\mu, \mu_i),
+
+    and the map of input ``i`` is the barycentric projection of its plan
+    :math:`\pi_i = D_{v_i} K D_{w_i}` (see the module doc). Every input's plan to every
+    barycenter is converged (``measure_all``), also for inputs of weight 0, whose maps are
+    what "transfer image i to the colors of image j" uses.
+
+    Parameters
+    ----------
+    hists : (k, bins, bins) array
+        Input ab masses, each summing to 1.
+    alphas : (B, k) array
+        Weight vectors (rows non-negative, summing to 1).
+    gamma : float
+        Entropic regularization, in squared ab units.
+    sharpen : bool
+        Entropic sharpening (Alg. 3) of each barycenter to the largest entropy among its
+        weighted inputs.
+    debiased : bool
+        The debiased barycenter (see :func:`solvers.convolutional.barycenter`).
+    tol : float
+        Stop when the largest L1 marginal violation is below ``tol``.
+    max_iter : int
+        Iteration budget.
+    progress : callable, optional
+        ``progress(iteration, residual)``, called once per iteration.
+    should_cancel : callable, optional
+        ``should_cancel() -> bool``; True stops with
+        :class:`~solvers.errors.CancelledError`.
+
+    Returns
+    -------
+    ChrominanceBarycenters
+        ``barycenters`` ``(B, bins, bins)``, ``maps`` ``(B, k, 2, bins, bins)`` (the ab
+        value each node is sent to; NaN outside ``window``), ``window``, ``iterations``,
+        ``residual``, ``converged`` and ``entropy_bounds`` ``(B,)`` (sharpening only).
     """
     hists = np.asarray(hists, dtype=np.float64)
     k, bins, _ = hists.shape

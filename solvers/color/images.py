@@ -72,7 +72,22 @@ def _oriented_size(im) -> tuple[int, int]:
 
 
 def probe_image(data: bytes, field: str = "image", max_pixels: int | None = None) -> ImageInfo:
-    """Header of an image (no pixel decoding); InputError naming ``field`` if unreadable."""
+    """Header of an image file, without decoding its pixels.
+
+    Parameters
+    ----------
+    data : bytes
+        The image file.
+    field : str
+        Input name given to the :class:`~solvers.errors.InputError` raised if unreadable.
+    max_pixels : int, optional
+        Refuse images with more pixels than this.
+
+    Returns
+    -------
+    ImageInfo
+        ``width``, ``height`` (after EXIF orientation), ``format`` (Pillow's name), ``mode``.
+    """
     im = _open(data, field, max_pixels)
     w, h = _oriented_size(im)
     return ImageInfo(width=int(w), height=int(h), format=str(im.format or ""),
@@ -80,7 +95,18 @@ def probe_image(data: bytes, field: str = "image", max_pixels: int | None = None
 
 
 def read_image(data: bytes, field: str = "image", max_pixels: int | None = None) -> np.ndarray:
-    """Decode an image file into ``(H, W, 3|4)`` uint8 or uint16 (see the module doc)."""
+    """Decode an image file (EXIF orientation applied; see the module doc).
+
+    Parameters
+    ----------
+    data, field, max_pixels : bytes, str, int or None
+        As in :func:`probe_image`.
+
+    Returns
+    -------
+    (H, W, 3) or (H, W, 4) array
+        uint8 or uint16 pixels (alpha kept).
+    """
     from PIL import Image, ImageOps
 
     im = _open(data, field, max_pixels)
@@ -140,10 +166,24 @@ def _to_array(im, field: str) -> np.ndarray:
 
 
 def write_image(img: np.ndarray, format: str = "png", quality: int = 92) -> bytes:
-    """Encode ``(H, W, 3|4)`` uint8/uint16 pixels as PNG, JPEG or TIFF bytes.
+    """Encode pixels as PNG, JPEG, TIFF or WebP bytes.
 
     PNG keeps alpha; 16-bit color goes to TIFF (tifffile) or is reduced to 8 bits for PNG
     and JPEG (Pillow cannot write 16-bit color PNGs); JPEG drops alpha.
+
+    Parameters
+    ----------
+    img : (H, W, 3) or (H, W, 4) array
+        uint8 or uint16 pixels.
+    format : {"png", "jpeg", "jpg", "tiff", "webp"}
+        File format.
+    quality : int
+        JPEG quality.
+
+    Returns
+    -------
+    bytes
+        The encoded file.
     """
     from PIL import Image
 

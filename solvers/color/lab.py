@@ -71,7 +71,18 @@ def lut_for(dtype) -> tuple[np.ndarray, float]:
 
 
 def rgb_to_lab(img) -> np.ndarray:
-    """Fast sRGB -> Lab: ``(..., 3|4)`` image -> ``(..., 3)`` float32 Lab."""
+    """Fast sRGB -> CIE-Lab.
+
+    Parameters
+    ----------
+    img : (..., 3) or (..., 4) array
+        sRGB pixels: integer codes, or floats in [0, 1]; alpha is ignored.
+
+    Returns
+    -------
+    (..., 3) float32 array
+        L*, a*, b*.
+    """
     arr = np.asarray(img)
     if arr.shape[-1] not in (3, 4):
         raise InputError("images need 3 or 4 channels", field="image")
@@ -86,7 +97,21 @@ def rgb_to_lab(img) -> np.ndarray:
 
 
 def lab_to_rgb(lab, dtype=np.float32) -> np.ndarray:
-    """Fast Lab -> sRGB (clipped to the gamut's [0, 1] box), as float or integer codes."""
+    """Fast CIE-Lab -> sRGB, clipped to the gamut's [0, 1] box.
+
+    Parameters
+    ----------
+    lab : (..., 3) array
+        L*, a*, b*.
+    dtype : dtype
+        Floating dtype for values in [0, 1], or an integer dtype for codes
+        (e.g. ``np.uint8``).
+
+    Returns
+    -------
+    (..., 3) array of ``dtype``
+        sRGB values.
+    """
     from solvers.color import _kernels
 
     lab = np.asarray(lab, dtype=np.float32)

@@ -61,10 +61,24 @@ def _integral_of_quantiles(cdf: np.ndarray, probs: np.ndarray, lmax: float) -> n
 
 
 def luminance_maps(counts: np.ndarray, alphas: np.ndarray, lmax: float = L_MAX) -> np.ndarray:
-    r"""Tables ``(B, k, M)``: the L* value :math:`T_{b,i,m}` of each bin ``m`` of input ``i``
-    for weights ``alphas[b]`` (see the module doc).
+    """1-D optimal transport of L* in closed form (quantile matching).
 
-    ``counts`` ``(k, M)`` L* bin counts of the inputs, ``alphas`` ``(B, k)`` weights.
+    Tables of the L* value :math:`T_{b,i,m}` that bin ``m`` of input ``i`` is sent to for
+    weights ``alphas[b]`` (see the module doc).
+
+    Parameters
+    ----------
+    counts : (k, M) array
+        L* bin counts of the ``k`` inputs.
+    alphas : (B, k) array
+        Weight vectors.
+    lmax : float
+        Upper end of the L* axis (bins cover ``[0, lmax]``).
+
+    Returns
+    -------
+    (B, k, M) array
+        The L* value of each bin of each input, per weight vector.
     """
     cdf = cdf_at_edges(counts)
     k, e = cdf.shape

@@ -14,7 +14,25 @@ from solvers.color.lab import lab_to_rgb
 
 def histogram_picture(masses: np.ndarray, lightness: float = 65.0,
                       power: float = 0.5) -> np.ndarray:
-    """``(bins, bins)`` ab masses -> ``(bins, bins, 3)`` uint8 RGB picture."""
+    """An ab histogram as a picture (Fig. 3.12, bottom row).
+
+    Each node is painted its own chrominance at lightness ``lightness``, blended with white
+    by the node's mass relative to the largest.
+
+    Parameters
+    ----------
+    masses : (bins, bins) array
+        ab masses (axis 0: a*, axis 1: b*).
+    lightness : float
+        L* of the painted colors.
+    power : float
+        Exponent on the relative mass (below 1 brightens small masses).
+
+    Returns
+    -------
+    (bins, bins, 3) uint8 array
+        RGB picture, b* upwards and a* to the right.
+    """
     m = np.asarray(masses, dtype=np.float64)
     bins = m.shape[0]
     nodes = AbGrid(bins).nodes

@@ -144,16 +144,7 @@ WITHIN_NODE_SUBBINS = 16
 
 @dataclass(kw_only=True)
 class ColorTransferResult(SolverResult):
-    r"""Result of :func:`color_transfer`.
-
-    ``images[b][i]``: input ``i`` recolored for ``alphas[b]`` (same shape and dtype as
-    the input; ``None`` when not requested through ``recolor``); ``alphas`` ``(B, k)``;
-    ``barycenters`` ``(B, bins, bins)`` ab masses (axis 0: a*, axis 1: b*, nodes
-    ``-128 + h·i``); ``histograms`` ``(k, bins, bins)`` the inputs' ab masses; ``maps``
-    ``(B, k, 2, bins, bins)`` the ab value :math:`T_i` sends each node to (NaN outside
-    the computed ``window``); ``luminance_maps`` ``(B, k, lbins)`` the L* each L bin
-    goes to (``None`` with ``luminance=False``); ``residual``: largest L1 marginal
-    violation over all plans; ``timings``: seconds per stage.
+    """Result of :func:`color_transfer`.
 
     ``mode="split"``: ``histograms`` count pixels at their nearest node; ``barycenters``
     are the histograms the plans go to (an input's, McCann's interpolant for ``k = 2``,
@@ -161,6 +152,41 @@ class ColorTransferResult(SolverResult):
     ``(i, j)`` (``j`` an input index, or ``"b{b}"`` for barycenter ``b``) to the
     :class:`~solvers.color.split.ExactPlan` used; ``residual`` the largest marginal
     violation of those plans (and of the barycenter's, if any).
+
+    Attributes
+    ----------
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`); ``residual`` is the
+        largest L1 marginal violation over all plans.
+    images : list of list of array or None
+        ``images[b][i]``: input ``i`` recolored for ``alphas[b]`` (same shape and dtype as
+        the input; ``None`` when not requested through ``recolor``).
+    alphas : (B, k) array
+        The weight vectors.
+    barycenters : (B, bins, bins) array
+        ab masses (axis 0: a*, axis 1: b*, nodes ``-128 + h·i``).
+    histograms : (k, bins, bins) array
+        The inputs' ab masses.
+    maps : (B, k, 2, bins, bins) array or None
+        The ab value :math:`T_i` sends each node to (NaN outside ``window``).
+    luminance_maps : (B, k, lbins) array or None
+        The L* each L bin goes to (``None`` with ``luminance=False``).
+    window : tuple of slice
+        The part of the ab grid where maps are computed.
+    bins : int
+        Nodes per axis of the ab grid.
+    gamma : float
+        Entropic regularization used, in squared ab units.
+    mode : {"barycentric", "split"}
+        How pixels are recolored.
+    regularization : float
+        ``mode="split"``: the guided-filter epsilon (0: no filter).
+    plans : dict
+        ``mode="split"``: the exact plans used, by ``(i, j)``.
+    entropy_bounds : (B,) array or None
+        Entropy bounds of sharpening, if any.
+    timings : dict
+        Seconds per stage.
     """
 
     images: list[list[np.ndarray | None]]

@@ -44,13 +44,25 @@ from solvers.validation import check_entropy_bound, check_weights
 
 @dataclass
 class BarycenterResult(SolverResult):
-    r"""Result of :func:`barycenter`: ``masses`` ``(n,)`` (sum 1), convergence data, entropy.
+    r"""Result of :func:`barycenter`.
 
-    ``residual``: largest L1 violation :math:`\|a \otimes (v_i \otimes H(a\otimes w_i) -
-    \mu)\|_1` over the inputs (mass units); ``entropy``: :math:`-\sum m \log(m/a)`;
-    ``entropy_bound``: the bound used by sharpening (None without sharpening);
-    ``log_scalings``: ``(log v, log w)``, each ``(n, k)``: the plan of input ``i`` is
-    :math:`\pi_i = D_{v_i} K D_{w_i}` (barycenter side ``v``, input side ``w``).
+    Attributes
+    ----------
+    masses : (n,) array
+        The barycenter (sum 1).
+    entropy : float
+        :math:`-\sum m \log(m/a)`.
+    entropy_bound : float or None
+        The bound used by sharpening (None without sharpening).
+    log_scalings : tuple of (n, k) array or None
+        ``(log v, log w)``: the plan of input ``i`` is :math:`\pi_i = D_{v_i} K D_{w_i}`
+        (barycenter side ``v``, input side ``w``).
+    gamma, t, substeps, regularization, method
+        As in :class:`~solvers.convolutional.SinkhornResult`.
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`).
+        ``residual``: largest L1 violation :math:`\|a \otimes (v_i \otimes H(a\otimes w_i) -
+        \mu)\|_1` over the inputs (mass units).
     """
 
     masses: np.ndarray
@@ -274,6 +286,19 @@ def barycenter(
     Returns
     -------
     BarycenterResult(masses (n,), iterations, residual, converged, entropy, entropy_bound)
+
+    Examples
+    --------
+    The midpoint of two bumps on a 1-D grid sits half way between them.
+
+    >>> import numpy as np
+    >>> from solvers.domains import Grid
+    >>> from solvers.convolutional import barycenter
+    >>> x = np.linspace(0.0, 1.0, 50)
+    >>> mus = np.stack([np.exp(-((x - c) / 0.05) ** 2) for c in (0.25, 0.75)], axis=1)
+    >>> result = barycenter(Grid([50]), mus / mus.sum(axis=0), gamma=1e-3)
+    >>> result.masses.shape, f"{x @ result.masses:.2f}"
+    ((50,), '0.50')
     """
     M = _inputs(domain, mus)
     alpha = check_weights(weights, M.shape[1])
@@ -328,10 +353,27 @@ def _prepared(domain, M, *, gamma, t, substeps, entropy_bound, sharpen, debiased
 
 @dataclass
 class BarycentersResult(SolverResult):
-    r"""Result of :func:`barycenters`: ``masses`` ``(n, B)`` (columns sum to 1), one per
-    weight vector; per problem ``(B,)``: ``problem_iterations``, ``problem_residuals``,
-    ``problem_converged``, ``entropies``; ``iterations`` (sum), ``residual`` (max) and
-    ``converged`` (all) summarize them."""
+    r"""Result of :func:`barycenters`: one barycenter per weight vector.
+
+    Attributes
+    ----------
+    masses : (n, B) array
+        Barycenters (columns sum to 1).
+    weights : (B, k) array
+        The weight vectors.
+    problem_iterations, problem_residuals, problem_converged : (B,) array
+        Convergence data per weight vector.
+    entropies : (B,) array
+        Entropy of each barycenter.
+    entropy_bound : float or None
+        The bound used by sharpening.
+    gamma, t, substeps, regularization, method
+        As in :class:`~solvers.convolutional.SinkhornResult`.
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`).
+        ``iterations`` (sum), ``residual`` (max) and ``converged`` (all) summarize the
+        problems.
+    """
 
     masses: np.ndarray
     weights: np.ndarray
@@ -392,6 +434,8 @@ def barycenters(
 ) -> BarycentersResult:
     r"""Many barycenters of the same inputs, one per weight vector, solved as one block.
 
+    For every weight vector :math:`\alpha^{(b)}`,
+    :math:`\mu_b = \arg\min_\mu \sum_i \alpha^{(b)}_i W^2_{2,H_t}(\mu, \mu_i)`.
     Problem ``b`` is :func:`barycenter` ``(domain, mus, weights[b], ...)`` with the same
     arguments (eq. 3.13 / Alg. 2; Alg. 3 with sharpening): every problem keeps its own
     scalings, over-relaxation, stopping rule and stagnation record, so each column of
@@ -403,7 +447,8 @@ def barycenters(
 
     Parameters
     ----------
-    domain : any domain; mus : ``(n, k)`` input masses (columns normalized here).
+    domain : any domain.
+    mus : ``(n, k)`` input masses (columns normalized here).
     weights : ``(B, k)`` non-negative weight vectors (each normalized), e.g. a grid of
         ``alphas`` (thesis Fig. 3.4).
     gamma, t, substeps, entropy_bound, sharpen, debiased, tol, max_iter, acceleration, method :

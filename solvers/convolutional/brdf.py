@@ -59,7 +59,19 @@ _LIMITS = {"exponent": (0.0, 1e5), "ks": (0.0, 1e3), "kd": (0.0, 1e3), "nu": (0.
 
 
 def check_material(material, field: str = "material") -> dict:
-    """A validated material dict with its model's defaults filled in."""
+    """A validated material dict with its model's defaults filled in.
+
+    Parameters
+    ----------
+    material : dict
+        ``{"model": ..., parameters}`` (module docstring).
+    field : str
+        Input name given to the :class:`~solvers.errors.InputError` raised.
+
+    Returns
+    -------
+    dict
+    """
     if not isinstance(material, dict) or material.get("model") not in MODELS:
         raise InputError(f"{field} must be a dict with model one of {', '.join(MODELS)}",
                          field=field)
@@ -83,7 +95,21 @@ def check_material(material, field: str = "material") -> dict:
 
 def evaluate(material: dict, w_in: np.ndarray, w_out: np.ndarray) -> np.ndarray:
     """BRDF values ``(P,)`` for unit directions ``w_in`` ``(3,)`` or ``(P, 3)`` and ``w_out``
-    ``(P, 3)`` in the local frame (z = normal, x = tangent ``u``)."""
+    ``(P, 3)`` in the local frame (z = normal, x = tangent ``u``).
+
+    Parameters
+    ----------
+    material : dict
+        A validated material.
+    w_in : (3,) or (P, 3) array
+        Incoming unit directions.
+    w_out : (P, 3) array
+        Outgoing unit directions.
+
+    Returns
+    -------
+    (P,) array
+    """
     m = check_material(material)
     w_in = np.broadcast_to(np.asarray(w_in, float), np.shape(w_out))
     w_out = np.asarray(w_out, float)
@@ -109,7 +135,19 @@ def evaluate(material: dict, w_in: np.ndarray, w_out: np.ndarray) -> np.ndarray:
 
 
 def check_incoming(incoming_theta, field: str = "incoming_theta") -> np.ndarray:
-    """Polar angles ``(n_in,)`` of the incoming directions, in ``[0, pi/2)``, increasing."""
+    """Polar angles ``(n_in,)`` of the incoming directions, in ``[0, pi/2)``, increasing.
+
+    Parameters
+    ----------
+    incoming_theta : (n_in,) array
+        Polar angles.
+    field : str
+        Input name given to the :class:`~solvers.errors.InputError` raised.
+
+    Returns
+    -------
+    (n_in,) array
+    """
     try:
         x = np.atleast_1d(np.asarray(incoming_theta, dtype=np.float64))
     except (TypeError, ValueError) as exc:
@@ -124,7 +162,24 @@ def check_incoming(incoming_theta, field: str = "incoming_theta") -> np.ndarray:
 def brdf_slices(grid: HemisphereGrid, material: dict, incoming_theta) -> tuple[np.ndarray,
                                                                                np.ndarray]:
     """``(masses (n_in, n), scale (n_in,))``: the material's reflected-energy distribution
-    per incoming direction (module docstring) and its normalization ``Z``."""
+    per incoming direction (module docstring) and its normalization ``Z``.
+
+    Parameters
+    ----------
+    grid : HemisphereGrid
+        The hemisphere of outgoing directions (``n`` points).
+    material : dict
+        A material.
+    incoming_theta : (n_in,) array
+        Polar angles of the incoming directions.
+
+    Returns
+    -------
+    masses : (n_in, n) array
+        Reflected-energy distribution per incoming direction.
+    scale : (n_in,) array
+        Its normalization :math:`Z`.
+    """
     th = check_incoming(incoming_theta)
     masses = np.empty((len(th), grid.n))
     scale = np.empty(len(th))
@@ -143,7 +198,17 @@ def brdf_slices(grid: HemisphereGrid, material: dict, incoming_theta) -> tuple[n
 
 def bilinear_weights(rows: int, cols: int) -> np.ndarray:
     """``(rows*cols, 4)`` weights of corners ``(0,0), (0,1), (1,0), (1,1)`` of the unit
-    parameter square on a ``rows × cols`` grid (row-major, both ends included)."""
+    parameter square on a ``rows × cols`` grid (row-major, both ends included).
+
+    Parameters
+    ----------
+    rows, cols : int
+        Size of the grid of weight vectors.
+
+    Returns
+    -------
+    (rows*cols, 4) array
+    """
     rows = check_int(rows, "rows", low=1)
     cols = check_int(cols, "cols", low=1)
     u = np.linspace(0.0, 1.0, rows) if rows > 1 else np.zeros(1)
@@ -162,6 +227,30 @@ class BRDFInterpolationResult(SolverResult):
     ``scale`` ``(n_in, B)``: linearly interpolated :math:`Z`; ``inputs`` ``(n_in, k, n)``;
     ``entropy`` ``(n_in, B)``; ``entropy_bound`` ``(n_in, B)`` or None; ``residual``: the
     largest L1 marginal violation over all barycenters.
+
+    Attributes
+    ----------
+    masses : (n_in, B, n) array
+        Barycenter per incoming direction and weight vector.
+    linear : (n_in, B, n) array
+        The linear mix :math:`\sum_c \lambda_c m_c`.
+    scale : (n_in, B) array
+        Linearly interpolated :math:`Z`.
+    inputs : (n_in, k, n) array
+        The inputs' slices.
+    weights : (B, k) array
+        The weight vectors.
+    incoming_theta : (n_in,) array
+        Polar angles of the incoming directions.
+    entropy : (n_in, B) array
+        Entropy of each barycenter.
+    entropy_bound : (n_in, B) array or None
+        Sharpening bounds.
+    gamma : float
+        Regularization used.
+    iterations, residual, converged : int, float, bool
+        Convergence data; ``residual`` is the largest L1 marginal violation over all
+        barycenters.
     """
 
     masses: np.ndarray
@@ -188,7 +277,7 @@ def interpolate_brdfs(
     progress: Callable[[int, float], None] | None = None,
     should_cancel: Callable[[], bool] | None = None,
 ) -> BRDFInterpolationResult:
-    r"""Barycenters of ``k`` materials' slices for every weight vector and incoming direction.
+    """Barycenters of ``k`` materials' slices for every weight vector and incoming direction.
 
     Parameters
     ----------
@@ -200,6 +289,10 @@ def interpolate_brdfs(
     entropy_bound : None (plain Alg. 2), ``"inputs"`` (Alg. 3 with :math:`H_0` the largest
         entropy of that direction's inputs) or a number :math:`H_0`.
     tol, max_iter, progress, should_cancel : as in :func:`~solvers.convolutional.barycenter`.
+
+    Returns
+    -------
+    BRDFInterpolationResult
     """
     if not isinstance(materials, (list, tuple)) or len(materials) < 1:
         raise InputError("materials must be a non-empty list", field="materials")
@@ -254,19 +347,55 @@ def interpolate_brdfs(
 
 
 def density(grid: HemisphereGrid, masses: np.ndarray) -> np.ndarray:
-    """Densities ``m / a`` of ``(..., n)`` masses (per unit hemisphere area)."""
+    """Densities ``m / a`` of ``(..., n)`` masses (per unit hemisphere area).
+
+    Parameters
+    ----------
+    grid : HemisphereGrid
+        The hemisphere of outgoing directions (``n`` points).
+    masses : (..., n) array
+        Masses.
+
+    Returns
+    -------
+    (..., n) array
+    """
     return np.asarray(masses) / grid.areas
 
 
 def peak_direction(grid: HemisphereGrid, masses: np.ndarray) -> tuple[float, float]:
-    """``(theta, phi)`` of the largest density of ``(n,)`` masses."""
+    """``(theta, phi)`` of the largest density of ``(n,)`` masses.
+
+    Parameters
+    ----------
+    grid : HemisphereGrid
+        The hemisphere of outgoing directions (``n`` points).
+    masses : (n,) array
+        Masses.
+
+    Returns
+    -------
+    theta, phi : float
+    """
     j = int(np.argmax(density(grid, masses)))
     return float(grid.theta[j]), float(grid.phi[j])
 
 
 def local_maxima(grid: HemisphereGrid, masses: np.ndarray, rel: float = 0.05) -> np.ndarray:
     """Grid points whose density is at least ``rel`` × the largest and strictly above its
-    8 grid neighbours (phi periodic; the pole row compares only within the grid)."""
+    8 grid neighbours (phi periodic; the pole row compares only within the grid).
+
+    Parameters
+    ----------
+    grid, masses
+        As in :func:`peak_direction`.
+    rel : float
+        Smallest density kept, relative to the largest.
+
+    Returns
+    -------
+    array of int
+    """
     nt, nphi = grid.shape
     d = density(grid, masses).reshape(nt, nphi)
     pad = np.full((nt + 2, nphi), -np.inf)
@@ -284,7 +413,21 @@ def local_maxima(grid: HemisphereGrid, masses: np.ndarray, rel: float = 0.05) ->
 def lookup(grid: HemisphereGrid, values: np.ndarray, theta: np.ndarray,
            phi: np.ndarray) -> np.ndarray:
     """Bilinear interpolation of ``(..., n)`` grid values at angles ``(P,)`` → ``(..., P)``
-    (phi periodic, theta clamped to the cell-centre range)."""
+    (phi periodic, theta clamped to the cell-centre range).
+
+    Parameters
+    ----------
+    grid : HemisphereGrid
+        The hemisphere of outgoing directions (``n`` points).
+    values : (..., n) array
+        Values on the grid points.
+    theta, phi : (P,) array
+        Angles.
+
+    Returns
+    -------
+    (..., P) array
+    """
     nt, nphi = grid.shape
     v = np.asarray(values).reshape(values.shape[:-1] + (nt, nphi))
     ft = np.clip(theta / (0.5 * np.pi / nt) - 0.5, 0.0, nt - 1.0)
@@ -311,6 +454,29 @@ def render_spheres(grid: HemisphereGrid, masses: np.ndarray, scale: np.ndarray,
     bilinearly in :math:`(\theta_o,\phi_o)`, and the radiance :math:`f\cos\theta_i`
     (plus a small ambient term) is tone-mapped with gamma 2.2 (``exposure``: the radiance
     shown white; default the 99.5th percentile over all spheres).
+
+    Parameters
+    ----------
+    grid : HemisphereGrid
+        The hemisphere of outgoing directions (``n`` points).
+    masses : (n_in, B, n) array
+        Interpolated slices.
+    scale : (n_in, B) array
+        Their normalizations.
+    incoming_theta : (n_in,) array
+        Polar angles of the incoming directions.
+    rows, cols : int
+        Layout of the ``B = rows*cols`` spheres.
+    size : int
+        Pixels per sphere.
+    light : (3,) array
+        Direction of the light.
+    exposure : float, optional
+        Radiance shown white.
+
+    Returns
+    -------
+    (rows*size, cols*size, 3) uint8 array
     """
     th_in = check_incoming(incoming_theta)
     n_in, B, n = masses.shape
@@ -358,7 +524,17 @@ def render_spheres(grid: HemisphereGrid, masses: np.ndarray, scale: np.ndarray,
 
 
 def png_bytes(image: np.ndarray) -> bytes:
-    """PNG encoding of an ``(H, W, 3)`` uint8 image (Pillow)."""
+    """PNG encoding of an ``(H, W, 3)`` uint8 image (Pillow).
+
+    Parameters
+    ----------
+    image : (H, W, 3) uint8 array
+        The image.
+
+    Returns
+    -------
+    bytes
+    """
     import io
 
     from PIL import Image

@@ -63,12 +63,25 @@ EXACT_KINDS = kinds_supporting("exact_transport")  # mesh, grid, pointcloud
 
 @dataclass(kw_only=True)
 class ExactTransportResult(SolverResult):
-    r"""Result of :func:`exact_wasserstein_distance`.
+    """Result of :func:`exact_wasserstein_distance`.
 
-    ``value``: :math:`W_2^2` (squared distance units, unit area on meshes); ``sources``,
-    ``targets``: support indices of ``mu0`` and ``mu1``; ``plan``: ``(len(sources),
-    len(targets))`` optimal coupling; ``residual``: L1 marginal violation of ``plan``;
-    ``cost_seconds``/``lp_seconds``: time of the cost matrix and of the LP.
+    Attributes
+    ----------
+    value : float
+        :math:`W_2^2` (squared distance units, unit area on meshes).
+    sources, targets : array of int
+        Support indices of ``mu0`` and ``mu1``.
+    plan : (len(sources), len(targets)) array
+        Optimal coupling.
+    cost_seconds, lp_seconds : float
+        Time of the cost matrix and of the LP.
+    method : str
+        ``"exact"``.
+    decision : DistanceDecision or None
+        The decision of a :func:`wasserstein_distance` call.
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`).
+        ``residual``: L1 marginal violation of ``plan``.
     """
 
     value: float

@@ -58,7 +58,13 @@ MAX_POINTS = 8192  # the dense kernel holds n^2 floats (512 MB at this size)
 
 class HemisphereHeatKernel:
     """Dense Gaussian on a :class:`HemisphereGrid`: the latitude-modulated separable product
-    (``method="separable"``) or the great-circle one (``"geodesic"``), see the module."""
+    (``method="separable"``) or the great-circle one (``"geodesic"``), see the module.
+
+    Parameters
+    ----------
+    grid, t : HemisphereGrid, float
+        The grid and the heat time.
+    """
 
     supports_log = False
 
@@ -99,11 +105,30 @@ class HemisphereHeatKernel:
         self.matrix = d[:, None] * K * d[None, :]
 
     def apply(self, block: np.ndarray) -> np.ndarray:
+        """Apply the kernel to a block: :math:`H_t x` per column.
+
+        Parameters
+        ----------
+        block : (n,) or (n, k) array
+            Densities on the grid points.
+
+        Returns
+        -------
+        (n,) or (n, k) array
+        """
         x = np.asarray(block, dtype=np.float64)
         a = self.areas if x.ndim == 1 else self.areas[:, None]
         return self.matrix @ (a * x)
 
     def log_apply(self, log_block):  # pragma: no cover - protocol completeness
+        """Not offered (``supports_log`` is False): raises ``NotImplementedError``; the solvers
+        apply this kernel through log-domain bands.
+
+        Parameters
+        ----------
+        log_block : (n,) or (n, k) array
+            Logarithms.
+        """
         raise NotImplementedError("the hemisphere kernel is applied through LogKernel bands")
 
 
@@ -112,6 +137,13 @@ class HemisphereGrid(Domain):
 
     ``theta`` / ``phi`` ``(n,)`` angles per point, ``directions`` ``(n, 3)`` unit vectors
     (z = normal), ``areas`` ``(n,)`` :math:`\propto \sin\theta`, summing to 1.
+
+    Parameters
+    ----------
+    n_theta, n_phi : int
+        Rings and points per ring.
+    method : {"geodesic", "separable"}
+        The kernel: great-circle Gaussian, or the latitude-modulated separable product.
     """
 
     kind = "hemisphere"
@@ -165,7 +197,17 @@ class HemisphereGrid(Domain):
 
 
 def spherical_to_vector(theta, phi) -> np.ndarray:
-    """Unit vectors ``(..., 3)`` of polar angle ``theta`` and azimuth ``phi`` (z = normal)."""
+    """Unit vectors ``(..., 3)`` of polar angle ``theta`` and azimuth ``phi`` (z = normal).
+
+    Parameters
+    ----------
+    theta, phi : array
+        Polar angle and azimuth.
+
+    Returns
+    -------
+    (..., 3) array
+    """
     theta, phi = np.asarray(theta, float), np.asarray(phi, float)
     st = np.sin(theta)
     return np.stack([st * np.cos(phi), st * np.sin(phi), np.cos(theta)], axis=-1)
@@ -176,6 +218,15 @@ def triangulated_hemisphere(grid: HemisphereGrid):
 
     Vertex ``i < grid.n`` is grid point ``i``; neighbouring latitude rings are joined by
     triangle strips, the first ring to the pole by a fan; the equator ring is the boundary.
+
+    Parameters
+    ----------
+    grid : HemisphereGrid
+        The grid.
+
+    Returns
+    -------
+    TriangleMesh
     """
     from solvers.domains.mesh import TriangleMesh
 
@@ -200,6 +251,19 @@ class KernelDiscrepancy:
     the grid points, each normalized to 1; the mesh's pole vertex dropped); ``spread``:
     per source the RMS geodesic radius (unit-area units) of the grid and of the mesh
     distribution, ``(S, 2)``; ``sources``: grid point indices.
+
+    Attributes
+    ----------
+    sources : (S,) int array
+        Grid point indices.
+    l1 : (S,) array
+        L1 distance between the two diffused distributions.
+    spread : (S, 2) array
+        RMS geodesic radius of the grid's and of the mesh's distribution.
+    gamma : float
+        Regularization.
+    substeps : int
+        Implicit Euler steps of the mesh kernel.
     """
 
     sources: np.ndarray
@@ -211,11 +275,26 @@ class KernelDiscrepancy:
 
 def kernel_discrepancy(grid: HemisphereGrid, gamma: float, *, substeps: int = 8,
                        sources=None) -> KernelDiscrepancy:
-    r"""How far the grid kernel is from the triangulated hemisphere's heat kernel.
+    """How far the grid kernel is from the triangulated hemisphere's heat kernel.
 
     For each source point ``s`` both kernels diffuse a unit mass at ``s`` for heat time
     ``t = gamma/4``; the results are compared as distributions on the grid points (L1 of
     the normalized masses, in ``[0, 2]``) and by their RMS geodesic spread around ``s``.
+
+    Parameters
+    ----------
+    grid : HemisphereGrid
+        The grid.
+    gamma : float
+        Regularization (``t = gamma/4``).
+    substeps : int
+        Implicit Euler steps of the mesh kernel.
+    sources : array of int, optional
+        Source grid points.
+
+    Returns
+    -------
+    KernelDiscrepancy
     """
     gamma = check_positive(gamma, "gamma")
     t = heat_time(gamma)

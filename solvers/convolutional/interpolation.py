@@ -31,7 +31,19 @@ from solvers.regularization import Regularization, shape_method, shape_regulariz
 
 @dataclass
 class InterpolationResult(SolverResult):
-    """``masses`` ``(n, len(times))`` (columns sum to 1), one per time; convergence data."""
+    r"""Result of :func:`displacement_interpolation`.
+
+    Attributes
+    ----------
+    masses : (n, T) array
+        One frame per time (columns sum to 1).
+    times : (T,) array
+        The times.
+    gamma, t, substeps, regularization, method
+        As in :class:`~solvers.convolutional.SinkhornResult`.
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`).
+    """
 
     masses: np.ndarray
     times: np.ndarray
@@ -62,20 +74,34 @@ def displacement_interpolation(
 ) -> InterpolationResult:
     r"""Displacement interpolation between ``mu0`` and ``mu1`` (eq. 3.16).
 
-    Each frame is the barycenter of ``(mu0, mu1)`` with weights ``(1 - s, s)``
-    (Alg. 2); ``sharpen=True`` bounds every frame's entropy by the larger input
+    Each frame is the barycenter of ``(mu0, mu1)`` with weights ``(1 - s, s)``,
+
+    .. math:: \mu_s = \arg\min_\mu\, (1 - s)\, W^2_{2,H_t}(\mu, \mu_0)
+              + s\, W^2_{2,H_t}(\mu, \mu_1),
+
+    solved by Alg. 2.  ``sharpen=True`` bounds every frame's entropy by the larger input
     entropy (Alg. 3), ``debiased=True`` uses debiased barycenters.
 
     Parameters
     ----------
-    mu0, mu1 : ``(n,)`` masses; times : sequence of ``s`` in ``[0, 1]``.
+    domain : Domain
+        Any domain (``n`` vertices, nodes or points).
+    mu0, mu1 : (n,) array
+        Masses of the two ends.
+    times : sequence of float
+        The ``s`` in ``[0, 1]`` of the frames (``T`` of them).
+    sharpen : bool
+        Bound every frame's entropy by the larger input entropy (Alg. 3).
+    debiased : bool
+        Debiased barycenters.
     gamma, t, substeps, tol, max_iter, acceleration, method, progress, should_cancel :
         as :func:`barycenter` (``gamma="auto"``: the ``"shapes"`` policy; ``method="auto"``:
         the geodesic kernel on triangle meshes where offered).
 
     Returns
     -------
-    InterpolationResult(masses (n, T), times, iterations, residual, converged)
+    InterpolationResult
+        ``masses`` ``(n, T)``, ``times``, ``iterations``, ``residual``, ``converged``.
     """
     m0 = masses_block(domain, mu0, "mu0")
     m1 = masses_block(domain, mu1, "mu1")

@@ -135,20 +135,37 @@ def block_pairs(n: int) -> int:
 class DistanceMatrixResult(SolverResult):
     r"""Result of :func:`distance_matrix`.
 
-    ``values``: ``(n, m)`` distances (:math:`W_2^2` / Sinkhorn divergence in squared
-    distance units, or :math:`W_1`), ``nan`` where not computed (cancelled);
-    per pair, same shape: ``pair_iterations``, ``pair_residuals`` (each solver's measured
-    stopping quantity), ``pair_converged``, ``methods`` (``"exact"``, ``"convolutional"``,
-    ``"w1"``, ``"spectral"`` or ``"identical"`` for the diagonal of a symmetric matrix,
-    ``""`` when not
-    computed) and ``computed``; ``symmetric``: one collection against itself;
-    ``kernels``: the ``(gamma, t, substeps, debiased)`` groups solved as blocks.
-    ``metric="w1"``: ``lower`` the certified lower bound of every entry (interior point:
-    of W1; spectral: of d_W^k, whose value is an upper bound of W1), ``w1_matrix_method``
-    (``"interior_point"`` or ``"spectral"``), ``k`` (spectral) and ``reason``: the decision
-    (:func:`solvers.emd.dwk_matrix.decide_w1_method`).
-    ``iterations`` (sum), ``residual`` (max) and ``converged`` (every pair computed and
-    converged) summarize the pairs.
+    Attributes
+    ----------
+    values : (n, m) array
+        Distances (:math:`W_2^2` / Sinkhorn divergence in squared distance units, or
+        :math:`W_1`), ``nan`` where not computed (cancelled).
+    pair_iterations, pair_residuals, pair_converged : (n, m) array
+        Per pair: each solver's iterations, measured stopping quantity and convergence.
+    methods : (n, m) array of str
+        ``"exact"``, ``"convolutional"``, ``"w1"``, ``"spectral"`` or ``"identical"`` (the
+        diagonal of a symmetric matrix), ``""`` when not computed.
+    computed : (n, m) bool array
+        The pairs computed.
+    metric : {"w2", "w1"}
+        The metric.
+    symmetric : bool
+        One collection against itself.
+    kernels : list of tuple
+        The ``(gamma, t, substeps, debiased)`` groups solved as blocks.
+    lower : (n, m) array or None
+        ``metric="w1"``: the certified lower bound of every entry (interior point: of W1;
+        spectral: of d_W^k, whose value is an upper bound of W1).
+    w1_matrix_method : {"interior_point", "spectral"} or None
+        ``metric="w1"``: the decided matrix method.
+    k : int or None
+        Eigenfunctions of the spectral method.
+    reason : str
+        The decision (:func:`solvers.emd.dwk_matrix.decide_w1_method`).
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`).
+        ``iterations`` (sum), ``residual`` (max) and ``converged`` (every pair computed and
+        converged) summarize the pairs.
     """
 
     values: np.ndarray
@@ -268,6 +285,8 @@ def distance_matrix(
     Parameters
     ----------
     domain : any domain (``"w1"``: a triangle mesh).
+    metric : {"w2", "w1"}
+        Convolutional (or exact) :math:`W_2^2`, or the Beckmann :math:`W_1`.
     distributions : ``(n_vertices, n)`` masses (one distribution per column) or a list of
         ``n`` vectors; normalized here.
     others : optional second set ``(n_vertices, m)``; None: the symmetric matrix of
@@ -298,8 +317,9 @@ def distance_matrix(
 
     Returns
     -------
-    DistanceMatrixResult(values (n, m), pair_iterations, pair_residuals, pair_converged,
-    methods, computed, iterations, residual, converged, ...).
+    DistanceMatrixResult
+        ``values`` ``(n, m)``, ``pair_iterations``, ``pair_residuals``, ``pair_converged``,
+        ``methods``, ``computed``, ``iterations``, ``residual``, ``converged``, ...
     """
     _check_metric_and_callbacks(metric, method, k, progress, should_cancel)
     A = _collection(domain, distributions, "distributions")

@@ -81,16 +81,36 @@ from solvers.validation import check_anchored, check_edge_weights, check_edges
 
 @dataclass
 class PropagationResult:
-    r"""``masses`` ``(n, n_nodes)``: the fixed inputs and the propagated distributions.
+    r"""Result of :func:`wasserstein_propagation`.
 
-    ``edge_values`` ``(m,)``: per edge the convolutional transport value
-    :math:`\gamma(\langle m_u, \log v_e\rangle + \langle m_{u'}, \log w_e\rangle)` of its
-    final plan (eq. 3.10, the scalings without the diagonal rescalings), i.e. the entropic
-    :math:`W^2_{2,H_t}` of the edge; ``colors``: color classes per sweep (kernel blocks);
-    ``kernel_columns``: kernel applications in all (one per visited edge end and sweep);
-    ``scalings`` ``(2m, n)``: with ``keep_scalings=True``, the final log-scalings
-    :math:`\log v_e, \log w_e` of the edge ends (without the diagonal rescalings), row ``r``
-    the end ``(edge end_order[r] % m, side end_order[r] // m)``, for a later ``initial``.
+    Attributes
+    ----------
+    masses : (n, n_nodes) array
+        The fixed inputs and the propagated distributions.
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`).
+        ``residual``: the largest L1 violation of an edge marginal at its node.
+    free_nodes : array of int
+        The nodes solved for.
+    gamma, t : float
+        Regularization and heat time used.
+    edge_values : (m,) array or None
+        Per edge the convolutional transport value
+        :math:`\gamma(\langle m_u, \log v_e\rangle + \langle m_{u'}, \log w_e\rangle)` of its
+        final plan (eq. 3.10, the scalings without the diagonal rescalings), i.e. the
+        entropic :math:`W^2_{2,H_t}` of the edge.
+    colors : int
+        Color classes per sweep (kernel blocks).
+    kernel_columns : int
+        Kernel applications in all (one per visited edge end and sweep).
+    scalings : (2m, n) array or None
+        With ``keep_scalings=True``, the final log-scalings :math:`\log v_e, \log w_e` of
+        the edge ends (without the diagonal rescalings), for a later ``initial``.
+    end_order : (2m,) int array or None
+        Row ``r`` of ``scalings`` is the end ``(edge end_order[r] % m, side
+        end_order[r] // m)``.
+    method : str
+        The kernel used.
     """
 
     masses: np.ndarray
@@ -232,7 +252,9 @@ def wasserstein_propagation(
 
     Parameters
     ----------
-    domain : the domain; n_nodes : number of graph nodes; edges : ``(m, 2)`` node pairs.
+    domain : the domain carrying the distributions.
+    n_nodes : number of graph nodes.
+    edges : ``(m, 2)`` node pairs ``(u, u')``.
     fixed : ``{node: (n,) masses}`` for the nodes of :math:`V_0` (at least one per
         connected piece of the graph).
     edge_weights : ``(m,)`` positive :math:`\omega_e` (default 1).
@@ -264,8 +286,9 @@ def wasserstein_propagation(
 
     Returns
     -------
-    PropagationResult(masses (n, n_nodes), iterations, residual, converged, free_nodes,
-    edge_values (m,))
+    PropagationResult
+        ``masses`` ``(n, n_nodes)``, ``iterations``, ``residual``, ``converged``,
+        ``free_nodes``, ``edge_values`` ``(m,)``.
     """
     n_nodes, e, w, keys = _check_graph(n_nodes, edges, edge_weights, fixed)
     accelerate = check_acceleration(acceleration, BARYCENTER_ACCELERATIONS) == "over-relaxation"

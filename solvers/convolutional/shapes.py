@@ -66,11 +66,28 @@ class Voxelization:
 class ShapeResult(SolverResult):
     """Interpolated shape: barycenter volume and its iso-surface.
 
-    ``vertices`` are in input coordinates; ``faces`` are triangles ``(F, 3)`` in
-    3-D (outward oriented, closed) and segments ``(E, 2)`` of closed polylines in 2-D.
-    ``level`` is the iso value in the units of ``volume`` (barycenter masses per
-    grid node); ``target_volume`` and ``enclosed_volume`` are in input units
-    (areas in 2-D).
+    Attributes
+    ----------
+    volume : array
+        Barycenter masses per grid node (``grid.shape``, summing to 1).
+    grid : Grid
+        The normalized grid.
+    vertices : (V, d) array
+        Surface vertices, in input coordinates.
+    faces : (F, 3) or (E, 2) int array
+        Triangles in 3-D (outward oriented, closed); segments of closed polylines in 2-D.
+    level : float
+        The iso value, in the units of ``volume``.
+    target_volume, enclosed_volume : float
+        Volume aimed at and enclosed, in input units (areas in 2-D).
+    origin : (d,) array
+        Input coordinates of grid point 0.
+    scale : float
+        Input units per grid unit.
+    gamma : float
+        Regularization used.
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`).
     """
 
     volume: np.ndarray  # grid.shape, masses summing to 1
@@ -143,6 +160,14 @@ def voxelize(mesh_or_path, resolution: int = 64, *, padding: int = 2,
         :func:`shape_interpolation` does for several meshes); ``resolution`` and
         ``padding`` are then ignored.
 
+    Returns
+    -------
+    Voxelization
+        ``indicator`` (bool, ``grid.shape``) on ``grid``; input coordinates of grid
+        point ``u`` are ``origin + scale * u``.
+
+    Notes
+    -----
     Surface voxels are those hit by the (subdivided) surface; cavities enclosed
     by them are filled (``VoxelGrid.fill``).  An open mesh yields its shell only.
     """
@@ -207,10 +232,33 @@ def iso_surface(volume: np.ndarray, grid: Grid, target_volume: float, *, rtol: f
                 max_bisections: int = 60) -> tuple[float, np.ndarray, np.ndarray, float]:
     """Iso level whose closed surface encloses ``target_volume`` (grid units), by bisection.
 
-    Returns ``(level, vertices, faces, enclosed)`` with vertices in grid
-    coordinates and outward-oriented faces.  The enclosed volume decreases
-    with the level; bisection is geometric on ``(0, max(volume)]`` and stops
-    once the enclosed volume is within ``rtol`` of the target.
+    The enclosed volume decreases with the level; bisection is geometric on
+    ``(0, max(volume)]`` and stops once the enclosed volume is within ``rtol`` of the
+    target.
+
+    Parameters
+    ----------
+    volume : array
+        Barycenter masses per grid node (``grid.shape``, 2-D or 3-D).
+    grid : Grid
+        The grid.
+    target_volume : float
+        Volume (area in 2-D) to enclose, in grid units.
+    rtol : float
+        Relative tolerance on the enclosed volume.
+    max_bisections : int
+        Bisection budget.
+
+    Returns
+    -------
+    level : float
+        The iso value.
+    vertices : (V, d) array
+        Surface vertices, in grid coordinates.
+    faces : (F, 3) or (E, 2) int array
+        Outward-oriented triangles (3-D) or closed-polyline segments (2-D).
+    enclosed : float
+        The enclosed volume.
     """
     spacing = np.asarray(grid.spacing)
     top = float(volume.max())
@@ -386,16 +434,20 @@ def shape_interpolation(
         2-D/3-D arrays of one shape, sampled on ``grid`` (default: isotropic,
         longest axis ``[0, 1]``).
     weights : ``(k,)`` barycentric weights (default uniform), normalized to sum 1.
+    resolution, padding : int
+        Voxelization of mesh inputs (:func:`voxelize`).
+    grid : Grid, optional
+        The grid of array inputs.
     gamma, t, substeps, sharpen, tol, max_iter, progress, should_cancel :
         passed to :func:`solvers.convolutional.barycenter` (``gamma`` in squared
         units of the normalized grid).
 
     Returns
     -------
-    ShapeResult: ``volume`` (grid.shape barycenter masses), surface ``vertices``
-    (input coordinates) and ``faces``, ``level``, ``target_volume``,
-    ``enclosed_volume`` and the barycenter's ``iterations``, ``residual``,
-    ``converged``.
+    ShapeResult
+        ``volume`` (grid.shape barycenter masses), surface ``vertices`` (input
+        coordinates) and ``faces``, ``level``, ``target_volume``, ``enclosed_volume`` and
+        the barycenter's ``iterations``, ``residual``, ``converged``.
     """
     prepared = prepare_shapes(shapes, resolution=resolution, grid=grid, padding=padding)
     weights = check_weights(weights, len(prepared.arrays))

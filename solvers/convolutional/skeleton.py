@@ -59,6 +59,27 @@ class SkeletonLayoutResult(SolverResult):
     (0 at free nodes); ``fixed_error`` ``(N,)``: distance between a fixed position and
     the barycenter of its clipped coordinates (0 at free nodes); ``free_nodes``;
     ``iterations``/``residual``/``converged`` of the propagation.
+
+    Attributes
+    ----------
+    positions : (N, 3) array
+        Fixed nodes as given, free nodes at their distributions' barycenters.
+    linear : (N, 3) array
+        Linear interpolation along the graph.
+    masses : (n, N) array
+        The node distributions on the surface.
+    winding, linear_winding : (N,) array
+        Winding numbers of the nodes (about 1 inside).
+    clipped : (N,) array
+        Fraction of negative MVC weight clipped at each fixed node.
+    fixed_error : (N,) array
+        Distance between a fixed position and the barycenter of its clipped coordinates.
+    free_nodes : array of int
+        The nodes solved for.
+    gamma : float
+        Regularization used.
+    iterations, residual, converged : int, float, bool
+        Convergence data of the propagation.
     """
 
     positions: np.ndarray
@@ -73,7 +94,24 @@ class SkeletonLayoutResult(SolverResult):
 
 
 def check_skeleton(n_nodes, edges, fixed) -> tuple[int, np.ndarray, list[int], np.ndarray]:
-    """Validated ``(n_nodes, edges (m, 2), fixed node list, positions (F, 3))``."""
+    """Validated ``(n_nodes, edges (m, 2), fixed node list, positions (F, 3))``.
+
+    Parameters
+    ----------
+    n_nodes : int
+        Skeleton nodes ``N``.
+    edges : (m, 2) int array
+        Node pairs.
+    fixed : dict
+        ``{node: (3,) position}``.
+
+    Returns
+    -------
+    n_nodes : int
+    edges : (m, 2) int array
+    fixed_nodes : list of int
+    positions : (F, 3) array
+    """
     n_nodes = check_int(n_nodes, "n_nodes", low=2)
     e = check_edges(edges, n_nodes, "edges")
     if len(e) == 0:
@@ -100,7 +138,17 @@ def check_skeleton(n_nodes, edges, fixed) -> tuple[int, np.ndarray, list[int], n
 
 def linear_layout(n_nodes: int, edges, fixed: dict) -> np.ndarray:
     """Positions ``(N, 3)`` interpolated linearly along the graph (harmonic, uniform
-    weights): free node = mean of its neighbours, fixed nodes as given."""
+    weights): free node = mean of its neighbours, fixed nodes as given.
+
+    Parameters
+    ----------
+    n_nodes, edges, fixed : int, (m, 2) int array, dict
+        As in :func:`check_skeleton`.
+
+    Returns
+    -------
+    (N, 3) array
+    """
     n_nodes, e, nodes, pos = check_skeleton(n_nodes, edges, fixed)
     A = sp.coo_matrix((np.ones(2 * len(e)), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])),
                       shape=(n_nodes, n_nodes)).tocsr()
@@ -117,7 +165,21 @@ def linear_layout(n_nodes: int, edges, fixed: dict) -> np.ndarray:
 
 def position_distributions(mesh, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(masses (n, P), clipped (P,), error (P,))``: clipped, renormalized MVC of points
-    ``(P, 3)`` (mesh frame) as surface distributions; see the module docstring."""
+    ``(P, 3)`` (mesh frame) as surface distributions; see the module docstring.
+
+    Parameters
+    ----------
+    mesh : TriangleMesh
+        A closed surface (``n`` vertices).
+    points : (P, 3) array
+        Positions in the mesh frame.
+
+    Returns
+    -------
+    masses : (n, P) array
+    clipped : (P,) array
+    error : (P,) array
+    """
     W = mean_value_coordinates(mesh, points)
     pos = np.maximum(W, 0.0)
     neg = np.maximum(-W, 0.0).sum(axis=1)
@@ -149,12 +211,14 @@ def skeleton_layout(
     Parameters
     ----------
     mesh : closed :class:`~solvers.TriangleMesh`.
-    n_nodes : number of skeleton nodes; edges : ``(m, 2)`` node pairs.
+    n_nodes : number of skeleton nodes.
+    edges : ``(m, 2)`` node pairs.
     fixed : ``{node: (3,) position}`` inside the volume (at least one per graph piece).
     gamma : regularization of the propagation (unit-area units; default
         :math:`(4h)^2`, ``h`` the mean edge length: at :math:`(2h)^2` the free nodes'
         distributions stay too concentrated to span a limb and layouts leave thin
-        volumes; bench/results/applications.md); substeps : heat-kernel substeps.
+        volumes; bench/results/applications.md).
+    substeps : heat-kernel substeps.
     units : ``"mesh"`` (normalized frame) or ``"input"`` (file coordinates).
     tol, max_iter, progress, should_cancel : of the propagation.
 
@@ -196,7 +260,23 @@ def skeleton_layout(
 
 def segment_inside_fraction(mesh, points, edges, samples: int = 16) -> float:
     """Fraction of points sampled along the segments ``points[edges]`` (mesh frame) whose
-    winding number exceeds :data:`INSIDE` (1.0: every drawn bone stays in the volume)."""
+    winding number exceeds :data:`INSIDE` (1.0: every drawn bone stays in the volume).
+
+    Parameters
+    ----------
+    mesh : TriangleMesh
+        A closed surface.
+    points : (N, 3) array
+        Node positions (mesh frame).
+    edges : (m, 2) int array
+        Segments.
+    samples : int
+        Points sampled per segment.
+
+    Returns
+    -------
+    float
+    """
     P = np.asarray(points, dtype=np.float64)
     e = np.asarray(edges, dtype=np.int64)
     s = (np.arange(samples) + 0.5) / samples

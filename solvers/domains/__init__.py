@@ -28,6 +28,16 @@ DOMAIN_KINDS = tuple(DOMAIN_CLASSES)
 def domain_class(kind: str) -> type[Domain]:
     """The domain class of ``kind`` (one of :data:`DOMAIN_KINDS`).
 
+    Parameters
+    ----------
+    kind : str
+        ``"mesh"``, ``"grid"``, ``"graph"`` or ``"pointcloud"``.
+
+    Returns
+    -------
+    type
+        A subclass of :class:`Domain`.
+
     Raises
     ------
     DomainError
@@ -62,24 +72,74 @@ def supports(domain, capability: str) -> bool:
 
 def kind_supports(kind: str, capability: str) -> bool:
     """Whether domains of ``kind`` have ``capability`` (False for an unknown kind): what a
-    light representation that holds only the kind answers."""
+    light representation that holds only the kind answers.
+
+    Parameters
+    ----------
+    kind : str
+        A domain kind.
+    capability : str
+        A key of :data:`~solvers.domains.base.CAPABILITIES`.
+
+    Returns
+    -------
+    bool
+    """
     cls = DOMAIN_CLASSES.get(kind)
     return cls is not None and cls.supports(capability)
 
 
 def kinds_supporting(capability: str) -> tuple[str, ...]:
-    """The kinds (in :data:`DOMAIN_KINDS` order) whose domains have ``capability``."""
+    """The kinds (in :data:`DOMAIN_KINDS` order) whose domains have ``capability``.
+
+    Parameters
+    ----------
+    capability : str
+        A key of :data:`~solvers.domains.base.CAPABILITIES`.
+
+    Returns
+    -------
+    tuple of str
+    """
     return tuple(kind for kind, cls in DOMAIN_CLASSES.items() if cls.supports(capability))
 
 
 def load_mesh(source, file_type: str | None = None, **kwargs) -> TriangleMesh:
-    """Load a triangle mesh file (OBJ, PLY, STL, OFF, GLB/glTF); see ``TriangleMesh.from_file``."""
+    """Load a triangle mesh file (OBJ, PLY, STL, OFF, GLB/glTF).
+
+    See :meth:`TriangleMesh.from_file`.
+
+    Parameters
+    ----------
+    source, file_type
+        The file and its format, as in :meth:`TriangleMesh.from_file`.
+    **kwargs
+        Keywords of :meth:`TriangleMesh.from_file`.
+
+    Returns
+    -------
+    TriangleMesh
+    """
     return TriangleMesh.from_file(source, file_type=file_type, **kwargs)
 
 
 def domain_from_arrays(kind: str, arrays: dict[str, np.ndarray], parameters: dict | None = None
                        ) -> Domain:
-    """Rebuild a domain from ``Domain.to_arrays()`` and ``Domain.parameters()``."""
+    """Rebuild a domain from ``Domain.to_arrays()`` and ``Domain.parameters()``.
+
+    Parameters
+    ----------
+    kind : {"mesh", "grid", "graph", "pointcloud"}
+        The domain's kind.
+    arrays : dict of str to array
+        ``Domain.to_arrays()``.
+    parameters : dict, optional
+        ``Domain.parameters()``.
+
+    Returns
+    -------
+    Domain
+    """
     parameters = parameters or {}
     if kind == "mesh":
         return TriangleMesh(arrays["vertices"], arrays["faces"], **parameters)

@@ -86,7 +86,17 @@ LAPLACIAN_NAMES = ("auto", "robust", "cotan")
 @dataclass(frozen=True)
 class ExportGeometry:
     """What a glTF export draws of a domain: ``positions`` ``(n, 3)`` (or ``(n, d)``), and
-    either triangle ``faces`` or ``edges`` (index pairs), or neither (points)."""
+    either triangle ``faces`` or ``edges`` (index pairs), or neither (points).
+
+    Attributes
+    ----------
+    positions : (n, 3) or (n, d) array
+        Point positions.
+    faces : (F, 3) int array or None
+        Triangles.
+    edges : (m, 2) int array or None
+        Index pairs.
+    """
 
     positions: np.ndarray
     faces: np.ndarray | None = None
@@ -102,6 +112,19 @@ class Domain:
     Prefactored operators (heat kernels per ``(t, substeps, backend)``, and whatever the
     solvers derive from the domain) live in one explicit store, ``domain.operators``
     (:class:`~solvers.domains.operators.OperatorStore`): built once under a lock, sized.
+
+    Attributes
+    ----------
+    kind : str
+        ``"mesh"``, ``"grid"``, ``"graph"`` or ``"pointcloud"``.
+    n : int
+        Points carrying mass.
+    areas : (n,) array
+        Positive weights summing to 1.
+    laplacian : (n, n) sparse matrix
+        Weak Laplacian, PSD with ``L·1 = 0``.
+    operators : OperatorStore
+        The store of prefactored operators.
     """
 
     kind: str = "domain"
@@ -148,6 +171,15 @@ class Domain:
         """The Laplacian named ``laplacian`` (``"auto"``: :attr:`laplacian`; ``"robust"`` and
         ``"cotan"`` choose between a triangle mesh's two Laplacians).
 
+        Parameters
+        ----------
+        laplacian : {"auto", "robust", "cotan"}
+            The Laplacian's name.
+
+        Returns
+        -------
+        (n, n) scipy.sparse.csr_matrix
+
         Raises
         ------
         InputError
@@ -173,7 +205,21 @@ class Domain:
     def stored_geometry(cls, arrays: dict, summary: dict, points) -> dict:
         """What a viewer draws of a stored domain of this kind, from its stored ``arrays``
         (``to_arrays()``), ``summary`` and unit-area ``points`` (None without): a dict with
-        ``points`` and, by kind, ``faces``, ``edges`` or ``shape`` and ``bounds``."""
+        ``points`` and, by kind, ``faces``, ``edges`` or ``shape`` and ``bounds``.
+
+        Parameters
+        ----------
+        arrays : dict of str to array
+            The stored ``to_arrays()``.
+        summary : dict
+            The stored summary.
+        points : (n, d) array or None
+            Unit-area positions.
+
+        Returns
+        -------
+        dict
+        """
         return {"points": points}
 
     @property
@@ -181,7 +227,17 @@ class Domain:
         raise NotImplementedError
 
     def heat_kernel(self, t: float, substeps: int = 1, backend: Backend = "auto") -> HeatKernel:
-        """The heat kernel at time ``t`` (built and factored once, then cached)."""
+        """The heat kernel at time ``t`` (built and factored once, then cached).
+
+        Parameters
+        ----------
+        t : float
+            Heat time.
+        substeps : int
+            Implicit Euler steps.
+        backend : {"auto", "pardiso", "cholespy", "splu"}
+            Sparse factorization backend.
+        """
         key = ("heat_kernel", float(t), int(substeps), backend)
         return self.operators.get(
             key, lambda: self._build_heat_kernel(float(t), int(substeps), backend))
@@ -196,11 +252,23 @@ class Domain:
 
     @classmethod
     def geodesic_kernel_bytes(cls, n: int) -> int:
-        """Memory of :meth:`geodesic_kernel` on ``n`` points (0 where not offered)."""
+        """Memory of :meth:`geodesic_kernel` on ``n`` points (0 where not offered).
+
+        Parameters
+        ----------
+        n : int
+            Points of the domain.
+        """
         return 0
 
     def geodesic_kernel(self, t: float) -> HeatKernel:
-        """The exact Gibbs kernel of squared geodesic distances (triangle meshes)."""
+        """The exact Gibbs kernel of squared geodesic distances (triangle meshes).
+
+        Parameters
+        ----------
+        t : float
+            Heat time (the kernel is :math:`e^{-d^2/4t}`).
+        """
         raise InputError(f"method 'geodesic' is not available on a {self.kind} domain",
                          field="method")
 
@@ -209,20 +277,44 @@ class Domain:
         ``src`` and ``dst`` (indices), the metric whose squares are the costs of the exact
         transport route (thesis eq. 1.1); ``squared``: the entries are already the squares
         (where the squares are what is computed).  ``should_cancel()`` is checked between
-        the solves of domains that solve for them."""
+        the solves of domains that solve for them.
+
+        Parameters
+        ----------
+        src, dst : array of int
+            Point indices.
+        should_cancel : callable, optional
+            ``should_cancel() -> bool``, checked between solves.
+        """
         raise NotImplementedError(f"no ground distances on a {self.kind} domain")
 
     def stored_ground_distances(self, should_cancel=None) -> tuple[np.ndarray, bool] | None:
         """``(d, squared)`` of :meth:`ground_distances` between all points, ``(n, n)``, kept
         in the operator store, on domains where they are costly to compute and small enough
-        to keep; None elsewhere (compute what is asked)."""
+        to keep; None elsewhere (compute what is asked).
+
+        Parameters
+        ----------
+        should_cancel : callable, optional
+            ``should_cancel() -> bool``, checked between solves.
+        """
         return None
 
     @classmethod
     def ground_distance_bytes(cls, n: int, entries: int, dim: int) -> int:
         """Bytes of :meth:`ground_distances` (or :meth:`stored_ground_distances`) giving
         ``entries`` distances on an ``n``-point domain whose points have ``dim``
-        coordinates, at most: a memory estimate taken before the domain is built."""
+        coordinates, at most: a memory estimate taken before the domain is built.
+
+        Parameters
+        ----------
+        n : int
+            Points of the domain.
+        entries : int
+            Distances asked for.
+        dim : int
+            Coordinates per point.
+        """
         raise NotImplementedError(f"no ground distances on a {cls.kind} domain")
 
     def _adjacency(self) -> sp.spmatrix:
@@ -253,7 +345,13 @@ class Domain:
         return points_extent(self.coordinates)
 
     def component_masses(self, masses: np.ndarray) -> np.ndarray:
-        """Total mass per connected component of an (n,) mass vector."""
+        """Total mass per connected component of an (n,) mass vector.
+
+        Parameters
+        ----------
+        masses : (n,) array
+            Masses.
+        """
         return np.bincount(self.component_labels, weights=masses, minlength=self.n_components)
 
     def require_matching_component_masses(self, masses: np.ndarray, tol: float,
@@ -263,6 +361,15 @@ class Domain:
         Transport never moves mass between connected components, so every
         distribution of one problem must give each component the same total
         (L1 gap over components at most ``tol``, mass units).
+
+        Parameters
+        ----------
+        masses : (n, k) array
+            One distribution per column.
+        tol : float
+            Largest L1 gap over components (mass units).
+        field : str
+            Input name given to the :class:`~solvers.errors.InputError` raised.
         """
         if self.n_components <= 1 or masses.shape[1] < 2:
             return

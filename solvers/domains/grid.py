@@ -37,6 +37,15 @@ class Grid(Domain):
     The heat kernel is the exact Gaussian :math:`(4\pi t)^{-d/2} e^{-d^2/4t}`
     times the cell volume, applied separably (``kernel="gaussian"``, default)
     or implicit Euler on the finite-difference Laplacian (``kernel="implicit"``).
+
+    Parameters
+    ----------
+    shape : sequence of int
+        Nodes per axis (1 to 3 axes).
+    bounds : sequence of (lo, hi), optional
+        Extent of each axis (default ``(0, 1)``).
+    periodic : bool or sequence of bool
+        Periodic axes.
     """
 
     kind = "grid"
@@ -168,7 +177,15 @@ class Grid(Domain):
 
     def heat_kernel(self, t: float, substeps: int = 1, backend: Backend = "auto",
                     kernel: str = "gaussian"):
-        """Exact Gaussian kernel (default) or implicit Euler on the FD Laplacian."""
+        """Exact Gaussian kernel (default) or implicit Euler on the FD Laplacian.
+
+        Parameters
+        ----------
+        t, substeps, backend
+            As in :meth:`Domain.heat_kernel` (``"implicit"`` only: the Gaussian is exact).
+        kernel : {"gaussian", "implicit"}
+            Exact separable Gaussian, or implicit Euler on the finite-difference Laplacian.
+        """
         if kernel not in ("gaussian", "implicit"):
             raise DomainError(f"kernel must be 'gaussian' or 'implicit', got {kernel!r}",
                               field="kernel")
@@ -186,7 +203,8 @@ class Grid(Domain):
 
     def ground_distances(self, src, dst, *, should_cancel=None) -> tuple[np.ndarray, bool]:
         """Squared straight distances between the nodes, periodic axes wrapped: the metric
-        whose Gaussian the grid heat kernel is."""
+        whose Gaussian the grid heat kernel is.
+        """
         width = self.bounds[:, 1] - self.bounds[:, 0]
         periods = np.where(self.periodic, width, 0.0)
         return squared_straight_distances(self.points, src, dst, periods), True

@@ -39,7 +39,17 @@ FIG_2_12_LAYOUT = (
 @dataclass
 class Maze:
     """``mesh`` (unit area, z = 0), ``regions``: letter → vertex indices of its cells, and
-    ``cell_size`` the side of one cell at unit area."""
+    ``cell_size`` the side of one cell at unit area.
+
+    Attributes
+    ----------
+    mesh : TriangleMesh
+        The maze (unit area, z = 0).
+    regions : dict of str to array of int
+        Letter -> vertex indices of its cells.
+    cell_size : float
+        Side of one cell at unit area.
+    """
 
     mesh: TriangleMesh
     regions: dict[str, np.ndarray]
@@ -64,6 +74,18 @@ def maze_mesh(layout: Sequence[str] = FIG_2_12_LAYOUT, subdivisions: int = 2) ->
 
     Two open cells touching only at a corner would pinch the surface into a non-manifold
     vertex; the Fig. 2.12 layout has none.
+
+    Parameters
+    ----------
+    layout : sequence of str
+        Rows of the maze: ``#`` walls, any other character an open cell (letters name
+        regions); default the layout of Fig. 2.12.
+    subdivisions : int
+        Squares per cell side.
+
+    Returns
+    -------
+    Maze
     """
     n_rows, n_cols = _check_layout(layout, subdivisions)
     s = int(subdivisions)

@@ -49,7 +49,19 @@ GEODESIC_WORK_VECTORS = 16
 
 @dataclass
 class MeshDiagnostics:
-    """What was found (and repaired) when the mesh was loaded."""
+    """What was found (and repaired) when the mesh was loaded.
+
+    Attributes
+    ----------
+    welded_vertices : int
+        Vertices merged into others by position.
+    removed_unreferenced_vertices, removed_degenerate_faces, removed_duplicate_faces : int
+        What was removed.
+    nonmanifold_edges, nonmanifold_vertices, boundary_edges : int
+        What was found.
+    warnings : list of str
+        Messages for the user.
+    """
 
     welded_vertices: int = 0
     removed_unreferenced_vertices: int = 0
@@ -335,6 +347,17 @@ class TriangleMesh(Domain):
     units.  Mass lives on vertices with lumped (barycentric) areas ``areas``
     summing to 1.
 
+    Parameters
+    ----------
+    vertices : (V, 3) array
+        Vertex positions, in input units.
+    faces : (F, 3) int array
+        Triangles (vertex indices).
+    weld : bool
+        Merge vertices at the same position.
+    laplacian : {"robust", "cotan"}
+        The Laplacian of heat kernels (see ``laplacian`` below).
+
     Attributes
     ----------
     ``cotan_laplacian``
@@ -415,6 +438,15 @@ class TriangleMesh(Domain):
         keep their position indices (``v`` lines), and PLY/OFF/STL/glTF vertices are
         merged by position; ``weld=True`` merges by position for OBJ too, ``weld=False``
         never (``weld=None``: the format's default, ``POSITION_WELD_FORMATS``).
+
+        Parameters
+        ----------
+        source : str, path, bytes or binary file
+            The mesh file.
+        file_type : str, optional
+            One of ``MESH_FORMATS`` (default: the path's extension; needed for bytes).
+        **kwargs
+            ``weld`` and the keywords of :class:`TriangleMesh` (``laplacian``).
         """
         import trimesh
 
@@ -549,7 +581,8 @@ class TriangleMesh(Domain):
 
     def laplacian_variant(self, laplacian: str = "auto") -> sp.csr_matrix:
         """``"cotan"``: :attr:`cotan_laplacian`; ``"robust"``: :attr:`robust_laplacian`;
-        ``"auto"``: :attr:`laplacian` (the one chosen at construction)."""
+        ``"auto"``: :attr:`laplacian` (the one chosen at construction).
+        """
         check_laplacian_name(laplacian)
         if laplacian == "cotan":
             return self.cotan_laplacian
@@ -704,12 +737,14 @@ class TriangleMesh(Domain):
     @classmethod
     def geodesic_kernel_bytes(cls, n: int) -> int:
         """Memory of :meth:`geodesic_kernel` on ``n`` vertices: the all-pairs distances and
-        the kernel's scaled blocks (``n x n`` float64 each), plus one transient copy."""
+        the kernel's scaled blocks (``n x n`` float64 each), plus one transient copy.
+        """
         return 3 * 8 * n * n
 
     def geodesic_kernel(self, t: float) -> GeodesicGaussianKernel:
         """The Gibbs kernel of squared heat-method geodesics at heat time ``t``
-        (:class:`~solvers.kernels.GeodesicGaussianKernel`), kept in the operator store."""
+        (:class:`~solvers.kernels.GeodesicGaussianKernel`), kept in the operator store.
+        """
         if not self.geodesic_kernel_available:
             raise InputError(f"method 'geodesic' needs one connected surface of at most "
                              f"{GEODESIC_KERNEL_VERTICES} vertices (this mesh: {self.n} "
@@ -723,7 +758,8 @@ class TriangleMesh(Domain):
 
     def ground_distances(self, src, dst, *, should_cancel=None) -> tuple[np.ndarray, bool]:
         """Exact polyhedral geodesics (not squared): one MMP solve per point of the smaller
-        side (:func:`solvers.geodesics.geodesic_distances`)."""
+        side (:func:`solvers.geodesics.geodesic_distances`).
+        """
         from solvers.geodesics import geodesic_distances
 
         return geodesic_distances(self, src, dst, should_cancel=should_cancel), False
@@ -742,7 +778,8 @@ class TriangleMesh(Domain):
     def ground_distance_bytes(cls, n: int, entries: int, dim: int) -> int:
         """The geodesics between the supports or, on a mesh small enough to keep them, the
         stored all-pairs ones instead (``entries`` of either, never both), plus a geodesic
-        solve's work vectors."""
+        solve's work vectors.
+        """
         return 8 * entries + GEODESIC_WORK_VECTORS * 8 * n
 
     # -- storage / reporting -----------------------------------------------

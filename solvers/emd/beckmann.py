@@ -91,7 +91,15 @@ class EMDResult(SolverResult):
         Certified lower bound of the unrestricted discrete problem (NaN for matrix face
         weights).
     iterations, primal_residual, dual_residual, converged
-        Solver report; ``residual`` is the larger of the two relative residuals.
+        Solver report.
+    residual : float
+        The larger of the two relative residuals.
+    method : str
+        The solver that ran.
+    basis : str
+        The flow space (``"flow"``, ``"full"`` or ``"spectral"``).
+    beta : float
+        The final ADMM penalty (NaN for other solvers).
     """
 
     value: float

@@ -138,7 +138,29 @@ class DwkMatrixResult(SolverResult):
     ``(values - lower) / values`` (0 for ``k = 0``, a direct evaluation), ``pair_iterations``
     ADMM iterations per pair, ``computed`` the entries solved; ``k``, ``method``
     (``"spectral"``), ``tol``.  ``iterations`` (max), ``residual`` (worst gap) and
-    ``converged`` (every computed gap ≤ ``tol``) summarize them."""
+    ``converged`` (every computed gap ≤ ``tol``) summarize them.
+
+    Attributes
+    ----------
+    values : (n, m) array
+        Upper bounds of :math:`d_W^k` (``nan`` where not computed).
+    lower : (n, m) array
+        Certified lower bounds.
+    gaps : (n, m) array
+        ``(values - lower) / values``.
+    pair_iterations : (n, m) array
+        ADMM iterations per pair.
+    computed : (n, m) bool array
+        The entries solved.
+    k : int
+        Eigenfunctions of the curl basis.
+    method : str
+        ``"spectral"``.
+    tol : float
+        The certified relative gap aimed at.
+    iterations, residual, converged : int, float, bool
+        Summaries: max iterations, worst gap, every computed gap within ``tol``.
+    """
 
     values: np.ndarray
     lower: np.ndarray
@@ -310,8 +332,8 @@ def dwk_matrix(mesh, distributions, others=None, *, k: int | None = None, rows=N
 
     Returns
     -------
-    DwkMatrixResult with ``values``, ``lower``, ``gaps`` of shape ``(len(rows),
-    len(columns))``, and ``k``.
+    DwkMatrixResult
+        ``values``, ``lower``, ``gaps`` of shape ``(len(rows), len(columns))``, and ``k``.
     """
     from solvers.emd.beckmann import check_mesh
     from solvers.validation import normalize_masses

@@ -75,6 +75,21 @@ class BeckmannResult(SolverResult):
     Kantorovich potential, ``value == potential @ (mu1 - mu0)``, with face gradients
     of norm at most the face weight.  ``residual`` is the max-norm violation of
     ``div J = mu0 - mu1``; ``iterations`` are interior-point iterations.
+
+    Attributes
+    ----------
+    value : float
+        :math:`W_1` (unit-area lengths).
+    flow : (F, 3) array
+        The optimal flow :math:`J`.
+    potential : (V,) array
+        The optimal Kantorovich potential.
+    status : str
+        The conic solver's final status (``"Solved"``, ``"AlmostSolved"``, ...).
+    solve_time : float
+        Seconds of the solve.
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`).
     """
 
     value: float
@@ -92,7 +107,29 @@ class W1BarycenterResult(SolverResult):
     input, with their flows ``(k, F, 3)`` (``J_i`` carries ``masses`` to input ``i``);
     ``residual`` is the largest violation of the flows' divergence constraints and
     ``method`` the solver that ran (``"ipm"`` adds a certified ``lower_bound`` and the
-    relative ``gap``)."""
+    relative ``gap``).
+
+    Attributes
+    ----------
+    masses : (V,) array
+        The barycenter (or median).
+    value : float
+        The solved objective.
+    distances : (k,) array
+        :math:`W_1` from the result to each input.
+    flows : (k, F, 3) array
+        The flows :math:`J_i`.
+    status : str
+        The conic solver's final status (``"Solved"``, ``"AlmostSolved"``, ...).
+    solve_time : float
+        Seconds of the solve.
+    method : {"socp", "ipm"}
+        The solver that ran.
+    lower_bound, gap : float
+        ``"ipm"``: certified lower bound and relative gap (NaN otherwise).
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`).
+    """
 
     masses: np.ndarray
     value: float
@@ -109,7 +146,27 @@ class W1BarycenterResult(SolverResult):
 class W1MultistepResult(SolverResult):
     """Multi-step W1 chain (:func:`w1_multistep_paths`): ``masses`` ``(V, n_steps + 1)``
     from start to goal, the cost ``step_costs`` ``(n_steps,)`` of every step, their sum
-    ``value`` and the step flows ``(n_steps, F, 3)``."""
+    ``value`` and the step flows ``(n_steps, F, 3)``.
+
+    Attributes
+    ----------
+    masses : (V, n_steps + 1) array
+        The distributions from start to goal.
+    value : float
+        The total cost.
+    step_costs : (n_steps,) array
+        Cost of every step.
+    flows : (n_steps, F, 3) array
+        The step flows.
+    status : str
+        The conic solver's final status (``"Solved"``, ``"AlmostSolved"``, ...).
+    solve_time : float
+        Seconds of the solve.
+    times : (n_steps + 1,) array
+        Normalized time of each distribution, from 0 to 1.
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`).
+    """
 
     masses: np.ndarray
     value: float
@@ -366,6 +423,7 @@ def beckmann_w1_exact(
     ----------
     mesh : TriangleMesh with at most ``max_vertices`` vertices.
     mu0, mu1 : (V,) masses (non-negative, normalized to sum 1 here).
+    max_vertices : largest mesh accepted (the SOCP grows with the mesh).
     face_weights : optional (F,) positive travel cost per unit length on each face
         (the isotropic case of the anisotropic W1 of §2.7); ``np.inf`` forbids a face.
         Flow may pass from face to face through a shared vertex, so an obstacle must
@@ -437,6 +495,19 @@ def kantorovich_rubinstein_norm(mesh: TriangleMesh, difference, **kwargs) -> Bec
     on balanced signed measures; this is what volumetric distances (§2.6) need, since
     mean value coordinates may be negative.  ``value = W1(positive part, negative part)``.
     Keyword arguments are those of :func:`beckmann_w1_exact`.
+
+    Parameters
+    ----------
+    mesh : TriangleMesh
+        The surface.
+    difference : (V,) array
+        Signed masses summing to 0.
+    **kwargs
+        Keywords of :func:`beckmann_w1_exact`.
+
+    Returns
+    -------
+    BeckmannResult
     """
     d = np.asarray(difference, dtype=np.float64)
     if d.shape != (mesh.n,) or not np.all(np.isfinite(d)):
@@ -485,7 +556,10 @@ def w1_barycenter(
         certified relative duality gap, default ``IPM_TOL``) or ``"socp"`` (Clarabel on the
         whole program, at most ``max_vertices`` vertices and ``MAX_BLOCK_UNKNOWNS``
         vertices x (k + 1); default ``tol`` 1e-8).
+    tol : ``"ipm"``: certified relative duality gap (default ``IPM_TOL``); ``"socp"``: the
+        conic solver's tolerance (default 1e-8).
     max_iter : iteration cap (default ``IPM_MAX_ITER`` / 200).
+    max_vertices : largest mesh of the ``"socp"`` route.
     time_limit : wall-time cap (s) of the ``"socp"`` route.
     progress, should_cancel : as in :func:`beckmann_w1_exact` (the ``"ipm"`` route reports
         its certified relative gap).
@@ -537,6 +611,25 @@ def w1_median(
     unique and tends to be sparse; with two inputs and :math:`\alpha_1 \ge \alpha_2`,
     :math:`\rho_1` itself is optimal.  Parameters and result as in :func:`w1_barycenter`,
     with ``value`` :math:`= \sum_i \alpha_i W_1(\rho, \rho_i)`.
+
+    Parameters
+    ----------
+    mesh : TriangleMesh
+        The surface.
+    mus : (V, k) array
+        One column per input :math:`\rho_i` (normalized per column).
+    weights : (k,) array, optional
+        Non-negative weights :math:`\alpha` (normalized to sum 1), default uniform.
+    face_weights : (F,) array, optional
+        As in :func:`beckmann_w1_exact`.
+    tol, max_iter, max_vertices, time_limit : float, int, int, float
+        As in :func:`beckmann_w1_exact`.
+    progress, should_cancel : callable, optional
+        As in :func:`beckmann_w1_exact`.
+
+    Returns
+    -------
+    W1BarycenterResult
     """
     return _barycenter(mesh, mus, weights, squared=False, face_weights=face_weights, tol=tol,
                        max_iter=max_iter, max_vertices=max_vertices, time_limit=time_limit,
@@ -655,11 +748,21 @@ def w1_multistep_paths(
 
     Parameters
     ----------
+    mesh : TriangleMesh with at most ``max_vertices`` vertices.
     mu_start, mu_goal : (V,) masses.
     n_steps : number of moves K >= 1 (the result holds K + 1 distributions).
     capacity : scalar or (V,) upper bound on the intermediate masses.
     obstacle_vertices : vertex indices blocked for mass and flow; the start and goal
         must carry no mass there.
+    face_weights : optional (F,) travel cost per unit length (``np.inf`` = obstacle face).
+    tol, max_iter, max_vertices, time_limit, progress, should_cancel :
+        as in :func:`beckmann_w1_exact`.
+
+    Returns
+    -------
+    W1MultistepResult
+        ``masses`` ``(V, n_steps + 1)``, ``step_costs`` ``(n_steps,)``, their sum
+        ``value`` and the step flows ``(n_steps, F, 3)``.
     """
     if not isinstance(n_steps, (int, np.integer)) or n_steps < 1:
         raise InputError("n_steps must be a positive integer", field="n_steps")

@@ -27,7 +27,19 @@ from solvers.errors import InputError
 
 @dataclass
 class FeatureDistanceResult:
-    """``distances`` (V,) to the feature set; ``emd`` is the underlying W1 solve."""
+    """``distances`` (V,) to the feature set; ``emd`` is the underlying W1 solve.
+
+    Attributes
+    ----------
+    distances : (V,) array
+        Distance of every vertex to the feature set.
+    potential : (V,) array
+        The W1 solve's Kantorovich potential.
+    feature_vertices : array of int
+        The vertices of the feature set.
+    emd : EMDResult
+        The underlying W1 solve.
+    """
 
     distances: np.ndarray
     potential: np.ndarray
@@ -65,6 +77,10 @@ def distance_to_features(mesh, feature_vertices, *, feature_weights=None, face_w
                          max_iter: int | None = None, progress=None,
                          should_cancel=None) -> FeatureDistanceResult:
     r"""Distance from every vertex to a feature set via W1(uniform, feature) (§2.7).
+
+    With :math:`u` the Kantorovich potential of :math:`W_1(\text{uniform}, \nu_S)`,
+    :math:`d(x) = u(p(x)) - u(x)`, :math:`p(x)` the feature of ``x``'s Voronoi cell
+    (with explicit ``feature_weights``: :math:`d = \max_S u - u`; module docstring).
 
     Parameters
     ----------

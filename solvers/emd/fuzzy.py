@@ -26,9 +26,27 @@ DEFAULT_RADIUS_EDGES = 3.0
 
 @dataclass
 class FuzzyGeodesicResult(SolverResult):
-    """``face_norms`` (F,) ‖J‖ per face, ``vertex_norms`` (V,) their area-weighted mean over
+    r"""``face_norms`` (F,) ‖J‖ per face, ``vertex_norms`` (V,) their area-weighted mean over
     each vertex's faces, ``flow`` (F, 3), ``value`` = W1 between the bumps ``mu0``, ``mu1``
-    (V,) and the ``radius`` used.  ``residual`` is the certified relative gap."""
+    (V,) and the ``radius`` used.  ``residual`` is the certified relative gap.
+
+    Attributes
+    ----------
+    face_norms : (F,) array
+        :math:`\|J\|` per face.
+    vertex_norms : (V,) array
+        Their area-weighted mean over each vertex's faces.
+    flow : (F, 3) array
+        The W1 flow :math:`J`.
+    value : float
+        :math:`W_1` between the bumps.
+    mu0, mu1 : (V,) array
+        The two bumps.
+    radius : float
+        The bumps' radius.
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`).
+    """
 
     face_norms: np.ndarray
     vertex_norms: np.ndarray
@@ -52,6 +70,10 @@ def fuzzy_geodesic(mesh, a: int, b: int, *, radius: float | None = None, tol: fl
                    max_iter: int | None = None, progress=None,
                    should_cancel=None) -> FuzzyGeodesicResult:
     r"""‖J‖ of the W1 flow between geodesic bumps at vertices ``a`` and ``b`` (Fig. 2.13).
+
+    :math:`J` is the Beckmann flow (eq. 2.3)
+    :math:`\arg\min_J \int \lVert J \rVert` subject to
+    :math:`\nabla\cdot J = \rho_0 - \rho_1`, for bumps :math:`\rho_0, \rho_1` at ``a``, ``b``.
 
     Parameters
     ----------

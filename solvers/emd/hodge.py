@@ -27,11 +27,25 @@ from solvers.linalg import factorize_spd
 
 @dataclass
 class HodgeDecomposition:
-    """``f`` (V,) vertex potential, ``g`` (E,) stream function on the edge midpoints of
+    r"""``f`` (V,) vertex potential, ``g`` (E,) stream function on the edge midpoints of
     ``mesh.edges`` (0 on boundary edges), ``g_vertices`` (V,) its mean over each vertex's
     edges (for display), the face fields ``gradient_part`` = ∇f, ``rotated_part`` = R∇g and
     ``harmonic`` = J − ∇f − R∇g, all (F, 3), and ``residual`` = ‖harmonic‖ / ‖J‖ (area
-    weighted L2), 0 up to rounding on simply connected surfaces."""
+    weighted L2), 0 up to rounding on simply connected surfaces.
+
+    Attributes
+    ----------
+    f : (V,) array
+        Vertex potential.
+    g : (E,) array
+        Stream function on the edge midpoints of ``mesh.edges``.
+    g_vertices : (V,) array
+        Its mean over each vertex's edges.
+    gradient_part, rotated_part, harmonic : (F, 3) array
+        :math:`\nabla f`, :math:`R\nabla g` and :math:`J - \nabla f - R\nabla g`.
+    residual : float
+        :math:`\|h\| / \|J\|` (area-weighted L2).
+    """
 
     f: np.ndarray
     g: np.ndarray
@@ -73,6 +87,17 @@ def hodge_decomposition(mesh, J) -> HodgeDecomposition:
 
     ``f`` has zero at one vertex per component; ``g`` is zero on boundary edges (and at one
     edge of each closed component).
+
+    Parameters
+    ----------
+    mesh : TriangleMesh
+        The surface.
+    J : (F, 3) array
+        A face field.
+
+    Returns
+    -------
+    HodgeDecomposition
     """
     J = np.asarray(J, dtype=np.float64).reshape(mesh.n_faces, 3)
     mass = sp.diags(np.repeat(mesh.face_areas, 3))

@@ -32,7 +32,17 @@ from solvers.linalg import eigsh, factorize_spd
 
 def mesh_operators(mesh) -> EMDOperators:
     """The :class:`EMDOperators` of ``mesh``, built on first use and kept in its operator
-    store (its lazily built parts are entries of the same store)."""
+    store (its lazily built parts are entries of the same store).
+
+    Parameters
+    ----------
+    mesh : TriangleMesh
+        The surface.
+
+    Returns
+    -------
+    EMDOperators
+    """
     return mesh.operators.get("emd", lambda: EMDOperators(mesh))
 
 
@@ -44,7 +54,13 @@ def _first_per_label(labels: np.ndarray, count: int) -> np.ndarray:
 
 
 class EMDOperators:
-    """Gradient, rotation, pinned Poisson solver and curl-basis system of one mesh."""
+    """Gradient, rotation, pinned Poisson solver and curl-basis system of one mesh.
+
+    Parameters
+    ----------
+    mesh : TriangleMesh
+        The surface (``V`` vertices, ``F`` faces).
+    """
 
     def __init__(self, mesh):
         self.mesh = mesh
@@ -67,35 +83,78 @@ class EMDOperators:
 
     # -- fields -------------------------------------------------------------
     def grad(self, f: np.ndarray) -> np.ndarray:
-        """Per-face gradient of vertex function(s): (V,) -> (F, 3); (V, k) -> (F, 3, k)."""
+        """Per-face gradient of vertex function(s): (V,) -> (F, 3); (V, k) -> (F, 3, k).
+
+        Parameters
+        ----------
+        f : (V,) or (V, k) array
+            Vertex function(s).
+        """
         g = self.gradient_matrix @ f
         return g.reshape(self.n_faces, 3, *f.shape[1:])
 
     def grad_adjoint(self, field: np.ndarray) -> np.ndarray:
-        """``Gᵀ diag(A) field`` for a (F, 3) field, i.e. ``-D field`` (V,)."""
+        """``Gᵀ diag(A) field`` for a (F, 3) field, i.e. ``-D field`` (V,).
+
+        Parameters
+        ----------
+        field : (F, 3) array
+            A face field.
+        """
         return self.gradient_matrix.T @ (self.face_areas[:, None] * field).ravel()
 
     def inner(self, x: np.ndarray, y: np.ndarray) -> float:
-        """Area-weighted inner product of two (F, 3) fields."""
+        """Area-weighted inner product of two (F, 3) fields.
+
+        Parameters
+        ----------
+        x, y : (F, 3) array
+            Face fields.
+        """
         return float(np.einsum("f,fc,fc->", self.face_areas, x, y))
 
     def norm(self, x: np.ndarray) -> float:
+        """Area-weighted L2 norm of an (F, 3) field.
+
+        Parameters
+        ----------
+        x : (F, 3) array
+            A face field.
+        """
         return float(np.sqrt(max(self.inner(x, x), 0.0)))
 
     def weak_divergence(self, field: np.ndarray) -> np.ndarray:
-        """``D field`` (V,): the integral of ``div field`` against each hat function."""
+        """``D field`` (V,): the integral of ``div field`` against each hat function.
+
+        Parameters
+        ----------
+        field : (F, 3) array
+            A face field.
+        """
         return -self.grad_adjoint(field)
 
     # -- Poisson ------------------------------------------------------------
     def solve_poisson(self, rhs: np.ndarray) -> np.ndarray:
         """Solve ``L f = rhs`` (rhs summing to zero on every component), pinning one
-        vertex per component to 0: the constant null space of the Neumann problem."""
+        vertex per component to 0: the constant null space of the Neumann problem.
+
+        Parameters
+        ----------
+        rhs : (V,) array
+            Right-hand side, summing to zero on every component.
+        """
         out = np.zeros(rhs.shape, dtype=np.float64)
         out[self._keep] = self._poisson.solve(np.ascontiguousarray(rhs[self._keep]))
         return out
 
     def particular_flow(self, difference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(f, v = ∇f)`` with ``L f = difference`` (= m1 - m0), eq. 2.4."""
+        """``(f, v = ∇f)`` with ``L f = difference`` (= m1 - m0), eq. 2.4.
+
+        Parameters
+        ----------
+        difference : (V,) array
+            ``m1 - m0``.
+        """
         f = self.solve_poisson(difference)
         return f, self.grad(f)
 
@@ -106,7 +165,15 @@ class EMDOperators:
     def green_matrix(self, check=None, max_vertices: int | None = None):
         """The dense Green's matrix ``L⁺`` (float32 panels, :class:`solvers.emd.green.GreenMatrix`),
         built on first use (``V`` unit solves with the pinned factor) and kept; ``4 V²`` bytes.
-        Concurrent jobs on a cached mesh share one build (the store's lock)."""
+        Concurrent jobs on a cached mesh share one build (the store's lock).
+
+        Parameters
+        ----------
+        check : callable, optional
+            Called between solve blocks of the build (cancellation).
+        max_vertices : int, optional
+            Largest mesh for the dense matrix (default ``GREEN_MAX_VERTICES``).
+        """
         from solvers.emd.green import build_green_matrix
 
         return self._store.get(("emd", "green"), lambda: build_green_matrix(
@@ -203,11 +270,23 @@ class EMDOperators:
         return self._store.get(("emd", "curl_matrix"), build)
 
     def curl_field(self, c: np.ndarray) -> np.ndarray:
-        """``Ψ c = N × ∇(P c)``: (n_c,) -> (F, 3)."""
+        """``Ψ c = N × ∇(P c)``: (n_c,) -> (F, 3).
+
+        Parameters
+        ----------
+        c : (n_c,) array
+            Stream-function coefficients.
+        """
         return (self.curl_matrix[0] @ c).reshape(self.n_faces, 3)
 
     def curl_adjoint(self, field: np.ndarray) -> np.ndarray:
-        """``Ψᵀ A field`` (n_c,)."""
+        """``Ψᵀ A field`` (n_c,).
+
+        Parameters
+        ----------
+        field : (F, 3) array
+            A face field.
+        """
         return self.curl_matrix[1] @ field.ravel()
 
     # -- harmonic fields ----------------------------------------------------
@@ -227,6 +306,11 @@ class EMDOperators:
 
         Returns ``(eigenvalues (k,), vectors (n_c, k))``: the Laplacian eigenbasis of
         stream functions for the truncated (spectral) curl basis (§2.5).
+
+        Parameters
+        ----------
+        k : int
+            Number of eigenpairs, ``1 <= k < n_c - 1``.
         """
         n_c = self.stream_map.shape[1]
         if not 1 <= k < n_c - 1:

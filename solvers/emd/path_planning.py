@@ -50,11 +50,35 @@ from solvers.monitor import Monitor, SolverResult
 
 @dataclass
 class PathPlanningResult(SolverResult):
-    """Eq. 2.6: ``value`` = W1(rho0, rho1) of the returned flow, ``objective`` = value +
+    r"""Eq. 2.6: ``value`` = W1(rho0, rho1) of the returned flow, ``objective`` = value +
     ε ∫ρ1², ``target_masses`` (V,) the arrivals m1 (zero off the exits), ``flow`` J (F, 3)
     from rho0 to the exits, ``potential`` (V,) the dual of ``div J = m0 - m1`` (with ε = 0,
     ``value == potential @ (m1 - m0)``), ``hodge`` the decomposition J = ∇f + R∇g + h.
-    ``residual`` is the max violation of the divergence constraint."""
+    ``residual`` is the max violation of the divergence constraint.
+
+    Attributes
+    ----------
+    value : float
+        :math:`W_1(\rho_0, \rho_1)` of the returned flow.
+    objective : float
+        ``value`` + :math:`\varepsilon \int \rho_1^2`.
+    target_masses : (V,) array
+        The arrivals :math:`m_1` (zero off the exits).
+    flow : (F, 3) array
+        The flow :math:`J` from :math:`\rho_0` to the exits.
+    potential : (V,) array
+        Dual of ``div J = m0 - m1``.
+    hodge : HodgeDecomposition
+        :math:`J = \nabla f + R\nabla g + h`.
+    status : str
+        The solver's final status.
+    solve_time : float
+        Seconds of the solve.
+    method : {"ipm", "socp"}
+        The solver that ran.
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`).
+    """
 
     value: float
     objective: float
@@ -135,7 +159,10 @@ def w1_path_planning(
         :mod:`solvers.emd.interior_point_exits`, any mesh size; ``tol`` is the certified
         relative duality gap, default ``IPM_TOL``) or ``"socp"`` (Clarabel on the whole
         program, at most ``max_vertices`` vertices; default ``tol`` 1e-8).
+    tol : ``"ipm"``: certified relative duality gap (default ``IPM_TOL``); ``"socp"``:
+        the conic solver's tolerance (default 1e-8).
     max_iter : iteration cap (default ``IPM_MAX_ITER`` / 200).
+    max_vertices : largest mesh of the ``"socp"`` route.
     time_limit : wall-time cap (s) of the ``"socp"`` route.
     progress, should_cancel : as in :func:`solvers.emd.exact.beckmann_w1_exact`.
 

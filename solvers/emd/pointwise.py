@@ -72,7 +72,27 @@ class PointwiseDistanceResult(SolverResult):
     relative gap ``(distance - lower_bound) / distance``, ``lower_bounds`` the dual bound
     (the true ``d_W^k`` lies in ``[lower_bound, distance]``), ``target_iterations`` the
     ADMM iterations and ``converged_targets`` ``residuals <= tol``.  ``residual`` and
-    ``converged`` summarize them (worst gap; all converged)."""
+    ``converged`` summarize them (worst gap; all converged).
+
+    Attributes
+    ----------
+    distances : (len(targets),) array
+        :math:`d_W^k` (source, y) per target.
+    source : int
+        The source vertex.
+    k : int
+        Eigenfunctions in the curl basis (0: Green's-function form).
+    targets : array of int
+        The target vertices.
+    residuals, lower_bounds : (len(targets),) array or None
+        Certified relative gaps and dual bounds (``k > 0``).
+    target_iterations : (len(targets),) array or None
+        ADMM iterations per target.
+    converged_targets : (len(targets),) bool array or None
+        ``residuals <= tol``.
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`).
+    """
 
     distances: np.ndarray
     source: int
@@ -112,12 +132,21 @@ def pointwise_distances(mesh, source: int, *, k: int = 0, targets=None, harmonic
                         progress=None, should_cancel=None) -> PointwiseDistanceResult:
     r"""``d_W^k(source, y)`` for all vertices ``y`` (or ``targets``), thesis §2.5.
 
+    .. math::
+
+        d_W^k(x, y) = \min_{c \in \mathbb{R}^k} \int_M
+            \Big\|\nabla G_x - \nabla G_y + \sum_{i\le k} c_i\, R\nabla\phi_i\Big\|\,dA
+
+    with :math:`G_p` the Green's function of the cotangent Laplacian and :math:`\phi_i`
+    the first ``k`` Laplacian eigenfunctions (module docstring).
+
     Parameters
     ----------
     mesh : TriangleMesh.
     source : source vertex index.
     k : number of Laplacian eigenfunctions in the curl basis (0: Green's-function form).
     targets : optional vertex indices (default: all vertices).
+    harmonic : ``k > 0``: include the harmonic fields (genus > 0) in the flow space.
     tol, max_iter : ``k > 0``: each target stops at a certified relative duality gap
         ``tol`` (:mod:`solvers.emd.dwk`), or after ``max_iter`` ADMM iterations.
     block : targets per multi-RHS solve (``method="solve"`` and ``k > 0``).

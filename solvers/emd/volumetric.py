@@ -44,7 +44,21 @@ _CHUNK_ENTRIES = 4_000_000  # points x faces per vectorized block
 @dataclass
 class VolumetricDistanceResult(SolverResult):
     """``value`` = d(x, y); ``weights_x``, ``weights_y`` (V,) mean value coordinates;
-    ``potential`` (V,) optimal Kantorovich potential, ``value == potential @ (w_y - w_x)``."""
+    ``potential`` (V,) optimal Kantorovich potential, ``value == potential @ (w_y - w_x)``.
+
+    Attributes
+    ----------
+    value : float
+        :math:`d(x, y)`.
+    weights_x, weights_y : (V,) array
+        Mean value coordinates of the two points.
+    potential : (V,) array
+        Optimal Kantorovich potential.
+    method : str
+        The W1 solver that ran.
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`).
+    """
 
     value: float
     weights_x: np.ndarray
@@ -56,7 +70,15 @@ class VolumetricDistanceResult(SolverResult):
 @dataclass
 class VolumetricFieldResult(SolverResult):
     """Distances (P,) from one ``source`` point to each of ``points``; ``iterations`` sums
-    the solver iterations, ``residual`` is the largest solver residual."""
+    the solver iterations, ``residual`` is the largest solver residual.
+
+    Attributes
+    ----------
+    distances : (P,) array
+        Distance to each point.
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`).
+    """
 
     distances: np.ndarray
 
@@ -65,7 +87,17 @@ class VolumetricFieldResult(SolverResult):
 class VolumetricPathResult(SolverResult):
     """Gradient-descent path from ``start`` towards ``target``: ``points`` (K, 3) and the
     distances (K,) to the target along it; ``converged`` when the last step reached
-    the target within ``step``."""
+    the target within ``step``.
+
+    Attributes
+    ----------
+    points : (K, 3) array
+        The path.
+    distances : (K,) array
+        Distance to the target along it.
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`).
+    """
 
     points: np.ndarray
     distances: np.ndarray
@@ -173,6 +205,7 @@ def mean_value_coordinates(mesh: TriangleMesh, points, *, units: str = "mesh") -
     mesh : closed TriangleMesh.
     points : (P, 3) or (3,) positions (``mesh.vertices`` frame, or the file's with
         ``units="input"``).
+    units : ``"mesh"`` or ``"input"``, the frame of ``points``.
 
     Returns
     -------
@@ -189,7 +222,21 @@ def mean_value_coordinates(mesh: TriangleMesh, points, *, units: str = "mesh") -
 def winding_number(mesh: TriangleMesh, points, *, units: str = "mesh") -> np.ndarray:
     r"""Generalized winding number (P,): :math:`\frac1{4\pi}\sum_t \Omega_t(x)` with the signed
     solid angles of Van Oosterom & Strackee; about 1 inside, 0 outside a closed,
-    outward-oriented surface (negative for inward orientation)."""
+    outward-oriented surface (negative for inward orientation).
+
+    Parameters
+    ----------
+    mesh : TriangleMesh
+        A closed surface.
+    points : (P, 3) or (3,) array
+        Positions (``mesh.vertices`` frame, or the file's with ``units="input"``).
+    units : {"mesh", "input"}
+        Frame of ``points``.
+
+    Returns
+    -------
+    (P,) array
+    """
     x = _points(mesh, points, units)
     v, f = mesh.vertices, mesh.faces
     out = np.empty(len(x))
@@ -254,6 +301,27 @@ def volumetric_distance(
     discrete problem as the exact solver; ``"full"``/``"spectral"`` restrict the flows
     and give larger values — measured +4 % on a torus).
     ``potential`` is the optimal Kantorovich potential: ``value == potential @ (w_y - w_x)``.
+
+    Parameters
+    ----------
+    mesh : TriangleMesh
+        The closed boundary surface (``V`` vertices).
+    x, y : (3,) array
+        The two points.
+    method : {"exact", "admm"}
+        The W1 solver.
+    basis : str
+        Flow basis of ``"admm"`` (:func:`~solvers.emd.earth_movers_distance`).
+    units : {"mesh", "input"}
+        Frame of the points: ``mesh.vertices``, or the file's.
+    tol, max_iter : float, int, optional
+        The W1 solver's stopping rule.
+    max_vertices : int
+        Largest mesh of ``"exact"``.
+
+    Returns
+    -------
+    VolumetricDistanceResult
     """
     _check_closed_mesh(mesh)
     pts = np.vstack([_points(mesh, x, units), _points(mesh, y, units)])
@@ -287,6 +355,26 @@ def volumetric_distances(
     One W1 problem per point (no shortcut exists for W1 between different pairs); the
     mean value coordinates of all points are computed in one vectorized pass.
     ``progress(j, d_j)`` is called after each point, ``should_cancel()`` before each.
+
+    Parameters
+    ----------
+    mesh : TriangleMesh
+        The closed boundary surface (``V`` vertices).
+    source : (3,) array
+        The source point.
+    points : (P, 3) array
+        The points.
+    method, basis, units, tol, max_iter, max_vertices
+        As in :func:`volumetric_distance`.
+    progress : callable, optional
+        ``progress(j, d_j)``, after each point.
+    should_cancel : callable, optional
+        ``should_cancel() -> bool``, before each point.
+
+    Returns
+    -------
+    VolumetricFieldResult
+        ``distances`` ``(P,)``.
     """
     _check_closed_mesh(mesh)
     src = _points(mesh, source, units)
@@ -342,11 +430,19 @@ def volumetric_path(
 
     Parameters
     ----------
+    mesh : closed TriangleMesh.
     start, target : (3,) points.
     step : step length (default: the mean edge length).
-    method, basis : W1 solver, as in :func:`volumetric_distance`.
+    method, basis, units, tol, max_vertices : W1 solver, as in
+        :func:`volumetric_distance`.
     max_iter : maximum number of steps.
-    progress : callable(iteration, distance) or None.  should_cancel : callable() -> bool.
+    progress : callable(iteration, distance) or None.
+    should_cancel : callable() -> bool, polled before each step.
+
+    Returns
+    -------
+    VolumetricPathResult
+        ``points`` ``(K, 3)`` and the distances ``(K,)`` to the target along them.
     """
     _check_closed_mesh(mesh)
     x = _points(mesh, start, units)[0]

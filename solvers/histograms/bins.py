@@ -19,7 +19,15 @@ from solvers.validation import check_finite, check_int
 
 @dataclass(frozen=True, eq=False)
 class Bins:
-    """``edges`` ``(B + 1,)`` strictly increasing; ``periodic``: the axis is a circle."""
+    """Bins of a 1-D value axis (§5.5), or of the circle.
+
+    Parameters
+    ----------
+    edges : (B + 1,) array
+        Strictly increasing bin edges.
+    periodic : bool
+        The axis is a circle (``edges[-1]`` wraps to ``edges[0]``).
+    """
 
     edges: np.ndarray
     periodic: bool = False
@@ -56,8 +64,23 @@ def make_bins(edges=None, *, lo=None, hi=None, count=None, periodic: bool = Fals
               field: str = "bins") -> Bins:
     """Validated bins from ``edges`` or from ``lo``, ``hi`` and ``count`` (equal widths).
 
-    Raises ``InputError`` naming ``field.edges``, ``field.lo``, ``field.hi`` or
-    ``field.count``.
+    Parameters
+    ----------
+    edges : (B + 1,) array, optional
+        Strictly increasing edges; else give ``lo``, ``hi`` and ``count``.
+    lo, hi : float, optional
+        Ends of the axis.
+    count : int, optional
+        Number of bins ``B``.
+    periodic : bool
+        The axis is a circle.
+    field : str
+        Input name: ``InputError`` names ``field.edges``, ``field.lo``, ``field.hi`` or
+        ``field.count``.
+
+    Returns
+    -------
+    Bins
     """
     if isinstance(edges, Bins):
         return edges
@@ -99,10 +122,24 @@ def make_bins(edges=None, *, lo=None, hi=None, count=None, periodic: bool = Fals
 
 
 def check_histograms(values, n_bins: int, field: str = "histograms") -> np.ndarray:
-    """``(k, B)`` histograms: finite, non-negative, each with positive mass; normalized.
+    """Validate ``k`` histograms: finite, non-negative, each with positive mass; normalize them.
 
     A single ``(B,)`` histogram is accepted as ``k = 1`` (errors then name ``field``);
     otherwise ``InputError`` names ``field[i]``, the offending histogram.
+
+    Parameters
+    ----------
+    values : (k, B) or (B,) array
+        Histograms.
+    n_bins : int
+        Expected number of bins ``B``.
+    field : str
+        Input name given to the :class:`~solvers.errors.InputError` raised.
+
+    Returns
+    -------
+    (k, B) array
+        Rows summing to 1.
     """
     try:
         h = np.asarray(values, dtype=np.float64)
@@ -151,7 +188,20 @@ def check_samples(values, bins: Bins | None = None, field: str = "samples") -> n
 
 
 def histogram_of_samples(samples: np.ndarray, bins: Bins) -> np.ndarray:
-    """Normalized ``(B,)`` histogram of samples (periodic bins wrap samples into range)."""
+    """Normalized histogram of samples (periodic bins wrap samples into range).
+
+    Parameters
+    ----------
+    samples : (N,) array
+        Values on the axis.
+    bins : Bins
+        The bins.
+
+    Returns
+    -------
+    (B,) array
+        Masses summing to 1.
+    """
     x = np.asarray(samples, dtype=np.float64)
     if bins.periodic:
         x = bins.lo + np.mod(x - bins.lo, bins.period)

@@ -52,17 +52,44 @@ from solvers.validation import (
 
 @dataclass(kw_only=True)
 class CircularPropagationResult(SolverResult):
-    """``histograms`` ``(n, B)``; ``value`` the exact objective
-    :math:`\\sum_e w_e W_C(\\mu_u, \\mu_v)` of the returned histograms; ``lp_value`` the LP
-    optimum when known and ``gap = value - lp_value`` (0 for the LP itself).
+    r"""Result of :func:`propagate_circular`.
 
-    For ``method="lp"`` (``iterations``: column-generation rounds): ``lower_bound`` a
-    dual bound on the *unrestricted* LP (all ``m B^2`` plan entries priced),
-    ``min_reduced_cost`` the most negative reduced cost over all its columns, and
-    ``certified`` whether ``value - lower_bound <= 1e-7 max(1, |value|)``, i.e. the
-    restricted optimum is the full LP's; ``plan_entries`` the entries the LP ended with;
-    ``lp_method`` the start of the column generation (``"simplex"`` or ``"hybrid"``) and
-    ``ipm_iterations`` the interior-point iterations of the hybrid start."""
+    Attributes
+    ----------
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`).
+        For ``method="lp"``, ``iterations`` counts column-generation rounds.
+    method : {"lp", "entropic"}
+        The method used.
+    histograms : (n, B) array
+        Per-node histograms.
+    value : float
+        The exact objective :math:`\sum_e w_e W_C(\mu_u, \mu_v)` of ``histograms``.
+    lp_value : float or None
+        The LP optimum, when known.
+    gap : float or None
+        ``value - lp_value`` (0 for the LP itself).
+    gamma : float or None
+        Entropic regularization (``method="entropic"``).
+    labeled : (k,) array or None
+        The labeled nodes.
+    lower_bound : float or None
+        ``method="lp"``: a dual bound on the *unrestricted* LP (all :math:`m B^2` plan
+        entries priced).
+    min_reduced_cost : float or None
+        The most negative reduced cost over all the LP's columns.
+    certified : bool or None
+        Whether ``value - lower_bound <= 1e-7 max(1, |value|)``, i.e. the restricted
+        optimum is the full LP's.
+    plan_entries : int or None
+        The plan entries the LP ended with.
+    simplex_iterations : int or None
+        HiGHS simplex iterations.
+    lp_method : {"simplex", "hybrid"} or None
+        The start of the column generation.
+    ipm_iterations : int or None
+        Interior-point iterations of the hybrid start.
+    """
 
     method: str
     histograms: np.ndarray
@@ -81,7 +108,19 @@ class CircularPropagationResult(SolverResult):
 
 
 def circle_cost(bins: Bins, power: float = 2.0) -> np.ndarray:
-    """``(B, B)`` ground cost ``d^power`` between bin centers (wrapped if periodic)."""
+    """Ground cost ``d^power`` between bin centers (distance wrapped if periodic).
+
+    Parameters
+    ----------
+    bins : Bins
+        The bins.
+    power : float
+        Exponent of the distance.
+
+    Returns
+    -------
+    (B, B) array
+    """
     c = bins.centers
     d = np.abs(c[:, None] - c[None, :])
     if bins.periodic:
@@ -118,7 +157,25 @@ def transport_cost(mu: np.ndarray, nu: np.ndarray, cost: np.ndarray) -> float:
 
 
 def dirichlet_value(histograms: np.ndarray, edges, weights, cost: np.ndarray) -> float:
-    r""":math:`\sum_e w_e\, OT_C(\mu_u, \mu_v)` of per-node histograms (exact, per-edge LPs)."""
+    r"""The Dirichlet energy :math:`\sum_e w_e\, OT_C(\mu_u, \mu_v)` of per-node histograms.
+
+    Exact: one transport LP per edge.
+
+    Parameters
+    ----------
+    histograms : (n, B) array
+        Per-node histograms.
+    edges : (m, 2) int array
+        Graph edges.
+    weights : (m,) array
+        Edge weights :math:`w_e`.
+    cost : (B, B) array
+        Ground cost :math:`C` between bins.
+
+    Returns
+    -------
+    float
+    """
     H = np.asarray(histograms, dtype=np.float64)
     H = H / H.sum(axis=1, keepdims=True)
     return float(sum(w * transport_cost(H[u], H[v], cost)
@@ -377,29 +434,62 @@ def propagate_circular(graph: Graph, labeled, histograms, *, bins,
                        progress=None, should_cancel=None) -> CircularPropagationResult:
     r"""Propagate histograms over periodic bins (S¹) or a small metric space (§5.4).
 
+    Solves for the unlabeled nodes' histograms
+
+    .. math:: \min_{\mu_v,\, v \notin L} \sum_{e = (u, v)} w_e\, W_C(\mu_u, \mu_v),
+       \qquad \mu_v \text{ fixed for } v \in L,
+
+    exactly as one LP (``"lp"``, HiGHS with column generation) or with entropic
+    regularization (``"entropic"``, Alg. 4 on a periodic 1-D grid).
+
     Parameters
     ----------
-    graph : a :class:`~solvers.domains.Graph` (edges, positive weights), or any source
+    graph : Graph or domain
+        A :class:`~solvers.domains.Graph` (edges, positive weights), or any source
         :func:`~solvers.histograms.graphs.as_graph` accepts (mesh, point cloud, weights).
-    labeled : ``(k,)`` nodes, at least one per connected component; histograms ``(k, B)``.
-    bins : :class:`Bins` (``periodic=True`` for S¹) or edges.
-    method : ``"lp"`` (exact, HiGHS) or ``"entropic"`` (Alg. 4 on a periodic 1-D grid).
-    cost : optional ``(B, B)`` ground cost (a small metric space); default
-        :func:`circle_cost` (squared wrapped distance of bin centers).
-    gamma : entropic regularization (default ``(2 w)^2``, ``w`` the mean bin width), in the
-        bins' squared units; ``tol``, ``max_iter``: its Sinkhorn stopping rule.
-    time_limit : seconds given to HiGHS (over all column-generation rounds; the LP raises
+    labeled : (k,) int array
+        Labeled nodes, at least one per connected component.
+    histograms : (k, B) array
+        Their histograms.
+    bins : Bins or (B + 1,) array
+        The bins (``periodic=True`` for S¹) or their edges.
+    method : {"lp", "entropic"}
+        Exact LP, or entropic (Alg. 4).
+    cost : (B, B) array, optional
+        Ground cost :math:`C` (a small metric space); default :func:`circle_cost`
+        (squared wrapped distance of bin centers).
+    gamma : float, optional
+        Entropic regularization (default ``(2 w)^2``, ``w`` the mean bin width), in the
+        bins' squared units.
+    tol : float
+        Sinkhorn stopping tolerance (``"entropic"``).
+    max_iter : int, optional
+        Sinkhorn iteration budget (``"entropic"``).
+    time_limit : float, optional
+        Seconds given to HiGHS (over all column-generation rounds; the LP raises
         :class:`~solvers.errors.ConvergenceError` when it runs out) and, separately, to the
         interior-point start of ``lp_method="hybrid"``.
-    evaluate : compute the exact objective of the entropic result (per-edge exact OT);
-        ``lp_value``: a known LP optimum to report the gap against.
-    lp_method : how ``method="lp"`` starts its column generation (the optimum and its
-        certificate are the same): ``"simplex"`` from a band of cheap entries around the
-        diagonal; ``"hybrid"`` from the support found by at most ``ipm_iterations``
-        iterations of the structured interior-point method of :mod:`.circle_ipm` (all
-        :math:`m B^2` entries; per-edge blocks eliminated onto the node histograms, one
-        sparse Cholesky per iteration); ``"auto"``: hybrid when :math:`m B^2 \ge 2 \cdot
-        10^5` and some node is unlabeled.
+    evaluate : bool
+        Compute the exact objective of the entropic result (per-edge exact OT).
+    lp_value : float, optional
+        A known LP optimum to report the gap against.
+    lp_method : {"auto", "hybrid", "simplex"}
+        How ``method="lp"`` starts its column generation (the optimum and its certificate
+        are the same): ``"simplex"`` from a band of cheap entries around the diagonal;
+        ``"hybrid"`` from the support found by at most ``ipm_iterations`` iterations of the
+        structured interior-point method of :mod:`.circle_ipm` (all :math:`m B^2` entries;
+        per-edge blocks eliminated onto the node histograms, one sparse Cholesky per
+        iteration); ``"auto"``: hybrid when :math:`m B^2 \ge 2 \cdot 10^5` and some node is
+        unlabeled.
+    ipm_iterations : int
+        Iteration budget of the hybrid start.
+    progress, should_cancel : callable, optional
+        As in :func:`~solvers.histograms.propagate_histograms`.
+
+    Returns
+    -------
+    CircularPropagationResult
+        ``histograms`` ``(n, B)``, the objective ``value`` and, for the LP, its certificate.
     """
     b = make_bins(bins)
     n, edges, w, nodes, h = _labels(graph, labeled, histograms, b)

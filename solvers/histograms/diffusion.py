@@ -34,8 +34,26 @@ from solvers.validation import check_int, check_positive
 
 @dataclass(kw_only=True)
 class HistogramDiffusionResult(SolverResult):
-    """``histograms`` ``(T, n, B)`` at each of ``times``; ``quantiles`` ``(T, n, m)``
-    (Wasserstein method, else ``None``)."""
+    """Result of :func:`diffuse_histograms`.
+
+    Attributes
+    ----------
+    method : {"wasserstein", "pdf"}
+        The method used.
+    times : (T,) array
+        The diffusion times.
+    histograms : (T, n, B) array
+        Histograms at each time.
+    quantiles : (T, n, m) array or None
+        Inverse CDFs at each time (Wasserstein method, else ``None``).
+    levels : (m,) array or None
+        Their quantile levels.
+    bins : Bins
+        The bins.
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`); ``residual`` is the
+        largest row-sum error of the histograms.
+    """
 
     method: str
     times: np.ndarray
@@ -58,11 +76,40 @@ def diffuse_histograms(graph, histograms, times, *, bins, method: Literal["wasse
                        = "wasserstein", levels: int = 100, substeps: int = 1,
                        laplacian: str = "auto", progress=None, should_cancel=None
                        ) -> HistogramDiffusionResult:
-    r"""Diffuse one histogram per node ``(n, B)`` for each time in ``times``.
+    r"""Diffuse one histogram per node for each time in ``times`` (Prop. 16, §5.3.3).
 
-    ``method="wasserstein"``: heat steps on the inverse CDFs (Prop. 16); ``"pdf"``: on the
-    histograms.  ``t = 0`` returns the input.  ``residual`` is the largest row-sum error of
-    the returned histograms (mass conservation, measured).
+    ``method="wasserstein"``: the gradient flow of the Dirichlet energy in :math:`W_2` is
+    the heat equation on the inverse CDFs :math:`g` (Prop. 16), integrated by implicit
+    steps :math:`g_t = (M + \tfrac{t}{k} \mathcal{L})^{-k} M g_0` (``k = substeps``);
+    ``"pdf"``: the same steps on the histograms.
+    ``t = 0`` returns the input.
+
+    Parameters
+    ----------
+    graph : Graph, TriangleMesh, PointCloud, Grid or (n, n) sparse matrix
+        The domain, or a symmetric non-negative weight matrix (see :mod:`.graphs`).
+    histograms : (n, B) array
+        One histogram per node.
+    times : (T,) array
+        Non-negative diffusion times.
+    bins : Bins or (B + 1,) array
+        The bins, or their edges.
+    method : {"wasserstein", "pdf"}
+        Diffuse inverse CDFs, or histograms bin by bin.
+    levels : int
+        Number ``m`` of quantile levels.
+    substeps : int
+        Implicit steps per time interval.
+    laplacian : {"auto", "robust", "cotan"}
+        The Laplacian of a mesh (cotangent or robust); other domains have one.
+    progress, should_cancel : callable, optional
+        As in :func:`~solvers.histograms.propagate_histograms`.
+
+    Returns
+    -------
+    HistogramDiffusionResult
+        ``histograms`` ``(T, n, B)``; ``residual`` the largest row-sum error (mass
+        conservation, measured).
     """
     if method not in ("wasserstein", "pdf"):
         raise InputError(f"method must be 'wasserstein' or 'pdf', got {method!r}", field="method")

@@ -68,7 +68,23 @@ class DirichletSystem:
 
 def check_labeled(graph, labeled, L: sp.spmatrix | None = None,
                   field: str = "labeled") -> np.ndarray:
-    """Distinct node indices with at least one in every connected component."""
+    """Validate labeled nodes: distinct indices, at least one in every connected component.
+
+    Parameters
+    ----------
+    graph : Graph, TriangleMesh, PointCloud, Grid or (n, n) sparse matrix
+        The domain, or a symmetric non-negative weight matrix (see :mod:`.graphs`).
+    labeled : (k,) int array
+        Node indices.
+    L : (n, n) sparse matrix, optional
+        The graph's Laplacian, if already built.
+    field : str
+        Input name given to the :class:`~solvers.errors.InputError` raised.
+
+    Returns
+    -------
+    (k,) int array
+    """
     n = graph.n if isinstance(graph, Domain) else graph.shape[0]
     nodes = check_node_indices(labeled, n, field)
     _, labels = component_labels(graph, L if L is not None else graph_laplacian(graph))
@@ -116,10 +132,30 @@ def _build(L: sp.csr_matrix, labeled: np.ndarray, linear_method: str,
 def dirichlet_system(graph, labeled, *, laplacian: str = "auto", linear_method: str = "auto",
                      field: str = "labeled", factorization: Backend = "auto"
                      ) -> DirichletSystem:
-    """The reduced system for ``labeled`` nodes, cached in the domain's operator store.
+    r"""The reduced system :math:`\mathcal{L}_{UU}` for ``labeled`` nodes (Prop. 13).
 
-    ``factorization`` (``linear_method="direct"``): ``"auto"`` (:func:`direct_backend`),
-    ``"pardiso"``, ``"cholespy"`` or ``"splu"``.
+    Factored once and cached in the domain's operator store.
+
+    Parameters
+    ----------
+    graph : Graph, TriangleMesh, PointCloud, Grid or (n, n) sparse matrix
+        The domain, or a symmetric non-negative weight matrix (see :mod:`.graphs`).
+    labeled : (k,) int array
+        Labeled nodes, at least one per connected component.
+    laplacian : {"auto", "robust", "cotan"}
+        The Laplacian of a mesh (cotangent or robust); other domains have one.
+    linear_method : {"auto", "direct", "amg"}
+        Sparse Cholesky, or AMG-preconditioned CG.
+    field : str
+        Input name given to the :class:`~solvers.errors.InputError` raised.
+    factorization : {"auto", "pardiso", "cholespy", "splu"}
+        Backend of ``linear_method="direct"`` (``"auto"``: :func:`direct_backend`).
+
+    Returns
+    -------
+    DirichletSystem
+        The factored (or preconditioned) :math:`\mathcal{L}_{UU}`, the coupling
+        :math:`\mathcal{L}_{UL}` and the index sets.
     """
     if linear_method not in LINEAR_METHODS:
         raise InputError(f"linear_method must be one of {LINEAR_METHODS}, got "
@@ -163,10 +199,31 @@ class Extension:
 def harmonic_extension(system: DirichletSystem, values: np.ndarray, *, rank_tol: float = 1e-9,
                        tol: float = 1e-10, max_iter: int = 500, progress=None,
                        should_cancel=None) -> Extension:
-    """``(n, c)`` harmonic extension of ``(k, c)`` labeled values (rows in ``labeled`` order).
+    r"""Harmonic extension of labeled values.
 
-    ``residual``: measured relative residual :math:`\\|A Y - B\\|_F / \\|B\\|_F` of the
-    compressed block system.
+    Solves :math:`\mathcal{L}_{UU} Y = -\mathcal{L}_{UL} X` for the free nodes.
+    The columns of ``values`` are compressed (truncated SVD) before one block solve.
+
+    Parameters
+    ----------
+    system : DirichletSystem
+        From :func:`dirichlet_system`.
+    values : (k, c) array
+        Labeled values, rows in ``labeled`` order.
+    rank_tol : float
+        Relative singular-value cut of the column compression.
+    tol : float
+        Relative residual tolerance of CG (``linear_method="amg"``).
+    max_iter : int
+        CG iteration budget.
+    progress, should_cancel : callable, optional
+        As in :func:`~solvers.histograms.propagate_histograms`.
+
+    Returns
+    -------
+    Extension
+        ``values`` ``(n, c)``, the ``rank`` solved, the ``compression_error``, the measured
+        ``residual`` :math:`\|A Y - B\|_F / \|B\|_F` and the ``iterations``.
     """
     V = np.asarray(values, dtype=np.float64)
     if V.ndim != 2 or V.shape[0] != len(system.labeled):

@@ -31,7 +31,20 @@ LaplacianKind = Literal["auto", "robust", "cotan"]
 
 
 def laplacian_from_weights(weights: sp.spmatrix, field: str = "graph") -> sp.csr_matrix:
-    """``L = D - W`` from a symmetric non-negative sparse weight matrix ``W``."""
+    r"""The graph Laplacian :math:`L = D - W` of a weight matrix.
+
+    Parameters
+    ----------
+    weights : (n, n) sparse matrix
+        Symmetric, non-negative weights :math:`W`.
+    field : str
+        Input name given to the :class:`~solvers.errors.InputError` raised.
+
+    Returns
+    -------
+    (n, n) scipy.sparse.csr_matrix
+        :math:`L`, with :math:`D = \operatorname{diag}(W 1)`.
+    """
     W = sp.csr_matrix(weights, dtype=np.float64)
     if W.shape[0] != W.shape[1]:
         raise InputError(f"{field}: a weight matrix must be square, got {W.shape}", field=field)
@@ -45,7 +58,19 @@ def laplacian_from_weights(weights: sp.spmatrix, field: str = "graph") -> sp.csr
 
 
 def graph_laplacian(graph, laplacian: LaplacianKind = "auto") -> sp.csr_matrix:
-    """The PSD Laplacian ``L`` (``n × n``, ``L·1 = 0``) of a domain or weight matrix."""
+    """The PSD Laplacian ``L`` (``L·1 = 0``) of a domain or weight matrix (§5.2, §5.6).
+
+    Parameters
+    ----------
+    graph : Graph, TriangleMesh, PointCloud, Grid or (n, n) sparse matrix
+        The domain, or a symmetric non-negative weight matrix (see :mod:`.graphs`).
+    laplacian : {"auto", "robust", "cotan"}
+        The Laplacian of a mesh (cotangent or robust); other domains have one.
+
+    Returns
+    -------
+    (n, n) scipy.sparse.csr_matrix
+    """
     if sp.issparse(graph):
         return laplacian_from_weights(graph)
     if isinstance(graph, Domain):
@@ -59,10 +84,18 @@ def graph_laplacian(graph, laplacian: LaplacianKind = "auto") -> sp.csr_matrix:
 
 
 def as_graph(graph, laplacian: LaplacianKind = "auto") -> Graph:
-    """A :class:`Graph` with the positive off-diagonal weights :math:`-L_{uv}` of a source.
+    """A :class:`~solvers.domains.Graph` with the positive off-diagonal weights :math:`-L_{uv}`.
 
-    (Negative cotangent weights of obtuse meshes are dropped; the robust Laplacian has
-    none.)
+    Negative cotangent weights of obtuse meshes are dropped; the robust Laplacian has none.
+
+    Parameters
+    ----------
+    graph, laplacian
+        As in :func:`graph_laplacian`.
+
+    Returns
+    -------
+    Graph
     """
     if isinstance(graph, Domain):
         return domain_graph(graph, laplacian)
@@ -79,10 +112,23 @@ def component_labels(graph, L: sp.spmatrix | None = None) -> tuple[int, np.ndarr
 
 def knn_graph(points, k: int = 8, *, weights: Literal["uniform", "gaussian"] = "uniform"
               ) -> Graph:
-    r"""Symmetric k-nearest-neighbour :class:`~solvers.domains.Graph` of ``(n, d)`` points.
+    r"""Symmetric k-nearest-neighbour :class:`~solvers.domains.Graph` of points.
 
-    ``u ~ v`` when either is among the other's ``k`` nearest neighbours.  Weights: 1, or
-    :math:`\exp(-d_{uv}^2 / \sigma^2)` with :math:`\sigma` the mean neighbour distance.
+    ``u ~ v`` when either is among the other's ``k`` nearest neighbours.
+
+    Parameters
+    ----------
+    points : (n, d) array
+        Coordinates.
+    k : int
+        Neighbours per point.
+    weights : {"uniform", "gaussian"}
+        Edge weights 1, or :math:`\exp(-d_{uv}^2 / \sigma^2)` with :math:`\sigma` the mean
+        neighbour distance.
+
+    Returns
+    -------
+    Graph
     """
     from scipy.spatial import cKDTree
 

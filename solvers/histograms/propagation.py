@@ -43,14 +43,32 @@ Method = Literal["wasserstein", "pdf"]
 
 @dataclass(kw_only=True)
 class HistogramPropagationResult(SolverResult):
-    """Per-node distributions after propagation.
+    """Per-node distributions after :func:`propagate_histograms`.
 
-    ``histograms`` ``(n, B)`` on ``bins`` (rows sum to 1; ``None`` without bins);
-    ``quantiles`` ``(n, m)`` inverse CDFs at ``levels`` (Wasserstein method);
-    ``labeled`` the labeled nodes; ``rank`` the columns actually solved after compression
-    and ``compression_error`` the largest truncation error on the labels; ``residual``
-    the measured relative residual of the linear solve; ``iterations`` 1 for a direct
-    solve, CG iterations otherwise.
+    Attributes
+    ----------
+    iterations, residual, converged : int, float, bool
+        Convergence data (:class:`~solvers.monitor.SolverResult`).
+        ``residual`` is the measured relative residual of the linear solve; ``iterations``
+        1 for a direct solve, CG iterations otherwise.
+    method : {"wasserstein", "pdf"}
+        The method used.
+    histograms : (n, B) array or None
+        Per-node histograms on ``bins`` (rows sum to 1; ``None`` without bins).
+    quantiles : (n, m) array or None
+        Inverse CDFs at ``levels`` (Wasserstein method).
+    levels : (m,) array or None
+        Quantile levels.
+    bins : Bins or None
+        The bins.
+    labeled : (k,) int array
+        The labeled nodes.
+    rank : int
+        Columns actually solved after compression.
+    compression_error : float
+        Largest truncation error on the labels.
+    linear_method : str
+        ``"direct"`` or ``"amg"``.
     """
 
     method: str
@@ -66,10 +84,26 @@ class HistogramPropagationResult(SolverResult):
 
 def label_quantiles(levels: np.ndarray, *, bins: Bins | None = None, histograms=None,
                     samples=None, densities=None, field: str = "labels") -> np.ndarray:
-    """``(k, m)`` inverse CDFs of the labels, from exactly one of the three input forms.
+    """Inverse CDFs of the labels, from exactly one of the three input forms.
 
-    ``histograms`` ``(k, B)`` over ``bins``; ``samples`` a list of ``k`` sample arrays;
-    ``densities`` a pair ``(knots (P,), values (k, P))`` of piecewise-linear densities.
+    Parameters
+    ----------
+    levels : (m,) array
+        Quantile levels in (0, 1).
+    bins : Bins, optional
+        Needed for ``histograms``; periodic bins wrap ``samples``.
+    histograms : (k, B) array, optional
+        Label histograms over ``bins``.
+    samples : list of k arrays, optional
+        Raw values of each label.
+    densities : tuple, optional
+        ``(knots (P,), values (k, P))``: piecewise-linear densities.
+    field : str
+        Input name given to the :class:`~solvers.errors.InputError` raised.
+
+    Returns
+    -------
+    (k, m) array
     """
     given = [name for name, v in (("histograms", histograms), ("samples", samples),
                                   ("densities", densities)) if v is not None]
@@ -94,7 +128,19 @@ def label_quantiles(levels: np.ndarray, *, bins: Bins | None = None, histograms=
 
 def label_histograms(bins: Bins, *, histograms=None, samples=None, densities=None
                      ) -> np.ndarray:
-    """``(k, B)`` normalized histograms of the labels on ``bins`` (the PDF method's input)."""
+    """Normalized histograms of the labels on ``bins`` (the PDF method's input).
+
+    Parameters
+    ----------
+    bins : Bins
+        The bins.
+    histograms, samples, densities
+        The labels, as in :func:`label_quantiles`.
+
+    Returns
+    -------
+    (k, B) array
+    """
     if histograms is not None:
         return check_histograms(histograms, bins.count, "histograms")
     if samples is not None:
@@ -134,26 +180,59 @@ def propagate_histograms(graph, labeled, histograms=None, *, bins=None, samples=
                          laplacian: str = "auto", linear_method: str = "auto",
                          rank_tol: float = 1e-9, tol: float = 1e-10, max_iter: int = 500,
                          progress=None, should_cancel=None) -> HistogramPropagationResult:
-    r"""Propagate labeled distributions to every node (Prop. 13; PDF baseline).
+    r"""Propagate labeled distributions to every node (Prop. 13; PDF baseline, §5.2.2).
+
+    The Wasserstein method minimizes the Dirichlet energy in :math:`W_2`,
+
+    .. math:: \min_{\mu_v,\, v \notin L} \sum_{(u, v)} w_{uv} W_2^2(\mu_u, \mu_v),
+
+    which on the line is the harmonic extension of the inverse CDFs, one solve for all
+    levels (Prop. 13).
 
     Parameters
     ----------
-    graph : a ``Graph``, ``TriangleMesh``, ``PointCloud`` or ``Grid`` domain, or a sparse
-        symmetric non-negative ``(n, n)`` weight matrix (see :mod:`.graphs`).
-    labeled : ``(k,)`` distinct node indices, at least one per connected component.
-    histograms : ``(k, B)`` label histograms over ``bins`` (or ``samples``: ``k`` arrays of
-        raw values; or ``densities``: ``(knots (P,), values (k, P))``).
-    bins : :class:`Bins` or edges ``(B + 1,)``; needed for histogram inputs and outputs.
-    method : ``"wasserstein"`` (inverse CDFs, Prop. 13) or ``"pdf"`` (bin by bin, §5.2.2).
-    levels : number ``m`` of quantile levels ``(k + 1/2)/m``.
-    laplacian : ``"auto"``, ``"robust"`` or ``"cotan"`` (meshes).
-    linear_method : ``"auto"``/``"direct"`` (Cholesky) or ``"amg"`` (AMG-preconditioned CG);
-        ``tol``/``max_iter`` apply to it.
-    rank_tol : relative singular-value cut of the column compression.
+    graph : Graph, TriangleMesh, PointCloud, Grid or (n, n) sparse matrix
+        The domain, or a symmetric non-negative weight matrix (see :mod:`.graphs`).
+    labeled : (k,) int array
+        Distinct node indices, at least one per connected component.
+    histograms, samples, densities : optional
+        The labels in one of three forms, as in :func:`label_quantiles`.
+    bins : Bins or (B + 1,) array, optional
+        Bins or their edges; needed for histogram inputs and outputs.
+    method : {"wasserstein", "pdf"}
+        Inverse CDFs (Prop. 13), or bin by bin (§5.2.2).
+    levels : int
+        Number ``m`` of quantile levels ``(k + 1/2)/m``.
+    laplacian : {"auto", "robust", "cotan"}
+        The Laplacian of a mesh (cotangent or robust); other domains have one.
+    linear_method : {"auto", "direct", "amg"}
+        Sparse Cholesky, or AMG-preconditioned CG.
+    rank_tol : float
+        Relative singular-value cut of the column compression.
+    tol, max_iter : float, int
+        Relative residual tolerance and iteration budget of CG (``linear_method="amg"``).
+    progress, should_cancel : callable, optional
+        ``progress(iteration, residual)`` as the solver advances; ``should_cancel()``
+        returning True stops it (:class:`~solvers.errors.CancelledError`).
 
     Returns
     -------
-    HistogramPropagationResult (histograms ``(n, B)``, quantiles ``(n, m)``, ...).
+    HistogramPropagationResult
+        ``histograms`` ``(n, B)``, ``quantiles`` ``(n, m)``, ...
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from solvers.domains import Graph
+    >>> from solvers.histograms import make_bins, propagate_histograms
+    >>> path = Graph(3, np.array([[0, 1], [1, 2]]))
+    >>> bins = make_bins(lo=0.0, hi=1.0, count=4)
+    >>> labels = np.array([[1.0, 0, 0, 0], [0, 0, 0, 1.0]])
+    >>> result = propagate_histograms(path, [0, 2], labels, bins=bins)
+    >>> result.histograms.shape
+    (3, 4)
+    >>> result.histograms[1].round(2)  # the middle node: the mass met half way
+    array([0. , 0.5, 0.5, 0. ])
     """
     if method not in ("wasserstein", "pdf"):
         raise InputError(f"method must be 'wasserstein' or 'pdf', got {method!r}", field="method")
@@ -195,7 +274,26 @@ def propagate_histograms(graph, labeled, histograms=None, *, bins=None, samples=
 
 def harmonic_means(graph, labeled, means, *, laplacian: str = "auto",
                    linear_method: str = "auto") -> np.ndarray:
-    """Classical harmonic interpolation [ZGL03] of scalar labels ``(k,)`` -> ``(n,)``."""
+    r"""Classical harmonic interpolation [ZGL03] of scalar labels.
+
+    Minimizes :math:`\sum_{(u,v)} w_{uv} (f_u - f_v)^2` with :math:`f` fixed on the
+    labeled nodes.
+
+    Parameters
+    ----------
+    graph, labeled
+        As in :func:`propagate_histograms`.
+    means : (k,) array
+        Their values.
+    laplacian : {"auto", "robust", "cotan"}
+        The Laplacian of a mesh (cotangent or robust); other domains have one.
+    linear_method : {"auto", "direct", "amg"}
+        Sparse Cholesky, or AMG-preconditioned CG.
+
+    Returns
+    -------
+    (n,) array
+    """
     system = dirichlet_system(graph, labeled, laplacian=laplacian, linear_method=linear_method)
     nodes = np.asarray(labeled, dtype=np.int64)
     v = np.asarray(means, dtype=np.float64).reshape(-1)

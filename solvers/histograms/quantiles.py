@@ -26,7 +26,17 @@ from solvers.validation import check_int
 
 
 def quantile_levels(m: int) -> np.ndarray:
-    """``m`` midpoint levels ``(k + 1/2) / m`` in (0, 1)."""
+    """``m`` midpoint quantile levels ``(k + 1/2) / m`` in (0, 1).
+
+    Parameters
+    ----------
+    m : int
+        Number of levels.
+
+    Returns
+    -------
+    (m,) array
+    """
     m = check_int(m, "levels", low=2, high=100_000)
     return (np.arange(m) + 0.5) / m
 
@@ -48,7 +58,23 @@ def _rowwise_searchsorted(sorted_rows: np.ndarray, queries: np.ndarray) -> np.nd
 
 def inverse_cdf_from_histograms(histograms, bins: Bins, levels: np.ndarray,
                                 field: str = "histograms") -> np.ndarray:
-    """``(k, B)`` histograms -> ``(k, m)`` inverse CDFs at ``levels`` (exact, per bin linear)."""
+    """Inverse CDFs of histograms at ``levels`` (exact: the density is constant per bin).
+
+    Parameters
+    ----------
+    histograms : (k, B) array
+        Histograms over ``bins``.
+    bins : Bins
+        The bins.
+    levels : (m,) array
+        Quantile levels in (0, 1).
+    field : str
+        Input name given to the :class:`~solvers.errors.InputError` raised.
+
+    Returns
+    -------
+    (k, m) array
+    """
     h = check_histograms(histograms, bins.count, field)
     cdf = np.concatenate([np.zeros((len(h), 1)), np.cumsum(h, axis=1)], axis=1)
     cdf[:, -1] = 1.0
@@ -66,18 +92,47 @@ def inverse_cdf_from_histograms(histograms, bins: Bins, levels: np.ndarray,
 
 def inverse_cdf_from_samples(samples, levels: np.ndarray, bins: Bins | None = None,
                              field: str = "samples") -> np.ndarray:
-    """One node's samples ``(N,)`` -> ``(m,)`` empirical inverse CDF at ``levels``."""
+    """Empirical inverse CDF of one node's samples at ``levels``.
+
+    Parameters
+    ----------
+    samples : (N,) array
+        Values.
+    levels : (m,) array
+        Quantile levels in (0, 1).
+    bins : Bins, optional
+        Periodic bins wrap the samples into range.
+    field : str
+        Input name given to the :class:`~solvers.errors.InputError` raised.
+
+    Returns
+    -------
+    (m,) array
+    """
     x = check_samples(samples, bins, field)
     return np.quantile(x, levels, method="inverted_cdf")
 
 
 def inverse_cdf_from_density(knots, density, levels: np.ndarray,
                              field: str = "density") -> np.ndarray:
-    r"""A continuous piecewise-linear density (values at increasing ``knots``) -> ``(m,)``.
+    r"""Inverse CDF at ``levels`` of a continuous piecewise-linear density.
 
     On a segment of width ``h`` with end values ``f0, f1`` the CDF is
     :math:`F(t) = f_0 t + (f_1 - f_0) t^2 / 2h`; :math:`F(t) = r` is solved in the stable
     form :math:`t = 2r / (f_0 + \sqrt{f_0^2 + 2 r (f_1 - f_0)/h})`.
+
+    Parameters
+    ----------
+    knots : (P,) array
+        Increasing abscissae.
+    density : (P,) array
+        Non-negative density values at ``knots``.
+    levels, field : (m,) array, str
+        Quantile levels in (0, 1); the input an error names.
+
+    Returns
+    -------
+    (m,) array
     """
     x = np.asarray(knots, dtype=np.float64)
     f = np.asarray(density, dtype=np.float64)
@@ -109,11 +164,24 @@ def inverse_cdf_from_density(knots, density, levels: np.ndarray,
 
 def cdf_from_inverse_cdf(quantiles: np.ndarray, levels: np.ndarray,
                          points: np.ndarray) -> np.ndarray:
-    r"""CDF ``(n, P)`` at ``points`` of the distributions whose inverse CDFs are ``(n, m)``.
+    r"""CDF at ``points`` of the distributions with the given inverse CDFs.
 
     The inverse CDF is piecewise linear through ``(levels[k], quantiles[:, k])`` and
     constant beyond the end levels (atoms of mass ``levels[0]`` and ``1 - levels[-1]`` at
     the end values), so :math:`F(x) = |\{s : g(s) \le x\}|`.
+
+    Parameters
+    ----------
+    quantiles : (n, m) array
+        Inverse CDFs, rows non-decreasing.
+    levels : (m,) array
+        Their levels.
+    points : (P,) array
+        Where to evaluate.
+
+    Returns
+    -------
+    (n, P) array
     """
     q = np.sort(np.asarray(quantiles, dtype=np.float64), axis=1)
     n, m = q.shape
@@ -132,15 +200,30 @@ def cdf_from_inverse_cdf(quantiles: np.ndarray, levels: np.ndarray,
 
 def histograms_from_inverse_cdf(quantiles: np.ndarray, levels: np.ndarray,
                                 bins: Bins, *, sorted_rows: bool = False) -> np.ndarray:
-    """``(n, m)`` inverse CDFs -> ``(n, B)`` histograms (CDF differences over each bin).
+    """Histograms on ``bins`` of the distributions with the given inverse CDFs.
 
     The CDF at every inner edge is read off as in :func:`cdf_from_inverse_cdf`: with ``k``
     the number of levels whose value is at or below the edge, the piecewise-linear inverse
     CDF is inverted between levels ``k - 1`` and ``k`` (one merge pass of each row with
     the edges, compiled: :func:`solvers.histograms._kernels.histograms_from_sorted_rows`).
     Mass below ``e_0`` or above ``e_B`` (none when the labels lie in the bins) is put in
-    the first / last bin, so every row sums to 1.  ``sorted_rows``: the rows are known to
-    be non-decreasing (else a sorted copy is used).
+    the first / last bin, so every row sums to 1.
+
+    Parameters
+    ----------
+    quantiles : (n, m) array
+        Inverse CDFs.
+    levels : (m,) array
+        Their levels.
+    bins : Bins
+        The bins.
+    sorted_rows : bool
+        The rows are known to be non-decreasing (else a sorted copy is used).
+
+    Returns
+    -------
+    (n, B) array
+        CDF differences over each bin.
     """
     from solvers.histograms._kernels import histograms_from_sorted_rows
 

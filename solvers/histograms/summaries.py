@@ -74,7 +74,20 @@ def circular_std(histograms, bins: Bins) -> np.ndarray:
 
 
 def summarize(histograms, bins: Bins) -> dict[str, np.ndarray]:
-    """``{"mean", "std", "entropy", "mode"}``, each ``(n,)``."""
+    """Summary statistics of histograms (§5.6).
+
+    Parameters
+    ----------
+    histograms : (n, B) array
+        Histograms over ``bins``.
+    bins : Bins
+        The bins (periodic bins give the circular mean and std).
+
+    Returns
+    -------
+    dict of str to (n,) array
+        ``"mean"``, ``"std"``, ``"entropy"``, ``"mode"``.
+    """
     return {"mean": mean(histograms, bins), "std": std(histograms, bins),
             "entropy": entropy(histograms, bins), "mode": mode(histograms, bins)}
 
@@ -88,11 +101,22 @@ def _abs_integral(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 def w1_distance(h0, h1, bins: Bins) -> np.ndarray:
-    r"""Row-wise :math:`W_1` between histograms ``(n, B)`` on ``bins``: :math:`\int |F - G|`.
+    r"""Row-wise :math:`W_1` between histograms on ``bins``: :math:`\int |F - G|`.
 
     CDFs are piecewise linear (constant density per bin), so the integral is exact on the
     line.  On periodic bins :math:`W_1 = \min_c \int |F - G - c|`, with ``c`` the
     width-weighted median of ``F - G`` at the bin centers.
+
+    Parameters
+    ----------
+    h0, h1 : (n, B) array
+        Histograms.
+    bins : Bins
+        The bins.
+
+    Returns
+    -------
+    (n,) array
     """
     p, q = _normalized(h0), _normalized(h1)
     D = np.concatenate([np.zeros((len(p), 1)), np.cumsum(p - q, axis=1)], axis=1)

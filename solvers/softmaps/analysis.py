@@ -23,9 +23,25 @@ from solvers.validation import check_int
 
 @dataclass
 class SoftMapBasis:
-    """``source_basis`` ``(N, r)``, ``singular_values`` ``(r,)``, ``target_basis`` ``(n, r)``:
-    area-orthonormal columns, the first the constant; ``P ≈ D_{a0}^{-1/2} …``, see
-    :func:`low_rank_approximation`."""
+    """SVD bases of a soft map (§4.6.1), from :func:`soft_map_svd`.
+
+    Columns are area-orthonormal, the first the constant; the density
+    :math:`P_{xy} / a(y)` is approximated by ``source_basis @ diag(singular_values) @
+    target_basis.T`` (see :func:`low_rank_approximation`).
+
+    Attributes
+    ----------
+    source_basis : (N, r) array
+        Left singular vectors.
+    singular_values : (r,) array
+        Singular values.
+    target_basis : (n, r) array
+        Right singular vectors.
+    source_areas : (N,) array
+        Source areas the bases are orthonormal for.
+    target_areas : (n,) array
+        Target areas the bases are orthonormal for.
+    """
 
     source_basis: np.ndarray
     singular_values: np.ndarray
@@ -44,7 +60,23 @@ def _weighted(P, a0, a):
 
 
 def soft_map_svd(P, source_areas, target_areas, rank: int | None = None) -> SoftMapBasis:
-    """§4.6.1 SVD bases of a soft map with the uniform vector kept first."""
+    """§4.6.1 SVD bases of a soft map with the uniform vector kept first.
+
+    Parameters
+    ----------
+    P : (N, n) array
+        Soft map: target masses per source row.
+    source_areas : (N,) array
+        Source areas (cell areas of the rows).
+    target_areas : (n,) array
+        Target vertex areas.
+    rank : int, optional
+        Columns kept (default all).
+
+    Returns
+    -------
+    SoftMapBasis
+    """
     a0 = np.asarray(source_areas, np.float64) / np.sum(source_areas)
     a = np.asarray(target_areas, np.float64) / np.sum(target_areas)
     M = _weighted(P, a0, a)
@@ -61,7 +93,22 @@ def soft_map_svd(P, source_areas, target_areas, rank: int | None = None) -> Soft
 
 
 def low_rank_approximation(P, source_areas, target_areas, rank: int):
-    """Rank-``rank`` masses approximation of ``P`` and its relative weighted Frobenius error."""
+    """Rank-``rank`` approximation of the masses ``P`` and its relative error (§4.6.1).
+
+    Parameters
+    ----------
+    P, source_areas, target_areas
+        As in :func:`soft_map_svd`.
+    rank : int
+        Rank kept.
+
+    Returns
+    -------
+    approx : (N, n) array
+        The rank-``rank`` masses.
+    error : float
+        Relative area-weighted Frobenius error.
+    """
     basis = soft_map_svd(P, source_areas, target_areas, rank)
     a0, a = basis.source_areas, basis.target_areas
     density = (basis.source_basis * basis.singular_values) @ basis.target_basis.T
@@ -73,11 +120,25 @@ def low_rank_approximation(P, source_areas, target_areas, rank: int):
 
 
 def collection_basis(maps, source_areas, target_areas, rank: int) -> np.ndarray:
-    """§4.6.2: one ``(n, rank)`` area-orthonormal target basis (constant first) for several maps.
+    """§4.6.2: one area-orthonormal target basis (constant first) for several soft maps.
 
-    ``maps``: soft maps ``(N_i, n)`` with their ``source_areas[i]``; the weighted,
-    de-meaned kernels are stacked along the source axis and their leading right singular
-    vectors kept.
+    The weighted, de-meaned kernels are stacked along the source axis and their leading
+    right singular vectors kept.
+
+    Parameters
+    ----------
+    maps : list of (N_i, n) array
+        Soft maps to one target.
+    source_areas : list of (N_i,) array
+        Their source areas.
+    target_areas : (n,) array
+        Target vertex areas.
+    rank : int
+        Columns of the basis.
+
+    Returns
+    -------
+    (n, rank) array
     """
     if len(maps) == 0 or len(maps) != len(source_areas):
         raise InputError("give one source_areas per map", field="maps")

@@ -93,14 +93,34 @@ def mean_cost(f0, f1, areas0, areas1, norm: str = "l1") -> float:
 
 def compatibility_cost(f0, f1, *, areas0, areas1, rows=None, columns=None, norm: str = "l1",
                        dtype=np.float64) -> np.ndarray:
-    r"""Normalized cost :math:`c(x, y) / \bar c` (mean 1 over :math:`M_0 \times M`).
+    r"""Normalized compatibility cost :math:`c(x, y) / \bar c` (mean 1 over :math:`M_0 \times M`).
 
-    ``f0`` ``(n0, d)`` source descriptors, ``f1`` ``(n1, d)`` target descriptors, ``areas0``
-    and ``areas1`` their vertex areas; ``rows``: optional source vertices to return (the
-    mean is still over all of :math:`M_0`); ``columns``: optional ``(m, d)`` target
-    descriptors where the cost is evaluated instead of ``f1`` (e.g. at the points of a
-    coarse target; the mean is still over :math:`M`).  Returns ``(len(rows) or n0,
-    len(columns) or n1)``.
+    :math:`c(x, y) = \|f_0(x) - f_1(y)\|_1` (the thesis' choice) or the squared L2
+    distance, divided by :math:`\bar c = \sum_{x, y} a_0(x)\, a(y)\, c(x, y)`.
+
+    Parameters
+    ----------
+    f0 : (n0, d) array
+        Source descriptors.
+    f1 : (n1, d) array
+        Target descriptors.
+    areas0 : (n0,) array
+        Source vertex areas.
+    areas1 : (n1,) array
+        Target vertex areas.
+    rows : (r,) int array, optional
+        Source vertices to return (the mean is still over all of :math:`M_0`).
+    columns : (m, d) array, optional
+        Target descriptors where the cost is evaluated instead of ``f1`` (e.g. at the points
+        of a coarse target; the mean is still over :math:`M`).
+    norm : {"l1", "l2"}
+        L1 distance, or squared L2 distance.
+    dtype : dtype
+        Output dtype.
+
+    Returns
+    -------
+    (len(rows) or n0, len(columns) or n1) array
     """
     f0, f1 = _check_pair(f0, f1)
     a0 = np.asarray(areas0, dtype=np.float64)

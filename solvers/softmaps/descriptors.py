@@ -30,13 +30,27 @@ EIGENPAIRS_SOLVED = 100
 
 
 def eigenpairs(mesh, k: int) -> tuple[np.ndarray, np.ndarray]:
-    r"""The ``k`` smallest pairs of :math:`L\phi = \lambda A \phi`: ``(evals (k,), evecs (n, k))``.
+    r"""The ``k`` smallest pairs of :math:`L\phi = \lambda A \phi`.
 
     Eigenvectors are :math:`A`-orthonormal (:math:`\Phi^\top A \Phi = I`); the first is
     constant (:math:`\lambda_0 = 0` on a connected mesh).  Always solved for at least
     :data:`EIGENPAIRS_SOLVED` pairs and cached in ``mesh.operators`` per solved count, so
     the descriptors (``k`` 100) and ZoomOut (``k`` up to 80) share one solve and one cached
     basis; smaller ``k`` get the leading columns (views of the cache).
+
+    Parameters
+    ----------
+    mesh : TriangleMesh
+        A surface with ``n`` vertices.
+    k : int
+        Number of pairs.
+
+    Returns
+    -------
+    evals : (k,) array
+        Eigenvalues, increasing.
+    evecs : (n, k) array
+        Eigenvectors.
     """
     k = check_int(k, "k", low=2, high=max(2, mesh.n - 2))
     solved = max(k, min(EIGENPAIRS_SOLVED, mesh.n - 2))
@@ -58,9 +72,24 @@ def eigenpairs(mesh, k: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def heat_kernel_signature(mesh, k: int = 100, times=None, n_times: int = 16) -> np.ndarray:
-    r"""``(n, len(times))`` HKS.
+    r"""Heat kernel signature :math:`\mathrm{HKS}(x, t) = \sum_i e^{-\lambda_i t} \phi_i(x)^2`.
 
-    Default times log-spaced in :math:`[4\ln 10/\lambda_k, 4\ln 10/\lambda_1]`.
+    Parameters
+    ----------
+    mesh : TriangleMesh
+        The surface (``n`` vertices).
+    k : int
+        Eigenpairs used.
+    times : (T,) array, optional
+        Diffusion times; default log-spaced in
+        :math:`[4\ln 10/\lambda_k, 4\ln 10/\lambda_1]`.
+    n_times : int
+        Number of default times.
+
+    Returns
+    -------
+    (n, T) array
+        One column per time.
     """
     vals, vecs = eigenpairs(mesh, k)
     if times is None:
@@ -84,10 +113,24 @@ def wks_energies(*spectra: np.ndarray, n_energies: int = 100) -> tuple[np.ndarra
 
 def wave_kernel_signature(mesh, k: int = 100, energies=None, sigma: float | None = None,
                           n_energies: int = 100) -> np.ndarray:
-    r"""``(n, len(energies))`` WKS (Aubry et al. 2011), each column of unit area-weighted mean.
+    """Wave kernel signature (Aubry et al. 2011), each column of unit area-weighted mean.
 
-    ``energies`` are log-eigenvalues (default :func:`wks_energies` of this mesh alone); pass
-    the energies of :func:`wks_energies` of both meshes to compare two meshes.
+    Parameters
+    ----------
+    mesh, k : TriangleMesh, int
+        The surface (``n`` vertices) and the eigenpairs used.
+    energies : (E,) array, optional
+        Log-eigenvalue energies (default :func:`wks_energies` of this mesh alone); pass the
+        energies of :func:`wks_energies` of both meshes to compare two meshes.
+    sigma : float, optional
+        Width of the Gaussian energy filters (default: that of :func:`wks_energies`, or
+        7 times the range of ``energies`` over their count).
+    n_energies : int
+        Number of default energies.
+
+    Returns
+    -------
+    (n, E) array
     """
     vals, vecs = eigenpairs(mesh, k)
     if energies is None:
@@ -138,11 +181,24 @@ def geodesic_distances_from(mesh, sources) -> np.ndarray:
 
 def landmark_descriptors(mesh, landmarks, *, method: str = "geodesic",
                          t: float | None = None) -> np.ndarray:
-    r"""``(n, L)`` descriptors from landmarks: geodesic distance or diffused heat.
+    r"""Descriptors from landmarks: geodesic distance or diffused heat.
 
-    ``method="geodesic"``: :math:`d(x, x_l)` (heat method); ``method="heat"``: the density
-    :math:`H_t \delta_{x_l}` at time ``t`` (default ``0.01``, unit-area units), normalized by
-    its maximum so each landmark weighs the same.
+    Parameters
+    ----------
+    mesh : TriangleMesh
+        The surface (``n`` vertices).
+    landmarks : (L,) int array
+        Landmark vertices :math:`x_l`.
+    method : {"geodesic", "heat"}
+        ``"geodesic"``: :math:`d(x, x_l)` (heat method); ``"heat"``: the density
+        :math:`H_t \delta_{x_l}` at time ``t``, normalized by its maximum so each landmark
+        weighs the same.
+    t : float, optional
+        Heat time of ``method="heat"`` (default ``0.01``, unit-area units).
+
+    Returns
+    -------
+    (n, L) array
     """
     landmarks = check_landmarks(landmarks, mesh.n)
     if method not in LANDMARK_METHODS:

@@ -74,12 +74,29 @@ def potential_operator(target, masses: np.ndarray, eps: float = 1e-3) -> sp.csr_
 
 def transportation_potential(target, masses_from, masses_to, *, eps: float = 1e-3,
                              with_energy: bool = False):
-    r"""Potential :math:`Q` with :math:`\nabla\cdot((\rho+\epsilon)\nabla Q) = -(\rho' - \rho)`.
+    r"""Transportation potential :math:`Q` of eq. 4.3.
 
-    ``masses_from``, ``masses_to``: ``(n,)`` target masses (``rho = m / a``); ``eps``: the
-    regularization where :math:`\rho` vanishes (density units; the mean density is 1).
-    Returns ``Q`` ``(n,)`` (zero area-weighted mean), or ``(Q, energy)`` with
-    ``energy`` :math:`= \int (\rho+\epsilon)|\nabla Q|^2`, the linearized :math:`W_2^2`.
+    Solves :math:`\nabla\cdot((\rho+\epsilon)\nabla Q) = -(\rho' - \rho)` on the target.
+
+    Parameters
+    ----------
+    target : TriangleMesh
+        The target surface (``n`` vertices, areas :math:`a`).
+    masses_from, masses_to : (n,) array
+        Target masses (:math:`\rho = m / a`).
+    eps : float
+        Regularization :math:`\epsilon` where :math:`\rho` vanishes (density units; the mean
+        density is 1).
+    with_energy : bool
+        Also return the energy.
+
+    Returns
+    -------
+    Q : (n,) array
+        The potential (zero area-weighted mean).
+    energy : float
+        Only with ``with_energy``: :math:`\int (\rho+\epsilon)|\nabla Q|^2`, the
+        linearized :math:`W_2^2`.
     """
     m0 = np.asarray(masses_from, dtype=np.float64)
     m1 = np.asarray(masses_to, dtype=np.float64)
@@ -95,7 +112,24 @@ def transportation_potential(target, masses_from, masses_to, *, eps: float = 1e-
 
 
 def momentum(target, masses, q, *, eps: float = 1e-3) -> np.ndarray:
-    r"""``(F, 3)`` momentum :math:`(\rho + \epsilon)\nabla Q` per target face (eq. 4.4)."""
+    r"""Momentum :math:`(\rho + \epsilon)\nabla Q` per target face (eq. 4.4).
+
+    Parameters
+    ----------
+    target : TriangleMesh
+        The target surface (``n`` vertices, areas :math:`a`).
+    masses : (n,) array
+        Target masses (:math:`\rho = m / a`).
+    q : (n,) array
+        Transportation potential (:func:`transportation_potential`).
+    eps : float
+        Regularization :math:`\epsilon` where :math:`\rho` vanishes (density units; the mean
+        density is 1).
+
+    Returns
+    -------
+    (F, 3) array
+    """
     rho = np.asarray(masses, dtype=np.float64) / target.areas
     rho_f = rho[target.faces].mean(axis=1) + eps
     return (target.gradient @ q).reshape(-1, 3) * rho_f[:, None]
@@ -105,14 +139,42 @@ def dirichlet_energy(target, rows, edges, edge_weights, *, cell_areas=None,
                      method: str = "w2", gamma: float | None = None, substeps: int = 1,
                      debiased: bool = True, eps: float = 1e-3, tol: float = 1e-6
                      ) -> DirichletEnergy:
-    r"""eq. 4.2: :math:`\sum_e \omega_e W_2^2(\mu_u, \mu_{u'})` over the source edges.
+    r"""Dirichlet energy of a soft map, eq. 4.2 over the source edges.
 
-    ``rows`` ``(N, n)`` masses per source node; ``edges`` ``(m, 2)``; ``edge_weights`` ``(m,)``;
-    ``cell_areas`` ``(N,)`` source area per node (default: equal) for the density.
-    ``method="w2"``: convolutional :math:`W_2^2` at ``gamma`` (default ``4 * h^2``, ``h`` the
-    target's mean edge length; ``substeps`` implicit Euler steps of the heat kernel),
-    debiased (Sinkhorn divergence) unless ``debiased=False``;
-    ``method="potential"``: :math:`\int(\rho_u+\epsilon)|\nabla Q_e|^2` (eq. 4.3).
+    .. math:: E_D[\mu] = \sum_{e=(u,u')} \omega_e\, W_2^2(\mu_u, \mu_{u'})
+
+    Parameters
+    ----------
+    target : TriangleMesh
+        The target surface (``n`` vertices, areas :math:`a`).
+    rows : (N, n) array
+        Target masses per source node (each row sums to 1).
+    edges : (m, 2) int array
+        Source graph edges.
+    edge_weights : (m,) array
+        Edge weights :math:`\omega_e`.
+    cell_areas : (N,) array, optional
+        Source area per node, for the density (default: equal).
+    method : {"w2", "potential"}
+        ``"w2"``: convolutional :math:`W_2^2`; ``"potential"``:
+        :math:`\int(\rho_u+\epsilon)|\nabla Q_e|^2` (eq. 4.3).
+    gamma : float, optional
+        Entropic regularization of ``"w2"`` (default ``4 * h^2``, ``h`` the target's mean
+        edge length).
+    substeps : int
+        Implicit Euler steps of the heat kernel.
+    debiased : bool
+        Debiased (Sinkhorn divergence) :math:`W_2^2`, so a constant map has energy 0.
+    eps : float
+        Regularization :math:`\epsilon` where :math:`\rho` vanishes (density units; the mean
+        density is 1).
+    tol : float
+        Stopping tolerance of each :math:`W_2` solve.
+
+    Returns
+    -------
+    DirichletEnergy
+        ``total``, ``per_edge`` ``(m,)`` and ``density`` ``(N,)`` per node.
     """
     from solvers.convolutional import wasserstein_distance
 
@@ -151,7 +213,18 @@ def dirichlet_from_edge_values(edge_values, edges, edge_weights, n_nodes: int,
 
 
 def bijectivity_density(target, rows, cell_areas) -> np.ndarray:
-    r"""eq. 4.5: :math:`b(y) = \sum_u |\text{cell}_u|\, \rho_u(y)` per target vertex."""
+    r"""eq. 4.5: :math:`b(y) = \sum_u |\text{cell}_u|\, \rho_u(y)` per target vertex.
+
+    Parameters
+    ----------
+    target, rows, cell_areas : TriangleMesh, (N, n) array, (N,) array
+        The target (``n`` vertices), the masses per source node (rows sum to 1) and the
+        nodes' cell areas.
+
+    Returns
+    -------
+    (n,) array
+    """
     r = _check_rows(rows, None, target.n)
     cells = np.asarray(cell_areas, np.float64)
     return (cells @ r) / target.areas
@@ -178,13 +251,37 @@ def bijectivity_density_top_k(target, indices, masses, cell_areas) -> np.ndarray
 
 
 def bijectivity_energy(target, rows, cell_areas) -> float:
-    r"""eq. 4.5: :math:`E_B = \int_M b(y)^2\,dy` (1 for a bijective unit-area isometry)."""
+    r"""eq. 4.5: :math:`E_B = \int_M b(y)^2\,dy` (1 for a bijective unit-area isometry).
+
+    Parameters
+    ----------
+    target, rows, cell_areas
+        As in :func:`bijectivity_density`.
+
+    Returns
+    -------
+    float
+    """
     b = bijectivity_density(target, rows, cell_areas)
     return float(target.areas @ b**2)
 
 
 def descriptor_energy(rows, cost, cell_areas) -> float:
-    r"""eq. 4.6: :math:`\sum_u |\text{cell}_u| \sum_y \mu_u(y)\, c(u, y)` (``cost`` ``(N, n)``)."""
+    r"""eq. 4.6: :math:`\sum_u |\text{cell}_u| \sum_y \mu_u(y)\, c(u, y)`.
+
+    Parameters
+    ----------
+    rows : (N, n) array
+        Target masses per source node (each row sums to 1).
+    cost : (N, n) array
+        Compatibility cost :math:`c` (:func:`compatibility_cost`).
+    cell_areas : (N,) array
+        Source area of each node's cell.
+
+    Returns
+    -------
+    float
+    """
     r = np.asarray(rows, np.float64)
     r = r / np.maximum(r.sum(axis=1, keepdims=True), 1e-300)
     return float(np.asarray(cell_areas, np.float64) @ np.einsum("ij,ij->i", r, cost))
@@ -215,6 +312,19 @@ def soft_map_energies(target, result) -> SoftMapEnergies:
     \int_M b^2` (eq. 4.5) are computed from the rows on the target's vertices (dense --
     prolonged from a coarse target --, or the kept top-k masses,
     :func:`bijectivity_density_top_k`).
+
+    Parameters
+    ----------
+    target : TriangleMesh
+        The soft map's target.
+    result : SoftMapResult
+        From :func:`soft_map`.
+
+    Returns
+    -------
+    SoftMapEnergies
+        ``dirichlet`` (eq. 4.2), ``dirichlet_vertex_density``, ``bijectivity`` and
+        ``bijectivity_density`` (eq. 4.5), ``descriptor`` (eq. 4.6).
     """
     if result.soft_map is not None and result.prolongation is not None:
         # b is linear in the rows: prolong the cell-weighted coarse masses once.

@@ -52,7 +52,23 @@ def mode(rows: np.ndarray, target_areas: np.ndarray, prolongation=None) -> np.nd
     """``(N,)`` argmax over ``y`` of the density ``rows[i, y] / a(y)``; with a
     ``prolongation`` (:class:`~solvers.softmaps.coarse_target.Prolongation`) ``rows`` are
     coarse masses and the density is that of the prolonged rows, formed a block of rows at
-    a time."""
+    a time.
+
+    Parameters
+    ----------
+    rows : (N, n) array
+        Target masses per source node (``(N, n_coarse)`` with a ``prolongation``).
+    target_areas : (n,) array
+        Target vertex areas :math:`a`.
+    prolongation : Prolongation, optional
+        With a coarse target (:class:`~solvers.softmaps.coarse_target.Prolongation`): ``rows``
+        are coarse masses, prolonged to every target vertex a block of rows at a time.
+
+    Returns
+    -------
+    (N,) int array
+        Target vertex of largest density per row.
+    """
     rows = np.asarray(rows)
     out = np.empty(len(rows), np.int64)
     for r0, block in _fine_blocks(rows, prolongation):
@@ -77,6 +93,20 @@ def barycentric_projection(rows: np.ndarray, target, radius: float | None = None
     The barycenter :math:`\sum_y \mu_x(y)\, y` is taken over the target vertices within
     Euclidean distance ``radius`` of the mode (default ``5 * target.mean_edge_length``), so a
     distribution split between symmetric places is not averaged into the middle.
+
+    Parameters
+    ----------
+    rows : (N, n) array
+        Target masses per source node.
+    target : TriangleMesh
+        The target surface.
+    radius : float, optional
+        Euclidean radius around the mode (default ``5 * target.mean_edge_length``).
+
+    Returns
+    -------
+    (N,) int array
+        Target vertices.
     """
     rows = np.asarray(rows)
     radius = 5.0 * target.mean_edge_length if radius is None else check_positive(radius,
@@ -100,6 +130,28 @@ def trace_path(source_edges, n_nodes: int, rows: np.ndarray, target, seed: tuple
     :math:`y_u` moves by ``steps`` Euler steps :math:`y \leftarrow y + \nabla Q(y)/steps`,
     :math:`Q` the transportation potential of :math:`\rho_u \to \rho_{u'}` (eq. 4.3), and is
     snapped to the nearest target vertex.  Returns ``(n_nodes,)`` target vertices.
+
+    Parameters
+    ----------
+    source_edges : (m, 2) int array
+        Source graph edges.
+    n_nodes : int
+        Source nodes ``N``.
+    rows : (N, n) array
+        Target masses per source node.
+    target : TriangleMesh
+        The target surface.
+    seed : tuple of int
+        ``(node, target vertex)``: the seed match.
+    eps : float
+        Regularization of the transportation potential (:func:`transportation_potential`).
+    steps : int
+        Euler steps per edge.
+
+    Returns
+    -------
+    (N,) int array
+        Target vertex of each source node.
     """
     from solvers.softmaps.energies import transportation_potential
 
@@ -165,6 +217,28 @@ def zoomout(source, target, correspondence=None, *, k_start: int = 20, k_end: in
     ``target_queries``, default every target vertex; started from :math:`C^\top`) and
     takes :math:`C_k = \tfrac12(\Phi_{0,k}^\top A_0 \Phi_k[T] + (\Phi_k^\top A
     \Phi_{0,k}[S])^\top)`.  Returns the ``(n_source,)`` refined map.
+
+    Parameters
+    ----------
+    source, target : TriangleMesh
+        The two surfaces.
+    correspondence : (n_source,) int array, optional
+        Initial point map (or give ``soft``).
+    k_start, k_end, step : int
+        Spectral sizes visited.
+    soft : tuple, optional
+        ``(rows, labels)`` or ``(rows, labels, prolongation)``: start from a soft map.
+    queries : tuple, optional
+        ``(vertices, weights)``: source vertices read out before the last step.
+    symmetric : bool
+        Tie in the reverse map.
+    target_queries : tuple, optional
+        ``(vertices, weights)`` of the reverse read-out (``symmetric=True``).
+
+    Returns
+    -------
+    (n_source,) int array
+        The refined map.
     """
     k_start = check_int(k_start, "k_start", low=2)
     k_end = check_int(k_end, "k_end", low=k_start)
@@ -273,6 +347,26 @@ def sinkhorn_projection(rows, source_areas, target_areas, *, fixed=None,
     vertices that no row reaches (all-zero columns) keep zero mass and stay in the residual.
     Stops at ``residual <= tol`` or after ``max_iter`` scalings; returns
     :class:`SinkhornProjection` with ``rows = \pi / c``.
+
+    Parameters
+    ----------
+    rows : (N, n) array
+        Row-stochastic target masses :math:`P`.
+    source_areas : (N,) array
+        Cell areas :math:`c`.
+    target_areas : (n,) array
+        Target areas :math:`a`.
+    fixed : (f,) int array, optional
+        Rows kept as they are.
+    max_iter : int
+        Sinkhorn scaling budget.
+    tol : float
+        Stop at ``residual <= tol``.
+
+    Returns
+    -------
+    SinkhornProjection
+        ``rows`` ``(N, n)`` :math:`\pi / c`, ``residual``, ``initial_residual``.
     """
     out = np.array(rows, dtype=np.float64)  # one working copy, scaled in place
     c = np.asarray(source_areas, np.float64)
@@ -342,6 +436,44 @@ def extract_correspondence(source, target, rows, *, labels, samples, cell_areas,
     match is spread to the vertices of its cell.  ``prolongation``: ``rows`` are ``(N,
     n_coarse)`` masses on a coarse target, prolonged by it (mode and ZoomOut read them a
     block at a time or through :math:`P^\top`; the other options prolong them whole).
+
+    Parameters
+    ----------
+    source, target : TriangleMesh
+        The two surfaces.
+    rows : (N, n) array
+        Target masses of the ``N`` source nodes (``(N, n_coarse)`` with a ``prolongation``).
+    labels : (n_source,) int array
+        Node of every source vertex.
+    samples : (N,) int array
+        Source vertex of every node.
+    cell_areas : (N,) array
+        Source area of each node's cell.
+    edges : (m, 2) int array
+        Source graph (for ``extraction="path"``).
+    fixed : (f,) int array, optional
+        Rows left out of the Sinkhorn projection (landmark deltas).
+    seed_target : int, optional
+        Target vertex matched to node 0 (``extraction="path"``).
+    extraction : {"mode", "barycentric", "path"}
+        How each row is read out (§4.5.1).
+    refine : {"zoomout", "symmetric-zoomout", "sinkhorn", "sinkhorn+zoomout", "none"}
+        Refinement (see above).
+    zoomout_range : tuple of int
+        ``(k_start, k_end, step)`` of :func:`zoomout`.
+    sinkhorn_iterations : int
+        Scalings of :func:`sinkhorn_projection`.
+    zoomout_queries : tuple, optional
+        ``(source, target)`` vertices and weights of ZoomOut's intermediate steps.
+    prolongation : Prolongation, optional
+        With a coarse target (:class:`~solvers.softmaps.coarse_target.Prolongation`): ``rows``
+        are coarse masses, prolonged to every target vertex a block of rows at a time.
+
+    Returns
+    -------
+    Correspondence
+        ``sample_correspondence`` ``(N,)``, ``correspondence`` ``(n_source,)`` and the
+        ``sinkhorn`` projection (or ``None``).
     """
     if extraction not in EXTRACTIONS:
         raise InputError(f"extraction must be one of {EXTRACTIONS}", field="extraction")

@@ -184,23 +184,55 @@ def default_gamma(n_samples: int, target, coarse: bool = False) -> float:
 class SoftMapResult(SolverResult):
     r"""A soft map :math:`\mu: M_0 \to \mathrm{Prob}(M)` on source samples.
 
-    ``samples`` ``(N,)`` source vertices; ``labels`` ``(n_source,)`` sample of each source
-    vertex's cell; ``cell_areas`` ``(N,)``; ``edges``/``edge_weights`` the source graph.
-    ``target_points``: the number of coarse target points eq. 3.18 was solved over (the
-    decimated target's vertices, :mod:`solvers.softmaps.coarse_target`; about the number
-    asked for), ``None`` when it was solved over every target vertex.  ``soft_map``
-    ``(N, target_points or n_target)`` float32 masses per sample on the points solved over
-    (rows sum to 1); ``prolongation`` (with a coarse target) takes
-    them to every target vertex: :meth:`row` and :meth:`target_rows` do.  With ``top_k``,
-    ``soft_map`` is ``None`` and ``top_indices``/``top_masses`` ``(N, k)`` keep the ``k``
-    largest masses per row over the target's vertices, ``dropped_mass`` ``(N,)`` the rest.
-    ``correspondence`` ``(n_source,)`` the target vertex of every source vertex (extracted,
-    then refined if asked); ``sample_correspondence`` ``(N,)`` the extraction before
-    refinement; ``dirichlet`` the Dirichlet energy from the final edge plans (convolutional
-    :math:`W^2` on the points solved over, not debiased); ``descriptor_energy`` eq. 4.6
-    with the normalized cost; ``sinkhorn`` the projection of ``refine="sinkhorn"``
-    (:class:`~solvers.softmaps.extraction.SinkhornProjection` without its rows;
-    ``soft_map`` stays the unprojected map), else ``None``.
+    With ``top_k``, ``soft_map`` is ``None`` and ``top_indices``/``top_masses`` keep the
+    ``k`` largest masses per row over the target's vertices.  :meth:`row` and
+    :meth:`target_rows` give rows on every target vertex.
+
+    Attributes
+    ----------
+    iterations, residual, converged : int, float, bool
+        Convergence data of the propagation (:class:`~solvers.monitor.SolverResult`).
+    samples : (N,) int array
+        Source sample vertices.
+    labels : (n_source,) int array
+        Sample of each source vertex's cell.
+    cell_areas : (N,) array
+        Areas of the cells.
+    edges : (m, 2) int array
+        The source graph's edges.
+    edge_weights : (m,) array
+        Their weights :math:`\omega_e`.
+    soft_map : (N, target_points or n_target) float32 array or None
+        Masses per sample on the points solved over (rows sum to 1).
+    top_indices, top_masses : (N, k) array or None
+        With ``top_k``: the ``k`` largest masses per row and their target vertices.
+    dropped_mass : (N,) array or None
+        With ``top_k``: the mass not kept.
+    correspondence : (n_source,) int array
+        Target vertex of every source vertex (extracted, then refined if asked).
+    sample_correspondence : (N,) int array
+        The extraction before refinement.
+    dirichlet : DirichletEnergy
+        Dirichlet energy from the final edge plans (convolutional :math:`W^2` on the points
+        solved over, not debiased).
+    descriptor_energy : float
+        eq. 4.6 with the normalized cost.
+    gamma : float
+        Entropic regularization used.
+    tau : float
+        Compatibility weight used.
+    timings : dict
+        Seconds per stage.
+    sinkhorn : SinkhornProjection or None
+        The projection of ``refine="sinkhorn"``, without its rows (``soft_map`` stays the
+        unprojected map).
+    n_target : int
+        Target vertices.
+    target_points : int or None
+        Coarse target points eq. 3.18 was solved over (:mod:`solvers.softmaps.coarse_target`),
+        ``None`` when solved over every target vertex.
+    prolongation : Prolongation or None
+        Takes coarse masses to every target vertex.
     """
 
     samples: np.ndarray
@@ -226,7 +258,17 @@ class SoftMapResult(SolverResult):
 
     def row(self, i: int) -> np.ndarray:
         """Dense ``(n_target,)`` masses of sample ``i`` on every target vertex (prolonged
-        from the coarse target; zeros outside the top-k)."""
+        from the coarse target; zeros outside the top-k).
+
+        Parameters
+        ----------
+        i : int
+            Sample index.
+
+        Returns
+        -------
+        (n_target,) array
+        """
         if self.soft_map is not None:
             r = np.asarray(self.soft_map[i], dtype=np.float64)
             return r if self.prolongation is None else self.prolongation.apply(r)
@@ -247,9 +289,31 @@ class SoftMapResult(SolverResult):
 def descriptors_for_pair(source, target, landmarks, *, k: int = 100, n_energies: int = 100,
                          wks_weight: float = 1.0, landmark_weight: float = 1.0,
                          landmark_method: str = "geodesic"):
-    """Stacked descriptors ``(f0 (n0, d), f (n1, d))``: WKS on shared energies + landmarks.
+    """Stacked descriptors of two meshes: WKS on shared energies, and landmark descriptors.
 
     Each block is divided by its width so ``wks_weight``/``landmark_weight`` weigh blocks.
+
+    Parameters
+    ----------
+    source, target : TriangleMesh
+        The two surfaces.
+    landmarks : (L, 2) int array or None
+        Pairs ``(source vertex, target vertex)``.
+    k : int
+        Eigenpairs of the WKS.
+    n_energies : int
+        WKS energies.
+    wks_weight, landmark_weight : float
+        Weights of the two blocks (0 leaves a block out).
+    landmark_method : {"geodesic", "heat"}
+        See :func:`landmark_descriptors`.
+
+    Returns
+    -------
+    f0 : (n0, d) array
+        Source descriptors.
+    f : (n1, d) array
+        Target descriptors.
     """
     lam0, _ = eigenpairs(source, k)
     lam1, _ = eigenpairs(target, k)
@@ -304,41 +368,80 @@ def soft_map(
 ) -> SoftMapResult:
     r"""Soft map ``source -> target`` by Wasserstein propagation with compatibility (§3.7).
 
+    Landmarks are fixed nodes :math:`\mu_{x_l} = \delta_{y_l}`; the other source samples
+    solve (eq. 3.17-3.18)
+
+    .. math::  \min_{\{\mu_u\}} \sum_{e=(u,u')} \omega_e\, W^2_{2,H_t}(\mu_u, \mu_{u'})
+               \;+\; \tau \sum_u \int_M c(u, y)\, d\mu_u(y),
+
+    one Wasserstein propagation (Alg. 4) with per-edge rescaled kernels (eq. 3.18); a point
+    map is then extracted (§4.5.1) and refined.
+
     Parameters
     ----------
-    source, target : connected :class:`~solvers.TriangleMesh` (unit area).
-    landmarks : ``(L, 2)`` pairs ``(source vertex, target vertex)``: fixed nodes
-        :math:`\mu = \delta_y` and landmark descriptors (geodesic distances).
-    samples : number of farthest-point source samples ``N`` (``>= n_source``: all vertices).
-    target_points : ``"auto"`` (default: eq. 3.18 solved over a coarse target of about
-        ``N`` points, :mod:`solvers.softmaps.coarse_target`, when that is at most 2/3 of
-        its vertices; :func:`solved_points`), an integer (that many coarse points) or
-        ``None`` (every target vertex).  Costs and landmark deltas are taken at the coarse
-        points, the rows prolonged for the extraction (``result.target_points``: which ran).
-    tau : compatibility weight :math:`\tau` (cost of mean 1); gamma : entropic
-        regularization of the heat kernel on the target solved over (``t = gamma/4``;
-        default :func:`default_gamma`).
-    k, n_energies, wks_weight, landmark_weight, landmark_method, norm : descriptors
-        (:func:`descriptors_for_pair`) and cost (:func:`compatibility_cost`); or pass
-        ``descriptors=(f0, f)`` directly (per source and target vertex).
-    tol, max_iter : stopping of the propagation (largest L1 marginal violation).
-    acceleration : ``"over-relaxation"`` (default) or ``"none"``, as in
-        :func:`~solvers.convolutional.wasserstein_propagation`.
-    top_k : keep only the ``k`` largest masses per row over the target vertices
+    source, target : TriangleMesh
+        Connected surfaces of unit area.
+    landmarks : (L, 2) int array, optional
+        Pairs ``(source vertex, target vertex)``: fixed nodes :math:`\mu = \delta_y` and
+        landmark descriptors (geodesic distances).
+    samples : int
+        Number of farthest-point source samples ``N`` (``>= n_source``: all vertices).
+    target_points : "auto", int or None
+        ``"auto"``: eq. 3.18 solved over a coarse target of about ``N`` points (the target
+        decimated, :mod:`solvers.softmaps.coarse_target`) when that is at most 2/3 of its
+        vertices (:func:`solved_points`); an integer: that many coarse points; ``None``:
+        every target vertex.  The compatibility cost is evaluated at the coarse points,
+        landmark deltas are their barycentric weights there, and the rows are prolonged to
+        every target vertex for the extraction (a block of rows at a time, or through
+        :math:`P^\top`: no samples × n_target matrix); ``result.target_points`` says which
+        ran.
+    tau : float
+        Compatibility weight :math:`\tau` (the cost has mean 1).
+    gamma : float, optional
+        Entropic regularization of the heat kernel on the target solved over
+        (``t = gamma/4``; default :func:`default_gamma`).
+    substeps : int
+        Implicit Euler steps of the heat kernel.
+    k, n_energies, wks_weight, landmark_weight, landmark_method : int, int, float, float, str
+        Descriptors (:func:`descriptors_for_pair`).
+    norm : {"l1", "l2"}
+        Cost (:func:`compatibility_cost`).
+    descriptors : tuple, optional
+        ``(f0, f)``: descriptors per source and target vertex, instead of computing them.
+    tol, max_iter : float, int
+        Stopping of the propagation (largest L1 marginal violation).
+    acceleration : {"over-relaxation", "none"}
+        Adaptive over-relaxation of the sweeps (same fixed point), or plain Alg. 4 sweeps;
+        see :func:`~solvers.convolutional.wasserstein_propagation`.
+    top_k : int, optional
+        Keep only the ``k`` largest masses per row over the target vertices
         (``dropped_mass`` reports the rest).
-    extraction, refine, zoomout_range : as in
-        :func:`~solvers.softmaps.extraction.extract_correspondence` (default ``"mode"`` and
-        ``"symmetric-zoomout"``, started from the soft map's own functional map; ``"path"``
-        is seeded with the first landmark).
-    max_bytes : refuse (``InputError`` on ``samples``) a problem whose estimated peak memory
+    extraction : {"mode", "barycentric", "path"}
+        Point-map extraction; ``"path"`` is eq. 4.7, seeded with the first landmark.
+    refine : {"symmetric-zoomout", "zoomout", "sinkhorn", "sinkhorn+zoomout", "none"}
+        ``"symmetric-zoomout"``: spectral upsampling started from the soft map's own
+        functional map, the reverse map tied in; ``"zoomout"``: the same one way;
+        ``"sinkhorn"``: doubly-stochastic projection of the rows before extraction
+        (:func:`~solvers.softmaps.extraction.extract_correspondence`).
+    zoomout_range : tuple of int
+        ``(k_start, k_end, step)`` of ZoomOut.
+    max_bytes : int, optional
+        Refuse (``InputError`` on ``samples``) a problem whose estimated peak memory
         exceeds this.
-    multiscale : start the propagation from a solve with :data:`MULTISCALE_SAMPLES` samples
-        over as many coarse target points, prolonged (``start_masses``; same fixed point;
-        off by default: bench/results/softmaps.md measures it).
+    multiscale : bool
+        Start the propagation from a solve with :data:`MULTISCALE_SAMPLES` samples over as
+        many coarse target points, prolonged (same fixed point; off by default:
+        bench/results/softmaps.md measures it).
+    progress : callable, optional
+        ``progress(iteration, residual)``, called once per iteration.
+    should_cancel : callable, optional
+        ``should_cancel() -> bool``; True stops with :class:`~solvers.errors.CancelledError`.
 
     Returns
     -------
-    SoftMapResult (iterations, residual, converged from the propagation).
+    SoftMapResult
+        ``iterations``, ``residual``, ``converged`` from the propagation; the soft map, the
+        point map and the energies.
     """
     pairs, n_samples, points, tau, top_k = _checked_request(
         source, target, landmarks, samples=samples, target_points=target_points, k=k,

@@ -24,10 +24,23 @@ from solvers.validation import check_int
 
 @dataclass
 class SourceSamples:
-    """``indices`` ``(N,)`` sample vertices (seeds first); ``labels`` ``(n,)`` the sample
-    whose cell holds each vertex; ``edges`` ``(m, 2)`` sample pairs; ``weights`` ``(m,)``
-    mean-1 :math:`1/\\ell^2`; ``lengths`` ``(m,)`` :math:`\\ell`; ``radius`` the largest
-    graph distance from a vertex to its sample."""
+    r"""Farthest-point samples of a source mesh and their Voronoi adjacency.
+
+    Attributes
+    ----------
+    indices : (N,) int array
+        Sample vertices (seeds first).
+    labels : (n,) int array
+        The sample whose cell holds each vertex.
+    edges : (m, 2) int array
+        Adjacent sample pairs.
+    weights : (m,) array
+        Edge weights :math:`1/\ell^2`, of mean 1.
+    lengths : (m,) array
+        Edge lengths :math:`\ell`.
+    radius : float
+        The largest graph distance from a vertex to its sample.
+    """
 
     indices: np.ndarray
     labels: np.ndarray
@@ -69,6 +82,19 @@ def farthest_point_samples(mesh, count: int, seeds=None) -> SourceSamples:
 
     ``count >= mesh.n`` returns every vertex with the mesh's own edges.  Cached in
     ``mesh.operators`` per ``(count, seeds)``.
+
+    Parameters
+    ----------
+    mesh : TriangleMesh
+        The source surface.
+    count : int
+        Number of samples ``N``.
+    seeds : (s,) int array, optional
+        Vertices sampled first (e.g. landmarks).
+
+    Returns
+    -------
+    SourceSamples
     """
     count = check_int(count, "samples", low=2)
     seeds = check_landmarks([] if seeds is None else seeds, mesh.n, "landmarks")

@@ -13,10 +13,20 @@ from solvers.errors import InputError
 
 
 def pull_back(rows, values, labels=None) -> np.ndarray:
-    """``(n_source, ...)`` expected target ``values`` under each source distribution.
+    """Pull target values back to the source: their expectation under each distribution.
 
-    ``rows`` ``(N, n)`` masses (dense) ; ``values`` ``(n,)`` or ``(n, c)`` (e.g. RGB colors);
-    ``labels`` ``(n_source,)`` node of each source vertex (default: rows are vertices).
+    Parameters
+    ----------
+    rows : (N, n) array
+        Target masses per source node (dense).
+    values : (n,) or (n, c) array
+        Target values (e.g. RGB colors).
+    labels : (n_source,) int array, optional
+        Node of each source vertex (default: rows are vertices).
+
+    Returns
+    -------
+    (n_source,) or (n_source, c) array
     """
     P = np.asarray(rows)
     g = np.asarray(values, dtype=np.float64)
