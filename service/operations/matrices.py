@@ -23,6 +23,7 @@ from service.errors import InvalidInput, UnsupportedOperation
 from service.operations.base import (
     Distribution,
     DomainView,
+    Int,
     Operation,
     OperationOutput,
     check_options,
@@ -87,7 +88,7 @@ class DistanceMatrixRequest(SinkhornOptions):
     w1_method: Literal["auto", "ipm", "admm", "weiszfeld"] = Field(
         "auto", description="W1 only: the W1 method of each pair's single W1 (as for "
         "/distances) when the matrix is computed by method interior_point")
-    k: int | None = Field(None, ge=0, le=MAX_K, description="W1 spectral: Laplacian "
+    k: Int | None = Field(None, ge=0, le=MAX_K, description="W1 spectral: Laplacian "
                           "eigenfunctions of the curl basis (default: the largest of 0, 5, "
                           "10, 20, 50, 100 estimated within 60 s); given with method auto: "
                           "spectral")
@@ -128,7 +129,7 @@ class MatrixDecision(BaseModel):
     w1_matrix_method: Literal["interior_point", "spectral"] | None = Field(
         None, description="w1: how the matrix is computed, decided from the sizes alone: "
         "interior_point (one W1 per pair with `w1_method`) or spectral (d_W^k)")
-    k: int | None = Field(None, description="w1 spectral: the eigenfunctions used")
+    k: Int | None = Field(None, description="w1 spectral: the eigenfunctions used")
 
 
 class DistanceMatrixValues(BaseModel):
