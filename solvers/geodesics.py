@@ -27,6 +27,9 @@ overestimate of at most the length of the shared edge's detour; none on hourglas
 
 from __future__ import annotations
 
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -320,3 +323,66 @@ def polyhedral_geodesic_distances(mesh: TriangleMesh, sources, targets) -> np.nd
     pieces = _pieces(mesh)
     method = "mmp" if len(pieces.junctions) else "edge-flip"
     return geodesic_distances(mesh, sources, targets, method=method)
+
+
+# Sources per task of :func:`all_pairs_geodesics` in worker processes: a task's pickled rows
+# (8 n bytes each) stay small beside its solves, and a cancel is noticed within one task.
+ALL_PAIRS_CHUNK = 64
+_WORKER_PIECES: _Pieces | None = None  # the pieces of a worker process (its initializer)
+
+
+def _set_worker_pieces(pieces: _Pieces) -> None:
+    global _WORKER_PIECES
+    _WORKER_PIECES = pieces
+
+
+def _rows_in_worker(sources: np.ndarray) -> np.ndarray:
+    return np.stack([_one_to_all(_WORKER_PIECES, int(s)) for s in sources])
+
+
+def all_pairs_geodesics(mesh: TriangleMesh, *, processes: int | None = None,
+                        should_cancel=None) -> np.ndarray:
+    """All-pairs exact geodesics ``(n, n)`` (one MMP solve per vertex, as
+    :func:`geodesic_distances` with every vertex on both sides), solved in parallel over the
+    sources by ``processes`` worker processes (the MMP solver holds the GIL, so threads do
+    not help: measured 1.33 s serial and 1.29 s on 2 threads for 16 solves on spot).
+
+    Parameters
+    ----------
+    mesh : TriangleMesh
+        The surface.
+    processes : int, optional
+        Worker processes (default: the CPUs this process may use; 1: solved here).
+    should_cancel : callable, optional
+        ``should_cancel() -> bool``, checked between solves (or chunks of solves).
+
+    Returns
+    -------
+    (n, n) array
+        ``d[i, j]``: the distance between vertices ``i`` and ``j`` at unit area.
+    """
+    from solvers.errors import CancelledError
+
+    count = len(os.sched_getaffinity(0)) if processes is None else int(processes)
+    if count < 1:
+        raise InputError(f"processes must be at least 1, got {processes!r}", field="processes")
+    n = mesh.n
+    pieces = _pieces(mesh)
+    chunks = [np.arange(k, min(k + ALL_PAIRS_CHUNK, n)) for k in range(0, n, ALL_PAIRS_CHUNK)]
+    if count == 1 or len(chunks) == 1:
+        return geodesic_distances(mesh, np.arange(n), should_cancel=should_cancel)
+    out = np.empty((n, n))
+    # forked: the children only run the MMP solver on the pieces (no locks, no threads),
+    # and start in milliseconds where a spawned child imports the library (~1 s) and
+    # re-runs an unguarded main script
+    ctx = multiprocessing.get_context("fork")
+    with ProcessPoolExecutor(min(count, len(chunks)), mp_context=ctx,
+                             initializer=_set_worker_pieces, initargs=(pieces,)) as pool:
+        futures = [(c, pool.submit(_rows_in_worker, c)) for c in chunks]
+        for c, future in futures:
+            if should_cancel is not None and should_cancel():
+                for _, f in futures:
+                    f.cancel()
+                raise CancelledError("cancelled between geodesic solves")
+            out[c] = future.result()
+    return out
