@@ -48,6 +48,10 @@ GEODESICS_ARTIFACT = "geodesics-mmp-float32"
 # n-vectors of one exact geodesic solve's work (MMP frontier and distances, measured ~8 on
 # a 642-vertex sphere beside the n x n matrix: tests/service/test_distance_matrices.py)
 GEODESIC_WORK_VECTORS = 16
+# The worker-process pool of the all-pairs geodesics in the parent (its queues, threads and
+# buffers: measured 150 KB warm, 230 KB with the first call's imports, on woody and a
+# 642-vertex sphere; solvers.geodesics.all_pairs_geodesics)
+ALL_PAIRS_POOL_BYTES = 512 * 1024
 
 
 @dataclass
@@ -781,8 +785,8 @@ class TriangleMesh(Domain):
                 return all_pairs_geodesics(self, should_cancel=should_cancel)
             stored = self.artifacts.get(GEODESICS_ARTIFACT)
             if stored is None:
-                d = all_pairs_geodesics(self, should_cancel=should_cancel)
-                self.artifacts.put(GEODESICS_ARTIFACT, d.astype(np.float32))
+                self.artifacts.put(GEODESICS_ARTIFACT, all_pairs_geodesics(
+                    self, dtype=np.float32, should_cancel=should_cancel))
                 stored = self.artifacts.get(GEODESICS_ARTIFACT)
             return stored
 
@@ -806,9 +810,9 @@ class TriangleMesh(Domain):
     def ground_distance_bytes(cls, n: int, entries: int, dim: int) -> int:
         """The geodesics between the supports or, on a mesh small enough to keep them, the
         stored all-pairs ones instead (``entries`` of either, never both), plus a geodesic
-        solve's work vectors.
+        solve's work vectors and the pool of processes solving the stored ones.
         """
-        return 8 * entries + GEODESIC_WORK_VECTORS * 8 * n
+        return 8 * entries + GEODESIC_WORK_VECTORS * 8 * n + ALL_PAIRS_POOL_BYTES
 
     # -- storage / reporting -----------------------------------------------
     def to_arrays(self) -> dict[str, np.ndarray]:
