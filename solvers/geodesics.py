@@ -354,7 +354,8 @@ def all_pairs_geodesics(mesh: TriangleMesh, *, processes: int | None = None,
     mesh : TriangleMesh
         The surface.
     processes : int, optional
-        Worker processes (default: the CPUs this process may use; 1: solved here).
+        Worker processes (default: the CPUs this process may use; 1, or in a daemonic
+        process, which may have no children: solved here).
     dtype : numpy dtype
         Of the result (``float32`` halves its memory; the solves are float64).
     should_cancel : callable, optional
@@ -370,7 +371,7 @@ def all_pairs_geodesics(mesh: TriangleMesh, *, processes: int | None = None,
         raise InputError(f"processes must be at least 1, got {processes!r}", field="processes")
     n, pieces = mesh.n, _pieces(mesh)
     out = np.empty((n, n), dtype=dtype)
-    if count == 1 or n < 4 * count:
+    if count == 1 or n < 4 * count or multiprocessing.current_process().daemon:
         for s in range(n):
             _check_cancel(should_cancel)
             out[s] = _one_to_all(pieces, s)
