@@ -784,11 +784,15 @@ class TriangleMesh(Domain):
             if self.artifacts is None:
                 return all_pairs_geodesics(self, should_cancel=should_cancel)
             stored = self.artifacts.get(GEODESICS_ARTIFACT)
-            if stored is None:
-                self.artifacts.put(GEODESICS_ARTIFACT, all_pairs_geodesics(
-                    self, dtype=np.float32, should_cancel=should_cancel))
-                stored = self.artifacts.get(GEODESICS_ARTIFACT)
-            return stored
+            if stored is not None:
+                return stored
+            d = all_pairs_geodesics(self, dtype=np.float32, should_cancel=should_cancel)
+            try:
+                self.artifacts.put(GEODESICS_ARTIFACT, d)
+            except OSError:  # not storable (disk full, read-only): this process keeps them
+                return d
+            stored = self.artifacts.get(GEODESICS_ARTIFACT)  # memory-mapped: d is freed
+            return d if stored is None else stored
 
         return self.operators.get(("exact_geodesics",), build), False
 
