@@ -183,6 +183,41 @@ class DomainInfo:
     def arrays(self) -> dict[str, np.ndarray]:
         return self._store.domain_arrays(self.id)
 
+    @property
+    def artifacts(self) -> DomainArtifacts:
+        """The stored domain's artifacts (:meth:`Store.domain_artifacts`)."""
+        return self._store.domain_artifacts(self.id)
+
+
+class DomainArtifacts:
+    """A stored domain's artifact store (:class:`solvers.domains.operators.ArtifactStore`):
+    ``.npy`` files in ``artifacts/<domain id>/`` beside the domain, named by key (the key
+    names the array and its method, the folder the domain's content), written atomically and
+    memory-mapped read-only when read."""
+
+    def __init__(self, folder: Path):
+        self.folder = folder
+
+    def _path(self, key: str) -> Path:
+        if not _FILE_NAME.match(key):
+            raise ValueError(f"bad artifact key {key!r}")
+        return self.folder / f"{key}.npy"
+
+    def get(self, key: str) -> np.ndarray | None:
+        """The array ``key``, memory-mapped read-only, or None where it is not stored."""
+        try:
+            return np.load(self._path(key), mmap_mode="r", allow_pickle=False)
+        except FileNotFoundError:
+            return None
+
+    def put(self, key: str, array: np.ndarray) -> None:
+        """Store ``array`` as ``key`` (atomic, durable: see :func:`atomic_write`)."""
+        atomic_write(self._path(key), lambda fh: np.save(fh, np.asarray(array)))
+
+    def has(self, key: str) -> bool:
+        """Whether ``key`` is stored."""
+        return self._path(key).exists()
+
 
 class Store:
     INFO_CACHE = 64  # stored domains are immutable: keep recent DomainInfo objects
@@ -292,8 +327,14 @@ class Store:
     def load_domain(self, domain_id: str) -> Domain:
         """Rebuild the domain object (operators are built lazily by the domain)."""
         meta = self.get_domain_meta(domain_id)
-        return domain_from_arrays(meta["kind"], self.domain_arrays(domain_id),
-                                  meta.get("parameters") or {})
+        domain = domain_from_arrays(meta["kind"], self.domain_arrays(domain_id),
+                                    meta.get("parameters") or {})
+        domain.artifacts = self.domain_artifacts(domain_id)
+        return domain
+
+    def domain_artifacts(self, domain_id: str) -> DomainArtifacts:
+        """The stored domain's artifacts (all-pairs geodesics): shared by every process."""
+        return DomainArtifacts(self.domain_dir / "artifacts" / self.check_id(domain_id))
 
     def list_domains(self) -> list[dict]:
         out = []
@@ -342,11 +383,19 @@ class Store:
         if ".json" not in moved:  # not stored (or removed meanwhile)
             self.purge_retired(folder)
             return None
+        try:
+            os.replace(self.domain_artifacts(domain_id).folder, folder / "artifacts")
+        except FileNotFoundError:
+            pass
         return folder
 
     def restore_domain(self, domain_id: str, folder: Path) -> None:
         """Put retired files back (metadata last); a file stored again meanwhile has the same
         content (content addressing) and is simply replaced."""
+        try:
+            os.replace(folder / "artifacts", self.domain_artifacts(domain_id).folder)
+        except OSError:
+            pass  # none, or computed again meanwhile (the same content)
         for suffix in reversed(self.DOMAIN_SUFFIXES):
             try:
                 os.replace(folder / suffix[1:], self.domain_dir / f"{domain_id}{suffix}")

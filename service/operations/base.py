@@ -129,6 +129,8 @@ class DomainView:
     summary: dict = field(default_factory=dict)  # the stored domain's summary (API side)
     load_faces: Callable[[], np.ndarray] | None = None  # a mesh's (F, 3) faces, on demand
     sketch_builder: Callable[[], object] | None = None
+    # the stored domain's artifact store (service.store.DomainArtifacts), None if unstored
+    artifacts: object | None = None
     # what one request derives (per_request): on this view object, not its source
     request_memo: dict = field(default_factory=dict)
 
@@ -523,7 +525,8 @@ def view_of_domain(domain) -> DomainView:
                       points=domain_points(domain), edges=domain.edges,
                       n_faces=domain.n_faces, memo=memo,
                       sketch_builder=lambda: DomainSketch.of(domain),
-                      load_faces=(lambda: domain.faces) if domain.supports("faces") else None)
+                      load_faces=(lambda: domain.faces) if domain.supports("faces") else None,
+                      artifacts=domain.artifacts)
 
 
 def view_of_info(info) -> DomainView:
@@ -542,7 +545,7 @@ def view_of_info(info) -> DomainView:
                       edges=edges, n_faces=summary.get("faces"), memo=info.memo,
                       sketch_builder=sketch, summary=summary,
                       load_faces=(lambda: info.arrays["faces"]) if info.supports("faces")
-                      else None)
+                      else None, artifacts=info.artifacts)
 
 
 # -- sizes and scalar options, checked at submission and again in the worker -------------

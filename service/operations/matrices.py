@@ -21,6 +21,7 @@ from pydantic import BaseModel, Field
 
 from service.errors import InvalidInput, UnsupportedOperation
 from service.operations.base import (
+    COST_PER_SECOND,
     Distribution,
     DomainView,
     Int,
@@ -48,6 +49,7 @@ from solvers.convolutional.matrix import (
     zero_diagonal,
 )
 from solvers.domains import DOMAIN_CLASSES
+from solvers.domains.mesh import GEODESICS_ARTIFACT
 from solvers.emd.beckmann import resolve_method
 from solvers.emd.dwk_matrix import W1MatrixDecision, decide_w1_method, working_bytes
 from solvers.errors import CancelledError, InputError
@@ -287,8 +289,26 @@ def estimate_cost(points: int, req: DistanceMatrixRequest, context=None) -> floa
     exact = req.metric == "w2" and (req.method == "exact" or (req.method == "auto"
                                                               and req.gamma is None))
     if exact and (context is None or context.supports("exact_transport")):
-        return EXACT_PAIR_COST * float(max(points, 1)) ** 2 * pairs
+        return (EXACT_PAIR_COST * float(max(points, 1)) ** 2 * pairs
+                + geodesics_cost(context, req))
     return float(max(points, 1)) * pairs * 60.0
+
+
+def geodesics_cost(view: DomainView | None, req: DistanceMatrixRequest) -> float:
+    """Cost units of the stored domain's all-pairs ground distances where the exact pairs
+    would use them (:func:`~solvers.convolutional.matrix.prefers_stored_distances`) and they
+    are not stored data yet (``Domain.stored_ground_distance_seconds`` at
+    ``COST_PER_SECOND``); 0 once stored: a function of the request and the stored domain,
+    the same in every process."""
+    if view is None or view.artifacts is None:
+        return 0.0
+    seconds = DOMAIN_CLASSES[view.kind].stored_ground_distance_seconds(int(view.n))
+    if seconds == 0.0 or view.artifacts.has(GEODESICS_ARTIFACT):
+        return 0.0
+    rows, others, _ = _inputs(view, req)
+    covered = [int(np.count_nonzero((m > 0).any(axis=1)))
+               for m in (rows, rows if others is None else others)]
+    return COST_PER_SECOND * seconds if prefers_stored_distances(view.n, *covered) else 0.0
 
 
 def _output(res, reports, complete: bool, decision: dict) -> OperationOutput:

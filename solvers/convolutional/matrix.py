@@ -460,6 +460,8 @@ class _RowBlocks:
             block = self.kept.get(i)
         if block is None:
             block = np.take(self.distances, self.at_row[src], axis=0)
+            if block.dtype != np.float64:  # stored (float32) geodesics: squared in float64
+                block = block.astype(np.float64)
             if not self.squared:
                 np.square(block, out=block)
             with self.lock:

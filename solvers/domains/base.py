@@ -125,6 +125,9 @@ class Domain:
         Weak Laplacian, PSD with ``L·1 = 0``.
     operators : OperatorStore
         The store of prefactored operators.
+    artifacts : ArtifactStore or None
+        The persistent backing of costly derived arrays (all-pairs geodesics), supplied by
+        whoever stores the domain (the service); None: computed and kept per process.
     """
 
     kind: str = "domain"
@@ -135,6 +138,8 @@ class Domain:
     # graph edges (meshes, graphs) and face count (meshes); None on the others
     edges: np.ndarray | None = None
     n_faces: int | None = None
+    # persistent backing of costly derived arrays (operators.ArtifactStore), or None
+    artifacts = None
 
     def __init__(self):
         self.operators = OperatorStore()
@@ -299,6 +304,24 @@ class Domain:
             ``should_cancel() -> bool``, checked between solves.
         """
         return None
+
+    @classmethod
+    def stored_ground_distance_seconds(cls, n: int) -> float:
+        """Modelled seconds (one core) of computing :meth:`stored_ground_distances` on an
+        ``n``-point domain of this kind: what a domain pays once, where it keeps them and
+        has not stored them yet (0 where it keeps none).
+
+        Parameters
+        ----------
+        n : int
+            Points of the domain.
+        """
+        return 0.0
+
+    def has_stored_geodesics(self) -> bool:
+        """Whether :meth:`stored_ground_distances` are stored data (the domain's
+        ``artifacts``) rather than computed on first use (False where none are kept)."""
+        return False
 
     @classmethod
     def ground_distance_bytes(cls, n: int, entries: int, dim: int) -> int:

@@ -42,9 +42,16 @@ DEGENERATE_AREA_FRACTION = 1e-12
 # distance matrices ask when their supports cover at least half of the vertices), so the
 # next matrix on the domain reuses it.
 STORED_GEODESICS_VERTICES = 4096
+# Key of the all-pairs exact (MMP) geodesics in a domain's artifact store, kept as float32
+# (the LP's costs need no more: bench/results/geodesic_artifacts.md measures the change)
+GEODESICS_ARTIFACT = "geodesics-mmp-float32"
 # n-vectors of one exact geodesic solve's work (MMP frontier and distances, measured ~8 on
 # a 642-vertex sphere beside the n x n matrix: tests/service/test_distance_matrices.py)
 GEODESIC_WORK_VECTORS = 16
+# The worker-process pool of the all-pairs geodesics in the parent (its queues, threads and
+# buffers: measured 150 KB warm, 230 KB with the first call's imports, on woody and a
+# 642-vertex sphere; solvers.geodesics.all_pairs_geodesics)
+ALL_PAIRS_POOL_BYTES = 512 * 1024
 
 
 @dataclass
@@ -765,22 +772,51 @@ class TriangleMesh(Domain):
         return geodesic_distances(self, src, dst, should_cancel=should_cancel), False
 
     def stored_ground_distances(self, should_cancel=None) -> tuple[np.ndarray, bool] | None:
-        """All-pairs exact geodesics, kept up to :data:`STORED_GEODESICS_VERTICES`."""
+        """All-pairs exact geodesics, kept up to :data:`STORED_GEODESICS_VERTICES`: read
+        from the domain's :attr:`artifacts` where it has them (float32, memory-mapped), else
+        computed in parallel over the sources (:func:`solvers.geodesics.
+        all_pairs_geodesics`) and, with an artifact store, stored there as float32."""
         if self.n > STORED_GEODESICS_VERTICES:
             return None
-        from solvers.geodesics import geodesic_distances
+        from solvers.geodesics import all_pairs_geodesics
 
-        every = self.operators.get(("exact_geodesics",), lambda: geodesic_distances(
-            self, np.arange(self.n), should_cancel=should_cancel))
-        return every, False
+        def build():
+            if self.artifacts is None:
+                return all_pairs_geodesics(self, should_cancel=should_cancel)
+            stored = self.artifacts.get(GEODESICS_ARTIFACT)
+            if stored is not None:
+                return stored
+            d = all_pairs_geodesics(self, dtype=np.float32, should_cancel=should_cancel)
+            try:
+                self.artifacts.put(GEODESICS_ARTIFACT, d)
+            except OSError:  # not storable (disk full, read-only): this process keeps them
+                return d
+            stored = self.artifacts.get(GEODESICS_ARTIFACT)  # memory-mapped: d is freed
+            return d if stored is None else stored
+
+        return self.operators.get(("exact_geodesics",), build), False
+
+    @classmethod
+    def stored_ground_distance_seconds(cls, n: int) -> float:
+        """One modelled MMP solve per vertex (:func:`solvers.geodesics.mmp_solve_seconds`),
+        up to :data:`STORED_GEODESICS_VERTICES`."""
+        from solvers.geodesics import mmp_solve_seconds
+
+        return 0.0 if n > STORED_GEODESICS_VERTICES else float(n) * mmp_solve_seconds(n)
+
+    def has_stored_geodesics(self) -> bool:
+        """Whether the all-pairs geodesics are stored data (in :attr:`artifacts`), so that
+        :meth:`stored_ground_distances` reads them rather than computing them: the same
+        answer in every process that loads the stored domain."""
+        return self.artifacts is not None and self.artifacts.has(GEODESICS_ARTIFACT)
 
     @classmethod
     def ground_distance_bytes(cls, n: int, entries: int, dim: int) -> int:
         """The geodesics between the supports or, on a mesh small enough to keep them, the
         stored all-pairs ones instead (``entries`` of either, never both), plus a geodesic
-        solve's work vectors.
+        solve's work vectors and the pool of processes solving the stored ones.
         """
-        return 8 * entries + GEODESIC_WORK_VECTORS * 8 * n
+        return 8 * entries + GEODESIC_WORK_VECTORS * 8 * n + ALL_PAIRS_POOL_BYTES
 
     # -- storage / reporting -----------------------------------------------
     def to_arrays(self) -> dict[str, np.ndarray]:

@@ -122,3 +122,48 @@ class OperatorStore:
 
     def __len__(self) -> int:
         return len(self._items)
+
+
+class ArtifactStore:
+    """The persistent backing of a domain's costly, deterministic derived arrays
+    (``domain.artifacts``): arrays kept by key beside the stored domain, so that every process
+    loading the domain reads them instead of recomputing them.
+
+    The library never needs one: a domain without it (``domain.artifacts is None``, the
+    default) computes what it needs and keeps it in its operator store, per process.  The
+    service supplies one bound to a stored domain (a folder of content-addressed files);
+    any object with these three methods serves.  Keys name what an array is and how it was
+    computed (e.g. ``"geodesics-mmp-float32"``); the store binds them to the domain's content.
+    """
+
+    def get(self, key: str) -> np.ndarray | None:
+        """The stored array ``key`` (read-only, possibly memory-mapped), or None.
+
+        Parameters
+        ----------
+        key : str
+            What the array is.
+        """
+        raise NotImplementedError
+
+    def put(self, key: str, array: np.ndarray) -> None:
+        """Store ``array`` as ``key``, atomically (readers see no array or the whole one).
+
+        Parameters
+        ----------
+        key : str
+            What the array is.
+        array : ndarray
+            Its value.
+        """
+        raise NotImplementedError
+
+    def has(self, key: str) -> bool:
+        """Whether ``key`` is stored (stored data: the same answer in every process).
+
+        Parameters
+        ----------
+        key : str
+            What the array is.
+        """
+        raise NotImplementedError
