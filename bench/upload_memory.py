@@ -13,10 +13,10 @@ Run: ``.venv/bin/python bench/upload_memory.py [--points 100000]``.
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import statistics
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -69,33 +69,40 @@ def grid_ply(side: int, seed: int) -> bytes:
     return mesh.export(file_type="ply")
 
 
+def _send(url: str, path: str, kwargs: dict, results) -> None:
+    start = time.monotonic()
+    r = httpx.post(url + path, timeout=900, **kwargs)
+    results.put(f"{r.status_code} in {time.monotonic() - start:.1f} s "
+                f"{r.text[:120] if r.status_code >= 400 else ''}")
+
+
 def run_uploads(api: API, uploads: list) -> None:
     """Send ``uploads`` (``(path, kwargs)`` for httpx.post) at once while /healthz is polled
-    and the API's and its children's resident memory sampled; print the figures."""
+    and the API's and its children's resident memory sampled; print the figures. Each upload
+    is sent from its own (forked) process: in this one, building and sending an 80 MB body
+    would hold the GIL against the poller and count the client's own waits as the server's."""
     from upload_latency import p99
 
-    idle, results, rss, child_rss = status_kib(api.pid, "VmRSS"), [], [], {}
-
-    def send(path, kwargs):
-        start = time.monotonic()
-        r = httpx.post(api.url + path, timeout=900, **kwargs)
-        results.append(f"{r.status_code} in {time.monotonic() - start:.1f} s "
-                       f"{r.text[:120] if r.status_code >= 400 else ''}")
-
-    threads = [threading.Thread(target=send, args=u) for u in uploads]
-    for t in threads:
-        t.start()
+    idle, rss, child_rss = status_kib(api.pid, "VmRSS"), [], {}
+    fork = multiprocessing.get_context("fork")
+    queue = fork.Queue()
+    senders = [fork.Process(target=_send, args=(api.url, path, kwargs, queue))
+               for path, kwargs in uploads]
+    for proc in senders:
+        proc.start()
     lat = []
-    while any(t.is_alive() for t in threads):
-        start = time.monotonic()
-        httpx.get(api.url + "/healthz", timeout=120)
-        lat.append(time.monotonic() - start)
-        rss.append(status_kib(api.pid, "VmRSS") or 0)
-        for c in children(api.pid):
-            child_rss[c] = max(child_rss.get(c, 0), status_kib(c, "VmRSS") or 0)
-        time.sleep(0.02)
-    for t in threads:
-        t.join()
+    with httpx.Client(timeout=120) as client:
+        while any(proc.is_alive() for proc in senders):
+            start = time.monotonic()
+            client.get(api.url + "/healthz")
+            lat.append(time.monotonic() - start)
+            rss.append(status_kib(api.pid, "VmRSS") or 0)
+            for c in children(api.pid):
+                child_rss[c] = max(child_rss.get(c, 0), status_kib(c, "VmRSS") or 0)
+            time.sleep(0.02)
+    results = [queue.get() for _ in senders]
+    for proc in senders:
+        proc.join()
     time.sleep(2)  # a retired builder child exits once its queue is done
     after = {c: status_kib(c, "VmRSS") for c in children(api.pid)}
     print("  answers: " + "; ".join(results))
