@@ -163,8 +163,9 @@ class EMDOperators:
         return ("emd", "green") in self._store
 
     def green_matrix(self, check=None, max_vertices: int | None = None):
-        """The dense Green's matrix ``L⁺`` (float32 panels, :class:`solvers.emd.green.GreenMatrix`),
-        built on first use (``V`` unit solves with the pinned factor) and kept; ``4 V²`` bytes.
+        """The dense Green's matrix ``L⁺`` (float32 panels,
+        :class:`solvers.emd.green_panels.GreenMatrix`), built on first use (``V`` unit
+        solves with the pinned factor) and kept; ``4 V²`` bytes.
         Concurrent jobs on a cached mesh share one build (the store's lock).
 
         Parameters
