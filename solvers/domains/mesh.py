@@ -15,6 +15,7 @@ from scipy.sparse.csgraph import connected_components
 
 from solvers.domains.base import Domain, ExportGeometry, check_laplacian_name
 from solvers.errors import DomainError, InputError, MeshFormatError
+from solvers.geodesics import geodesic_distances
 from solvers.heat_geodesics import all_pairs_heat_distances
 from solvers.kernels import (
     GEODESIC_KERNEL_VERTICES,
@@ -760,16 +761,12 @@ class TriangleMesh(Domain):
         """Exact polyhedral geodesics (not squared): one MMP solve per point of the smaller
         side (:func:`solvers.geodesics.geodesic_distances`).
         """
-        from solvers.geodesics import geodesic_distances
-
         return geodesic_distances(self, src, dst, should_cancel=should_cancel), False
 
     def stored_ground_distances(self, should_cancel=None) -> tuple[np.ndarray, bool] | None:
         """All-pairs exact geodesics, kept up to :data:`STORED_GEODESICS_VERTICES`."""
         if self.n > STORED_GEODESICS_VERTICES:
             return None
-        from solvers.geodesics import geodesic_distances
-
         every = self.operators.get(("exact_geodesics",), lambda: geodesic_distances(
             self, np.arange(self.n), should_cancel=should_cancel))
         return every, False
