@@ -101,7 +101,7 @@ def check_face_matrices(vertices, faces, matrices, field: str = "face_weights") 
 
 def _matrix_ipm(mesh, m0, m1, matrices, tol, max_iter, monitor) -> EMDResult:
     """W1 with per-face matrices over all flows (module docstring)."""
-    from solvers.emd.interior_point import _structure, beckmann_interior_point
+    from solvers.emd.interior_point import beckmann_interior_point, normal_structure
 
     ops = check_mesh(mesh)
     geo, _ = ops.interior_point_structure
@@ -115,7 +115,7 @@ def _matrix_ipm(mesh, m0, m1, matrices, tol, max_iter, monitor) -> EMDResult:
             ).repeat(2, axis=1)
     T = sp.csr_matrix((R_inv.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * nf, 3 * nf))
     div = (geo.div @ T).tocsr()
-    structure = _structure(div, np.asarray(mesh.faces)[geo.faces], ops._keep)
+    structure = normal_structure(div, np.asarray(mesh.faces)[geo.faces], ops._keep)
     _, v = ops.particular_flow(m1 - m0)
     u0 = np.einsum("fc,fdc->fd", v, geo.frames) * ops.face_areas[:, None]
     out = beckmann_interior_point(div, structure.faces, np.ones(nf), m0 - m1, ops._keep,

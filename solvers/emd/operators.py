@@ -26,6 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from solvers.emd.interior_point import flow_structure
 from solvers.errors import UnsupportedDomainError
 from solvers.linalg import eigsh, factorize_spd
 
@@ -247,9 +248,8 @@ class EMDOperators:
     def interior_point_structure(self):
         """Tangent frames, divergence and normal-matrix pattern of the interior-point W1
         (:func:`solvers.emd.interior_point.flow_structure`), once per mesh."""
-        from solvers.emd.interior_point import flow_structure
-
-        return self._store.get(("emd", "interior_point"), lambda: flow_structure(self.mesh))
+        return self._store.get(("emd", "interior_point"),
+                               lambda: flow_structure(self.mesh, self._keep))
 
     @property
     def rotation_matrix(self) -> sp.csr_matrix:
