@@ -29,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from solvers.curvature import mean_curvature
 from solvers.emd.beckmann import (
     IPM_MAX_ITER,
     IPM_PATIENCE,
@@ -52,13 +53,11 @@ def mean_curvature_weights(mesh, strength: float = 1.0) -> np.ndarray:
     r"""``(F,)`` scalar face weights :math:`w_t = 1 + \alpha |H_t| / \overline{|H|}`.
 
     :math:`H` is the cotangent mean curvature per vertex
-    (:func:`solvers.histograms.features.mean_curvature`), averaged over each face's corners;
+    (:func:`solvers.curvature.mean_curvature`), averaged over each face's corners;
     :math:`\overline{|H|}` its area-weighted mean over the faces, so ``strength``
     :math:`\alpha \ge 0` is dimensionless: ``alpha = 1`` doubles the cost where the curvature
     is average.  On a sphere the weights are the constant ``1 + alpha``.
     """
-    from solvers.histograms.features import mean_curvature
-
     alpha = check_finite(strength, "strength")
     if alpha < 0:
         raise InputError(f"strength must be >= 0, got {alpha}", field="strength")
