@@ -64,6 +64,7 @@ MESHES = ROOT.parent / "shared" / "meshes"
 RESULTS = ROOT / "bench" / "results" / "histograms.md"
 
 from solvers import Grid, TriangleMesh, load_mesh  # noqa: E402
+from solvers.curvature import mean_curvature, principal_direction_angles  # noqa: E402
 from solvers.histograms import (  # noqa: E402
     as_graph,
     knn_graph,
@@ -74,11 +75,7 @@ from solvers.histograms import (  # noqa: E402
 )
 from solvers.histograms import summaries as S  # noqa: E402
 from solvers.histograms.dirichlet import dirichlet_system  # noqa: E402
-from solvers.histograms.features import (  # noqa: E402
-    mean_curvature,
-    neighbourhood_histograms,
-    principal_direction_angles,
-)
+from solvers.histograms.features import neighbourhood_histograms  # noqa: E402
 
 LEVELS = 100
 NBINS = 32

@@ -60,6 +60,7 @@ from _common import load1  # noqa: E402
 from histograms import label_set  # noqa: E402  (the Fig. 5.6 label draw of bench/histograms.py)
 
 from solvers import load_mesh  # noqa: E402
+from solvers.curvature import principal_direction_angles  # noqa: E402
 from solvers.errors import ConvergenceError  # noqa: E402
 from solvers.histograms import (  # noqa: E402
     as_graph,
@@ -71,10 +72,7 @@ from solvers.histograms import (  # noqa: E402
     propagate_histograms,
     w1_distance,
 )
-from solvers.histograms.features import (  # noqa: E402
-    neighbourhood_histograms,
-    principal_direction_angles,
-)
+from solvers.histograms.features import neighbourhood_histograms  # noqa: E402
 
 
 def emit(line: str) -> None:

@@ -115,7 +115,7 @@ def one(name: str, size: str) -> dict:
     from fastapi.testclient import TestClient
 
     from service.app import create_app
-    from service.jobs.service import JobService
+    from service.job_service import JobService
     from service.operations.base import SubmitContext, job_memory_estimate, view_of_info
     from service.settings import Settings
 

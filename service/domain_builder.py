@@ -9,7 +9,9 @@ estimated first, from a JSON domain's sizes or a mesh file's declared counts
 capped (``RLIMIT_AS`` at :func:`builder_memory_limit`), and the API only receives the stored
 domain's metadata. A build that runs out of that bound answers 413 naming the upload's size
 field. Small builds run in the calling thread (no process hop). A child left holding more
-than ``RECYCLE_RSS_BYTES`` after a build is replaced, so it does not stay large.
+than ``RECYCLE_RSS_BYTES`` after a build is replaced, so it does not stay large. The
+builds themselves (:func:`build_domain`, :func:`build_mesh_file`) live here, below
+:mod:`service.domains`, which calls them in process.
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ from concurrent.futures.process import BrokenProcessPool
 from service.child_pool import ChildPool, die_with_parent
 from service.errors import ApiError, PayloadTooLarge
 from service.limits import WORKER_BASE_BYTES
+from service.schemas import check_point_limit
+from solvers.domains import load_mesh
 
 log = logging.getLogger("otgeo.service")
 
@@ -99,6 +103,18 @@ def _resident_bytes() -> int:
     return 0
 
 
+def build_domain(settings, spec, source: dict):
+    """The domain of a validated JSON spec (sizes checked against ``max_vertices`` first)."""
+    return spec.build(settings.max_vertices)
+
+
+def build_mesh_file(settings, data: bytes, ext: str, laplacian: str, weld, source: dict):
+    """The mesh of an uploaded file (``file_arguments``), at most ``max_vertices``."""
+    mesh = load_mesh(data, file_type=ext, laplacian=laplacian, weld=weld)
+    check_point_limit(mesh.n, settings.max_vertices, "file")
+    return mesh
+
+
 def _build_store_measure(settings, method: str, args: tuple) -> tuple[tuple, int]:
     """In the child: ``_build_and_store``'s answer and the child's resident bytes after it
     (the domain freed)."""
@@ -109,7 +125,6 @@ def _build_store_measure(settings, method: str, args: tuple) -> tuple[tuple, int
 def _build_and_store(settings, method: str, args: tuple) -> tuple:
     """In the child: ``("ok", meta, created)`` or ``("error", status, code, message, field)``
     (``"memory"`` when the bound was hit)."""
-    from service.domains import build_domain, build_mesh_file
     from service.errors import from_library
     from service.store import Store
     from solvers.errors import OTGeoError

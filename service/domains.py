@@ -9,11 +9,14 @@ upload gets a 4xx naming its field, never a server error.
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING
 
 from service.domain_builder import (
     IN_PROCESS_BUILD_BYTES,
     IN_PROCESS_UNKNOWN_FILE_BYTES,
+    build_domain,
     build_in_child,
+    build_mesh_file,
     check_build_memory,
     check_memory_need,
     estimate_build_bytes,
@@ -21,10 +24,12 @@ from service.domain_builder import (
 )
 from service.errors import InvalidInput, NotFound, PayloadTooLarge
 from service.mesh_sizes import mesh_file_counts
-from service.runtime import Runtime
 from service.schemas import check_point_limit
 from service.tenants import ANONYMOUS, QuotaExceeded, Tenant, check_bytes_quota
-from solvers.domains import MESH_FORMATS, load_mesh
+from solvers.domains import MESH_FORMATS
+
+if TYPE_CHECKING:  # the runtime calls this module (its sweep), not the reverse
+    from service.runtime import Runtime
 
 WELD_VALUES = {"true": True, "1": True, "yes": True, "false": False, "0": False, "no": False,
                "auto": None, "": None}
@@ -250,11 +255,6 @@ def spec_size(spec) -> tuple[str, int]:
     return spec.size_field, spec.n_points()
 
 
-def build_domain(settings, spec, source: dict):
-    """The domain of a validated JSON spec (sizes checked against ``max_vertices`` first)."""
-    return spec.build(settings.max_vertices)
-
-
 def file_arguments(data: bytes, filename: str | None, file_type: str | None, laplacian: str,
                    weld) -> tuple:
     """``(data, ext, laplacian, weld, source)`` of a mesh file upload, checked."""
@@ -274,10 +274,3 @@ def file_arguments(data: bytes, filename: str | None, file_type: str | None, lap
     if weld is not None:
         source["weld"] = weld
     return data, ext, laplacian, weld, source
-
-
-def build_mesh_file(settings, data: bytes, ext: str, laplacian: str, weld, source: dict):
-    """The mesh of an uploaded file (``file_arguments``), at most ``max_vertices``."""
-    mesh = load_mesh(data, file_type=ext, laplacian=laplacian, weld=weld)
-    _check_points(settings, mesh.n, "file")
-    return mesh

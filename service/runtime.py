@@ -8,6 +8,7 @@ import threading
 import time
 
 from service.cache import OperatorCache
+from service.domains import sweep_released_domains
 from service.jobs.broker import BrokerWatch
 from service.jobs.db import JobRepository, worker_identity
 from service.jobs.queue import QUEUES, make_queues, register_task
@@ -55,8 +56,6 @@ class Runtime:
 
     def sweep_released(self) -> list[str]:
         """Remove the stored domains that tenants released and nobody holds now."""
-        from service.domains import sweep_released_domains
-
         return sweep_released_domains(self)
 
     @property

@@ -18,6 +18,8 @@ import logging
 import threading
 import time
 
+from service.operations import build_registry
+
 log = logging.getLogger("otgeo.warm")
 
 WARM_STAGE = "preparing compiled kernels (the first run of a fresh install compiles them, " \
@@ -71,8 +73,6 @@ def start_background(operations) -> threading.Thread:
 def main() -> None:
     """Fill numba's cache with what every operation's warm-up compiles."""
     import os
-
-    from service.operations import build_registry
 
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     start = time.perf_counter()

@@ -33,13 +33,16 @@ import os
 from collections import deque
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, shortest_path
 
-from solvers.domains.mesh import TriangleMesh
 from solvers.errors import InputError
+
+if TYPE_CHECKING:  # the mesh calls these solvers for its ground distances, not the reverse
+    from solvers.domains.mesh import TriangleMesh
 
 METHODS = ("mmp", "edge-flip")
 

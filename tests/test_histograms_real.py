@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from solvers.curvature import mean_curvature
 from solvers.histograms import make_bins, propagate_histograms, w1_distance
 from solvers.histograms import summaries as S
-from solvers.histograms.features import mean_curvature, neighbourhood_histograms
+from solvers.histograms.features import neighbourhood_histograms
 
 
 def test_wasserstein_beats_pdf_on_mean_curvature_histograms(shared_mesh):

@@ -14,7 +14,7 @@ from service.errors import InvalidInput, Unauthorized
 from service.idempotency import DESCRIPTION as IDEMPOTENCY_DESCRIPTION
 from service.idempotency import HEADER as IDEMPOTENCY_HEADER
 from service.idempotency import KEY_PATTERN
-from service.jobs.service import JobService
+from service.job_service import JobService
 from service.runtime import Runtime
 from service.tenants import Tenant
 

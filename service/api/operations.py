@@ -17,8 +17,8 @@ from service.api.bodies import parse_json
 from service.api.deps import IdempotencyKeyDep, JobSvc, RuntimeDep
 from service.errors import InvalidInput, responses
 from service.idempotency import REPLAYED, for_request
+from service.job_service import PendingJob
 from service.jobs.db import QUEUED, TERMINAL
-from service.jobs.service import PendingJob
 from service.operations import Operation, Registry
 from service.operations.guide_pages import openapi_extra
 from service.schemas import RETRY_AFTER_HEADERS, JobOut, retry_after

@@ -142,39 +142,8 @@ def register_task(huey: Huey, run):
 
 
 # -- which queue a job goes to ------------------------------------------------------------
-DEFAULT_ITERATIONS = 1000  # assumed when a request names no iteration bound
-
-
-def estimate_cost(n: int, request, context=None) -> float:
-    """A job's estimated cost at submission: domain size × iterations × columns.
-
-    ``iterations`` is the request's ``max_iter`` (or ``iterations``), ``columns`` the number
-    of distributions it carries (each one is a column of the kernel's multi-RHS solves),
-    at least 1. Only used to choose a queue, so coarse is fine."""
-    iterations = None
-    for name in ("max_iter", "iterations", "n_iter"):
-        value = getattr(request, name, None)
-        if isinstance(value, int) and not isinstance(value, bool):
-            iterations = value
-            break
-    columns = 0
-    for name in type(request).model_fields:
-        value = getattr(request, name, None)
-        if isinstance(value, list) and value and all(_is_distribution(v) for v in value):
-            columns += len(value)
-        elif _is_distribution(value) and name not in ("weights",):
-            columns += 1
-    return float(max(n, 1)) * float(iterations or DEFAULT_ITERATIONS) * float(max(columns, 1))
-
-
-def _is_distribution(value) -> bool:
-    from service.operations.base import BumpDistribution, SparseDistribution
-
-    if isinstance(value, (BumpDistribution, SparseDistribution)):
-        return True
-    return isinstance(value, list) and len(value) > 1 and \
-        all(isinstance(x, (int, float)) for x in value[:8])
-
-
 def queue_for_cost(settings: Settings, cost: float) -> str:
+    """``"long"`` for a job whose estimated cost (``Operation.estimate_cost``, else
+    :func:`service.operations.cost.estimate_cost`) reaches ``long_job_cost``, else
+    ``"short"``."""
     return "long" if cost >= settings.long_job_cost else "short"

@@ -17,7 +17,6 @@ import numpy as np
 from pydantic import Field
 
 from service.errors import InvalidInput
-from service.jobs.queue import DEFAULT_ITERATIONS
 from service.operations.base import (
     Distribution,
     DomainView,
@@ -28,6 +27,7 @@ from service.operations.base import (
     resolve_weighted,
     view_of_domain,
 )
+from service.operations.cost import DEFAULT_ITERATIONS
 from service.operations.examples import BUMP_A, BUMP_B, example
 from service.operations.transport import (
     ShapeMethodOption,

@@ -328,7 +328,7 @@ class Operation:
     decide: Callable[..., dict | None] | None = None
     # the job's cost from (points of its domain, request, context: the domain's view, or the
     # SubmitContext of a global operation), which picks its queue (default:
-    # ``service.jobs.queue.estimate_cost``, points x iterations x distributions)
+    # ``service.operations.cost.estimate_cost``, points x iterations x distributions)
     estimate_cost: Callable[..., float] | None = None
     # the request field a 413 names, from (view or SubmitContext, request): the field of the
     # larger part of the memory estimate (default: the first size-giving field present)
@@ -346,7 +346,7 @@ class Operation:
 
     def serves_glb(self, domain_id: str | None) -> bool:
         """Whether ``GET /v1/jobs/{id}/result.glb`` has a glTF for this operation's job (on
-        ``domain_id``): what service.jobs.service.JobService.result_glb returns."""
+        ``domain_id``): what service.job_service.JobService.result_glb returns."""
         return self.writes_glb or bool(domain_id)
 
     # ``() -> None``: a tiny run that compiles the numba kernels a job runs (or loads them

@@ -33,7 +33,7 @@ MAX_SHAPES = 8
 MAX_FRAMES = 16
 DEFAULT_TIMES = [0.0, 0.25, 0.5, 0.75, 1.0]
 VOLUME_ARRAYS = 24  # grid-sized float64 arrays of one job: inputs, barycenter scalings, ...
-# cost units (see service.jobs.queue.estimate_cost) per grid node, iteration and shape: the
+# cost units (see service.operations.cost.estimate_cost) per grid node, iteration and shape: the
 # grid's separable Gaussian is ~10x cheaper than a mesh kernel's triangular solves (measured
 # ~25 ns per node, iteration and shape at 64^3)
 GRID_NODE_COST = 0.1

@@ -166,7 +166,7 @@ def _mesh_view(ctx, domain_id: str, field: str):
 def estimate_sizes(n_source: int, n_target: int, req: SoftMapRequest) -> dict:
     """``{"bytes", "cost"}`` of a soft map job from its sizes: the library's peak-memory
     model (``solvers.softmaps.propagation_map.estimated_bytes``) and the cost in the units of
-    ``service.jobs.queue.estimate_cost``: per propagation sweep (at most ``max_iter``) one
+    ``service.operations.cost.estimate_cost``: per propagation sweep (at most ``max_iter``) one
     log-domain step per source edge (about 3 per sample) over every solved target point,
     plus the prolongation of every row to the full target."""
     from solvers.softmaps.propagation_map import (

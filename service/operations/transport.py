@@ -9,7 +9,6 @@ import numpy as np
 from pydantic import BaseModel, Field
 
 from service.errors import InvalidInput
-from service.jobs.queue import DEFAULT_ITERATIONS, estimate_cost
 from service.operations.base import (
     COST_PER_SECOND,
     REQUEST_CONFIG,
@@ -28,6 +27,7 @@ from service.operations.base import (
     resolve_weighted,
     view_of_domain,
 )
+from service.operations.cost import DEFAULT_ITERATIONS, estimate_cost
 from service.operations.examples import BUMP_A, BUMP_B, example
 from solvers.convolutional import (
     barycenter,

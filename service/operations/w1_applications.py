@@ -122,7 +122,7 @@ def validate_barycenter(view: DomainView, req: W1BarycenterRequest) -> list[dict
     return _barycenter_inputs(view, req)[2]
 
 
-# Cost units (service.jobs.queue.estimate_cost: points x iterations) per modelled second:
+# Cost units (service.operations.cost.estimate_cost: points x iterations) per modelled second:
 # one W1 interior-point solve, IPM_SOLVE_COST per vertex, took 8.3 s at 50k vertices
 # (bench/results/w1_applications.md).
 COST_PER_SECOND = IPM_SOLVE_COST * 50_000 / 8.3

@@ -15,6 +15,7 @@ from scipy.sparse.csgraph import connected_components
 
 from solvers.domains.base import Domain, ExportGeometry, check_laplacian_name
 from solvers.errors import DomainError, InputError, MeshFormatError
+from solvers.geodesics import all_pairs_geodesics, geodesic_distances, mmp_solve_seconds
 from solvers.heat_geodesics import all_pairs_heat_distances
 from solvers.kernels import (
     GEODESIC_KERNEL_VERTICES,
@@ -767,8 +768,6 @@ class TriangleMesh(Domain):
         """Exact polyhedral geodesics (not squared): one MMP solve per point of the smaller
         side (:func:`solvers.geodesics.geodesic_distances`).
         """
-        from solvers.geodesics import geodesic_distances
-
         return geodesic_distances(self, src, dst, should_cancel=should_cancel), False
 
     def stored_ground_distances(self, should_cancel=None) -> tuple[np.ndarray, bool] | None:
@@ -778,8 +777,6 @@ class TriangleMesh(Domain):
         all_pairs_geodesics`) and, with an artifact store, stored there as float32."""
         if self.n > STORED_GEODESICS_VERTICES:
             return None
-        from solvers.geodesics import all_pairs_geodesics
-
         def build():
             if self.artifacts is None:
                 return all_pairs_geodesics(self, should_cancel=should_cancel)
@@ -800,8 +797,6 @@ class TriangleMesh(Domain):
     def stored_ground_distance_seconds(cls, n: int) -> float:
         """One modelled MMP solve per vertex (:func:`solvers.geodesics.mmp_solve_seconds`),
         up to :data:`STORED_GEODESICS_VERTICES`."""
-        from solvers.geodesics import mmp_solve_seconds
-
         return 0.0 if n > STORED_GEODESICS_VERTICES else float(n) * mmp_solve_seconds(n)
 
     def has_stored_geodesics(self) -> bool:

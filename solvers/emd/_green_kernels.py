@@ -10,7 +10,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from solvers.emd.green import PANEL
+from solvers.emd.green_panels import PANEL
 from solvers.jit import cached_njit
 
 _FLUSH = 64  # faces summed in float32 before adding to the float64 accumulator

@@ -29,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from solvers.curvature import mean_curvature
 from solvers.emd.beckmann import (
     IPM_MAX_ITER,
     IPM_PATIENCE,
@@ -52,13 +53,11 @@ def mean_curvature_weights(mesh, strength: float = 1.0) -> np.ndarray:
     r"""``(F,)`` scalar face weights :math:`w_t = 1 + \alpha |H_t| / \overline{|H|}`.
 
     :math:`H` is the cotangent mean curvature per vertex
-    (:func:`solvers.histograms.features.mean_curvature`), averaged over each face's corners;
+    (:func:`solvers.curvature.mean_curvature`), averaged over each face's corners;
     :math:`\overline{|H|}` its area-weighted mean over the faces, so ``strength``
     :math:`\alpha \ge 0` is dimensionless: ``alpha = 1`` doubles the cost where the curvature
     is average.  On a sphere the weights are the constant ``1 + alpha``.
     """
-    from solvers.histograms.features import mean_curvature
-
     alpha = check_finite(strength, "strength")
     if alpha < 0:
         raise InputError(f"strength must be >= 0, got {alpha}", field="strength")
@@ -101,7 +100,7 @@ def check_face_matrices(vertices, faces, matrices, field: str = "face_weights") 
 
 def _matrix_ipm(mesh, m0, m1, matrices, tol, max_iter, monitor) -> EMDResult:
     """W1 with per-face matrices over all flows (module docstring)."""
-    from solvers.emd.interior_point import _structure, beckmann_interior_point
+    from solvers.emd.interior_point import beckmann_interior_point, normal_structure
 
     ops = check_mesh(mesh)
     geo, _ = ops.interior_point_structure
@@ -115,7 +114,7 @@ def _matrix_ipm(mesh, m0, m1, matrices, tol, max_iter, monitor) -> EMDResult:
             ).repeat(2, axis=1)
     T = sp.csr_matrix((R_inv.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * nf, 3 * nf))
     div = (geo.div @ T).tocsr()
-    structure = _structure(div, np.asarray(mesh.faces)[geo.faces], ops._keep)
+    structure = normal_structure(div, np.asarray(mesh.faces)[geo.faces], ops._keep)
     _, v = ops.particular_flow(m1 - m0)
     u0 = np.einsum("fc,fdc->fd", v, geo.frames) * ops.face_areas[:, None]
     out = beckmann_interior_point(div, structure.faces, np.ones(nf), m0 - m1, ops._keep,

@@ -49,6 +49,9 @@ import scipy.sparse as sp
 
 from solvers.domains import supports
 from solvers.domains.mesh import TriangleMesh
+from solvers.emd.beckmann import IPM_PATIENCE as W1_IPM_PATIENCE
+from solvers.emd.flow_geometry import FlowGeometry, flow_cost, flow_geometry, flow_vectors
+from solvers.emd.interior_point_barycenter import solve_barycenter_ipm
 from solvers.errors import CancelledError, InputError, UnsupportedDomainError
 from solvers.monitor import Monitor, SolverResult
 from solvers.validation import check_masses, check_weights, normalized_columns
@@ -213,53 +216,6 @@ def _face_weights(mesh, face_weights) -> np.ndarray:
     return w
 
 
-# ---------------------------------------------------------------------------
-# the flow block: (s_t, u_t) per face, u_t = A_t J_t in a tangent frame
-# ---------------------------------------------------------------------------
-@dataclass
-class _FlowGeometry:
-    faces: np.ndarray  # indices of faces that carry flow (finite weight)
-    weights: np.ndarray  # (len(faces),)
-    div: sp.csr_matrix  # (V, 3*len(faces)) weak divergence in interleaved variables
-    frames: np.ndarray  # (len(faces), 2, 3) tangent frame
-
-
-def _flow_geometry(mesh: TriangleMesh, weights: np.ndarray) -> _FlowGeometry:
-    free = np.flatnonzero(np.isfinite(weights))
-    v, f = mesh.vertices, mesh.faces
-    e1 = v[f[:, 1]] - v[f[:, 0]]
-    e1 /= np.linalg.norm(e1, axis=1)[:, None]
-    e2 = np.cross(mesh.face_normals, e1)
-    nf = mesh.n_faces
-    rows = np.repeat(3 * np.arange(nf)[:, None] + np.arange(3), 2, axis=1).ravel()
-    cols = np.tile(2 * np.arange(nf)[:, None] + np.array([0, 1]), (1, 3)).ravel()
-    vals = np.stack([e1, e2], axis=2).reshape(nf, 6).ravel()
-    frame = sp.csr_matrix((vals, (rows, cols)), shape=(3 * nf, 2 * nf))
-    # mesh.divergence @ J with J = E u / A_t  ==  -(E^T G)^T u
-    div_u = (-(frame.T @ mesh.gradient).T).tocoo()
-    face_of_col, d = np.divmod(div_u.col, 2)
-    position = -np.ones(nf, dtype=np.int64)
-    position[free] = np.arange(len(free))
-    keep = position[face_of_col] >= 0
-    div = sp.csr_matrix(
-        (div_u.data[keep], (div_u.row[keep], 3 * position[face_of_col[keep]] + 1 + d[keep])),
-        shape=(mesh.n, 3 * len(free)))
-    return _FlowGeometry(free, weights[free], div, np.stack([e1, e2], axis=1)[free])
-
-
-def _flow_vectors(mesh: TriangleMesh, geo: _FlowGeometry, x_block: np.ndarray) -> np.ndarray:
-    """(F, 3) tangent J from the interleaved block ``[s, u1, u2]`` per free face."""
-    u = x_block.reshape(-1, 3)[:, 1:]
-    J = np.zeros((mesh.n_faces, 3))
-    J[geo.faces] = np.einsum("fd,fdc->fc", u, geo.frames) / mesh.face_areas[geo.faces, None]
-    return J
-
-
-def _flow_cost(geo: _FlowGeometry, x_block: np.ndarray) -> float:
-    """sum_t w_t A_t |J_t| = sum_t w_t |u_t| of an interleaved flow block."""
-    return float(geo.weights @ np.linalg.norm(x_block.reshape(-1, 3)[:, 1:], axis=1))
-
-
 class _ConicProgram:
     """A tiny assembler for ``min q^T x  s.t.  A x + s = b, s in K`` (Clarabel's form)."""
 
@@ -291,7 +247,7 @@ class _ConicProgram:
         self.rows[kind] += m
         return first
 
-    def flow_block(self, geo: _FlowGeometry, cost_scale: float = 1.0) -> slice:
+    def flow_block(self, geo: FlowGeometry, cost_scale: float = 1.0) -> slice:
         nf = len(geo.faces)
         cost = np.zeros(3 * nf)
         cost[0::3] = cost_scale * geo.weights
@@ -459,7 +415,7 @@ def _beckmann_difference(mesh, difference, *, face_weights=None, tol=1e-8, max_i
             np.stack([np.maximum(difference, 0), np.maximum(-difference, 0)], axis=1),
             _BALANCE_TOL * scale + 1e-12, field_name)
     weights = _face_weights(mesh, face_weights)
-    geo = _flow_geometry(mesh, weights)
+    geo = flow_geometry(mesh, weights)
     keep = _kept_rows(mesh)
     Monitor(progress, should_cancel).check_cancel("before the conic solve")
     prog = _ConicProgram()
@@ -475,10 +431,10 @@ def _beckmann_difference(mesh, difference, *, face_weights=None, tol=1e-8, max_i
     potential = np.zeros(mesh.n)
     potential[keep] = z[: len(keep)]
     residual = float(np.abs(geo.div @ xb - difference).max())
-    value = _flow_cost(geo, xb)
+    value = flow_cost(geo, xb)
     return BeckmannResult(
         value=value,
-        flow=_flow_vectors(mesh, geo, xb),
+        flow=flow_vectors(mesh, geo, xb),
         potential=potential,
         iterations=iterations,
         residual=residual,
@@ -657,9 +613,6 @@ def _barycenter_inputs(mesh, mus, weights, max_vertices: int | None):
 def _barycenter_ipm(mesh, mus, weights, fw, tol, max_iter, progress,
                     should_cancel) -> W1BarycenterResult:
     """Eq. 2.7 by the interior point of :mod:`solvers.emd.interior_point_barycenter`."""
-    from solvers.emd.beckmann import IPM_PATIENCE as W1_IPM_PATIENCE
-    from solvers.emd.interior_point_barycenter import solve_barycenter_ipm
-
     M, alpha = _barycenter_inputs(mesh, mus, weights, None)
     monitor = Monitor(progress, should_cancel, tol=tol, patience=W1_IPM_PATIENCE)
     monitor.check_cancel("before the solve")
@@ -678,7 +631,7 @@ def _barycenter(mesh, mus, weights, *, squared, face_weights, tol, max_iter, max
     """Eq. 2.7 (``squared``) or the W1 median as one conic program."""
     M, alpha = _barycenter_inputs(mesh, mus, weights, max_vertices)
     k = M.shape[1]
-    geo = _flow_geometry(mesh, _face_weights(mesh, face_weights))
+    geo = flow_geometry(mesh, _face_weights(mesh, face_weights))
     keep = _kept_rows(mesh)
     Monitor(progress, should_cancel).check_cancel("before the conic solve")
 
@@ -707,14 +660,14 @@ def _barycenter(mesh, mus, weights, *, squared, face_weights, tol, max_iter, max
     masses = np.clip(x[mu], 0.0, None)
     masses /= masses.sum()
     xs = [x[fl] for fl in flows]
-    distances = np.array([_flow_cost(geo, xb) for xb in xs])
+    distances = np.array([flow_cost(geo, xb) for xb in xs])
     residual = max(float(np.abs(geo.div @ xb - (x[mu] - M[:, i])).max())
                    for i, xb in enumerate(xs))
     return W1BarycenterResult(
         masses=masses,
         value=float(alpha @ (distances ** 2 if squared else distances)),
         distances=distances,
-        flows=np.stack([_flow_vectors(mesh, geo, xb) for xb in xs]),
+        flows=np.stack([flow_vectors(mesh, geo, xb) for xb in xs]),
         iterations=iterations,
         residual=residual,
         converged=_converged(status),
@@ -774,7 +727,7 @@ def w1_multistep_paths(
     mesh.require_matching_component_masses(np.stack([m0, m1], axis=1), _BALANCE_TOL, "mu_goal")
     fw, upper, forbidden = _path_constraints(mesh, m0, m1, capacity, obstacle_vertices,
                                              face_weights)
-    geo = _flow_geometry(mesh, fw)
+    geo = flow_geometry(mesh, fw)
     Monitor(progress, should_cancel).check_cancel("before the conic solve")
     K = int(n_steps)
     prog, mids, flows = _path_program(mesh, geo, m0, m1, K, upper, forbidden)
@@ -789,14 +742,14 @@ def w1_multistep_paths(
     for k, mid in enumerate(mids):
         masses[:, k + 1] = x[mid]
     xs = [x[fl] for fl in flows]
-    costs = np.array([_flow_cost(geo, xb) for xb in xs])
+    costs = np.array([flow_cost(geo, xb) for xb in xs])
     residual = max(float(np.abs(geo.div @ xb - (masses[:, k] - masses[:, k + 1])).max())
                    for k, xb in enumerate(xs))
     return W1MultistepResult(
         masses=masses,
         value=float(costs.sum()),
         step_costs=costs,
-        flows=np.stack([_flow_vectors(mesh, geo, xb) for xb in xs]),
+        flows=np.stack([flow_vectors(mesh, geo, xb) for xb in xs]),
         iterations=iterations,
         residual=residual,
         converged=_converged(status),

@@ -30,49 +30,16 @@ blocked-solve path is worse (measured: tests/test_emd_pointwise.py, bench/result
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
+from solvers.emd.green_panels import PANEL, GreenMatrix
 from solvers.errors import InputError
 
 #: Largest mesh (vertex count) for which the dense Green's matrix is built
 #: (4·V² bytes: 1.6 GB at 20k vertices).  Larger meshes use blocked Poisson solves.
 GREEN_MAX_VERTICES = 20000
-#: Targets per panel: one contiguous run per vertex row in the face pass.
-PANEL = 32
 _SOLVE_BLOCK = 256  # unit right-hand sides per multi-RHS solve (a multiple of PANEL)
-
-
-@dataclass
-class GreenMatrix:
-    """``L⁺`` of one mesh (component-wise mean-free) as float32 column panels.
-
-    ``panels[b, :, t]`` is column ``b·PANEL + t`` (zero padding past ``n``);
-    ``tri``/``metric`` are the per-face vertex indices and the area-weighted 2×2
-    gradient metrics ``(M00, 2 M01, M11)`` of the face pass.
-    """
-
-    panels: np.ndarray
-    n: int
-    tri: np.ndarray
-    metric: np.ndarray
-    build_seconds: float
-
-    @property
-    def nbytes(self) -> int:
-        return int(self.panels.nbytes)
-
-    def column(self, v: int) -> np.ndarray:
-        """``L⁺[:, v]`` (float32, (V,))."""
-        return self.panels[v // PANEL, :, v % PANEL]
-
-    def target_panels(self, targets: np.ndarray) -> np.ndarray:
-        """Panels holding the columns ``targets`` in order (a copy, zero padded)."""
-        n_t = len(targets)
-        out = np.zeros((-(-n_t // PANEL) * PANEL, self.n), dtype=np.float32)
-        out[:n_t] = self.panels[targets // PANEL, :, targets % PANEL]
-        return np.ascontiguousarray(out.reshape(-1, PANEL, self.n).transpose(0, 2, 1))
 
 
 def face_metric(ops) -> tuple[np.ndarray, np.ndarray]:

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from solvers.emd.flow_geometry import flow_geometry
 from solvers.jit import cached_njit
 from solvers.linalg import factorize_spd, have_pardiso
 
@@ -46,7 +47,7 @@ STEP_FRACTION = 0.99
 
 
 @dataclass
-class _Structure:
+class NormalStructure:
     """Index maps of the normal matrix, built once per (mesh, blocked faces)."""
 
     faces: np.ndarray  # (F, 3) vertices of the faces that carry flow
@@ -57,7 +58,7 @@ class _Structure:
     keep: np.ndarray  # kept vertices (one pinned per component)
 
 
-def _structure(div: sp.csr_matrix, faces: np.ndarray, keep: np.ndarray) -> _Structure:
+def normal_structure(div: sp.csr_matrix, faces: np.ndarray, keep: np.ndarray) -> NormalStructure:
     """Per-face 3×2 blocks of the interleaved divergence ``div`` ``(V, 3 F)`` (columns
     ``3t + 1 + d`` hold tangent coordinate ``d`` of face ``t``) and the CSR slots of the
     normal matrix's face contributions."""
@@ -83,7 +84,7 @@ def _structure(div: sp.csr_matrix, faces: np.ndarray, keep: np.ndarray) -> _Stru
     pattern.sort_indices()
     keys = np.repeat(np.arange(size), np.diff(pattern.indptr)) * size + pattern.indices
     slots = np.searchsorted(keys, rows * size + cols)
-    return _Structure(faces, local, slots, kept, pattern, keep)
+    return NormalStructure(faces, local, slots, kept, pattern, keep)
 
 
 # -- the Lorentz cone Q^3, batched over faces: arrays (F, 3) ------------------------------
@@ -289,15 +290,13 @@ def _backend(backend: str) -> str:
     return backend
 
 
-def flow_structure(mesh):
+def flow_structure(mesh, keep: np.ndarray):
     """``(geometry, structure)`` of the interior-point solve on ``mesh``: tangent frames and
-    interleaved divergence (:func:`solvers.emd.exact._flow_geometry`, all faces), and the
-    normal matrix's pattern.  Built once per mesh (``EMDOperators.interior_point_structure``)."""
-    from solvers.emd.exact import _flow_geometry
-    from solvers.emd.operators import mesh_operators
-
-    geo = _flow_geometry(mesh, np.ones(mesh.n_faces))
-    return geo, _structure(geo.div, np.asarray(mesh.faces)[geo.faces], mesh_operators(mesh)._keep)
+    interleaved divergence (:func:`solvers.emd.flow_geometry.flow_geometry`, all faces), and
+    the normal matrix's pattern on the ``keep`` vertices.  Built once per mesh
+    (``EMDOperators.interior_point_structure``)."""
+    geo = flow_geometry(mesh, np.ones(mesh.n_faces))
+    return geo, normal_structure(geo.div, np.asarray(mesh.faces)[geo.faces], keep)
 
 
 def cone_start(u0: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -353,14 +352,14 @@ def face_blocks(scaling: _Scaling, products: np.ndarray) -> np.ndarray:
     return _face_blocks_kernel(scaling.v, scaling.p, scaling.beta, products)
 
 
-def normal_matrix_data(scaling: _Scaling, st: _Structure) -> np.ndarray:
+def normal_matrix_data(scaling: _Scaling, st: NormalStructure) -> np.ndarray:
     """CSR data (on ``st.pattern``) of the normal matrix ``D W⁻² Dᵀ`` on the kept vertices,
     from a 3×3 block per face."""
     blocks = face_blocks(scaling, local_products(st.local))
     return np.bincount(st.slots, blocks.reshape(-1)[st.kept], minlength=st.pattern.nnz)
 
 
-def _factor_normal(data: np.ndarray, st: _Structure, factor, backend: str):
+def _factor_normal(data: np.ndarray, st: NormalStructure, factor, backend: str):
     """Factor (or refactor in place) the normal matrix with CSR ``data``; None if it is not
     finite."""
     return factor_normal_matrix(
@@ -559,14 +558,14 @@ class InteriorPointOutput:
 def beckmann_interior_point(div: sp.csr_matrix, faces: np.ndarray, weights: np.ndarray,
                             b: np.ndarray, keep: np.ndarray, u0: np.ndarray, tol: float,
                             max_iter: int, monitor, backend: str = "auto",
-                            structure: _Structure | None = None) -> InteriorPointOutput:
+                            structure: NormalStructure | None = None) -> InteriorPointOutput:
     """The primal-dual loop (see the module docstring).
 
     ``div`` ``(V, 3 F)`` interleaved weak divergence, ``faces`` ``(F, 3)`` vertex indices of
     its faces, ``weights`` ``(F,)``, ``b = m0 - m1``, ``keep`` all vertices but one per
     component, ``u0`` ``(F, 2)`` a flow with ``D u0 = b``; ``monitor`` a
     :class:`~solvers.monitor.Monitor` called with the certified relative gap."""
-    st = structure if structure is not None else _structure(div, faces, keep)
+    st = structure if structure is not None else normal_structure(div, faces, keep)
     n_faces = len(faces)
     # primal start: u0 inside the cones; dual start y = 0, z = (w, 0, 0)
     x = cone_start(u0, weights)

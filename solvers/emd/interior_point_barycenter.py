@@ -56,6 +56,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from solvers.emd import interior_point as ip
+from solvers.emd.beckmann import earth_movers_distance
+from solvers.emd.operators import mesh_operators
 from solvers.jit import cached_njit
 from solvers.linalg import PardisoFactor
 
@@ -132,7 +134,7 @@ class _CoupledPattern:
     Block 0 holds every vertex (``full``), blocks 1.. the kept vertices (``kept``); rows
     ``size + i`` are the border's."""
 
-    def __init__(self, full: ip._Structure, kept: ip._Structure, k: int, n: int):
+    def __init__(self, full: ip.NormalStructure, kept: ip.NormalStructure, k: int, n: int):
         self.k, self.n = k, n
         self.sizes = [n] + [len(kept.keep)] * (k - 1)
         self.offsets = np.concatenate([[0], np.cumsum(self.sizes)])
@@ -271,7 +273,7 @@ class _Program:
     """The data of one barycenter program: divergence as per-face ``3 × 2`` blocks
     ``local`` on ``faces``, face weights ``w``, weights ``alpha`` (k,), inputs ``m`` (k, V)."""
 
-    def __init__(self, structure: ip._Structure, w, alpha, m):
+    def __init__(self, structure: ip.NormalStructure, w, alpha, m):
         self.faces, self.w, self.alpha, self.m = structure.faces, w, alpha, m
         self.products = ip.local_products(structure.local)
         self.l0 = np.ascontiguousarray(structure.local[:, :, 0])
@@ -400,7 +402,7 @@ def _pivoting_factor(normal: sp.csr_matrix, failed, backend: str):
     return ip.factor_normal_matrix(normal, None, "splu")
 
 
-def barycenter_interior_point(full: ip._Structure, kept: ip._Structure, w: np.ndarray,
+def barycenter_interior_point(full: ip.NormalStructure, kept: ip.NormalStructure, w: np.ndarray,
                               alpha: np.ndarray, m: np.ndarray, u0: np.ndarray,
                               rho0: np.ndarray, tol: float, max_iter: int, monitor,
                               backend: str = "auto",
@@ -477,9 +479,6 @@ def solve_barycenter_ipm(mesh, M: np.ndarray, alpha: np.ndarray, face_weights: n
     earth_movers_distance`) afterwards.  Returns the fields of a
     :class:`~solvers.emd.exact.W1BarycenterResult` (flows as ``(k, F, 2)`` tangent
     coordinates ``u``, with the operators' ``frames``)."""
-    from solvers.emd.interior_point import _structure
-    from solvers.emd.operators import mesh_operators
-
     ops = mesh_operators(mesh)
     geo, kept = ops.interior_point_structure
     k = M.shape[1]
@@ -489,7 +488,7 @@ def solve_barycenter_ipm(mesh, M: np.ndarray, alpha: np.ndarray, face_weights: n
     if len(positive) == 1:  # the input itself, exactly
         rho, out = m[0].copy(), None
     else:
-        full = _structure(geo.div, kept.faces, np.arange(mesh.n))
+        full = ip.normal_structure(geo.div, kept.faces, np.arange(mesh.n))
         rho0, u0 = _start(ops, mesh, m, geo)
         out = barycenter_interior_point(full, kept, face_weights, alpha[positive], m, u0, rho0,
                                         tol, max_iter, monitor)
@@ -514,8 +513,6 @@ def solve_barycenter_ipm(mesh, M: np.ndarray, alpha: np.ndarray, face_weights: n
 def _zero_weight_distance(mesh, rho, target, face_weights, tol, max_iter, report):
     """W1 from the barycenter to an input of weight 0 (certified interior point); folds
     its convergence into ``report``."""
-    from solvers.emd.beckmann import earth_movers_distance
-
     res = earth_movers_distance(mesh, rho, target, method="ipm", face_weights=face_weights,
                                 tol=tol, max_iter=max_iter)
     report["converged"] = report["converged"] and bool(res.converged)

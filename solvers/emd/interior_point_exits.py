@@ -29,10 +29,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from solvers.emd.interior_point import (
+    NormalStructure,
     _factor_normal,
     _interior,
     _nt_scaling,
-    _Structure,
     certified_loop,
     cone_start,
     mehrotra_step,
@@ -60,7 +60,7 @@ class ExitsOutput:
     converged: bool
 
 
-def _diagonal_slots(st: _Structure, rows: np.ndarray) -> np.ndarray:
+def _diagonal_slots(st: NormalStructure, rows: np.ndarray) -> np.ndarray:
     """CSR data indices of the diagonal entries ``(r, r)`` of ``st.pattern``."""
     indptr, indices = st.pattern.indptr, st.pattern.indices
     return np.array([indptr[r] + int(np.searchsorted(indices[indptr[r]:indptr[r + 1]], r))
@@ -103,7 +103,7 @@ class _ExitNewton:
         return dx, dm, dy, dz, dzm
 
 
-def exits_interior_point(div, st: _Structure, weights, m0, exits, p_diag, u0, m_start,
+def exits_interior_point(div, st: NormalStructure, weights, m0, exits, p_diag, u0, m_start,
                          y_start, tol, max_iter, monitor, backend="auto") -> ExitsOutput:
     """The primal-dual loop (module docstring).  ``div`` (V, 3F) interleaved divergence,
     ``st`` its structure on the kept rows, ``exits`` (S,) vertex indices, ``p_diag`` (S,)

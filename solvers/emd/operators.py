@@ -26,6 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from solvers.emd.interior_point import flow_structure
 from solvers.errors import UnsupportedDomainError
 from solvers.linalg import eigsh, factorize_spd
 
@@ -163,8 +164,9 @@ class EMDOperators:
         return ("emd", "green") in self._store
 
     def green_matrix(self, check=None, max_vertices: int | None = None):
-        """The dense Green's matrix ``L⁺`` (float32 panels, :class:`solvers.emd.green.GreenMatrix`),
-        built on first use (``V`` unit solves with the pinned factor) and kept; ``4 V²`` bytes.
+        """The dense Green's matrix ``L⁺`` (float32 panels,
+        :class:`solvers.emd.green_panels.GreenMatrix`), built on first use (``V`` unit
+        solves with the pinned factor) and kept; ``4 V²`` bytes.
         Concurrent jobs on a cached mesh share one build (the store's lock).
 
         Parameters
@@ -246,9 +248,8 @@ class EMDOperators:
     def interior_point_structure(self):
         """Tangent frames, divergence and normal-matrix pattern of the interior-point W1
         (:func:`solvers.emd.interior_point.flow_structure`), once per mesh."""
-        from solvers.emd.interior_point import flow_structure
-
-        return self._store.get(("emd", "interior_point"), lambda: flow_structure(self.mesh))
+        return self._store.get(("emd", "interior_point"),
+                               lambda: flow_structure(self.mesh, self._keep))
 
     @property
     def rotation_matrix(self) -> sp.csr_matrix:

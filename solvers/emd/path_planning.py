@@ -38,11 +38,9 @@ from solvers.emd.exact import (
     _ConicProgram,
     _converged,
     _face_weights,
-    _flow_cost,
-    _flow_geometry,
-    _flow_vectors,
     _masses,
 )
+from solvers.emd.flow_geometry import flow_cost, flow_geometry, flow_vectors
 from solvers.emd.hodge import HodgeDecomposition, hodge_decomposition
 from solvers.errors import InputError, UnsupportedDomainError
 from solvers.monitor import Monitor, SolverResult
@@ -222,7 +220,7 @@ def _kept_rows(mesh, mask) -> np.ndarray:
 
 
 def _solve_socp(mesh, m0, mask, eps, fw, tol, max_iter, time_limit, progress, should_cancel):
-    geo = _flow_geometry(mesh, fw)
+    geo = flow_geometry(mesh, fw)
     keep = _kept_rows(mesh, mask)
     exits = np.flatnonzero(mask)
     prog = _ConicProgram()
@@ -243,8 +241,8 @@ def _solve_socp(mesh, m0, mask, eps, fw, tol, max_iter, time_limit, progress, sh
     xb = x[flow]
     potential = np.zeros(mesh.n)
     potential[keep] = z[: len(keep)]
-    return {"value": _flow_cost(geo, xb), "target": target,
-            "flow": _flow_vectors(mesh, geo, xb), "potential": potential,
+    return {"value": flow_cost(geo, xb), "target": target,
+            "flow": flow_vectors(mesh, geo, xb), "potential": potential,
             "iterations": iterations, "status": status, "converged": _converged(status),
             "residual": float(np.abs(geo.div @ xb - (m0 - target)).max()),
             "solve_time": elapsed}
@@ -273,7 +271,7 @@ def _solve_ipm(mesh, m0, mask, eps, fw, tol, max_iter, time_limit, progress, sho
     import time
 
     from solvers.emd.beckmann import IPM_PATIENCE
-    from solvers.emd.interior_point import _structure
+    from solvers.emd.interior_point import normal_structure
     from solvers.emd.interior_point_exits import exits_interior_point
     from solvers.emd.operators import mesh_operators
 
@@ -284,7 +282,7 @@ def _solve_ipm(mesh, m0, mask, eps, fw, tol, max_iter, time_limit, progress, sho
     used[exits] = True
     keep = _kept_rows(mesh, used)
     geo, _ = ops.interior_point_structure
-    st = _structure(geo.div, np.asarray(mesh.faces), keep)
+    st = normal_structure(geo.div, np.asarray(mesh.faces), keep)
     tol = IPM_TOL if tol is None else float(tol)
     monitor = Monitor(progress, should_cancel, tol=tol, patience=IPM_PATIENCE)
     out = exits_interior_point(geo.div, st, fw, m0, exits, 2.0 * eps / mesh.areas[exits], u0,

@@ -24,6 +24,7 @@ Prop. 16, §5.3.3       :mod:`.diffusion` — :func:`diffuse_histograms` (implic
 §5.6 (evaluation)      :mod:`.summaries` — mean, std, entropy, mode, circular mean/std,
                        W1 between histograms; :mod:`.features` — per-vertex histograms of
                        mean curvature / principal-direction angle over geodesic balls
+                       (the curvatures: :mod:`solvers.curvature`)
 =====================  ================================================================
 """
 

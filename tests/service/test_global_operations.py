@@ -9,7 +9,7 @@ from pydantic import Field
 from service_testing import assert_error
 
 from service.errors import NotFound
-from service.jobs.service import JobService
+from service.job_service import JobService
 from service.operations import Operation, OperationOutput, ResultFile, build_registry
 from service.operations.base import OperationRequest
 

@@ -163,7 +163,7 @@ def race_one_key(rt, tenant: str, domain_id: str, threads: int = 4) -> list[str]
     look-up before any inserts (a barrier), so every insert but one hits the key's unique
     constraint; returns the job ids they got."""
     from service.idempotency import Idempotency, fingerprint
-    from service.jobs.service import JobService
+    from service.job_service import JobService
     from service.operations.transport import DistanceRequest
     from service.tenants import Tenant
 

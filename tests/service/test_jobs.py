@@ -59,7 +59,7 @@ def _grid(client, shape=(6, 6)) -> str:
 
 def _submit(client, domain_id, **params):
     """Create a test-loop job through the service layer (no HTTP route for test ops)."""
-    from service.jobs.service import JobService
+    from service.job_service import JobService
 
     rt = client.app.state.runtime
     rt.operations[LOOP_OP.name] = LOOP_OP  # test-only operation, no HTTP route

@@ -19,11 +19,11 @@ from service.jobs.queue import (
     TASK_STRING,
     JsonSerializer,
     UnsafeMessage,
-    estimate_cost,
     make_huey,
     queue_for_cost,
     register_task,
 )
+from service.operations.cost import estimate_cost
 from service.runtime import Runtime
 from service.settings import Settings
 

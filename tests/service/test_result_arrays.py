@@ -11,7 +11,7 @@ import pytest
 from service_testing import assert_error
 
 from service.export import json_bytes, result_document, to_jsonable
-from service.jobs.service import JobService
+from service.job_service import JobService
 from service.operations.base import (
     BumpDistribution,
     Operation,

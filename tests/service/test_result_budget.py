@@ -25,7 +25,7 @@ from pydantic import ValidationError
 from service.app import create_app
 from service.errors import ApiError
 from service.export import NPY_MEDIA_TYPE, to_jsonable
-from service.jobs.service import JobService
+from service.job_service import JobService
 from service.operations import build_registry
 from service.operations.base import SubmitContext, view_of_info
 from service.settings import Settings

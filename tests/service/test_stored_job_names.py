@@ -9,8 +9,8 @@ import time
 import pytest
 
 from service.domains import DomainService
+from service.job_service import JobService
 from service.jobs.db import QUEUED, SUCCEEDED, JobRow
-from service.jobs.service import JobService
 from service.renames import DECISION, PARAMS, SOLVER_ARGUMENTS, current_decision
 from service.runtime import Runtime
 from service.schemas import GridSpec, JobOut

@@ -213,7 +213,7 @@ def test_a_job_cannot_use_another_tenants_domain_or_images(two_tenants):
                           "mu1": {"vertex": 10, "radius": 0.3}})
     assert_error(r, 404, "domain_id")
     # the images of beta's color transfer are beta's blobs: alpha cannot name them
-    from service.jobs.service import JobService
+    from service.job_service import JobService
     from service.operations.color import ColorTransferRequest
     from service.tenants import Tenant
 

@@ -11,8 +11,8 @@ import time
 import pytest
 
 from service.domains import DomainService
+from service.job_service import JobService
 from service.jobs.db import JOBS
-from service.jobs.service import JobService
 from service.jobs.wake import JobWaiters, WakeSender, WakeSocket
 from service.operations import build_registry
 from service.runtime import Runtime
@@ -145,7 +145,7 @@ def test_only_bounded_small_submissions_run_on_the_loop(tmp_path, monkeypatch):
     """An explicit gamma (no automatic choice) on a small domain: on the loop; the automatic
     decision (exact-route estimate, regularization policy), route 'exact', W1 or a domain
     above LOOP_SUBMISSION_POINTS: in the thread pool."""
-    import service.jobs.service as jobs_service
+    import service.job_service as jobs_service
 
     rt, domain_id = _grid_runtime(tmp_path)
     try:
@@ -195,8 +195,8 @@ def test_insert_that_would_wait_for_the_write_lock_is_handed_on(tmp_path):
     validated job, written by ``record`` once the lock is free (in the thread pool)."""
     import sqlite3
 
+    from service.job_service import PendingJob
     from service.jobs.db import WriteBusy
-    from service.jobs.service import PendingJob
 
     rt, domain_id = _grid_runtime(tmp_path)
     other = sqlite3.connect(rt.repo.engine.url.database, isolation_level=None)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from liveserver import Worker, stop_all, wait_for
 
-from service.jobs.service import JobService
+from service.job_service import JobService
 from service.operations.base import Operation, OperationOutput, OperationRequest
 from service.warm import WARM_STAGE
 

@@ -1,4 +1,5 @@
-"""Job submission and observation (what the API routers call)."""
+"""Job submission and observation (what the API routers call): the application layer over
+the runtime, the job machinery of :mod:`service.jobs` and the operations."""
 
 from __future__ import annotations
 
@@ -9,16 +10,18 @@ import uuid
 import numpy as np
 from sqlalchemy.exc import IntegrityError
 
+from service.domains import DomainService
 from service.errors import Conflict, NotFound
 from service.idempotency import Idempotency
 from service.jobs.db import QUEUED, TERMINAL, JobRow, WriteBusy
-from service.jobs.queue import estimate_cost, queue_for_cost
+from service.jobs.queue import queue_for_cost
 from service.operations.base import (
     OperationRequest,
     SubmitContext,
     check_job_memory,
     view_of_info,
 )
+from service.operations.cost import estimate_cost
 from service.runtime import Runtime
 from service.store import IN_ROW
 from service.tenants import ANONYMOUS, Tenant, check_queued_quota
@@ -62,8 +65,6 @@ class JobService:
 
     @property
     def domains(self):
-        from service.domains import DomainService
-
         return DomainService(self.rt, self.tenant)
 
     def create(self, operation: str, domain_id: str | None, request: OperationRequest,
