@@ -13,9 +13,10 @@ import robust_laplacian
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
+from solvers import geodesics
 from solvers.domains.base import Domain, ExportGeometry, check_laplacian_name
 from solvers.errors import DomainError, InputError, MeshFormatError
-from solvers.geodesics import all_pairs_geodesics, geodesic_distances, mmp_solve_seconds
+from solvers.geodesics import geodesic_distances, mmp_solve_seconds
 from solvers.heat_geodesics import all_pairs_heat_distances
 from solvers.kernels import (
     GEODESIC_KERNEL_VERTICES,
@@ -779,11 +780,12 @@ class TriangleMesh(Domain):
             return None
         def build():
             if self.artifacts is None:
-                return all_pairs_geodesics(self, should_cancel=should_cancel)
+                return geodesics.all_pairs_geodesics(self, should_cancel=should_cancel)
             stored = self.artifacts.get(GEODESICS_ARTIFACT)
             if stored is not None:
                 return stored
-            d = all_pairs_geodesics(self, dtype=np.float32, should_cancel=should_cancel)
+            d = geodesics.all_pairs_geodesics(self, dtype=np.float32,
+                                              should_cancel=should_cancel)
             try:
                 self.artifacts.put(GEODESICS_ARTIFACT, d)
             except OSError:  # not storable (disk full, read-only): this process keeps them

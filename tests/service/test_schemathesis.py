@@ -131,6 +131,9 @@ UNSTATABLE = [
             r"mesh format|[A-Z]+ file is binary data|not a valid|could not be read"
             r"|could not (read|parse) the [A-Z]+ file|the uploaded file is empty"
             r"|no triangles|non-degenerate faces|is not an image file|must be a JSON list"),
+    Allowed("a direction of non-zero length (a 3-vector whose norm, not its entries, is "
+            "bounded below; JSON Schema bounds entries only)", r"POST /v1/brdf-interpolations",
+            422, r"light must be a non-zero direction"),
     Allowed("OTGEO_MAX_VERTICES, a deployment setting (for a grid: the axes' product)",
             r"POST /v1/domains", 413, r"more than the limit of|points exceed the limit of"),
 ]
