@@ -320,6 +320,9 @@ def warm() -> None:
         for mode in ("split", "barycentric"):
             req = ColorTransferRequest(images=list(ctx.blobs), mode=mode, bins=16)
             run(ctx, req, lambda *progress: None, lambda: False)
+        # a split onto one input exactly (alphas [[0, 1]]) remaps within the nodes too
+        req = ColorTransferRequest(images=list(ctx.blobs), alphas=[[0.0, 1.0]], bins=16)
+        run(ctx, req, lambda *progress: None, lambda: False)
 
 
 OPERATIONS = [
