@@ -47,7 +47,7 @@ mu0 = mesh.areas * (z > np.quantile(z, 0.8))
 mu1 = mesh.areas * (z < np.quantile(z, 0.2))
 result = wasserstein_distance(mesh, mu0, mu1)
 assert np.isfinite(result.value) and result.value > 0, result
-print(f"library: W2^2 = {{result.value:.4f}} ({{result.route}}) on {{len(mesh.vertices)}} vertices")
+print(f"library: W2^2 = {{result.value:.4f}} ({{result.method}}) on {{mesh.n}} vertices")
 """
 
 

@@ -11,7 +11,7 @@ sine wave around the cycle, plus noise.  The gradient flow of the Wasserstein Di
 energy :math:`\\sum_{(u,v)} W_2^2(\\mu_u, \\mu_v)` is the heat equation applied to the
 *inverse CDFs*, level by level (thesis Prop. 16); the naive alternative runs the heat
 equation on the *densities* bin by bin.  :func:`solvers.histograms.diffuse_histograms`
-does both (``route="wasserstein"`` or ``route="pdf"``) with implicit heat steps.
+does both (``method="wasserstein"`` or ``method="pdf"``) with implicit heat steps.
 
 **What to look for.** Both routes smooth the noisy means identically (the means obey the
 same heat equation).  Density diffusion mixes neighbouring histograms: by :math:`t = 20`
@@ -37,11 +37,11 @@ h0 = np.exp(-0.5 * ((bins.centers[None, :] - means[:, None]) / 0.03) ** 2)
 h0 /= h0.sum(axis=1, keepdims=True)
 
 times = [0.0, 2.0, 20.0]
-runs = {route: diffuse_histograms(graph, h0, times, bins=bins, route=route)
-        for route in ("pdf", "wasserstein")}
-for route, r in runs.items():
+runs = {method: diffuse_histograms(graph, h0, times, bins=bins, method=method)
+        for method in ("pdf", "wasserstein")}
+for method, r in runs.items():
     s = std(r.histograms[-1], bins)
-    print(f"{route:12s} t = {times[-1]:g}: std {s.mean():.3f} (start {std(h0, bins).mean():.3f}),"
+    print(f"{method:12s} t = {times[-1]:g}: std {s.mean():.3f} (start {std(h0, bins).mean():.3f}),"
           f" mean roughness {np.abs(np.diff(mean(r.histograms[-1], bins))).mean():.4f} "
           f"(start {np.abs(np.diff(means)).mean():.4f}), mass error {r.residual:.0e}")
 
@@ -50,13 +50,13 @@ top = max(r.histograms.max() for r in runs.values()) / width
 fig, axes = plt.subplots(2, 4, figsize=(15, 7), layout="constrained",
                          gridspec_kw={"width_ratios": [1, 1, 1, 1.2]})
 names = {"pdf": "density diffusion", "wasserstein": "Wasserstein diffusion"}
-for row, (route, r) in enumerate(runs.items()):
+for row, (method, r) in enumerate(runs.items()):
     for col, t in enumerate(times):
         ax = axes[row, col]
         im = ax.imshow(r.histograms[col].T / width, origin="lower", aspect="auto",
                        extent=(-0.5, n - 0.5, 0, 1), cmap="magma_r", vmin=0, vmax=top)
         ax.plot(np.arange(n), mean(r.histograms[col], bins), color="tab:cyan", lw=0.8, ls=":")
-        ax.set_title(f"{names[route]}, t = {t:g}", fontsize=10)
+        ax.set_title(f"{names[method]}, t = {t:g}", fontsize=10)
         if row == 1:
             ax.set_xlabel("node (around the cycle)")
         if col == 0:
@@ -66,8 +66,8 @@ fig.colorbar(im, ax=axes[:, 2], shrink=0.8, label="density")
 ax = axes[0, 3]
 node = 40
 ax.plot(bins.centers, h0[node] / width, "k--", label="t = 0")
-for route, r in runs.items():
-    ax.plot(bins.centers, r.histograms[-1, node] / width, label=f"{names[route]}, t = 20")
+for method, r in runs.items():
+    ax.plot(bins.centers, r.histograms[-1, node] / width, label=f"{names[method]}, t = 20")
 ax.set_ylim(0, None)
 ax.set_title(f"node {node}", fontsize=10)
 ax.set_xlabel("value")
@@ -76,8 +76,8 @@ ax.legend(fontsize=8)
 
 ax = axes[1, 3]
 ax.plot(std(h0, bins), "k--", label="t = 0")
-for route, r in runs.items():
-    ax.plot(std(r.histograms[-1], bins), label=f"{names[route]}, t = 20")
+for method, r in runs.items():
+    ax.plot(std(r.histograms[-1], bins), label=f"{names[method]}, t = 20")
 ax.set_ylim(0, None)
 ax.set_xlabel("node")
 ax.set_ylabel("standard deviation")
