@@ -772,10 +772,12 @@ class TriangleMesh(Domain):
         return geodesic_distances(self, src, dst, should_cancel=should_cancel), False
 
     def stored_ground_distances(self, should_cancel=None) -> tuple[np.ndarray, bool] | None:
-        """All-pairs exact geodesics, kept up to :data:`STORED_GEODESICS_VERTICES`: read
-        from the domain's :attr:`artifacts` where it has them (float32, memory-mapped), else
-        computed in parallel over the sources (:func:`solvers.geodesics.
-        all_pairs_geodesics`) and, with an artifact store, stored there as float32."""
+        """All-pairs exact geodesics, kept up to :data:`STORED_GEODESICS_VERTICES`.
+
+        Read from the domain's :attr:`artifacts` where it has them (float32, memory-mapped),
+        else computed in parallel over the sources
+        (:func:`~solvers.geodesics.all_pairs_geodesics`) and, with an artifact store, stored
+        there as float32."""
         if self.n > STORED_GEODESICS_VERTICES:
             return None
         def build():
