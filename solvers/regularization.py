@@ -115,7 +115,25 @@ class Regularization:
         method : str
             The kernel that ran (``"geodesic"`` drops ``substeps``).
         """
-        return replace(self, substeps=None) if method == "geodesic" else self
+        return replace(self, substeps=kernel_substeps(method, self.substeps))
+
+
+def kernel_substeps(method: str, substeps: int | None) -> int | None:
+    """The implicit-Euler substeps the shape kernel ``method`` runs: ``substeps`` for the
+    heat kernel (``"convolutional"``), None for the geodesic kernel, which has none.
+
+    Parameters
+    ----------
+    method : str
+        The shape kernel (``"geodesic"`` or ``"convolutional"``).
+    substeps : int or None
+        The substeps chosen for the heat kernel.
+
+    Returns
+    -------
+    int or None
+    """
+    return None if method == "geodesic" else substeps
 
 
 def sketch_of(domain) -> DomainSketch:

@@ -45,7 +45,14 @@ from solvers.emd.green import GREEN_MAX_VERTICES
 from solvers.emd.pointwise import check_cost
 from solvers.errors import InputError
 from solvers.kernels import GEODESIC_KERNEL_VERTICES
-from solvers.regularization import shape_method, shape_regularization
+from solvers.regularization import (
+    Regularization as RegularizationChoice,
+)
+from solvers.regularization import (
+    kernel_substeps,
+    shape_method,
+    shape_regularization,
+)
 from solvers.validation import (
     GAMMA_MIN,
     check_anchored,
@@ -300,13 +307,14 @@ def _optional(req) -> dict:
     return {k: getattr(req, k) for k in ("tol", "max_iter") if getattr(req, k) is not None}
 
 
-def shape_kwargs(domain, req, progress, should_cancel) -> tuple[dict, dict | None]:
+def shape_kwargs(domain, req, progress, should_cancel
+                 ) -> tuple[dict, RegularizationChoice | None]:
     """Solver arguments of the shape operations and the policy's choice (None when the
     request gave gamma): gamma/substeps left out go through the "shapes" policy."""
     reg, gamma, substeps = shape_regularization(domain, req.gamma, None, req.substeps)
     kwargs = {"gamma": float(gamma), "substeps": int(substeps), **_optional(req),
               "progress": progress, "should_cancel": should_cancel}
-    return kwargs, None if reg is None else reg.as_dict()
+    return kwargs, reg
 
 
 def _w1(domain, masses, req, progress, should_cancel):
@@ -315,13 +323,11 @@ def _w1(domain, masses, req, progress, should_cancel):
                                  should_cancel=should_cancel, **_optional(req))
 
 
-def as_ran(kwargs: dict, reg: dict | None, method: str) -> dict:
-    """``gamma``, ``substeps`` and ``regularization`` values of a shape job as its kernel ran
-    them: the geodesic kernel has no substeps (null)."""
-    substeps = None if method == "geodesic" else kwargs["substeps"]
-    if reg is not None:
-        reg = {**reg, "substeps": substeps}
-    return {"gamma": kwargs["gamma"], "substeps": substeps, "regularization": reg}
+def as_ran(kwargs: dict, reg: RegularizationChoice | None, method: str) -> dict:
+    """``gamma``, ``substeps`` and ``regularization`` values of a shape job as its kernel
+    ``method`` ran them (the library's rule: the geodesic kernel has no substeps)."""
+    return {"gamma": kwargs["gamma"], "substeps": kernel_substeps(method, kwargs["substeps"]),
+            "regularization": None if reg is None else reg.for_kernel(method).as_dict()}
 
 
 def _convergence(result) -> dict:

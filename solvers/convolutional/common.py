@@ -24,6 +24,7 @@ from solvers.errors import InputError
 from solvers.kernels import heat_time
 from solvers.linalg import Backend
 from solvers.monitor import Monitor
+from solvers.regularization import kernel_substeps
 from solvers.validation import check_gamma, check_positive, normalize_masses
 
 # Width (in natural-log units) of one band of a log-domain kernel application for
@@ -262,8 +263,9 @@ def prepare(domain, *, gamma, t, substeps, tol, max_iter, progress, should_cance
         raise InputError("progress must be callable", field="progress")
     if should_cancel is not None and not callable(should_cancel):
         raise InputError("should_cancel must be callable", field="should_cancel")
-    if method == "geodesic":
-        kernel, substeps = domain.geodesic_kernel(t), None
+    substeps = kernel_substeps(method, substeps)
+    if substeps is None:
+        kernel = domain.geodesic_kernel(t)
     else:
         kernel = domain.heat_kernel(t, substeps, backend)
     return Setup(gamma, t, substeps, tol, max_iter, kernel, LogKernel(kernel),
