@@ -252,7 +252,26 @@ class Domain:
 
     @property
     def geodesic_kernel_available(self) -> bool:
-        """Whether :meth:`geodesic_kernel` is offered (method ``"geodesic"``)."""
+        """Whether :meth:`geodesic_kernel` is offered (method ``"geodesic"``): the kind's
+        rule (:meth:`offers_geodesic_kernel`) on this domain's size and components."""
+        return self.offers_geodesic_kernel(self.n, self.n_components)
+
+    @classmethod
+    def offers_geodesic_kernel(cls, n: int, n_components: int) -> bool:
+        """Whether a domain of this kind with ``n`` points in ``n_components`` connected
+        components offers :meth:`geodesic_kernel` (none but triangle meshes do).
+
+        Parameters
+        ----------
+        n : int
+            Number of points (vertices).
+        n_components : int
+            Number of connected components.
+
+        Returns
+        -------
+        bool
+        """
         return False
 
     @classmethod

@@ -736,12 +736,23 @@ class TriangleMesh(Domain):
     def _build_heat_kernel(self, t: float, substeps: int, backend: Backend):
         return ImplicitEulerHeatKernel(self.areas, self.laplacian, t, substeps, backend)
 
-    @property
-    def geodesic_kernel_available(self) -> bool:
-        """Whether :meth:`geodesic_kernel` is offered: one connected surface (the heat
-        method gives no distance between components, and the kernel must not couple them) of
-        at most :data:`GEODESIC_KERNEL_VERTICES` vertices."""
-        return self.n <= GEODESIC_KERNEL_VERTICES and self.n_components == 1
+    @classmethod
+    def offers_geodesic_kernel(cls, n: int, n_components: int) -> bool:
+        """One connected surface (the heat method gives no distance between components, and
+        the kernel must not couple them) of at most :data:`GEODESIC_KERNEL_VERTICES` vertices.
+
+        Parameters
+        ----------
+        n : int
+            Number of vertices.
+        n_components : int
+            Number of connected components.
+
+        Returns
+        -------
+        bool
+        """
+        return n <= GEODESIC_KERNEL_VERTICES and n_components == 1
 
     @classmethod
     def geodesic_kernel_bytes(cls, n: int) -> int:

@@ -25,8 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from solvers.domains import kind_supports
-from solvers.kernels import GEODESIC_KERNEL_VERTICES
+from solvers.domains import DOMAIN_CLASSES, kind_supports
 
 _SKETCHES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
@@ -63,10 +62,10 @@ class DomainSketch:
     @property
     def geodesic_kernel_available(self) -> bool:
         """Whether the domain offers the geodesic Gaussian kernel (method ``"geodesic"``):
-        connected triangle meshes up to ``GEODESIC_KERNEL_VERTICES`` vertices (as
-        ``TriangleMesh.geodesic_kernel_available``)."""
-        return (self.kind == "mesh" and self.n <= GEODESIC_KERNEL_VERTICES
-                and bool(np.all(self.component_labels == self.component_labels[0])))
+        its kind's rule (``Domain.offers_geodesic_kernel``) on the sketched size."""
+        cls = DOMAIN_CLASSES.get(self.kind)
+        components = len(np.unique(self.component_labels))
+        return cls is not None and cls.offers_geodesic_kernel(self.n, components)
 
     # -- construction ---------------------------------------------------------------
     @classmethod
