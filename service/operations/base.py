@@ -331,7 +331,8 @@ class Operation:
     # ``service.operations.cost.estimate_cost``, points x iterations x distributions)
     estimate_cost: Callable[..., float] | None = None
     # the request field a 413 names, from (view or SubmitContext, request): the field of the
-    # larger part of the memory estimate (default: the first size-giving field present)
+    # larger part of the memory estimate, or None for the default (the first size-giving
+    # field present)
     size_field: Callable[..., str | None] | None = None
     # progress counts items (pairs, problems) with their own fraction, not iterations: the
     # request's max_iter bounds each item, not the count
@@ -645,9 +646,8 @@ def check_job_memory(op: Operation, view: DomainView | SubmitContext, req, limit
 
     estimate = job_memory_estimate(op, view, req)
     if estimate is not None and estimate > limit:
-        field = next((f for f in SIZE_FIELDS if getattr(req, f, None)), None)
-        if op.size_field is not None:
-            field = op.size_field(view, req)
+        field = ((op.size_field and op.size_field(view, req))
+                 or next((f for f in SIZE_FIELDS if getattr(req, f, None)), None))
         advice = ("use method 'convolutional' (no dense kernel) or a coarser domain"
                   if field == "method" else "use fewer points or columns")
         raise PayloadTooLarge(f"this job would need about {estimate / 2**30:.3g} GiB of "

@@ -12,7 +12,6 @@ from service.errors import InvalidInput
 from service.operations.base import (
     COST_PER_SECOND,
     REQUEST_CONFIG,
-    SIZE_FIELDS,
     Distribution,
     DomainView,
     Int,
@@ -498,11 +497,10 @@ def shape_bytes(view: DomainView, req) -> int:
     return estimate_job_bytes(view, req) + kernel_bytes(view, req)
 
 
-def shape_size_field(view: DomainView, req) -> str:
-    """The field a 413 names: ``method`` where the kernel's matrices are the larger part."""
-    if kernel_bytes(view, req) > estimate_job_bytes(view, req):
-        return "method"
-    return next((f for f in SIZE_FIELDS if getattr(req, f, None)), None)
+def shape_size_field(view: DomainView, req) -> str | None:
+    """``method`` where the kernel's matrices are the larger part of the estimate (a 413
+    names it); None leaves the request's own size field (``check_job_memory``'s rule)."""
+    return "method" if kernel_bytes(view, req) > estimate_job_bytes(view, req) else None
 
 
 def _barycenter_inputs(view: DomainView, req: BarycenterRequest):
