@@ -38,6 +38,7 @@ lint: install
 	$(VENV)/bin/ruff check .
 
 bench: install
+	$(PY) -m pip install -q -e '.[bench]'
 	$(PY) bench/operators.py
 
 openapi: install
