@@ -124,6 +124,6 @@ plt.show()
 # truth" has some Dirichlet energy of its own from the rounding).  The torn and folded
 # maps are made here to show one defect each.  The soft maps are heat-blurred point maps
 # over 100 source samples at the library's default blur, and :math:`W_2^2` is the
-# linearized one of the transportation potential (eq. 4.3, ``dirichlet_method=
-# "potential"``), not the convolutional distance the Fig. 4.6 entry uses; the values
-# carry that discretization and the blur's share.
+# linearized one of the transportation potential (eq. 4.3,
+# ``dirichlet_method="potential"``), not the convolutional distance the Fig. 4.6 entry
+# uses; the values carry that discretization and the blur's share.
