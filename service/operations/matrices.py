@@ -10,6 +10,12 @@ deterministic per-pair decision in the library and is checked against the record
 sharing a heat kernel run as one multi-column block, exact pairs share one geodesic cost
 matrix.  Progress counts pairs; a cancelled (or timed-out) job keeps the
 entries finished so far as its result (``complete: false``, ``finished_rows``).
+
+A W2 matrix of more than one block (``decision["blocks"]``: row ranges, :func:`row_blocks`)
+fans out over the workers (service.jobs.fanout): each block is a job of its own computing
+its rows (``distance_matrix(..., rows=...)``), the job merges them (:func:`merge_blocks`).
+Memory is estimated for the whole matrix and per block (``matrix_bytes``, ``block_bytes``);
+a fanned-out job is refused beyond the larger of its largest block and the merge.
 """
 
 from __future__ import annotations
