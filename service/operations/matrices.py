@@ -626,11 +626,11 @@ def _run_fanned(req, reports, progress, should_cancel, decision: dict, fanout
     try:
         finished = fanout.run(children, progress, should_cancel, decision["pairs"])
     except CancelledError as exc:
-        parts = [fanout.result(row) for row in getattr(exc, "blocks", [])]
+        parts = (fanout.result(row) for row in getattr(exc, "blocks", []))
         exc.partial_output = _output(merge_blocks(n, m, req.others is None, parts), reports,
                                      False, decision)
         raise
-    res = merge_blocks(n, m, req.others is None, [fanout.result(r) for r in finished])
+    res = merge_blocks(n, m, req.others is None, (fanout.result(r) for r in finished))
     output = _output(res, reports, True, decision)
     _check_ran_as_decided(output.values, decision)
     return output
