@@ -344,16 +344,24 @@ def exact_working_bytes(view: DomainView, req: DistanceMatrixRequest,
     the distributions' support sizes: ``EXACT_THREADS`` LPs of the largest pair (a fixed
     cap, not this machine's CPUs, so every process estimates the same); ``block``: of
     the rows ``[start, stop)`` only (their pairs: all of them, bounding the block's)."""
-    rows, others, _ = _inputs(view, req)
-    in_cols = (rows if others is None else others) > 0
+    rows, _, _ = _inputs(view, req)
+    col_sizes, covered_cols = view.per_request("distance-matrix column supports", req,
+                                               lambda: _column_supports(view, req))
     in_rows = rows > 0 if block is None else rows[:, block[0]:block[1]] > 0
     row_sizes = np.count_nonzero(in_rows, axis=0).tolist()
-    col_sizes = np.count_nonzero(in_cols, axis=0).tolist()
-    covered = (int(np.count_nonzero(in_rows.any(axis=1))),
-               int(np.count_nonzero(in_cols.any(axis=1))))
+    covered = (int(np.count_nonzero(in_rows.any(axis=1))), covered_cols)
     # the distances' columns: every point where the stored all-pairs ones may serve
     width = int(view.n) if prefers_stored_distances(view.n, *covered) else covered[1]
     return exact_route_bytes(row_sizes, col_sizes, width, _sizes(req)[2])
+
+
+def _column_supports(view: DomainView, req: DistanceMatrixRequest) -> tuple[list[int], int]:
+    """The columns' support sizes and the points they cover (once per request: every
+    block's estimate shares them)."""
+    rows, others, _ = _inputs(view, req)
+    in_cols = (rows if others is None else others) > 0
+    return (np.count_nonzero(in_cols, axis=0).tolist(),
+            int(np.count_nonzero(in_cols.any(axis=1))))
 
 
 def ground_distance_bytes(view: DomainView) -> int:
