@@ -41,6 +41,7 @@ class Runtime:
         self.huey = self.hueys["short"]
         self.runner = JobRunner(settings, self.store, self.repo, self.cache, self.operations)
         self.tasks = {q: register_task(h, self.runner.run) for q, h in self.hueys.items()}
+        self.runner.enqueue = self.enqueue  # a fanned-out job's blocks (service.jobs.fanout)
         self.task = self.tasks["short"]
         self.broker_watch = BrokerWatch(settings, self.repo, self.hueys, self.enqueue)
         self.reaper = Reaper(settings, self.repo, self.enqueue, self.store, self.broker_watch,

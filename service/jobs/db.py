@@ -79,6 +79,9 @@ class JobRow(Base):
     decision: Mapped[dict | None] = mapped_column(JSON, nullable=True)
     # who submitted it (service.tenants); NULL for jobs from before tenants: admin-only
     tenant: Mapped[str | None] = mapped_column(String(64), nullable=True, index=True)
+    # a block of a job fanned out over the workers (service.jobs.fanout): the job it is part
+    # of; NULL for a job submitted through the API (only those are listed)
+    parent: Mapped[str | None] = mapped_column(String(32), nullable=True, index=True)
 
 
 class WorkerRow(Base):
@@ -97,8 +100,8 @@ JOBS = JobRow.__table__
 # columns added after the first release: created on an existing table at start-up
 ADDED_COLUMNS = {"fraction": "FLOAT", "queue": "VARCHAR(16)", "cost": "FLOAT",
                  "decision": "JSON", "tenant": "VARCHAR(64)", "result": "JSON",
-                 "stage": "VARCHAR(160)"}
-ADDED_INDEXES = {"tenant": "ix_jobs_tenant"}
+                 "stage": "VARCHAR(160)", "parent": "VARCHAR(32)"}
+ADDED_INDEXES = {"tenant": "ix_jobs_tenant", "parent": "ix_jobs_parent"}
 
 
 def worker_identity() -> str:
@@ -305,7 +308,8 @@ class JobRepository:
         ``(created_at, id)`` of the last job of the previous page (cursor paging);
         ``tenant``: only that tenant's jobs (None: every job)."""
         listed = [c for c in JOBS.c if c.name != "result"]  # pages show no results
-        q = select(*listed).order_by(JOBS.c.created_at.desc(), JOBS.c.id.desc()).limit(limit)
+        q = (select(*listed).where(JOBS.c.parent.is_(None))  # blocks: part of their parent
+             .order_by(JOBS.c.created_at.desc(), JOBS.c.id.desc()).limit(limit))
         if tenant is not None:
             q = q.where(JOBS.c.tenant == tenant)
         if state:
@@ -403,13 +407,34 @@ class JobRepository:
             state=QUEUED, attempts=attempt - 1, worker=None, enqueued_at=time.time(),
             heartbeat_at=None))
 
+    # -- blocks of a fanned-out job (service.jobs.fanout) ----------------------
+    def children(self, parent: str) -> list[JobRow]:
+        """The blocks of job ``parent`` (without their results), in id order."""
+        listed = [c for c in JOBS.c if c.name != "result"]
+        q = select(*listed).where(JOBS.c.parent == parent).order_by(JOBS.c.id)
+        with self.engine.connect() as conn:
+            return [JobRow(**row) for row in conn.execute(q).mappings()]
+
+    def create_missing(self, jobs: list[JobRow]) -> list[JobRow]:
+        """Insert those of ``jobs`` whose id is not in the table yet (one transaction);
+        returns the inserted ones (a re-run of the parent finds its earlier blocks)."""
+        ids = [j.id for j in jobs]
+        with self.engine.begin() as conn:
+            present = set(conn.execute(select(JOBS.c.id).where(JOBS.c.id.in_(ids))).scalars())
+            new = [j for j in jobs if j.id not in present]
+            for job in new:
+                conn.execute(_insert_statement(JOBS), _column_values(job, JOBS))
+        return new
+
     # -- API side --------------------------------------------------------
     def request_cancel(self, job_id: str) -> JobRow | None:
-        """Cancel a queued job at once; flag a running one (the worker stops it)."""
+        """Cancel a queued job at once; flag a running one (the worker stops it); the same
+        for its blocks (a fanned-out job's, service.jobs.fanout)."""
         now = time.time()
-        self._update((JobRow.id == job_id, JobRow.state == QUEUED), state=CANCELLED,
-                     cancel_requested=True, finished_at=now, duration=0.0)
-        self._update((JobRow.id == job_id, JobRow.state == RUNNING), cancel_requested=True)
+        for this in (JobRow.id == job_id, JobRow.parent == job_id):
+            self._update((this, JobRow.state == QUEUED), state=CANCELLED,
+                         cancel_requested=True, finished_at=now, duration=0.0)
+            self._update((this, JobRow.state == RUNNING), cancel_requested=True)
         return self.get(job_id)
 
     # -- reaper ----------------------------------------------------------

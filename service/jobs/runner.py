@@ -15,6 +15,7 @@ from service import warm
 from service.cache import OperatorCache
 from service.errors import ApiError, error_dict
 from service.jobs.db import CANCELLED, FAILED, SUCCEEDED, JobRepository, worker_identity
+from service.jobs.fanout import FanOut
 from service.operations.base import RunContext
 from service.renames import current_decision, current_params
 from service.settings import Settings
@@ -48,17 +49,18 @@ def _failure_error(job_id: str, exc: Exception) -> dict:
 
 
 class _Beater:
-    """One background thread per worker refreshing the running job's heartbeat (also during
-    long single steps); no thread is started or joined per job."""
+    """One background thread per worker refreshing the running jobs' heartbeats (also during
+    long single steps); no thread is started or joined per job.  A job may run another inside
+    it (a block of a fanned-out job, service.jobs.fanout): both beat."""
 
     def __init__(self):
         self._lock = threading.Lock()
-        self._current: _Heartbeat | None = None
+        self._current: list[_Heartbeat] = []
         self._thread: threading.Thread | None = None
 
     def attach(self, hb: _Heartbeat) -> None:
         with self._lock:
-            self._current = hb
+            self._current.append(hb)
             if self._thread is None:
                 self._thread = threading.Thread(target=self._loop, daemon=True,
                                                 name="heartbeat")
@@ -66,17 +68,20 @@ class _Beater:
 
     def detach(self, hb: _Heartbeat) -> None:
         with self._lock:
-            if self._current is hb:
-                self._current = None
+            if hb in self._current:
+                self._current.remove(hb)
 
     def _loop(self) -> None:
         while True:
             with self._lock:
-                hb = self._current
-            tick = 0.5 if hb is None else min(hb.interval / 4, 0.5)
+                beats = list(self._current)
+            tick = min([0.5] + [hb.interval / 4 for hb in beats])
             time.sleep(tick)
-            if hb is not None and hb is self._current and hb.due(hb.interval):
-                hb.beat()  # after detach a beat is a no-op: the job is no longer running
+            for hb in beats:
+                with self._lock:
+                    attached = hb in self._current
+                if attached and hb.due(hb.interval):
+                    hb.beat()  # after detach a beat is a no-op: the job is no longer running
 
 
 class _Heartbeat:
@@ -171,6 +176,7 @@ class JobRunner:
         self._beater = _Beater()
         self.on_finished = None  # optional callable() after every job (statistics)
         self.notify_done = None  # optional callable(job_id) once the final state is committed
+        self.enqueue = None  # optional callable(job_id, queue): sends a fanned-out job's blocks
 
     def domain(self, domain_id: str):
         return self.cache.get_or_build(("domain", domain_id),
@@ -187,7 +193,7 @@ class JobRunner:
         """Run a job this worker has claimed (``JobRepository.claim`` / ``claim_next``)."""
         job, attempt = claim.job, claim.attempt
         job_id = job.id
-        self.current = (job_id, attempt)
+        outer, self.current = self.current, (job_id, attempt)  # outer: a block's parent job
         log.info("job %s (%s) attempt %d started", job_id, job.operation, attempt)
         limit = min(job.time_limit or self.settings.job_time_limit,
                     self.settings.job_time_limit)
@@ -205,6 +211,7 @@ class JobRunner:
         hb.start()
         state, error, location, kept, built = FAILED, None, None, None, None
         ctx = RunContext(self.store, self.settings, self.domain, job.domain_id)
+        ctx.fanout = FanOut(self, job, attempt)
         try:
             op = self.operations.get_operation(job.operation)
             # checked strictly at the door; stored JSON gives lists for tuples
@@ -235,7 +242,7 @@ class JobRunner:
                 location, kept = self._store_output(job_id, job, partial)
             state, error = _stopped_state(timed_out.is_set(), limit)
         except Exception as exc:  # every failure is recorded on the job, never lost
-            error = _failure_error(job_id, exc)
+            error = getattr(exc, "job_error", None) or _failure_error(job_id, exc)
         finally:
             hb.stop()
         progress = dict(hb.progress)
@@ -249,6 +256,7 @@ class JobRunner:
                 self.notify_done(job_id)
             self.store.mark_done(job_id)
         self._after_job(job_id, state, ctx.domains, built)
+        self.current = outer
 
     def _after_job(self, job_id: str, state: str, domain_ids, built) -> None:
         """The worker's bookkeeping once a job's final state is recorded: the cached

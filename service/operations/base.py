@@ -244,6 +244,7 @@ class RunContext(SubmitContext):
         self._load_domain = load_domain
         self.domains: dict[str, object] = {}  # domain id -> domain used by this job
         self._builds_before: dict[str, int] = {}
+        self.fanout = None  # the job's blocks (service.jobs.fanout.FanOut) in a worker
 
     def domain(self, domain_id: str, field: str = "domain_id"):
         if domain_id not in self.domains:
@@ -265,6 +266,8 @@ class RunContext(SubmitContext):
         an operation that decides at submission (``op.decide``) gets the job's stored
         ``decision`` (None for a job recorded before it had one: ``run`` then decides)."""
         extra = {} if op.decide is None else {"decision": decision}
+        if op.fans_out:
+            extra["fanout"] = self.fanout
         if op.scope == "domain":
             return op.run(self.domain(self.domain_id), request, progress, should_cancel,
                           **extra)
@@ -344,6 +347,9 @@ class Operation:
     # ``run`` always writes the file ``result.glb``: /result.glb serves it even for a job
     # without a domain (a job with one gets the generic export of its domain otherwise)
     writes_glb: bool = False
+    # ``run`` may split the job into blocks that any worker runs (service.jobs.fanout): it
+    # gets ``fanout=`` (the worker's FanOut for the job; None outside a worker)
+    fans_out: bool = False
 
     def serves_glb(self, domain_id: str | None) -> bool:
         """Whether ``GET /v1/jobs/{id}/result.glb`` has a glTF for this operation's job (on

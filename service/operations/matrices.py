@@ -10,6 +10,12 @@ deterministic per-pair decision in the library and is checked against the record
 sharing a heat kernel run as one multi-column block, exact pairs share one geodesic cost
 matrix.  Progress counts pairs; a cancelled (or timed-out) job keeps the
 entries finished so far as its result (``complete: false``, ``finished_rows``).
+
+A W2 matrix of more than one block (``decision["blocks"]``: row ranges, :func:`row_blocks`)
+fans out over the workers (service.jobs.fanout): each block is a job of its own computing
+its rows (``distance_matrix(..., rows=...)``), the job merges them (:func:`merge_blocks`).
+Memory is estimated for the whole matrix and per block (``matrix_bytes``, ``block_bytes``);
+a fanned-out job is refused beyond the larger of its largest block and the merge.
 """
 
 from __future__ import annotations
@@ -39,6 +45,7 @@ from solvers.convolutional.exact import EXACT_KINDS
 from solvers.convolutional.matrix import (
     SHARED_COST_ENTRIES,
     W1_ONLY,
+    DistanceMatrixResult,
     block_pairs,
     distance_matrix,
     exact_route_bytes,
@@ -132,6 +139,16 @@ class MatrixDecision(BaseModel):
         None, description="w1: how the matrix is computed, decided from the sizes alone: "
         "interior_point (one W1 per pair with `w1_method`) or spectral (d_W^k)")
     k: Int | None = Field(None, description="w1 spectral: the eigenfunctions used")
+    blocks: list[list[int]] | None = Field(
+        None, description="w2: the row ranges [start, stop) the matrix is split into; each "
+        "block is a job any worker may run, the job merges their results (one block: the "
+        "matrix runs as one)")
+    matrix_bytes: Int | None = Field(None, description="w2: working memory estimated for "
+                                     "the whole matrix in one worker")
+    block_bytes: Int | None = Field(None, description="w2: working memory estimated for "
+                                    "the largest block (what a worker running a block "
+                                    "needs; the job is refused above the limit at the "
+                                    "larger of this and the merge)")
 
 
 class DistanceMatrixValues(BaseModel):
@@ -209,11 +226,35 @@ def _sizes(req: DistanceMatrixRequest) -> tuple[int, int, int]:
 
 
 def estimate_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
+    """The larger of what a worker running one of the job's blocks needs
+    (:func:`block_bytes`, the largest block) and what the job's own worker needs to merge
+    them (:func:`merge_bytes`); a matrix run as one block (W1, or few pairs): the whole
+    matrix's estimate (:func:`matrix_bytes`)."""
+    blocks = _blocks(view, req)
+    if len(blocks) <= 1:
+        return matrix_bytes(view, req)
+    return max(merge_bytes(view, req), max(block_bytes(view, req, b) for b in blocks))
+
+
+def merge_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
+    """The job's worker merging the blocks: the inputs and the matrix with its per-pair
+    arrays (twice: merged, and the output), and one block's stored arrays."""
+    n, m, _ = _sizes(req)
+    return 8 * int(view.n) * (n + (m if req.others is not None else 0)) + 80 * n * m
+
+
+def matrix_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
+    """The whole matrix in one worker: :func:`block_bytes` of every row."""
+    return block_bytes(view, req, None)
+
+
+def block_bytes(view: DomainView, req: DistanceMatrixRequest,
+                rows: list[int] | None) -> int:
     """Inputs (one float per point and distribution), the matrix and its per-pair arrays,
     and the larger of the block's per-pair solver state (unless every pair is exact) and,
     where pairs may take the exact method, their ground distances
     (:func:`ground_distance_bytes`), the rows' cost blocks and the LPs
-    (:func:`exact_working_bytes`)."""
+    (:func:`exact_working_bytes`) of the rows ``[start, stop)`` (None: every row)."""
     n, m, _ = _sizes(req)
     points = int(view.n)
     total = 8 * points * (n + (m if req.others is not None else 0))
@@ -229,9 +270,55 @@ def estimate_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
         blocks = block_pairs(points) * (pair_state_bytes(points) + 8 * 8 * points)
     if view.supports("exact_transport") and (req.method == "exact" or (req.method == "auto"
                                                               and req.gamma is None)):
-        exact = ground_distance_bytes(view) + exact_working_bytes(view, req)
+        exact = ground_distance_bytes(view) + exact_working_bytes(view, req, rows)
     # the exact pairs run first and release their working memory before the blocks run
     return total + max(blocks, exact)
+
+
+# -- blocks: a W2 matrix split into row ranges, run by any worker (service.jobs.fanout) --
+BLOCK_BATCHES = 4  # a block holds at least this many convolutional batches of pairs
+MIN_BLOCK_PAIRS = 64
+MAX_BLOCKS = 64  # blocks of one matrix at most (job rows)
+
+
+def block_target(points: int) -> int:
+    """Pairs per block: ``BLOCK_BATCHES`` of the convolutional route's batches
+    (:func:`~solvers.convolutional.matrix.block_pairs`), at least ``MIN_BLOCK_PAIRS``, so a
+    block keeps the batching that makes the matrix faster than its pairs one by one."""
+    return max(MIN_BLOCK_PAIRS, BLOCK_BATCHES * block_pairs(points))
+
+
+def row_blocks(row_pairs: list[int], target: int, most: int = MAX_BLOCKS) -> list[list[int]]:
+    """Consecutive row ranges ``[start, stop)`` of about ``target`` pairs each
+    (``row_pairs[i]``: the pairs of row ``i``), at most ``most`` ranges (the target grows to
+    fit), none empty of rows; a function of the sizes alone."""
+    total = sum(row_pairs)
+    target = max(int(target), -(-total // most), 1)
+    blocks, start, acc = [], 0, 0
+    for i, count in enumerate(row_pairs):
+        acc += count
+        if acc >= target and i + 1 < len(row_pairs):
+            blocks.append([start, i + 1])
+            start, acc = i + 1, 0
+    if start < len(row_pairs):
+        if acc == 0 and blocks:  # trailing rows without pairs join the last block
+            blocks[-1][1] = len(row_pairs)
+        else:
+            blocks.append([start, len(row_pairs)])
+    return blocks
+
+
+def _blocks(view: DomainView, req: DistanceMatrixRequest) -> list[list[int]]:
+    """The W2 matrix's row blocks (one for W1: its spectral method embeds every
+    distribution at once, its decision depends on the whole matrix's size)."""
+    n, m, _ = _sizes(req)
+    if req.metric != "w2":
+        return [[0, n]]
+    if req.others is None:  # pairs i < j, and the diagonal (at most one pair per row)
+        row_pairs = [n - i for i in range(n)]
+    else:
+        row_pairs = [m] * n
+    return row_blocks(row_pairs, block_target(int(view.n)))
 
 
 def _faces(view: DomainView) -> int:
@@ -250,21 +337,31 @@ def _w1_decision(view: DomainView, req: DistanceMatrixRequest) -> W1MatrixDecisi
         raise InvalidInput(str(exc), field=exc.field or "method") from exc
 
 
-def exact_working_bytes(view: DomainView, req: DistanceMatrixRequest) -> int:
+def exact_working_bytes(view: DomainView, req: DistanceMatrixRequest,
+                        block: list[int] | None = None) -> int:
     """The exact method's row cost blocks and LPs
     (:func:`~solvers.convolutional.matrix.exact_route_bytes`) with every pair exact, from
     the distributions' support sizes: ``EXACT_THREADS`` LPs of the largest pair (a fixed
-    cap, not this machine's CPUs, so every process estimates the same)."""
-    rows, others, _ = _inputs(view, req)
-    in_rows = rows > 0
-    in_cols = in_rows if others is None else others > 0
+    cap, not this machine's CPUs, so every process estimates the same); ``block``: of
+    the rows ``[start, stop)`` only (their pairs: all of them, bounding the block's)."""
+    rows, _, _ = _inputs(view, req)
+    col_sizes, covered_cols = view.per_request("distance-matrix column supports", req,
+                                               lambda: _column_supports(view, req))
+    in_rows = rows > 0 if block is None else rows[:, block[0]:block[1]] > 0
     row_sizes = np.count_nonzero(in_rows, axis=0).tolist()
-    col_sizes = np.count_nonzero(in_cols, axis=0).tolist()
-    covered = (int(np.count_nonzero(in_rows.any(axis=1))),
-               int(np.count_nonzero(in_cols.any(axis=1))))
+    covered = (int(np.count_nonzero(in_rows.any(axis=1))), covered_cols)
     # the distances' columns: every point where the stored all-pairs ones may serve
     width = int(view.n) if prefers_stored_distances(view.n, *covered) else covered[1]
     return exact_route_bytes(row_sizes, col_sizes, width, _sizes(req)[2])
+
+
+def _column_supports(view: DomainView, req: DistanceMatrixRequest) -> tuple[list[int], int]:
+    """The columns' support sizes and the points they cover (once per request: every
+    block's estimate shares them)."""
+    rows, others, _ = _inputs(view, req)
+    in_cols = (rows if others is None else others) > 0
+    return (np.count_nonzero(in_cols, axis=0).tolist(),
+            int(np.count_nonzero(in_cols.any(axis=1))))
 
 
 def ground_distance_bytes(view: DomainView) -> int:
@@ -371,6 +468,7 @@ def decide_matrix_job(view: DomainView, req: DistanceMatrixRequest) -> dict:
     if symmetric:
         zero = zero_diagonal(sketch, rows, args["gamma"], args["debiased"], args["method"])
     pairs = matrix_pairs(rows.shape[1], cols.shape[1], symmetric, zero is False)
+    common.update(_block_fields(view, req))
     if len(pairs) > DECIDED_PAIRS:
         return MatrixDecision(**common, pairs=len(pairs), per_pair=False, zero_diagonal=zero,
                               reason=f"{len(pairs)} pairs, more than {DECIDED_PAIRS}: each "
@@ -400,6 +498,13 @@ def decide_matrix_job(view: DomainView, req: DistanceMatrixRequest) -> dict:
         solver_arguments=uniform,
         reason=reasons[0] if len(reasons) == 1 else f"{len(reasons)} reasons over the pairs, "
         f"e.g. {reasons[0]}").model_dump(mode="json")
+
+
+def _block_fields(view: DomainView, req: DistanceMatrixRequest) -> dict:
+    """The decision's ``blocks`` and its memory estimates (whole matrix, largest block)."""
+    blocks = _blocks(view, req)
+    return {"blocks": blocks, "matrix_bytes": matrix_bytes(view, req),
+            "block_bytes": max(block_bytes(view, req, b) for b in blocks)}
 
 
 def _decide_w1(view, req, rows, cols, symmetric: bool, common: dict) -> dict:
@@ -437,29 +542,38 @@ def _check_ran_as_decided(values: dict, decision: dict) -> None:
         raise RuntimeError(f"the matrix ran {ran}, not its decision {decided}")
 
 
+def _solver_kwargs(req: DistanceMatrixRequest, decision: dict) -> dict:
+    """The library's arguments executing the stored ``decision``."""
+    optional = {k: getattr(req, k) for k in ("tol", "max_iter") if getattr(req, k) is not None}
+    explicit = decision.get("solver_arguments")
+    if req.metric == "w1" and decision.get("w1_matrix_method") == "spectral":
+        return {"method": "spectral", "k": explicit["k"], "w1_options": optional}
+    if req.metric == "w1":  # one W1 per pair (also jobs recorded before w1_matrix_method)
+        return {"method": "interior_point", "w1_options": {**explicit, **optional}}
+    if explicit is not None:
+        return {**explicit, **optional}
+    return {"gamma": "auto" if req.gamma is None else float(req.gamma),
+            "substeps": req.substeps, "debiased": req.debiased, "method": req.method,
+            **optional}
+
+
 def run(domain, req: DistanceMatrixRequest, progress, should_cancel,
-        decision: dict | None = None) -> OperationOutput:
+        decision: dict | None = None, fanout=None) -> OperationOutput:
     """Execute the job's stored ``decision`` (taken at submission; decided here only for a
-    job recorded without one)."""
+    job recorded without one): one block of it (``decision["block"]``: a block job), its
+    blocks fanned out over the workers (``fanout``, more than one block) and merged here,
+    or the whole matrix in this worker."""
     view = view_of_domain(domain)
     rows, others, reports = _inputs(view, req)
     if decision is None:
         decision = decide_matrix_job(view, req)
-    optional = {k: getattr(req, k) for k in ("tol", "max_iter") if getattr(req, k) is not None}
-    explicit = decision.get("solver_arguments")
-    if req.metric == "w1" and decision.get("w1_matrix_method") == "spectral":
-        kwargs = {"method": "spectral", "k": explicit["k"], "w1_options": optional}
-    elif req.metric == "w1":  # one W1 per pair (also jobs recorded before w1_matrix_method)
-        kwargs = {"method": "interior_point", "w1_options": {**explicit, **optional}}
-    elif explicit is not None:
-        kwargs = {**explicit, **optional}
-    else:
-        kwargs = {"gamma": "auto" if req.gamma is None else float(req.gamma),
-                  "substeps": req.substeps, "debiased": req.debiased, "method": req.method,
-                  **optional}
+    if decision.get("block") is not None:
+        return _run_block(domain, req, rows, others, progress, should_cancel, decision)
+    if fanout is not None and len(decision.get("blocks") or []) > 1:
+        return _run_fanned(req, reports, progress, should_cancel, decision, fanout)
     try:
         res = distance_matrix(domain, rows, others, metric=req.metric, progress=progress,
-                              should_cancel=should_cancel, **kwargs)
+                              should_cancel=should_cancel, **_solver_kwargs(req, decision))
     except CancelledError as exc:
         partial = getattr(exc, "partial", None)
         if partial is not None:  # the runner stores it as the cancelled job's result
@@ -475,6 +589,96 @@ def run(domain, req: DistanceMatrixRequest, progress, should_cancel,
     return output
 
 
+# -- fan-out: blocks of rows as jobs of their own, merged by the job (service.jobs.fanout) --
+BLOCK_ARRAYS = ("matrix", "pair_iterations", "pair_residuals", "pair_converged",
+                "method_codes")
+
+
+def _block_output(res, block: dict) -> OperationOutput:
+    """A block's stored result: its rows of the per-pair arrays and its kernels."""
+    start, stop = block["rows"]
+    codes = np.vectorize(METHOD_CODES.get, otypes=[np.int8])(res.methods[start:stop])
+    solved = (res.methods != "") & (res.methods != "identical")
+    values = {"block": block["index"], "rows": [start, stop],
+              "pairs_solved": int((np.triu(solved) if res.symmetric else solved).sum()),
+              "kernels": [list(k) for k in res.kernels]}
+    arrays = {"matrix": res.values[start:stop], "pair_iterations": res.pair_iterations[
+        start:stop], "pair_residuals": res.pair_residuals[start:stop],
+        "pair_converged": res.pair_converged[start:stop], "method_codes": codes}
+    return OperationOutput(values, arrays)
+
+
+def _run_block(domain, req, rows, others, progress, should_cancel, decision: dict
+               ) -> OperationOutput:
+    """One block: the library on the block's rows only (each pair decided as in the whole
+    matrix); cancelled, it keeps its finished pairs as its result."""
+    block = decision["block"]
+    try:
+        res = distance_matrix(domain, rows, others, metric=req.metric, progress=progress,
+                              should_cancel=should_cancel, rows=block["rows"],
+                              **_solver_kwargs(req, decision))
+    except CancelledError as exc:
+        partial = getattr(exc, "partial", None)
+        if partial is not None:
+            exc.partial_output = _block_output(partial, block)
+        raise
+    return _block_output(res, block)
+
+
+def _run_fanned(req, reports, progress, should_cancel, decision: dict, fanout
+                ) -> OperationOutput:
+    """Record the blocks, let the workers (this one included) run them, merge them."""
+    children = [{**decision, "blocks": None, "block": {"index": k, "rows": list(b)}}
+                for k, b in enumerate(decision["blocks"])]
+    n, m, _ = _sizes(req)
+    try:
+        finished = fanout.run(children, progress, should_cancel, decision["pairs"])
+    except CancelledError as exc:
+        parts = (fanout.result(row) for row in getattr(exc, "blocks", []))
+        exc.partial_output = _output(merge_blocks(n, m, req.others is None, parts), reports,
+                                     False, decision)
+        raise
+    res = merge_blocks(n, m, req.others is None, (fanout.result(r) for r in finished))
+    output = _output(res, reports, True, decision)
+    _check_ran_as_decided(output.values, decision)
+    return output
+
+
+def merge_blocks(n: int, m: int, symmetric: bool, parts) -> DistanceMatrixResult:
+    """The matrix from its blocks' stored results ``(values, arrays)`` (a block that stored
+    none: ``({}, {})``): each block's computed entries at its rows (mirrored when
+    ``symmetric``), the kernels in row order, the summaries as the library computes them;
+    an entry two blocks computed raises (a block's result is merged once)."""
+    out = {"matrix": np.full((n, m), np.nan), "pair_iterations": np.zeros((n, m), np.int64),
+           "pair_residuals": np.full((n, m), np.nan),
+           "pair_converged": np.zeros((n, m), bool),
+           "method_codes": np.full((n, m), METHOD_CODES[""], np.int8)}
+    kernels: dict[tuple, tuple] = {}
+    for values, arrays in parts:
+        if not arrays:
+            continue
+        start, stop = values["rows"]
+        done = arrays["method_codes"] != METHOD_CODES[""]
+        if (out["method_codes"][start:stop][done] != METHOD_CODES[""]).any():
+            raise RuntimeError(f"block {values['block']} overlaps an earlier block")
+        for name in BLOCK_ARRAYS:
+            out[name][start:stop][done] = arrays[name][done]
+            if symmetric:
+                out[name].T[start:stop][done] = arrays[name][done]
+        for g, t, sub, deb in values["kernels"]:
+            kernels.setdefault((t, sub), (g, t, sub, deb))
+    names = {code: name for name, code in METHOD_CODES.items()}
+    methods = np.vectorize(names.get, otypes=[object])(out["method_codes"])
+    computed = methods != ""
+    return DistanceMatrixResult(
+        values=out["matrix"], pair_iterations=out["pair_iterations"],
+        pair_residuals=out["pair_residuals"], pair_converged=out["pair_converged"],
+        methods=methods, computed=computed, metric="w2", symmetric=symmetric,
+        kernels=list(kernels.values()), iterations=int(out["pair_iterations"].sum()),
+        residual=float(np.nanmax(out["pair_residuals"])) if computed.any() else float("nan"),
+        converged=bool(computed.all() and out["pair_converged"][computed].all()))
+
+
 OPERATIONS = [
     Operation("distance-matrices", "createDistanceMatrixJob",
               "Distances between every pair of a collection, or between a collection and "
@@ -482,5 +686,5 @@ OPERATIONS = [
               "progress over pairs; a cancelled job keeps its finished rows",
               DistanceMatrixRequest, run, validate, result_model=DistanceMatrixValues,
               estimate_bytes=estimate_bytes, estimate_cost=estimate_cost,
-              decide=decide_matrix_job, progress_counts_items=True),
+              decide=decide_matrix_job, progress_counts_items=True, fans_out=True),
 ]

@@ -273,6 +273,7 @@ def distance_matrix(
     k: int | None = None, w1_options: dict | None = None,
     progress: Callable[..., None] | None = None,
     should_cancel: Callable[[], bool] | None = None, threads: int | None = None,
+    rows=None,
 ) -> DistanceMatrixResult:
     r"""Pairwise distances of a collection (``n x n``) or against ``others`` (``n x m``).
 
@@ -314,6 +315,11 @@ def distance_matrix(
         far (finished entries kept, the rest ``nan``).
     threads : threads solving the exact method's LPs (default: the CPUs this process may
         use, at most :data:`EXACT_THREADS`); the values do not depend on it.
+    rows : optional ``(start, stop)``, ``metric="w2"``: solve only the pairs of rows
+        ``start <= i < stop`` (a block of the matrix, e.g. of a job split over processes);
+        every other entry stays ``nan`` (``computed`` false).  Each pair gets the decision
+        it gets in the whole matrix, so the block's entries equal the whole call's.
+        Progress and ``partial`` count the block's pairs.
 
     Returns
     -------
@@ -328,14 +334,16 @@ def distance_matrix(
     domain.require_matching_component_masses(np.hstack([A, B]), max(tol, 1e-9),
                                              "distributions" if symmetric else "others")
     exact_threads(threads)  # checked before any work
-    pairs = matrix_pairs(A.shape[1], B.shape[1], symmetric)
+    start, end = _row_range(rows, A.shape[1], metric)
+    pairs = [p for p in matrix_pairs(A.shape[1], B.shape[1], symmetric) if start <= p[0] < end]
     table = _Table(A.shape[1], B.shape[1], symmetric, metric, progress, len(pairs))
     stop = _stopper(should_cancel, table)
     if symmetric and (metric == "w1" or zero_diagonal(domain, A, gamma, debiased, method)):
-        for i in range(A.shape[1]):
+        for i in range(start, end):
             table.put(i, i, 0.0, 0, 0.0, True, "identical")
     elif symmetric:
-        pairs = matrix_pairs(A.shape[1], B.shape[1], symmetric, diagonal=True)
+        pairs = [p for p in matrix_pairs(A.shape[1], B.shape[1], symmetric, diagonal=True)
+                 if start <= p[0] < end]
         table.total = len(pairs)
     if metric == "w1":
         _w1_matrix(domain, A, None if symmetric else B, pairs, table, method=method, k=k,
@@ -344,6 +352,22 @@ def distance_matrix(
     _w2_pairs(domain, A, B, pairs, table, stop, threads, tol=tol, max_iter=max_iter,
               method=method, gamma=gamma, t=t, substeps=substeps, debiased=debiased)
     return table.result()
+
+
+def _row_range(rows, n: int, metric: str) -> tuple[int, int]:
+    """``(start, stop)`` of the rows to solve: all (``rows`` None) or the checked range."""
+    if rows is None:
+        return 0, n
+    try:
+        start, end = (int(r) for r in rows)
+    except (TypeError, ValueError) as exc:
+        raise InputError("rows must be (start, stop)", field="rows") from exc
+    if metric != "w2":
+        raise InputError("rows (a block of the matrix) applies to metric 'w2'", field="rows")
+    if not 0 <= start < end <= n:
+        raise InputError(f"rows must satisfy 0 <= start < stop <= {n}, got {rows!r}",
+                         field="rows")
+    return start, end
 
 
 def _stopper(should_cancel, table):
