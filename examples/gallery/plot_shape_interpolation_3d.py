@@ -26,11 +26,11 @@ head and legs are drawn in.  Without the bound the frames are blurred: the legs 
 already at :math:`s = 1/4`, the head is a bump, and the densities (the two lower rows,
 summed along the cow's width) are soft.  With the bound every frame's entropy is held at
 the inputs' (:math:`H`, printed below), the density is as concentrated as the inputs', and
-the frames keep the legs up to :math:`s = 1/2` and the head's outline up to :math:`s =
-3/4`.  The bound restores concentration, not detail finer than the blur: the horns and
-ears are lost with or without it.  The equal-weight average of three solids (second
-figure) is a ring of the torus on a body as long as the cow's; with the bound its mass
-gathers into distinct lumps instead of one soft slab.
+the frames keep the legs up to :math:`s = 1/2` and the head's shape at :math:`s = 1/4`
+and :math:`1/2`.  The bound restores concentration, not detail finer than the blur: the
+cow's horns and ears are lost with or without it.  The equal-weight average of three solids (second
+figure) is a ring, like the torus', over a slab-like body; with the bound its mass
+gathers into distinct lumps (the lower right panel) instead of one soft slab.
 """
 
 from types import SimpleNamespace
