@@ -77,6 +77,7 @@ def test_apply_field_is_chroma_loss_then_lab_to_rgb():
     disp = rng.normal(0, 20, (n, 2)).astype(np.float32)
     src = np.zeros((n, 4), dtype=np.uint8)
     src[:, 3] = rng.integers(0, 256, n)
+    src.flags.writeable = False  # as a transfer passes its input image (numba: another type)
     out = np.empty_like(src)
     empty = np.zeros(0, dtype=np.float32)
     SK.apply_field(lab, src, out, empty, 1.0, disp, M, 255.0, 0.5, np.zeros((2, 0, 0)), 1, n)
@@ -85,9 +86,13 @@ def test_apply_field_is_chroma_loss_then_lab_to_rgb():
     assert sum(not _in_gamut_ref(*c) for c in moved) > 500  # the chroma loss really ran
     mapped = np.array([_gamut_map_ref(*c, 0.0) for c in moved])
     want = np.empty((n, 3), dtype=np.uint8)
-    lab64 = np.ascontiguousarray(mapped)
+    # the plain float64 scan's Lab, stored as float32 Lab the way a transfer stores it (the
+    # kernel's own types: no test-only compile)
+    lab32 = np.ascontiguousarray(mapped, dtype=np.float32)
+    rgb = np.zeros((n, 3), dtype=np.uint8)
+    rgb.flags.writeable = False
     empty2 = np.zeros((0, 0), dtype=np.float32)
-    _kernels._apply(lab64, lab64, want, empty, 1.0, empty2, empty2, 0.0, 0.0, 1.0, M, 255.0,
+    _kernels._apply(lab32, rgb, want, empty, 1.0, empty2, empty2, 0.0, 0.0, 1.0, M, 255.0,
                     0.5, 1)
     assert np.abs(out[:, :3].astype(int) - want.astype(int)).max() <= 1
     assert np.mean(out[:, :3] != want) < 1e-3  # float32 vs float64 Lab: rare 1-code steps
@@ -119,7 +124,8 @@ def _rank_problem(seed=2, n=20000, nrows=7):
         ends.extend([cuts[0], cuts[1], counts[r]])
         offsets.append(offsets[-1] + 3)
     disp = rng.normal(size=(3 * nrows, 2))
-    return key, row.astype(np.int64), np.array(offsets), np.array(ends, dtype=np.int64), disp
+    # the dtypes a transfer passes (int32 rows and counts): no test-only compile
+    return key, row.astype(np.int32), np.array(offsets), np.array(ends, dtype=np.int64), disp
 
 
 def _run_assign(key, row, offsets, ends, disp, levels):
@@ -128,7 +134,7 @@ def _run_assign(key, row, offsets, ends, disp, levels):
     assert not missing
     for r in range(nrows):
         assert (lo[r], hi[r]) == (key[row == r].min(), key[row == r].max())
-    counts = np.zeros((nrows, levels), dtype=np.int64)
+    counts = np.zeros((nrows, levels), dtype=np.int32)
     SK.level_counts(key, row, lo, hi, counts)
     start = counts.copy()
     SK.exclusive_cumsum(start)
@@ -188,7 +194,7 @@ def test_row_wise_sampling_matches_per_pixel_formula():
     row_of = np.zeros(65 * 65, dtype=np.int64)
     dirs = np.array([[0.6, 0.8]])
     key = np.empty(H * W, dtype=np.float32)
-    row = np.empty(H * W, dtype=np.int64)
+    row = np.empty(H * W, dtype=np.int32)
     SK.keys(lab, np.zeros((0, 2), dtype=np.float32), W, s, sa, sb, np.float32(-128.0),
             np.float32(4.0), 65, row_of, dirs, key, row)
     coef = rng.normal(size=(4, h, w))

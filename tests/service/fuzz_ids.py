@@ -42,7 +42,7 @@ def domain_bodies() -> dict[str, dict]:
     }
 
 
-# A quick BRDF interpolation (coarse hemisphere, loose tolerance: well within a 5 s time limit
+# A quick BRDF interpolation (coarse hemisphere, loose tolerance: well within a 2 s time limit
 # on a loaded machine), the finished job with files and 2-D arrays the fuzzers read
 QUICK_BRDF = {"materials": [{"model": "blinn-phong", "exponent": 20.0},
                             {"model": "blinn-phong", "exponent": 5.0, "ks": 0.6, "kd": 0.4}],

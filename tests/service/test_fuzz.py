@@ -134,7 +134,10 @@ def fuzz(data_dir, examples: int, seed: int = 0, log=None) -> dict:
             if (op.method.lower(), op.path) in SKIP:
                 continue
             stats["operations"].add(f"{op.method.upper()} {op.path}")
-            for mode in (GenerationMode.POSITIVE, GenerationMode.NEGATIVE):
+            modes = [GenerationMode.POSITIVE]
+            if _negative_exists(op):
+                modes.append(GenerationMode.NEGATIVE)
+            for mode in modes:
                 counter = {"i": 0}
                 run = _make_run(op, mode, examples, seed, counter, data, stats)
                 with warnings.catch_warnings():
@@ -147,6 +150,17 @@ def fuzz(data_dir, examples: int, seed: int = 0, log=None) -> dict:
                 key = f"{op.method.upper()} {op.path}"
                 log(f"{key}: {stats['by_operation'][key]} cases")
     return stats
+
+
+def _negative_exists(op) -> bool:
+    """False where schemathesis makes no invalid request: no body and only path parameters,
+    each a string (a string breaking a path parameter's pattern is no URL segment; no
+    parameters at all, /healthz). There hypothesis gave up only after some 460 draws and
+    raised Unsatisfiable (~1 CPU-s per operation, 10 operations, each seed)."""
+    params = [p.definition for p in op.iter_parameters()]
+    only_path_strings = all(p.get("in") == "path" and p.get("schema", {}).get("type") == "string"
+                            for p in params)
+    return len(op.body) > 0 or not only_path_strings
 
 
 def _make_run(op, mode, examples, seed, counter, data, stats):
