@@ -57,6 +57,12 @@ class _Pieces:
     first_copy: np.ndarray  # (n,) one split vertex of each original vertex
     junctions: np.ndarray  # original vertices with more than one copy
     closure: np.ndarray | None = None  # (J, n) distances from each junction (through junctions)
+    longest_edge: np.ndarray | None = None  # (n_faces,) longest edge of each face
+
+    def __post_init__(self):
+        corners = self.vertices[self.faces]  # (n_faces, 3, 3)
+        self.longest_edge = np.linalg.norm(corners - np.roll(corners, 1, axis=1),
+                                           axis=2).max(axis=1)
 
 
 def _split_fans(vertices: np.ndarray, f: np.ndarray):
@@ -114,16 +120,58 @@ def _pieces(mesh: TriangleMesh) -> _Pieces:
 
 def _mmp_split(pieces: _Pieces, source: int, bound: float | None = None) -> np.ndarray:
     """(n,) exact distances on the split surface from all copies of original ``source``
-    (``inf`` beyond ``bound`` when given)."""
+    (``inf`` beyond ``bound`` when given; vertices a little beyond it may be finite).
+
+    A bounded solve runs on the faces near the source only (:func:`_ball_faces`): tvb-gdist
+    sets its mesh up anew on every call, at a cost proportional to the mesh it is given, so
+    a solve of radius ``bound`` costs about the area it covers instead of the whole mesh's
+    setup, with the same distances within ``bound``."""
     import gdist
 
-    copies = np.flatnonzero(pieces.owner == source).astype(np.int32)
-    extra = {} if bound is None or not np.isfinite(bound) else {"max_distance": float(bound)}
-    d = gdist.compute_gdist(pieces.vertices, pieces.faces, source_indices=copies, **extra)
+    copies = np.flatnonzero(pieces.owner == source)
+    finite = bound is not None and np.isfinite(bound)
+    keep = _ball_faces(pieces, copies[0], float(bound)) if finite else None
+    if keep is None:  # the whole surface
+        vertices, faces, sources, used = pieces.vertices, pieces.faces, copies, None
+    else:
+        faces = pieces.faces[keep]
+        used = np.zeros(len(pieces.vertices), dtype=bool)
+        used[faces.reshape(-1)] = True
+        renumber = np.cumsum(used) - 1  # keeps the vertices' and faces' order
+        vertices = np.ascontiguousarray(pieces.vertices[used])
+        faces, sources = renumber[faces].astype(np.int32), renumber[copies]
+    extra = {"max_distance": float(bound)} if finite else {}
+    d = gdist.compute_gdist(vertices, faces, source_indices=sources.astype(np.int32), **extra)
     d = np.where(d > 1e30, np.inf, d)  # other pieces are unreachable on the split surface
+    if used is not None:
+        d_all = np.full(len(pieces.vertices), np.inf)
+        d_all[used] = d
+        d = d_all
     out = np.full(len(pieces.first_copy), np.inf)
     np.minimum.at(out, pieces.owner, d)
     return out
+
+
+# A bounded solve runs on the whole surface when the faces near its source are more than
+# this fraction of the faces (the copy would save little)
+LOCAL_SOLVE_FRACTION = 0.5
+
+
+def _ball_faces(pieces: _Pieces, vertex: int, bound: float) -> np.ndarray | None:
+    """Mask of the faces that may meet the straight ball of radius ``bound`` around split
+    vertex ``vertex`` (a vertex within ``bound`` plus the face's longest edge: every point of
+    a face is that close to one of its corners), or None when that is most of the surface.
+
+    A path of length at most ``bound`` from the source stays in that ball, so it crosses
+    only these faces: the distances within ``bound`` on them are those on the whole surface
+    (the vertices on the new boundary lie outside the ball, beyond ``bound``, where MMP
+    stops; tests/test_exact_route.py compares both bitwise)."""
+    v = pieces.vertices
+    near = np.sqrt(np.square(v - v[vertex]).sum(axis=1))
+    keep = near[pieces.faces].min(axis=1) <= bound + pieces.longest_edge
+    if keep.mean() > LOCAL_SOLVE_FRACTION:
+        return None
+    return keep
 
 
 def _edge_graph(mesh: TriangleMesh):

@@ -95,6 +95,36 @@ def test_geodesics_on_non_manifold_meshes(shared_mesh, name):
     assert np.all(d[same] >= lower[same] * (1 - 1e-9))
 
 
+@pytest.mark.parametrize("name", ["woody.obj", "cow.obj", "beetle.obj"])
+def test_local_bounded_solves_equal_whole_surface_solves(shared_mesh, name, monkeypatch):
+    """A bounded MMP solve runs on the faces near its source only (solvers.geodesics.
+    _ball_faces): the distances within the bound are bitwise those of the solve on the whole
+    (fan-split) surface, on a manifold mesh, on cow's hourglass vertex and on beetle's
+    non-manifold edges (with the junction closure), from sources near the junctions too."""
+    import solvers.geodesics as g
+    from solvers.geodesics import geodesic_distances_within
+
+    mesh = shared_mesh(name)
+    pieces = g._pieces(mesh)
+    rng = np.random.default_rng(7)
+    sources = list(rng.choice(mesh.n, 6, replace=False)) + list(pieces.junctions[:2])
+    paths = g.edge_path_distances(mesh, sources)
+    local_solves = 0
+    for s, row in zip(sources, paths, strict=True):
+        finite = np.sort(row[np.isfinite(row)])
+        for q in (0.02, 0.1, 0.3):
+            bound = float(finite[int(q * (len(finite) - 1))])
+            monkeypatch.setattr(g, "LOCAL_SOLVE_FRACTION", 1.0)  # always the faces near s
+            local = geodesic_distances_within(mesh, int(s), bound)
+            keep = g._ball_faces(pieces, int(pieces.first_copy[s]), bound * (1 + 1e-9))
+            local_solves += bool(keep.mean() < 1.0)
+            monkeypatch.setattr(g, "LOCAL_SOLVE_FRACTION", 0.0)  # always the whole surface
+            whole = geodesic_distances_within(mesh, int(s), bound)
+            assert np.array_equal(local, whole)
+            assert np.isfinite(whole).sum() > 1
+    assert local_solves >= 12  # the comparison ran on proper sub-meshes
+
+
 @pytest.mark.parametrize(("name", "size", "seeds"), [("woody.obj", 25, (0, 1, 2)),
                                                      ("cow.obj", 8, (0,))])
 def test_bounded_solves_give_the_full_lp(shared_mesh, name, size, seeds):
