@@ -96,23 +96,29 @@ def test_one_worker_equals_the_unsplit_matrix(make_client):
     assert [j["id"] for j in client.get("/v1/jobs").json()["jobs"]] == [job["id"]]
 
 
-def test_two_workers_give_the_values_of_one(make_client):
-    client = make_client(queue="sqlite", heartbeat_interval=0.05)
-    rt = client.app.state.runtime
-    gid = _grid(client)
-    body = {**BODY, "others": SPOTS[:9]}  # 22 x 9: 198 pairs, 5 blocks
-    job = client.post(f"/v1/domains/{gid}/distance-matrices", json=body).json()
+def _run_on_two_workers(rt, job_id: str) -> None:
+    """Run job ``job_id`` on the first worker while a second one (a thread of this
+    process) takes blocks from the queue."""
     second = JobRunner(rt.settings, rt.store, rt.repo, rt.cache, rt.operations)
     second.worker_id = "second-worker"
     stop = threading.Event()
     helper = threading.Thread(target=_serve, args=(second, stop))
-    claim = rt.repo.claim(job["id"], rt.runner.worker_id)  # the job on the first worker
+    claim = rt.repo.claim(job_id, rt.runner.worker_id)  # the job on the first worker
     helper.start()
     try:
         rt.runner.run_claimed(claim)
     finally:
         stop.set()
         helper.join(timeout=60)
+
+
+def test_two_workers_give_the_values_of_one(make_client):
+    client = make_client(queue="sqlite", heartbeat_interval=0.05)
+    rt = client.app.state.runtime
+    gid = _grid(client)
+    body = {**BODY, "others": SPOTS[:9]}  # 22 x 9: 198 pairs, 5 blocks
+    job = client.post(f"/v1/domains/{gid}/distance-matrices", json=body).json()
+    _run_on_two_workers(rt, job["id"])
     assert client.get(f"/v1/jobs/{job['id']}").json()["state"] == "succeeded"
     rows = _blocks(rt, job["id"])
     assert len(rows) == len(job["decision"]["blocks"]) == 5
@@ -135,17 +141,7 @@ def test_one_or_two_workers_give_the_same_bits_on_a_mesh(make_client, meshes_dir
     assert len(one["decision"]["blocks"]) >= 2
     rt.runner.run(one["id"])
     two = client.post(f"/v1/domains/{mid}/distance-matrices", json=body).json()
-    second = JobRunner(rt.settings, rt.store, rt.repo, rt.cache, rt.operations)
-    second.worker_id = "second-worker"
-    stop = threading.Event()
-    helper = threading.Thread(target=_serve, args=(second, stop))
-    claim = rt.repo.claim(two["id"], rt.runner.worker_id)
-    helper.start()
-    try:
-        rt.runner.run_claimed(claim)
-    finally:
-        stop.set()
-        helper.join(timeout=60)
+    _run_on_two_workers(rt, two["id"])
     for job in (one, two):
         assert client.get(f"/v1/jobs/{job['id']}").json()["state"] == "succeeded"
     assert np.array_equal(_matrix(client, one["id"]), _matrix(client, two["id"]))
