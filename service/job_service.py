@@ -32,7 +32,7 @@ log = logging.getLogger("otgeo.jobs")
 # returned by ``create`` is complete without reading it back)
 UNSET_AT_CREATION = ("iteration", "residual", "fraction", "stage", "error", "worker",
                      "started_at", "heartbeat_at", "finished_at", "duration",
-                     "result_location", "result")
+                     "result_location", "result", "parent")  # parent: only a block has one
 
 
 # domains up to this many points have their bounded submissions validated on the event loop
