@@ -268,8 +268,7 @@ def block_bytes(view: DomainView, req: DistanceMatrixRequest,
     blocks = exact = 0
     if req.method != "exact":  # method "exact": every pair is exact, no block runs
         blocks = block_pairs(points) * (pair_state_bytes(points) + 8 * 8 * points)
-    if view.supports("exact_transport") and (req.method == "exact" or (req.method == "auto"
-                                                              and req.gamma is None)):
+    if may_take_exact(view, req):
         exact = ground_distance_bytes(view) + exact_working_bytes(view, req, rows)
     # the exact pairs run first and release their working memory before the blocks run
     return total + max(blocks, exact)
@@ -308,11 +307,21 @@ def row_blocks(row_pairs: list[int], target: int, most: int = MAX_BLOCKS) -> lis
     return blocks
 
 
+def may_take_exact(view: DomainView, req: DistanceMatrixRequest) -> bool:
+    """Whether pairs of this W2 matrix may take the exact method (method ``exact``, or
+    ``auto`` without gamma on a domain that offers it)."""
+    return view.supports("exact_transport") and (
+        req.method == "exact" or (req.method == "auto" and req.gamma is None))
+
+
 def _blocks(view: DomainView, req: DistanceMatrixRequest) -> list[list[int]]:
-    """The W2 matrix's row blocks (one for W1: its spectral method embeds every
-    distribution at once, its decision depends on the whole matrix's size)."""
+    """The W2 matrix's row blocks. One block for W1 (its spectral method embeds every
+    distribution at once, its decision depends on the whole matrix's size) and where pairs
+    may take the exact method: its ground distances between the supports (or the domain's
+    stored all-pairs geodesics) are built once for the whole matrix, and a block would
+    rebuild them for its rows (a spot 100 x 100 default matrix took minutes per block)."""
     n, m, _ = _sizes(req)
-    if req.metric != "w2":
+    if req.metric != "w2" or may_take_exact(view, req):
         return [[0, n]]
     if req.others is None:  # pairs i < j, and the diagonal (at most one pair per row)
         row_pairs = [n - i for i in range(n)]

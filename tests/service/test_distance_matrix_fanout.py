@@ -263,3 +263,17 @@ def test_memory_estimated_for_the_matrix_and_per_block(make_client):
     gid = _grid(small)
     assert_error(small.post(f"/v1/domains/{gid}/distance-matrices", json=BODY), 413,
                  "distributions")
+
+
+def test_a_matrix_whose_pairs_may_be_exact_runs_as_one_block(make_client, meshes_dir):
+    """Default W2 on a mesh may take the exact method, whose ground distances are built once
+    for the whole matrix: it is not split (a block would rebuild them for its rows)."""
+    client = make_client(queue="sqlite")
+    mid = upload_mesh(client, meshes_dir / "woody.obj").json()["id"]
+    bumps = [{"vertex": v, "radius": 0.3} for v in range(0, 690, 60)]
+    auto = client.post(f"/v1/domains/{mid}/distance-matrices",
+                       json={"distributions": bumps}).json()
+    assert auto["decision"]["blocks"] == [[0, len(bumps)]]
+    given = client.post(f"/v1/domains/{mid}/distance-matrices",
+                        json={"distributions": bumps, "gamma": 0.01, "substeps": 4}).json()
+    assert len(given["decision"]["blocks"]) >= 2
