@@ -10,11 +10,15 @@ loads the domain and its operators), then times the matrix of 100 radius-0.1 bum
 drawn with seed 0, as in ``bench/geodesic_artifacts.py``; default decision) from submission to
 its result. The two matrices must be equal bit for bit (the blocks are fixed by the decision).
 
+``--gamma G --substeps K --count N``: the matrix with gamma given (convolutional pairs, which
+fan out; a default matrix on a mesh may take the exact method and runs as one block).
+
 Writes ``bench/results/fanout.md`` (command, load, CPU model).
 """
 
 from __future__ import annotations
 
+import argparse
 import io
 import sys
 import tempfile
@@ -37,9 +41,12 @@ from bench._common import cpu_model, load1  # noqa: E402
 COUNT, RADIUS, SPOT_VERTICES = 100, 0.1, 2930
 
 
+OPTIONS: dict = {}  # gamma and substeps given on the command line
+
+
 def _body(seed: int) -> dict:
     idx = np.random.default_rng(seed).choice(SPOT_VERTICES, COUNT, replace=False)
-    return {"distributions": [{"vertex": int(i), "radius": RADIUS} for i in idx]}
+    return {"distributions": [{"vertex": int(i), "radius": RADIUS} for i in idx], **OPTIONS}
 
 
 def _matrix(client: httpx.Client, domain_id: str, body: dict) -> tuple[float, np.ndarray, dict]:
@@ -98,14 +105,15 @@ def main() -> None:
 def _write(rows, same: bool, start_load: float) -> None:
     one = rows[0][2]
     lines = [
-        "# A distance matrix fanned out over the workers (spot, 100 x 100 W2)", "",
+        f"# A distance matrix fanned out over the workers (spot, {COUNT} x {COUNT} W2)", "",
         "Command: `cpu bench env OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 "
-        ".venv/bin/python bench/fanout.py`", "",
+        f".venv/bin/python bench/fanout.py {' '.join(sys.argv[1:])}`", "",
         f"CPU: {cpu_model()}; 1-minute load at start {start_load:.2f}, at end {load1():.2f}.",
         "", "A new `otgeo serve` per row on one data directory (spot stored, its geodesic "
         "artifact computed beforehand); `OTGEO_RESERVED_SHORT_WORKERS=0`; the warm-up matrix "
-        "(other bumps) loads the domain and operators in every worker; the timed matrix: 100 "
-        "radius-0.1 bumps, default decision, submission to result.", "",
+        "(other bumps) loads the domain and operators in every worker; the timed matrix: "
+        f"{COUNT} radius-0.1 bumps, options {OPTIONS or 'none (default decision)'}, "
+        "submission to result.", "",
         "| workers | warm-up matrix s | timed matrix s | ratio to 1 worker | blocks | "
         "load before / after |", "| --- | --- | --- | --- | --- | --- |",
     ]
@@ -118,4 +126,12 @@ def _write(rows, same: bool, start_load: float) -> None:
 
 
 if __name__ == "__main__":
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--gamma", type=float)
+    parser.add_argument("--substeps", type=int)
+    parser.add_argument("--count", type=int, default=COUNT)
+    args = parser.parse_args()
+    COUNT = args.count
+    OPTIONS.update({k: v for k, v in (("gamma", args.gamma), ("substeps", args.substeps))
+                    if v is not None})
     main()
