@@ -307,11 +307,15 @@ def row_blocks(row_pairs: list[int], target: int, most: int = MAX_BLOCKS) -> lis
     return blocks
 
 
+def requests_exact(req: DistanceMatrixRequest) -> bool:
+    """Whether the request lets pairs take the exact method (method ``exact``, or ``auto``
+    without gamma), on a domain that offers it."""
+    return req.method == "exact" or (req.method == "auto" and req.gamma is None)
+
+
 def may_take_exact(view: DomainView, req: DistanceMatrixRequest) -> bool:
-    """Whether pairs of this W2 matrix may take the exact method (method ``exact``, or
-    ``auto`` without gamma on a domain that offers it)."""
-    return view.supports("exact_transport") and (
-        req.method == "exact" or (req.method == "auto" and req.gamma is None))
+    """Whether pairs of this W2 matrix may take the exact method on ``view``'s domain."""
+    return view.supports("exact_transport") and requests_exact(req)
 
 
 def _blocks(view: DomainView, req: DistanceMatrixRequest) -> list[list[int]]:
@@ -392,8 +396,7 @@ def estimate_cost(points: int, req: DistanceMatrixRequest, context=None) -> floa
     ``EXACT_PAIR_COST`` x points^2 per pair (the LP on supports of a fraction of the
     domain: bench/results/operation_memory.md)."""
     pairs = float(max(_sizes(req)[2], 1))
-    exact = req.metric == "w2" and (req.method == "exact" or (req.method == "auto"
-                                                              and req.gamma is None))
+    exact = req.metric == "w2" and requests_exact(req)
     if exact and (context is None or context.supports("exact_transport")):
         return (EXACT_PAIR_COST * float(max(points, 1)) ** 2 * pairs
                 + geodesics_cost(context, req))

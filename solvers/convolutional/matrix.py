@@ -335,15 +335,18 @@ def distance_matrix(
                                              "distributions" if symmetric else "others")
     exact_threads(threads)  # checked before any work
     start, end = _row_range(rows, A.shape[1], metric)
-    pairs = [p for p in matrix_pairs(A.shape[1], B.shape[1], symmetric) if start <= p[0] < end]
+
+    def block(all_pairs):  # the pairs of rows start <= i < end
+        return [p for p in all_pairs if start <= p[0] < end]
+
+    pairs = block(matrix_pairs(A.shape[1], B.shape[1], symmetric))
     table = _Table(A.shape[1], B.shape[1], symmetric, metric, progress, len(pairs))
     stop = _stopper(should_cancel, table)
     if symmetric and (metric == "w1" or zero_diagonal(domain, A, gamma, debiased, method)):
         for i in range(start, end):
             table.put(i, i, 0.0, 0, 0.0, True, "identical")
     elif symmetric:
-        pairs = [p for p in matrix_pairs(A.shape[1], B.shape[1], symmetric, diagonal=True)
-                 if start <= p[0] < end]
+        pairs = block(matrix_pairs(A.shape[1], B.shape[1], symmetric, diagonal=True))
         table.total = len(pairs)
     if metric == "w1":
         _w1_matrix(domain, A, None if symmetric else B, pairs, table, method=method, k=k,
