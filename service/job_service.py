@@ -13,7 +13,7 @@ from sqlalchemy.exc import IntegrityError
 from service.domains import DomainService
 from service.errors import Conflict, NotFound
 from service.idempotency import Idempotency
-from service.jobs.db import QUEUED, TERMINAL, JobRow, WriteBusy
+from service.jobs.db import QUEUED, TERMINAL, JobRow, WriteBusy, queued_job_row
 from service.jobs.queue import queue_for_cost
 from service.operations.base import (
     OperationRequest,
@@ -28,11 +28,6 @@ from service.tenants import ANONYMOUS, Tenant, check_queued_quota
 
 log = logging.getLogger("otgeo.jobs")
 
-# job columns without a value until a worker runs the job (set explicitly, so the row
-# returned by ``create`` is complete without reading it back)
-UNSET_AT_CREATION = ("iteration", "residual", "fraction", "stage", "error", "worker",
-                     "started_at", "heartbeat_at", "finished_at", "duration",
-                     "result_location", "result", "parent")  # parent: only a block has one
 
 
 # domains up to this many points have their bounded submissions validated on the event loop
@@ -161,12 +156,11 @@ class JobService:
         cost = (op.estimate_cost or estimate_cost)(size or 1, request, context)
         queue = queue_for_cost(self.rt.settings, cost)
         now = time.time()
-        job = JobRow(id=uuid.uuid4().hex, operation=operation, domain_id=domain_id,
-                     queue=queue, cost=cost,
-                     params=request.model_dump(mode="json"), state=QUEUED, attempts=0,
-                     max_attempts=self.rt.settings.max_attempts, cancel_requested=False,
-                     time_limit=limit, created_at=now, enqueued_at=now, decision=decision,
-                     tenant=self.tenant.id, **{c: None for c in UNSET_AT_CREATION})
+        job = queued_job_row(id=uuid.uuid4().hex, operation=operation, domain_id=domain_id,
+                             queue=queue, cost=cost, params=request.model_dump(mode="json"),
+                             max_attempts=self.rt.settings.max_attempts, time_limit=limit,
+                             created_at=now, enqueued_at=now, decision=decision,
+                             tenant=self.tenant.id)
         return job
 
     def get(self, job_id: str) -> JobRow:

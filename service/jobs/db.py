@@ -104,6 +104,13 @@ ADDED_COLUMNS = {"fraction": "FLOAT", "queue": "VARCHAR(16)", "cost": "FLOAT",
 ADDED_INDEXES = {"tenant": "ix_jobs_tenant", "parent": "ix_jobs_parent"}
 
 
+def queued_job_row(**values) -> JobRow:
+    """A new queued job's row with every column set: ``values``, and None for the columns
+    a worker fills in later (so the row is complete without reading it back)."""
+    return JobRow(**{**{c: None for c in JOBS.c.keys()}, "state": QUEUED, "attempts": 0,
+                     "cancel_requested": False, **values})
+
+
 def worker_identity() -> str:
     return f"{socket.gethostname()}:{os.getpid()}"
 

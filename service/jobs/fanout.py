@@ -28,7 +28,7 @@ import logging
 import time
 import uuid
 
-from service.jobs.db import CANCELLED, FAILED, QUEUED, SUCCEEDED, TERMINAL, JobRow
+from service.jobs.db import CANCELLED, FAILED, QUEUED, SUCCEEDED, TERMINAL, JobRow, queued_job_row
 from service.store import IN_ROW
 from solvers.errors import CancelledError
 
@@ -63,14 +63,11 @@ class FanOut:
     # -- recording and sending ------------------------------------------------------------
     def _rows(self, decisions: list[dict]) -> list[JobRow]:
         job, now = self.job, time.time()
-        return [JobRow(id=block_id(job.id, k), operation=job.operation,
-                       domain_id=job.domain_id, params=job.params, state=QUEUED, attempts=0,
-                       max_attempts=job.max_attempts, cancel_requested=False,
-                       time_limit=job.time_limit, created_at=now, enqueued_at=now,
-                       queue=job.queue, cost=None, decision=d, tenant=None, parent=job.id,
-                       iteration=None, residual=None, fraction=None, stage=None, error=None,
-                       worker=None, started_at=None, heartbeat_at=None, finished_at=None,
-                       duration=None, result_location=None, result=None)
+        return [queued_job_row(id=block_id(job.id, k), operation=job.operation,
+                               domain_id=job.domain_id, params=job.params,
+                               max_attempts=job.max_attempts, time_limit=job.time_limit,
+                               created_at=now, enqueued_at=now, queue=job.queue, decision=d,
+                               parent=job.id)
                 for k, d in enumerate(decisions)]
 
     def _record(self, decisions: list[dict]) -> None:
