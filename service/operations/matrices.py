@@ -474,7 +474,7 @@ def decide_matrix_job(view: DomainView, req: DistanceMatrixRequest) -> dict:
     if req.metric == "w1":
         return _decide_w1(view, req, rows, cols, symmetric, common)
     sketch = view.sketch().remembering_paths()
-    args = {"method": req.method, "gamma": "auto" if req.gamma is None else float(req.gamma),
+    args = {"method": req.method, "gamma": req.solver_gamma(),
             "substeps": req.substeps, "debiased": req.debiased}
     zero = None
     if symmetric:
@@ -564,7 +564,7 @@ def _solver_kwargs(req: DistanceMatrixRequest, decision: dict) -> dict:
         return {"method": "interior_point", "w1_options": {**explicit, **optional}}
     if explicit is not None:
         return {**explicit, **optional}
-    return {"gamma": "auto" if req.gamma is None else float(req.gamma),
+    return {"gamma": req.solver_gamma(),
             "substeps": req.substeps, "debiased": req.debiased, "method": req.method,
             **optional}
 

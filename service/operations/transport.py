@@ -71,6 +71,11 @@ class SinkhornOptions(OperationRequest):
                               "violation; default: the solver's)")
     max_iter: Int | None = Field(None, ge=1, le=100_000, description="default: the solver's")
 
+    def solver_gamma(self) -> float | str:
+        """``gamma`` as the solvers take it: ``"auto"`` (the regularization policy) when the
+        request leaves it out."""
+        return "auto" if self.gamma is None else float(self.gamma)
+
 
 class W1Options(OperationRequest):
     method: Literal["auto", "ipm", "admm", "weiszfeld"] = Field(
@@ -390,7 +395,7 @@ def _decide_distance(view: DomainView, req: DistanceRequest) -> dict:
                                 w1_method=w1_method, basis=basis).model_dump(mode="json")
     masses, _ = _distance_inputs(view, req)
     decision = decide_distance(view.sketch(), masses["mu0"], masses["mu1"], method=req.method,
-                               gamma="auto" if req.gamma is None else float(req.gamma),
+                               gamma=req.solver_gamma(),
                                substeps=req.substeps, debiased=req.debiased)
     return {"metric": "w2", **decision.as_dict()}
 
