@@ -143,6 +143,33 @@ def test_bounded_solves_give_the_full_lp(shared_mesh, name, size, seeds):
         assert np.all(np.isfinite(res.plan)) and np.allclose(res.plan.sum(axis=0), m1[i1])
 
 
+def test_pivot_bounds_keep_the_lp_exact_and_cut_its_rounds(shared_mesh, monkeypatch):
+    """Above TRIANGLE_ENTRIES the rows' bounds go through their nearest pivot rows only
+    (solvers.convolutional.exact._pivot_bounds): still lower bounds, so the value is the LP
+    on the full exact cost matrix, in fewer LP rounds than with no such bounds."""
+    import solvers.convolutional.exact as ex
+
+    mesh = shared_mesh("woody.obj")
+    rng = np.random.default_rng(3)
+    s0, s1 = (rng.choice(mesh.n, 60, replace=False) for _ in range(2))
+    m0, m1 = _points(mesh.n, s0, rng), _points(mesh.n, s1, rng)
+    i0, i1 = np.flatnonzero(m0), np.flatnonzero(m1)
+    full = ot.emd2(m0[i0], m1[i1], geodesic_distances(mesh, i0, i1) ** 2)
+    rounds, lp, pivot_bounds = [], ex._network_simplex, ex._pivot_bounds
+    monkeypatch.setattr(ex, "_network_simplex", lambda *a, **k: rounds.append(1) or lp(*a, **k))
+    monkeypatch.setattr(ex, "TRIANGLE_ENTRIES", 0)  # every run above the cap
+    counts = {}
+    for pivots in (0, 1, 8):  # 0: no bounds through other rows, as before the pivots
+        monkeypatch.setattr(ex, "_pivot_bounds", pivot_bounds if pivots else
+                            lambda near, dist, p: np.zeros(dist.shape))
+        monkeypatch.setattr(ex, "PIVOT_ROWS", pivots)
+        rounds.clear()
+        res = exact_wasserstein_distance(mesh, m0, m1)
+        assert res.value == pytest.approx(full, rel=1e-10) and res.converged
+        counts[pivots] = len(rounds)
+    assert counts[8] < counts[0], counts
+
+
 def test_decision_is_a_pure_function_of_the_stored_domain(shared_mesh, monkeypatch):
     """The default decision reads the inputs and the stored domain only: the library's sketch
     of the built mesh and the service's sketch of the stored arrays give the same decision,

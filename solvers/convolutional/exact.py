@@ -50,6 +50,11 @@ MAX_SUPPORT_PRODUCT = 25_000_000
 # 107 rounds and 1709 solves without).
 BOUND_MARGIN = 1.0
 TRIANGLE_ENTRIES = 200_000_000
+# Above that, each row's bounds go through its PIVOT_ROWS nearest rows with known distances
+# (rows x PIVOT_ROWS x columns per round): without any, homer's near r = 0.2 bumps took 118
+# rounds and stanford-bunny's near r = 0.1 bumps 162 (bench/results/exact_geodesics_speed.md);
+# the nearest rows give the tightest bounds |d(x_i, y) - d(x_k, y)| <= d(x_i, x_k).
+PIVOT_ROWS = 64
 # Estimates (exact_route_estimate, constants fitted by bench/distance_routes.py calibrate):
 # the later rounds of the bounded-solve loop (rows whose bound grows) took 0.5-0.8 x the
 # first round's time on 25 + 25 scattered points: the first round counts this much; the
@@ -225,6 +230,20 @@ def _triangle_bounds(near: np.ndarray, dist: np.ndarray) -> np.ndarray:
     return out
 
 
+def _pivot_bounds(near: np.ndarray, dist: np.ndarray, pivots: int) -> np.ndarray:
+    """:func:`_triangle_bounds` through each row's ``pivots`` nearest rows of known distance
+    only: ``(r, c)`` lower bounds at ``r x pivots x c`` entries instead of ``r^2 x c``."""
+    out = np.zeros(dist.shape)
+    gap = np.where(np.isnan(near), np.inf, near)
+    count = min(pivots, len(near))
+    nearest = np.argpartition(gap, count - 1, axis=1)[:, :count]
+    for i in range(len(near)):
+        k = nearest[i][np.isfinite(gap[i, nearest[i]])]
+        if k.size:
+            out[i] = _triangle_bounds(near[i, k][None, :], dist[k])[0]
+    return out
+
+
 def _mesh_exact(mesh, plan: _MeshPlan, stop, max_iter: int):
     """The bounded-solve loop of the module docstring: ``(plan, squared cost, log, LP
     seconds)``."""
@@ -251,8 +270,8 @@ def _mesh_exact(mesh, plan: _MeshPlan, stop, max_iter: int):
             near[i, seen] = near[seen, i] = d[plan.rows][seen]
         known = ~np.isnan(dist)
         lower = np.maximum(bound[:, None], straight)
-        if triangle:
-            lower = np.maximum(lower, _triangle_bounds(near, dist))
+        lower = np.maximum(lower, _triangle_bounds(near, dist) if triangle
+                           else _pivot_bounds(near, dist, PIVOT_ROWS))
         lower = np.where(known, dist, lower)
         begin = time.perf_counter()
         coupling, log = _network_simplex(plan.row_mass, plan.col_mass, _finite_cost(lower**2),
