@@ -164,11 +164,18 @@ def test_map_large_blocks_returns_a_freed_block_to_the_os():
     assert rss() - before < 16 << 20
 
 
-def test_float32_scalings_reach_the_float64_fixed_point(sphere):
+def test_float32_scalings_reach_the_float64_fixed_point():
     """The propagation with float32 edge-end log-scalings (the coarse target's storage)
-    converges to the same distributions as with float64."""
-    graph = farthest_point_samples(sphere, 48, [0, 900])
-    fixed = {0: np.eye(sphere.n)[0], 1: np.eye(sphere.n)[1700]}
+    converges to the same distributions as with float64.
+
+    On the 642-vertex sphere (1.1 CPU-s for both solves; the module's 2,562-vertex one took
+    ~15): the gap is 2.0e-7 there and 2.6e-7 on the larger one, and scalings rounded to
+    float16 precision before the sweeps give 4.1e-5 and 3.9e-5 (measured): the size does
+    not change what the bound below sees."""
+    s = trimesh.creation.icosphere(subdivisions=3)
+    sphere = TriangleMesh(s.vertices, s.faces)
+    graph = farthest_point_samples(sphere, 48, [0, 400])
+    fixed = {0: np.eye(sphere.n)[0], 1: np.eye(sphere.n)[400]}
     cost = np.random.default_rng(1).random((graph.n, sphere.n))
     logs = -0.5 * cost
     out = {}
