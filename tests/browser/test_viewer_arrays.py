@@ -1,6 +1,7 @@
-"""The viewer reads result arrays that the JSON result only links (``array_files``): a server
-with a tiny JSON budget inlines no per-vertex array, so coloring the surface needs the .npy
-files; and the page's .npy reader gives the values numpy stored, for every dtype results use."""
+"""The viewer reads result arrays that the JSON result only links (``array_files``): a result
+that inlines no per-vertex array (what a server with a small JSON budget sends) colors the
+surface from the .npy files; and the page's .npy reader gives the values numpy stored, for
+every dtype results use."""
 
 from __future__ import annotations
 
@@ -8,30 +9,21 @@ import base64
 import io
 
 import numpy as np
-import pytest
-from liveserver import API
 from shared_meshes import MESHES_DIR
-from test_viewer_browser import TIMEOUT, canvas_pixels, drop_file, open_viewer, pick_two, stats
-
-API_KEY = "viewer-arrays-key"
+from viewerpage import TIMEOUT, canvas_pixels, drop_file, open_viewer, pick_two, stats
 
 
-@pytest.fixture(scope="module")
-def api_process(tmp_path_factory):
-    """``otgeo serve`` whose JSON results hold at most 2 kB: arrays come as files."""
-    tmp = tmp_path_factory.mktemp("viewer-arrays")
-    env = {"OTGEO_DATA_DIR": str(tmp / "data"), "OTGEO_WORKERS": "1",
-           "OTGEO_API_KEYS": API_KEY, "OTGEO_RESULT_JSON_BYTES": "2048"}
-    api = API(env, tmp)
-    api.key = API_KEY
-    try:
-        yield api
-    finally:
-        api.stop(timeout=1)
+def links_only(route) -> None:
+    """The result as the server sends it when no array fits its JSON size budget: every array
+    linked, none inline (``?arrays=false``; the budget itself: tests/service/
+    test_result_budget.py). Asked of the shared server instead of starting another one with a
+    tiny OTGEO_RESULT_JSON_BYTES (~9 CPU-s)."""
+    route.continue_(url=route.request.url + "?arrays=false")
 
 
 def test_linked_arrays_color_the_surface(page, live_api):
     fetched = []
+    page.route("**/v1/jobs/*/result", links_only)
     page.on("request", lambda r: fetched.append(r.url) if r.url.endswith(".npy") else None)
     open_viewer(page, live_api)
     drop_file(page, "#drop", MESHES_DIR / "spot.obj")

@@ -92,8 +92,10 @@ def test_an_exact_job_shows_its_estimated_run_time(page, live_api):
         return float(page.evaluate("document.getElementById('progress').style.width")[:-1])
 
     first = width()
-    page.wait_for_timeout(1500)
-    assert first < width() < 95, (first, width())  # ~5% a second, never full while running
+    # ~5% a second: wait for it to grow (not a fixed pause), never full while running
+    page.wait_for_function("(w) => parseFloat(document.getElementById('progress').style"
+                           ".width) > w", arg=first, timeout=TIMEOUT)
+    assert first < width() < 95, (first, width())
     assert page.js_errors == []
 
 
