@@ -12,7 +12,8 @@ nothing is written into the repository.
 A block that cannot run here is listed in SKIP with the reason (and not collected); a block
 made smaller to keep the suite fast is listed in SMALLER, and the document must say so; a block
 that shows a server with API keys is listed in KEYED and runs against one (``OTGEO_API_KEYS``
-set, the key in ``OTGEO_API_KEY``), which refuses a request without it."""
+set, the key in ``OTGEO_API_KEY``), which refuses a request without it and runs its jobs
+inside the request (no worker process to start: the key is what those blocks show)."""
 
 from __future__ import annotations
 
