@@ -76,7 +76,7 @@ class SlicePlane(BaseModel):
 class VolumetricDistanceRequest(VolumetricOptions):
     model_config = ConfigDict(json_schema_extra={"examples": [
         {"source": [0.0, 0.0, 0.0], "points": [[0.1, 0.0, 0.0], [0.0, 0.2, 0.0]],
-         "slice": {"axis": "z", "offset": 0.5, "resolution": 16}}],
+         "slice": {"axis": "z", "offset": 0.5, "resolution": 6}}],
         **given("points", "slice", exactly=False)})
     source: Point3 = _point_field("the source point (inside or outside the surface)")
     points: list[Point3] | None = Field(None, min_length=1, max_length=MAX_POINTS,

@@ -12,7 +12,8 @@ nothing is written into the repository.
 A block that cannot run here is listed in SKIP with the reason (and not collected); a block
 made smaller to keep the suite fast is listed in SMALLER, and the document must say so; a block
 that shows a server with API keys is listed in KEYED and runs against one (``OTGEO_API_KEYS``
-set, the key in ``OTGEO_API_KEY``), which refuses a request without it."""
+set, the key in ``OTGEO_API_KEY``), which refuses a request without it and runs its jobs
+inside the request (no worker process to start: the key is what those blocks show)."""
 
 from __future__ import annotations
 
@@ -121,10 +122,12 @@ def live(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def keyed_live(tmp_path_factory):
-    """A second server, with an API key: requests without it get 401."""
+    """A second server, with an API key: requests without it get 401. Its jobs run inside
+    the request (``immediate``): what the keyed examples show is the key, and a worker
+    process would add its start-up (imports, kernel warm-up: about 2.5 CPU-s)."""
     tmp = tmp_path_factory.mktemp("readme-keyed")
-    api = API({"OTGEO_DATA_DIR": str(tmp / "data"), "OTGEO_WORKERS": "1",
-               "OTGEO_REAPER_INTERVAL": "1", "OTGEO_API_KEYS": API_KEY}, tmp)
+    api = API({"OTGEO_DATA_DIR": str(tmp / "data"), "OTGEO_QUEUE": "immediate",
+               "OTGEO_WORKERS": "0", "OTGEO_API_KEYS": API_KEY}, tmp)
     try:
         api.wait_healthy(60)
         assert httpx.get(f"{api.url}/v1/domains", timeout=30).status_code == 401
