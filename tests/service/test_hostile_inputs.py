@@ -10,6 +10,10 @@ import struct
 import numpy as np
 import pytest
 import trimesh
+from fastapi.testclient import TestClient
+
+from service.app import create_app
+from service.settings import Settings
 
 BIG = 2**70  # beyond int64
 I64_WRAP = 2**63
@@ -27,6 +31,22 @@ def mesh_id(client, sphere):
     r = client.post("/v1/domains", json=body)
     assert r.status_code in (200, 201), r.text
     return r.json()["id"]
+
+
+@pytest.fixture(scope="module")
+def refusing(tmp_path_factory):
+    """One app for the tests below that only post inputs refused at submission (nothing is
+    stored, no job runs), with the icosphere of ``mesh_id`` uploaded once: an app's start
+    costs ~0.14 CPU-s, and ~60 of them ran here. Tests whose outcome depends on what the
+    store already holds keep their own ``client``."""
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    settings = Settings(data_dir=tmp_path_factory.mktemp("hostile"), queue="immediate")
+    with TestClient(create_app(settings)) as client:
+        r = client.post("/v1/domains", json={"kind": "mesh", "vertices": sphere.vertices.tolist(),
+                                             "faces": sphere.faces.tolist()})
+        assert r.status_code == 201, r.text
+        client.mesh_id = r.json()["id"]
+        yield client
 
 
 @pytest.fixture
@@ -84,13 +104,14 @@ def assert_4xx(response, field):
     ({"kind": "mesh", "vertices": [[0, 0, 0], [1, 0, 0], [0, 1, 0]], "faces": [[0, 1, BIG]]},
      422, "faces"),
 ])
-def test_hostile_domain_bodies(client, body, status, field):
-    r = client.post("/v1/domains", json=body)
+def test_hostile_domain_bodies(refusing, body, status, field):
+    r = refusing.post("/v1/domains", json=body)
     assert r.status_code == status, r.text
     assert_4xx(r, field)
 
 
-def test_non_finite_numbers_in_domain_bodies(client):
+def test_non_finite_numbers_in_domain_bodies(refusing):
+    client = refusing
     r = post_raw(client, "/v1/domains", '{"kind": "pointcloud", "points": [[0, 0, Infinity],'
                  '[1, 0, 0], [0, 1, 0], [1, 1, 0]]}')
     assert_4xx(r, "points")
@@ -101,7 +122,8 @@ def test_non_finite_numbers_in_domain_bodies(client):
     assert_4xx(r, "bounds")
 
 
-def test_deeply_nested_json_is_a_4xx(client):
+def test_deeply_nested_json_is_a_4xx(refusing):
+    client = refusing
     r = post_raw(client, "/v1/domains", "[" * 100_000 + "]" * 100_000)
     assert 400 <= r.status_code < 500, r.text
     assert r.json()["error"]["field"] == "body"
@@ -125,7 +147,8 @@ def upload(client, name, data, **form):
     return client.post("/v1/domains", files={"file": (name, data)}, data=form)
 
 
-def test_obj_face_index_zero_is_reported(client):
+def test_obj_face_index_zero_is_reported(refusing):
+    client = refusing
     r = upload(client, "bad.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n")
     err = assert_4xx(r, "file")
     assert "index 0" in err["message"] and "line 4" in err["message"]
@@ -156,7 +179,8 @@ def _glb(doc: dict, payload: bytes = b"") -> bytes:
                            "buffers": [{"uri": "/etc/passwd", "byteLength": 36}]}).encode(),
      "not embedded"),
 ])
-def test_gltf_errors_are_clear(client, name, data, words):
+def test_gltf_errors_are_clear(refusing, name, data, words):
+    client = refusing
     r = upload(client, name, data)
     err = assert_4xx(r, "file")
     assert words in err["message"]
@@ -210,7 +234,8 @@ def _job(client, domain_id, op, body, text=None):
     return post_raw(client, url, text) if text is not None else client.post(url, json=body)
 
 
-def test_sparse_indices_beyond_int64(client, mesh_id):
+def test_sparse_indices_beyond_int64(refusing):
+    client, mesh_id = refusing, refusing.mesh_id
     r = _job(client, mesh_id, "distances",
              {"mu0": {"indices": [BIG], "masses": [1.0]}, "mu1": {"vertex": 0, "radius": 0.5}})
     assert_4xx(r, "mu0.indices")
@@ -247,7 +272,8 @@ PAIR = '"mu0": {"vertex": 0, "radius": 0.5}, "mu1": {"vertex": 5, "radius": 0.5}
     ("distances", '{"mu0": {"indices": [0], "masses": [Infinity]}, "mu1": {"vertex": 1, '
      '"radius": 1}}', "mu0.masses"),
 ])
-def test_hostile_scalars(client, mesh_id, op, text, field):
+def test_hostile_scalars(refusing, op, text, field):
+    client, mesh_id = refusing, refusing.mesh_id
     assert_4xx(_job(client, mesh_id, op, None, text), field)
 
 
@@ -264,12 +290,14 @@ FIX = {"distribution": {"vertex": 0, "radius": 0.5}}
     ({"edges": []}, "edges"),
     ({"edges": [[0, 1]], "n_nodes": 1}, "n_nodes"),
 ])
-def test_hostile_propagations(client, mesh_id, extra, field):
+def test_hostile_propagations(refusing, extra, field):
+    client, mesh_id = refusing, refusing.mesh_id
     body = {"n_nodes": 2, "fixed": [{"node": 0, **FIX}], **extra}
     assert_4xx(_job(client, mesh_id, "propagations", body), field)
 
 
-def test_nan_edge_weight_in_propagation(client, mesh_id):
+def test_nan_edge_weight_in_propagation(refusing):
+    client, mesh_id = refusing, refusing.mesh_id
     text = ('{"n_nodes": 2, "edges": [[0, 1]], "edge_weights": [NaN], "fixed": [{"node": 0, '
             '"distribution": {"vertex": 0, "radius": 0.5}}]}')
     assert_4xx(_job(client, mesh_id, "propagations", None, text), "edge_weights")
@@ -398,7 +426,8 @@ except MemoryError as exc:
     ("neg.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf -1 -2 -4\n"),
     ("text.glb", b"v 0 0 0\n"),
 ])
-def test_hostile_mesh_files(client, name, data):
+def test_hostile_mesh_files(refusing, name, data):
+    client = refusing
     r = upload(client, name, data)
     err = assert_4xx(r, "file")
     assert "Error" not in err["message"]  # no exception class names or texts

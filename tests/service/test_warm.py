@@ -106,7 +106,7 @@ def test_a_worker_warms_at_start_in_the_background(tmp_path):
     worker = Worker(env, tmp_path)
     try:
         wait_for(lambda: "color-transfers kernels ready" in worker.log(10**7), 900,
-                 interval=0.5, what="warm-up logged")
+                 interval=0.1, what="warm-up logged")  # reads a small log file
         log = worker.log(10**7)
         assert log.index(" ready (queue ") < log.index("color-transfers kernels ready")
     finally:
