@@ -20,6 +20,25 @@ from service.schemas import GridSpec, JobOut
 from service.settings import Settings
 
 
+def _run_in_own_loop(scenario) -> None:
+    """``asyncio.run(scenario())`` in a thread of its own: the test process may already run
+    an event loop in its main thread (the browser tests' shared Playwright, kept for the
+    session), where ``asyncio.run`` refuses to start."""
+    failure: list[BaseException] = []
+
+    def run():
+        try:
+            asyncio.run(scenario())
+        except BaseException as exc:  # re-raised in the test's thread
+            failure.append(exc)
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    thread.join()
+    if failure:
+        raise failure[0]
+
+
 def test_sender_reaches_role_and_forgets_closed_sockets(tmp_path):
     worker, api = WakeSocket(tmp_path, "worker"), WakeSocket(tmp_path, "api")
     if worker.sock is None:
@@ -89,7 +108,7 @@ def test_done_datagram_sets_waiting_event(tmp_path):
             waiters.detach()
             sender.close()
 
-    asyncio.run(scenario())
+    _run_in_own_loop(scenario)
 
 
 def test_created_job_is_complete_without_reading_it_back(tmp_path):
@@ -127,7 +146,7 @@ def test_done_before_registration_wakes_at_once(tmp_path):
             waiters.detach()
             sender.close()
 
-    asyncio.run(scenario())
+    _run_in_own_loop(scenario)
 
 
 def _grid_runtime(tmp_path, shape=(6, 6)):
