@@ -155,9 +155,13 @@ def run_worker(settings, queues=("short", "long")) -> None:
     runtime.start_background(publish=True)
     logging.getLogger("otgeo").info("worker %s ready (queue %s: %s)", runtime.process_id,
                                     settings.queue, ", ".join(consumer.queues))
-    from service import warm
+    if settings.warm_at_start:
+        from service import warm
 
-    warm.start_background(runtime.operations)  # a first job waits for it (runner), no one else
+        warm.start_background(runtime.operations)  # a first job waits for it (runner)
+    else:
+        logging.getLogger("otgeo").info("no warm-up at start (OTGEO_WARM_AT_START=false): "
+                                        "each operation's first job warms its kernels")
     try:
         consumer.run()
     finally:

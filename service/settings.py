@@ -104,6 +104,11 @@ class Settings(BaseSettings):
     workers: int = Field(default_factory=lambda: cpu_count(), ge=0,
                          description="worker processes started by `otgeo serve` (default: "
                          "the cores this process may run on)")
+    warm_at_start: bool = Field(
+        True, description="each worker loads (or, on a fresh install, compiles) the "
+        "operations' numba kernels in a background thread when it starts, so that a first "
+        "colour transfer need not wait for them; off, a job warms what it needs on its "
+        "first run")
     reserved_short_workers: int = Field(
         1, ge=0, description="of `otgeo serve`'s workers, how many serve only the short-job "
         "queue (when there are at least two workers)")

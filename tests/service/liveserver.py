@@ -36,6 +36,11 @@ class Process:
         self.log_path = Path(log_dir) / f"{name}.log"
         self._log = open(self.log_path, "ab")  # noqa: SIM115 - closed in stop()
         full_env = {k: v for k, v in os.environ.items() if not k.startswith("OTGEO_")}
+        if "PYTEST_CURRENT_TEST" in os.environ:
+            # Under pytest, workers skip the start-up warm-up (about 2.5 CPU-s each; a job
+            # warms what it needs on its first run): tests/service/test_warm.py asks for it.
+            # Benchmarks keep the default, as `otgeo serve` runs.
+            full_env["OTGEO_WARM_AT_START"] = "false"
         full_env.update(env)
         full_env.setdefault("PYTHONUNBUFFERED", "1")
         self.popen = subprocess.Popen(args, env=full_env, cwd=ROOT, stdout=self._log,

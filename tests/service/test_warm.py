@@ -102,12 +102,27 @@ def test_color_warm_up_compiles_what_a_job_runs():
 
 def test_a_worker_warms_at_start_in_the_background(tmp_path):
     """``otgeo worker`` takes jobs at once and warms meanwhile (its log says when)."""
-    env = {"OTGEO_DATA_DIR": str(tmp_path / "data"), "OTGEO_QUEUE": "sqlite"}
+    env = {"OTGEO_DATA_DIR": str(tmp_path / "data"), "OTGEO_QUEUE": "sqlite",
+           "OTGEO_WARM_AT_START": "true"}  # the default, which other tests' servers turn off
     worker = Worker(env, tmp_path)
     try:
         wait_for(lambda: "color-transfers kernels ready" in worker.log(10**7), 900,
                  interval=0.1, what="warm-up logged")  # reads a small log file
         log = worker.log(10**7)
         assert log.index(" ready (queue ") < log.index("color-transfers kernels ready")
+    finally:
+        stop_all([worker])
+
+
+def test_a_worker_told_not_to_warm_at_start_says_so(tmp_path):
+    """``OTGEO_WARM_AT_START=false`` (the test servers' setting): no background warm-up; the
+    worker's log says that first jobs warm their kernels instead."""
+    env = {"OTGEO_DATA_DIR": str(tmp_path / "data"), "OTGEO_QUEUE": "sqlite",
+           "OTGEO_WARM_AT_START": "false"}
+    worker = Worker(env, tmp_path)
+    try:
+        wait_for(lambda: "no warm-up at start" in worker.log(10**7), 120, interval=0.1,
+                 what="the worker's start")
+        assert "kernels ready" not in worker.log(10**7)
     finally:
         stop_all([worker])
