@@ -28,8 +28,6 @@ from service.tenants import ANONYMOUS, Tenant, check_queued_quota
 
 log = logging.getLogger("otgeo.jobs")
 
-
-
 # domains up to this many points have their bounded submissions validated on the event loop
 # (distances with an explicit gamma: ~0.1 ms at 35k points, once the domain's arrays are read)
 LOOP_SUBMISSION_POINTS = 50_000

@@ -19,16 +19,24 @@ BIG = 2**70  # beyond int64
 I64_WRAP = 2**63
 
 
-@pytest.fixture
-def sphere():
+def icosphere():
     return trimesh.creation.icosphere(subdivisions=2)  # 162 vertices
 
 
 @pytest.fixture
+def sphere():
+    return icosphere()
+
+
+def upload_sphere(client, sphere):
+    """``POST /v1/domains`` of ``sphere`` as a mesh body; the response."""
+    return client.post("/v1/domains", json={"kind": "mesh", "vertices": sphere.vertices.tolist(),
+                                            "faces": sphere.faces.tolist()})
+
+
+@pytest.fixture
 def mesh_id(client, sphere):
-    body = {"kind": "mesh", "vertices": sphere.vertices.tolist(),
-            "faces": sphere.faces.tolist()}
-    r = client.post("/v1/domains", json=body)
+    r = upload_sphere(client, sphere)
     assert r.status_code in (200, 201), r.text
     return r.json()["id"]
 
@@ -39,11 +47,9 @@ def refusing(tmp_path_factory):
     stored, no job runs), with the icosphere of ``mesh_id`` uploaded once: an app's start
     costs ~0.14 CPU-s, and ~60 of them ran here. Tests whose outcome depends on what the
     store already holds keep their own ``client``."""
-    sphere = trimesh.creation.icosphere(subdivisions=2)
     settings = Settings(data_dir=tmp_path_factory.mktemp("hostile"), queue="immediate")
     with TestClient(create_app(settings)) as client:
-        r = client.post("/v1/domains", json={"kind": "mesh", "vertices": sphere.vertices.tolist(),
-                                             "faces": sphere.faces.tolist()})
+        r = upload_sphere(client, icosphere())
         assert r.status_code == 201, r.text
         client.mesh_id = r.json()["id"]
         yield client
