@@ -23,6 +23,8 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
+from spec_refs import schema_refs
+
 ROOT = Path(__file__).resolve().parents[1]
 TABLE = ROOT / "docs" / "guide" / "vocabulary.csv"
 HEADER = ("name", "meaning", "where")
@@ -64,17 +66,6 @@ def library_names() -> dict[str, set[str]]:
     return names
 
 
-def _refs(node):
-    if isinstance(node, dict):
-        if "$ref" in node:
-            yield node["$ref"].rsplit("/", 1)[-1]
-        for value in node.values():
-            yield from _refs(value)
-    elif isinstance(node, list):
-        for value in node:
-            yield from _refs(value)
-
-
 def http_names(spec: dict | None = None) -> dict[str, set[str]]:
     """``name -> operations`` (the last segment of the POST path) of every field of a request
     body's model, nested models included."""
@@ -88,7 +79,7 @@ def http_names(spec: dict | None = None) -> dict[str, set[str]]:
         if "post" not in item:
             continue
         operation = path.rstrip("/").rsplit("/", 1)[-1]
-        todo, seen = list(_refs(item["post"].get("requestBody", {}))), set()
+        todo, seen = list(schema_refs(item["post"].get("requestBody", {}))), set()
         while todo:
             model = todo.pop()
             if model in seen:
@@ -98,7 +89,7 @@ def http_names(spec: dict | None = None) -> dict[str, set[str]]:
             for part in [schema, *schema.get("allOf", [])]:
                 for field, sub in part.get("properties", {}).items():
                     names[field].add(operation)
-                    todo.extend(_refs(sub))
+                    todo.extend(schema_refs(sub))
     return names
 
 

@@ -34,6 +34,7 @@ import numpy as np
 import pytest
 from example_inputs import png_images, schema_example, sphere_obj, substitute_ids
 from liveserver import API
+from spec_refs import referenced
 
 from service.cli import openapi_document
 from service.export import parse_glb
@@ -86,18 +87,6 @@ def sdk(tmp_path_factory, doc):
         sys.path.remove(str(out))
         for name in [m for m in sys.modules if m == PACKAGE or m.startswith(PACKAGE + ".")]:
             del sys.modules[name]
-
-
-def referenced(schemas: dict, names: set[str]) -> set[str]:
-    """``names`` and every schema they reference (``$ref``), transitively."""
-    todo, out = list(names), set(names)
-    while todo:
-        text = json.dumps(schemas[todo.pop()])
-        for name in re.findall(r'"#/components/schemas/([^"]+)"', text):
-            if name not in out:
-                out.add(name)
-                todo.append(name)
-    return out
 
 
 def test_generator_reports_duplicate_models(tmp_path, doc):
