@@ -12,8 +12,9 @@ from pydantic import TypeAdapter
 from service import __version__
 from service.api import docs, domains, guards, health, images, jobs, operations, spec, viewer
 from service.api.deps import require_api_key
+from service.api.errors import install_handlers
 from service.api.routelist import operations_markdown
-from service.errors import ErrorResponse, install_handlers
+from service.errors import ErrorResponse
 from service.jobs.wake import JobWaiters
 from service.runtime import Runtime
 from service.schemas import DomainSpec

@@ -70,3 +70,27 @@ def test_otgeo_serve_without_the_service_extra_says_what_to_install():
     assert done.returncode == 2, done.stderr[-3000:]
     assert "pip install 'otgeo[service]'" in done.stderr
     assert "Traceback" not in done.stderr
+
+
+WEB_PACKAGES = ("fastapi", "fastapi_offline", "starlette", "uvicorn", "multipart",
+                "python_multipart")
+# What a worker process imports before it takes a job (service.cli.run_worker), and every
+# operation it may run: none of it is web code, so a worker does not pay for FastAPI's import
+IMPORT_WORKER = """
+import sys
+for name in {blocked!r}:
+    sys.modules[name] = None
+from service.jobs.consumer import Consumer
+from service.runtime import Runtime
+from service import warm
+from service.operations import build_registry
+print(len(build_registry()))
+"""
+
+
+def test_a_worker_imports_no_web_framework():
+    code = IMPORT_WORKER.format(blocked=WEB_PACKAGES)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          cwd=ROOT, timeout=120)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert int(done.stdout) > 10  # the registry's operations were all imported
