@@ -160,15 +160,8 @@ async def parse_json(body: bytes):
         return load_json(body)
     if len(body) < IN_PROCESS_BYTES:
         return await run_in_threadpool(load_json, body)
-    try:
-        out = await asyncio.wrap_future(_executor().submit(compact_json, body))
-    except (BrokenProcessPool, OSError, RuntimeError) as exc:  # child died: parse here
-        log.warning("JSON parser process unavailable (%s); parsing in a thread", exc)
-        _discard_pool()
-        return await run_in_threadpool(load_json, body)
-    if out[0] == "error":
-        _raise(out)
-    return await run_in_threadpool(expand_json, out[1])
+    out, parsed = await _in_parser_process(compact_json, body, load_json)
+    return parsed if out is None else await run_in_threadpool(expand_json, out[1])
 
 
 async def parse_spec(body: bytes):
@@ -177,13 +170,25 @@ async def parse_spec(body: bytes):
 
     if len(body) < IN_PROCESS_BYTES:
         return await run_in_threadpool(spec_from_json, body)
+    out, parsed = await _in_parser_process(compact_spec, body, spec_from_json)
+    if out is None:
+        return parsed
+    _, kind, fields = out
+    return KINDS[kind].model_construct(**fields)
+
+
+async def _in_parser_process(task, body: bytes, in_thread):
+    """``(task(body), None)`` from the parser process (its ``("error", ...)`` raised as the
+    API error), or ``(None, in_thread(body))`` parsed in a thread when that process is
+    unavailable."""
+    from fastapi.concurrency import run_in_threadpool
+
     try:
-        out = await asyncio.wrap_future(_executor().submit(compact_spec, body))
+        out = await asyncio.wrap_future(_executor().submit(task, body))
     except (BrokenProcessPool, OSError, RuntimeError) as exc:  # child died: parse here
         log.warning("JSON parser process unavailable (%s); parsing in a thread", exc)
         _discard_pool()
-        return await run_in_threadpool(spec_from_json, body)
+        return None, await run_in_threadpool(in_thread, body)
     if out[0] == "error":
         _raise(out)
-    _, kind, fields = out
-    return KINDS[kind].model_construct(**fields)
+    return out, None
