@@ -5,9 +5,12 @@ A pytest plugin that appends, for every test, the CPU-seconds of the process run
 module-scoped server is counted at the teardown of the module's last test), its wall time
 and its worker, one JSON line each to ``SUITE_CPU_OUT``; and a summary of such a file::
 
-    SUITE_CPU_OUT=/tmp/cpu.jsonl PYTHONPATH=$PWD:bench .venv/bin/python -m pytest -q \\
-        -n auto --dist loadfile --no-loadscope-reorder -p no:cacheprovider -p suite_cpu
+    SUITE_CPU_OUT=/tmp/cpu.jsonl PYTHONPATH=$PWD .venv/bin/python -m pytest -q \\
+        -n auto --dist loadfile --no-loadscope-reorder -p no:cacheprovider -p bench.suite_cpu
     .venv/bin/python bench/suite_cpu.py /tmp/cpu.jsonl 30   # files, then the 30 costliest
+
+(Not ``PYTHONPATH=...:bench``: ``bench/docker.py`` would then shadow the ``docker`` package
+that ``docker-compose`` imports, and the Docker tests fail at the stack's start.)
 
 Children whose parent died first (orphans) are not counted: for those, run one file inside
 its own cgroup (cpuacct) instead.
