@@ -52,8 +52,8 @@ from _common import cpu_model, load1, service_bump  # noqa: E402
 
 from solvers import load_mesh  # noqa: E402
 from solvers.convolutional import distance_matrix, wasserstein_distance  # noqa: E402
-from solvers.convolutional.decision import decide_distance  # noqa: E402
 from solvers.regularization import sketch_of  # noqa: E402
+from solvers.transport.decision import decide_distance  # noqa: E402
 
 SAMPLE = 10
 LADDER = (0.05, 0.02, 0.01, 0.005, 0.002, 0.001, 0.0005)  # POT reg / mean support cost

@@ -5,7 +5,7 @@ Parts (``.venv/bin/python bench/distance_routes.py PART [--mesh=NAME,...]``):
 * ``calibrate`` (timing: run under ``cpu bench`` with BLAS threads pinned) — bounded MMP
   solves (tvb-gdist) on meshes from 700 to 50k vertices at several reach fractions, and
   network-simplex LPs (``ot.emd``) of several sizes; fits the constants of
-  ``solvers.geodesics.mmp_solve_seconds`` and ``solvers.convolutional.exact.LP_COEF`` and
+  ``solvers.geodesics.mmp_solve_seconds`` and ``solvers.transport.exact.LP_COEF`` and
   prints them (they are committed by hand: a decision never reads timings at run time).
 * ``validate`` (timing) — the exact route run end to end where the default decision takes it
   (25 + 25 point masses on every mesh, the bench's bumps on the small meshes): measured time
@@ -177,7 +177,7 @@ def cases(mesh, name):
 # -- coverage and validation ---------------------------------------------------------------------
 def coverage_rows(names, radii=(0.05, 0.1, 0.2)):
     """The decision on the cases at each bump radius (and the points)."""
-    from solvers.convolutional.decision import decide_distance
+    from solvers.transport.decision import decide_distance
 
     rows, kept = [], RADIUS[0]
     for name in names:
@@ -201,8 +201,8 @@ def coverage_rows(names, radii=(0.05, 0.1, 0.2)):
 
 def validate_rows(names, labels=ORDER):
     """The exact route, timed, where the default decision takes it."""
-    from solvers.convolutional.decision import decide_distance
-    from solvers.convolutional.exact import exact_wasserstein_distance
+    from solvers.transport.decision import decide_distance
+    from solvers.transport.exact import exact_wasserstein_distance
 
     rows = []
     for name in names:
@@ -262,7 +262,7 @@ def oracle(mesh, m0, m1):
     has at most FULL_ROWS points and the mesh at most FULL_MESH vertices; else the exact
     route between the QUANTIZED-point quantizations (mass-weighted farthest points, each
     point's mass moved to its nearest representative)."""
-    from solvers.convolutional.exact import exact_wasserstein_distance
+    from solvers.transport.exact import exact_wasserstein_distance
 
     rows = min(np.count_nonzero(m0), np.count_nonzero(m1))
     if rows <= FULL_ROWS and mesh.n <= FULL_MESH:
@@ -325,9 +325,9 @@ def sweep_rows(names, oracles, labels=("near", "middle", "far")):
     policy's rule for that gamma), against the exact LP: is extrapolation in gamma
     (Richardson) of any use?"""
     from solvers.convolutional import wasserstein_distance
-    from solvers.convolutional.decision import decide_distance
     from solvers.kernels import heat_time
     from solvers.regularization import VALUE_MIN_H, value_substeps
+    from solvers.transport.decision import decide_distance
 
     rows = []
     for name in names:
@@ -370,7 +370,7 @@ def render(data) -> str:
     lines = ["# Default W2 distances: route decision, cost models, accuracy", "",
              "The default `wasserstein_distance(domain, mu0, mu1)` (and `POST .../distances` "
              "without options) decides its route and regularization from the request and the "
-             "stored domain alone (`solvers/convolutional/decision.py`).  Script: "
+             "stored domain alone (`solvers/transport/decision.py`).  Script: "
              "`bench/distance_routes.py` (module docstring: parts and cases).  All 13 shared "
              "meshes are used; suzanne (3 components), beetle (2) and teapot (4) have several "
              "components: their cases lie on the largest one (a bump that would straddle two "
@@ -423,7 +423,7 @@ def _validation_lines(rows):
 def _coverage_lines(rows):
     if not rows:
         return []
-    from solvers.convolutional.decision import EXACT_BUDGET_SECONDS
+    from solvers.transport.decision import EXACT_BUDGET_SECONDS
 
     lines = ["", "## Which inputs take the exact route", "",
              "Command: `.venv/bin/python bench/distance_routes.py coverage` (the decision "
@@ -480,7 +480,7 @@ def _accuracy_lines(rows):
             worst[r["route"]] = (err, f"{r['name']} {r['case']} r {r.get('radius', 0.1):g}")
     lines += ["", "Worst error by route: " + ", ".join(
         f"{route} {err:.2%} ({where})" for route, (err, where) in worst.items()) + "."]
-    from solvers.convolutional.decision import EXACT_BUDGET_SECONDS as budget
+    from solvers.transport.decision import EXACT_BUDGET_SECONDS as budget
 
     exact = [(r["seconds"] / r["exact_seconds"], r) for r in rows
              if r["route"] == "exact" and r["exact_seconds"] and r["seconds"] > 1.0]

@@ -1,6 +1,6 @@
 """Exact W2 between large supports, without and with the nearest-pivot bounds (issue 40).
 
-Runs whose rows² x columns exceed ``solvers.convolutional.exact.TRIANGLE_ENTRIES`` bound
+Runs whose rows² x columns exceed ``solvers.transport.exact.TRIANGLE_ENTRIES`` bound
 each row's unknown entries through its ``PIVOT_ROWS`` nearest rows of known distance
 (``_pivot_bounds``); this times one such run with those bounds replaced by zeros (as before
 them) and as committed, in one process, warm, on the cases of ``bench/distance_routes.py``
@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 import distance_routes as routes  # noqa: E402
 
-import solvers.convolutional.exact as exact  # noqa: E402
+import solvers.transport.exact as exact  # noqa: E402
 from solvers import load_mesh  # noqa: E402
 
 

@@ -238,7 +238,7 @@ ROUTE_MEANINGS = (
     ("hemisphere kernel", lambda where, *_: where.startswith(
         ("solvers/convolutional/hemisphere.py", "service/operations/applications.py"))),
     ("W2 method", lambda where, *_: where.startswith(
-        ("solvers/convolutional/", "service/operations/transport.py",
+        ("solvers/convolutional/", "solvers/transport/", "service/operations/transport.py",
          "service/operations/matrices.py"))),
 )
 

@@ -14,6 +14,8 @@ J. Solomon's thesis *Transportation Techniques for Geometric Data Processing* (2
                           volumetric distances, exact SOCP, W1 barycenters and paths)
 ``solvers.convolutional`` ch. 3: convolutional Wasserstein distances, barycenters,
                           interpolation, propagation (Alg. 1–4), shape interpolation
+``solvers.transport``     the exact W2 LP between sparse supports and the default
+                          decision between it and the convolutional method
 ``solvers.softmaps``      ch. 4 and §3.7: soft maps between surfaces
 ``solvers.histograms``    ch. 5: Wasserstein propagation of histograms on graphs
 ``solvers.color``         §3.7: color transfer over chrominance histograms

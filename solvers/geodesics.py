@@ -1,6 +1,6 @@
 """Exact geodesic distances on triangle meshes: the ground truth of transport costs.
 
-Used by the exact transport method (:mod:`solvers.convolutional.exact`), as ground truth for
+Used by the exact transport method (:mod:`solvers.transport.exact`), as ground truth for
 transport costs in tests and benchmarks (exact LPs with geodesic costs), and for comparison
 with transport-based distances.
 

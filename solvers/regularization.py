@@ -35,6 +35,7 @@ from solvers.domains import supports
 from solvers.domains.sketch import DomainSketch
 from solvers.errors import InputError
 from solvers.kernels import GEODESIC_KERNEL_VERTICES, heat_time
+from solvers.validation import check_choice
 
 PURPOSES = ("values", "shapes")
 # gamma = VALUE_FACTOR * h * d for values (bench/results/convolutional.md), with h at least
@@ -378,9 +379,7 @@ def shape_method(domain, method: str = "auto") -> str:
     -------
     str
     """
-    if method not in SHAPE_METHODS:
-        raise InputError(f"method must be one of {', '.join(map(repr, SHAPE_METHODS))}, "
-                         f"got {method!r}", field="method")
+    check_choice(method, SHAPE_METHODS, "method")
     available = sketch_of(domain).geodesic_kernel_available
     if method == "geodesic" and not available:
         raise InputError("method 'geodesic' is available on connected triangle meshes of at "

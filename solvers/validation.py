@@ -649,3 +649,95 @@ def check_cost_matrix(cost, field: str = "cost", *, max_size: int | None = None)
         raise InputError(f"{field} must be symmetric: {field}[{i}][{j}] != {field}[{j}][{i}]",
                          field=field)
     return 0.5 * (c + c.T)
+
+
+def masses_block(domain, values, field: str, columns: int | None = None) -> np.ndarray:
+    """Validated, normalized ``(n,)`` or ``(n, k)`` masses.
+
+    Parameters
+    ----------
+    domain : domain
+        Gives the node count ``n``.
+    values : array_like
+        ``(n,)`` or ``(n, k)`` non-negative masses.
+    field : str
+        The input's name, for errors.
+    columns : int, optional
+        The ``k`` required (a 2-D block of that many columns).
+
+    Returns
+    -------
+    ndarray
+        The masses, each column normalized to total 1.
+    """
+    m = normalize_masses(values, domain.n, field)
+    if columns is not None and (m.ndim != 2 or m.shape[1] != columns):
+        raise InputError(f"{field} must have shape ({domain.n}, {columns})", field=field)
+    return m
+
+
+def distribution_pair(domain, mu0, mu1) -> tuple[np.ndarray, np.ndarray]:
+    """Validated, normalized ``(n,)`` masses ``mu0``, ``mu1`` (one distribution each).
+
+    Parameters
+    ----------
+    domain : domain
+        Gives the node count ``n``.
+    mu0, mu1 : array_like
+        ``(n,)`` non-negative masses.
+
+    Returns
+    -------
+    tuple of ndarray
+        ``(m0, m1)``, each normalized to total 1.
+    """
+    pair = []
+    for name, values in (("mu0", mu0), ("mu1", mu1)):
+        m = masses_block(domain, values, name)
+        if m.ndim != 1:
+            raise InputError(f"{name} must be one distribution of shape ({domain.n},)",
+                             field=name)
+        pair.append(m)
+    return pair[0], pair[1]
+
+
+def check_components(domain, masses: np.ndarray, tol: float, field: str) -> None:
+    """Refuse inputs whose per-component masses differ (mass cannot cross components).
+
+    With matching component masses the heat kernel is block diagonal and the solvers work
+    on every component at once.
+
+    Parameters
+    ----------
+    domain : domain
+        The domain whose connected components are compared.
+    masses : ndarray
+        ``(n, k)`` masses, one distribution per column.
+    tol : float
+        Largest difference of a component's masses between columns.
+    field : str
+        The input's name, for the error.
+    """
+    domain.require_matching_component_masses(masses, tol, field)
+
+
+def check_choice(value, choices, field: str) -> str:
+    """``value`` if it is one of ``choices``, else an :class:`InputError` naming ``field``.
+
+    Parameters
+    ----------
+    value : str
+        The given choice.
+    choices : sequence of str
+        The allowed ones.
+    field : str
+        The input's name, for the error.
+
+    Returns
+    -------
+    str
+    """
+    if value not in choices:
+        raise InputError(f"{field} must be one of {', '.join(map(repr, choices))}, got "
+                         f"{value!r}", field=field)
+    return value

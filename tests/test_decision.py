@@ -1,4 +1,4 @@
-"""The default decision of a distance (solvers.convolutional.decision) on every domain kind:
+"""The default decision of a distance (solvers.transport.decision) on every domain kind:
 the sketch of stored arrays equals the built domain's, and the decision follows from it."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ import pytest
 
 from solvers import Graph, Grid, PointCloud
 from solvers.convolutional import wasserstein_distance
-from solvers.convolutional.decision import DistanceDecision, decide_distance
 from solvers.domains.sketch import DomainSketch
 from solvers.errors import InputError
+from solvers.transport.decision import DistanceDecision, decide_distance
 
 
 def _stored(domain) -> DomainSketch:

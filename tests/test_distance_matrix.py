@@ -195,8 +195,8 @@ def test_input_errors(woody):
 
 
 def test_quick_route_decision_agrees_with_the_default(woody):
-    from solvers.convolutional.decision import decide_distance, decide_method
     from solvers.regularization import sketch_of
+    from solvers.transport.decision import decide_distance, decide_method
 
     mesh, wide = woody
     small = [_bump(mesh, i, 0.08) for i in (0, 650)]
@@ -227,8 +227,8 @@ def test_support_lp_core_equals_ot_emd():
     infinite entries that no plan uses)."""
     import ot
 
-    from solvers.convolutional.exact import _finite_cost
     from solvers.convolutional.matrix import _support_lp
+    from solvers.transport.exact import _finite_cost
 
     rng = np.random.default_rng(11)
     for k in range(30):

@@ -1,4 +1,4 @@
-"""The exact W2 route for sparse supports (solvers.convolutional.exact) and the exact
+"""The exact W2 route for sparse supports (solvers.transport.exact) and the exact
 geodesics under it (solvers.geodesics), including non-manifold meshes."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ from scipy.sparse.csgraph import dijkstra
 
 from solvers import Graph, Grid
 from solvers.convolutional import wasserstein_distance
-from solvers.convolutional.exact import ExactTransportResult, exact_wasserstein_distance
 from solvers.errors import InputError
 from solvers.geodesics import geodesic_distances
+from solvers.transport.exact import ExactTransportResult, exact_wasserstein_distance
 
 
 def _points(n, idx, rng=None):
@@ -129,7 +129,7 @@ def test_local_bounded_solves_equal_whole_surface_solves(shared_mesh, name, monk
                                                      ("cow.obj", 8, (0,))])
 def test_bounded_solves_give_the_full_lp(shared_mesh, name, size, seeds):
     """The exact route solves each geodesic only out to the radius its plan needs (module
-    docstring of solvers.convolutional.exact): its value must still be the LP on the full
+    docstring of solvers.transport.exact): its value must still be the LP on the full
     exact cost matrix, on a manifold mesh and on cow's junction vertex."""
     mesh = shared_mesh(name)
     for seed in seeds:
@@ -145,9 +145,9 @@ def test_bounded_solves_give_the_full_lp(shared_mesh, name, size, seeds):
 
 def test_pivot_bounds_keep_the_lp_exact_and_cut_its_rounds(shared_mesh, monkeypatch):
     """Above TRIANGLE_ENTRIES the rows' bounds go through their nearest pivot rows only
-    (solvers.convolutional.exact._pivot_bounds): still lower bounds, so the value is the LP
+    (solvers.transport.exact._pivot_bounds): still lower bounds, so the value is the LP
     on the full exact cost matrix, in fewer LP rounds than with no such bounds."""
-    import solvers.convolutional.exact as ex
+    import solvers.transport.exact as ex
 
     mesh = shared_mesh("woody.obj")
     rng = np.random.default_rng(3)
@@ -175,12 +175,12 @@ def test_decision_is_a_pure_function_of_the_stored_domain(shared_mesh, monkeypat
     of the built mesh and the service's sketch of the stored arrays give the same decision,
     solves run in between (process history) change nothing, no operator is built for it; a
     budget below the model takes the convolutional route and says why; no clock fallback."""
-    import solvers.convolutional.decision as decision
-    from solvers.convolutional.decision import EXACT_BUDGET_SECONDS, decide_distance
-    from solvers.convolutional.exact import exact_route_estimate, lp_seconds
+    import solvers.transport.decision as decision
     from solvers.domains.sketch import DomainSketch
     from solvers.errors import CancelledError
     from solvers.geodesics import mmp_solve_seconds
+    from solvers.transport.decision import EXACT_BUDGET_SECONDS, decide_distance
+    from solvers.transport.exact import exact_route_estimate, lp_seconds
 
     mesh = shared_mesh("cow.obj")  # one junction vertex: its closure is in the model
     rng = np.random.default_rng(5)
@@ -263,7 +263,7 @@ def test_the_lp_refuses_empty_or_massless_supports_instead_of_crashing(masses):
     """POT's network simplex on an empty support read out of bounds: a segfault of the API
     process (its client saw the connection close), reached when an overflowing sum had
     zeroed the masses. Such a call now raises."""
-    from solvers.convolutional.exact import _network_simplex
+    from solvers.transport.exact import _network_simplex
 
     other = np.full(len(masses), 1.0 / max(len(masses), 1))
     with pytest.raises(ValueError, match="empty or massless"):

@@ -22,6 +22,7 @@ PACKAGES = [
     ("solvers", "Errors"),
     ("solvers.emd", "Earth mover's distances (chapter 2)"),
     ("solvers.convolutional", "Convolutional transport (chapter 3)"),
+    ("solvers.transport", "Exact transport and the default decision"),
     ("solvers.softmaps", "Soft maps (chapter 4, §3.7)"),
     ("solvers.histograms", "Histograms on graphs (chapter 5)"),
     ("solvers.color", "Color transfer (§3.7)"),

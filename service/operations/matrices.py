@@ -40,8 +40,6 @@ from service.operations.base import (
 )
 from service.operations.examples import BUMP_A, BUMP_B, example
 from service.operations.transport import SinkhornOptions
-from solvers.convolutional.decision import decide_method
-from solvers.convolutional.exact import EXACT_KINDS
 from solvers.convolutional.matrix import (
     SHARED_COST_ENTRIES,
     W1_ONLY,
@@ -60,6 +58,8 @@ from solvers.domains.mesh import GEODESICS_ARTIFACT
 from solvers.emd.beckmann import resolve_method
 from solvers.emd.dwk_matrix import W1MatrixDecision, decide_w1_method, working_bytes
 from solvers.errors import CancelledError, InputError
+from solvers.transport.decision import decide_method
+from solvers.transport.exact import EXACT_KINDS
 
 MAX_DISTRIBUTIONS = 2000  # per side of a matrix (the request JSON stays a few MB)
 METHOD_CODES = {"": -1, "identical": 0, "exact": 1, "convolutional": 2, "w1": 3,

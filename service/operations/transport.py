@@ -34,9 +34,6 @@ from solvers.convolutional import (
     wasserstein_distance,
     wasserstein_propagation,
 )
-from solvers.convolutional.decision import DistanceDecision as SolverDecision
-from solvers.convolutional.decision import decide_distance
-from solvers.convolutional.exact import EXACT_KINDS, MAX_SUPPORT_PRODUCT
 from solvers.domains.mesh import TriangleMesh
 from solvers.emd import earth_movers_distance, pointwise_distances
 from solvers.emd.beckmann import resolve_method
@@ -52,6 +49,9 @@ from solvers.regularization import (
     shape_method,
     shape_regularization,
 )
+from solvers.transport.decision import DistanceDecision as SolverDecision
+from solvers.transport.decision import decide_distance
+from solvers.transport.exact import EXACT_KINDS, MAX_SUPPORT_PRODUCT
 from solvers.validation import (
     GAMMA_MIN,
     check_anchored,
@@ -132,7 +132,7 @@ class Regularization(BaseModel):
 
 class DistanceDecision(BaseModel):
     """What a distance job runs, decided at submission from the request and the stored
-    domain alone (solvers.convolutional.decision) and executed by every attempt."""
+    domain alone (solvers.transport.decision) and executed by every attempt."""
 
     metric: Literal["w2", "w1"]
     method: Literal["convolutional", "exact", "beckmann"]
@@ -375,7 +375,7 @@ def _validate_distance(view: DomainView, req: DistanceRequest) -> list[dict]:
 
 def decide_distance_job(view: DomainView, req: DistanceRequest) -> dict:
     """The job's decision at submission (``Operation.decide``): the W2 method and
-    regularization (:func:`solvers.convolutional.decision.decide_distance` on the stored
+    regularization (:func:`solvers.transport.decision.decide_distance` on the stored
     domain's sketch), or the W1 solver and flow space; taken once per request on ``view``
     (the memory and cost estimates read the same decision)."""
     return view.per_request("distance decision", req, lambda: _decide_distance(view, req))

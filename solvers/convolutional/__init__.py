@@ -1,8 +1,9 @@
 """Convolutional Wasserstein toolkit (thesis ch. 3) over the heat kernels of any domain.
 
 - :func:`wasserstein_distance` — Alg. 1 / eq. 3.10, optional debiased Sinkhorn divergence;
-  ``method="auto"`` solves sparse supports exactly (:func:`exact_wasserstein_distance`:
-  geodesic costs between the support points and the transport LP);
+  ``method="auto"`` solves sparse supports exactly
+  (:func:`~solvers.transport.exact_wasserstein_distance`: geodesic costs between the support
+  points and the transport LP, decided by :func:`~solvers.transport.decide_distance`);
 - :func:`distance_matrix` — every pair of a collection (or against templates), W2 pairs
   sharing a kernel advanced as one multi-column block, exact pairs on one cost matrix;
 - :func:`barycenter` — eq. 3.13 / Alg. 2, entropic sharpening (Alg. 3), debiased option;
@@ -17,9 +18,8 @@
 Thesis section → module: §3.3–3.5 ``distance`` (Alg. 1), ``common`` (log-domain kernel
 application, over-relaxation); §3.6 ``barycenter`` (Alg. 2, 3), ``interpolation``;
 §3.6.3 ``propagation`` (Alg. 4); §3.7 ``shapes``, ``hemisphere`` + ``brdf``, ``skeleton``;
-``exact`` is the exact LP method for
-sparse supports (ground truth and default for few support points); ``matrix`` the
-distance matrices.
+``matrix`` the distance matrices. The exact LP method for sparse supports (ground truth and
+default for few support points) and the default decision are in :mod:`solvers.transport`.
 
 All iterations run on log-scalings (stable at small ``gamma``), stop on a measured
 marginal violation, and report ``iterations``, ``residual`` and ``converged``.
@@ -32,7 +32,6 @@ from solvers.convolutional.barycenter import (
     barycenters,
 )
 from solvers.convolutional.distance import SinkhornResult, wasserstein_distance
-from solvers.convolutional.exact import ExactTransportResult, exact_wasserstein_distance
 from solvers.convolutional.interpolation import InterpolationResult, displacement_interpolation
 from solvers.convolutional.matrix import DistanceMatrixResult, distance_matrix
 from solvers.convolutional.propagation import PropagationResult, wasserstein_propagation
@@ -42,7 +41,6 @@ __all__ = [
     "BarycenterResult",
     "BarycentersResult",
     "DistanceMatrixResult",
-    "ExactTransportResult",
     "InterpolationResult",
     "PropagationResult",
     "ShapeResult",
@@ -51,7 +49,6 @@ __all__ = [
     "barycenters",
     "displacement_interpolation",
     "distance_matrix",
-    "exact_wasserstein_distance",
     "iso_surface",
     "shape_interpolation",
     "voxelize",

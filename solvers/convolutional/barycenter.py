@@ -29,17 +29,15 @@ from solvers.convolutional.common import (
     Monitor,
     OverRelaxation,
     check_acceleration,
-    check_components,
     entropy,
     log_density,
-    masses_block,
     masses_from_log,
     prepare,
 )
 from solvers.convolutional.distance import run_steps, watch_stagnation
 from solvers.monitor import SolverResult
 from solvers.regularization import Regularization, shape_method, shape_regularization
-from solvers.validation import check_entropy_bound, check_weights
+from solvers.validation import check_components, check_entropy_bound, check_weights, masses_block
 
 
 @dataclass

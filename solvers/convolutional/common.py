@@ -25,7 +25,7 @@ from solvers.kernels import heat_time
 from solvers.linalg import Backend
 from solvers.monitor import Monitor
 from solvers.regularization import kernel_substeps
-from solvers.validation import check_gamma, check_positive, normalize_masses
+from solvers.validation import check_gamma, check_positive
 
 # Width (in natural-log units) of one band of a log-domain kernel application for
 # kernels whose smallest entry is unknown (implicit Euler): entries of the
@@ -271,35 +271,6 @@ def prepare(domain, *, gamma, t, substeps, tol, max_iter, progress, should_cance
     return Setup(gamma, t, substeps, tol, max_iter, kernel, LogKernel(kernel),
                  np.asarray(domain.areas, dtype=np.float64), Monitor(progress, should_cancel),
                  method)
-
-
-def masses_block(domain, values, field: str, columns: int | None = None) -> np.ndarray:
-    """Validated, normalized ``(n,)`` or ``(n, k)`` masses."""
-    m = normalize_masses(values, domain.n, field)
-    if columns is not None and (m.ndim != 2 or m.shape[1] != columns):
-        raise InputError(f"{field} must have shape ({domain.n}, {columns})", field=field)
-    return m
-
-
-def distribution_pair(domain, mu0, mu1) -> tuple[np.ndarray, np.ndarray]:
-    """Validated, normalized ``(n,)`` masses ``mu0``, ``mu1`` (one distribution each)."""
-    pair = []
-    for name, values in (("mu0", mu0), ("mu1", mu1)):
-        m = masses_block(domain, values, name)
-        if m.ndim != 1:
-            raise InputError(f"{name} must be one distribution of shape ({domain.n},)",
-                             field=name)
-        pair.append(m)
-    return pair[0], pair[1]
-
-
-def check_components(domain, masses: np.ndarray, tol: float, field: str) -> None:
-    """Refuse inputs whose per-component masses differ (mass cannot cross components).
-
-    ``masses`` is ``(n, k)``; with matching component masses the heat kernel is
-    block diagonal and the solvers work on every component at once.
-    """
-    domain.require_matching_component_masses(masses, tol, field)
 
 
 def log_density(masses: np.ndarray, areas: np.ndarray) -> np.ndarray:

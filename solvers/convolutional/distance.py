@@ -26,15 +26,14 @@ from solvers.convolutional.common import (
     Monitor,
     OverRelaxation,
     check_acceleration,
-    check_components,
-    distribution_pair,
     log_density,
     prepare,
 )
-from solvers.convolutional.decision import DistanceDecision, decide_distance
-from solvers.convolutional.exact import ExactTransportResult, exact_wasserstein_distance
 from solvers.monitor import SolverResult
 from solvers.regularization import Regularization
+from solvers.transport.decision import DistanceDecision, decide_distance
+from solvers.transport.exact import ExactTransportResult, exact_wasserstein_distance
+from solvers.validation import check_components, distribution_pair
 
 # Window (iterations) over which the convolutional solvers measure their convergence rate:
 # they stop as stalled (converged=False with the measured residual) when the best residual
@@ -366,12 +365,12 @@ def wasserstein_distance(
     first-order entropic bias.
 
     Defaults (``gamma="auto"``, ``method="auto"``): values users can trust, decided by
-    :func:`~solvers.convolutional.decision.decide_distance` from the inputs and the stored
+    :func:`~solvers.transport.decision.decide_distance` from the inputs and the stored
     domain alone (never the clock or the process's history; the service takes the same
-    decision at submission): the exact discrete W2² (:func:`~solvers.convolutional.exact.
+    decision at submission): the exact discrete W2² (:func:`~solvers.transport.exact.
     exact_wasserstein_distance`: exact geodesic cost matrix between the supports,
     network-simplex LP) when its modelled time fits
-    :data:`~solvers.convolutional.decision.EXACT_BUDGET_SECONDS`, else Alg. 1 with the
+    :data:`~solvers.transport.decision.EXACT_BUDGET_SECONDS`, else Alg. 1 with the
     regularization of :func:`solvers.regularization.choose_regularization` (``purpose=
     "values"``: debiased, ``gamma`` proportional to the mesh resolution times the estimated
     transport distance, substeps enough for implicit Euler to follow the Gaussian out to

@@ -17,9 +17,7 @@ from solvers.convolutional.barycenter import barycenters_log
 from solvers.convolutional.common import (
     BARYCENTER_ACCELERATIONS,
     check_acceleration,
-    check_components,
     entropy,
-    masses_block,
     masses_from_log,
     prepare,
 )
@@ -27,6 +25,7 @@ from solvers.convolutional.distance import watch_stagnation
 from solvers.errors import InputError
 from solvers.monitor import SolverResult
 from solvers.regularization import Regularization, shape_method, shape_regularization
+from solvers.validation import check_components, masses_block
 
 
 @dataclass

@@ -6,7 +6,7 @@ one collection (only the pairs ``i < j`` are solved; the diagonal is zero for th
 Sinkhorn divergence, the exact W2 and W1).
 
 * ``metric="w2"`` — each pair gets exactly the decision of the single-pair default
-  (:func:`~solvers.convolutional.decision.decide_distance`: method and regularization from
+  (:func:`~solvers.transport.decision.decide_distance`: method and regularization from
   the data alone), so every entry equals ``wasserstein_distance(domain, mu_i, nu_j, ...)``:
 
   - **exact method** (sparse supports): the cost matrix between all row supports and all
@@ -43,19 +43,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from solvers.convolutional.common import masses_block, prepare
-from solvers.convolutional.decision import DistanceDecision, decide_distance, decide_method
+from solvers.convolutional.common import prepare
 from solvers.convolutional.distance import (
     ANDERSON_MEMORY,
     PairSolve,
     pair_steps,
     watch_stagnation,
 )
-from solvers.convolutional.exact import MAX_SUPPORT_PRODUCT, _finite_cost
 from solvers.errors import CancelledError, InputError
 from solvers.monitor import SolverResult, _arity
 from solvers.parallel import thread_count
 from solvers.regularization import sketch_of
+from solvers.transport.decision import DistanceDecision, decide_distance, decide_method
+from solvers.transport.exact import MAX_SUPPORT_PRODUCT, _finite_cost
+from solvers.validation import masses_block
 
 METRICS = ("w2", "w1")
 # Pairs advanced together: at most MAX_BLOCK_PAIRS, and as many as fit BLOCK_WORK_BYTES of
@@ -568,9 +569,9 @@ def _should_cancel(stop, where: str) -> Callable[[], bool]:
 
 
 def _exact_single_pairs(domain, A, B, pairs, table: _Table, stop) -> None:
-    """Exact pairs one at a time (:func:`~solvers.convolutional.exact.
+    """Exact pairs one at a time (:func:`~solvers.transport.exact.
     exact_wasserstein_distance`): when the shared cost matrix would be too large."""
-    from solvers.convolutional.exact import exact_wasserstein_distance
+    from solvers.transport.exact import exact_wasserstein_distance
 
     cancelled = _should_cancel(stop, "between geodesic solves")
     for i, j in pairs:

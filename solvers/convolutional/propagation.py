@@ -65,10 +65,8 @@ from solvers.convolutional.common import (
     BARYCENTER_ACCELERATIONS,
     OverRelaxation,
     check_acceleration,
-    check_components,
     floor_underflow,
     log_density,
-    masses_block,
     masses_from_log,
     prepare,
 )
@@ -76,7 +74,13 @@ from solvers.convolutional.distance import watch_stagnation
 from solvers.errors import InputError
 from solvers.parallel import thread_count
 from solvers.regularization import shape_method
-from solvers.validation import check_anchored, check_edge_weights, check_edges
+from solvers.validation import (
+    check_anchored,
+    check_components,
+    check_edge_weights,
+    check_edges,
+    masses_block,
+)
 
 
 @dataclass

@@ -1,7 +1,7 @@
 """What a default decision may read of a domain: sizes and stored arrays, never operators.
 
 A :class:`DomainSketch` holds the parts of a domain that automatic choices (the route and
-regularization of a distance, :mod:`solvers.convolutional.decision`) are computed from: the
+regularization of a distance, :mod:`solvers.transport.decision`) are computed from: the
 kind, the number of points, component labels, unit-area coordinates and the edges (mesh
 edges, graph edges) or grid spacing.  It is built from a domain's stored arrays
 (:meth:`DomainSketch.from_stored`, what ``Domain.to_arrays()`` gives plus the unit-area

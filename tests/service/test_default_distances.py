@@ -128,9 +128,9 @@ def test_decision_is_taken_at_submission_and_kept_by_a_rerun(make_client, meshes
     """The 202 carries the decision; the library decides the same from the built mesh; a
     worker that dies leaves the job to the reaper, and the re-run executes the stored
     decision even where deciding again would now choose otherwise."""
-    import solvers.convolutional.decision as decision_module
+    import solvers.transport.decision as decision_module
     from service.jobs.db import JobRow
-    from solvers.convolutional.decision import decide_distance
+    from solvers.transport.decision import decide_distance
 
     # no consumer: jobs stay queued; the reaper runs only when called (a background pass could
     # take the re-run for dead under load: heartbeats every 2 s against stale_after 1 s)

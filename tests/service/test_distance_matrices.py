@@ -148,8 +148,8 @@ def test_decision_recorded_at_submission_and_reported(make_client, meshes_dir, s
     """The 202 carries the matrix's decision (per-pair routes and kernels by the library's
     decide_method on the stored domain), the job stores it and the result reports it; what
     ran (routes, kernels) equals it."""
-    from solvers.convolutional.decision import decide_method
     from solvers.regularization import sketch_of
+    from solvers.transport.decision import decide_method
 
     client = make_client(queue="sqlite")
     rt = client.app.state.runtime

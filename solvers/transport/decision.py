@@ -4,11 +4,11 @@ r"""The default decision of a W2 distance: method and regularization from the da
 ``method`` and ``gamma`` are left to ``"auto"``, and what the service runs at submission (its
 decision is stored with the job and executed by the worker as explicit arguments):
 
-* **method** — ``"exact"`` (:func:`~solvers.convolutional.exact.exact_wasserstein_distance`:
+* **method** — ``"exact"`` (:func:`~solvers.transport.exact.exact_wasserstein_distance`:
   exact geodesic costs between the supports and the transport LP, no bias) when the exact
   method is available on the domain (meshes, grids, point clouds), its LP is within
-  :data:`~solvers.convolutional.exact.MAX_SUPPORT_PRODUCT` entries and its modelled time
-  (:func:`~solvers.convolutional.exact.exact_route_estimate`) is at most
+  :data:`~solvers.transport.exact.MAX_SUPPORT_PRODUCT` entries and its modelled time
+  (:func:`~solvers.transport.exact.exact_route_estimate`) is at most
   :data:`EXACT_BUDGET_SECONDS`; else ``"convolutional"``;
 * **regularization** of the convolutional method — ``gamma``, ``t``, ``substeps``,
   ``debiased`` from :func:`solvers.regularization.choose_regularization` (``purpose=
@@ -30,12 +30,6 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from solvers.convolutional.exact import (
-    MAX_SUPPORT_PRODUCT,
-    exact_route_estimate,
-    exact_route_upper_bound,
-    supports_exact,
-)
 from solvers.errors import InputError
 from solvers.regularization import (
     APPLICATIONS,
@@ -44,6 +38,13 @@ from solvers.regularization import (
     choose_regularization,
     sketch_of,
 )
+from solvers.transport.exact import (
+    MAX_SUPPORT_PRODUCT,
+    exact_route_estimate,
+    exact_route_upper_bound,
+    supports_exact,
+)
+from solvers.validation import check_choice
 
 METHODS = ("auto", "convolutional", "exact")
 # The exact method is taken when its modelled time (one core of the 2-core machine, load ~1)
@@ -55,11 +56,24 @@ EXACT_BUDGET_SECONDS = 120.0
 
 @dataclass(frozen=True)
 class DistanceDecision:
-    """What a distance will run: ``method`` (``"exact"`` or ``"convolutional"``) and, for the
-    convolutional method, ``gamma``, ``t``, ``substeps``, ``debiased``; ``estimated_seconds``
-    (the cost model of the chosen method, None where there is none), ``exact_seconds`` (of the
-    exact method; None where unavailable); ``regularization``: the policy's choice and its
-    reason (None when gamma was given or on the exact method); ``reason``: why this method."""
+    """What a distance will run, taken before it runs (stored with a job, executed as is).
+
+    Attributes
+    ----------
+    method : str
+        ``"exact"`` or ``"convolutional"``.
+    reason : str
+        Why this method.
+    gamma, t, substeps, debiased : float, float, int, bool or None
+        The convolutional method's regularization (None on the exact method).
+    estimated_seconds : float or None
+        The cost model of the chosen method (None where there is none).
+    exact_seconds : float or None
+        The exact method's modelled seconds (None where unavailable).
+    regularization : Regularization or None
+        The policy's choice and its reason (None when gamma was given or on the exact
+        method).
+    """
 
     method: str
     reason: str
@@ -77,6 +91,17 @@ class DistanceDecision:
 
     @classmethod
     def from_dict(cls, data: dict) -> DistanceDecision:
+        """The decision :meth:`as_dict` wrote.
+
+        Parameters
+        ----------
+        data : dict
+            Its fields, ``regularization`` as a dict or None.
+
+        Returns
+        -------
+        DistanceDecision
+        """
         reg = data.get("regularization")
         return cls(**{**data, "regularization": None if reg is None else Regularization(**reg)})
 
@@ -97,25 +122,39 @@ def convolutional_seconds(sketch, substeps: int) -> float | None:
     return APPLICATIONS * SOLVE_SECONDS_PER_VERTEX * float(sketch.n) * int(substeps)
 
 
-def decide_distance(domain, m0, m1, *, method: str = "auto", gamma="auto", t=None,
+def decide_distance(domain, mu0, mu1, *, method: str = "auto", gamma="auto", t=None,
                     substeps=None, debiased=None) -> DistanceDecision:
-    """The decision of ``wasserstein_distance(domain, m0, m1, method=..., gamma=..., t=...,
+    """The decision of ``wasserstein_distance(domain, mu0, mu1, method=..., gamma=..., t=...,
     substeps=..., debiased=...)`` (module docstring).
 
-    ``domain``: a domain or its :class:`~solvers.domains.sketch.DomainSketch`; ``m0, m1``:
-    normalized ``(n,)`` masses.  Explicit arguments win: ``method="exact"`` always takes the
-    exact method, a numeric ``gamma`` always the convolutional one as specified (one substep,
-    not debiased unless given).
+    Explicit arguments win: ``method="exact"`` always takes the exact method, a numeric
+    ``gamma`` always the convolutional one as specified (one substep, not debiased unless
+    given).
+
+    Parameters
+    ----------
+    domain : domain or DomainSketch
+        The domain, or its :class:`~solvers.domains.sketch.DomainSketch`.
+    mu0, mu1 : ndarray
+        Normalized ``(n,)`` masses.
+    method : str
+        ``"auto"``, ``"exact"`` or ``"convolutional"``.
+    gamma : float or "auto"
+        The convolutional method's regularization (``"auto"``: the policy's).
+    t, substeps, debiased : float, int, bool or None
+        The convolutional method's heat time, substeps and debiasing (None: the policy's).
+
+    Returns
+    -------
+    DistanceDecision
     """
-    if method not in METHODS:
-        raise InputError(f"method must be one of {', '.join(map(repr, METHODS))}, got "
-                         f"{method!r}", field="method")
+    check_choice(method, METHODS, "method")
     auto = gamma is None or (isinstance(gamma, str) and gamma == "auto")
     if not auto and not isinstance(gamma, (int, float, np.number)) or isinstance(gamma, bool):
         raise InputError(f"gamma must be a positive number or 'auto', got {gamma!r}",
                          field="gamma")
     sketch = sketch_of(domain)
-    m0, m1 = np.asarray(m0, dtype=np.float64), np.asarray(m1, dtype=np.float64)
+    m0, m1 = np.asarray(mu0, dtype=np.float64), np.asarray(mu1, dtype=np.float64)
     exact = None
     n0, n1 = int(np.count_nonzero(m0)), int(np.count_nonzero(m1))
     wanted = method == "exact" or (method == "auto" and auto)
@@ -148,7 +187,7 @@ def decide_distance(domain, m0, m1, *, method: str = "auto", gamma="auto", t=Non
 def decide_method(sketch, m0, m1, *, method: str = "auto", gamma="auto", t=None, substeps=None,
                  debiased=None) -> DistanceDecision:
     """:func:`decide_distance`'s method and regularization, taken without planning the exact
-    method when its size-only upper bound (:func:`~solvers.convolutional.exact.
+    method when its size-only upper bound (:func:`~solvers.transport.exact.
     exact_route_upper_bound`) already fits :data:`EXACT_BUDGET_SECONDS` (then the estimate
     fits too: the same method; ``estimated_seconds`` is that bound).  Many decisions on small
     supports (a distance matrix) skip the planning LP this way."""

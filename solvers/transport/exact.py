@@ -25,7 +25,7 @@ The cost is one (bounded) geodesic solve per point of the smaller support and an
 ``n0 × n1``, so the method is for sparse inputs (point masses, few scattered points) and small
 meshes; :func:`exact_route_estimate` models its time from the stored domain alone (sizes,
 edge paths, constants calibrated offline by ``bench/distance_routes.py``), and the default
-decision of a distance (:mod:`solvers.convolutional.decision`) takes the method when that
+decision of a distance (:mod:`solvers.transport.decision`) takes the method when that
 estimate fits its budget.  Measured accuracy and times: ``bench/results/distance_routes.md``.
 """
 
@@ -308,8 +308,8 @@ def exact_wasserstein_distance(
     ExactTransportResult(value, sources, targets, plan, iterations, residual, converged, ...)
     """
 
-    from solvers.convolutional.common import check_components, distribution_pair
     from solvers.errors import CancelledError
+    from solvers.validation import check_components, distribution_pair
 
     if not supports_exact(domain):
         raise InputError(f"the exact method needs a mesh, grid or point cloud, not a "
