@@ -40,6 +40,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, shortest_path
 
 from solvers.errors import InputError
+from solvers.validation import check_choice
 
 if TYPE_CHECKING:  # the mesh calls these solvers for its ground distances, not the reverse
     from solvers.domains.mesh import TriangleMesh
@@ -313,8 +314,7 @@ def geodesic_distances(mesh: TriangleMesh, sources, targets=None, *, method: str
     -------
     (len(sources), len(targets)) array
     """
-    if method not in METHODS:
-        raise InputError(f"method must be one of {METHODS}, got {method!r}", field="method")
+    check_choice(method, METHODS, "method")
     src = _check_indices(mesh, sources, "sources")
     dst = np.arange(mesh.n) if targets is None else _check_indices(mesh, targets, "targets")
     pieces = _pieces(mesh)

@@ -306,8 +306,7 @@ def choose_regularization(domain, m0=None, m1=None, *, purpose: str = "values",
     -------
     Regularization
     """
-    if purpose not in PURPOSES:
-        raise InputError(f"purpose must be one of {PURPOSES}, got {purpose!r}", field="purpose")
+    check_choice(purpose, PURPOSES, "purpose")
     domain = sketch_of(domain)
     h = domain.length_scale
     auto = gamma is None or (isinstance(gamma, str) and gamma == "auto")

@@ -90,6 +90,7 @@ from solvers.errors import InputError
 from solvers.monitor import SolverResult
 from solvers.validation import (
     GAMMA_RESOLUTION,
+    check_choice,
     check_gamma_resolved,
     check_positive,
     check_weights,
@@ -342,8 +343,7 @@ def resolve_gamma(gamma, bins: int) -> float:
 
 
 def check_mode(mode) -> str:
-    if mode not in MODES:
-        raise InputError(f"mode must be one of {', '.join(MODES)}, got {mode!r}", field="mode")
+    check_choice(mode, MODES, "mode")
     return str(mode)
 
 

@@ -25,7 +25,7 @@ from solvers.kernels import heat_time
 from solvers.linalg import Backend
 from solvers.monitor import Monitor
 from solvers.regularization import kernel_substeps
-from solvers.validation import check_gamma, check_positive
+from solvers.validation import check_choice, check_gamma, check_positive
 
 # Width (in natural-log units) of one band of a log-domain kernel application for
 # kernels whose smallest entry is unknown (implicit Euler): entries of the
@@ -233,10 +233,7 @@ BARYCENTER_ACCELERATIONS = ("over-relaxation", "none")
 
 def check_acceleration(value, allowed: tuple[str, ...]) -> str:
     """Validate the ``acceleration`` argument against the solver's supported choices."""
-    if value not in allowed:
-        raise InputError(f"acceleration must be one of {', '.join(map(repr, allowed))}, "
-                         f"got {value!r}", field="acceleration")
-    return value
+    return check_choice(value, allowed, "acceleration")
 
 
 def prepare(domain, *, gamma, t, substeps, tol, max_iter, progress, should_cancel,

@@ -48,7 +48,7 @@ import scipy.sparse as sp
 from solvers.domains.base import Domain
 from solvers.errors import InputError
 from solvers.kernels import heat_time
-from solvers.validation import check_int, check_positive
+from solvers.validation import check_choice, check_int, check_positive
 
 RADIUS = 1.0 / np.sqrt(2.0 * np.pi)  # unit hemisphere area
 EXTENT = float(np.pi * RADIUS)  # pole-to-pole geodesic length of the full sphere / 2
@@ -150,9 +150,7 @@ class HemisphereGrid(Domain):
 
     def __init__(self, n_theta: int = 16, n_phi: int = 64, method: str = "geodesic"):
         super().__init__()
-        if method not in METHODS:
-            raise InputError(f"method must be one of {', '.join(METHODS)}, got {method!r}",
-                             field="method")
+        check_choice(method, METHODS, "method")
         self.method = method
         nt = check_int(n_theta, "n_theta", low=2)
         nphi = check_int(n_phi, "n_phi", low=4)

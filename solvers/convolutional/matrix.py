@@ -56,7 +56,7 @@ from solvers.parallel import thread_count
 from solvers.regularization import sketch_of
 from solvers.transport.decision import DistanceDecision, decide_distance, decide_method
 from solvers.transport.exact import MAX_SUPPORT_PRODUCT, _finite_cost
-from solvers.validation import masses_block
+from solvers.validation import check_choice, masses_block
 
 METRICS = ("w2", "w1")
 # Pairs advanced together: at most MAX_BLOCK_PAIRS, and as many as fit BLOCK_WORK_BYTES of
@@ -407,9 +407,7 @@ def _w2_pairs(domain, A, B, pairs, table, stop, threads, *, tol, max_iter, **dec
 def _check_metric_and_callbacks(metric, method, k, progress, should_cancel) -> None:
     """Raise unless ``metric`` is one of :data:`METRICS`, ``method`` and ``k`` fit it, and
     the callbacks are callable (or ``None``)."""
-    if metric not in METRICS:
-        raise InputError(f"metric must be one of {', '.join(map(repr, METRICS))}, got "
-                         f"{metric!r}", field="metric")
+    check_choice(metric, METRICS, "metric")
     if metric == "w2" and (method in W1_ONLY or k is not None):
         raise InputError(f"method {method!r} and k choose the W1 algorithm (metric 'w1')",
                          field="k" if k is not None else "method")

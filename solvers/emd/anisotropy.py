@@ -42,7 +42,7 @@ from solvers.emd.beckmann import (
 )
 from solvers.errors import InputError
 from solvers.monitor import Monitor
-from solvers.validation import check_finite
+from solvers.validation import check_choice, check_finite
 
 # A face's matrix must keep at least this fraction of the largest stretch of the tangent
 # plane (relative to the largest singular value over all faces), else it is refused.
@@ -160,9 +160,7 @@ def anisotropic_w1(mesh, mu0, mu1, face_weights, *, method: str = "auto",
     weights = check_face_weights(face_weights, mesh.n_faces)
     if weights is None:
         raise InputError("face_weights are required", field="face_weights")
-    if method not in METHODS:
-        raise InputError(f"method must be one of {METHODS}, got {method!r}",
-                         field="method")
+    check_choice(method, METHODS, "method")
     matrix = weights.ndim == 3
     over_all_flows = method in ("auto", "ipm") and basis in ("auto", "flow")
     if not (matrix and over_all_flows):

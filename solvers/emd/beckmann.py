@@ -60,7 +60,7 @@ from solvers.emd.operators import EMDOperators, mesh_operators
 from solvers.errors import InputError, UnsupportedDomainError
 from solvers.linalg import factorize_spd
 from solvers.monitor import Monitor, SolverResult
-from solvers.validation import normalize_masses
+from solvers.validation import check_choice, normalize_masses
 
 METHODS = ("auto", "ipm", "admm", "weiszfeld")
 BASES = ("auto", "full", "spectral", "flow")
@@ -207,9 +207,7 @@ WEISZFELD_PATIENCE = 50
 def resolve_method(method: str, basis: str, matrix: bool = False) -> tuple[str, str]:
     """``(method, basis)`` that ``earth_movers_distance`` runs for these arguments
     (``matrix``: matrix ``face_weights``): ``"auto"`` resolved, impossible pairs refused."""
-    if method not in METHODS:
-        raise InputError(f"method must be one of {METHODS}, got {method!r}",
-                         field="method")
+    check_choice(method, METHODS, "method")
     if basis == "auto":
         basis = "full" if matrix else "flow"
     if method == "auto":
@@ -268,9 +266,7 @@ def earth_movers_distance(mesh, mu0, mu1, *, method: str = "auto", basis: str = 
     EMDResult (value, flow (F, 3), potential (V,), lower_bound, iterations,
     primal_residual, dual_residual, converged).
     """
-    if method not in METHODS:
-        raise InputError(f"method must be one of {METHODS}, got {method!r}",
-                         field="method")
+    check_choice(method, METHODS, "method")
     ops = check_mesh(mesh)
     m0, m1 = check_pair(mesh, mu0, mu1)
     weights = check_face_weights(face_weights, ops.n_faces)

@@ -54,7 +54,7 @@ from solvers.emd.flow_geometry import FlowGeometry, flow_cost, flow_geometry, fl
 from solvers.emd.interior_point_barycenter import solve_barycenter_ipm
 from solvers.errors import CancelledError, InputError, UnsupportedDomainError
 from solvers.monitor import Monitor, SolverResult
-from solvers.validation import check_masses, check_weights, normalized_columns
+from solvers.validation import check_choice, check_masses, check_weights, normalized_columns
 
 MAX_VERTICES = 5000
 # The eq. 2.7 interior point (method "ipm"): certified relative gap and iteration cap.
@@ -526,9 +526,7 @@ def w1_barycenter(
     ``distances`` (k,) the W1 of each input's flow, ``flows`` (k, F, 3), and for ``"ipm"``
     the certified ``lower_bound`` and relative ``gap``.
     """
-    if method not in BARYCENTER_METHODS:
-        raise InputError(f"method must be one of {BARYCENTER_METHODS}, got "
-                         f"{method!r}", field="method")
+    check_choice(method, BARYCENTER_METHODS, "method")
     fw = _face_weights(mesh, face_weights) if supports(mesh, "faces") else None
     if method == "auto":
         method = "socp" if fw is not None and not np.all(np.isfinite(fw)) else "ipm"

@@ -44,6 +44,7 @@ from solvers.emd.flow_geometry import flow_cost, flow_geometry, flow_vectors
 from solvers.emd.hodge import HodgeDecomposition, hodge_decomposition
 from solvers.errors import InputError, UnsupportedDomainError
 from solvers.monitor import Monitor, SolverResult
+from solvers.validation import check_choice
 
 
 @dataclass
@@ -169,9 +170,7 @@ def w1_path_planning(
     PathPlanningResult (value, objective, target_masses (V,), flow (F, 3), potential (V,),
     hodge, method).
     """
-    if method not in METHODS:
-        raise InputError(f"method must be one of {METHODS}, got {method!r}",
-                         field="method")
+    check_choice(method, METHODS, "method")
     if not supports(mesh, "faces"):
         raise UnsupportedDomainError("path planning needs a TriangleMesh domain",
                                      field="domain")

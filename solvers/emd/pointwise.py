@@ -44,6 +44,7 @@ from solvers.emd.dwk import gaps, reduced_spectral_problem, solve_block
 from solvers.emd.green import GREEN_MAX_VERTICES, dw0_from_green
 from solvers.errors import InputError
 from solvers.monitor import Monitor, SolverResult
+from solvers.validation import check_choice
 
 METHODS = ("auto", "green", "solve")
 
@@ -234,8 +235,7 @@ def _check_inputs(ops, source, k, targets, method) -> tuple[int, int, np.ndarray
         if targets.ndim != 1 or not np.issubdtype(targets.dtype, np.integer) or (
                 len(targets) and (targets.min() < 0 or targets.max() >= n)):
             raise InputError(f"targets must be vertex indices in [0, {n - 1}]", field="targets")
-    if method not in METHODS:
-        raise InputError(f"method must be one of {METHODS}, got {method!r}", field="method")
+    check_choice(method, METHODS, "method")
     if method == "green" and k > 0:
         raise InputError("method='green' evaluates d_W^0 only (k = 0)", field="method")
     labels = ops.labels

@@ -41,7 +41,7 @@ from solvers.errors import ConvergenceError, InputError
 from solvers.histograms.graphs import component_labels, graph_laplacian
 from solvers.linalg import Backend, factorize_spd, have_pardiso
 from solvers.monitor import Monitor
-from solvers.validation import check_anchored_components, check_node_indices
+from solvers.validation import check_anchored_components, check_choice, check_node_indices
 
 LINEAR_METHODS = ("auto", "direct", "amg")
 
@@ -157,9 +157,7 @@ def dirichlet_system(graph, labeled, *, laplacian: str = "auto", linear_method: 
         The factored (or preconditioned) :math:`\mathcal{L}_{UU}`, the coupling
         :math:`\mathcal{L}_{UL}` and the index sets.
     """
-    if linear_method not in LINEAR_METHODS:
-        raise InputError(f"linear_method must be one of {LINEAR_METHODS}, got "
-                         f"{linear_method!r}", field="linear_method")
+    check_choice(linear_method, LINEAR_METHODS, "linear_method")
     linear_method = "direct" if linear_method == "auto" else linear_method
     L = graph_laplacian(graph, laplacian)
     nodes = check_labeled(graph, labeled, L, field)

@@ -16,6 +16,7 @@ import numpy as np
 from solvers.errors import InputError
 from solvers.jit import cached_njit
 from solvers.parallel import run_blocks
+from solvers.validation import check_choice
 
 NORMS = ("l1", "l2")
 
@@ -41,8 +42,7 @@ def _check_pair(f0, f1) -> tuple[np.ndarray, np.ndarray]:
 def pairwise_cost(f0, f1, norm: str = "l1", dtype=np.float64) -> np.ndarray:
     """``(n0, n1)`` unnormalized ``sum_d |f0 - f1|`` (l1) or ``sum_d (f0 - f1)^2`` (l2)."""
     f0, f1 = _check_pair(f0, f1)
-    if norm not in NORMS:
-        raise InputError(f"norm must be one of {NORMS}, got {norm!r}", field="norm")
+    check_choice(norm, NORMS, "norm")
     if norm == "l2":
         c = (f0**2).sum(1)[:, None] + (f1**2).sum(1)[None, :] - 2.0 * f0 @ f1.T
         return np.maximum(c, 0.0).astype(dtype, copy=False)
@@ -127,8 +127,7 @@ def compatibility_cost(f0, f1, *, areas0, areas1, rows=None, columns=None, norm:
     a1 = np.asarray(areas1, dtype=np.float64)
     if a0.shape != (len(f0),) or a1.shape != (len(f1),):
         raise InputError("areas must have one entry per descriptor row", field="areas")
-    if norm not in NORMS:
-        raise InputError(f"norm must be one of {NORMS}, got {norm!r}", field="norm")
+    check_choice(norm, NORMS, "norm")
     mean = mean_cost(f0, f1, a0, a1, norm)
     if not mean > 0:
         raise InputError("descriptors do not distinguish any pair of points",

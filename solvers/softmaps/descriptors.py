@@ -22,7 +22,7 @@ import scipy.sparse as sp
 
 from solvers.errors import InputError
 from solvers.linalg import eigsh
-from solvers.validation import check_int, check_positive
+from solvers.validation import check_choice, check_int, check_positive
 
 LANDMARK_METHODS = ("geodesic", "heat")
 # Eigenpairs solved for at least (the soft map's descriptor default), whatever k is asked.
@@ -201,9 +201,7 @@ def landmark_descriptors(mesh, landmarks, *, method: str = "geodesic",
     (n, L) array
     """
     landmarks = check_landmarks(landmarks, mesh.n)
-    if method not in LANDMARK_METHODS:
-        raise InputError(f"method must be one of {LANDMARK_METHODS}, got {method!r}",
-                         field="method")
+    check_choice(method, LANDMARK_METHODS, "method")
     if method == "geodesic":
         def build():
             d = geodesic_distances_from(mesh, landmarks)

@@ -33,7 +33,7 @@ import scipy.sparse as sp
 
 from solvers.errors import InputError
 from solvers.linalg import factorize_spd
-from solvers.validation import check_positive
+from solvers.validation import check_choice, check_positive
 
 DIRICHLET_METHODS = ("w2", "potential")
 
@@ -181,9 +181,7 @@ def dirichlet_energy(target, rows, edges, edge_weights, *, cell_areas=None,
     e = np.asarray(edges, np.int64)
     w = np.asarray(edge_weights, np.float64)
     r = _check_rows(rows, None, target.n)
-    if method not in DIRICHLET_METHODS:
-        raise InputError(f"method must be one of {DIRICHLET_METHODS}, got {method!r}",
-                         field="method")
+    check_choice(method, DIRICHLET_METHODS, "method")
     gamma = 4.0 * target.mean_edge_length**2 if gamma is None else check_positive(gamma,
                                                                                   "gamma")
     per = np.zeros(len(e))

@@ -36,7 +36,7 @@ from solvers.jit import cached_njit
 from solvers.monitor import SolverResult
 from solvers.parallel import run_blocks
 from solvers.softmaps.descriptors import eigenpairs
-from solvers.validation import check_indices, check_int, check_positive
+from solvers.validation import check_choice, check_indices, check_int, check_positive
 
 EXTRACTIONS = ("mode", "barycentric", "path")
 REFINEMENTS = ("symmetric-zoomout", "zoomout", "sinkhorn", "sinkhorn+zoomout", "none")
@@ -475,10 +475,8 @@ def extract_correspondence(source, target, rows, *, labels, samples, cell_areas,
         ``sample_correspondence`` ``(N,)``, ``correspondence`` ``(n_source,)`` and the
         ``sinkhorn`` projection (or ``None``).
     """
-    if extraction not in EXTRACTIONS:
-        raise InputError(f"extraction must be one of {EXTRACTIONS}", field="extraction")
-    if refine not in REFINEMENTS:
-        raise InputError(f"refine must be one of {REFINEMENTS}", field="refine")
+    check_choice(extraction, EXTRACTIONS, "extraction")
+    check_choice(refine, REFINEMENTS, "refine")
     labels = np.asarray(labels, np.int64)
     samples = np.asarray(samples, np.int64)
     projection = None

@@ -46,7 +46,7 @@ from solvers.softmaps.descriptors import (
 from solvers.softmaps.energies import dirichlet_from_edge_values
 from solvers.softmaps.extraction import EXTRACTIONS, REFINEMENTS, extract_correspondence
 from solvers.softmaps.sampling import farthest_point_samples
-from solvers.validation import check_int, check_positive
+from solvers.validation import check_choice, check_int, check_positive
 
 # Samples (and coarse target points) of the first solve of ``multiscale=True``.
 MULTISCALE_SAMPLES = 128
@@ -325,9 +325,7 @@ def descriptors_for_pair(source, target, landmarks, *, k: int = 100, n_energies:
         blocks1.append(wks_weight * wave_kernel_signature(target, k, energies, sigma)
                        / n_energies)
     if len(landmarks) and landmark_weight > 0:
-        if landmark_method not in LANDMARK_METHODS:
-            raise InputError(f"landmark_method must be one of {LANDMARK_METHODS}",
-                             field="landmark_method")
+        check_choice(landmark_method, LANDMARK_METHODS, "landmark_method")
         scale = landmark_weight / len(landmarks)
         blocks0.append(scale * landmark_descriptors(source, landmarks[:, 0],
                                                     method=landmark_method))
@@ -514,12 +512,9 @@ def _checked_request(source, target, landmarks, *, samples, target_points, k, n_
                          f"about {need / 2**20:.0f} MiB, more than the "
                          f"{max_bytes / 2**20:.0f} MiB allowed", field="samples")
     tau = check_positive(tau, "tau")
-    if norm not in NORMS:
-        raise InputError(f"norm must be one of {NORMS}", field="norm")
-    if extraction not in EXTRACTIONS:
-        raise InputError(f"extraction must be one of {EXTRACTIONS}", field="extraction")
-    if refine not in REFINEMENTS:
-        raise InputError(f"refine must be one of {REFINEMENTS}", field="refine")
+    check_choice(norm, NORMS, "norm")
+    check_choice(extraction, EXTRACTIONS, "extraction")
+    check_choice(refine, REFINEMENTS, "refine")
     if top_k is not None:
         top_k = check_int(top_k, "top_k", low=1, high=target.n)
     return pairs, n_samples, points, tau, top_k
