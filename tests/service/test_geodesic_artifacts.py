@@ -70,15 +70,26 @@ def woody():
 
 
 @pytest.fixture(scope="module")
-def woody_artifact(tmp_path_factory) -> np.ndarray:
-    """The service's float32 all-pairs geodesics of woody, computed once for the module by a
-    stored domain (``stored_ground_distances``: what the first worker process of the test
-    below computes and stores); the tests that need them stored write them to their own
-    store (``_stored``) instead of solving ~5,000 MMP solves again each."""
-    store = Store(tmp_path_factory.mktemp("woody-artifact"))
+def first_worker(tmp_path_factory, woody) -> tuple[Store, str, Path, dict]:
+    """``(store, domain id, masses file, report)`` of a first worker process computing the
+    exact matrix on a freshly stored woody: it solves and stores the all-pairs geodesics
+    (~5,000 MMP solves), once for the module."""
+    _, masses = woody
+    root = tmp_path_factory.mktemp("woody-first-worker")
+    store = Store(root / "data")
     meta, _ = store.put_domain(TriangleMesh.from_file(MESHES_DIR / "woody.obj"))
-    store.load_domain(meta["id"]).stored_ground_distances()
-    return np.array(store.domain_artifacts(meta["id"]).get(GEODESICS_ARTIFACT))
+    np.save(root / "masses.npy", masses)
+    return store, meta["id"], root / "masses.npy", _worker(store.root, meta["id"],
+                                                           root / "masses.npy")
+
+
+@pytest.fixture(scope="module")
+def woody_artifact(first_worker) -> np.ndarray:
+    """The service's float32 all-pairs geodesics of woody, as the first worker process stored
+    them (``stored_ground_distances``); the tests that need them stored write them to their
+    own store (``_stored``) instead of solving them again each."""
+    store, domain_id, _, _ = first_worker
+    return np.array(store.domain_artifacts(domain_id).get(GEODESICS_ARTIFACT))
 
 
 def _stored(store: Store, domain_id: str, artifact: np.ndarray) -> None:
@@ -93,20 +104,16 @@ def _worker(store_dir: Path, domain_id: str, masses_file: Path) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def test_second_worker_process_reads_the_artifact_without_solving(tmp_path, woody):
-    mesh, masses = woody
-    store = Store(tmp_path / "data")
-    meta, _ = store.put_domain(TriangleMesh.from_file(MESHES_DIR / "woody.obj"))
-    np.save(tmp_path / "masses.npy", masses)
-    first = _worker(store.root, meta["id"], tmp_path / "masses.npy")
+def test_second_worker_process_reads_the_artifact_without_solving(first_worker):
+    store, domain_id, masses_file, first = first_worker
     assert not first["stored_before"]
     assert first["calls"]["all_pairs"] == 1
-    assert store.domain_artifacts(meta["id"]).has(GEODESICS_ARTIFACT)
-    second = _worker(store.root, meta["id"], tmp_path / "masses.npy")
+    assert store.domain_artifacts(domain_id).has(GEODESICS_ARTIFACT)
+    second = _worker(store.root, domain_id, masses_file)
     assert second["stored_before"]
     assert second["calls"] == {"all_pairs": 0, "solves": 0}
     assert second["values"] == first["values"]
-    stored = store.domain_artifacts(meta["id"]).get(GEODESICS_ARTIFACT)
+    stored = store.domain_artifacts(domain_id).get(GEODESICS_ARTIFACT)
     assert stored.dtype == np.float32 and isinstance(stored, np.memmap)
 
 

@@ -75,7 +75,10 @@ def compiled():
 color.warm()
 before = compiled()
 rng = np.random.default_rng(1)
-rgb = [rng.integers(0, 255, (30 + 7 * i, 41, 3), dtype=np.uint8) for i in range(2)]
+# noise, unlike warm()'s smooth pictures; small: kernels are compiled per pixel type, not
+# size (12 x 17 still shows a warm-up without its 16-bit or barycentric runs), and 30 x 41
+# cost ~5 CPU-s more in the LPs and iterations
+rgb = [rng.integers(0, 255, (12 + 5 * i, 17, 3), dtype=np.uint8) for i in range(2)]
 inputs = {"8-bit RGB": [color.write_image(x) for x in rgb],
           "8-bit RGBA": [color.write_image(np.dstack([x, x[..., :1]])) for x in rgb],
           "16-bit RGB": [color.write_image(x.astype(np.uint16) * 257, "tiff") for x in rgb]}
