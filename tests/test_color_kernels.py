@@ -263,3 +263,31 @@ def test_default_transfer_is_the_same_for_any_thread_count():
         numba.set_num_threads(before)
     for other in outs[1:]:
         np.testing.assert_array_equal(other, outs[0])
+
+
+def _kernel_signatures() -> set:
+    return {(name, sig) for name, fn in (("analyze", _kernels._analyze), ("apply", _kernels._apply),
+                                         ("apply_field", SK.apply_field))
+            for sig in fn.signatures}
+
+
+def test_a_library_callers_writable_images_run_the_uploads_kernel_variants():
+    """numba compiles per argument type, read-only included: a library caller's (writable)
+    uint8 images run the very variants a decoded (read-only) upload runs, so the kernels the
+    install's warm-up compiled serve both (solvers.color.lab.pixels)."""
+    from solvers.color import color_transfer
+
+    rng = np.random.default_rng(3)
+    images = [rng.integers(0, 256, (9, 11, 3), dtype=np.uint8) for _ in range(2)]
+    uploads = []
+    for img in images:
+        frozen = img.copy()
+        frozen.flags.writeable = False
+        uploads.append(frozen)
+    for mode in ("split", "barycentric"):
+        color_transfer(uploads, mode=mode, bins=16)
+    before = _kernel_signatures()
+    for mode in ("split", "barycentric"):
+        color_transfer(images, mode=mode, bins=16)
+    assert _kernel_signatures() == before
+    assert all(img.flags.writeable for img in images)  # the caller's arrays are untouched

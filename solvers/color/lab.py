@@ -56,10 +56,17 @@ def code_scale(dtype) -> float:
 
 
 def pixels(img: np.ndarray) -> np.ndarray:
-    """The image as a C-contiguous ``(N, C)`` block (a view when possible); float images as
-    float32 (so the kernels are compiled for uint8, uint16 and float32 only)."""
+    """The image as a read-only, C-contiguous ``(N, C)`` block (a view when possible); float
+    images as float32. numba compiles a kernel per argument type, and read-only is part of
+    the type: decoded uploads are read-only, a library caller's arrays are not, so without
+    this each would compile (and cache) its own variants of every kernel. So the kernels are
+    compiled for read-only uint8, uint16 and float32 pixels only."""
     arr = np.ascontiguousarray(img).reshape(-1, img.shape[-1])
-    return arr.astype(np.float32) if arr.dtype.kind == "f" and arr.dtype != np.float32 else arr
+    if arr.dtype.kind == "f" and arr.dtype != np.float32:
+        arr = arr.astype(np.float32)
+    view = arr.view()
+    view.flags.writeable = False
+    return view
 
 
 def lut_for(dtype) -> tuple[np.ndarray, float]:
