@@ -300,8 +300,7 @@ def cmd_hash_key(args) -> None:
     out of the shell history), or for a new random key (``--new``, shown on stderr once)."""
     import secrets
 
-    from service.settings import TenantKey
-    from service.tenants import key_digest
+    from service.settings import TenantKey, key_digest  # not service.tenants: the API's imports
 
     key = secrets.token_urlsafe(32) if args.new else sys.stdin.readline().rstrip("\r\n")
     if not key:
