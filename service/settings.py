@@ -6,6 +6,7 @@ Every field can be set as ``OTGEO_<NAME>`` (e.g. ``OTGEO_DATA_DIR=/srv/otgeo``,
 
 from __future__ import annotations
 
+import hashlib
 import os
 from pathlib import Path
 from typing import Annotated, Literal
@@ -14,6 +15,12 @@ from pydantic import BaseModel, Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 TENANT_NAME = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
+
+
+def key_digest(key: str) -> str:
+    """The SHA-256 (hex) under which a key is stored (``otgeo hash-key`` prints it; here,
+    beside ``TenantKey``, so that the command imports no more than these two)."""
+    return hashlib.sha256(key.encode("utf-8")).hexdigest()
 
 
 class TenantKey(BaseModel):

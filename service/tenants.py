@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from service.errors import ApiError
+from service.settings import key_digest
 
 log = logging.getLogger("otgeo.tenants")
 
@@ -47,11 +48,6 @@ class QuotaExceeded(ApiError):
         super().__init__(message, field=field)
         self.retry_after = retry_after
         self.headers = {"Retry-After": str(retry_after)}
-
-
-def key_digest(key: str) -> str:
-    """The SHA-256 (hex) under which a key is stored (``otgeo hash-key`` prints it)."""
-    return hashlib.sha256(key.encode("utf-8")).hexdigest()
 
 
 def legacy_tenant_name(key: str) -> str:

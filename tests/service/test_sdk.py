@@ -14,7 +14,12 @@ Driven by the document, so operations added later are covered without editing th
   fill, or was not called.
 
 The client is generated from ``openapi_document()`` (what ``otgeo openapi`` writes and
-tests/service/test_openapi.py compares with the checked-in openapi/openapi.json)."""
+tests/service/test_openapi.py compares with the checked-in openapi/openapi.json).
+
+The documentation's examples of a keyed server (tests/doc_examples.py ``KEYED``: the
+generated client of docs/getting_started.rst) run here too, against this server with its key
+in ``OTGEO_API_KEY``, as tests/service/test_readme_examples.py runs the others against an
+open one (a keyed server there would be a second server start for one example)."""
 
 from __future__ import annotations
 
@@ -32,6 +37,7 @@ from types import UnionType
 
 import numpy as np
 import pytest
+from doc_examples import KEYED, checkout, documents, environment, extract, matching
 from example_inputs import png_images, schema_example, sphere_obj, substitute_ids
 from liveserver import API
 from spec_refs import referenced
@@ -378,3 +384,20 @@ def test_every_operation_through_the_generated_client(sdk, server, doc):
 
     not_called = sorted(set(spec.ops) - set(calls.statuses))
     assert not_called == [], f"operations of the document never called: {not_called}"
+
+
+KEYED_EXAMPLES = [e for doc in documents() for e in extract(doc)
+                  if e.runnable and matching(KEYED, e) is not None]
+
+
+@pytest.mark.parametrize("example", KEYED_EXAMPLES, ids=[e.id for e in KEYED_EXAMPLES])
+def test_documented_keyed_example(example, server, tmp_path):
+    """Runs as tests/service/test_readme_examples.py runs an example (a scratch checkout,
+    ``bash -e -o pipefail`` or this interpreter, exit status 0), with the key."""
+    assert example.language in ("shell", "python"), example.id
+    argv = [sys.executable, "-c", example.code] if example.language == "python" else \
+        ["bash", "-e", "-o", "pipefail", "-c", example.code]
+    out = subprocess.run(argv, cwd=checkout(tmp_path), env=environment(server.url, API_KEY),
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, f"{example.id} exited {out.returncode}:\n" \
+                                f"{out.stdout[-2000:]}\n{out.stderr[-3000:]}\n{server.log()}"
