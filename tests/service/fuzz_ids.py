@@ -55,8 +55,9 @@ def with_mesh_ids(body, mesh_ids: list[str], salt: int = 0):
     ``target_id``, the items of ``shapes``, in nested objects too: ``maps[i].source_id``)
     replaced by one of ``mesh_ids`` (chosen by position and ``salt``). A malformed value
     stays, so a case generated to break the schema still breaks it."""
-    if isinstance(body, list):
-        return [with_mesh_ids(v, mesh_ids, salt + i) for i, v in enumerate(body)]
+    if isinstance(body, list):  # scalars as they are: no call per number of a mesh's array
+        return [with_mesh_ids(v, mesh_ids, salt + i) if isinstance(v, (dict, list)) else v
+                for i, v in enumerate(body)]
     if not isinstance(body, dict):
         return body
     out = {}

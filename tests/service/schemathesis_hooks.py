@@ -15,11 +15,14 @@
   phase's boundary values, 20 s of shape interpolations and 9 s of volumetric distances
   of 42 s in a seed-7 run), and ahead of the jobs later requests ``wait`` for. A job that
   finishes within its request's ``wait`` is answered in full (200) and left alone.
+- The failed checks (``OTGEO_FUZZ_REPORT``): a report handler writes the failed cases of each
+  scenario (their checks, requests and responses) instead of st's full NDJSON report.
 """
 
 from __future__ import annotations
 
 import itertools
+import json
 import os
 import re
 import sys
@@ -39,7 +42,18 @@ SEGMENT = re.compile(PATH_SEGMENT)
 JOB_ID = re.compile(r"^[0-9a-f]{32}$")
 UNFINISHED = ("queued", "running")
 CANCELS = os.environ.get("OTGEO_FUZZ_CANCELS")  # a file: one line per cancel, its status
+REPORT = os.environ.get("OTGEO_FUZZ_REPORT")  # a file: the NDJSON report of failed scenarios
 _requests = itertools.count()
+_client: httpx.Client | None = None  # the cancels' one connection pool (and SSL context)
+
+
+def _cancel_client() -> httpx.Client:
+    # one client for every cancel: httpx.delete() builds a client per call, its SSL context
+    # loading the CA bundle each time (~20 ms CPU; 3-4 CPU-s of st's ~25 in the open run)
+    global _client
+    if _client is None:
+        _client = httpx.Client(timeout=30)
+    return _client
 
 
 @schemathesis.hook
@@ -83,8 +97,43 @@ def after_call(context, case, response):
         return
     url = httpx.URL(response.request.url)
     key = {k: v for k, v in response.request.headers.items() if k.lower() == "x-api-key"}
-    r = httpx.delete(f"{url.scheme}://{url.netloc.decode()}/v1/jobs/{job['id']}", headers=key,
-                     timeout=30)
+    r = _cancel_client().delete(f"{url.scheme}://{url.netloc.decode()}/v1/jobs/{job['id']}",
+                                headers=key)
     if CANCELS:  # the test reads the statuses: 200, or 409 for a job finished meanwhile
         with open(CANCELS, "a") as fh:
             fh.write(f"{r.status_code}\n")
+
+
+if REPORT:
+    from schemathesis import cli
+    from schemathesis.engine import Status, events
+    from schemathesis.reporting.ndjson import serialize
+
+    @cli.handler()
+    class FailedChecks(cli.EventHandler):
+        """The failed checks of the run, one NDJSON line per scenario with some: the
+        ``ScenarioFinished`` lines of st's NDJSON report (``--report ndjson``, the same
+        serializer), each with only its failed cases' checks and interactions. The test reads
+        nothing else; the full report serialized every recorded interaction (~8 MB, ~3 CPU-s
+        of st's ~25 in the open run)."""
+
+        def __init__(self, *args, **params):
+            self.stream = open(REPORT, "w", encoding="utf-8")  # noqa: SIM115 - shutdown
+
+        def handle_event(self, ctx, event):
+            if not isinstance(event, events.ScenarioFinished):
+                return
+            recorder = event.recorder
+            failed = {case_id: checks for case_id, checks in recorder.checks.items()
+                      if any(check.status == Status.FAILURE for check in checks)}
+            if not failed:
+                return
+            sanitization = ctx.config.output.sanitization
+            kept = {"checks": failed, "interactions": {
+                case_id: recorder.interactions[case_id] for case_id in failed
+                if case_id in recorder.interactions}}
+            line = serialize(kept, sanitization=sanitization if sanitization.enabled else None)
+            self.stream.write(json.dumps({"ScenarioFinished": {"recorder": line}}) + "\n")
+
+        def shutdown(self, ctx):
+            self.stream.close()

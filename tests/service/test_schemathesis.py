@@ -6,7 +6,8 @@ one finished job with files and 2-D arrays; a generated ``schemathesis.toml`` po
 operation's path parameters at them (a domain of a kind the operation supports), and
 schemathesis_hooks.py puts the stored meshes in the bodies of the global operations, gives
 each request its own ``Idempotency-Key``, so cases reach validation and the solvers, and
-cancels the jobs the requests leave unfinished (no check sees their runs). The run is
+cancels the jobs the requests leave unfinished (no check sees their runs), and writes the
+failed checks (with their requests and responses) for the test to read. The run is
 bounded (``EXAMPLES`` cases per operation and phase, two seeds: one without keys, one with;
 the seed-independent phases only in the first) to a couple of minutes on two cores. Every
 failure must match an entry of ``ALLOWED``, each named: ``DOMAIN_BOUNDS``, the bounds of the
@@ -45,6 +46,12 @@ from fuzz_ids import QUICK_BRDF, domain_bodies  # noqa: E402
 from liveserver import API  # noqa: E402
 
 HOOKS = Path(__file__).resolve().parent / "schemathesis_hooks.py"
+# st's hypothesis keeps its Unicode tables (utf-8's encodable characters: ~1.4 CPU-s to build)
+# and the source constants it mines from the imported service modules in a storage directory,
+# by default .hypothesis in its working directory, a fresh tmp_path per run: st gets the
+# checkout's, as the suite's in-process hypothesis has (same tables, same constants; the
+# examples database stays in the run's directory, see _config)
+HYPOTHESIS_STORAGE = Path(__file__).resolve().parents[2] / ".hypothesis"
 
 ST = Path(sys.executable).parent / "st"
 EXAMPLES = 25  # per operation and phase
@@ -191,16 +198,15 @@ def _job_with_files(url: str, headers: dict) -> tuple[str, str]:
     raise TimeoutError("the BRDF job did not finish")
 
 
-def _config(domains: dict[str, str], job_id: str, file_name: str) -> str:
-    """schemathesis.toml: each operation's path parameters point at existing data."""
+def _config(domains: dict[str, str], job_id: str, file_name: str, work: Path) -> str:
+    """schemathesis.toml: each operation's path parameters point at existing data; the
+    examples database in ``work`` (empty at the start, as before the shared storage)."""
     from service.operations import build_registry
 
-    sections = []
+    paths: dict[tuple, list[str]] = {}  # the paths of each set of parameter values
 
     def operation(path: str, **params) -> None:
-        values = ", ".join(f"{k} = {json.dumps(v)}" for k, v in params.items())
-        sections.append(f'[[operations]]\ninclude-path = "{path}"\n'
-                        f"parameters = {{ {values} }}\n")
+        paths.setdefault(tuple(params.items()), []).append(path)
 
     for op in build_registry().values():
         if op.scope == "domain":
@@ -216,6 +222,13 @@ def _config(domains: dict[str, str], job_id: str, file_name: str) -> str:
     for path in ("/v1/jobs/{job_id}/arrays/{name}.npy",
                  "/v1/jobs/{job_id}/arrays/{name}/rows/{row}"):
         operation(path, job_id=job_id, name=ARRAY)
+    # one section per set of values, listing its paths: st matches every section's filters
+    # against an operation at each of its many config lookups (1-2 CPU-s of st at ~35)
+    sections = [f"[generation]\ndatabase = {json.dumps(str(work / 'examples-db'))}\n"]
+    for params, group in paths.items():
+        values = ", ".join(f"{k} = {json.dumps(v)}" for k, v in params)
+        sections.append(f"[[operations]]\ninclude-path = {json.dumps(group)}\n"
+                        f"parameters = {{ {values} }}\n")
     return "\n".join(sections)
 
 
@@ -239,27 +252,30 @@ def run_schemathesis(work: Path, examples: int, seed: int = SEED, key: str | Non
         domains = _domains(api.url, headers)
         job_id, file_name = _job_with_files(api.url, headers)
         config = work / "schemathesis.toml"
-        config.write_text(_config(domains, job_id, file_name))
-        report = work / "report"
+        config.write_text(_config(domains, job_id, file_name, work))
+        report = work / "failed.ndjson"  # schemathesis_hooks.FailedChecks
         cmd = [str(ST), "--config-file", str(config), "run", f"{api.url}/openapi.json",
                "--checks", "all", "--seed", str(seed), "--max-examples", str(examples),
-               "--workers", "1", "--no-shrink", "--report", "ndjson", "--report-dir", str(report),
+               "--workers", "1", "--no-shrink",
                *[a for p in SKIP_PATHS for a in ("--exclude-path", p)],
                *[a for k, v in headers.items() for a in ("--header", f"{k}: {v}")],
                *(["--phases", phases] if phases else [])]
         hooks = {"SCHEMATHESIS_HOOKS": str(HOOKS),
                  "OTGEO_FUZZ_MESHES": f"{domains['mesh']},{domains['box']}",
-                 "OTGEO_FUZZ_CANCELS": str(work / "cancels.txt")}
+                 "OTGEO_FUZZ_CANCELS": str(work / "cancels.txt"), "OTGEO_FUZZ_REPORT": str(report),
+                 "HYPOTHESIS_STORAGE_DIRECTORY": str(HYPOTHESIS_STORAGE)}
         proc = subprocess.run(cmd, cwd=work, capture_output=True, text=True, timeout=900,
                               env=dict(os.environ, **hooks))
-        events = next(report.glob("*.ndjson"))
-        return failures(events), proc.stdout[-3000:]
+        assert report.exists(), proc.stdout[-3000:] + proc.stderr[-3000:]
+        return failures(report), proc.stdout[-3000:]
     finally:
         api.stop()
 
 
 def failures(ndjson: Path) -> list[dict]:
-    """Every failed check of a run: check, operation, status, error message, request."""
+    """Every failed check of a run: check, operation, status, error message, request. Reads
+    the ``ScenarioFinished`` lines of an NDJSON report (st's ``--report ndjson``, or the
+    failed cases only: schemathesis_hooks.FailedChecks)."""
     out = []
     for line in ndjson.read_text().splitlines():
         event = json.loads(line).get("ScenarioFinished")
