@@ -131,8 +131,9 @@ def error_dict(exc: BaseException) -> dict:
 
 def _is_union_tag(part) -> bool:
     """A pydantic union member in an error location ('list[float]', 'BumpDistribution',
-    'tuple[int, int]', 'function-after[...]'), not a field name."""
-    return isinstance(part, str) and ("[" in part or part[:1].isupper())
+    'tuple[int, int]', 'function-after[...]', 'constrained-float'), not a field name."""
+    return isinstance(part, str) and ("[" in part or part[:1].isupper()
+                                      or part.startswith("constrained-"))
 
 
 def most_relevant_error(errors: list[dict]) -> dict:

@@ -43,6 +43,10 @@ from solvers.validation import GAMMA_MIN, gamma_max
 
 MAX_COLUMNS_X_POINTS = 4_000_000  # barycenter columns x hemisphere points of one job
 MAX_HEMISPHERE_POINTS = 4096  # dense kernel: 128 MB
+# Below every allowed hemisphere grid's point-mass entropy (log of its smallest cell's area
+# weight; the lowest, -12.27, on 64 x 64 cells): no entropy bound under it is reachable on
+# any grid, so the spec states it; the grid's own bound depends on n_theta and n_phi
+ENTROPY_BOUND_MIN = -12.5
 MAX_SKELETON_NODES = 10_000
 
 
@@ -102,9 +106,10 @@ class BRDFInterpolationRequest(OperationRequest):
     gamma: float | None = Field(None, ge=GAMMA_MIN, le=gamma_max(HEMISPHERE_EXTENT),
                                 description="regularization (unit hemisphere area); default "
                                 "(2 h)^2, h the polar cell size")
-    entropy_bound: float | Literal["inputs"] | None = Field(
-        None, description="Alg. 3: a bound H0, or 'inputs' (the largest input entropy of "
-        "each incoming direction); null: plain barycenters")
+    entropy_bound: Annotated[float, Field(ge=ENTROPY_BOUND_MIN)] | Literal["inputs"] | None = \
+        Field(None, description="Alg. 3: a bound H0, or 'inputs' (the largest input entropy "
+              "of each incoming direction); null: plain barycenters. At least the entropy of "
+              "a point mass on the requested grid (log of its smallest cell's area weight)")
     tol: float = Field(1e-4, gt=0, lt=1, description="largest L1 marginal violation")
     max_iter: Int = Field(500, ge=1, le=20_000)
     size: Int = Field(96, ge=16, le=256, description="pixels per sphere")

@@ -49,6 +49,8 @@ def test_brdf_interpolation_job_slices_and_png(client):
     ({"weights": [[1, 0]] * 3 + [[1e308, 1e308]]}, "weights[3]"),  # the sum overflows
     ({"light": [0, 0, 0]}, "light"),
     ({"gamma": 1e3}, "gamma"),
+    ({"entropy_bound": -4.8e16}, "entropy_bound"),  # below the spec's bound
+    ({"entropy_bound": -12.0}, "entropy_bound"),  # above it, below this grid's point mass
 ])
 def test_brdf_interpolation_refuses_bad_input(client, change, field):
     r = client.post("/v1/brdf-interpolations", json={**BRDF, **change})
@@ -58,6 +60,19 @@ def test_brdf_interpolation_refuses_bad_input(client, change, field):
 def test_brdf_interpolation_refuses_oversized_grids(client):
     r = client.post("/v1/brdf-interpolations", json={**BRDF, "n_theta": 64, "n_phi": 128})
     assert_error(r, 413, "n_phi")
+
+
+def test_the_specs_entropy_bound_is_below_every_allowed_grids_point_mass():
+    """The spec's ``minimum`` of ``entropy_bound`` refuses only bounds no grid can reach:
+    every grid the service accepts (n_theta * n_phi up to MAX_HEMISPHERE_POINTS, the
+    finest for each n_theta, either kernel) has its point-mass entropy above it."""
+    from service.operations.applications import ENTROPY_BOUND_MIN, MAX_HEMISPHERE_POINTS
+    from solvers.convolutional.hemisphere import HemisphereGrid
+
+    lowest = min(float(np.log(HemisphereGrid(nt, min(256, MAX_HEMISPHERE_POINTS // nt),
+                                             method=m).areas.min()))
+                 for nt in range(4, 65) for m in ("separable", "geodesic"))
+    assert ENTROPY_BOUND_MIN <= lowest < ENTROPY_BOUND_MIN + 0.5
 
 
 @pytest.fixture

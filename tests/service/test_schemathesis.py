@@ -158,6 +158,10 @@ UNSTATABLE = [
             r"mesh format|[A-Z]+ file is binary data|not a valid|could not be read"
             r"|could not (read|parse) the [A-Z]+ file|the uploaded file is empty"
             r"|no triangles|non-degenerate faces|is not an image file|must be a JSON list"),
+    Allowed("an entropy bound above a point mass's on the request's own hemisphere grid "
+            "(n_theta x n_phi cells; the spec states the bound of the finest grid)",
+            r"POST /v1/brdf-interpolations", 422,
+            r"the entropy of a point mass on this domain"),
     Allowed("a direction of non-zero length (a 3-vector whose norm, not its entries, is "
             "bounded below; JSON Schema bounds entries only)", r"POST /v1/brdf-interpolations",
             422, r"light must be a non-zero direction"),
