@@ -39,7 +39,7 @@ from solvers.convolutional.propagation import wasserstein_propagation
 from solvers.emd.volumetric import mean_value_coordinates, winding_number
 from solvers.errors import InputError
 from solvers.monitor import SolverResult
-from solvers.validation import check_anchored, check_edges, check_int
+from solvers.validation import check_anchored, check_choice, check_edges, check_int
 
 INSIDE = 0.5  # winding number above which a point counts as inside
 # Default gamma = (DEFAULT_GAMMA_EDGES * mean edge length)^2 (measured on spot's legs and a
@@ -226,8 +226,7 @@ def skeleton_layout(
     -------
     SkeletonLayoutResult
     """
-    if units not in ("mesh", "input"):
-        raise InputError(f"units must be 'mesh' or 'input', got {units!r}", field="units")
+    check_choice(units, ("mesh", "input"), "units")
     n_nodes, e, nodes, pos = check_skeleton(n_nodes, edges, fixed)
     scale = mesh.length_scale if units == "input" else 1.0
     pos = pos / scale

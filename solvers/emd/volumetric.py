@@ -34,6 +34,7 @@ from solvers.emd.beckmann import earth_movers_distance
 from solvers.emd.exact import MAX_VERTICES, kantorovich_rubinstein_norm
 from solvers.errors import InputError, UnsupportedDomainError
 from solvers.monitor import Monitor, SolverResult
+from solvers.validation import check_choice
 
 # Points closer than this (relative to the mean edge length) to a vertex or to the
 # plane of a face they lie in are treated as on the surface.
@@ -116,8 +117,7 @@ def _check_closed_mesh(mesh) -> None:
 
 
 def _points(mesh: TriangleMesh, points, units: str) -> np.ndarray:
-    if units not in ("mesh", "input"):
-        raise InputError(f"units must be 'mesh' or 'input', got {units!r}", field="units")
+    check_choice(units, ("mesh", "input"), "units")
     try:
         x = np.asarray(points, dtype=np.float64)
     except (TypeError, ValueError) as exc:

@@ -44,6 +44,7 @@ from solvers.histograms.graphs import as_graph
 from solvers.monitor import Monitor, SolverResult
 from solvers.validation import (
     check_anchored_components,
+    check_choice,
     check_edge_weights,
     check_node_indices,
     check_positive,
@@ -497,13 +498,9 @@ def propagate_circular(graph: Graph, labeled, histograms, *, bins,
     if C.shape != (b.count, b.count) or not np.all(np.isfinite(C)) or np.any(C < 0):
         raise InputError(f"cost must be a finite non-negative ({b.count}, {b.count}) matrix",
                          field="cost")
-    if method not in ("lp", "entropic"):
-        raise InputError(f"method must be 'lp' or 'entropic', got {method!r}",
-                         field="method")
+    check_choice(method, ("lp", "entropic"), "method")
     monitor = Monitor(progress, should_cancel)
-    if lp_method not in ("auto", "hybrid", "simplex"):
-        raise InputError(f"lp_method must be 'auto', 'hybrid' or 'simplex', got {lp_method!r}",
-                         field="lp_method")
+    check_choice(lp_method, ("auto", "hybrid", "simplex"), "lp_method")
     if method == "lp":
         return _propagate_lp(n, edges, w, nodes, h, C, monitor, time_limit=time_limit,
                              lp_method=lp_method, ipm_iterations=ipm_iterations)

@@ -29,7 +29,7 @@ from solvers.histograms.quantiles import (
 )
 from solvers.kernels import ImplicitEulerHeatKernel
 from solvers.monitor import Monitor, SolverResult
-from solvers.validation import check_int, check_positive
+from solvers.validation import check_choice, check_int, check_positive
 
 
 @dataclass(kw_only=True)
@@ -111,8 +111,7 @@ def diffuse_histograms(graph, histograms, times, *, bins, method: Literal["wasse
         ``histograms`` ``(T, n, B)``; ``residual`` the largest row-sum error (mass
         conservation, measured).
     """
-    if method not in ("wasserstein", "pdf"):
-        raise InputError(f"method must be 'wasserstein' or 'pdf', got {method!r}", field="method")
+    check_choice(method, ("wasserstein", "pdf"), "method")
     b = make_bins(bins)
     if b.periodic:
         raise InputError("Wasserstein diffusion is defined here on Prob(R); periodic bins are "

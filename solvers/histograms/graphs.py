@@ -25,7 +25,7 @@ from solvers.domains import Graph
 from solvers.domains.base import Domain, check_laplacian_name
 from solvers.domains.graph import domain_graph, graph_of_laplacian
 from solvers.errors import InputError
-from solvers.validation import check_int
+from solvers.validation import check_choice, check_int
 
 LaplacianKind = Literal["auto", "robust", "cotan"]
 
@@ -136,9 +136,7 @@ def knn_graph(points, k: int = 8, *, weights: Literal["uniform", "gaussian"] = "
     if p.ndim != 2 or len(p) < 2 or not np.all(np.isfinite(p)):
         raise InputError("points must be a finite (n, d) array with n >= 2", field="points")
     k = check_int(k, "k", low=1, high=len(p) - 1)
-    if weights not in ("uniform", "gaussian"):
-        raise InputError(f"weights must be 'uniform' or 'gaussian', got {weights!r}",
-                         field="weights")
+    check_choice(weights, ("uniform", "gaussian"), "weights")
     dist, idx = cKDTree(p).query(p, k=k + 1)
     rows = np.repeat(np.arange(len(p)), k)
     cols = idx[:, 1:].ravel()

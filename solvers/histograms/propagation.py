@@ -37,6 +37,7 @@ from solvers.histograms.quantiles import (
     sort_rows,
 )
 from solvers.monitor import SolverResult
+from solvers.validation import check_choice
 
 Method = Literal["wasserstein", "pdf"]
 
@@ -234,8 +235,7 @@ def propagate_histograms(graph, labeled, histograms=None, *, bins=None, samples=
     >>> result.histograms[1].round(2)  # the middle node: the mass met half way
     array([0. , 0.5, 0.5, 0. ])
     """
-    if method not in ("wasserstein", "pdf"):
-        raise InputError(f"method must be 'wasserstein' or 'pdf', got {method!r}", field="method")
+    check_choice(method, ("wasserstein", "pdf"), "method")
     b = None if bins is None else make_bins(bins)
     if b is not None and b.periodic and method == "wasserstein":
         raise InputError("periodic bins live on the circle: use "
