@@ -41,11 +41,17 @@ def test_service_packages_are_an_extra_not_core_dependencies():
     assert not in_core, f"service packages among the core dependencies: {in_core}"
 
 
+def run_without(blocked, code: str, timeout: float) -> subprocess.CompletedProcess:
+    """``code`` in a new interpreter in which the modules ``blocked`` cannot be imported
+    (``sys.modules[name] = None``: ``import name`` raises ModuleNotFoundError)."""
+    preamble = f"import sys\nfor name in {sorted(blocked)!r}:\n    sys.modules[name] = None\n"
+    return subprocess.run([sys.executable, "-c", preamble + code], capture_output=True,
+                          text=True, cwd=ROOT, timeout=timeout)
+
+
 # Every module under solvers/ imported with the service's packages made unimportable
 IMPORT_ALL_SOLVERS = """
-import importlib, pkgutil, sys
-for name in {blocked!r}:
-    sys.modules[name] = None  # `import name` now raises ModuleNotFoundError
+import importlib, pkgutil
 import solvers
 names = [m.name for m in pkgutil.walk_packages(solvers.__path__, "solvers.")]
 for name in names:
@@ -55,18 +61,14 @@ print(len(names))
 
 
 def test_every_solvers_module_imports_without_the_service_packages():
-    code = IMPORT_ALL_SOLVERS.format(blocked=sorted(SERVICE_PACKAGES))
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          cwd=ROOT, timeout=300)
+    done = run_without(SERVICE_PACKAGES, IMPORT_ALL_SOLVERS, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
     assert int(done.stdout) > 20  # the walk found the library's modules
 
 
 def test_otgeo_serve_without_the_service_extra_says_what_to_install():
-    code = (f"import sys\nfor m in {sorted(SERVICE_PACKAGES)!r}: sys.modules[m] = None\n"
-            "from service.cli import main\nmain(['serve', '--port', '1'])\n")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          cwd=ROOT, timeout=120)
+    done = run_without(SERVICE_PACKAGES, "from service.cli import main\n"
+                       "main(['serve', '--port', '1'])\n", timeout=120)
     assert done.returncode == 2, done.stderr[-3000:]
     assert "pip install 'otgeo[service]'" in done.stderr
     assert "Traceback" not in done.stderr
@@ -77,9 +79,6 @@ WEB_PACKAGES = ("fastapi", "fastapi_offline", "starlette", "uvicorn", "multipart
 # What a worker process imports before it takes a job (service.cli.run_worker), and every
 # operation it may run: none of it is web code, so a worker does not pay for FastAPI's import
 IMPORT_WORKER = """
-import sys
-for name in {blocked!r}:
-    sys.modules[name] = None
 from service.jobs.consumer import Consumer
 from service.runtime import Runtime
 from service import warm
@@ -89,8 +88,6 @@ print(len(build_registry()))
 
 
 def test_a_worker_imports_no_web_framework():
-    code = IMPORT_WORKER.format(blocked=WEB_PACKAGES)
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          cwd=ROOT, timeout=120)
+    done = run_without(WEB_PACKAGES, IMPORT_WORKER, timeout=120)
     assert done.returncode == 0, done.stderr[-3000:]
     assert int(done.stdout) > 10  # the registry's operations were all imported
